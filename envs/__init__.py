@@ -1,0 +1,37 @@
+"""rl_jax environments: a functional JAX env API, wrappers, and the registered envs.
+
+``import envs`` also registers every id with gymnasium (``gymnasium.make`` and
+``gymnasium.make_vec(..., vectorization_mode="vector_entry_point")``).
+"""
+
+from envs.core import EnvParams, EnvState, Environment, TimeStep
+from envs.registry import UnknownEnvError, make, register, registered_ids
+from envs.spaces import Box, Discrete, Space
+from envs.wrappers import (
+    AutoReset,
+    DiscretizeActions,
+    EpisodeStatistics,
+    FlattenObservation,
+    RescaleAction,
+    Wrapper,
+)
+
+__all__ = [
+    "AutoReset",
+    "Box",
+    "Discrete",
+    "DiscretizeActions",
+    "EnvParams",
+    "EnvState",
+    "Environment",
+    "EpisodeStatistics",
+    "FlattenObservation",
+    "RescaleAction",
+    "Space",
+    "TimeStep",
+    "UnknownEnvError",
+    "Wrapper",
+    "make",
+    "register",
+    "registered_ids",
+]

@@ -1,0 +1,107 @@
+"""Box and Discrete spaces: static shapes and bounds, jax sampling, gymnasium conversion."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+
+class Space:
+    shape: tuple[int, ...]
+    dtype: np.dtype
+
+    def sample(self, key: jax.Array) -> jax.Array:
+        raise NotImplementedError
+
+    def contains(self, x: jax.Array) -> jax.Array:
+        raise NotImplementedError
+
+    def to_gymnasium(self):
+        raise NotImplementedError
+
+
+@dataclass(frozen=True, eq=False)
+class Box(Space):
+    """A box ``low <= x <= high``. ``low``/``high`` are numpy arrays of ``shape`` (static)."""
+
+    low: np.ndarray
+    high: np.ndarray
+    shape: tuple[int, ...] = ()
+    dtype: np.dtype = field(default_factory=lambda: np.dtype(np.float32))
+
+    def __post_init__(self) -> None:
+        shape = tuple(self.shape) or np.broadcast(np.asarray(self.low), np.asarray(self.high)).shape
+        low = np.broadcast_to(np.asarray(self.low, self.dtype), shape).copy()
+        high = np.broadcast_to(np.asarray(self.high, self.dtype), shape).copy()
+        if np.any(low > high):
+            raise ValueError(f"Box low must be <= high, got {low} and {high}")
+        object.__setattr__(self, "shape", shape)
+        object.__setattr__(self, "low", low)
+        object.__setattr__(self, "high", high)
+
+    @property
+    def bounded(self) -> bool:
+        return bool(np.all(np.isfinite(self.low)) and np.all(np.isfinite(self.high)))
+
+    def sample(self, key: jax.Array) -> jax.Array:
+        """Uniform on a bounded box; standard normal clipped to the box otherwise."""
+        if self.bounded:
+            return jax.random.uniform(
+                key, self.shape, self.dtype, jnp.asarray(self.low), jnp.asarray(self.high)
+            )
+        x = jax.random.normal(key, self.shape, self.dtype)
+        return jnp.clip(x, self.low, self.high)
+
+    def contains(self, x: jax.Array) -> jax.Array:
+        x = jnp.asarray(x)
+        return jnp.logical_and(
+            x.shape == self.shape, jnp.all((x >= self.low) & (x <= self.high))
+        )
+
+    def to_gymnasium(self):
+        import gymnasium
+
+        return gymnasium.spaces.Box(self.low, self.high, self.shape, self.dtype)
+
+    def __eq__(self, other: object) -> bool:
+        return (
+            isinstance(other, Box)
+            and self.shape == other.shape
+            and self.dtype == other.dtype
+            and np.array_equal(self.low, other.low)
+            and np.array_equal(self.high, other.high)
+        )
+
+    def __hash__(self) -> int:
+        return hash((self.shape, str(self.dtype), self.low.tobytes(), self.high.tobytes()))
+
+    def __repr__(self) -> str:
+        return f"Box({self.low.min()}, {self.high.max()}, {self.shape}, {self.dtype})"
+
+
+@dataclass(frozen=True)
+class Discrete(Space):
+    """Integers ``0 .. n - 1``."""
+
+    n: int
+    shape: tuple[int, ...] = ()
+    dtype: np.dtype = field(default_factory=lambda: np.dtype(np.int32))
+
+    def __post_init__(self) -> None:
+        if self.n < 1:
+            raise ValueError(f"Discrete needs n >= 1, got {self.n}")
+
+    def sample(self, key: jax.Array) -> jax.Array:
+        return jax.random.randint(key, self.shape, 0, self.n, self.dtype)
+
+    def contains(self, x: jax.Array) -> jax.Array:
+        x = jnp.asarray(x)
+        return jnp.logical_and(x.shape == self.shape, jnp.all((x >= 0) & (x < self.n)))
+
+    def to_gymnasium(self):
+        import gymnasium
+
+        return gymnasium.spaces.Discrete(self.n)

@@ -1,0 +1,36 @@
+"""Process-wide JAX settings that must be made before JAX's first operation.
+
+Call ``configure()`` at the top of a script (experiments and tests do), before anything creates
+an array: the persistent compilation cache and the number of host CPU devices are fixed once the
+backend starts.
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+DEFAULT_CACHE_DIR = Path(os.environ.get("XDG_CACHE_HOME", Path.home() / ".cache")) / "rl_jax" / "jax"
+
+
+def configure(cpu_devices: int | None = None, cache_dir: str | os.PathLike | None = None) -> None:
+    """Turn on the persistent compilation cache and, optionally, split the CPU into devices.
+
+    ``cpu_devices`` > 1 exposes that many host devices so seeds can be sharded over cores.
+    ``JAX_COMPILATION_CACHE_DIR`` in the environment wins over ``cache_dir``; set it to an empty
+    string to disable the cache.
+    """
+    if cpu_devices is not None and cpu_devices > 1:
+        flags = os.environ.get("XLA_FLAGS", "")
+        if "xla_force_host_platform_device_count" not in flags:
+            flag = f"--xla_force_host_platform_device_count={cpu_devices}"
+            os.environ["XLA_FLAGS"] = f"{flags} {flag}".strip()
+    import jax
+
+    directory = os.environ.get("JAX_COMPILATION_CACHE_DIR", cache_dir or str(DEFAULT_CACHE_DIR))
+    if directory:
+        Path(directory).mkdir(parents=True, exist_ok=True)
+        jax.config.update("jax_compilation_cache_dir", str(directory))
+        # Cache everything that took noticeable time to compile; tiny programs are not worth it.
+        jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.5)
+        jax.config.update("jax_persistent_cache_min_entry_size_bytes", 0)
