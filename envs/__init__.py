@@ -4,7 +4,7 @@
 ``gymnasium.make_vec(..., vectorization_mode="vector_entry_point")``).
 """
 
-from envs.core import EnvParams, EnvState, Environment, TimeStep
+from envs.core import Environment, EnvParams, EnvState, TimeStep
 from envs.registry import UnknownEnvError, make, register, registered_ids
 from envs.spaces import Box, Discrete, Space
 from envs.wrappers import (

@@ -87,7 +87,9 @@ class Environment(Generic[StateT, ParamsT]):
         raise NotImplementedError
 
     # ---- optional -----------------------------------------------------------------------------
-    def state_from_vector(self, vector: Array, params: ParamsT | None = None) -> tuple[StateT, Array]:
+    def state_from_vector(
+        self, vector: Array, params: ParamsT | None = None
+    ) -> tuple[StateT, Array]:
         """Build an exact start state, as gymnasium's ``reset(options={"state": ...})``.
 
         Returns ``(state, obs)``. Envs that support exact starts override this.

@@ -57,9 +57,7 @@ class Box(Space):
 
     def contains(self, x: jax.Array) -> jax.Array:
         x = jnp.asarray(x)
-        return jnp.logical_and(
-            x.shape == self.shape, jnp.all((x >= self.low) & (x <= self.high))
-        )
+        return jnp.logical_and(x.shape == self.shape, jnp.all((x >= self.low) & (x <= self.high)))
 
     def to_gymnasium(self):
         import gymnasium

@@ -13,7 +13,7 @@ import jax.numpy as jnp
 import numpy as np
 from flax import struct
 
-from envs.core import Array, Environment, PRNGKey, TimeStep
+from envs.core import Array, Environment, TimeStep
 from envs.spaces import Box, Discrete, Space
 
 

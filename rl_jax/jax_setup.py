@@ -10,7 +10,9 @@ from __future__ import annotations
 import os
 from pathlib import Path
 
-DEFAULT_CACHE_DIR = Path(os.environ.get("XDG_CACHE_HOME", Path.home() / ".cache")) / "rl_jax" / "jax"
+DEFAULT_CACHE_DIR = (
+    Path(os.environ.get("XDG_CACHE_HOME", Path.home() / ".cache")) / "rl_jax" / "jax"
+)
 
 
 def configure(cpu_devices: int | None = None, cache_dir: str | os.PathLike | None = None) -> None:

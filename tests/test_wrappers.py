@@ -7,7 +7,7 @@ import pytest
 from flax import struct
 
 import envs
-from envs.core import EnvParams, EnvState, Environment
+from envs.core import Environment, EnvParams, EnvState
 
 
 @struct.dataclass
@@ -45,7 +45,8 @@ class Counter(Environment):
         return envs.Box(-2.0, 2.0, (1,))
 
 
-def rollout(env, actions, key=jax.random.PRNGKey(0)):
+def rollout(env, actions, seed=0):
+    key = jax.random.PRNGKey(seed)
     state, ts = env.reset(key)
     out = []
     for i, action in enumerate(actions):
