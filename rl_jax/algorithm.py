@@ -1,0 +1,58 @@
+"""The interface every learner (TD3, DDPG, DQN, REINFORCE) offers to the run machinery.
+
+Two kinds of settings, kept apart on purpose (the Rejax split):
+
+* ``Config`` — a frozen dataclass of *static* settings: shapes, loop counts, network widths,
+  buffer capacity, number of envs. Changing one recompiles. JSON-serialisable.
+* ``Hyperparams`` — a ``flax.struct`` dataclass whose leaves are float/int *arrays*: learning
+  rates, tau, gamma, noise scales, epsilon schedule. Stacking several along a leading axis and
+  ``jax.vmap``-ing over them is a sweep inside one compiled program.
+
+Everything a run needs to continue lives in the ``TrainState`` pytree (params, targets, optimizer
+state, replay buffer, env state, last obs, PRNG key, counters), so a checkpoint of it is a resume.
+
+The run machinery (experiments, sweeps, checkpoints, progress) only calls what is below; the
+outermost ``jit`` and the seed/hyperparameter ``vmap`` are applied by ``rl_jax.parallel``.
+"""
+
+from __future__ import annotations
+
+from typing import Any, NamedTuple, Protocol
+
+import jax
+
+PRNGKey = jax.Array
+
+
+class ChunkMetrics(NamedTuple):
+    """What one compiled chunk reports for one seed (leaves gain [hparams, seeds] axes).
+
+    ``extra`` holds algorithm-specific scalars (losses, q values, epsilon), each ``[]``.
+    """
+
+    env_steps: jax.Array  # [] int, total env steps taken so far (all envs of this seed)
+    updates: jax.Array  # [] int, total gradient updates so far
+    eval_return: jax.Array  # [] float32, mean undiscounted return of the deterministic policy
+    train_return: jax.Array  # [] float32, mean return of training episodes finished so far
+    extra: dict[str, jax.Array]
+
+
+class Algorithm(Protocol):
+    """A learner. Implementations are plain modules or small stateless objects."""
+
+    name: str  # "td3", "ddpg", "dqn", "reinforce"
+
+    def default_config(self, env_id: str) -> Any:
+        """The static ``Config`` for an env (the documented recipe)."""
+
+    def default_hyperparams(self) -> Any:
+        """The ``Hyperparams`` pytree of scalars (the documented recipe)."""
+
+    def init(self, key: PRNGKey, config: Any, hparams: Any) -> Any:
+        """A fresh ``TrainState`` for one seed and one hyperparameter set."""
+
+    def train_chunk(self, state: Any, config: Any, hparams: Any) -> tuple[Any, ChunkMetrics]:
+        """``config.iterations_per_chunk`` train iterations, then one evaluation. Pure."""
+
+    def policy(self, state: Any, config: Any) -> Any:
+        """A pure ``obs -> action`` function of the deterministic policy (for eval and GIFs)."""
