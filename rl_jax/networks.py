@@ -61,7 +61,8 @@ class MLP(nn.Module):
             x = dense(width, x.shape[-1], self.initializer, 2.0**0.5, self.dtype)(x)
             x = nn.relu(x)
         x = dense(self.outputs, x.shape[-1], self.initializer, self.output_gain, self.dtype)(x)
-        return x.astype(jnp.float32)
+        # Low-precision compute (bfloat16) still hands float32 to the losses.
+        return x.astype(jnp.promote_types(x.dtype, jnp.float32))
 
 
 class Actor(nn.Module):
@@ -79,8 +80,8 @@ class Actor(nn.Module):
         raw = MLP(self.hidden, len(self.action_low), self.initializer, 0.01, self.dtype)(obs)
         # Bounds get explicit leading axes: no silent rank promotion against a batch.
         bounds_shape = (1,) * (raw.ndim - 1) + (len(self.action_low),)
-        low = jnp.reshape(jnp.asarray(self.action_low, jnp.float32), bounds_shape)
-        high = jnp.reshape(jnp.asarray(self.action_high, jnp.float32), bounds_shape)
+        low = jnp.reshape(jnp.asarray(self.action_low, raw.dtype), bounds_shape)
+        high = jnp.reshape(jnp.asarray(self.action_high, raw.dtype), bounds_shape)
         return low + (jnp.tanh(raw) + 1.0) * 0.5 * (high - low)
 
 

@@ -79,11 +79,10 @@ def select(state: Any, hparam_index: int, seed_index: int) -> Any:
     )
 
 
-def make_mesh(num_hparams: int, num_seeds: int, devices: Sequence[Any] | None = None) -> Mesh:
-    """A ``("hparams", "seeds")`` mesh using as many devices as split the runs evenly,
-    preferring to split seeds. (3 seeds x 1 set on 2 devices can only use 1 device.)"""
-    devices = list(jax.devices() if devices is None else devices)
-    for used in range(len(devices), 0, -1):
+def mesh_shape(num_hparams: int, num_seeds: int, num_devices: int) -> tuple[int, int]:
+    """``(hparam_split, seed_split)``: the most devices that split the ``[H, S]`` runs evenly,
+    splitting seeds first. (3 seeds x 1 set on 2 devices can only use 1 device.)"""
+    for used in range(num_devices, 0, -1):
         for seed_split in range(used, 0, -1):
             hparam_split = used // seed_split
             if (
@@ -91,9 +90,16 @@ def make_mesh(num_hparams: int, num_seeds: int, devices: Sequence[Any] | None = 
                 and num_seeds % seed_split == 0
                 and num_hparams % hparam_split == 0
             ):
-                grid_of_devices = np.array(devices[:used]).reshape(hparam_split, seed_split)
-                return Mesh(grid_of_devices, AXES)
+                return hparam_split, seed_split
     raise AssertionError("unreachable: one device always splits the runs")
+
+
+def make_mesh(num_hparams: int, num_seeds: int, devices: Sequence[Any] | None = None) -> Mesh:
+    """A ``("hparams", "seeds")`` device mesh shaped by ``mesh_shape``."""
+    devices = list(jax.devices() if devices is None else devices)
+    hparam_split, seed_split = mesh_shape(num_hparams, num_seeds, len(devices))
+    used = np.array(devices[: hparam_split * seed_split]).reshape(hparam_split, seed_split)
+    return Mesh(used, AXES)
 
 
 def _specs(axes: Any) -> Any:

@@ -98,16 +98,26 @@ class Networks(NamedTuple):
         return (self.high - self.low) / 2.0
 
 
-@functools.lru_cache(maxsize=64)
-def make_networks(config: Config) -> Networks:
-    space = offpolicy.make_eval_env(config).action_space()
-    if not isinstance(space, Box) or not space.bounded or len(space.shape) != 1:
-        raise TypeError(f"TD3/DDPG need a bounded 1-D Box action space, got {space}")
+def build_networks(config: Config, action_space: Box) -> Networks:
+    """Actor and critic modules for an action space (bounds are baked into the actor)."""
+    if (
+        not isinstance(action_space, Box)
+        or not action_space.bounded
+        or len(action_space.shape) != 1
+    ):
+        raise TypeError(f"TD3/DDPG need a bounded 1-D Box action space, got {action_space}")
     dtype = jnp.dtype(config.compute_dtype)
-    low, high = tuple(float(x) for x in space.low), tuple(float(x) for x in space.high)
+    low = tuple(float(x) for x in action_space.low)
+    high = tuple(float(x) for x in action_space.high)
     actor = networks.Actor(config.actor_hidden, low, high, config.network_init, dtype)
     critic = networks.Critic(config.critic_hidden, config.network_init, dtype)
-    return Networks(actor, critic, space.low.copy(), space.high.copy())
+    return Networks(actor, critic, action_space.low.copy(), action_space.high.copy())
+
+
+@functools.lru_cache(maxsize=64)
+def make_networks(config: Config) -> Networks:
+    """The networks for ``config.env_id`` (cached: called at every trace)."""
+    return build_networks(config, offpolicy.make_eval_env(config).action_space())
 
 
 # ---- loss maths (pure; rlax naming: tm1 = the transition's start, t = its end) -----------------
@@ -144,6 +154,20 @@ def _row(x: np.ndarray, like: jax.Array) -> jax.Array:
     return jnp.reshape(jnp.asarray(x, jnp.float32), (1,) * (like.ndim - 1) + (-1,))
 
 
+def target_action(target_actor_params, next_obs, noise, hparams: Hyperparams, nets: Networks):
+    """The target actor's action plus smoothing noise ``target_noise * noise`` clipped to
+    ``+-target_noise_clip`` (both x the action half-range); ``noise`` is standard normal."""
+    a_t = nets.actor.apply(target_actor_params, next_obs)
+    scale = _row(nets.half_range, a_t)
+    return smoothed_target_action(
+        a_t,
+        hparams.target_noise * scale * noise,
+        hparams.target_noise_clip * scale,
+        _row(nets.low, a_t),
+        _row(nets.high, a_t),
+    )
+
+
 def critic_loss_fn(
     critic_params,
     target_actor_params,
@@ -155,15 +179,7 @@ def critic_loss_fn(
 ):
     """Critic loss on a batch; ``noise`` [B, action_dim] is standard normal. Returns
     ``(loss, q_tm1 [C, B])``. Target networks enter only through the stopped-gradient target."""
-    a_t = nets.actor.apply(target_actor_params, batch.next_obs)
-    scale = _row(nets.half_range, a_t)
-    a_t = smoothed_target_action(
-        a_t,
-        hparams.target_noise * scale * noise,
-        hparams.target_noise_clip * scale,
-        _row(nets.low, a_t),
-        _row(nets.high, a_t),
-    )
+    a_t = target_action(target_actor_params, batch.next_obs, noise, hparams, nets)
     q_t = networks.apply_stacked(nets.critic, target_critic_params, batch.next_obs, a_t)
     q_tm1 = networks.apply_stacked(nets.critic, critic_params, batch.obs, batch.action)
     discount_t = hparams.gamma * (1.0 - batch.terminated.astype(jnp.float32))
