@@ -65,7 +65,13 @@ class Hyperparams:
     target_noise_clip: Any = 0.5  # smoothing noise clipped to +-this, x half-range
 
     def as_arrays(self) -> Hyperparams:
-        return jax.tree.map(lambda x: jnp.asarray(x, jnp.float32), self)
+        """Every field as a float32 array (lists, e.g. from JSON of a stack, become [H])."""
+        return self.replace(
+            **{
+                f.name: jnp.asarray(getattr(self, f.name), jnp.float32)
+                for f in dataclasses.fields(self)
+            }
+        )
 
     def to_dict(self) -> dict[str, Any]:
         return {
