@@ -39,6 +39,7 @@ from gymnasium.vector import AutoresetMode
 from gymnasium.vector.utils import batch_space
 
 from envs import registry
+from envs.batched import reset_where, select_envs
 from envs.core import Environment
 
 # gymnasium's reward thresholds for the references of our ids (its registry is the source).
@@ -104,33 +105,21 @@ def _split_step(env: Environment):
     return step
 
 
-def _select(mask: jax.Array, on_true: Any, on_false: Any) -> Any:
-    """Per-env choice between two batched pytrees; ``mask`` is ``[num_envs]``."""
-
-    def pick(a, b):
-        return jnp.where(mask.reshape(mask.shape + (1,) * (a.ndim - 1)), a, b)
-
-    return jax.tree.map(pick, on_true, on_false)
-
-
 def _vector_step(env: Environment):
     """NEXT_STEP autoreset: an env whose last step ended is reset now and its action ignored."""
-    reset, step = (
-        jax.vmap(_split_reset(env), (0, None)),
-        jax.vmap(_split_step(env), (0, 0, 0, None)),
-    )
+    step = jax.vmap(_split_step(env), (0, 0, 0, None))
 
     def vector_step(keys, states, pending, actions, params):
         new_keys, stepped, timestep = step(keys, states, actions, params)
 
-        def with_resets():
-            # The reset uses the same split of each key a lone env's reset() would.
-            _, reset_states, reset_timestep = reset(keys, params)
-            return _select(pending, reset_states, stepped), _select(
-                pending, reset_timestep, timestep
+        def reset(pending_keys):
+            # The same split of each key as a lone env's reset() (and as the step above).
+            _, reset_states, reset_timestep = jax.vmap(_split_reset(env), (0, None))(
+                pending_keys, params
             )
+            return reset_states, reset_timestep
 
-        states, timestep = jax.lax.cond(jnp.any(pending), with_resets, lambda: (stepped, timestep))
+        states, timestep = reset_where(reset, keys, pending, (stepped, timestep))
         return new_keys, states, timestep
 
     return vector_step
@@ -148,7 +137,7 @@ def _programs(env_id: str, constructor_items: tuple, limit: int) -> _Programs:
         vector_reset=jax.jit(jax.vmap(_split_reset(env), (0, None))),
         vector_reset_to=jax.jit(jax.vmap(env.reset_to, (0, None))),
         vector_step=jax.jit(_vector_step(env)),
-        select=jax.jit(_select),
+        select=jax.jit(select_envs),
     )
 
 
