@@ -330,7 +330,10 @@ def test_gymnasium_vector_episode_statistics_on_our_vector_env():
     """The standard user stack: RecordEpisodeStatistics reads NEXT_STEP from our metadata."""
     vec = gymnasium.wrappers.vector.RecordEpisodeStatistics(
         gymnasium.make_vec(
-            "rl_jax/CartPole-v1", num_envs=4, vectorization_mode="vector_entry_point"
+            "rl_jax/CartPole-v1",
+            num_envs=4,
+            vectorization_mode="vector_entry_point",
+            max_episode_steps=25,  # as in test_make_vec_matches_sync_vector_env: no recompiling
         )
     )
     vec.reset(seed=0)
