@@ -382,8 +382,8 @@ class GymnasiumVectorEnv(gymnasium.vector.VectorEnv):
 
     def reset(self, *, seed: int | list[int | None] | None = None, options: dict | None = None):
         seeds = self._seed_list(seed)
-        if isinstance(seed, int):
-            super().reset(seed=seed)
+        if isinstance(seed, int | np.integer):
+            super().reset(seed=int(seed))
         options = dict(options or {})
         mask = self._take_reset_mask(options)
         self._reseed(seeds, mask)
@@ -416,8 +416,8 @@ class GymnasiumVectorEnv(gymnasium.vector.VectorEnv):
     def _seed_list(self, seed: Any) -> list[int | None]:
         if seed is None:
             return [None] * self.num_envs
-        if isinstance(seed, int):
-            return [seed + i for i in range(self.num_envs)]
+        if isinstance(seed, int | np.integer):
+            return [int(seed) + i for i in range(self.num_envs)]
         seeds = list(seed)
         if len(seeds) != self.num_envs:
             raise ValueError(f"got {len(seeds)} seeds for num_envs={self.num_envs}")

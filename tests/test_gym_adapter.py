@@ -154,6 +154,17 @@ def test_reset_options_state_is_an_exact_start(env_id, vector, expected_obs):
     )
 
 
+def test_state_attribute_can_be_set_as_in_gymnasium():
+    """``env.unwrapped.state = ...`` then ``step``, as gymnasium users do with CartPole."""
+    ours, reference = gymnasium.make("rl_jax/CartPole-v1"), gymnasium.make("CartPole-v1")
+    ours.reset(seed=0), reference.reset(seed=0)
+    start = np.array([0.5, -0.2, 0.1, 0.3], np.float32)
+    ours.unwrapped.state = start
+    reference.unwrapped.state = start.astype(np.float64)
+    for action in (1, 1, 0):
+        np.testing.assert_allclose(ours.step(action)[0], reference.step(action)[0], atol=4e-6)
+
+
 def test_qpos_qvel_options_are_concatenated_into_the_state():
     env = gymnasium.make("rl_jax/Rocket-v0")
     obs, _ = env.reset(options={"qpos": [0.25], "qvel": [-0.75]})
