@@ -50,8 +50,9 @@ class Algorithm(Protocol):
     def default_config(self, env_id: str) -> Any:
         """The static ``Config`` for an env (the documented recipe)."""
 
-    def default_hyperparams(self) -> Any:
-        """The ``Hyperparams`` pytree of scalars (the documented recipe)."""
+    def default_hyperparams(self, env_id: str | None = None) -> Any:
+        """The ``Hyperparams`` pytree of scalars (the documented recipe, for ``env_id`` if
+        given: some envs need, e.g., another discount)."""
 
     def init(self, key: PRNGKey, config: Any, hparams: Any) -> Any:
         """A fresh ``TrainState`` for one seed and one hyperparameter set."""

@@ -19,6 +19,7 @@ both sides.
 from __future__ import annotations
 
 import dataclasses
+import functools
 import json
 from collections.abc import Callable
 from typing import Any, NamedTuple
@@ -42,7 +43,7 @@ class OffPolicyConfig:
     env_id: str
     num_envs: int = 1  # envs stepped together; each iteration adds num_envs transitions
     updates_per_iteration: int = 1  # gradient updates after each env step of all envs
-    iterations_per_chunk: int = 1000  # iterations per compiled call; eval after each chunk
+    iterations_per_chunk: int = 5000  # per compiled call; eval after each (paper: every 5,000)
     batch_size: int = 256
     buffer_size: int = 1_000_000  # transitions (rounded up to a multiple of num_envs)
     learning_starts: int = 25_000  # env steps (all envs) with random actions and no updates
@@ -109,7 +110,8 @@ class Learner(NamedTuple):
     """What an off-policy algorithm provides. ``config``/``hparams`` are its own types.
 
     init_agent(key, config, hparams, obs_space, action_space) -> agent
-    explore(agent, obs [N, ...], key, config, hparams) -> actions [N, ...]
+    explore(agent, obs [N, ...], key, config, hparams, clock) -> actions [N, ...]
+        after warm-up (``clock`` lets a schedule, e.g. epsilon, depend on progress)
     act(agent, obs [N, ...], config) -> deterministic actions [N, ...]
     update(agent, buffer, key, config, hparams, update_index []) -> (agent, buffer, metrics)
         one gradient update (it samples the buffer itself, so prioritised replay can write
@@ -126,6 +128,9 @@ class Learner(NamedTuple):
 
 
 # ---- environments -------------------------------------------------------------------------------
+# Cached: every trace asks for the env, and building one (an MJX model) can be slow. Envs are
+# stateless, so sharing an instance is safe.
+@functools.lru_cache(maxsize=64)
 def make_eval_env(config: OffPolicyConfig) -> envs.Environment:
     """The env as the policy sees it (obs flattened to one axis), without autoreset."""
     env = envs.make(config.env_id)
@@ -134,6 +139,7 @@ def make_eval_env(config: OffPolicyConfig) -> envs.Environment:
     return env
 
 
+@functools.lru_cache(maxsize=64)
 def make_train_env(config: OffPolicyConfig) -> envs.Environment:
     """Training stack: statistics outside autoreset so they see the step that ended an episode."""
     return envs.EpisodeStatistics(envs.AutoReset(make_eval_env(config)))
@@ -185,7 +191,7 @@ def _choose_actions(learner, config, hparams, state: TrainState, key: PRNGKey, s
     return jax.lax.cond(
         warming_up,
         lambda: random_actions(space, key, config.num_envs),
-        lambda: learner.explore(state.agent, state.obs, key, config, hparams),
+        lambda: learner.explore(state.agent, state.obs, key, config, hparams, state.clock),
     )
 
 

@@ -264,7 +264,8 @@ def act(agent: Agent, obs: jax.Array, config: Config) -> jax.Array:
     return make_networks(config).actor.apply(agent.actor, obs)
 
 
-def explore(agent: Agent, obs, key, config: Config, hparams: Hyperparams) -> jax.Array:
+def explore(agent: Agent, obs, key, config: Config, hparams: Hyperparams, clock=None) -> jax.Array:
+    """The policy plus Gaussian noise of ``exploration_noise`` x half-range, clipped to bounds."""
     nets = make_networks(config)
     action = nets.actor.apply(agent.actor, obs)
     scale = _row(nets.half_range, action)
@@ -294,8 +295,20 @@ LEARNER = offpolicy.Learner(init_agent, explore, act, update, ("critic_loss", "a
 
 
 # ---- the Algorithm objects ------------------------------------------------------------------
-# Per-env recipes (Config overrides on top of the paper's defaults).
-RECIPES: dict[str, dict[str, Any]] = {}
+# Per-env recipes on top of the paper's defaults (measured: see the slow tests). Small networks
+# and 4 envs with 4 updates per iteration (one update per env step, as in the paper) suffice for
+# the classic envs and train ~16x faster than 256 x 256.
+RECIPES: dict[str, dict[str, Any]] = {
+    "rl_jax/Pendulum-v1": {
+        "num_envs": 4,
+        "updates_per_iteration": 4,
+        "iterations_per_chunk": 250,
+        "learning_starts": 1000,
+        "actor_hidden": (64, 64),
+        "critic_hidden": (64, 64),
+    },
+}
+HPARAM_RECIPES: dict[str, dict[str, float]] = {}
 
 
 class TD3Family:
@@ -312,8 +325,9 @@ class TD3Family:
         recipe = {**RECIPES.get(env_id, {}), **self._config_overrides, **overrides}
         return Config(env_id=env_id, **recipe)
 
-    def default_hyperparams(self, **overrides: Any) -> Hyperparams:
-        return Hyperparams(**{**self._hparam_overrides, **overrides}).as_arrays()
+    def default_hyperparams(self, env_id: str | None = None, **overrides: Any) -> Hyperparams:
+        recipe = HPARAM_RECIPES.get(env_id, {}) if env_id else {}
+        return Hyperparams(**{**recipe, **self._hparam_overrides, **overrides}).as_arrays()
 
     def init(self, key: jax.Array, config: Config, hparams: Hyperparams) -> TrainState:
         return offpolicy.init(LEARNER, key, config, hparams)
