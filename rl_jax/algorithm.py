@@ -13,6 +13,11 @@ state, replay buffer, env state, last obs, PRNG key, counters), so a checkpoint 
 
 The run machinery (experiments, sweeps, checkpoints, progress) only calls what is below; the
 outermost ``jit`` and the seed/hyperparameter ``vmap`` are applied by ``rl_jax.parallel``.
+
+A ``TrainState`` may have a field ``clock``: counters that depend only on the static ``Config``
+(env steps, updates), identical in every seed and hyperparameter set. ``rl_jax.parallel`` keeps
+that one field unstacked (and replicated over devices), so learners can branch on it (warm-up,
+delayed updates) with real branches under vmap; every other leaf gains the ``[H, S]`` axes.
 """
 
 from __future__ import annotations
@@ -45,8 +50,9 @@ class Algorithm(Protocol):
     def default_config(self, env_id: str) -> Any:
         """The static ``Config`` for an env (the documented recipe)."""
 
-    def default_hyperparams(self) -> Any:
-        """The ``Hyperparams`` pytree of scalars (the documented recipe)."""
+    def default_hyperparams(self, env_id: str | None = None) -> Any:
+        """The ``Hyperparams`` pytree of scalars (the documented recipe, for ``env_id`` if
+        given: some envs need, e.g., another discount)."""
 
     def init(self, key: PRNGKey, config: Any, hparams: Any) -> Any:
         """A fresh ``TrainState`` for one seed and one hyperparameter set."""

@@ -1,0 +1,113 @@
+"""Actor and critic networks (flax linen), and stacked ensembles of them.
+
+Why linen: its modules are stateless descriptions and parameters are plain pytrees, so a train
+state is just arrays (jit, vmap over seeds, ``lax.scan`` carries and orbax checkpoints take it as
+is), several critics are one stacked pytree made by ``jax.vmap(module.init)``, and target networks
+are simply a second pytree. nnx's mutable objects would need split/merge at every one of those
+boundaries.
+
+Initialisation, chosen on purpose:
+
+* ``"fan_in_uniform"`` (default): weights and biases ~ U(-1/sqrt(fan_in), 1/sqrt(fan_in)), the
+  PyTorch ``nn.Linear`` default that the TD3 reference implementation (and CleanRL) trained with;
+  the published TD3/DDPG hyperparameters were tuned with it, so they carry over unchanged.
+* ``"orthogonal"``: orthogonal weights (gain sqrt(2) for ReLU layers, ``output_gain`` for the last
+  layer) and zero biases, as on-policy recipes use; a setting for experiments.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from typing import Any
+
+import flax.linen as nn
+import jax
+import jax.numpy as jnp
+
+INITS = ("fan_in_uniform", "orthogonal")
+
+
+def _uniform(bound: float):
+    def init(key: jax.Array, shape: Sequence[int], dtype: Any = jnp.float32) -> jax.Array:
+        return jax.random.uniform(key, shape, dtype, -bound, bound)
+
+    return init
+
+
+def dense(features: int, fan_in: int, initializer: str, gain: float, dtype: Any) -> nn.Dense:
+    """A linear layer initialised by the named scheme (``gain`` only matters for orthogonal)."""
+    if initializer == "fan_in_uniform":
+        bound = 1.0 / fan_in**0.5
+        kernel_init, bias_init = _uniform(bound), _uniform(bound)
+    elif initializer == "orthogonal":
+        kernel_init, bias_init = nn.initializers.orthogonal(gain), nn.initializers.zeros
+    else:
+        raise ValueError(f"unknown initializer {initializer!r}; choose one of {INITS}")
+    return nn.Dense(features, dtype=dtype, kernel_init=kernel_init, bias_init=bias_init)
+
+
+class MLP(nn.Module):
+    """ReLU hidden layers, linear output. Parameters float32; ``dtype`` is the compute dtype."""
+
+    hidden: tuple[int, ...]
+    outputs: int
+    initializer: str = "fan_in_uniform"
+    output_gain: float = 1.0
+    dtype: Any = jnp.float32
+
+    @nn.compact
+    def __call__(self, x: jax.Array) -> jax.Array:
+        for width in self.hidden:
+            x = dense(width, x.shape[-1], self.initializer, 2.0**0.5, self.dtype)(x)
+            x = nn.relu(x)
+        x = dense(self.outputs, x.shape[-1], self.initializer, self.output_gain, self.dtype)(x)
+        # Low-precision compute (bfloat16) still hands float32 to the losses.
+        return x.astype(jnp.promote_types(x.dtype, jnp.float32))
+
+
+class Actor(nn.Module):
+    """Deterministic policy ``obs [..., obs_dim] -> action [..., action_dim]`` inside the bounds:
+    a tanh squashes the MLP output and an affine map stretches [-1, 1] onto [low, high]."""
+
+    hidden: tuple[int, ...]
+    action_low: tuple[float, ...]
+    action_high: tuple[float, ...]
+    initializer: str = "fan_in_uniform"
+    dtype: Any = jnp.float32
+
+    @nn.compact
+    def __call__(self, obs: jax.Array) -> jax.Array:
+        raw = MLP(self.hidden, len(self.action_low), self.initializer, 0.01, self.dtype)(obs)
+        # Bounds get explicit leading axes: no silent rank promotion against a batch.
+        bounds_shape = (1,) * (raw.ndim - 1) + (len(self.action_low),)
+        low = jnp.reshape(jnp.asarray(self.action_low, raw.dtype), bounds_shape)
+        high = jnp.reshape(jnp.asarray(self.action_high, raw.dtype), bounds_shape)
+        return low + (jnp.tanh(raw) + 1.0) * 0.5 * (high - low)
+
+
+class Critic(nn.Module):
+    """Action value ``(obs [..., obs_dim], action [..., action_dim]) -> q [...]``; the action
+    enters at the first layer together with the observation (as in TD3, unlike the original DDPG).
+    """
+
+    hidden: tuple[int, ...]
+    initializer: str = "fan_in_uniform"
+    dtype: Any = jnp.float32
+
+    @nn.compact
+    def __call__(self, obs: jax.Array, action: jax.Array) -> jax.Array:
+        x = jnp.concatenate([obs, action], axis=-1)
+        return MLP(self.hidden, 1, self.initializer, 1.0, self.dtype)(x)[..., 0]
+
+
+def init_stacked(module: nn.Module, key: jax.Array, count: int, *example_inputs: Any) -> Any:
+    """Independent parameters for ``count`` copies of ``module`` as one pytree, leaves
+    ``[count, ...]`` (the twin critics of TD3 are ``count=2``)."""
+    in_axes = (0,) + (None,) * len(example_inputs)
+    return jax.vmap(module.init, in_axes=in_axes)(jax.random.split(key, count), *example_inputs)
+
+
+def apply_stacked(module: nn.Module, params: Any, *inputs: Any) -> jax.Array:
+    """Every stacked copy on the same inputs: outputs gain a leading ``[count]`` axis."""
+    in_axes = (0,) + (None,) * len(inputs)
+    return jax.vmap(module.apply, in_axes=in_axes)(params, *inputs)

@@ -1,0 +1,112 @@
+"""A pure-functional circular replay buffer.
+
+Storage is time-major: every leaf is ``[rows, width, ...]`` where one row holds the transitions
+that ``width`` parallel envs produced in the same env step. ``add`` writes one row (the batch of
+all envs) at ``position`` and wraps around, overwriting the oldest row. Keeping rows intact means
+that consecutive steps of one env stay in one column, which n-step returns and sequence sampling
+can read later; uniform sampling just draws a flat index over the filled part.
+
+The buffer is generic over the stored pytree; off-policy learners store a ``Transition``.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any, NamedTuple
+
+import jax
+import jax.numpy as jnp
+from flax import struct
+
+
+class Transition(NamedTuple):
+    """One env step. ``next_obs`` is the *true* next observation: at the end of an episode it is
+    the final one (``info["final_obs"]`` of ``AutoReset``), not the next episode's first."""
+
+    obs: jax.Array  # [*obs_shape]
+    action: jax.Array  # [*action_shape]
+    reward: jax.Array  # [] float32
+    next_obs: jax.Array  # [*obs_shape]
+    terminated: jax.Array  # [] bool: next_obs is terminal, its value is 0
+    truncated: jax.Array  # [] bool: the time limit cut the episode; next_obs still has a value
+
+
+@struct.dataclass
+class ReplayBuffer:
+    data: Any  # pytree, leaves [rows, width, ...]
+    position: jax.Array  # [] int32, the row ``add`` writes next
+    rows_filled: jax.Array  # [] int32, rows holding data (stops growing at ``rows``)
+
+    @property
+    def rows(self) -> int:
+        return jax.tree.leaves(self.data)[0].shape[0]
+
+    @property
+    def width(self) -> int:
+        return jax.tree.leaves(self.data)[0].shape[1]
+
+    @property
+    def capacity(self) -> int:
+        return self.rows * self.width
+
+    def size(self) -> jax.Array:
+        """[] int32: number of transitions stored."""
+        return self.rows_filled * self.width
+
+
+def rows_for(capacity: int, width: int) -> int:
+    """Rows needed to hold at least ``capacity`` transitions written ``width`` at a time."""
+    return max(1, math.ceil(capacity / width))
+
+
+def init(example: Any, capacity: int, width: int) -> ReplayBuffer:
+    """An empty buffer for at least ``capacity`` items shaped like ``example`` (one item, no batch
+    axis), filled ``width`` items at a time."""
+    rows = rows_for(capacity, width)
+    data = jax.tree.map(
+        lambda x: jnp.zeros((rows, width, *jnp.shape(x)), jnp.asarray(x).dtype), example
+    )
+    return ReplayBuffer(data=data, position=jnp.int32(0), rows_filled=jnp.int32(0))
+
+
+def nbytes(example: Any, capacity: int, width: int) -> int:
+    """Memory the buffer's storage takes, computed without allocating it."""
+    rows = rows_for(capacity, width)
+    per_item = sum(
+        jnp.asarray(x).dtype.itemsize * math.prod(jnp.shape(x)) for x in jax.tree.leaves(example)
+    )
+    return rows * width * per_item
+
+
+def add(buffer: ReplayBuffer, batch: Any) -> ReplayBuffer:
+    """Write one row: ``batch`` has the stored pytree's structure with leaves ``[width, ...]``."""
+    data = jax.tree.map(
+        lambda stored, new: jax.lax.dynamic_update_index_in_dim(
+            stored, new.astype(stored.dtype), buffer.position, axis=0
+        ),
+        buffer.data,
+        batch,
+    )
+    return ReplayBuffer(
+        data=data,
+        position=(buffer.position + 1) % buffer.rows,
+        rows_filled=jnp.minimum(buffer.rows_filled + 1, buffer.rows),
+    )
+
+
+def sample_indices(buffer: ReplayBuffer, key: jax.Array, batch_size: int):
+    """Uniform (with replacement) over the stored transitions: ``(rows, columns)``, each
+    ``[batch_size]`` int32. Sampling an empty buffer returns row 0 (zeros); callers wait until
+    data is in."""
+    flat = jax.random.randint(key, (batch_size,), 0, jnp.maximum(buffer.size(), 1))
+    return flat // buffer.width, flat % buffer.width
+
+
+def gather(buffer: ReplayBuffer, rows: jax.Array, columns: jax.Array) -> Any:
+    """The stored items at ``(rows, columns)``; leaves ``[len(rows), ...]``."""
+    return jax.tree.map(lambda stored: stored[rows, columns], buffer.data)
+
+
+def sample(buffer: ReplayBuffer, key: jax.Array, batch_size: int) -> Any:
+    """A uniform batch of ``batch_size`` stored items."""
+    return gather(buffer, *sample_indices(buffer, key, batch_size))

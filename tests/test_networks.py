@@ -1,0 +1,81 @@
+"""Actor/critic networks: bounds, initialisation schemes, stacked critics."""
+
+import flax.linen as nn
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from rl_jax import networks
+
+
+def _kernels_and_biases(mlp_params):
+    layers = mlp_params["params"]
+    return [(layers[name]["kernel"], layers[name]["bias"]) for name in sorted(layers)]
+
+
+def test_actor_is_tanh_stretched_onto_asymmetric_bounds():
+    actor = networks.Actor((8,), action_low=(0.0, -3.0), action_high=(1.0, 1.0))
+    obs = 50.0 * jax.random.normal(jax.random.key(0), (64, 4))
+    params = actor.init(jax.random.key(1), obs)
+    action = np.asarray(actor.apply(params, obs))
+    mlp_params = {"params": params["params"]["MLP_0"]}
+    raw = networks.MLP((8,), 2, output_gain=0.01).apply(mlp_params, obs)
+    expected = np.array([0.0, -3.0]) + (np.tanh(np.asarray(raw)) + 1) / 2 * np.array([1.0, 4.0])
+    np.testing.assert_allclose(action, expected, rtol=1e-6, atol=1e-6)
+    assert np.all(action >= [0.0, -3.0]) and np.all(action <= [1.0, 1.0])
+    assert actor.apply(params, obs[0]).shape == (2,)  # works unbatched too
+
+
+def test_fan_in_uniform_init_matches_torch_linear_default():
+    mlp = networks.MLP((256, 64), 3)
+    params = jax.jit(mlp.init)(jax.random.key(0), jnp.zeros((1, 17)))
+    for kernel, bias in _kernels_and_biases(params):
+        bound = 1.0 / np.sqrt(kernel.shape[0])
+        assert np.abs(kernel).max() <= bound and np.abs(bias).max() <= bound
+        # U(-b, b) has std b / sqrt(3); 17 x 256 and 256 x 64 samples pin it within ~2%.
+        if kernel.size > 1000:
+            assert np.std(kernel) == pytest.approx(bound / np.sqrt(3), rel=0.05)
+
+
+def test_orthogonal_init_has_orthogonal_columns_gain_and_zero_bias():
+    mlp = networks.MLP((32,), 4, initializer="orthogonal", output_gain=0.5)
+    params = mlp.init(jax.random.key(0), jnp.zeros((1, 16)))
+    (hidden, hidden_bias), (out, out_bias) = _kernels_and_biases(params)
+    # 16 x 32: the rows are orthonormal x gain (wide matrix); 32 x 4: columns are.
+    np.testing.assert_allclose(hidden @ hidden.T, 2.0 * np.eye(16), atol=1e-5)
+    np.testing.assert_allclose(out.T @ out, 0.25 * np.eye(4), atol=1e-5)
+    assert np.all(hidden_bias == 0) and np.all(out_bias == 0)
+
+
+def test_unknown_initializer_is_rejected():
+    with pytest.raises(ValueError, match="unknown initializer"):
+        networks.MLP((4,), 1, initializer="xavier").init(jax.random.key(0), jnp.zeros(2))
+
+
+def test_stacked_critics_are_independent_and_match_one_by_one_apply():
+    critic = networks.Critic((16, 16))
+    obs, action = jnp.ones((5, 3)), jnp.linspace(-1, 1, 10).reshape(5, 2)
+    params = networks.init_stacked(critic, jax.random.key(0), 2, obs[0], action[0])
+    assert all(leaf.shape[0] == 2 for leaf in jax.tree.leaves(params))
+    first, second = (jax.tree.map(lambda x, i=i: x[i], params) for i in range(2))
+    assert not np.allclose(jax.tree.leaves(first)[0], jax.tree.leaves(second)[0])
+    q = networks.apply_stacked(critic, params, obs, action)
+    assert q.shape == (2, 5)
+    np.testing.assert_allclose(q[0], critic.apply(first, obs, action), rtol=1e-6)
+    np.testing.assert_allclose(q[1], critic.apply(second, obs, action), rtol=1e-6)
+
+
+def test_bfloat16_compute_keeps_float32_params_and_outputs():
+    obs, action = jax.random.normal(jax.random.key(2), (8, 3)), jnp.zeros((8, 1))
+    full = networks.Critic((32, 32))
+    half = networks.Critic((32, 32), dtype=jnp.bfloat16)
+    params = full.init(jax.random.key(0), obs, action)
+    assert {leaf.dtype for leaf in jax.tree.leaves(half.init(jax.random.key(0), obs, action))} == {
+        jnp.dtype(jnp.float32)
+    }
+    q_full, q_half = full.apply(params, obs, action), half.apply(params, obs, action)
+    assert q_half.dtype == jnp.float32
+    # bfloat16 keeps 8 mantissa bits: agreement to a few parts in a hundred.
+    np.testing.assert_allclose(q_half, q_full, rtol=0.05, atol=0.02)
+    assert isinstance(nn.Dense(1), nn.Module)
