@@ -10,8 +10,8 @@ Frames come from the environment, through one of two hooks (the first one the en
   with its tracking camera; the rocket draws its x(t) and v(t) traces next to the moving point.
 * ``env.render(state, params) -> frame`` for one state (the ``Environment`` API).
 
-An env may also offer ``env.plot_episode(states, params) -> matplotlib Figure``, saved next to
-the GIF as ``<name>_episode.png`` (the rocket's x(t), v(t) plot).
+``EPISODE_PLOTS`` maps an env id to a function that writes a plot of the rendered episode next
+to the GIF as ``<name>_episode.png`` (the rocket's x(t), v(t) plot).
 
 MuJoCo renders headless through EGL (``MUJOCO_GL=egl``, set here unless the caller chose);
 without an OpenGL backend the command says in one line what to install.
@@ -215,21 +215,45 @@ def _is_gl_failure(error: BaseException) -> bool:
 
 
 def _fps(env: Any) -> float:
-    inner = getattr(env, "unwrapped", env)
-    metadata = getattr(inner, "metadata", None) or {}
-    if "render_fps" in metadata:
-        return float(metadata["render_fps"])
-    dt = getattr(inner, "dt", None)
-    return float(1.0 / dt) if isinstance(dt, (int, float)) and dt > 0 else 30.0
+    """Playback rate: the env's ``render_fps``, else ``1 / params.dt``, else 30."""
+    fps = getattr(env, "render_fps", None) or (getattr(env, "metadata", None) or {}).get(
+        "render_fps"
+    )
+    if fps:
+        return float(fps)
+    dt = getattr(env.default_params, "dt", None)
+    return float(1.0 / float(dt)) if dt is not None and float(dt) > 0 else 30.0
+
+
+#: GIF players round frame delays below 20 ms up to 100 ms: faster envs skip frames instead.
+MAX_GIF_FPS = 50.0
 
 
 def save_gif(frames: list[np.ndarray], path: Path, fps: float, max_frames: int = 600) -> None:
-    """Write frames as a looping GIF, keeping every k-th frame beyond ``max_frames``."""
+    """Write frames as a looping GIF in real time; long episodes keep every k-th frame."""
     import imageio.v2 as imageio
 
-    every = max(1, math.ceil(len(frames) / max_frames))
+    every = max(1, math.ceil(len(frames) / max_frames), math.ceil(fps / MAX_GIF_FPS))
     kept = [np.asarray(frame, np.uint8) for frame in frames[::every]]
     imageio.mimsave(path, kept, duration=1000.0 * every / fps, loop=0)
+
+
+def _rocket_episode_plot(states: list[Any], params: Any, path: Path) -> None:
+    from envs.rocket import plot_episode
+
+    positions = np.array([float(state.x) for state in states])
+    velocities = np.array([float(state.v) for state in states])
+    plot_episode(
+        positions,
+        velocities,
+        dt=float(params.dt),
+        path=path,
+        title="Rocket: the deterministic policy",
+    )
+
+
+#: env id -> ``plot(states, params, path)`` writing a plot of one rendered episode.
+EPISODE_PLOTS: dict[str, Any] = {"rl_jax/Rocket-v0": _rocket_episode_plot}
 
 
 def write_gif(
@@ -252,24 +276,24 @@ def write_gif(
         frames = [f for episode in episodes_data for f in episode_frames(env, episode["states"])]
         path = Path(out) if out is not None else Path(run_dir) / "policy.gif"
         save_gif(frames, path, _fps(env), max_frames)
-        _save_episode_plot(env, episodes_data[-1]["states"], path)
+        plot_path = _save_episode_plot(env, episodes_data[-1]["states"], path)
     returns = ", ".join(f"{episode['return']:.1f}" for episode in episodes_data)
+    plot_note = f" (episode plot: {plot_path})" if plot_path else ""
     print(
         f"rendered seed {loaded.seed} (config {loaded.config_index}) at step {loaded.step:,}: "
-        f"episode return {returns}; {len(frames)} frames -> {path}"
+        f"episode return {returns}; {len(frames)} frames -> {path}{plot_note}"
     )
     return path
 
 
-def _save_episode_plot(env: Any, states: list[Any], gif_path: Path) -> None:
+def _save_episode_plot(env: Any, states: list[Any], gif_path: Path) -> Path | None:
+    plot = EPISODE_PLOTS.get(getattr(env, "id", ""))
+    if plot is None:
+        return None
     inner, inner_states = _innermost(env, states)
-    if not _has_own(inner, "plot_episode"):
-        return
-    figure = inner.plot_episode(inner_states, inner.default_params)
-    figure.savefig(gif_path.with_name(gif_path.stem + "_episode.png"))
-    import matplotlib.pyplot as plt
-
-    plt.close(figure)
+    path = gif_path.with_name(gif_path.stem + "_episode.png")
+    plot(inner_states, inner.default_params, path)
+    return path
 
 
 def main(argv: list[str] | None = None) -> int:

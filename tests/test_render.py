@@ -179,3 +179,22 @@ def test_missing_opengl_backend_is_one_line_saying_what_to_install():
     assert len(lines) == 1 and "Traceback" not in done.stderr
     assert lines[0].startswith("error: no OpenGL backend for headless rendering: install EGL")
     assert "apt-get install libegl1 libegl-mesa0 libgl1-mesa-dri" in lines[0]
+
+
+def test_episode_plot_hook_and_frame_rate(run_dir, tmp_path, monkeypatch):
+    seen = {}
+
+    def plot(states, params, path):
+        seen["positions"] = [float(state.position) for state in states]
+        path.write_bytes(b"plot")
+
+    monkeypatch.setitem(render.EPISODE_PLOTS, fake.ENV_ID, plot)
+    path = render.write_gif(run_dir, seed=0, out=tmp_path / "policy.gif")
+    assert (tmp_path / "policy_episode.png").read_bytes() == b"plot"
+    assert len(seen["positions"]) == 21  # the unwrapped env's states, reset included
+    monkeypatch.setattr(fake.PointEnv, "render_fps", 200, raising=False)
+    render.write_gif(run_dir, seed=0, out=tmp_path / "fast.gif")
+    # 200 fps plays in real time as every 4th frame at 50 fps (20 ms per frame).
+    with imageio.get_reader(tmp_path / "fast.gif") as reader:
+        assert reader.get_meta_data()["duration"] == 20
+    assert path.exists()
