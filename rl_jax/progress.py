@@ -8,6 +8,7 @@ measure training only.
 
 from __future__ import annotations
 
+import os
 import sys
 import time
 from typing import IO, Any
@@ -17,6 +18,8 @@ from tqdm import tqdm
 
 from rl_jax.plots import format_duration
 
+BAR_FORMAT = "{l_bar}{bar}| {n_fmt}/{total_fmt} [{elapsed}, ETA {remaining}]{postfix}"
+
 
 def _rate(value: float) -> str:
     """``9.8k``-style rate."""
@@ -24,6 +27,14 @@ def _rate(value: float) -> str:
         if abs(value) >= scale:
             return f"{value / scale:.1f}{unit}"
     return f"{value:.0f}"
+
+
+def _is_terminal(file: IO[str]) -> bool:
+    """A terminal with a known width (a zero-width pty would get an invisible bar)."""
+    try:
+        return file.isatty() and os.get_terminal_size(file.fileno()).columns > 0
+    except (AttributeError, OSError, ValueError):
+        return False
 
 
 def eval_summary(eval_returns: Any) -> str:
@@ -57,7 +68,7 @@ class Progress:
         log_interval: float = 30.0,
     ):
         self.file = file or sys.stdout
-        self.tty = self.file.isatty() if tty is None else tty
+        self.tty = _is_terminal(self.file) if tty is None else tty
         self.total_steps, self.start_steps, self.runs = total_steps, start_steps, runs
         self.log_interval = log_interval
         self._start_time = time.perf_counter()
@@ -77,7 +88,7 @@ class Progress:
                 unit_scale=True,
                 file=self.file,
                 dynamic_ncols=True,
-                bar_format="{l_bar}{bar}| {n_fmt}/{total_fmt} [{elapsed}<{remaining}]{postfix}",
+                bar_format=BAR_FORMAT,
             )
 
     def write(self, message: str) -> None:

@@ -4,8 +4,13 @@ python tests/fake_experiment.py [flags]          the fake algorithm on its point
 python tests/fake_experiment.py --generic [...]  --algo/--env chosen on the command line
 """
 
+import os
 import sys
 from pathlib import Path
+
+# Real scripts import rl_jax first, which sets this before jax loads; this one imports the fake
+# learner (and so jax) first.
+os.environ.setdefault("TF_CPP_MIN_LOG_LEVEL", "2")
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 

@@ -81,4 +81,4 @@ def test_terminal_bar_shows_status_and_messages(clock):
     text = out.getvalue()
     assert "compiled in 3.0 s" in text and "a message" in text
     assert "eval 2.0 [1.0, 3.0]" in text
-    assert re.search(r"50%.*500/1.00k \[.*\], 500 env steps/s", text)
+    assert re.search(r"50%.*500/1.00k \[00:00, ETA .*\], 500 env steps/s", text)
