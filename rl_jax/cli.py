@@ -32,12 +32,12 @@ from typing import Any, NoReturn
 
 from rl_jax.run_dir import RunError
 
-#: name -> "module" or "module:attribute" of every algorithm the CLI knows.
+#: name -> "module" or "module:attribute" of every algorithm the CLI knows (imported on use).
 ALGORITHMS: dict[str, str] = {
-    "td3": "rl_jax.td3",
-    "ddpg": "rl_jax.ddpg",
-    "dqn": "rl_jax.dqn",
-    "reinforce": "rl_jax.reinforce",
+    "td3": "rl_jax.td3:td3",
+    "ddpg": "rl_jax.td3:ddpg",
+    "dqn": "rl_jax.dqn:dqn",
+    "reinforce": "rl_jax.reinforce:reinforce",
 }
 RUNS_ROOT = Path("runs")
 #: Config fields that are not flags: the env is chosen by the script (or --env).
