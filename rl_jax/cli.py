@@ -21,6 +21,7 @@ import dataclasses
 import inspect
 import io
 import math
+import os
 import shlex
 import sys
 import textwrap
@@ -658,4 +659,15 @@ def main(
 ) -> NoReturn:
     """Entry point of an experiment script: parse, run, exit with the right status."""
     defaults = Defaults(seeds, total_steps, dict(config or {}), dict(hparams or {}))
-    sys.exit(guard(lambda: run_experiment(algorithm, env_id, description, argv, defaults)))
+    exit_now(guard(lambda: run_experiment(algorithm, env_id, description, argv, defaults)))
+
+
+def exit_now(status: int) -> NoReturn:
+    """Exit with ``status``. After an error, skip interpreter shutdown: a failed checkpoint
+    read can leave tensorstore callbacks pending, and run during shutdown they print tracebacks
+    under our one-line error. Everything of ours is closed by then."""
+    if status == 0:
+        sys.exit(0)
+    sys.stdout.flush()
+    sys.stderr.flush()
+    os._exit(status)

@@ -22,7 +22,6 @@ from __future__ import annotations
 import contextlib
 import math
 import os
-import sys
 import traceback
 import warnings
 from collections.abc import Iterator
@@ -342,6 +341,7 @@ if __name__ == "__main__":
     os.environ.setdefault("MUJOCO_GL", "egl")
     # Run the imported module's main, not this __main__ copy, so that its exception classes are
     # the ones the guard knows.
+    from rl_jax.cli import exit_now
     from rl_jax.render import main as module_main
 
-    sys.exit(module_main())
+    exit_now(module_main())

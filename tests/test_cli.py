@@ -244,7 +244,7 @@ def test_bad_input_is_one_line_on_stderr(bad_input_results, case):
     results, _, _ = bad_input_results
     stdout, stderr, code = results[case]
     assert code != 0
-    assert "Traceback" not in stderr and "Traceback" not in stdout
+    assert "Traceback" not in stderr + stdout, stderr
     lines = stderr.strip().splitlines()
     assert len(lines) == 1, stderr
     assert lines[0].startswith("error: ")
