@@ -1,0 +1,358 @@
+"""Checkpoints of a whole train state (every seed and config) with orbax, plus JSON metadata.
+
+A checkpoint is one orbax step directory holding two items: ``arrays`` (every array leaf of the
+state, keyed by its position in the flattened tree) and ``meta`` (a JSON dict: the step, whatever
+the caller adds — config hash, algorithm, env id — the library versions, and one record per
+leaf). The record is what lets us work around orbax's quirks:
+
+* zero-size arrays cannot be saved (google/orbax#2587): they are kept as a shape/dtype record and
+  rebuilt as zeros;
+* typed PRNG keys are saved as their key data and re-wrapped with the recorded implementation;
+* non-array leaves (Python scalars, strings) go into the JSON;
+* restore would silently cast to the template's dtype: we compare shapes and dtypes ourselves and
+  refuse a mismatch instead;
+* ``save(step)`` silently skips a step that is not newer than the latest: we raise instead.
+
+orbax writes each step into a temporary directory and renames it when complete, so a crash during
+a write leaves the previous checkpoints intact; leftover temporary directories are ignored when
+reading and removed (synchronously) when a writable ``Checkpointer`` opens the directory.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import shutil
+import sys
+from pathlib import Path
+from typing import Any
+
+import jax
+import numpy as np
+
+_TMP_MARKER = ".orbax-checkpoint-tmp"
+
+
+class CheckpointError(Exception):
+    """A checkpoint is missing, unreadable, or does not match the state it should restore."""
+
+
+def library_versions() -> dict[str, str]:
+    """Versions of the libraries a checkpoint's content depends on."""
+    import flax
+    import jaxlib
+    import optax
+
+    import rl_jax
+
+    return {
+        "rl_jax": rl_jax.__version__,
+        "jax": jax.__version__,
+        "jaxlib": jaxlib.__version__,
+        "flax": flax.__version__,
+        "optax": optax.__version__,
+        "orbax-checkpoint": _orbax_version(),
+        "numpy": np.__version__,
+    }
+
+
+def _orbax_version() -> str:
+    from importlib.metadata import version
+
+    return version("orbax-checkpoint")
+
+
+# ---- leaves <-> (saveable arrays, JSON records) ---------------------------------------------
+
+
+def _is_key(leaf: Any) -> bool:
+    return hasattr(leaf, "dtype") and jax.dtypes.issubdtype(leaf.dtype, jax.dtypes.prng_key)
+
+
+def _leaf_record(path: str, leaf: Any) -> dict[str, Any]:
+    """How a leaf is stored: ``kind`` is array, key, empty (zero-size) or json."""
+    if _is_key(leaf):
+        data = jax.random.key_data(leaf)
+        impl = str(jax.random.key_impl(leaf))
+        return {
+            "path": path,
+            "kind": "key",
+            "shape": list(data.shape),
+            "dtype": str(data.dtype),
+            "impl": impl,
+        }
+    if isinstance(leaf, (np.ndarray, jax.Array, np.generic)):
+        kind = "empty" if leaf.size == 0 else "array"
+        return {"path": path, "kind": kind, "shape": list(leaf.shape), "dtype": str(leaf.dtype)}
+    return {"path": path, "kind": "json", "value": leaf}
+
+
+def _split_state(state: Any) -> tuple[dict[str, Any], list[dict[str, Any]]]:
+    """The saveable arrays (keyed ``leaf_00000``...) and the per-leaf records."""
+    arrays, records = {}, []
+    for index, (path, leaf) in enumerate(jax.tree_util.tree_flatten_with_path(state)[0]):
+        record = _leaf_record(jax.tree_util.keystr(path), leaf)
+        if record["kind"] == "json":
+            try:
+                json.dumps(record["value"])
+            except TypeError as error:
+                message = f"state leaf {record['path']} cannot be saved: {error}"
+                raise CheckpointError(message) from None
+        elif record["kind"] == "key":
+            arrays[_leaf_name(index)] = jax.random.key_data(leaf)
+        elif record["kind"] == "array":
+            arrays[_leaf_name(index)] = leaf
+        records.append(record)
+    return arrays, records
+
+
+def _leaf_name(index: int) -> str:
+    return f"leaf_{index:05d}"
+
+
+def _template_records(template: Any) -> list[dict[str, Any]]:
+    """Records describing what the caller expects (arrays or ``jax.ShapeDtypeStruct``s)."""
+    records = []
+    for path, leaf in jax.tree_util.tree_flatten_with_path(template)[0]:
+        name = jax.tree_util.keystr(path)
+        if _is_key(leaf):
+            data = jax.eval_shape(jax.random.key_data, leaf)
+            records.append(
+                {"path": name, "kind": "key", "shape": list(data.shape), "dtype": str(data.dtype)}
+            )
+        elif hasattr(leaf, "shape") and hasattr(leaf, "dtype"):
+            kind = "empty" if int(np.prod(leaf.shape)) == 0 else "array"
+            records.append(
+                {
+                    "path": name,
+                    "kind": kind,
+                    "shape": list(leaf.shape),
+                    "dtype": str(np.dtype(leaf.dtype)),
+                }
+            )
+        else:
+            records.append({"path": name, "kind": "json"})
+    return records
+
+
+def _first_mismatch(saved: list[dict], expected: list[dict]) -> str | None:
+    """A one-line description of the first difference, or None if the layouts agree."""
+    if len(saved) != len(expected):
+        return f"it holds {len(saved)} state leaves, this run's state has {len(expected)}"
+    for have, want in zip(saved, expected, strict=True):
+        for field in ("path", "kind", "shape", "dtype"):
+            if field in want and have.get(field) != want[field]:
+                return (
+                    f"state leaf {want['path']} has {field} {have.get(field)} in the checkpoint, "
+                    f"{want[field]} in this run"
+                )
+    return None
+
+
+def _rebuild_leaf(record: dict, arrays: dict[str, Any], index: int, sharding: Any) -> Any:
+    kind = record["kind"]
+    if kind == "json":
+        return record["value"]
+    if kind == "empty":
+        zeros = np.zeros(record["shape"], record["dtype"])
+        return jax.device_put(zeros, sharding) if sharding is not None else jax.numpy.asarray(zeros)
+    array = arrays[_leaf_name(index)]
+    if kind == "key":
+        return jax.random.wrap_key_data(array, impl=record["impl"])
+    return array
+
+
+# ---- the checkpointer -----------------------------------------------------------------------
+
+
+class Checkpointer:
+    """Save and restore a train state pytree in ``directory``, keeping the ``keep`` latest steps.
+
+    ``read_only=True`` opens an existing directory without creating or cleaning anything (used
+    to validate a ``--resume`` before touching the run).
+    """
+
+    def __init__(self, directory: str | Path, keep: int = 3, read_only: bool = False):
+        self.directory = Path(directory).absolute()
+        if read_only and not self.directory.is_dir():
+            raise CheckpointError(f"no checkpoint directory at {self.directory}")
+        # orbax reports routine decisions as absl warnings; a user only needs our errors.
+        logging.getLogger("absl").setLevel(logging.ERROR)
+        import orbax.checkpoint as ocp  # imported when needed: 0.6 s
+
+        self._ocp = ocp
+        if not read_only:
+            # orbax's own clean-up runs in a background thread and races with the next save.
+            _remove_leftover_temporaries(self.directory)
+        options = ocp.CheckpointManagerOptions(
+            preservation_policy=ocp.checkpoint_managers.LatestN(n=max(1, keep)),
+            enable_async_checkpointing=False,
+            create=not read_only,
+            read_only=read_only,
+        )
+        self._manager = ocp.CheckpointManager(
+            self.directory, options=options, item_names=("arrays", "meta")
+        )
+
+    def steps(self) -> list[int]:
+        """Completed checkpoints, oldest first."""
+        self._manager.reload()
+        return sorted(self._manager.all_steps())
+
+    def latest_step(self) -> int | None:
+        steps = self.steps()
+        return steps[-1] if steps else None
+
+    def save(self, step: int, state: Any, metadata: dict[str, Any] | None = None) -> None:
+        """Write ``state`` as checkpoint ``step`` (must be newer than the latest)."""
+        latest = self.latest_step()
+        if latest is not None and step <= latest:
+            raise CheckpointError(
+                f"cannot save checkpoint step {step}: {self.directory} already holds step {latest}"
+            )
+        arrays, records = _split_state(state)
+        meta = {
+            **(metadata or {}),
+            "step": int(step),
+            "versions": library_versions(),
+            "leaves": records,
+        }
+        args = self._ocp.args.Composite(
+            arrays=self._ocp.args.StandardSave(arrays), meta=self._ocp.args.JsonSave(meta)
+        )
+        if not self._manager.save(int(step), args=args, force=True):
+            raise CheckpointError(f"orbax declined to save checkpoint step {step}")
+        self._manager.wait_until_finished()
+
+    def metadata(self, step: int | None = None) -> dict[str, Any]:
+        """The JSON metadata of ``step`` (default: the latest)."""
+        step = self._resolve_step(step)
+        try:
+            restored = self._manager.restore(
+                step, args=self._ocp.args.Composite(meta=self._ocp.args.JsonRestore())
+            )
+            meta = restored["meta"]
+        except Exception as error:  # orbax raises many types for damaged files
+            raise self._unreadable(step, error) from None
+        if not isinstance(meta, dict) or "leaves" not in meta:
+            raise self._unreadable(step, ValueError("metadata has no leaf records"))
+        return meta
+
+    def restore(
+        self,
+        template: Any,
+        step: int | None = None,
+        expect: dict[str, Any] | None = None,
+        sharding: Any = None,
+    ) -> tuple[Any, dict[str, Any]]:
+        """Restore ``step`` (default: latest) into the structure of ``template``.
+
+        ``template`` is a pytree of arrays or ``jax.ShapeDtypeStruct`` with the run's exact
+        shapes and dtypes (``jax.eval_shape`` of the init). ``expect`` holds metadata entries
+        that must match (e.g. the config hash). ``sharding`` places every restored array.
+        Returns ``(state, metadata)``; raises ``CheckpointError`` on any mismatch or damage.
+        """
+        step = self._resolve_step(step)
+        meta = self.metadata(step)
+        self._check_expected(step, meta, expect or {})
+        mismatch = _first_mismatch(meta["leaves"], _template_records(template))
+        if mismatch:
+            raise CheckpointError(
+                f"checkpoint step {step} in {self.directory} does not match this run: {mismatch}"
+            )
+        arrays = self._restore_arrays(step, meta["leaves"], sharding)
+        leaves = [
+            _rebuild_leaf(record, arrays, index, sharding)
+            for index, record in enumerate(meta["leaves"])
+        ]
+        treedef = jax.tree_util.tree_structure(template)
+        return jax.tree_util.tree_unflatten(treedef, leaves), meta
+
+    def _restore_arrays(self, step: int, records: list[dict], sharding: Any) -> dict[str, Any]:
+        if sharding is None:
+            sharding = jax.sharding.SingleDeviceSharding(jax.devices()[0])
+        targets = {
+            _leaf_name(index): jax.ShapeDtypeStruct(
+                tuple(record["shape"]), np.dtype(record["dtype"]), sharding=sharding
+            )
+            for index, record in enumerate(records)
+            if record["kind"] in ("array", "key")
+        }
+        if not targets:
+            return {}
+        _ignore_closed_loop_reports()  # before: some reports come while the read fails
+        try:
+            args = self._ocp.args.Composite(arrays=self._ocp.args.StandardRestore(targets))
+            return dict(self._manager.restore(step, args=args)["arrays"])
+        except Exception as error:
+            raise self._unreadable(step, error) from None
+
+    def _check_expected(self, step: int, meta: dict, expect: dict[str, Any]) -> None:
+        for key, value in expect.items():
+            if meta.get(key) != value:
+                raise CheckpointError(
+                    f"checkpoint step {step} in {self.directory} is from another run: "
+                    f"its {key} is {meta.get(key)!r}, this run's is {value!r}"
+                )
+
+    def _resolve_step(self, step: int | None) -> int:
+        steps = self.steps()
+        if step is None:
+            if not steps:
+                raise CheckpointError(f"no checkpoint in {self.directory}")
+            return steps[-1]
+        if step not in steps:
+            raise CheckpointError(f"no checkpoint step {step} in {self.directory} (has {steps})")
+        return step
+
+    def _unreadable(self, step: int, error: BaseException) -> CheckpointError:
+        reason = (str(error).strip().splitlines() or [type(error).__name__])[0]
+        reason = reason if len(reason) <= 160 else reason[:160] + "..."
+        older = [s for s in self.steps() if s < step]
+        hint = (
+            f"; older checkpoints: {older} (remove {self.directory / str(step)} to use them)"
+            if older
+            else ""
+        )
+        return CheckpointError(
+            f"checkpoint step {step} in {self.directory} is unreadable ({reason}){hint}"
+        )
+
+    def close(self) -> None:
+        self._manager.close()
+
+    def __enter__(self) -> Checkpointer:
+        return self
+
+    def __exit__(self, *exc_info: Any) -> None:
+        self.close()
+
+
+def _ignore_closed_loop_reports() -> None:
+    """When a read fails, orbax closes its event loop while tensorstore callbacks of the other
+    reads are pending; each then reports an unraisable ``RuntimeError('Event loop is closed')``
+    on stderr, during the failure and after it. They say nothing beyond the error we raise:
+    drop just those reports."""
+    previous = sys.unraisablehook
+    if getattr(previous, "ignores_closed_loop", False):
+        return
+
+    def hook(unraisable: Any) -> None:
+        error = unraisable.exc_value
+        if isinstance(error, RuntimeError) and str(error) == "Event loop is closed":
+            return
+        previous(unraisable)
+
+    hook.ignores_closed_loop = True
+    sys.unraisablehook = hook
+
+
+def leftover_temporaries(directory: str | Path) -> list[Path]:
+    """Unfinished step directories (a write was interrupted)."""
+    directory = Path(directory)
+    return sorted(p for p in directory.glob(f"*{_TMP_MARKER}*")) if directory.is_dir() else []
+
+
+def _remove_leftover_temporaries(directory: str | Path) -> None:
+    for path in leftover_temporaries(directory):
+        shutil.rmtree(path, ignore_errors=True)

@@ -1,0 +1,310 @@
+"""The command line: flags from dataclasses, --help, and every bad input ending in one line on
+stderr with a non-zero status, no traceback, and existing runs untouched (real subprocesses)."""
+
+import dataclasses
+import json
+import os
+import shlex
+import shutil
+import signal
+import subprocess
+import sys
+from pathlib import Path
+
+import fake_algorithm as fake
+import jax
+import jax.numpy as jnp
+import pytest
+from run_helpers import leaves_bytes, snapshot
+
+from rl_jax import cli, runner
+from rl_jax.checkpoint import Checkpointer
+from rl_jax.run_dir import stack_hparams
+from rl_jax.runner import CHECKPOINT_DIR, RunSpec, make_plan
+
+ROOT = Path(__file__).resolve().parent.parent
+SCRIPT = ROOT / "tests" / "fake_experiment.py"
+ENV = {**os.environ, "PYTHONPATH": str(ROOT)}
+
+
+def start(args: list[str], cwd: Path) -> subprocess.Popen:
+    return subprocess.Popen(
+        [sys.executable, str(SCRIPT), *args],
+        cwd=cwd,
+        env=ENV,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+
+
+# ---- in-process: flags and help -------------------------------------------------------------
+
+
+@dataclasses.dataclass(frozen=True)
+class Base:
+    alpha: float = 0.5
+    """Docstring style."""
+
+
+@dataclasses.dataclass(frozen=True)
+class Documented(Base):
+    beta: int = 3  # trailing comment style
+    # comment above,
+    # over two lines
+    gamma: tuple[int, ...] = (1, 2)
+    delta: bool = False
+
+
+def test_field_docs_reads_docstrings_comments_and_bases():
+    docs = cli.field_docs(Documented)
+    assert docs == {
+        "alpha": "Docstring style.",
+        "beta": "trailing comment style",
+        "gamma": "comment above, over two lines",
+    }
+    assert cli.undocumented_fields(Documented()) == ["delta"]
+    assert cli.undocumented_fields(fake.default_config()) == []
+    assert cli.undocumented_fields(fake.default_hyperparams()) == []
+
+
+def test_help_documents_every_flag(capsys):
+    with pytest.raises(SystemExit) as exit_info:
+        cli.run_experiment(fake, fake.ENV_ID, "Fake experiment.", ["--help"])
+    assert exit_info.value.code == 0
+    text = " ".join(capsys.readouterr().out.split())
+    for flag in ("--seeds", "--total-steps", "--out", "--resume", "--gif", "--grid"):
+        assert flag in text
+    assert "--buffer-size INT Replay buffer capacity in transitions. (default: 64)" in text
+    assert "--batch-size INT transitions per gradient update (default: 8)" in text
+    assert "--learning-rate FLOAT Adam learning rate. (default: 0.01)" in text
+    assert "--hidden-sizes INT,... Widths of the policy's hidden layers. (default: 8)" in text
+    assert "--deterministic-init, --no-deterministic-init" in text
+    parser, _, _ = cli.build_parser(fake, fake.ENV_ID, "", cli.Defaults(), choose=False)
+    for action in parser._actions:
+        assert action.help and action.help.strip(), action.option_strings
+
+
+def test_generic_help_without_an_algorithm(capsys):
+    assert cli.run_experiment(None, None, "Sweep.", ["--help"]) == 0
+    text = capsys.readouterr().out
+    assert "--algo" in text and "--env" in text and "--seeds" in text
+
+
+def test_value_parsers():
+    assert cli.parse_int("1e6") == 1_000_000 and cli.parse_int("1_000") == 1000
+    assert cli.parse_bool("yes") is True and cli.parse_bool("0") is False
+    for parse, text in ((cli.parse_int, "2.5"), (cli.parse_float, "nan"), (cli.parse_float, "x")):
+        with pytest.raises(Exception, match="invalid"):
+            parse(text)
+
+
+def test_grid_parsing_checks_names_and_types():
+    hparams, config = fake.default_hyperparams(), fake.default_config()
+    grid = cli.parse_grid(["learning-rate=1e-3,3e-3", "updates_per_step=1,2"], hparams, config)
+    assert grid == {"learning_rate": [1e-3, 3e-3], "updates_per_step": [1, 2]}
+    expanded = cli.expand_grid(hparams, grid)
+    assert [(h.learning_rate, h.updates_per_step) for h in expanded] == [
+        (1e-3, 1),
+        (1e-3, 2),
+        (3e-3, 1),
+        (3e-3, 2),
+    ]
+    bad = {
+        "updates_per_step=1,2.5": "takes int values",
+        "learning_rate=0.1,fast": "takes float values",
+        "num_envs=2,4": "static config field",
+        "nonsense=1": "unknown hyperparameter",
+        "learning_rate": "expected NAME=V1,V2",
+    }
+    for spec, message in bad.items():
+        with pytest.raises(cli.UsageError, match=message):
+            cli.parse_grid([spec], hparams, config)
+
+
+def test_default_run_dir_names_env_algorithm_and_time(tmp_path, monkeypatch):
+    monkeypatch.setattr(cli, "RUNS_ROOT", tmp_path)
+    first = cli.default_run_dir("rl_jax/HalfCheetah-v5", "td3")
+    assert first.parent == tmp_path and first.name.startswith("HalfCheetah-v5__td3__")
+    first.mkdir()
+    assert cli.default_run_dir("rl_jax/HalfCheetah-v5", "td3") != first
+
+
+# ---- subprocesses: a real run, then every bad input ----------------------------------------
+
+
+@pytest.fixture(scope="module")
+def workspace(tmp_path_factory):
+    """A finished run made by the script, and damaged or foreign copies of it."""
+    root = tmp_path_factory.mktemp("cli")
+    process = start(["--out", "existing", "--log-interval", "0", "--gif"], root)
+    out, err = process.communicate(timeout=600)
+    assert process.returncode == 0, err
+    existing = root / "existing"
+    copies = {}
+    for name, change in {
+        "foreign_env": lambda r: r["identity"].update(env_id="rl_jax/Pendulum-v1"),
+        "foreign_algorithm": lambda r: r["identity"].update(algorithm="td3"),
+    }.items():
+        shutil.copytree(existing, root / name)
+        record = json.loads((root / name / "config.json").read_text())
+        change(record)
+        (root / name / "config.json").write_text(json.dumps(record))
+        copies[name] = root / name
+    shutil.copytree(existing, root / "corrupt")
+    latest = max(int(p.name) for p in (root / "corrupt" / CHECKPOINT_DIR).iterdir())
+    for path in (root / "corrupt" / CHECKPOINT_DIR / str(latest) / "arrays").rglob("*"):
+        if path.is_file() and path.parent.name == "d":
+            path.write_bytes(b"\0" * 5)
+    return {
+        "root": root,
+        "stdout": out,
+        "existing": existing,
+        **copies,
+        "corrupt": root / "corrupt",
+    }
+
+
+def test_a_cli_run_prints_plan_progress_and_results(workspace):
+    out, existing = workspace["stdout"], workspace["existing"]
+    assert "plan: fake on rl_jax/FakePoint-v0, 2 seeds" in out
+    assert "compiled in" in out and "env steps/s" in out and "ETA" in out
+    assert "final eval return at step 100 (2 seeds)" in out
+    assert f"run directory: {Path('existing')}" in out
+    for name in ("config.json", "metrics.jsonl", "curves.png", "results.txt", "policy.gif"):
+        assert (existing / name).is_file()
+    assert "rendered seed" in out
+    record = json.loads((existing / "config.json").read_text())
+    assert "fake_experiment.py --out existing --log-interval 0 --gif" in record["command"]
+
+
+BAD_INPUTS = {
+    "unknown env": (
+        ["--generic", "--algo", "fake", "--env", "Nope-v0"],
+        "unknown environment 'Nope-v0'; known environments: ",
+    ),
+    "unknown algorithm": (
+        ["--generic", "--algo", "nope", "--env", fake.ENV_ID],
+        "unknown algorithm 'nope'; known algorithms: ",
+    ),
+    "zero seeds": (["--seeds", "0"], "argument --seeds: must be >= 1, got 0"),
+    "negative seeds": (["--seeds", "-3"], "argument --seeds: must be >= 1, got -3"),
+    "zero steps": (["--total-steps", "0"], "argument --total-steps: must be >= 1"),
+    "negative count": (["--num-envs", "-1"], "--num-envs must be >= 0, got -1"),
+    "non-numeric value": (
+        ["--learning-rate", "abc"],
+        "argument --learning-rate: invalid numeric value: 'abc'",
+    ),
+    "non-integer value": (["--batch-size", "8.5"], "argument --batch-size: invalid integer"),
+    "grid value of the wrong type": (
+        ["--grid", "updates_per_step=1,2.5"],
+        "--grid updates_per_step takes int values",
+    ),
+    "grid value not a number": (["--grid", "learning_rate=0.1,fast"], "takes float values"),
+    "grid over a static field": (["--grid", "num_envs=2,4"], "is a static config field"),
+    "resume of a missing dir": (["--resume", "{root}/missing"], "no run directory at"),
+    "resume of another env": (
+        ["--resume", "{foreign_env}"],
+        "it is a fake run on rl_jax/Pendulum-v1, this is fake on rl_jax/FakePoint-v0",
+    ),
+    "resume of another algorithm": (["--resume", "{foreign_algorithm}"], "it is a td3 run"),
+    "resume with another config": (
+        ["--resume", "{existing}", "--learning-rate", "0.5"],
+        "it is a different run (learning_rate 0.01 vs 0.5)",
+    ),
+    "resume of a corrupt checkpoint": (["--resume", "{corrupt}"], "is unreadable"),
+    "out dir with a different run": (
+        ["--out", "{existing}", "--noise", "0.1"],
+        "already holds a different run (noise 0.3 vs 0.1)",
+    ),
+    "out dir with the same run": (["--out", "{existing}"], "continue it with --resume"),
+    "replay buffer too big": (
+        ["--buffer-size", "2000000000", "--seeds", "40"],
+        "the train state needs 894.07 GB (buffer 894.07 GB",
+    ),
+}
+
+
+@pytest.fixture(scope="module")
+def bad_input_results(workspace):
+    """Every bad input, run concurrently; the runs' files before and after."""
+    names = ("existing", "foreign_env", "foreign_algorithm", "corrupt")
+    before = {name: snapshot(workspace[name]) for name in names}
+    processes = {}
+    for case, (args, _) in BAD_INPUTS.items():
+        args = [arg.format(**{k: str(v) for k, v in workspace.items()}) for arg in args]
+        processes[case] = start(args, workspace["root"])
+    results = {case: (*p.communicate(timeout=600), p.returncode) for case, p in processes.items()}
+    after = {name: snapshot(workspace[name]) for name in names}
+    return results, before, after
+
+
+@pytest.mark.parametrize("case", list(BAD_INPUTS))
+def test_bad_input_is_one_line_on_stderr(bad_input_results, case):
+    results, _, _ = bad_input_results
+    stdout, stderr, code = results[case]
+    assert code != 0
+    assert "Traceback" not in stderr + stdout, stderr
+    lines = stderr.strip().splitlines()
+    assert len(lines) == 1, stderr
+    assert lines[0].startswith("error: ")
+    assert BAD_INPUTS[case][1] in lines[0]
+
+
+def test_bad_inputs_leave_existing_runs_untouched(bad_input_results, workspace):
+    _, before, after = bad_input_results
+    assert after == before
+    created = {p.name for p in workspace["root"].iterdir()}
+    assert created == {"existing", "foreign_env", "foreign_algorithm", "corrupt"}
+    assert not (workspace["root"] / "runs").exists()
+
+
+def test_sigterm_checkpoints_exits_zero_and_resume_is_bit_identical(workspace):
+    root = workspace["root"]
+    args = [
+        "--out",
+        "stopped",
+        "--total-steps",
+        "2000",
+        "--log-interval",
+        "0",
+        "--checkpoint-interval",
+        "1e9",
+    ]
+    process = start(args, root)
+    for line in process.stdout:
+        if line.startswith("step "):  # training has started
+            process.send_signal(signal.SIGTERM)
+            break
+    out, err = process.communicate(timeout=600)
+    assert process.returncode == 0, err
+    assert "Traceback" not in err
+    assert "SIGTERM: stopping after this chunk" in out
+    resume_line = next(line for line in out.splitlines() if line.startswith("resume with: "))
+    command = shlex.split(resume_line.removeprefix("resume with: "))
+    assert command[1:] == [str(SCRIPT), "--resume", "stopped"]
+    with Checkpointer(root / "stopped" / CHECKPOINT_DIR, read_only=True) as checkpointer:
+        stopped_at = checkpointer.latest_step()
+    assert stopped_at < 2000 and f"stopped at step {stopped_at:,} of 2,000" in out
+    resumed = subprocess.run(
+        [sys.executable, *command[1:]],
+        cwd=root,
+        env=ENV,
+        capture_output=True,
+        text=True,
+        timeout=600,
+    )
+    assert resumed.returncode == 0, resumed.stderr
+    assert f"resuming from the checkpoint at step {stopped_at:,}" in resumed.stdout
+    # The reference: the same run never stopped, i.e. the compiled chunk applied 100 times.
+    config = dataclasses.replace(fake.default_config(), iterations_per_chunk=5)
+    spec = RunSpec(fake, fake.ENV_ID, config, (fake.default_hyperparams(),), root, seeds=2)
+    plan = make_plan(spec)
+    state = runner.fresh_start(spec, plan).state
+    hparams = jax.tree.map(jnp.asarray, stack_hparams(list(spec.hparams)))
+    for _ in range(100):
+        state, _ = plan.parallel.train_chunk(state, hparams)
+    with Checkpointer(root / "stopped" / CHECKPOINT_DIR, read_only=True) as checkpointer:
+        assert checkpointer.latest_step() == 2000
+        restored = checkpointer.restore(plan.template)[0]
+    assert leaves_bytes(restored) == leaves_bytes(state)

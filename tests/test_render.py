@@ -1,0 +1,200 @@
+"""Rendering a run's policy: the GIF holds the env's frames of the policy's own rollout; the CLI
+reports problems (bad seed, no run, no OpenGL backend) in one line."""
+
+import ctypes.util
+import os
+import subprocess
+import sys
+import textwrap
+from pathlib import Path
+
+import fake_algorithm as fake
+import imageio.v2 as imageio
+import jax
+import numpy as np
+import pytest
+
+from rl_jax import render
+from rl_jax.metrics import read_rows
+from rl_jax.runner import RunSpec, run
+
+ROOT = Path(__file__).resolve().parent.parent
+ENV = {**os.environ, "PYTHONPATH": f"{ROOT}{os.pathsep}{ROOT / 'tests'}"}
+
+
+@pytest.fixture(scope="module")
+def run_dir(tmp_path_factory):
+    out = tmp_path_factory.mktemp("render") / "run"
+    spec = RunSpec(
+        fake,
+        fake.ENV_ID,
+        fake.default_config(),
+        (fake.default_hyperparams(),),
+        out,
+        seeds=2,
+        total_steps=60,
+        log_interval=1e9,
+    )
+    run(spec, notify=lambda message: None)
+    return out
+
+
+def without_repeats(frames):
+    """GIF encoders merge a frame equal to the previous one into it."""
+    kept = [frames[0]]
+    for frame in frames[1:]:
+        if not np.array_equal(frame, kept[-1]):
+            kept.append(frame)
+    return kept
+
+
+def test_gif_holds_the_frames_of_the_policy_rollout(run_dir, tmp_path):
+    path = render.write_gif(run_dir, seed=1, episodes=2, out=tmp_path / "p.gif")
+    loaded = render.LoadedPolicy(run_dir, seed=1)
+    assert loaded.step == 60 and loaded.seed == 1
+    env = loaded.env()
+    episodes = render.rollout(env, fake.policy(loaded.state, loaded.config), jax.random.key(1), 2)
+    assert [len(e["states"]) for e in episodes] == [21, 21]  # reset + 20 steps to truncation
+    expected = [f for e in episodes for f in render.episode_frames(env, e["states"])]
+    assert expected[0].shape == (32, 64, 3)
+    written = [frame[..., :3] for frame in imageio.mimread(path)]
+    assert len(written) == len(without_repeats(expected))
+    for got, want in zip(written, without_repeats(expected), strict=True):
+        np.testing.assert_array_equal(got, want)
+
+
+def test_default_seed_is_the_best_final_eval(run_dir):
+    rows = [row for row in read_rows(run_dir / "metrics.jsonl") if row["step"] == 60]
+    best = max(rows, key=lambda row: row["eval_return"])["seed"]
+    assert render.LoadedPolicy(run_dir).seed == best
+
+
+def test_episode_return_matches_a_direct_rollout(run_dir):
+    loaded = render.LoadedPolicy(run_dir, seed=0)
+    act = loaded.algorithm.policy(loaded.state, loaded.config)
+    (episode,) = render.rollout(loaded.env(), act, jax.random.key(3), 1)
+    positions = np.array([float(s.position) for s in episode["states"][1:]])
+    assert episode["return"] == pytest.approx(-np.sum(positions**2), rel=1e-5)
+
+
+def test_render_command_line(run_dir, tmp_path):
+    command = [
+        sys.executable,
+        "-m",
+        "rl_jax.render",
+        str(run_dir),
+        "--seed",
+        "0",
+        "--out",
+        str(tmp_path / "cli.gif"),
+    ]
+    done = subprocess.run(command, env=ENV, capture_output=True, text=True, timeout=300)
+    assert done.returncode == 0, done.stderr
+    assert "rendered seed 0 (config 0) at step 60" in done.stdout
+    assert (tmp_path / "cli.gif").stat().st_size > 100
+    for args, message in (
+        (["--seed", "9"], "--seed 9 is not in this run (seeds [0, 1])"),
+        (["--episodes", "0"], "argument --episodes: must be >= 1"),
+    ):
+        bad = subprocess.run(
+            command[:4] + args, env=ENV, capture_output=True, text=True, timeout=300
+        )
+        lines = bad.stderr.strip().splitlines()
+        assert bad.returncode != 0 and len(lines) == 1, bad.stderr
+        assert lines[0].startswith("error: ") and message in lines[0]
+    missing = subprocess.run(
+        [sys.executable, "-m", "rl_jax.render", str(tmp_path / "none")],
+        env=ENV,
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
+    assert missing.returncode != 0
+    assert missing.stderr.strip().splitlines() == [
+        f"error: no run directory at {tmp_path / 'none'}"
+    ]
+
+
+MUJOCO_RENDER = textwrap.dedent(
+    """
+    import numpy as np
+    from rl_jax import cli, render
+
+    XML = '<mujoco><worldbody><light pos="0 0 3"/><body name="ball" mocap="true">'
+    XML += '<geom type="sphere" size="0.2" rgba="1 0 0 1"/></body></worldbody></mujoco>'
+
+    class Ball:
+        default_params = None
+
+        def render_episode(self, states, params):
+            import mujoco  # as a MuJoCo env would: loading mujoco picks the GL backend
+
+            model = mujoco.MjModel.from_xml_string(XML)
+            data = mujoco.MjData(model)
+            with mujoco.Renderer(model, 48, 64) as renderer:
+                frames = []
+                for x in states:
+                    data.mocap_pos[0] = [x, 0, 0]
+                    mujoco.mj_forward(model, data)
+                    renderer.update_scene(data)
+                    frames.append(renderer.render())
+            return frames
+
+    def main():
+        frames = render.episode_frames(Ball(), [-0.5, 0.0, 0.5])
+        print(len(frames), frames[0].shape, int(np.argmax(frames[0][24].sum(-1) > 0)))
+        return 0
+
+    raise SystemExit(cli.guard(main))
+    """
+)
+
+
+def test_mujoco_frames_through_the_episode_hook_with_egl():
+    done = subprocess.run(
+        [sys.executable, "-c", MUJOCO_RENDER],
+        capture_output=True,
+        text=True,
+        env={**ENV, "MUJOCO_GL": "egl"},
+        timeout=300,
+    )
+    if "no OpenGL backend" in done.stderr:
+        pytest.skip("EGL is not installed here")
+    assert done.returncode == 0, done.stderr
+    count, shape, _ = done.stdout.split(" ", 2)
+    assert count == "3" and shape.startswith("(48,")
+
+
+@pytest.mark.skipif(bool(ctypes.util.find_library("OSMesa")), reason="OSMesa is installed")
+def test_missing_opengl_backend_is_one_line_saying_what_to_install():
+    done = subprocess.run(
+        [sys.executable, "-c", MUJOCO_RENDER],
+        capture_output=True,
+        text=True,
+        env={**ENV, "MUJOCO_GL": "osmesa"},
+        timeout=300,
+    )
+    assert done.returncode == 2
+    lines = done.stderr.strip().splitlines()
+    assert len(lines) == 1 and "Traceback" not in done.stderr
+    assert lines[0].startswith("error: no OpenGL backend for headless rendering: install EGL")
+    assert "apt-get install libegl1 libegl-mesa0 libgl1-mesa-dri" in lines[0]
+
+
+def test_episode_plot_hook_and_frame_rate(run_dir, tmp_path, monkeypatch):
+    seen = {}
+
+    def plot(states, params, path):
+        seen["positions"] = [float(state.position) for state in states]
+        path.write_bytes(b"plot")
+
+    monkeypatch.setitem(render.EPISODE_PLOTS, fake.ENV_ID, plot)
+    path = render.write_gif(run_dir, seed=0, out=tmp_path / "policy.gif")
+    assert (tmp_path / "policy_episode.png").read_bytes() == b"plot"
+    assert len(seen["positions"]) == 21  # the unwrapped env's states, reset included
+    monkeypatch.setattr(fake.PointEnv, "render_fps", 200, raising=False)
+    render.write_gif(run_dir, seed=0, out=tmp_path / "fast.gif")
+    # 200 fps plays in real time as every 4th frame at 50 fps (20 ms per frame).
+    with imageio.get_reader(tmp_path / "fast.gif") as reader:
+        assert reader.get_meta_data()["duration"] == 20
+    assert path.exists()
