@@ -1,0 +1,421 @@
+"""Two interchangeable physics backends for the MuJoCo envs: MJX (pure JAX) and MuJoCo C.
+
+Both step a batch of envs inside the caller's jitted program and expose the same small API
+(``Physics``): build a physics state from ``qpos``/``qvel`` (and optionally the solver warm start),
+advance it by ``frame_skip`` substeps with a control, and report a ``Measurement`` — the float32
+quantities an env needs for its observation, reward and termination.
+
+``mjx``
+    ``mujoco.mjx``: pure JAX, jit/vmap/grad-able, float32. The physics state is
+    ``(qpos, qvel, qacc_warmstart)`` in float32. The default on GPU/TPU.
+
+``mujoco``
+    MuJoCo C (float64) stepping the whole batch on a thread pool (``mujoco.batch.Batch``, one
+    thread per core), called through ``jax.pure_callback`` with ``vmap_method="broadcast_all"``:
+    under any number of nested vmaps (envs, seeds, hyperparameters) the callback receives the whole
+    batch once, flattens the batch axes and steps every env in one threaded call. Not
+    differentiable. The default on CPU, where it runs several times faster than MJX.
+
+Choosing a backend: ``envs.make(id, backend="mjx" | "mujoco")``; otherwise the environment
+variable ``RL_JAX_MUJOCO_BACKEND``; otherwise ``"mujoco"`` when JAX's default device is a CPU and
+``"mjx"`` on accelerators (see ``default_backend``).
+
+Exactness of the ``mujoco`` backend. JAX runs without x64, yet the C physics state must stay
+float64 so that trajectories are bit-identical to gymnasium's. The state therefore travels through
+JAX as the raw bits of the float64 values, two uint32 words per number (little-endian order, so a
+host-side ``.view(np.float64)`` recovers the numbers with no arithmetic). Bits are copied, never
+rounded, so a state can be carried, checkpointed and resumed exactly; everything the host needs
+is in that state and the control, so a step is a pure function of its inputs (the host keeps only
+scratch buffers that every call overwrites). ``mujoco.batch`` is used rather than
+``mujoco.rollout`` because it carries the solver warm start (``qacc_warmstart``) across calls and
+exposes derived fields (site positions, constraint forces) after the step, both needed for
+bit-identical gymnasium parity; its results do not depend on the thread count.
+
+Non-finite physics. MuJoCo C resets a simulation whose qpos/qvel/qacc becomes NaN, infinite or
+larger than ``mjMAXVAL`` (1e10) and counts a warning; MJX just propagates NaN. Both backends report
+this as ``Measurement.diverged`` (warnings raised, or any state value non-finite or beyond 1e10),
+and the env layer ends the episode (see ``envs.mujoco_env``).
+"""
+
+from __future__ import annotations
+
+import os
+import threading
+from pathlib import Path
+from typing import Any, NamedTuple
+
+import jax
+import jax.numpy as jnp
+import mujoco
+import numpy as np
+from mujoco import mjx
+
+Array = jax.Array
+
+BACKENDS = ("mujoco", "mjx")
+BACKEND_ENV_VAR = "RL_JAX_MUJOCO_BACKEND"
+# MuJoCo C treats |x| > mjMAXVAL as a diverged simulation; MJX is held to the same line.
+DIVERGENCE_LIMIT = float(mujoco.mjMAXVAL)
+_INSTABILITY_WARNINGS = [
+    int(mujoco.mjtWarning.mjWARN_BADQPOS),
+    int(mujoco.mjtWarning.mjWARN_BADQVEL),
+    int(mujoco.mjtWarning.mjWARN_BADQACC),
+]
+
+
+def default_backend() -> str:
+    """``$RL_JAX_MUJOCO_BACKEND`` if set, else "mujoco" on CPU and "mjx" on accelerators."""
+    chosen = os.environ.get(BACKEND_ENV_VAR, "").strip().lower()
+    if chosen:
+        return resolve_backend(chosen)
+    return "mujoco" if jax.default_backend() == "cpu" else "mjx"
+
+
+def resolve_backend(backend: str | None) -> str:
+    if backend is None:
+        return default_backend()
+    name = backend.strip().lower()
+    if name in ("c", "mujoco_c", "cpu"):
+        name = "mujoco"
+    if name not in BACKENDS:
+        raise ValueError(f"unknown MuJoCo backend {backend!r}; choose one of {BACKENDS}")
+    return name
+
+
+def gymnasium_asset(xml_file: str) -> Path:
+    """Path of an MJCF file shipped with the installed gymnasium package."""
+    import gymnasium.envs.mujoco as gym_mujoco
+
+    path = Path(gym_mujoco.__file__).resolve().parent / "assets" / xml_file
+    if not path.exists():
+        raise FileNotFoundError(f"gymnasium ships no MuJoCo asset {xml_file!r} (looked in {path})")
+    return path
+
+
+def load_model(xml_file: str, iterations: int, ls_iterations: int) -> mujoco.MjModel:
+    """gymnasium's model with the given constraint-solver iteration limits."""
+    model = mujoco.MjModel.from_xml_path(str(gymnasium_asset(xml_file)))
+    model.opt.iterations = iterations
+    model.opt.ls_iterations = ls_iterations
+    return model
+
+
+class Measurement(NamedTuple):
+    """What an env reads after a step (or a forward pass), float32.
+
+    ``qpos_change`` is ``qpos_after - qpos_before`` computed in the backend's own precision, so
+    that a velocity derived from it (half cheetah's forward reward) keeps float64 accuracy on the C
+    backend even when positions are large. ``extras`` holds the derived ``mjData`` fields the env
+    asked for, as MuJoCo leaves them after ``mj_step``: computed at the start of the last substep,
+    exactly what gymnasium reads.
+    """
+
+    qpos: Array  # [nq]
+    qvel: Array  # [nv]
+    qpos_change: Array  # [nq]
+    extras: dict[str, Array]  # name -> field, e.g. site_xpos [nsite, 3]
+    diverged: Array  # [] bool
+
+
+# ---- float32 -> float64 bits, in JAX without x64 -----------------------------------------------
+def float32_to_float64_bits(x: Array) -> Array:
+    """``[...]`` float32 -> ``[..., 2]`` uint32, the (low, high) words of the exact float64 value.
+
+    Widening float32 to float64 is exact; this does it with integer ops so that it runs inside a
+    jitted program without x64. Handles zeros, subnormals, infinities and NaN like numpy's
+    ``astype(np.float64)``.
+    """
+    bits = jax.lax.bitcast_convert_type(jnp.asarray(x, jnp.float32), jnp.uint32)
+    sign = bits & jnp.uint32(0x80000000)
+    exponent = (bits >> 23) & jnp.uint32(0xFF)
+    mantissa = bits & jnp.uint32(0x7FFFFF)
+    is_subnormal = (exponent == 0) & (mantissa != 0)
+    # A float32 subnormal is a normal float64: shift its leading 1 up to the implicit-bit position.
+    shift = jax.lax.clz(mantissa) - jnp.uint32(8)
+    normalized = (mantissa << shift) & jnp.uint32(0x7FFFFF)
+    exponent64 = jnp.where(exponent == 0xFF, jnp.uint32(0x7FF), exponent + jnp.uint32(1023 - 127))
+    exponent64 = jnp.where(exponent == 0, jnp.uint32(0), exponent64)
+    exponent64 = jnp.where(is_subnormal, jnp.uint32(1023 - 126) - shift, exponent64)
+    mantissa = jnp.where(is_subnormal, normalized, mantissa)
+    high = sign | (exponent64 << 20) | (mantissa >> 3)
+    low = (mantissa & jnp.uint32(0x7)) << 29
+    return jnp.stack([low, high], axis=-1)
+
+
+def float64_to_bits(x: np.ndarray) -> np.ndarray:
+    """Host side: float64 ``[..., n]`` -> uint32 ``[..., 2 * n]`` (exact, little-endian words)."""
+    x = np.ascontiguousarray(np.asarray(x, np.float64))
+    return x.view(np.uint32).reshape(*x.shape[:-1], 2 * x.shape[-1])
+
+
+def bits_to_float64(bits: np.ndarray) -> np.ndarray:
+    """Host side: uint32 ``[..., 2 * n]`` -> float64 ``[..., n]``."""
+    return np.ascontiguousarray(np.asarray(bits, np.uint32)).view(np.float64)
+
+
+def _host_diverged(*arrays: np.ndarray) -> np.ndarray:
+    """Per row: any value non-finite or beyond MuJoCo's divergence limit."""
+    bad = np.zeros(arrays[0].shape[0], bool)
+    for a in arrays:
+        bad |= ~np.all(np.abs(a) <= DIVERGENCE_LIMIT, axis=-1)  # NaN compares False
+    return bad
+
+
+def _jax_diverged(*arrays: Array) -> Array:
+    ok = [jnp.all(jnp.abs(a) <= DIVERGENCE_LIMIT) for a in arrays]
+    return ~jnp.all(jnp.stack(ok))
+
+
+class Physics:
+    """Backend interface. ``state`` pytrees are backend-specific; shapes are static."""
+
+    name: str = ""
+
+    def __init__(self, model: mujoco.MjModel, frame_skip: int, extras: tuple[str, ...] = ()):
+        self.model = model
+        self.frame_skip = frame_skip
+        self.extras = tuple(extras)
+        self.nq, self.nv, self.nu = model.nq, model.nv, model.nu
+        data = mujoco.MjData(model)
+        self._extra_shapes = {name: getattr(data, name).shape for name in self.extras}
+
+    def from_qpos_qvel(self, qpos: Any, qvel: Any, qacc_warmstart: Any = None) -> Any:
+        """Physics state; ``qacc_warmstart`` defaults to zero, as after ``mj_resetData``."""
+        raise NotImplementedError
+
+    def step(self, state: Any, ctrl: Array) -> tuple[Any, Measurement]:
+        """``frame_skip`` substeps of ``mj_step`` with ``ctrl`` (gymnasium's ``do_simulation``)."""
+        raise NotImplementedError
+
+    def forward(self, state: Any) -> Measurement:
+        """``mj_forward`` at ``state`` (gymnasium's ``set_state``): derived fields are current."""
+        raise NotImplementedError
+
+    def to_numpy(self, state: Any) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Host side: ``(qpos, qvel, qacc_warmstart)`` float64, for rendering and tests."""
+        raise NotImplementedError
+
+    def _empty_extras(self, batch_shape: tuple[int, ...] = ()) -> dict[str, Array]:
+        return {
+            name: jnp.zeros(batch_shape + shape, jnp.float32)
+            for name, shape in self._extra_shapes.items()
+        }
+
+
+# ---- MJX ----------------------------------------------------------------------------------------
+class MjxPhysics(Physics):
+    """``mujoco.mjx`` in float32. State: ``(qpos, qvel, qacc_warmstart)``."""
+
+    name = "mjx"
+
+    def __init__(self, model: mujoco.MjModel, frame_skip: int, extras: tuple[str, ...] = ()):
+        super().__init__(model, frame_skip, extras)
+        self.mjx_model = mjx.put_model(model, impl="jax")
+        # Every field a step reads other than the state and ctrl is recomputed by the forward pass,
+        # so one template Data serves every env and only the state travels between steps.
+        self._template = mjx.make_data(self.mjx_model, impl="jax")
+
+    def from_qpos_qvel(self, qpos: Any, qvel: Any, qacc_warmstart: Any = None) -> tuple:
+        qpos = jnp.asarray(qpos, jnp.float32)
+        qvel = jnp.asarray(qvel, jnp.float32)
+        warm = jnp.zeros_like(qvel) if qacc_warmstart is None else qacc_warmstart
+        return (qpos, qvel, jnp.asarray(warm, jnp.float32))
+
+    def _data(self, state: tuple, ctrl: Array | None = None) -> mjx.Data:
+        qpos, qvel, warm = state
+        data = self._template.replace(qpos=qpos, qvel=qvel, qacc_warmstart=warm)
+        if ctrl is not None:
+            data = data.replace(ctrl=jnp.asarray(ctrl, jnp.float32))
+        return data
+
+    def step(self, state: tuple, ctrl: Array) -> tuple[tuple, Measurement]:
+        data = self._data(state, ctrl)
+        data = jax.lax.fori_loop(0, self.frame_skip, lambda _, d: mjx.step(self.mjx_model, d), data)
+        new_state = (data.qpos, data.qvel, data.qacc_warmstart)
+        measurement = Measurement(
+            qpos=data.qpos,
+            qvel=data.qvel,
+            qpos_change=data.qpos - state[0],
+            extras={name: getattr(data, name) for name in self.extras},
+            diverged=_jax_diverged(*new_state),
+        )
+        return new_state, measurement
+
+    def forward(self, state: tuple) -> Measurement:
+        data = mjx.forward(self.mjx_model, self._data(state))
+        return Measurement(
+            qpos=state[0],
+            qvel=state[1],
+            qpos_change=jnp.zeros_like(state[0]),
+            extras={name: getattr(data, name) for name in self.extras},
+            diverged=_jax_diverged(state[0], state[1]),
+        )
+
+    def to_numpy(self, state: tuple) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        return tuple(np.asarray(x, np.float64) for x in state)
+
+
+# ---- MuJoCo C via a batched host callback -------------------------------------------------------
+class _HostBatches:
+    """Scratch ``mujoco.batch.Batch`` objects of one model, one per (operation, batch size).
+
+    They hold no state between calls that a result depends on: every call first writes the whole
+    physics state of every simulation it steps. A lock per batch serialises concurrent callbacks
+    (XLA may run a step and a reset callback of the same program at once).
+    """
+
+    def __init__(self, model: mujoco.MjModel, nthread: int, outputs: tuple[str, ...]):
+        self.model = model
+        self.nthread = nthread
+        self.outputs = outputs
+        self._batches: dict[tuple[str, int], tuple[Any, threading.Lock]] = {}
+        self._guard = threading.Lock()
+
+    def get(self, operation: str, nsim: int) -> tuple[Any, threading.Lock]:
+        with self._guard:
+            key = (operation, nsim)
+            if key not in self._batches:
+                from mujoco import batch as mujoco_batch
+
+                simulations = mujoco_batch.Batch(self.model, nsim, nthread=self.nthread)
+                for name in self.outputs:  # derived fields are copied out only once bound
+                    simulations.bind(name)
+                self._batches[key] = (simulations, threading.Lock())
+            return self._batches[key]
+
+
+def default_thread_count() -> int:
+    """Cores this process may run on."""
+    try:
+        return max(1, len(os.sched_getaffinity(0)))
+    except AttributeError:
+        return max(1, os.cpu_count() or 1)
+
+
+class MujocoCPhysics(Physics):
+    """MuJoCo C in float64 on a thread pool, behind ``jax.pure_callback``.
+
+    State: uint32 ``[2 * (nq + 2 nv)]``, the float64 bits of ``qpos, qvel, qacc_warmstart``.
+    """
+
+    name = "mujoco"
+
+    def __init__(
+        self,
+        model: mujoco.MjModel,
+        frame_skip: int,
+        extras: tuple[str, ...] = (),
+        nthread: int | None = None,
+    ):
+        super().__init__(model, frame_skip, extras)
+        self.nthread = default_thread_count() if nthread is None else int(nthread)
+        self._batches = _HostBatches(model, self.nthread, self.extras)
+        self.state_size = self.nq + 2 * self.nv
+
+    # -- building states ---------------------------------------------------------------------
+    def from_qpos_qvel(self, qpos: Any, qvel: Any, qacc_warmstart: Any = None) -> Array:
+        """Exact: float64 numpy inputs keep all their bits; float32/traced inputs are widened."""
+        parts = [qpos, qvel, np.zeros(np.shape(qvel)) if qacc_warmstart is None else qacc_warmstart]
+        if all(isinstance(p, np.ndarray | float | int) for p in parts):
+            vector = np.concatenate([np.asarray(p, np.float64) for p in parts], axis=-1)
+            return jnp.asarray(float64_to_bits(vector))
+        vector = jnp.concatenate([jnp.asarray(p, jnp.float32) for p in parts], axis=-1)
+        bits = float32_to_float64_bits(vector)
+        return bits.reshape(*bits.shape[:-2], 2 * bits.shape[-2])
+
+    def to_numpy(self, state: Array) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        values = bits_to_float64(np.asarray(state))
+        nq, nv = self.nq, self.nv
+        return values[..., :nq], values[..., nq : nq + nv], values[..., nq + nv :]
+
+    # -- the callbacks -----------------------------------------------------------------------
+    def _result_shapes(self, with_state: bool) -> tuple:
+        f32 = jnp.float32
+        shapes = [
+            jax.ShapeDtypeStruct((self.nq,), f32),
+            jax.ShapeDtypeStruct((self.nv,), f32),
+            jax.ShapeDtypeStruct((self.nq,), f32),
+            *(jax.ShapeDtypeStruct(s, f32) for s in self._extra_shapes.values()),
+            jax.ShapeDtypeStruct((), jnp.bool_),
+        ]
+        if with_state:
+            shapes.insert(0, jax.ShapeDtypeStruct((2 * self.state_size,), jnp.uint32))
+        return tuple(shapes)
+
+    def _measurement(self, outputs: tuple) -> Measurement:
+        qpos, qvel, change, *extras, diverged = outputs
+        return Measurement(
+            qpos, qvel, change, dict(zip(self.extras, extras, strict=True)), diverged
+        )
+
+    def step(self, state: Array, ctrl: Array) -> tuple[Array, Measurement]:
+        ctrl = jnp.asarray(ctrl, jnp.float32)
+        outputs = jax.pure_callback(
+            self._host_step, self._result_shapes(True), state, ctrl, vmap_method="broadcast_all"
+        )
+        return outputs[0], self._measurement(outputs[1:])
+
+    def forward(self, state: Array) -> Measurement:
+        outputs = jax.pure_callback(
+            self._host_forward, self._result_shapes(False), state, vmap_method="broadcast_all"
+        )
+        return self._measurement(outputs)
+
+    # -- host side ---------------------------------------------------------------------------
+    def _load(self, simulations: Any, values: np.ndarray) -> None:
+        """Write the whole state of every simulation (the batch keeps nothing between calls)."""
+        nq, nv = self.nq, self.nv
+        simulations.state[:] = 0.0
+        simulations.bind("qpos")[:] = values[:, :nq]
+        simulations.bind("qvel")[:] = values[:, nq : nq + nv]
+        simulations.bind("qacc_warmstart")[:] = values[:, nq + nv :]
+        simulations.warning[...] = 0
+
+    def _host_outputs(self, simulations: Any, before: np.ndarray, batch_shape: tuple) -> list:
+        qpos, qvel = simulations.bind("qpos"), simulations.bind("qvel")
+        warned = np.any(simulations.warning[:, _INSTABILITY_WARNINGS, 1] > 0, axis=1)
+        diverged = warned | _host_diverged(qpos, qvel)
+        outputs = [
+            qpos.astype(np.float32),
+            qvel.astype(np.float32),
+            (qpos - before[:, : self.nq]).astype(np.float32),
+            *(simulations.bind(name).astype(np.float32) for name in self.extras),
+            diverged,
+        ]
+        return [o.reshape(batch_shape + o.shape[1:]) for o in outputs]
+
+    def _host_step(self, state: np.ndarray, ctrl: np.ndarray) -> tuple:
+        batch_shape = ctrl.shape[:-1]
+        values = bits_to_float64(state).reshape(-1, self.state_size)
+        ctrl = np.asarray(ctrl, np.float64).reshape(-1, self.nu)
+        simulations, lock = self._batches.get("step", values.shape[0])
+        with lock:
+            self._load(simulations, values)
+            simulations.bind("ctrl")[:] = ctrl
+            simulations.step(nstep=self.frame_skip)
+            fields = ("qpos", "qvel", "qacc_warmstart")
+            new_values = np.concatenate([simulations.bind(f) for f in fields], axis=1)
+            new_state = float64_to_bits(new_values).reshape(batch_shape + (2 * self.state_size,))
+            return (new_state, *self._host_outputs(simulations, values, batch_shape))
+
+    def _host_forward(self, state: np.ndarray) -> tuple:
+        batch_shape = state.shape[:-1]
+        values = bits_to_float64(state).reshape(-1, self.state_size)
+        simulations, lock = self._batches.get("forward", values.shape[0])
+        with lock:
+            self._load(simulations, values)
+            simulations.forward()
+            return tuple(self._host_outputs(simulations, values, batch_shape))
+
+
+def make_physics(
+    backend: str,
+    model: mujoco.MjModel,
+    frame_skip: int,
+    extras: tuple[str, ...] = (),
+    nthread: int | None = None,
+) -> Physics:
+    backend = resolve_backend(backend)
+    if backend == "mjx":
+        return MjxPhysics(model, frame_skip, extras)
+    return MujocoCPhysics(model, frame_skip, extras, nthread)
