@@ -30,9 +30,10 @@ class HalfCheetahParams(MujocoParams):
 class HalfCheetah(MujocoEnv):
     xml_file = "half_cheetah.xml"
     frame_skip = 5
-    # Contacts with the floor need 4 Newton iterations to match gymnasium's converged solve
-    # (3 left errors up to ~1e-2 in float64, DESIGN.md and tests/test_mujoco_parity.py).
-    solver_settings = {"parity": (4, 4), "gymnasium": (100, 50)}
+    # Floor contacts: on the states where gymnasium's solver needs the most iterations, 4/4 left
+    # MJX up to 0.23 away from gymnasium (C: 26 of 40,000 random-policy states off by up to 3.3),
+    # 6/6 matched to float32 precision.
+    mjx_solver = (6, 6)
     info_keys = ("x_position", "x_velocity", "reward_forward", "reward_ctrl")
     camera = {"distance": 4.0}
     params_type = HalfCheetahParams

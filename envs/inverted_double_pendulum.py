@@ -41,8 +41,9 @@ class InvertedDoublePendulumParams(MujocoParams):
 class InvertedDoublePendulum(MujocoEnv):
     xml_file = "inverted_double_pendulum.xml"
     frame_skip = 5
-    # Only the slider limit can bind (the hinges are unlimited, nothing collides).
-    solver_settings = {"parity": (2, 4), "gymnasium": (100, 50)}
+    # Only the slider limit can bind (the hinges are unlimited, nothing collides): one Newton step
+    # solves it; 2/4 matched gymnasium on 40,000 random-policy states in C.
+    mjx_solver = (2, 4)
     extras = ("site_xpos", "qfrc_constraint")
     forward_at_reset = True  # the reset observation includes the slider's constraint force
     info_keys = ("reward_survive", "distance_penalty", "velocity_penalty")

@@ -142,6 +142,36 @@ def float32_to_float64_bits(x: Array) -> Array:
     return jnp.stack([low, high], axis=-1)
 
 
+def float64_bits_to_float32(bits: Array) -> Array:
+    """uint32 ``[..., 2 n]`` (low, high words) -> float32 ``[..., n]``, rounded to nearest even.
+
+    The float32 view JAX code reads (observations at reset); the exact values stay in the bits.
+    Magnitudes below float32's normal range (2**-126) become signed zero, as XLA:CPU's float32
+    arithmetic flushes them anyway.
+    """
+    words = bits.reshape(*bits.shape[:-1], -1, 2)
+    low, high = words[..., 0], words[..., 1]
+    sign = high & jnp.uint32(0x80000000)
+    exponent = ((high >> 20) & jnp.uint32(0x7FF)).astype(jnp.int32)
+    mantissa_high = high & jnp.uint32(0xFFFFF)
+    # 23 kept mantissa bits: 20 from the high word and the top 3 of the low word.
+    mantissa = (mantissa_high << 3) | (low >> 29)
+    remainder = low & jnp.uint32(0x1FFFFFFF)
+    half = jnp.uint32(0x10000000)
+    round_up = (remainder > half) | ((remainder == half) & ((mantissa & 1) == 1))
+    exponent32 = exponent - (1023 - 127)
+    # Adding the rounding bit may carry into the exponent (and up to infinity): that is correct.
+    magnitude = (jnp.clip(exponent32, 0, 255).astype(jnp.uint32) << 23) + mantissa
+    magnitude = magnitude + round_up.astype(jnp.uint32)
+    value = jax.lax.bitcast_convert_type(sign | magnitude, jnp.float32)
+    infinity = jax.lax.bitcast_convert_type(sign | jnp.uint32(0x7F800000), jnp.float32)
+    zero = jax.lax.bitcast_convert_type(sign, jnp.float32)
+    is_nan = (exponent == 0x7FF) & ((mantissa_high != 0) | (low != 0))
+    value = jnp.where(exponent32 >= 255, infinity, value)
+    value = jnp.where(exponent32 <= 0, zero, value)
+    return jnp.where(is_nan, jnp.float32(jnp.nan), value)
+
+
 def float64_to_bits(x: np.ndarray) -> np.ndarray:
     """Host side: float64 ``[..., n]`` -> uint32 ``[..., 2 * n]`` (exact, little-endian words)."""
     x = np.ascontiguousarray(np.asarray(x, np.float64))
@@ -193,6 +223,10 @@ class Physics:
 
     def to_numpy(self, state: Any) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Host side: ``(qpos, qvel, qacc_warmstart)`` float64, for rendering and tests."""
+        raise NotImplementedError
+
+    def qpos_qvel(self, state: Any) -> tuple[Array, Array]:
+        """float32 ``(qpos, qvel)`` of a state, inside JAX."""
         raise NotImplementedError
 
     def _empty_extras(self, batch_shape: tuple[int, ...] = ()) -> dict[str, Array]:
@@ -253,6 +287,9 @@ class MjxPhysics(Physics):
 
     def to_numpy(self, state: tuple) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         return tuple(np.asarray(x, np.float64) for x in state)
+
+    def qpos_qvel(self, state: tuple) -> tuple[Array, Array]:
+        return state[0], state[1]
 
 
 # ---- MuJoCo C via a batched host callback -------------------------------------------------------
@@ -327,6 +364,10 @@ class MujocoCPhysics(Physics):
         values = bits_to_float64(np.asarray(state))
         nq, nv = self.nq, self.nv
         return values[..., :nq], values[..., nq : nq + nv], values[..., nq + nv :]
+
+    def qpos_qvel(self, state: Array) -> tuple[Array, Array]:
+        values = float64_bits_to_float32(state[..., : 2 * (self.nq + self.nv)])
+        return values[..., : self.nq], values[..., self.nq :]
 
     # -- the callbacks -----------------------------------------------------------------------
     def _result_shapes(self, with_state: bool) -> tuple:

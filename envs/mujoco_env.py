@@ -13,11 +13,13 @@ GPU/TPU. Keyword arguments named like gymnasium's constructor arguments (``reset
 ``ctrl_cost_weight``, ...) set the default params; the params pytree can also be passed to
 ``reset``/``step`` and vmapped.
 
-Solver fidelity (``fidelity=``): ``"parity"`` (default) caps the constraint solver at the fewest
-iterations that still reproduce gymnasium's default solver (100 iterations / 50 line-search
-iterations) — measured in float64 over random-policy and joint-limit states, the C backend's next
-state differs from gymnasium's by at most ~1e-13 (bit-identical for the pendulums);
-``"gymnasium"`` uses gymnasium's own settings.
+Solver fidelity (``fidelity=``). ``"gymnasium"``: gymnasium's constraint-solver limits (100
+iterations, 50 line-search iterations). ``"parity"`` (default): the cheapest limits that still match
+gymnasium — on the C backend these are gymnasium's own (MuJoCo C stops iterating at convergence, so
+tighter caps measured no faster, and the result is bit-identical to gymnasium); on MJX, where every
+env of a vmapped batch pays the full cap, each env's ``mjx_solver`` limits, the fewest that keep
+gymnasium parity including the states where gymnasium's solver works hardest
+(``tests/test_mujoco_parity.py``).
 
 Exact starts: ``state_from_vector(concatenate([qpos, qvel]))`` (optionally ``qacc_warmstart``
 appended). On the C backend a float64 numpy vector is kept bit for bit; a float32 or traced vector
@@ -55,6 +57,8 @@ from envs.mujoco_backend import (
 from envs.spaces import Box
 
 DIVERGED_KEY = "physics_diverged"
+GYMNASIUM_SOLVER = (100, 50)  # MuJoCo's defaults, which gymnasium's models keep
+FIDELITIES = ("parity", "gymnasium")
 
 
 @struct.dataclass
@@ -76,8 +80,8 @@ class MujocoEnv(Environment[MujocoState, Any]):
     xml_file: str = ""
     frame_skip: int = 1
     max_episode_steps: int = 1000
-    #: fidelity -> (solver iterations, line-search iterations)
-    solver_settings: dict[str, tuple[int, int]] = {"gymnasium": (100, 50)}
+    #: MJX (solver iterations, line-search iterations) of the "parity" fidelity
+    mjx_solver: tuple[int, int] = GYMNASIUM_SOLVER
     #: derived mjData fields the env reads after a step (see ``Measurement.extras``)
     extras: tuple[str, ...] = ()
     #: whether the reset observation needs ``mj_forward`` (constraint forces, site positions)
@@ -111,6 +115,12 @@ class MujocoEnv(Environment[MujocoState, Any]):
         self._initial_obs = self._compute_initial_obs()
         self._renderer = None
 
+    def solver_limits(self, backend: str, fidelity: str) -> tuple[int, int]:
+        """(iterations, line-search iterations) of the constraint solver."""
+        if backend == "mjx" and fidelity == "parity":
+            return self.mjx_solver
+        return GYMNASIUM_SOLVER
+
     def _make_default_params(self, overrides: dict[str, float]):
         fields = {f.name for f in dataclasses.fields(self.params_type)}
         unknown = sorted(set(overrides) - fields)
@@ -143,14 +153,18 @@ class MujocoEnv(Environment[MujocoState, Any]):
     def reset(self, key: PRNGKey, params=None) -> tuple[MujocoState, TimeStep]:
         params = self.default_params if params is None else params
         qpos, qvel = self.sample_start(key, params)
-        return self._start(self.physics.from_qpos_qvel(qpos, qvel), qpos, qvel, params)
+        return self.start_from_physics(self.physics.from_qpos_qvel(qpos, qvel), params)
 
     def reset_env(self, key: PRNGKey, params) -> tuple[MujocoState, Array]:
         state, timestep = self.reset(key, params)
         return state, timestep.obs
 
     def reset_to(self, vector: Any, params=None) -> tuple[MujocoState, TimeStep]:
-        """Start from ``[qpos, qvel(, qacc_warmstart)]``; a float64 numpy vector is kept exactly."""
+        """Start from ``[qpos, qvel(, qacc_warmstart)]``, with optional leading batch axes.
+
+        A float64 numpy vector is kept bit for bit on the C backend (do not wrap it in
+        ``jnp.asarray`` first: without x64 that rounds it to float32).
+        """
         params = self.default_params if params is None else params
         nq, nv = self.physics.nq, self.physics.nv
         if not isinstance(vector, np.ndarray):
@@ -163,18 +177,23 @@ class MujocoEnv(Environment[MujocoState, Any]):
         qpos, qvel = vector[..., :nq], vector[..., nq : nq + nv]
         warm = vector[..., nq + nv :] if vector.shape[-1] == nq + 2 * nv else None
         physics = self.physics.from_qpos_qvel(qpos, qvel, warm)
-        return self._start(physics, qpos, qvel, params)
+        start = lambda p: self.start_from_physics(p, params)
+        for _ in range(vector.ndim - 1):
+            start = jax.vmap(start)
+        return start(physics)
 
     def state_from_vector(self, vector: Any, params=None) -> tuple[MujocoState, Array]:
         state, timestep = self.reset_to(vector, params)
         return state, timestep.obs
 
-    def _start(self, physics: Any, qpos: Any, qvel: Any, params) -> tuple[MujocoState, TimeStep]:
-        qpos, qvel = jnp.asarray(qpos, jnp.float32), jnp.asarray(qvel, jnp.float32)
+    def start_from_physics(self, physics: Any, params=None) -> tuple[MujocoState, TimeStep]:
+        """First timestep of an episode starting at a backend physics state (one env)."""
+        params = self.default_params if params is None else params
         if self.forward_at_reset:
             measurement = self.physics.forward(physics)
         else:
             # qpos/qvel are all the observation needs: no physics call
+            qpos, qvel = self.physics.qpos_qvel(physics)
             finite = jnp.all(jnp.abs(jnp.concatenate([qpos, qvel], -1)) <= DIVERGENCE_LIMIT)
             extras = self.physics._empty_extras()
             measurement = Measurement(qpos, qvel, jnp.zeros_like(qpos), extras, ~finite)
