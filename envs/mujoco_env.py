@@ -99,13 +99,11 @@ class MujocoEnv(Environment[MujocoState, Any]):
         nthread: int | None = None,
         **param_overrides: float,
     ):
-        if fidelity not in self.solver_settings:
-            raise ValueError(
-                f"unknown fidelity {fidelity!r}; choose from {list(self.solver_settings)}"
-            )
+        if fidelity not in FIDELITIES:
+            raise ValueError(f"unknown fidelity {fidelity!r}; choose from {FIDELITIES}")
         self.backend = resolve_backend(backend)
         self.fidelity = fidelity
-        self.model = load_model(self.xml_file, *self.solver_settings[fidelity])
+        self.model = load_model(self.xml_file, *self.solver_limits(self.backend, fidelity))
         self.physics: Physics = make_physics(
             self.backend, self.model, self.frame_skip, self.extras, nthread
         )
