@@ -183,14 +183,6 @@ def bits_to_float64(bits: np.ndarray) -> np.ndarray:
     return np.ascontiguousarray(np.asarray(bits, np.uint32)).view(np.float64)
 
 
-def _host_diverged(*arrays: np.ndarray) -> np.ndarray:
-    """Per row: any value non-finite or beyond MuJoCo's divergence limit."""
-    bad = np.zeros(arrays[0].shape[0], bool)
-    for a in arrays:
-        bad |= ~np.all(np.abs(a) <= DIVERGENCE_LIMIT, axis=-1)  # NaN compares False
-    return bad
-
-
 def _jax_diverged(*arrays: Array) -> Array:
     ok = [jnp.all(jnp.abs(a) <= DIVERGENCE_LIMIT) for a in arrays]
     return ~jnp.all(jnp.stack(ok))
@@ -293,32 +285,67 @@ class MjxPhysics(Physics):
 
 
 # ---- MuJoCo C via a batched host callback -------------------------------------------------------
-class _HostBatches:
-    """Scratch ``mujoco.batch.Batch`` objects of one model, one per (operation, batch size).
+def _state_columns(model: mujoco.MjModel, component: mujoco.mjtState) -> slice:
+    """Columns of one component in an ``mjSTATE_INTEGRATION`` row (components in bit order)."""
+    offset = 0
+    for bit in range(int(mujoco.mjtState.mjNSTATE)):
+        spec = 1 << bit
+        if spec & int(mujoco.mjtState.mjSTATE_INTEGRATION) and spec < int(component):
+            offset += mujoco.mj_stateSize(model, spec)
+    return slice(offset, offset + mujoco.mj_stateSize(model, int(component)))
 
-    They hold no state between calls that a result depends on: every call first writes the whole
-    physics state of every simulation it steps. A lock per batch serialises concurrent callbacks
-    (XLA may run a step and a reset callback of the same program at once).
+
+class _Workspace:
+    """A scratch ``mujoco.batch.Batch`` of ``nsim`` simulations and views into it.
+
+    It holds nothing a result depends on: every call writes the full physics state (qpos, qvel,
+    warm start, controls, time) of every simulation before stepping, and stepping changes no other
+    part of a simulation's state row in these models (no activations, mocap or plugins). The lock
+    serialises concurrent callbacks (XLA may run a step and a reset callback at once).
     """
 
+    def __init__(self, model: mujoco.MjModel, nsim: int, nthread: int, outputs: tuple[str, ...]):
+        from mujoco import batch as mujoco_batch
+
+        self.batch = mujoco_batch.Batch(model, nsim, nthread=nthread)
+        self.lock = threading.Lock()
+        state = self.batch.state
+        columns = lambda c: state[:, _state_columns(model, c)]
+        self.time = columns(mujoco.mjtState.mjSTATE_TIME)
+        self.qpos = columns(mujoco.mjtState.mjSTATE_QPOS)
+        self.qvel = columns(mujoco.mjtState.mjSTATE_QVEL)
+        self.warmstart = columns(mujoco.mjtState.mjSTATE_WARMSTART)
+        self.ctrl = columns(mujoco.mjtState.mjSTATE_CTRL)
+        # derived fields are copied out after a call only if bound before it
+        self.outputs = [self.batch.bind(name) for name in outputs]
+        self.warnings = self.batch.warning
+
+    def load(self, qpos: np.ndarray, qvel: np.ndarray, warmstart: np.ndarray) -> None:
+        self.qpos[:], self.qvel[:], self.warmstart[:] = qpos, qvel, warmstart
+        self.time[:] = 0.0
+        self.warnings[...] = 0
+
+    def unstable(self) -> np.ndarray:
+        """Per simulation: MuJoCo met (and reset after) a NaN/inf/huge qpos, qvel or qacc."""
+        return np.any(self.warnings[:, _INSTABILITY_WARNINGS, 1] > 0, axis=1)
+
+
+class _HostWorkspaces:
+    """The workspaces of one model, one per (operation, batch size), made on first use."""
+
     def __init__(self, model: mujoco.MjModel, nthread: int, outputs: tuple[str, ...]):
-        self.model = model
-        self.nthread = nthread
-        self.outputs = outputs
-        self._batches: dict[tuple[str, int], tuple[Any, threading.Lock]] = {}
+        if model.na or model.nmocap or model.nplugin:
+            raise ValueError("the C backend supports models without activations, mocap, plugins")
+        self.model, self.nthread, self.outputs = model, nthread, outputs
+        self._workspaces: dict[tuple[str, int], _Workspace] = {}
         self._guard = threading.Lock()
 
-    def get(self, operation: str, nsim: int) -> tuple[Any, threading.Lock]:
+    def get(self, operation: str, nsim: int) -> _Workspace:
         with self._guard:
             key = (operation, nsim)
-            if key not in self._batches:
-                from mujoco import batch as mujoco_batch
-
-                simulations = mujoco_batch.Batch(self.model, nsim, nthread=self.nthread)
-                for name in self.outputs:  # derived fields are copied out only once bound
-                    simulations.bind(name)
-                self._batches[key] = (simulations, threading.Lock())
-            return self._batches[key]
+            if key not in self._workspaces:
+                self._workspaces[key] = _Workspace(self.model, nsim, self.nthread, self.outputs)
+            return self._workspaces[key]
 
 
 def default_thread_count() -> int:
@@ -346,7 +373,7 @@ class MujocoCPhysics(Physics):
     ):
         super().__init__(model, frame_skip, extras)
         self.nthread = default_thread_count() if nthread is None else int(nthread)
-        self._batches = _HostBatches(model, self.nthread, self.extras)
+        self._workspaces = _HostWorkspaces(model, self.nthread, self.extras)
         self.state_size = self.nq + 2 * self.nv
 
     # -- building states ---------------------------------------------------------------------
@@ -403,50 +430,44 @@ class MujocoCPhysics(Physics):
         return self._measurement(outputs)
 
     # -- host side ---------------------------------------------------------------------------
-    def _load(self, simulations: Any, values: np.ndarray) -> None:
-        """Write the whole state of every simulation (the batch keeps nothing between calls)."""
+    def _split(self, state: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        values = bits_to_float64(state).reshape(-1, self.state_size)
         nq, nv = self.nq, self.nv
-        simulations.state[:] = 0.0
-        simulations.bind("qpos")[:] = values[:, :nq]
-        simulations.bind("qvel")[:] = values[:, nq : nq + nv]
-        simulations.bind("qacc_warmstart")[:] = values[:, nq + nv :]
-        simulations.warning[...] = 0
+        return values[:, :nq], values[:, nq : nq + nv], values[:, nq + nv :]
 
-    def _host_outputs(self, simulations: Any, before: np.ndarray, batch_shape: tuple) -> list:
-        qpos, qvel = simulations.bind("qpos"), simulations.bind("qvel")
-        warned = np.any(simulations.warning[:, _INSTABILITY_WARNINGS, 1] > 0, axis=1)
-        diverged = warned | _host_diverged(qpos, qvel)
+    def _host_outputs(self, work: _Workspace, qpos_before: np.ndarray, batch_shape: tuple) -> list:
+        qpos, qvel = work.qpos, work.qvel
+        magnitude = np.maximum(np.abs(qpos).max(axis=1), np.abs(qvel).max(axis=1))
+        diverged = work.unstable() | ~(magnitude <= DIVERGENCE_LIMIT)  # NaN compares False
         outputs = [
             qpos.astype(np.float32),
             qvel.astype(np.float32),
-            (qpos - before[:, : self.nq]).astype(np.float32),
-            *(simulations.bind(name).astype(np.float32) for name in self.extras),
+            (qpos - qpos_before).astype(np.float32),
+            *(field.astype(np.float32) for field in work.outputs),
             diverged,
         ]
         return [o.reshape(batch_shape + o.shape[1:]) for o in outputs]
 
     def _host_step(self, state: np.ndarray, ctrl: np.ndarray) -> tuple:
         batch_shape = ctrl.shape[:-1]
-        values = bits_to_float64(state).reshape(-1, self.state_size)
-        ctrl = np.asarray(ctrl, np.float64).reshape(-1, self.nu)
-        simulations, lock = self._batches.get("step", values.shape[0])
-        with lock:
-            self._load(simulations, values)
-            simulations.bind("ctrl")[:] = ctrl
-            simulations.step(nstep=self.frame_skip)
-            fields = ("qpos", "qvel", "qacc_warmstart")
-            new_values = np.concatenate([simulations.bind(f) for f in fields], axis=1)
+        qpos, qvel, warmstart = self._split(state)
+        work = self._workspaces.get("step", qpos.shape[0])
+        with work.lock:
+            work.load(qpos, qvel, warmstart)
+            work.ctrl[:] = ctrl.reshape(-1, self.nu)
+            work.batch.step(nstep=self.frame_skip)
+            new_values = np.concatenate([work.qpos, work.qvel, work.warmstart], axis=1)
             new_state = float64_to_bits(new_values).reshape(batch_shape + (2 * self.state_size,))
-            return (new_state, *self._host_outputs(simulations, values, batch_shape))
+            return (new_state, *self._host_outputs(work, qpos, batch_shape))
 
     def _host_forward(self, state: np.ndarray) -> tuple:
         batch_shape = state.shape[:-1]
-        values = bits_to_float64(state).reshape(-1, self.state_size)
-        simulations, lock = self._batches.get("forward", values.shape[0])
-        with lock:
-            self._load(simulations, values)
-            simulations.forward()
-            return tuple(self._host_outputs(simulations, values, batch_shape))
+        qpos, qvel, warmstart = self._split(state)
+        work = self._workspaces.get("forward", qpos.shape[0])
+        with work.lock:
+            work.load(qpos, qvel, warmstart)
+            work.batch.forward()
+            return tuple(self._host_outputs(work, qpos, batch_shape))
 
 
 def make_physics(
