@@ -100,6 +100,19 @@ def load_model(xml_file: str, iterations: int, ls_iterations: int) -> mujoco.MjM
     return model
 
 
+# Extras computed from qpos rather than read from mjData. The C backend evaluates them in float64
+# before rounding: sin/cos of a float32-rounded angle of a pendulum that has spun many turns would
+# lose digits (|angle| = 100 rad has a float32 spacing of 8e-6).
+COMPUTED_EXTRAS = {"sin_qpos": "sin", "cos_qpos": "cos"}
+
+
+def extra_field(name: str, data: Any, numpy_like: Any) -> Any:
+    """An extra of ``data`` (mjData, mjx.Data, or a batch's bound arrays), by name."""
+    if name in COMPUTED_EXTRAS:
+        return getattr(numpy_like, COMPUTED_EXTRAS[name])(data.qpos)
+    return getattr(data, name)
+
+
 class Measurement(NamedTuple):
     """What an env reads after a step (or a forward pass), float32.
 
@@ -199,7 +212,7 @@ class Physics:
         self.extras = tuple(extras)
         self.nq, self.nv, self.nu = model.nq, model.nv, model.nu
         data = mujoco.MjData(model)
-        self._extra_shapes = {name: getattr(data, name).shape for name in self.extras}
+        self._extra_shapes = {name: np.shape(extra_field(name, data, np)) for name in self.extras}
 
     def from_qpos_qvel(self, qpos: Any, qvel: Any, qacc_warmstart: Any = None) -> Any:
         """Physics state; ``qacc_warmstart`` defaults to zero, as after ``mj_resetData``."""
@@ -256,24 +269,29 @@ class MjxPhysics(Physics):
 
     def step(self, state: tuple, ctrl: Array) -> tuple[tuple, Measurement]:
         data = self._data(state, ctrl)
-        data = jax.lax.fori_loop(0, self.frame_skip, lambda _, d: mjx.step(self.mjx_model, d), data)
+        # MJX's own code broadcasts implicitly; allow it even under rank_promotion="raise"
+        with jax.numpy_rank_promotion("allow"):
+            data = jax.lax.fori_loop(
+                0, self.frame_skip, lambda _, d: mjx.step(self.mjx_model, d), data
+            )
         new_state = (data.qpos, data.qvel, data.qacc_warmstart)
         measurement = Measurement(
             qpos=data.qpos,
             qvel=data.qvel,
             qpos_change=data.qpos - state[0],
-            extras={name: getattr(data, name) for name in self.extras},
+            extras={name: extra_field(name, data, jnp) for name in self.extras},
             diverged=_jax_diverged(*new_state),
         )
         return new_state, measurement
 
     def forward(self, state: tuple) -> Measurement:
-        data = mjx.forward(self.mjx_model, self._data(state))
+        with jax.numpy_rank_promotion("allow"):
+            data = mjx.forward(self.mjx_model, self._data(state))
         return Measurement(
             qpos=state[0],
             qvel=state[1],
             qpos_change=jnp.zeros_like(state[0]),
-            extras={name: getattr(data, name) for name in self.extras},
+            extras={name: extra_field(name, data, jnp) for name in self.extras},
             diverged=_jax_diverged(state[0], state[1]),
         )
 
@@ -317,7 +335,9 @@ class _Workspace:
         self.warmstart = columns(mujoco.mjtState.mjSTATE_WARMSTART)
         self.ctrl = columns(mujoco.mjtState.mjSTATE_CTRL)
         # derived fields are copied out after a call only if bound before it
-        self.outputs = [self.batch.bind(name) for name in outputs]
+        self.outputs = {
+            name: self.batch.bind(name) for name in outputs if name not in COMPUTED_EXTRAS
+        }
         self.warnings = self.batch.warning
 
     def load(self, qpos: np.ndarray, qvel: np.ndarray, warmstart: np.ndarray) -> None:
@@ -443,10 +463,16 @@ class MujocoCPhysics(Physics):
             qpos.astype(np.float32),
             qvel.astype(np.float32),
             (qpos - qpos_before).astype(np.float32),
-            *(field.astype(np.float32) for field in work.outputs),
+            *(self._host_extra(name, work).astype(np.float32) for name in self.extras),
             diverged,
         ]
         return [o.reshape(batch_shape + o.shape[1:]) for o in outputs]
+
+    @staticmethod
+    def _host_extra(name: str, work: _Workspace) -> np.ndarray:
+        if name in COMPUTED_EXTRAS:
+            return extra_field(name, work, np)
+        return work.outputs[name]
 
     def _host_step(self, state: np.ndarray, ctrl: np.ndarray) -> tuple:
         batch_shape = ctrl.shape[:-1]

@@ -50,6 +50,7 @@ from envs.mujoco_backend import (
     DIVERGENCE_LIMIT,
     Measurement,
     Physics,
+    extra_field,
     load_model,
     make_physics,
     resolve_backend,
@@ -249,7 +250,7 @@ class MujocoEnv(Environment[MujocoState, Any]):
         data = mujoco.MjData(self.model)
         mujoco.mj_forward(self.model, data)
         as32 = lambda x: np.asarray(x, np.float32)
-        extras = {name: as32(getattr(data, name)) for name in self.extras}
+        extras = {name: as32(extra_field(name, data, np)) for name in self.extras}
         qpos, qvel = as32(data.qpos), as32(data.qvel)
         measurement = Measurement(qpos, qvel, np.zeros_like(qpos), extras, np.bool_(False))
         return np.asarray(self.observe(measurement), np.float32)
