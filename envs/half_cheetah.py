@@ -35,7 +35,7 @@ class HalfCheetah(MujocoEnv):
     # 6 iterations (with 4 line-search iterations) matched to float32 precision.
     mjx_solver = (6, 4)
     info_keys = ("x_position", "x_velocity", "reward_forward", "reward_ctrl")
-    camera = {"distance": 4.0}
+    camera = "track"  # the model's own camera, which follows the torso (gymnasium's stays put)
     params_type = HalfCheetahParams
 
     def __init__(

@@ -89,8 +89,8 @@ class MujocoEnv(Environment[MujocoState, Any]):
     forward_at_reset: bool = False
     #: float32 scalar reward terms in ``info``, in addition to ``physics_diverged``
     info_keys: tuple[str, ...] = ()
-    #: gymnasium's camera for ``render``
-    camera: dict[str, Any] = {}
+    #: gymnasium's free-camera settings for ``render``, or the name of a camera of the model
+    camera: dict[str, Any] | str = {}
     params_type: type = MujocoParams
 
     def __init__(
@@ -131,6 +131,11 @@ class MujocoEnv(Environment[MujocoState, Any]):
     @property
     def default_params(self):
         return self._params
+
+    @property
+    def render_fps(self) -> int:
+        """Frames per second of real time, as gymnasium's ``metadata["render_fps"]``."""
+        return int(np.round(1.0 / self.dt))
 
     # ---- spaces -------------------------------------------------------------------------------
     @property
@@ -269,6 +274,9 @@ class MujocoEnv(Environment[MujocoState, Any]):
             height,
         ):
             self._renderer = mujoco.Renderer(self.model, height=height, width=width)
+        if isinstance(self.camera, str):
+            self._renderer.update_scene(data, self.camera)
+            return self._renderer.render()
         camera = mujoco.MjvCamera()
         mujoco.mjv_defaultFreeCamera(self.model, camera)
         for name, value in self.camera.items():

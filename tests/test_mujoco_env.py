@@ -1,8 +1,8 @@
 """The MuJoCo envs' API: construction, spaces, reset statistics, exact float64 state transport,
 non-finite physics, jit/vmap (with extra outer vmaps), wrappers, determinism.
 
-Most checks use the C backend ("mujoco"), whose compiled programs are small; MJX-specific ones
-share the compiled steps of test_mujoco_parity.py.
+Most checks use the C backend ("mujoco"), whose compiled programs are small; the MJX ones reuse
+the compiled 256-env steps of test_mujoco_parity.py (same process, same cache) where they can.
 """
 
 from __future__ import annotations
@@ -15,6 +15,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 from scipy import stats
+from test_mujoco_parity import BATCH, engine
 
 import envs
 from envs import mujoco_backend
@@ -93,7 +94,8 @@ def test_float64_bits_to_float32_rounds_like_numpy():
     x = np.concatenate([rng.normal(size=5000) * 10.0 ** rng.integers(-30, 30, 5000), [0.0, -0.0]])
     x = np.concatenate([x, [np.inf, -np.inf, 3.5e38, -1e300, 1 + 2**-24, 1 + 3 * 2**-24]])
     ours = np.asarray(jax.jit(float64_bits_to_float32)(x.view(np.uint32)))
-    np.testing.assert_array_equal(ours, x.astype(np.float32))
+    with np.errstate(over="ignore"):  # numpy's own cast overflows to inf, as ours must
+        np.testing.assert_array_equal(ours, x.astype(np.float32))
     assert np.isnan(np.asarray(float64_bits_to_float32(np.array([np.nan]).view(np.uint32))))
 
 
@@ -188,6 +190,21 @@ def test_c_backend_non_finite_physics_ends_the_episode(env_id):
     assert not np.asarray(ts.info["physics_diverged"]).any()
 
 
+@pytest.mark.parametrize("env_id", ENV_IDS)
+def test_mjx_backend_non_finite_physics_ends_the_episode(env_id):
+    env, start, step = engine(env_id, "mjx")
+    vectors, actions, rows = diverging_starts(env, BATCH)
+    nq = env.physics.nq
+    physics = env.physics.from_qpos_qvel(vectors[:, :nq], vectors[:, nq:], None)
+    state, first = start(physics)
+    assert np.isfinite(np.asarray(first.obs)).all()
+    keys = jax.random.split(jax.random.PRNGKey(4), BATCH)
+    next_state, ts = step(keys, state, jnp.asarray(actions))
+    check_divergence_handling(env, ts, next_state, rows)
+    _, ts = step(keys, next_state, jnp.zeros_like(jnp.asarray(actions)))
+    assert not np.asarray(ts.info["physics_diverged"]).any()
+
+
 def test_autoreset_after_divergence_keeps_nan_out_of_final_obs():
     env = envs.AutoReset(c_env("HalfCheetah-v5"))
     vectors, actions, rows = diverging_starts(c_env("HalfCheetah-v5"), 6)
@@ -277,3 +294,31 @@ def test_scan_with_training_wrappers(env_id):
     if env_id != "HalfCheetah-v5":  # random actions topple both pendulums quickly
         assert np.asarray(trajectory.info["episode_done"]).any()
         assert not np.asarray(trajectory.truncated).any()
+
+
+def test_mjx_backend_under_outer_vmap_matches_flat_batch():
+    """vmap(seeds) o vmap(envs) of the MJX step equals the flat batch of the same envs."""
+    env, _, flat_step = engine("InvertedPendulum-v5", "mjx")
+    seeds, per_seed = 2, BATCH // 2
+    keys = jax.random.split(jax.random.PRNGKey(11), BATCH)
+    state, _ = jax.jit(jax.vmap(env.reset))(keys)
+    actions = jax.random.uniform(jax.random.PRNGKey(12), (BATCH, 1), minval=-3, maxval=3)
+    _, flat = flat_step(keys, state, actions)
+    split = lambda tree: jax.tree.map(lambda x: x.reshape(seeds, per_seed, *x.shape[1:]), tree)
+    nested_step = jax.jit(jax.vmap(jax.vmap(env.step)))
+    _, nested = nested_step(split(keys), split(state), split(actions))
+    for a, b in zip(jax.tree.leaves(nested), jax.tree.leaves(flat), strict=True):
+        np.testing.assert_allclose(np.asarray(a).reshape(np.shape(b)), b, rtol=1e-6, atol=1e-6)
+
+
+@pytest.mark.parametrize("env_id", ["InvertedPendulum-v5", "HalfCheetah-v5"])
+def test_backends_sample_the_same_resets(env_id):
+    """Reset sampling is backend-independent: same keys, same start (float32 values)."""
+    keys = jax.random.split(jax.random.PRNGKey(13), 16)
+    mjx_env = envs.make("rl_jax/" + env_id, backend="mjx")
+    mjx_state, mjx_ts = jax.jit(jax.vmap(mjx_env.reset))(keys)
+    c_state, c_ts = c_functions(env_id)[0](keys)
+    np.testing.assert_array_equal(mjx_ts.obs, c_ts.obs)
+    c_qpos, c_qvel, _ = c_env(env_id).physics.to_numpy(c_state.physics)
+    np.testing.assert_array_equal(np.asarray(mjx_state.physics[0], np.float64), c_qpos)
+    np.testing.assert_array_equal(np.asarray(mjx_state.physics[1], np.float64), c_qvel)
