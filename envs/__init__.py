@@ -5,6 +5,7 @@
 """
 
 from envs.core import Environment, EnvParams, EnvState, TimeStep
+from envs.gym_adapter import register_with_gymnasium
 from envs.registry import UnknownEnvError, make, register, registered_ids
 from envs.spaces import Box, Discrete, Space
 from envs.wrappers import (
@@ -15,6 +16,8 @@ from envs.wrappers import (
     RescaleAction,
     Wrapper,
 )
+
+register_with_gymnasium()
 
 __all__ = [
     "AutoReset",

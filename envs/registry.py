@@ -4,6 +4,7 @@ not pay for importing MuJoCo."""
 from __future__ import annotations
 
 import importlib
+from collections.abc import Callable
 from typing import Any
 
 from envs.core import Environment
@@ -19,13 +20,32 @@ _ENTRY_POINTS: dict[str, str] = {
 }
 
 
+# id -> episode limit, known without importing the env module: gymnasium's registration (its
+# ``spec.max_episode_steps`` and TimeLimit) needs it before MuJoCo is imported. It must equal the
+# env class's ``max_episode_steps`` (tests/test_gym_adapter.py checks).
+_MAX_EPISODE_STEPS: dict[str, int] = {
+    "rl_jax/Rocket-v0": 500,
+    "rl_jax/CartPole-v1": 500,
+    "rl_jax/Pendulum-v1": 200,
+    "rl_jax/InvertedPendulum-v5": 1000,
+    "rl_jax/InvertedDoublePendulum-v5": 1000,
+    "rl_jax/HalfCheetah-v5": 1000,
+}
+
+
 class UnknownEnvError(ValueError):
     """Raised for a name that is not registered; the message lists the known ids."""
 
 
-def register(env_id: str, entry_point: str) -> None:
-    """Add an env: ``entry_point`` is ``"package.module:Factory"``."""
+def register(env_id: str, entry_point: str, max_episode_steps: int | None = None) -> None:
+    """Add an env: ``entry_point`` is ``"package.module:Factory"``.
+
+    ``max_episode_steps`` (optional) lets gymnasium's registration know the limit without
+    importing the module; when omitted it is read from the env class on first use.
+    """
     _ENTRY_POINTS[env_id] = entry_point
+    if max_episode_steps is not None:
+        _MAX_EPISODE_STEPS[env_id] = max_episode_steps
 
 
 def registered_ids() -> list[str]:
@@ -44,11 +64,23 @@ def resolve_id(name: str) -> str:
     raise UnknownEnvError(f"unknown environment {name!r}; known environments: {known}")
 
 
+def factory(name: str) -> Callable[..., Environment]:
+    """The class (or function) that builds the env; imports its module."""
+    module_name, factory_name = _ENTRY_POINTS[resolve_id(name)].split(":")
+    return getattr(importlib.import_module(module_name), factory_name)
+
+
+def max_episode_steps(name: str) -> int:
+    """The env's static episode limit, without importing its module when it is known."""
+    env_id = resolve_id(name)
+    if env_id not in _MAX_EPISODE_STEPS:
+        _MAX_EPISODE_STEPS[env_id] = int(factory(env_id).max_episode_steps)
+    return _MAX_EPISODE_STEPS[env_id]
+
+
 def make(name: str, **kwargs: Any) -> Environment:
     """Build a registered env, e.g. ``envs.make("rl_jax/Rocket-v0")``."""
     env_id = resolve_id(name)
-    module_name, factory_name = _ENTRY_POINTS[env_id].split(":")
-    factory = getattr(importlib.import_module(module_name), factory_name)
-    env = factory(**kwargs)
+    env = factory(env_id)(**kwargs)
     env.id = env_id
     return env

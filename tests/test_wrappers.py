@@ -8,6 +8,7 @@ from flax import struct
 
 import envs
 from envs.core import Environment, EnvParams, EnvState
+from envs.rocket import Rocket
 
 
 @struct.dataclass
@@ -124,3 +125,74 @@ def test_discretize_actions_grid():
 def test_unknown_env_lists_known_ids():
     with pytest.raises(envs.UnknownEnvError, match="rl_jax/Rocket-v0"):
         envs.make("rl_jax/Nope-v0")
+
+
+# ---- the same guarantees on a real env ----------------------------------------------------------
+def _rocket_rollout(num_steps: int):
+    """Two rocket envs under EpisodeStatistics(AutoReset(.)), vmapped and scanned: env 0 runs a
+    damped controller (never terminates: truncated at 500), env 1 full thrust (crashes)."""
+    bare = Rocket()
+    env = envs.EpisodeStatistics(envs.AutoReset(bare))
+    reset, step = jax.vmap(env.reset), jax.vmap(env.step)
+
+    def policy(obs):
+        damped = jnp.clip(-obs[0, 0] - 2 * obs[0, 1], -1.0, 1.0)
+        return jnp.stack([damped, jnp.float32(1.0)])[:, None]
+
+    def body(carry, key):
+        state, obs = carry
+        action = policy(obs)
+        new_state, ts = step(jax.random.split(key, 2), state, action)
+        # The bare env from the same pre-step state: what the wrapper must report as final.
+        _, bare_ts = jax.vmap(bare.step)(jax.random.split(key, 2), state.env_state, action)
+        return (new_state, ts.obs), (obs, ts, bare_ts)
+
+    @jax.jit
+    def run(key):
+        state, ts = reset(jax.random.split(key, 2))
+        keys = jax.random.split(jax.random.fold_in(key, 1), num_steps)
+        return jax.lax.scan(body, (state, ts.obs), keys)[1]
+
+    return jax.device_get(run(jax.random.PRNGKey(0)))
+
+
+def test_autoreset_and_statistics_on_the_rocket():
+    prev_obs, ts, bare_ts = _rocket_rollout(1100)
+    done = ts.terminated | ts.truncated
+    # Final obs is the bare env's next obs on every step; obs differs from it only at resets.
+    np.testing.assert_array_equal(ts.info["final_obs"], bare_ts.obs)
+    np.testing.assert_array_equal(ts.reward, bare_ts.reward)
+    np.testing.assert_array_equal(ts.obs[~done], ts.info["final_obs"][~done])
+    reset_obs = np.abs(ts.obs[done])
+    assert np.all((reset_obs >= 0.5) & (reset_obs <= 1.0))  # a fresh start, not a terminal state
+    # The new episode really starts from the reset obs: stepping the bare env from that state
+    # with the next action gives the next step's result.
+    bare = Rocket()
+    for t, column in zip(*np.nonzero(done[:-1]), strict=True):
+        start, _ = bare.reset_to(ts.obs[t, column])
+        policy_input = prev_obs[t + 1, column]
+        np.testing.assert_array_equal(policy_input, ts.obs[t, column])
+        x, v = policy_input
+        thrust = np.clip(-x - 2 * v, -1, 1) if column == 0 else 1.0
+        _, expected = bare.step(jax.random.PRNGKey(0), start, jnp.array([thrust], jnp.float32))
+        np.testing.assert_allclose(ts.info["final_obs"][t + 1, column], expected.obs, rtol=1e-6)
+    # Env 0 truncates at exactly 500 and 1000; env 1 crashes (terminated, -500) again and again.
+    assert list(np.nonzero(done[:, 0])[0] + 1) == [500, 1000]
+    assert ts.truncated[[499, 999], 0].all() and not ts.terminated[:, 0].any()
+    crashes = np.nonzero(done[:, 1])[0]
+    assert len(crashes) >= 5 and ts.terminated[crashes, 1].all()
+    assert np.all(ts.reward[crashes, 1] < -400)
+    # Returns and lengths: recomputed from the per-step rewards between dones.
+    for column in range(2):
+        start = 0
+        for end in np.nonzero(done[:, column])[0]:
+            expected = ts.reward[start : end + 1, column].astype(np.float64).sum()
+            np.testing.assert_allclose(ts.info["episode_return"][end, column], expected, rtol=1e-5)
+            assert ts.info["episode_length"][end, column] == end + 1 - start
+            assert ts.info["episode_done"][end, column]
+            start = end + 1
+        # Between dones the last finished episode's statistics stay reported.
+        last = np.nonzero(done[:, column])[0][-1]
+        assert np.all(
+            ts.info["episode_return"][last:, column] == ts.info["episode_return"][last, column]
+        )
