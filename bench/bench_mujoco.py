@@ -17,6 +17,7 @@ Ratios: ``mujoco/raw`` and ``mjx/raw`` against raw rollout at the same batch siz
 
 from __future__ import annotations
 
+import functools
 import os
 import time
 from typing import Any
@@ -70,7 +71,9 @@ def gymnasium_async_call(env_id: str):
     import gymnasium
 
     processes = _cores()
-    vector = gymnasium.vector.AsyncVectorEnv([lambda: gymnasium.make(env_id)] * processes)
+    # spawn, not fork: this process already runs JAX's threads
+    make = functools.partial(gymnasium.make, env_id)
+    vector = gymnasium.vector.AsyncVectorEnv([make] * processes, context="spawn")
     vector.reset(seed=0)
     actions = vector.action_space.sample()
     _KEEP_ALIVE.append(vector)
