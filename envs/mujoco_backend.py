@@ -323,7 +323,7 @@ class Physics:
         """float32 ``(qpos, qvel)`` of a state, inside JAX."""
         raise NotImplementedError
 
-    def _empty_extras(self, batch_shape: tuple[int, ...] = ()) -> dict[str, Array]:
+    def empty_extras(self, batch_shape: tuple[int, ...] = ()) -> dict[str, Array]:
         return {
             name: jnp.zeros(batch_shape + shape, jnp.float32)
             for name, shape in self._extra_shapes.items()

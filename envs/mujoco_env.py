@@ -64,9 +64,8 @@ FIDELITIES = ("parity", "gymnasium")
 
 @struct.dataclass
 class MujocoState(EnvState):
-    physics: (
-        Any  # backend-specific: float32 (qpos, qvel, qacc_warmstart) for mjx, uint32 bits for C
-    )
+    # backend-specific: float32 (qpos, qvel, qacc_warmstart) for mjx, uint32 float64 bits for C
+    physics: Any
     obs: Array  # [obs_size] float32, the last observation, reported again if the physics diverges
 
 
@@ -199,7 +198,7 @@ class MujocoEnv(Environment[MujocoState, Any]):
             # qpos/qvel are all the observation needs: no physics call
             qpos, qvel = self.physics.qpos_qvel(physics)
             finite = jnp.all(jnp.abs(jnp.concatenate([qpos, qvel], -1)) <= DIVERGENCE_LIMIT)
-            extras = self.physics._empty_extras()
+            extras = self.physics.empty_extras()
             measurement = Measurement(qpos, qvel, jnp.zeros_like(qpos), extras, ~finite)
         obs = self.observe(measurement)
         diverged = measurement.diverged | ~jnp.all(jnp.isfinite(obs))
@@ -269,14 +268,17 @@ class MujocoEnv(Environment[MujocoState, Any]):
         data = mujoco.MjData(self.model)
         data.qpos[:], data.qvel[:] = qpos, qvel
         mujoco.mj_forward(self.model, data)
-        if self._renderer is None or (self._renderer.width, self._renderer.height) != (
-            width,
-            height,
-        ):
-            self._renderer = mujoco.Renderer(self.model, height=height, width=width)
+        renderer = self._renderer
+        if renderer is None or (renderer.width, renderer.height) != (width, height):
+            self._renderer = renderer = mujoco.Renderer(self.model, height=height, width=width)
+        renderer.update_scene(data, self._camera())
+        return renderer.render()
+
+    def _camera(self) -> Any:
+        import mujoco
+
         if isinstance(self.camera, str):
-            self._renderer.update_scene(data, self.camera)
-            return self._renderer.render()
+            return self.camera
         camera = mujoco.MjvCamera()
         mujoco.mjv_defaultFreeCamera(self.model, camera)
         for name, value in self.camera.items():
@@ -286,8 +288,7 @@ class MujocoEnv(Environment[MujocoState, Any]):
                 setattr(camera, name, value)
         if "trackbodyid" in self.camera:
             camera.type = mujoco.mjtCamera.mjCAMERA_TRACKING
-        self._renderer.update_scene(data, camera)
-        return self._renderer.render()
+        return camera
 
     # ---- hooks --------------------------------------------------------------------------------
     def sample_start(self, key: PRNGKey, params) -> tuple[Array, Array]:

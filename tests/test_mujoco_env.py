@@ -322,3 +322,30 @@ def test_backends_sample_the_same_resets(env_id):
     c_qpos, c_qvel, _ = c_env(env_id).physics.to_numpy(c_state.physics)
     np.testing.assert_array_equal(np.asarray(mjx_state.physics[0], np.float64), c_qpos)
     np.testing.assert_array_equal(np.asarray(mjx_state.physics[1], np.float64), c_qvel)
+
+
+@pytest.mark.parametrize("size", [1, 3, 9])
+def test_small_cholesky_matches_lapack(size):
+    """The unrolled factor/solve MJX is traced with equals jax.scipy's (float32 rounding)."""
+    rng = np.random.default_rng(size)
+    a = rng.normal(size=(32, size, size)).astype(np.float32)
+    spd = a @ np.swapaxes(a, 1, 2) + size * np.eye(size, dtype=np.float32)
+    b = rng.normal(size=(32, size)).astype(np.float32)
+    b_matrix = rng.normal(size=(32, size, 2)).astype(np.float32)
+
+    def solve(matrix, vector, rhs):
+        factor = jax.scipy.linalg.cho_factor(matrix)
+        lower_factor = jax.scipy.linalg.cho_factor(matrix, lower=True)
+        solutions = (
+            jax.scipy.linalg.cho_solve(factor, vector),
+            jax.scipy.linalg.cho_solve(lower_factor, rhs),
+        )
+        return jnp.triu(factor[0]), solutions
+
+    expected = jax.jit(jax.vmap(solve))(spd, b, b_matrix)
+    with mujoco_backend.small_cholesky():
+        assert jax.scipy.linalg.cho_factor.__module__ == "envs.mujoco_backend"
+        ours = jax.jit(jax.vmap(solve))(spd, b, b_matrix)
+    assert jax.scipy.linalg.cho_factor.__module__ != "envs.mujoco_backend"  # restored
+    for x, y in zip(jax.tree.leaves(ours), jax.tree.leaves(expected), strict=True):
+        np.testing.assert_allclose(x, y, rtol=2e-5, atol=2e-5)
