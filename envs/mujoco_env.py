@@ -5,7 +5,7 @@ gymnasium package), frame skip, observation layout, reward terms, termination ru
 1,000-step limit — on either physics backend of ``envs.mujoco_backend``::
 
     env = envs.make("rl_jax/HalfCheetah-v5")                  # default backend for the platform
-    env = envs.make("rl_jax/HalfCheetah-v5", backend="mjx")   # pure JAX (differentiable)
+    env = envs.make("rl_jax/HalfCheetah-v5", backend="mjx")   # pure JAX
     env = envs.make("rl_jax/HalfCheetah-v5", backend="mujoco", ctrl_cost_weight=0.2)
 
 The backend defaults to ``$RL_JAX_MUJOCO_BACKEND``, else MuJoCo C ("mujoco") on CPU and MJX on
@@ -82,6 +82,8 @@ class MujocoEnv(Environment[MujocoState, Any]):
     max_episode_steps: int = 1000
     #: MJX (solver iterations, line-search iterations) of the "parity" fidelity
     mjx_solver: tuple[int, int] = GYMNASIUM_SOLVER
+    #: on CPU, vmapped MJX steps run this many envs at a time (see ``MjxPhysics``); None: all
+    mjx_cpu_chunk: int | None = None
     #: derived mjData fields the env reads after a step (see ``Measurement.extras``)
     extras: tuple[str, ...] = ()
     #: whether the reset observation needs ``mj_forward`` (constraint forces, site positions)
@@ -104,8 +106,9 @@ class MujocoEnv(Environment[MujocoState, Any]):
         self.backend = resolve_backend(backend)
         self.fidelity = fidelity
         self.model = load_model(self.xml_file, *self.solver_limits(self.backend, fidelity))
+        chunk = self.mjx_cpu_chunk if jax.default_backend() == "cpu" else None
         self.physics: Physics = make_physics(
-            self.backend, self.model, self.frame_skip, self.extras, nthread
+            self.backend, self.model, self.frame_skip, self.extras, nthread, chunk
         )
         self.dt = float(self.model.opt.timestep * self.frame_skip)
         self._params = self._make_default_params(param_overrides)
