@@ -255,14 +255,15 @@ def act(agent: Agent, obs: jax.Array, config: Config) -> jax.Array:
     return jnp.argmax(make_network(config).apply(agent.online, obs), axis=-1).astype(jnp.int32)
 
 
-def explore(agent: Agent, obs, key, config: Config, hparams: Hyperparams, clock) -> jax.Array:
-    """Epsilon-greedy: a uniform action with probability epsilon(env steps), else greedy."""
+def explore(agent: Agent, obs, noise, key, config: Config, hparams: Hyperparams, clock):
+    """``(actions, noise)``. Epsilon-greedy: a uniform action with probability epsilon(env steps),
+    else greedy. Independent from step to step, so the carried ``noise`` state is passed through."""
     greedy = act(agent, obs, config)
     coin_key, action_key = jax.random.split(key)
     num_actions = make_network(config).num_actions
     uniform = jax.random.randint(action_key, greedy.shape, 0, num_actions, jnp.int32)
     explore_now = jax.random.uniform(coin_key, greedy.shape) < epsilon_at(clock.env_steps, hparams)
-    return jnp.where(explore_now, uniform, greedy)
+    return jnp.where(explore_now, uniform, greedy), noise
 
 
 def init_buffer(example: Transition, config: Config):
