@@ -176,7 +176,10 @@ class Learner(NamedTuple):
 @functools.lru_cache(maxsize=64)
 def make_eval_env(config: OffPolicyConfig) -> envs.Environment:
     """The env as the policy sees it (obs flattened to one axis), without autoreset."""
-    env = config.make_env()
+    # The first call may come while tracing (e.g. under eval_shape): constants an env computes
+    # when built (MuJoCo's initial obs, default params) must stay concrete, not leak tracers.
+    with jax.ensure_compile_time_eval():
+        env = config.make_env()
     if len(env.observation_space().shape) != 1:
         env = envs.FlattenObservation(env)
     return env

@@ -214,9 +214,9 @@ def test_network_loss_check_grads(setup):
         to64 = lambda tree: jax.tree.map(lambda x: x.astype(jnp.float64), tree)  # noqa: E731
         for dueling in (False, True):
             net = networks.QNetwork((8,), 5, dueling=dueling, dtype=jnp.float64)
-            online, target = (to64(net.init(k, jnp.zeros(1))) for k in jax.random.split(
-                jax.random.key(2)
-            ))
+            online, target = (
+                to64(net.init(k, jnp.zeros(1))) for k in jax.random.split(jax.random.key(2))
+            )
             batch64 = batch._replace(
                 obs=to64(batch.obs), next_obs=to64(batch.next_obs), r_t=to64(batch.r_t)
             )
@@ -284,7 +284,9 @@ def test_target_network_hard_copy_or_polyak(updater, tau, period):
         agent, buffer, _ = updater(agent, buffer, jax.random.key(index), config, hparams, index)
         due = (index + 1) % period == 0
         expected = jax.tree.map(
-            lambda t, o: (1 - tau) * t + tau * o if due else t, previous.target, agent.online
+            lambda t, o, due=due: (1 - tau) * t + tau * o if due else t,
+            previous.target,
+            agent.online,
         )
         jax.tree.map(
             lambda a, b: np.testing.assert_allclose(a, b, rtol=1e-6, atol=1e-7),
