@@ -205,7 +205,9 @@ def sample_action(policy: dict[str, jax.Array], key) -> jax.Array:
 
 def to_env_action(action, space) -> jax.Array:
     if isinstance(space, envs.Box):
-        return jnp.clip(action, space.low, space.high)
+        leading = (1,) * (action.ndim - len(space.shape))
+        low, high = (jnp.reshape(bound, leading + space.shape) for bound in (space.low, space.high))
+        return jnp.clip(action, low, high)
     return action
 
 
