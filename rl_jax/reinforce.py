@@ -21,9 +21,11 @@ The default network is the one of gymnasium's REINFORCE tutorial for the inverte
 layers of 16 and 32 units, AdamW; ``hidden`` takes deeper nets. A truncated episode is treated as
 ended (no bootstrap): REINFORCE has no critic to bootstrap from.
 
-Env steps: ``ChunkMetrics.env_steps`` counts real steps (within episodes). A chunk's *planned*
-size, ``env_steps_per_chunk``, is ``num_envs * max_episode_steps * iterations_per_chunk``: the
-most steps it can take, so ``--total-steps`` is an upper bound on the steps a run takes.
+Env steps. Episodes end at different times in every seed, but the run machinery (plans, curves
+over seeds, results) needs one step axis shared by all seeds. So ``ChunkMetrics.env_steps`` (the
+logged ``step``, ``--total-steps``) counts env step *slots*: ``num_envs * max_episode_steps`` per
+update, the most a batch can take (exact once episodes run to the time limit, an overcount while
+they end early). The real count of env steps inside episodes is logged as ``env_steps_taken``.
 """
 
 from __future__ import annotations
@@ -334,18 +336,40 @@ def train_chunk(state: TrainState, config: Config, hparams: Hyperparams):
     eval_key, key = jax.random.split(state.key)
     eval_return = offpolicy.evaluate(_Actor(act), state.agent, config, eval_key)
     state = state.replace(key=key)
+    extra = {**jax.tree.map(jnp.mean, metrics), "env_steps_taken": state.env_steps}
     return state, ChunkMetrics(
-        env_steps=state.env_steps,
+        env_steps=state.clock.updates * step_slots_per_update(config),
         updates=state.clock.updates,
         eval_return=eval_return,
         train_return=state.train_return,
-        extra=jax.tree.map(jnp.mean, metrics),
+        extra=extra,
     )
 
 
+def step_slots_per_update(config: Config) -> int:
+    """``num_envs * max_episode_steps``: the env steps of a batch whose episodes all run to the
+    time limit (the unit of the shared step axis, see the module docstring)."""
+    return config.num_envs * offpolicy.make_eval_env(config).max_episode_steps
+
+
 # ---- the Algorithm object ---------------------------------------------------------------------
-RECIPES: dict[str, dict[str, Any]] = {}
-HPARAM_RECIPES: dict[str, dict[str, float]] = {}
+# Per-env recipes on top of the tutorial's defaults (measured: tests/test_dqn_slow.py). The
+# tutorial's network with 16 episodes per update, normalised returns and a 10x larger rate.
+RECIPES: dict[str, dict[str, Any]] = {
+    "rl_jax/InvertedPendulum-v5": {"num_envs": 16, "normalize_returns": True},
+    "rl_jax/InvertedDoublePendulum-v5": {
+        "num_envs": 16,
+        "hidden": (64, 64),
+        "baseline": "value",
+        "normalize_returns": True,
+    },
+    "rl_jax/CartPole-v1": {"num_envs": 16, "normalize_returns": True},
+}
+HPARAM_RECIPES: dict[str, dict[str, float]] = {
+    "rl_jax/InvertedPendulum-v5": {"learning_rate": 1e-3},
+    "rl_jax/InvertedDoublePendulum-v5": {"learning_rate": 1e-3},
+    "rl_jax/CartPole-v1": {"learning_rate": 1e-3},
+}
 
 
 class Reinforce:
@@ -367,9 +391,8 @@ class Reinforce:
         return train_chunk(state, config, hparams)
 
     def env_steps_per_chunk(self, config: Config) -> int:
-        """The most env steps a chunk can take (every episode running to the step limit)."""
-        horizon = offpolicy.make_eval_env(config).max_episode_steps
-        return config.num_envs * horizon * config.iterations_per_chunk
+        """Env step slots per chunk (see the module docstring)."""
+        return step_slots_per_update(config) * config.iterations_per_chunk
 
     def policy(self, state: TrainState, config: Config):
         """``obs -> action`` of the deterministic policy of one seed's state."""
