@@ -353,8 +353,10 @@ def step_slots_per_update(config: Config) -> int:
 
 
 # ---- the Algorithm object ---------------------------------------------------------------------
-# Per-env recipes on top of the tutorial's defaults (measured: tests/test_dqn_slow.py). The
-# tutorial's network with 16 episodes per update, normalised returns and a 10x larger rate.
+# Per-env recipes on top of the tutorial's defaults. Inverted pendulum: the tutorial's network with
+# 16 episodes per update, normalised returns and a 10x larger rate; in tests/test_dqn_slow.py
+# seeds 0, 1, 2 first reached eval return 1,000 after 424k, 536k and 215k real env steps. The
+# double pendulum and CartPole recipes are untuned starting points.
 RECIPES: dict[str, dict[str, Any]] = {
     "rl_jax/InvertedPendulum-v5": {"num_envs": 16, "normalize_returns": True},
     "rl_jax/InvertedDoublePendulum-v5": {

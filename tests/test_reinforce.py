@@ -169,7 +169,9 @@ def test_value_baseline_trains_the_value_head_without_leaking_into_the_policy_lo
 
 def test_mean_baseline_equals_centred_returns(cartpole_rollout):
     config, params, trajectory = cartpole_rollout
-    config_mean = reinforce.default_config("rl_jax/CartPole-v1", num_envs=6, baseline="mean")
+    config_mean = reinforce.default_config(
+        "rl_jax/CartPole-v1", num_envs=6, baseline="mean", normalize_returns=False
+    )
     network = reinforce.make_network(config_mean)
     params = network.init(jax.random.key(7), jnp.zeros(4))
     hparams = reinforce.default_hyperparams(gamma=GAMMA)
