@@ -39,6 +39,7 @@ ROOT = Path(__file__).resolve().parent.parent
 # /work/baseline/torch_td3_s{1,2}.jsonl).
 TORCH_STEPS_TO_RETURN = {3000: (80_000, 60_000), 5000: (130_000, 120_000)}
 TORCH_LEARNING_STARTS = 25_000
+RAW = ROOT / "bench" / "results"  # the measured numbers behind each section, as JSON
 
 
 # ---- workers (child processes) -----------------------------------------------------------------
@@ -55,14 +56,27 @@ def throughput(quick: bool) -> dict[str, Any]:
     calls = {name: programs.update_program(paper, s, d, updates) for name, (s, d) in cases.items()}
     for call in [*calls.values(), *(c for c, _ in matmuls.values())]:
         call()  # compile (and warm up) outside the timed rounds
-    rounds = {name: [] for name in [*cases, "matmul"]}
+
+    def matmul_rate() -> float:
+        return max(f / programs.best_seconds(c, 1) for c, f in matmuls.values()) / 1e9
+
+    # Each program is timed between two matmul timings; its ratio is to their mean, so a load
+    # change on the shared machine moves both sides of a ratio alike.
+    rounds = {name: [] for name in cases}
+    references = {name: [] for name in cases}
     for _ in range(1 if quick else 3):
-        matmul = max(f / programs.best_seconds(c, 1) for c, f in matmuls.values())
-        rounds["matmul"].append(matmul / 1e9)
         for name, (seeds, _) in cases.items():
+            before = matmul_rate()
             seconds = programs.best_seconds(calls[name], 1)
             rounds[name].append(seeds * updates * flops["per_update"] / seconds / 1e9)
-    return {"flops": flops, "updates_per_call": updates, "gflops": rounds, "load": programs.load()}
+            references[name].append((before + matmul_rate()) / 2)
+    return {
+        "flops": flops,
+        "updates_per_call": updates,
+        "gflops": rounds,
+        "matmul_gflops": references,
+        "load": programs.load(),
+    }
 
 
 def scaling(quick: bool) -> dict[str, Any]:
@@ -100,7 +114,7 @@ def _paper_recipe() -> dict[str, Any]:
     return {
         k: v
         for k, v in Config(env_id=ENV_ID).to_dict().items()
-        if k not in ("env_id", "iterations_per_chunk", "buffer_size")
+        if k not in ("env_id", "iterations_per_chunk", "buffer_size", "learning_starts")
     }
 
 
@@ -155,38 +169,56 @@ def run(quick: bool) -> str:
 
     lines = [f"## TD3 performance\n\n{describe()}\n", "Command: `python -m bench td3`\n"]
     started = time.strftime("%H:%M")
-    lines += throughput_section(_child("throughput", quick))
-    lines += scaling_section(_child("scaling", quick))
-    with tempfile.TemporaryDirectory() as cache:
-        cold = _child("compile", quick, env={"JAX_COMPILATION_CACHE_DIR": cache})
-        warm = _child("compile", quick, env={"JAX_COMPILATION_CACHE_DIR": cache})
-    lines += compile_section(cold, warm)
-    ours = _child("ours", quick, devices=1)
-    lines += torch_section(_torch(quick), ours)
-    lines.append(f"\nStarted {started}, finished {time.strftime('%H:%M')} (local time).\n")
+    lines += _part(throughput_section, lambda: _child("throughput", quick))
+    lines += _part(scaling_section, lambda: _child("scaling", quick))
+    lines += _part(compile_section, lambda: _compile_cold_and_warm(quick))
+    lines += _part(torch_section, lambda: (_torch(quick), _child("ours", quick, devices=1)))
+    lines.append(f"\nStarted {started}, finished {time.strftime('%H:%M')} (UTC).\n")
     return "\n".join(lines)
 
 
+def _part(section: Any, measure: Any) -> list[str]:
+    """One section; a failing part is reported in the output instead of losing the others."""
+    try:
+        result = measure()
+    except Exception as error:  # noqa: BLE001 - any failure of a child is reported as is
+        return [f"### {section.__name__} failed\n", "```", str(error)[-2000:], "```", ""]
+    RAW.mkdir(exist_ok=True)
+    (RAW / f"td3_{section.__name__}.json").write_text(json.dumps(result))
+    return section(*result) if isinstance(result, tuple) else section(result)
+
+
+def _compile_cold_and_warm(quick: bool) -> tuple[dict, dict]:
+    with tempfile.TemporaryDirectory() as cache:
+        cold = _child("compile", quick, env={"JAX_COMPILATION_CACHE_DIR": cache})
+        warm = _child("compile", quick, env={"JAX_COMPILATION_CACHE_DIR": cache})
+    return cold, warm
+
+
 def throughput_section(result: dict[str, Any]) -> list[str]:
-    flops, rounds = result["flops"], result["gflops"]
-    matmul = rounds["matmul"]
+    flops, rounds, references = result["flops"], result["gflops"], result["matmul_gflops"]
+    round_count = len(next(iter(references.values())))
     lines = [
         "### Update throughput vs the CPU's matmul rate\n",
         f"One TD3 update at 256 x 256, batch 256: {flops['critic_step'] / 1e6:.1f} MFLOP critic "
         f"step + {flops['actor_step'] / 1e6:.1f} MFLOP actor step every 2nd update = "
         f"**{flops['per_update'] / 1e6:.1f} MFLOP per update** (matmuls, forward + backward, "
         f"counted from the traced program). {result['updates_per_call']} updates per timed "
-        f"call, {len(matmul)} alternating rounds; load avg {result['load']:.2f} at the end.\n",
-        "| program | GFLOP/s (best round) | seed-updates/s | / matmul (median of rounds) |",
-        "|---|---|---|---|",
-        f"| float32 1024x1024 matmul (reference) | {max(matmul):.1f} | | 1 |",
+        "call. Each program is timed between two timings of the float32 1024x1024 matmul "
+        "reference (the better of one device and one chain per device); ratio = program / mean "
+        f"of the two, median over {round_count} rounds. Load avg "
+        f"{result['load']:.2f} at the end.\n",
+        "| program | GFLOP/s (best round) | seed-updates/s (best) | matmul GFLOP/s (same "
+        "rounds) | ratio (median) |",
+        "|---|---|---|---|---|",
     ]
     for name, values in rounds.items():
-        if name == "matmul":
-            continue
-        ratio = statistics.median(v / m for v, m in zip(values, matmul, strict=True))
+        ratio = statistics.median(v / m for v, m in zip(values, references[name], strict=True))
         rate = max(values) * 1e9 / flops["per_update"]
-        lines.append(f"| TD3 update, {name} | {max(values):.1f} | {rate:.0f} | {ratio:.2f} |")
+        matmul = ", ".join(f"{m:.0f}" for m in references[name])
+        lines.append(
+            f"| TD3 update, {name} | {max(values):.1f} | {rate:.0f} | {matmul} | {ratio:.2f} |"
+        )
     return lines + [""]
 
 
