@@ -101,9 +101,12 @@ def compile_time(quick: bool) -> dict[str, Any]:
 def ours_vs_torch(quick: bool) -> dict[str, Any]:
     from bench.cheetah_recipe import measure
 
+    # 400 updates per seed per timed chunk for either recipe (the default does 4 per iteration);
+    # the chunk's evaluation (one episode) is included.
+    iterations = {"paper": 400, "default": 100}
     return {
-        name: measure({"iterations_per_chunk": 100 if quick else 500, **recipe}, 5, 1)
-        for name, recipe in [("paper", _paper_recipe()), ("default", {})]
+        name: measure({"iterations_per_chunk": iterations[name] // (10 if quick else 1), **r}, 5, 1)
+        for name, r in [("paper", _paper_recipe()), ("default", {"num_eval_envs": 1})]
     }
 
 
@@ -115,7 +118,7 @@ def _paper_recipe() -> dict[str, Any]:
         k: v
         for k, v in Config(env_id=ENV_ID).to_dict().items()
         if k not in ("env_id", "iterations_per_chunk", "buffer_size", "learning_starts")
-    }
+    } | {"num_eval_envs": 1}
 
 
 WORKERS = {
@@ -161,7 +164,8 @@ def _torch(quick: bool, processes: int = 2) -> list[dict[str, Any]]:
         )
         for seed in range(processes)
     ]
-    return [json.loads(child.communicate()[0].strip().splitlines()[-1]) for child in children]
+    runs = [json.loads(child.communicate()[0].strip().splitlines()[-1]) for child in children]
+    return [{**r, "load": round(os.getloadavg()[0], 2)} for r in runs]
 
 
 def run(quick: bool) -> str:
@@ -271,7 +275,7 @@ def torch_section(torch_runs: list[dict[str, Any]], ours: dict[str, Any]) -> lis
         "| | updates/s (all seeds) | env steps/s in learning (all seeds) | load |",
         "|---|---|---|---|",
         f"| torch, {processes} processes | {learning_rate * processes:.0f} | "
-        f"{learning_rate * processes:.0f} | |",
+        f"{learning_rate * processes:.0f} | {torch_runs[0].get('load', float('nan')):.1f} |",
     ]
     for name, result in ours.items():
         lines.append(
