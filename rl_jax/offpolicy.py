@@ -100,6 +100,7 @@ class TrainState:
     buffer: ReplayBuffer  # of Transition, leaves [rows, num_envs, ...]
     env_state: Any  # [num_envs, ...]
     obs: jax.Array  # [num_envs, *obs_shape], the observation the next action answers
+    noise: jax.Array  # [num_envs, *action_shape] float32, exploration state (see Learner)
     key: PRNGKey
     clock: Clock
     train_return: jax.Array  # [] float32, mean return of the episodes ended in the last chunk
@@ -110,8 +111,10 @@ class Learner(NamedTuple):
     """What an off-policy algorithm provides. ``config``/``hparams`` are its own types.
 
     init_agent(key, config, hparams, obs_space, action_space) -> agent
-    explore(agent, obs [N, ...], key, config, hparams, clock) -> actions [N, ...]
-        after warm-up (``clock`` lets a schedule, e.g. epsilon, depend on progress)
+    explore(agent, obs [N, ...], noise [N, ...], key, config, hparams, clock)
+        -> (actions [N, ...], noise): acting after warm-up. ``noise`` is per-env exploration
+        state carried from step to step (temporally correlated exploration; zeroed when an
+        episode ends); ``clock`` lets a schedule, e.g. epsilon, depend on progress.
     act(agent, obs [N, ...], config) -> deterministic actions [N, ...]
     update(agent, buffer, key, config, hparams, update_index []) -> (agent, buffer, metrics)
         one gradient update (it samples the buffer itself, so prioritised replay can write
@@ -121,7 +124,7 @@ class Learner(NamedTuple):
     """
 
     init_agent: Callable[..., Any]
-    explore: Callable[..., jax.Array]
+    explore: Callable[..., tuple[jax.Array, jax.Array]]
     act: Callable[..., jax.Array]
     update: Callable[..., tuple[Any, ReplayBuffer, dict[str, jax.Array]]]
     metric_names: tuple[str, ...]
@@ -175,6 +178,7 @@ def init(learner: Learner, key: PRNGKey, config: OffPolicyConfig, hparams: Any) 
         buffer=buffer,
         env_state=env_state,
         obs=timestep.obs,
+        noise=jnp.zeros((config.num_envs, *env.action_space().shape), jnp.float32),
         key=key,
         clock=Clock(env_steps=zero, updates=zero, iterations=zero),
         train_return=jnp.float32(jnp.nan),
@@ -186,12 +190,15 @@ def random_actions(space: Any, key: PRNGKey, count: int) -> jax.Array:
     return jax.vmap(space.sample)(jax.random.split(key, count))
 
 
-def _choose_actions(learner, config, hparams, state: TrainState, key: PRNGKey, space) -> jax.Array:
+def _choose_actions(learner, config, hparams, state: TrainState, key: PRNGKey, space):
+    """``(actions, noise)``: uniformly random while warming up, then the learner's choice."""
     warming_up = state.clock.env_steps < config.learning_starts
     return jax.lax.cond(
         warming_up,
-        lambda: random_actions(space, key, config.num_envs),
-        lambda: learner.explore(state.agent, state.obs, key, config, hparams, state.clock),
+        lambda: (random_actions(space, key, config.num_envs), state.noise),
+        lambda: learner.explore(
+            state.agent, state.obs, state.noise, key, config, hparams, state.clock
+        ),
     )
 
 
@@ -222,7 +229,7 @@ def train_iteration(learner, config, hparams, state: TrainState):
     """All envs act and step once, the transitions are stored, then the gradient updates."""
     env = make_train_env(config)
     key, act_key, step_key, update_key = jax.random.split(state.key, 4)
-    actions = _choose_actions(learner, config, hparams, state, act_key, env.action_space())
+    actions, noise = _choose_actions(learner, config, hparams, state, act_key, env.action_space())
     step_keys = jax.random.split(step_key, config.num_envs)
     env_state, ts = jax.vmap(env.step)(step_keys, state.env_state, actions)
     transition = Transition(
@@ -230,15 +237,22 @@ def train_iteration(learner, config, hparams, state: TrainState):
     )
     buffer = replay.add(state.buffer, transition)
     agent, buffer, metrics, updates = _updates(learner, config, hparams, state, update_key, buffer)
+    done = jnp.logical_or(ts.terminated, ts.truncated)
+    noise = jnp.where(jnp.reshape(done, done.shape + (1,) * (noise.ndim - 1)), 0.0, noise)
     clock = Clock(
         env_steps=state.clock.env_steps + config.num_envs,
         updates=state.clock.updates + updates,
         iterations=state.clock.iterations + 1,
     )
     state = state.replace(
-        agent=agent, buffer=buffer, env_state=env_state, obs=ts.obs, key=key, clock=clock
+        agent=agent,
+        buffer=buffer,
+        env_state=env_state,
+        obs=ts.obs,
+        noise=noise,
+        key=key,
+        clock=clock,
     )
-    done = ts.info["episode_done"]
     episodes = (jnp.sum(jnp.where(done, ts.info["episode_return"], 0.0)), jnp.sum(done))
     return state, (metrics, episodes)
 

@@ -61,6 +61,11 @@ class Hyperparams:
     gamma: Any = 0.99
     tau: Any = 0.005  # Polyak step of the target networks
     exploration_noise: Any = 0.1  # std of the Gaussian added to actions, x half-range
+    # Step-to-step correlation rho of that noise, n_t = rho n_{t-1} + sqrt(1 - rho^2) eps_t (an
+    # AR(1), i.e. discretised Ornstein-Uhlenbeck, process with the same std). 0: independent
+    # noise, as in the TD3 paper. Near 1: slow pushes, as the original DDPG's OU noise; inertial
+    # systems with a small time step need them, since independent noise averages out.
+    exploration_correlation: Any = 0.0
     target_noise: Any = 0.2  # std of target policy smoothing, x half-range (0 turns it off)
     target_noise_clip: Any = 0.5  # smoothing noise clipped to +-this, x half-range
 
@@ -264,13 +269,15 @@ def act(agent: Agent, obs: jax.Array, config: Config) -> jax.Array:
     return make_networks(config).actor.apply(agent.actor, obs)
 
 
-def explore(agent: Agent, obs, key, config: Config, hparams: Hyperparams, clock=None) -> jax.Array:
-    """The policy plus Gaussian noise of ``exploration_noise`` x half-range, clipped to bounds."""
+def explore(agent: Agent, obs, noise, key, config: Config, hparams: Hyperparams, clock=None):
+    """``(actions, noise)``: the policy plus ``exploration_noise`` x half-range x an AR(1)
+    noise of unit std (independent when ``exploration_correlation`` is 0), clipped to bounds."""
     nets = make_networks(config)
     action = nets.actor.apply(agent.actor, obs)
-    scale = _row(nets.half_range, action)
-    noise = hparams.exploration_noise * scale * jax.random.normal(key, action.shape, jnp.float32)
-    return jnp.clip(action + noise, _row(nets.low, action), _row(nets.high, action))
+    rho = hparams.exploration_correlation
+    noise = rho * noise + jnp.sqrt(1.0 - rho**2) * jax.random.normal(key, action.shape)
+    scaled = hparams.exploration_noise * _row(nets.half_range, action) * noise
+    return jnp.clip(action + scaled, _row(nets.low, action), _row(nets.high, action)), noise
 
 
 def init_agent(key, config: Config, hparams: Hyperparams, obs_space, action_space) -> Agent:

@@ -8,7 +8,7 @@ import pytest
 from probe_runs import probe_config, train
 
 from rl_jax import offpolicy, parallel
-from rl_jax.td3 import Config, Hyperparams, ddpg, td3
+from rl_jax.td3 import Config, Hyperparams, ddpg, explore, td3
 
 ENV_ID = "rl_jax/ProbeActionReward-v0"
 
@@ -39,6 +39,7 @@ def test_td3_and_ddpg_defaults_are_the_papers():
             "gamma": 0.99,
             "tau": 0.005,
             "exploration_noise": 0.1,
+            "exploration_correlation": 0.0,
             "target_noise": 0.2,
             "target_noise_clip": 0.5,
         }
@@ -75,3 +76,28 @@ def test_train_state_is_only_nonempty_arrays_and_buffer_estimate_is_exact():
     assert offpolicy.buffer_nbytes(config) == stored
     # obs, action, next_obs of 1 float each, reward, two flags; 16,384 transitions.
     assert stored == 16_384 * (4 + 4 + 4 + 4 + 1 + 1)
+
+
+def test_exploration_noise_is_scaled_gaussian_and_optionally_correlated():
+    config = probe_config(ENV_ID)  # actions in [-1, 1]: half-range 1
+    state = td3.init(jax.random.key(0), config, td3.default_hyperparams())
+    num_envs = 20_000
+    obs = jax.numpy.zeros((num_envs, 1))
+
+    @jax.jit
+    def noise_path(hparams, key):
+        def step(noise, key):
+            actions, noise = explore(state.agent, obs, noise, key, config, hparams)
+            return noise, actions[:, 0]
+
+        return jax.lax.scan(step, jax.numpy.zeros((num_envs, 1)), jax.random.split(key, 60))[1]
+
+    policy = float(td3.policy(state, config)(obs[:1])[0, 0])
+    for rho in (0.0, 0.9):
+        hparams = td3.default_hyperparams(exploration_correlation=rho)
+        deviation = np.asarray(noise_path(hparams, jax.random.key(1))) - policy  # [60, envs]
+        # Stationary std 0.1 (exploration_noise x half-range) whatever the correlation...
+        assert np.std(deviation[-1]) == pytest.approx(0.1, rel=0.03)
+        # ... and lag-1 correlation rho (the AR(1) starts at 0 and is stationary by step 30).
+        lag1 = np.corrcoef(deviation[-2], deviation[-1])[0, 1]
+        assert lag1 == pytest.approx(rho, abs=0.02)
