@@ -361,7 +361,10 @@ class Runner:
         chunk = self._wrap(chunk, (state_specs, by_hparam), (state_specs, runs))
         # The old state is dead after a chunk: donating it lets XLA update the replay buffer
         # in place instead of holding two copies.
-        self._chunk = jax.jit(chunk, donate_argnums=0)
+        # Output shardings pinned: XLA may otherwise return a zero-size leaf replicated, and the
+        # next call, compiled for the sharded input, would refuse it.
+        out_shardings = (self._shardings(state_specs), self.sharding(runs))
+        self._chunk = jax.jit(chunk, donate_argnums=0, out_shardings=out_shardings)
 
     def _shardings(self, specs: Any) -> Any:
         return jax.tree.map(self.sharding, specs, is_leaf=lambda x: isinstance(x, PartitionSpec))
