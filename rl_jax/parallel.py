@@ -39,6 +39,8 @@ from jax.sharding import Mesh, NamedSharding, PartitionSpec
 from rl_jax.algorithm import Algorithm
 
 AXES = ("hparams", "seeds")
+_PROGRAMS: dict[Any, tuple[Any, Any]] = {}  # see Runner._build
+_COMPILED: dict[Any, Any] = {}  # the chunk compiled ahead of time, per program
 SHARED_FIELD = "clock"  # the train-state field kept unbatched and replicated
 
 
@@ -231,6 +233,7 @@ class Runner:
         self._axes = None
         self._key_impl: Any = None
         self._placed_hparams: tuple[Any, Any] | None = None
+        self._program_key: Any = None
 
     # ---- shapes and placement -------------------------------------------------------------
 
@@ -334,6 +337,24 @@ class Runner:
         )
 
     def _build(self, hparams: Any) -> None:
+        """The jitted init and chunk, shared by every ``Runner`` of the same algorithm, config
+        and layout in this process (a resumed or repeated run does not trace again)."""
+        if self._key_impl is None:  # a restored state trains before any init: the default
+            self._key_impl = jax.random.key_impl(jax.random.key(0))
+        key = (
+            self.algorithm,
+            self.config,
+            self.layout,
+            tuple(self.mesh.devices.flat),
+            str(self._key_impl),
+            jax.tree.structure(hparams),
+        )
+        if key not in _PROGRAMS:
+            _PROGRAMS[key] = self._programs(hparams)
+        self._init, self._chunk = _PROGRAMS[key]
+        self._program_key = key
+
+    def _programs(self, hparams: Any) -> tuple[Any, Any]:
         algorithm, config = self.algorithm, self.config
         axes = self.axes(hparams)
         state_specs = _specs(axes)
@@ -351,7 +372,7 @@ class Runner:
         init = jax.vmap(init_one, in_axes=(0, None), out_axes=axes)
         init = jax.vmap(init, in_axes=(None, 0), out_axes=axes)
         init = self._wrap(init, (by_seed, by_hparam), state_specs)
-        self._init = jax.jit(init, out_shardings=self._shardings(state_specs))
+        init = jax.jit(init, out_shardings=self._shardings(state_specs))
 
         def chunk_one(state, hp):
             return algorithm.train_chunk(state, config, hp)
@@ -364,7 +385,7 @@ class Runner:
         # Output shardings pinned: XLA may otherwise return a zero-size leaf replicated, and the
         # next call, compiled for the sharded input, would refuse it.
         out_shardings = (self._shardings(state_specs), self.sharding(runs))
-        self._chunk = jax.jit(chunk, donate_argnums=0, out_shardings=out_shardings)
+        return init, jax.jit(chunk, donate_argnums=0, out_shardings=out_shardings)
 
     def _shardings(self, specs: Any) -> Any:
         return jax.tree.map(self.sharding, specs, is_leaf=lambda x: isinstance(x, PartitionSpec))
@@ -403,7 +424,10 @@ class Runner:
         ``compiled(state, hparams) -> (state, metrics)``."""
         if self._chunk is None:
             self._build(hparams)
-        compiled = self._chunk.lower(state, self._placed(hparams)).compile()
+        if self._program_key not in _COMPILED:
+            lowered = self._chunk.lower(state, self._placed(hparams))
+            _COMPILED[self._program_key] = lowered.compile()
+        compiled = _COMPILED[self._program_key]
         return lambda state, hparams: compiled(state, self._placed(hparams))
 
     def select(self, state: Any, hparam_index: int, seed_index: int) -> Any:
