@@ -228,7 +228,7 @@ def run_sweep(argv: list[str]) -> int:
     started = time.perf_counter()
     specs, labels, out, sweep_args = build_specs(argv)
     if sweep_args.num_processes > 1:
-        return run_distributed(specs, labels, out, time.perf_counter() - started)
+        return run_distributed(specs, labels, out, started)
     from rl_jax import runner
 
     write_record(out, argv, sweep_args)
@@ -260,13 +260,16 @@ def run_distributed(specs: list[Any], labels: list[str], out: Path, started: flo
         runner.check_memory(plan)
         hparams = stack_hparams(list(spec.hparams))
         state = plan.parallel.init(runner.seed_keys(spec.seeds, spec.base_seed), hparams)
+        if lead:
+            spec.out.mkdir(parents=True, exist_ok=True)
         log = MetricsLog(spec.out, None, spec.grid_fields) if lead else None
         grid = runner.grid_values(spec)
         for chunk in range(plan.chunks):
             state, metrics = plan.parallel.train_chunk(state, hparams)
             metrics = plan.parallel.gather(metrics)  # all processes take part
             if lead:
-                log.write(runner.metric_rows(metrics, spec, chunk, time.perf_counter(), grid))
+                elapsed = time.perf_counter() - started
+                log.write(runner.metric_rows(metrics, spec, chunk, elapsed, grid))
                 print(f"shape {index}/{len(specs)}: chunk {chunk + 1}/{plan.chunks}", flush=True)
         if lead:
             log.close()
