@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 from flax import struct
 
 from envs.core import Array, PRNGKey
@@ -22,9 +23,9 @@ from envs.mujoco_env import MujocoEnv, MujocoParams
 
 @struct.dataclass
 class HalfCheetahParams(MujocoParams):
-    reset_noise_scale: Array = struct.field(default_factory=lambda: jnp.float32(0.1))
-    forward_reward_weight: Array = struct.field(default_factory=lambda: jnp.float32(1.0))
-    ctrl_cost_weight: Array = struct.field(default_factory=lambda: jnp.float32(0.1))
+    reset_noise_scale: Array = struct.field(default_factory=lambda: np.float32(0.1))
+    forward_reward_weight: Array = struct.field(default_factory=lambda: np.float32(1.0))
+    ctrl_cost_weight: Array = struct.field(default_factory=lambda: np.float32(0.1))
 
 
 class HalfCheetah(MujocoEnv):

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 from flax import struct
 
 from envs.core import Array, PRNGKey
@@ -20,11 +21,11 @@ from envs.mujoco_env import MujocoEnv, MujocoParams
 
 @struct.dataclass
 class InvertedPendulumParams(MujocoParams):
-    reset_noise_scale: Array = struct.field(default_factory=lambda: jnp.float32(0.01))
+    reset_noise_scale: Array = struct.field(default_factory=lambda: np.float32(0.01))
     #: the pole is healthy while ``|angle| <= max_pole_angle`` (rad)
-    max_pole_angle: Array = struct.field(default_factory=lambda: jnp.float32(0.2))
+    max_pole_angle: Array = struct.field(default_factory=lambda: np.float32(0.2))
     #: reward per healthy step
-    healthy_reward: Array = struct.field(default_factory=lambda: jnp.float32(1.0))
+    healthy_reward: Array = struct.field(default_factory=lambda: np.float32(1.0))
 
 
 class InvertedPendulum(MujocoEnv):

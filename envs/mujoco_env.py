@@ -260,7 +260,10 @@ class MujocoEnv(Environment[MujocoState, Any]):
         extras = {name: as32(extra_field(name, data, np)) for name in self.extras}
         qpos, qvel = as32(data.qpos), as32(data.qvel)
         measurement = Measurement(qpos, qvel, np.zeros_like(qpos), extras, np.bool_(False))
-        return np.asarray(self.observe(measurement), np.float32)
+        # Envs may be built while a learner's init is traced (jax.eval_shape of the state):
+        # computed eagerly, this stays a constant instead of becoming a tracer.
+        with jax.ensure_compile_time_eval():
+            return np.asarray(self.observe(measurement), np.float32)
 
     # ---- rendering ----------------------------------------------------------------------------
     def render(self, state: MujocoState, params=None, width: int = 320, height: int = 240):

@@ -418,6 +418,8 @@ class Defaults:
     total_steps: int = 100_000
     config: dict[str, Any] = dataclasses.field(default_factory=dict)
     hparams: dict[str, Any] = dataclasses.field(default_factory=dict)
+    # (env steps/s per seed, seeds) measured for this default config: the plan's time estimate
+    throughput: tuple[float, int] | None = None
 
 
 def _base(algorithm: Any, env_id: str, defaults: Defaults) -> tuple[Any, Any]:
@@ -590,7 +592,27 @@ def build_spec(
         gif=args.gif,
         command=shlex.join([Path(sys.executable).name, sys.argv[0], *argv]),
         resume_command=f"{script} --resume {shlex.quote(str(out))}",
+        # The documented throughput holds for the script's own config only.
+        throughput=None
+        if resume or args.grid or _explicit(args, names[0])
+        else defaults.throughput,
     )
+
+
+def cpu_count() -> int:
+    """CPU cores this process may use."""
+    try:
+        return len(os.sched_getaffinity(0))
+    except AttributeError:
+        return os.cpu_count() or 1
+
+
+def configure_jax() -> None:
+    """Compilation cache on and one JAX device per CPU core (seeds and configs are sharded over
+    them), before anything starts JAX. ``RL_JAX_CPU_DEVICES`` overrides the device count."""
+    from rl_jax.jax_setup import configure
+
+    configure(cpu_devices=int(os.environ.get("RL_JAX_CPU_DEVICES", cpu_count())))
 
 
 def run_experiment(
@@ -601,6 +623,7 @@ def run_experiment(
     defaults: Defaults | None = None,
 ) -> int:
     """Parse flags, run, print the outcome. Returns the exit status."""
+    configure_jax()
     argv = list(sys.argv[1:] if argv is None else argv)
     defaults = defaults or Defaults()
     description = (description or "").strip() or None
@@ -612,10 +635,8 @@ def run_experiment(
     )
     args = parser.parse_args(argv)
     spec = build_spec(args, algorithm, env_id, defaults, (config_names, hparam_names), argv)
-    from rl_jax.jax_setup import configure
     from rl_jax.runner import run
 
-    configure()
     result = run(spec)
     print(f"run directory: {result.run_dir}")
     if result.gif_error:
@@ -656,9 +677,14 @@ def main(
     config: dict[str, Any] | None = None,
     hparams: dict[str, Any] | None = None,
     argv: list[str] | None = None,
+    throughput: tuple[float, int] | None = None,
 ) -> NoReturn:
-    """Entry point of an experiment script: parse, run, exit with the right status."""
-    defaults = Defaults(seeds, total_steps, dict(config or {}), dict(hparams or {}))
+    """Entry point of an experiment script: parse, run, exit with the right status.
+    ``throughput`` = (env steps/s per seed, seeds) measured for the script's defaults gives the
+    plan a time estimate before anything runs."""
+    defaults = Defaults(
+        seeds, total_steps, dict(config or {}), dict(hparams or {}), throughput=throughput
+    )
     exit_now(guard(lambda: run_experiment(algorithm, env_id, description, argv, defaults)))
 
 

@@ -35,7 +35,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from rl_jax import plots
+from rl_jax import parallel, plots
 from rl_jax.checkpoint import Checkpointer
 from rl_jax.metrics import METRICS_FILE, MetricsLog, read_rows
 from rl_jax.progress import Progress
@@ -80,6 +80,9 @@ class RunSpec:
     command: str = ""  # the command line, recorded in config.json
     resume_command: str = ""  # printed when stopped
     memory_limit: int | None = None  # bytes the state may use (default: what the OS reports)
+    # (env steps/s per seed, number of seeds) measured for the script's default config: the
+    # plan's time estimate before anything runs. None: estimated after the first training chunk.
+    throughput: tuple[float, int] | None = None
 
     @property
     def identity(self) -> dict[str, Any]:
@@ -107,43 +110,10 @@ class RunResult:
 # ---- the parallel program -------------------------------------------------------------------
 
 
-class LocalParallel:
-    """A minimal stand-in for ``rl_jax.parallel.Runner`` (same methods): ``jit(vmap(vmap(...)))``
-    over ``[H]`` hyperparameter sets and ``[S]`` seeds on one device. ``parallel_runner`` is the
-    one place to swap it for the shared, sharded one."""
-
-    def __init__(self, algorithm: Any, config: Any, num_hparams: int, num_seeds: int):
-        def init_one(key: jax.Array, hparams: Any) -> Any:
-            return algorithm.init(key, config, hparams)
-
-        def chunk_one(state: Any, hparams: Any) -> Any:
-            return algorithm.train_chunk(state, config, hparams)
-
-        self.num_hparams, self.num_seeds = num_hparams, num_seeds
-        self._init = jax.jit(jax.vmap(jax.vmap(init_one, (0, None)), (None, 0)))
-        self._chunk = jax.jit(jax.vmap(jax.vmap(chunk_one, (0, None)), (0, 0)), donate_argnums=0)
-        self._sharding = jax.sharding.SingleDeviceSharding(jax.devices()[0])
-
-    def init(self, keys: jax.Array, hparams: Any) -> Any:
-        """``[S]`` keys and ``[H]``-stacked hyperparameters -> state with ``[H, S]`` leaves."""
-        return self._init(keys, hparams)
-
-    def train_chunk(self, state: Any, hparams: Any) -> tuple[Any, Any]:
-        """One chunk for every run (metrics leaves ``[H, S]``); the state is donated."""
-        return self._chunk(state, hparams)
-
-    def place(self, state: Any) -> Any:
-        """Commit a state to the devices ``init`` puts it on. Fresh and restored states must be
-        placed alike: the compiled program (and its compilation-cache entry) depends on it."""
-        return jax.device_put(state, self._sharding)
-
-    def select(self, state: Any, hparams_index: int, seed_index: int) -> Any:
-        """One run's state out of the ``[H, S]`` state."""
-        return jax.tree.map(lambda leaf: leaf[hparams_index, seed_index], state)
-
-
-def parallel_runner(spec: RunSpec) -> LocalParallel:
-    return LocalParallel(spec.algorithm, spec.config, len(spec.hparams), spec.seeds)
+def parallel_runner(spec: RunSpec) -> parallel.Runner:
+    """All configs x seeds of ``spec`` as one program over every local device (padded when the
+    runs do not split evenly; see ``rl_jax.parallel``)."""
+    return parallel.Runner(spec.algorithm, spec.config, len(spec.hparams), spec.seeds)
 
 
 def seed_keys(seeds: int, base_seed: int) -> jax.Array:
@@ -170,11 +140,13 @@ class Plan:
     steps_per_chunk: int
     chunks: int
     final_steps: int
-    state_bytes: int
+    state_bytes: int  # device_bytes + checkpoint_bytes
     breakdown: list[tuple[str, int]]  # (top-level field of the state, bytes), largest first
     available_bytes: int
-    template: Any  # jax.ShapeDtypeStruct tree of the state
-    parallel: LocalParallel  # the compiled init/chunk of all runs
+    template: Any  # jax.ShapeDtypeStruct tree of the [configs, seeds] state (as checkpointed)
+    parallel: parallel.Runner  # the compiled init/chunk of all runs
+    device_bytes: int = 0  # the state on the devices, padding copies included
+    checkpoint_bytes: int = 0  # the host copy of the real runs a checkpoint write takes
 
 
 def _leaf_bytes(leaf: Any) -> int:
@@ -217,22 +189,47 @@ def make_plan(spec: RunSpec) -> Plan:
     if steps_per_chunk <= 0:
         raise RunError(f"the config takes {steps_per_chunk} env steps per chunk; need >= 1")
     chunks = math.ceil(spec.total_steps / steps_per_chunk)
-    parallel = parallel_runner(spec)
-    keys = jax.eval_shape(lambda: seed_keys(spec.seeds, spec.base_seed))
+    runner = parallel_runner(spec)
     hparams = stack_hparams(list(spec.hparams))
-    template = jax.eval_shape(parallel.init, keys, hparams)
-    breakdown = memory_breakdown(template)
+    template = runs_template(spec, hparams)
+    on_devices = memory_breakdown(runner.template(hparams))
+    # Checkpoints go through a host copy of the real runs: count it too.
+    checkpoint_copy = dict(memory_breakdown(template))
+    breakdown = sorted(
+        ((name, size + checkpoint_copy.get(name, 0)) for name, size in on_devices),
+        key=lambda item: -item[1],
+    )
     available = spec.memory_limit if spec.memory_limit is not None else available_memory()
-    state_bytes = sum(size for _, size in breakdown)
+    device_bytes = sum(size for _, size in on_devices)
+    checkpoint_bytes = sum(checkpoint_copy.values())
     return Plan(
         steps_per_chunk,
         chunks,
         chunks * steps_per_chunk,
-        state_bytes,
+        device_bytes + checkpoint_bytes,
         breakdown,
         available,
         template,
-        parallel,
+        runner,
+        device_bytes,
+        checkpoint_bytes,
+    )
+
+
+def runs_template(spec: RunSpec, hparams: Any) -> Any:
+    """Shapes and dtypes of the ``[configs, seeds]`` state (the shared clock unstacked), without
+    allocating: what a checkpoint holds, whatever the device layout."""
+    one = jax.tree.map(lambda x: jnp.asarray(x[0]), hparams)
+    abstract = jax.eval_shape(
+        lambda key: spec.algorithm.init(key, spec.config, one), jax.random.key(0)
+    )
+    runs = (len(spec.hparams), spec.seeds)
+    return parallel._map_axes(
+        lambda axis, leaf: (
+            leaf if axis is None else jax.ShapeDtypeStruct((*runs, *leaf.shape), leaf.dtype)
+        ),
+        parallel.state_axes(abstract),
+        abstract,
     )
 
 
@@ -249,7 +246,9 @@ def check_memory(plan: Plan) -> None:
     if plan.state_bytes > plan.available_bytes:
         largest = ", ".join(f"{name} {format_bytes(size)}" for name, size in plan.breakdown[:2])
         raise RunError(
-            f"the train state needs {format_bytes(plan.state_bytes)} ({largest}) but only "
+            f"the train state needs {format_bytes(plan.state_bytes)} ({largest}; "
+            f"{format_bytes(plan.device_bytes)} in training and "
+            f"{format_bytes(plan.checkpoint_bytes)} for the copy a checkpoint writes) but only "
             f"{format_bytes(plan.available_bytes)} of memory is available; reduce the replay "
             "buffer, the number of envs, --seeds or the grid"
         )
@@ -269,10 +268,22 @@ def format_plan(spec: RunSpec, plan: Plan) -> str:
         f"{plan.steps_per_chunk:,} (asked for {spec.total_steps:,})",
         f"  train state {format_bytes(plan.state_bytes)} ({largest}); "
         f"{format_bytes(plan.available_bytes)} of memory available",
-        f"  devices: {', '.join(str(d) for d in jax.devices())}",
+        f"  devices: {describe_layout(plan.parallel)}",
         f"  run directory: {spec.out}",
     ]
+    estimate = estimate_from_throughput(spec, plan)
+    lines.append(estimate or "  estimated time: measured on the first training chunk")
     return "\n".join(lines)
+
+
+def describe_layout(runner: parallel.Runner) -> str:
+    """Which devices run how many runs, padding included."""
+    layout = runner.layout
+    names = ", ".join(str(device) for device in runner.mesh.devices.flat)
+    text = f"{names} ({layout.runs_per_device} run{'s' * (layout.runs_per_device > 1)} each"
+    if layout.padding:
+        text += f"; {layout.padding} padding copy of a run computed and dropped"
+    return text + ")"
 
 
 # ---- stopping on signals --------------------------------------------------------------------
@@ -338,7 +349,7 @@ def restore_start(spec: RunSpec, plan: Plan) -> Start | None:
             return None
         state, meta = checkpointer.restore(plan.template, expect=_checkpoint_expectation(spec))
     return Start(
-        plan.parallel.place(state),
+        plan.parallel.place(state, stack_hparams(list(spec.hparams))),
         meta["chunk"] + 1,
         meta["step"],
         meta.get("updates", 0),
@@ -350,7 +361,7 @@ def restore_start(spec: RunSpec, plan: Plan) -> Start | None:
 def fresh_start(spec: RunSpec, plan: Plan) -> Start:
     keys = seed_keys(spec.seeds, spec.base_seed)
     state = plan.parallel.init(keys, stack_hparams(list(spec.hparams)))
-    return Start(plan.parallel.place(state), 0, 0, 0, 0.0, None)
+    return Start(state, 0, 0, 0, 0.0, None)
 
 
 def _write_run_record(spec: RunSpec, plan: Plan, start: Start) -> None:
@@ -451,7 +462,9 @@ class Session:
     def wall_clock(self) -> float:
         return self.earlier_wall_clock + time.perf_counter() - self.started
 
-    def save(self, state: Any, chunk: int) -> None:
+    def save(self, state: Any, hparams: Any, chunk: int) -> None:
+        """Checkpoint the real ``[configs, seeds]`` runs (no padding: a checkpoint resumes on
+        any number of devices)."""
         if self.saved_step == self.step:
             return
         self.log.flush()  # rows up to this step are on disk before the checkpoint exists
@@ -461,7 +474,7 @@ class Session:
             "updates": self.updates,
             "wall_clock": self.wall_clock(),
         }
-        self.checkpointer.save(self.step, state, meta)
+        self.checkpointer.save(self.step, self.plan.parallel.unpad(state, hparams), meta)
         self.saved_step, self.last_save = self.step, time.perf_counter()
 
     def close(self) -> None:
@@ -473,8 +486,7 @@ def compile_chunk(plan: Plan, state: Any, hparams: Any, notify: Callable) -> Cal
     """Compile ahead of the first chunk so compile time is reported as such."""
     notify("compiling the train chunk (a later run of the same config reuses the cache) ...")
     started = time.perf_counter()
-    chunk = jax.jit(plan.parallel.train_chunk, donate_argnums=0)
-    compiled = chunk.lower(state, hparams).compile()
+    compiled = plan.parallel.compile(state, hparams)
     notify(f"compiled in {time.perf_counter() - started:.1f} s")
     return compiled
 
@@ -485,34 +497,74 @@ def _train(session: Session, start: Start, stop: GracefulStop, progress: Progres
     if start.chunk >= plan.chunks:
         progress.write(f"nothing to train: the run already reached step {start.step:,}")
         return state
-    hparams = jax.tree.map(jnp.asarray, stack_hparams(list(spec.hparams)))
+    hparams = stack_hparams(list(spec.hparams))
     chunk_fn = compile_chunk(plan, state, hparams, progress.write)
     progress.start()
     grid = grid_values(spec)
+    estimated = False
     for chunk in range(start.chunk, plan.chunks):
         if stop.requested:  # a signal during compilation: nothing new to save
             break
         chunk_started = time.perf_counter()
         state, metrics = chunk_fn(state, hparams)
-        metrics = jax.device_get(metrics)
+        metrics = plan.parallel.gather(metrics)
         chunk_seconds = time.perf_counter() - chunk_started
+        prior_updates = session.updates
         session.step = int(np.max(metrics.env_steps))
         session.updates = int(np.max(metrics.updates))
         session.log.write(metric_rows(metrics, spec, chunk, session.wall_clock(), grid))
         progress.update(session.step, session.updates, metrics.eval_return)
-        if chunk == start.chunk and chunk + 1 < plan.chunks:
-            _estimate(progress, chunk_seconds, plan.chunks - chunk - 1)
+        if not estimated and chunk + 1 < plan.chunks:
+            estimated = _estimate(
+                spec,
+                progress,
+                chunk_seconds,
+                plan.chunks - chunk - 1,
+                prior_updates,
+                session.updates,
+            )
         due = time.perf_counter() - session.last_save >= spec.checkpoint_interval
         if due or stop.requested or chunk + 1 == plan.chunks:
-            session.save(state, chunk)
+            session.save(state, hparams, chunk)
     return state
 
 
-def _estimate(progress: Progress, chunk_seconds: float, remaining_chunks: int) -> None:
+def _estimate(
+    spec: RunSpec,
+    progress: Progress,
+    chunk_seconds: float,
+    remaining_chunks: int,
+    prior_updates: int,
+    updates: int,
+) -> bool:
+    """Print the time left from a measured chunk, once the chunk is representative: warm-up
+    chunks (random actions, no gradient updates) run many times faster than training ones.
+    Returns whether it printed."""
+    no_warm_up = getattr(spec.config, "learning_starts", 0) == 0
+    if updates == 0 or not (prior_updates > 0 or no_warm_up):
+        return False
     remaining = plots.format_duration(chunk_seconds * remaining_chunks)
     progress.write(
-        f"first chunk took {chunk_seconds:.2f} s; about {remaining} of training for the "
-        f"remaining {remaining_chunks} chunks"
+        f"measured: a training chunk took {chunk_seconds:.2f} s; about {remaining} left for "
+        f"the remaining {remaining_chunks} chunks"
+    )
+    return True
+
+
+def estimate_from_throughput(spec: RunSpec, plan: Plan) -> str | None:
+    """The plan's time estimate from the script's documented throughput (for its own default
+    config only), scaled to the number of runs: a CPU-bound program shares the cores."""
+    if spec.throughput is None or spec.resume:
+        return None
+    steps_per_second, measured_runs = spec.throughput
+    runs = spec.seeds * len(spec.hparams)
+    rate = steps_per_second * measured_runs / runs
+    seconds = plan.final_steps / rate
+    return (
+        f"  estimated time: about {plots.format_duration(seconds)} of training plus compilation "
+        f"(from the script's documented {steps_per_second:,.0f} env steps/s per seed measured "
+        f"with {measured_runs} seeds on a 2-core machine; re-estimated after the first training "
+        "chunk)"
     )
 
 
@@ -609,6 +661,7 @@ def run(spec: RunSpec, notify: Callable[[str], None] = print) -> RunResult:
     try:
         with GracefulStop(progress.write) as stop:
             state = _train(session, start, stop, progress)
+            state = plan.parallel.unpad(state, stack_hparams(list(spec.hparams)))
     finally:
         progress.close()
         session.close()

@@ -77,9 +77,9 @@ def grid_run():
     return combos, _run_parallel(4, hparams, [0])
 
 
-def test_vmap_over_three_seeds_equals_each_seed_alone():
+def test_vmap_over_three_seeds_equals_each_seed_alone(three_seeds_run):
     seeds = [0, 1, 2]
-    initial, state, history = _run_parallel(1, parallel.stack([probe_hparams()]), seeds)
+    initial, state, history = three_seeds_run
     config = probe_config(ENV_ID)
     for index, seed in enumerate(seeds):
         alone = td3.init(jax.random.key(seed), config, probe_hparams())
@@ -123,23 +123,54 @@ SHARDED_SCRIPT = textwrap.dedent(
     configure(cpu_devices=2)  # before JAX starts
     import jax, numpy as np
     sys.path.insert(0, {tests!r})
-    from test_parallel import GRID, _leaves, _run_parallel
-    from probe_runs import probe_hparams
+    from test_parallel import ENV_ID, GRID, _leaves, _run_parallel
+    from probe_runs import probe_config, probe_hparams
     from rl_jax import parallel
+    from rl_jax.td3 import td3
     assert len(jax.devices()) == 2
     hparams, _ = parallel.grid(probe_hparams(), **GRID)
     _, state, history = _run_parallel(4, hparams, [0])
     devices = {{d.id for d in state.agent.critics["params"]["MLP_0"]["Dense_0"]["kernel"]
                .sharding.device_set}}
     np.savez({out!r}, *_leaves((state, history)))
+    # 3 seeds on 2 devices: padded to 2 + 2 (a copy of seed 0 computed and dropped).
+    runner = parallel.Runner(td3, probe_config(ENV_ID), num_hparams=1, num_seeds=3)
+    assert (runner.layout.seed_split, runner.layout.padded_seeds) == (2, 4)
+    one = parallel.stack([probe_hparams()])
+    padded = runner.init(parallel.seed_keys([0, 1, 2]), one)
+    padded, metrics = runner.train_chunk(padded, one)
+    np.savez({padded_out!r}, *_leaves((runner.unpad(padded, one), runner.gather(metrics))))
     print(len(devices))
     """
 )
 
 
-def test_sharded_over_two_cpu_devices_equals_one_device(grid_run, tmp_path: Path):
-    out = tmp_path / "sharded.npz"
-    script = SHARDED_SCRIPT.format(tests=str(Path(__file__).parent), out=str(out))
+@pytest.fixture(scope="module")
+def three_seeds_run():
+    """Seeds 0, 1, 2 with the probe hyperparameters, as one program on one device."""
+    return _run_parallel(1, parallel.stack([probe_hparams()]), [0, 1, 2])
+
+
+def _load(path: Path) -> list[np.ndarray]:
+    with np.load(path) as saved:
+        return [saved[f"arr_{i}"] for i in range(len(saved.files))]
+
+
+def _assert_leaves_close(got: list[np.ndarray], expected: list[np.ndarray]) -> None:
+    assert len(got) == len(expected)
+    for a, b in zip(got, expected, strict=True):
+        assert a.shape == b.shape and a.dtype == b.dtype
+        if np.issubdtype(a.dtype, np.floating):
+            np.testing.assert_allclose(a, b, rtol=1e-5, atol=1e-5)
+        else:
+            np.testing.assert_array_equal(a, b)
+
+
+def test_sharded_over_two_cpu_devices_equals_one_device(grid_run, three_seeds_run, tmp_path: Path):
+    out, padded_out = tmp_path / "sharded.npz", tmp_path / "padded.npz"
+    script = SHARDED_SCRIPT.format(
+        tests=str(Path(__file__).parent), out=str(out), padded_out=str(padded_out)
+    )
     env = {**os.environ, "XLA_FLAGS": ""}
     result = subprocess.run(
         [sys.executable, "-c", script], env=env, capture_output=True, text=True, timeout=600
@@ -147,15 +178,10 @@ def test_sharded_over_two_cpu_devices_equals_one_device(grid_run, tmp_path: Path
     assert result.returncode == 0, result.stderr[-3000:]
     assert json.loads(result.stdout.strip().splitlines()[-1]) == 2  # both devices held runs
     _, (_, state, history) = grid_run
-    with np.load(out) as sharded:
-        sharded_leaves = [sharded[f"arr_{i}"] for i in range(len(sharded.files))]
-    expected = _leaves((state, history))
-    assert len(sharded_leaves) == len(expected)
-    for a, b in zip(sharded_leaves, expected, strict=True):
-        if np.issubdtype(a.dtype, np.floating):
-            np.testing.assert_allclose(a, b, rtol=1e-5, atol=1e-5)
-        else:
-            np.testing.assert_array_equal(a, b)
+    _assert_leaves_close(_load(out), _leaves((state, history)))
+    # The padded 3-seed run returns exactly the 3 real seeds, equal to the one-device run.
+    _, state, history = three_seeds_run
+    _assert_leaves_close(_load(padded_out), _leaves((state, history[0])))
 
 
 def test_mesh_splits_runs_evenly_and_select_keeps_the_shared_clock():
@@ -169,3 +195,18 @@ def test_mesh_splits_runs_evenly_and_select_keeps_the_shared_clock():
     assert parallel.state_axes(state).clock is None
     one = parallel.select(stacked, 0, 0)
     assert_same(one, state, atol=0.0)
+
+
+def test_layout_pads_uneven_runs_to_use_every_device():
+    five = parallel.plan_layout(1, 5, num_devices=2)
+    assert (five.seed_split, five.padded_seeds, five.runs_per_device, five.padding) == (2, 6, 3, 1)
+    assert parallel.plan_layout(1, 1, num_devices=2).devices == 1  # one run stays whole
+    assert parallel.plan_layout(1, 4, num_devices=2).padding == 0
+    grid = parallel.plan_layout(3, 1, num_devices=2)  # 3 configs x 1 seed: split configs
+    assert (grid.hparam_split, grid.padded_hparams, grid.runs_per_device) == (2, 4, 2)
+    six = parallel.plan_layout(3, 2, num_devices=2)  # splits evenly: seeds first, no padding
+    assert (six.hparam_split, six.seed_split, six.padding) == (1, 2, 0)
+    unpadded = parallel.plan_layout(1, 5, num_devices=2, pad=False)
+    assert (unpadded.devices, unpadded.padding) == (1, 0)
+    edge = parallel._pad_edge(np.arange(6).reshape(2, 3), (3, 4))
+    np.testing.assert_array_equal(edge, [[0, 1, 2, 0], [3, 4, 5, 3], [0, 1, 2, 0]])

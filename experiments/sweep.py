@@ -1,0 +1,300 @@
+"""Sweep a grid of hyperparameters x seeds as one compiled program, sharded over all devices.
+
+  python experiments/sweep.py --algo td3 --env rl_jax/Pendulum-v1 \
+      --grid lr=1e-4,3e-4,1e-3 --grid tau=0.005,0.02 --seeds 5
+
+Grid names are hyperparameter or config fields (``--help`` with --algo/--env lists them) or the
+short names lr (actor and critic learning rates together), width (both networks' hidden widths,
+e.g. width=64x64,256x256), batch (batch_size) and buffer (buffer_size). Hyperparameters (learning
+rates, tau, gamma, noise) are vmapped: every value x every seed is one compiled program, split
+over the local devices (both CPU cores here). Config fields change shapes (width, batch, buffer
+size): each shape compiles once and runs its whole hyperparameter grid in its own program.
+
+OUT (default runs/<env>__<algo>-sweep__<time>/) holds one run directory per shape (config.json,
+metrics.jsonl, checkpoints, ... as every experiment script), plus curves.png with one curve per
+config and results.txt ranking all configs by final eval return with 95% bootstrap CIs.
+--resume OUT continues every shape from its latest checkpoint.
+
+Several hosts (or processes) through jax.distributed: start the same command on every process,
+adding --coordinator HOST:PORT (process 0's address, any free port), --num-processes N and
+--process-id I (0 .. N-1). The grid x seeds is then sharded over the devices of all processes;
+each process computes its share and process 0 alone writes OUT (metrics, table, plot; there are
+no checkpoints in a multi-process sweep, so --resume does not apply). On one machine:
+
+  for i in 0 1; do
+    RL_JAX_CPU_DEVICES=1 python experiments/sweep.py --algo td3 --env rl_jax/Pendulum-v1 \
+        --grid lr=1e-4,1e-3 --seeds 2 --coordinator localhost:12355 --num-processes 2 \
+        --process-id $i --out runs/distributed &
+  done; wait
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import itertools
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+from rl_jax import cli
+from rl_jax.run_dir import RunError
+
+ALIASES = {
+    "lr": ("actor_lr", "critic_lr", "learning_rate"),
+    "width": ("actor_hidden", "critic_hidden", "hidden_sizes"),
+    "batch": ("batch_size",),
+    "buffer": ("buffer_size",),
+}
+SWEEP_FLAGS = ("--algo", "--env", "--grid", "--coordinator", "--num-processes", "--process-id")
+
+
+@dataclasses.dataclass(frozen=True)
+class Axis:
+    """One --grid: a name, the fields it sets together, and the values."""
+
+    name: str
+    fields: tuple[str, ...]
+    values: tuple[Any, ...]
+    static: bool  # a config field: one compiled program per value
+
+
+def parse_axis(spec: str, config: Any, hparams: Any) -> Axis:
+    name, equals, text = spec.partition("=")
+    name = name.strip().lstrip("-").replace("-", "_")
+    if not equals or not text.strip():
+        raise cli.UsageError(f"--grid {spec!r}: expected NAME=V1,V2,...")
+    static = {f.name: getattr(config, f.name) for f in dataclasses.fields(config)}
+    dynamic = {f.name: getattr(hparams, f.name) for f in dataclasses.fields(hparams)}
+    known = {**static, **dynamic}
+    fields = tuple(f for f in ALIASES.get(name, (name,)) if f in known and f not in cli.NOT_FLAGS)
+    if not fields:
+        choices = ", ".join([*ALIASES, *dynamic, *static])
+        raise cli.UsageError(f"--grid {name}: unknown field; known: {choices}")
+    default = known[fields[0]]
+    parse = cli._parser_for(default)
+    kind = cli._kind(default)
+    try:
+        # Tuple values (widths) are written 64x64 so that commas can separate values.
+        values = tuple(
+            parse(value.replace("x", ",") if kind == "tuple" else value)
+            for value in text.split(",")
+            if value.strip()
+        )
+    except argparse.ArgumentTypeError as error:
+        raise cli.UsageError(f"--grid {name} takes {kind} values: {error}") from None
+    return Axis(name, fields, values, fields[0] in static)
+
+
+def combos(axes: list[Axis]) -> list[dict[str, Any]]:
+    """Field values of every point of the product grid (first axis slowest)."""
+    points = []
+    for values in itertools.product(*(axis.values for axis in axes)):
+        point = {}
+        for axis, value in zip(axes, values, strict=True):
+            point.update({field: value for field in axis.fields})
+        points.append(point)
+    return points
+
+
+def shape_label(point: dict[str, Any], axes: list[Axis]) -> str:
+    parts = []
+    for axis in axes:
+        value = point[axis.fields[0]]
+        text = "x".join(map(str, value)) if isinstance(value, tuple) else str(value)
+        parts.append(f"{axis.name}={text}")
+    return ",".join(parts) or "base"
+
+
+def parse_args(argv: list[str]) -> tuple[argparse.Namespace, list[str]]:
+    parser = cli.OneLineParser(add_help=False)
+    parser.add_argument("--algo")
+    parser.add_argument("--env")
+    parser.add_argument("--grid", action="append", default=[])
+    parser.add_argument("--coordinator")
+    parser.add_argument("--num-processes", type=cli.positive_int, default=1)
+    parser.add_argument("--process-id", type=cli.parse_int, default=0)
+    return parser.parse_known_args(argv)
+
+
+def sweep_record(out: Path) -> dict[str, Any]:
+    import json
+
+    path = out / "sweep.json"
+    if not path.is_file():
+        raise RunError(f"no sweep at {out} (no sweep.json)")
+    return json.loads(path.read_text())
+
+
+def build_specs(argv: list[str]) -> tuple[list[Any], list[str], Path, argparse.Namespace]:
+    """One RunSpec per shape of the grid, with its hyperparameter grid inside."""
+    sweep_args, rest = parse_args(argv)
+    resume = "--resume" in rest
+    if resume:
+        out = Path(rest[rest.index("--resume") + 1])
+        saved = sweep_record(out)
+        sweep_args.algo, sweep_args.env = saved["algo"], saved["env"]
+        sweep_args.grid = saved["grid"]
+        rest = [*saved["argv"], *rest]
+    if not sweep_args.algo or not sweep_args.env:
+        raise cli.UsageError("--algo and --env are required")
+    import envs
+
+    algorithm = cli.resolve_algorithm(sweep_args.algo)
+    env_id = envs.registry.resolve_id(sweep_args.env)
+    parser, config_names, hparam_names = cli.build_parser(
+        algorithm, env_id, __doc__, cli.Defaults(), choose=False
+    )
+    args = parser.parse_args(rest)
+    out = args.resume or args.out or default_out(env_id, algorithm.name)
+    args.resume, args.out = None, None
+    base = cli.build_spec(args, algorithm, env_id, cli.Defaults(), (config_names, hparam_names), [])
+    axes = [parse_axis(spec, base.config, base.hparams[0]) for spec in sweep_args.grid]
+    static = [axis for axis in axes if axis.static]
+    dynamic = [axis for axis in axes if not axis.static]
+    specs, labels = [], []
+    for point in combos(static):
+        config = cli._replace(base.config, point, "config")
+        hparams = [cli._replace(base.hparams[0], p, "hyperparameters") for p in combos(dynamic)]
+        cli._validate(algorithm, config, hparams)
+        label = shape_label(point, static)
+        specs.append(
+            dataclasses.replace(
+                base,
+                config=config,
+                hparams=tuple(hparams),
+                out=Path(out) / label,
+                resume=resume and (Path(out) / label / "config.json").is_file(),
+                grid_fields=tuple(axis.fields[0] for axis in dynamic),
+                command=" ".join([Path(sys.executable).name, *sys.argv]),
+                resume_command=f"python experiments/sweep.py --resume {out}",
+                throughput=None,
+            )
+        )
+        labels.append(label)
+    return specs, labels, Path(out), sweep_args
+
+
+def default_out(env_id: str, algorithm_name: str) -> Path:
+    return cli.default_run_dir(env_id, f"{algorithm_name}-sweep")
+
+
+def write_record(out: Path, argv: list[str], sweep_args: argparse.Namespace) -> None:
+    import json
+
+    passed = [a for a in argv if a not in ("--resume",)]
+    record = {"algo": sweep_args.algo, "env": sweep_args.env, "grid": sweep_args.grid}
+    record["argv"] = [a for a in _without_sweep_flags(passed) if a != str(out)]
+    out.mkdir(parents=True, exist_ok=True)
+    if not (out / "sweep.json").exists():
+        (out / "sweep.json").write_text(json.dumps(record, indent=2) + "\n")
+
+
+def _without_sweep_flags(argv: list[str]) -> list[str]:
+    kept, skip = [], False
+    for arg in argv:
+        if skip:
+            skip = False
+            continue
+        if arg in (*SWEEP_FLAGS, "--out"):
+            skip = True
+            continue
+        if arg.split("=")[0] in (*SWEEP_FLAGS, "--out"):
+            continue
+        kept.append(arg)
+    return kept
+
+
+def summarize(out: Path, specs: list[Any], labels: list[str], wall_clock: float) -> str:
+    """curves.png (one curve per config of every shape) and the ranked results.txt."""
+    from rl_jax import plots
+    from rl_jax.metrics import METRICS_FILE, read_rows
+
+    curves = []
+    for spec, label in zip(specs, labels, strict=True):
+        for curve in plots.curves_from_rows(read_rows(spec.out / METRICS_FILE), spec.grid_fields):
+            prefix = "" if label == "base" else label
+            curve.label = ", ".join(part for part in (prefix, curve.label) if part) or "base"
+            curves.append(curve)
+    title = f"{specs[0].algorithm.name} on {specs[0].env_id}: sweep"
+    plots.plot_curves(curves, out / "curves.png", title=title, statistic="mean")
+    table = plots.sweep_table(plots.final_results(curves), wall_clock)
+    (out / "results.txt").write_text(table + "\n")
+    return table
+
+
+def run_sweep(argv: list[str]) -> int:
+    started = time.perf_counter()
+    specs, labels, out, sweep_args = build_specs(argv)
+    if sweep_args.num_processes > 1:
+        return run_distributed(specs, labels, out, started)
+    from rl_jax import runner
+
+    write_record(out, argv, sweep_args)
+    for index, spec in enumerate(specs, 1):
+        print(f"== shape {index}/{len(specs)}: {labels[index - 1]}")
+        result = runner.run(spec)
+        if result.stopped:
+            return 0
+    print(summarize(out, specs, labels, time.perf_counter() - started))
+    print(f"sweep directory: {out}")
+    return 0
+
+
+def run_distributed(specs: list[Any], labels: list[str], out: Path, started: float) -> int:
+    """Every process runs the same chunks on its devices' share of the runs; metrics are
+    gathered to all, and process 0 writes metrics.jsonl, curves.png and results.txt."""
+    import jax
+
+    from rl_jax import runner
+    from rl_jax.metrics import MetricsLog
+    from rl_jax.run_dir import stack_hparams
+
+    lead = jax.process_index() == 0
+    if lead:
+        for spec in specs:
+            runner.check_out_dir(spec.out, spec.identity)
+    for index, spec in enumerate(specs, 1):
+        plan = runner.make_plan(spec)
+        runner.check_memory(plan)
+        hparams = stack_hparams(list(spec.hparams))
+        state = plan.parallel.init(runner.seed_keys(spec.seeds, spec.base_seed), hparams)
+        if lead:
+            spec.out.mkdir(parents=True, exist_ok=True)
+        log = MetricsLog(spec.out, None, spec.grid_fields) if lead else None
+        grid = runner.grid_values(spec)
+        for chunk in range(plan.chunks):
+            state, metrics = plan.parallel.train_chunk(state, hparams)
+            metrics = plan.parallel.gather(metrics)  # all processes take part
+            if lead:
+                elapsed = time.perf_counter() - started
+                log.write(runner.metric_rows(metrics, spec, chunk, elapsed, grid))
+                print(f"shape {index}/{len(specs)}: chunk {chunk + 1}/{plan.chunks}", flush=True)
+        if lead:
+            log.close()
+    if lead:
+        print(summarize(out, specs, labels, time.perf_counter() - started))
+        print(f"sweep directory: {out}")
+    return 0
+
+
+def main() -> None:
+    argv = sys.argv[1:]
+    if {"-h", "--help"} & set(argv):
+        cli.exit_now(cli.guard(lambda: cli.run_experiment(None, None, __doc__, argv)))
+    sweep_args, _ = parse_args(argv)
+    cli.configure_jax()  # before JAX starts: device count and compilation cache
+    if sweep_args.num_processes > 1:
+        import jax
+
+        jax.distributed.initialize(
+            coordinator_address=sweep_args.coordinator,
+            num_processes=sweep_args.num_processes,
+            process_id=sweep_args.process_id,
+        )
+    cli.exit_now(cli.guard(lambda: run_sweep(argv)))
+
+
+if __name__ == "__main__":
+    main()
