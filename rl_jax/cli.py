@@ -426,7 +426,7 @@ def _base(algorithm: Any, env_id: str, defaults: Defaults) -> tuple[Any, Any]:
     """The algorithm's recipe for ``env_id`` with the script's overrides."""
     try:
         config = algorithm.default_config(env_id)
-        hparams = algorithm.default_hyperparams()
+        hparams = algorithm.default_hyperparams(env_id)
     except (ValueError, TypeError, KeyError) as error:
         raise UsageError(f"{algorithm.name} cannot run {env_id}: {error}") from None
     config = _replace(config, defaults.config, "config")

@@ -127,7 +127,7 @@ def default_config(env_id: str = ENV_ID) -> Config:
     return Config(env_id=env_id)
 
 
-def default_hyperparams() -> Hyperparams:
+def default_hyperparams(env_id: str | None = None) -> Hyperparams:
     return Hyperparams()
 
 
