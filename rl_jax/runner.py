@@ -484,7 +484,7 @@ class Session:
 
 def compile_chunk(plan: Plan, state: Any, hparams: Any, notify: Callable) -> Callable:
     """Compile ahead of the first chunk so compile time is reported as such."""
-    notify("compiling the train chunk (a later run of the same config reuses the cache) ...")
+    notify("compiling the train chunk ...")
     started = time.perf_counter()
     compiled = plan.parallel.compile(state, hparams)
     notify(f"compiled in {time.perf_counter() - started:.1f} s")
