@@ -45,6 +45,11 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     p.add_argument("--threads", type=int, default=1, help="torch intra-op threads")
     p.add_argument("--stop-at-return", type=float, default=None, help="stop once eval >= this")
     p.add_argument("--out", type=Path, default=None, help="JSON-lines log (default: stdout)")
+    p.add_argument(
+        "--time-only", type=int, default=0, metavar="N",
+        help="benchmark mode: time --learning-starts random steps, then N steps with an update\n"
+        "each, print one JSON line of rates and exit (no evaluation, no log file)",
+    )  # fmt: skip
     return p.parse_args(argv)
 
 
@@ -171,6 +176,39 @@ class TD3:
         return np.clip(action, self.low, self.high).astype(np.float32)
 
 
+def time_only(args: argparse.Namespace) -> dict[str, float]:
+    """Env steps/s of the random warm-up and of the learning phase (one env step plus one update
+    per step), measured separately: what a projection of a full run multiplies out."""
+    torch.set_num_threads(args.threads)
+    torch.manual_seed(args.seed)
+    rng = np.random.default_rng(args.seed)
+    env = gym.make(args.env_id)
+    env.action_space.seed(args.seed)
+    agent = TD3(args, env)
+    total = args.learning_starts + args.time_only
+    replay = Replay(total, *env.observation_space.shape, *env.action_space.shape)
+    obs, _ = env.reset(seed=args.seed)
+    marks = [time.perf_counter()]
+    for step in range(1, total + 1):
+        learning = step > args.learning_starts
+        action = agent.act(obs, rng) if learning else env.action_space.sample()
+        next_obs, reward, terminated, truncated, _ = env.step(action)
+        replay.add(obs, action, reward, next_obs, float(terminated))
+        obs = next_obs if not (terminated or truncated) else env.reset()[0]
+        if learning:
+            agent.update(replay.sample(rng, args.batch_size), step - args.learning_starts - 1)
+        if step == args.learning_starts:
+            marks.append(time.perf_counter())
+    marks.append(time.perf_counter())
+    random_s, learning_s = marks[1] - marks[0], marks[-1] - marks[1]
+    return {
+        "random_steps_per_s": round(args.learning_starts / random_s, 1),
+        "learning_steps_per_s": round(args.time_only / learning_s, 1),
+        "updates_per_s": round(args.time_only / learning_s, 1),
+        "threads": args.threads,
+    }
+
+
 def train(args: argparse.Namespace) -> None:
     torch.set_num_threads(args.threads)
     torch.manual_seed(args.seed)
@@ -212,4 +250,8 @@ def train(args: argparse.Namespace) -> None:
 
 
 if __name__ == "__main__":
-    train(parse_args())
+    arguments = parse_args()
+    if arguments.time_only:
+        print(json.dumps(time_only(arguments)), flush=True)
+    else:
+        train(arguments)

@@ -17,7 +17,9 @@ They isolate one piece of a learner at a time (the usual debugging ladder for RL
 Every probe takes ``num_actions``: ``None`` gives a continuous ``Box(-1, 1, (1,))`` action, an int
 ``n`` gives ``Discrete(n)`` whose index ``i`` stands for the i-th of ``n`` evenly spaced values in
 [-1, 1] (so the reward functions, and the known answers, are the same for DQN-style learners).
-Observations are ``(1,)`` float32. Importing this module registers the ``rl_jax/Probe*`` ids.
+Observations are ``(1,)`` float32. Importing this module registers the ``rl_jax/Probe*`` ids;
+``rl_jax/Probe*Discrete-v0`` are the discrete-action versions (``DISCRETE_ACTIONS`` = 5 actions:
+index 3 stands for 0.5, the best action of ``ActionReward``).
 """
 
 from __future__ import annotations
@@ -141,12 +143,47 @@ class Termination(Truncation):
     terminal = True
 
 
+DISCRETE_ACTIONS = 5
+
+
+class _Discrete:
+    """Mixed in first: the probe with ``DISCRETE_ACTIONS`` discrete actions by default."""
+
+    def __init__(self, num_actions: int | None = DISCRETE_ACTIONS):
+        super().__init__(num_actions)
+
+
+class DiscreteConstantReward(_Discrete, ConstantReward):
+    """``ConstantReward`` with discrete actions."""
+
+
+class DiscreteActionReward(_Discrete, ActionReward):
+    """``ActionReward`` with discrete actions: Q(0, i) = 1 - (linspace(-1, 1, 5)[i] - 0.5)^2."""
+
+
+class DiscreteTwoStep(_Discrete, TwoStep):
+    """``TwoStep`` with discrete actions."""
+
+
+class DiscreteTruncation(_Discrete, Truncation):
+    """``Truncation`` with discrete actions."""
+
+
+class DiscreteTermination(_Discrete, Termination):
+    """``Termination`` with discrete actions."""
+
+
 PROBE_IDS = {
     "rl_jax/ProbeConstantReward-v0": "envs.probes:ConstantReward",
     "rl_jax/ProbeActionReward-v0": "envs.probes:ActionReward",
     "rl_jax/ProbeTwoStep-v0": "envs.probes:TwoStep",
     "rl_jax/ProbeTruncation-v0": "envs.probes:Truncation",
     "rl_jax/ProbeTermination-v0": "envs.probes:Termination",
+    "rl_jax/ProbeConstantRewardDiscrete-v0": "envs.probes:DiscreteConstantReward",
+    "rl_jax/ProbeActionRewardDiscrete-v0": "envs.probes:DiscreteActionReward",
+    "rl_jax/ProbeTwoStepDiscrete-v0": "envs.probes:DiscreteTwoStep",
+    "rl_jax/ProbeTruncationDiscrete-v0": "envs.probes:DiscreteTruncation",
+    "rl_jax/ProbeTerminationDiscrete-v0": "envs.probes:DiscreteTermination",
 }
 for _env_id, _entry_point in PROBE_IDS.items():
     register(_env_id, _entry_point)

@@ -25,6 +25,8 @@ import jax
 import jax.numpy as jnp
 
 INITS = ("fan_in_uniform", "orthogonal")
+#: hidden-layer nonlinearities, with the orthogonal gain that keeps activations' scale
+ACTIVATIONS = {"relu": (nn.relu, 2.0**0.5), "tanh": (nn.tanh, 5.0 / 3.0)}
 
 
 def _uniform(bound: float):
@@ -46,23 +48,53 @@ def dense(features: int, fan_in: int, initializer: str, gain: float, dtype: Any)
     return nn.Dense(features, dtype=dtype, kernel_init=kernel_init, bias_init=bias_init)
 
 
+def _float32(x: jax.Array) -> jax.Array:
+    # Low-precision compute (bfloat16) still hands float32 to the losses.
+    return x.astype(jnp.promote_types(x.dtype, jnp.float32))
+
+
+def _activation(name: str):
+    if name not in ACTIVATIONS:
+        raise ValueError(f"unknown activation {name!r}; choose one of {list(ACTIVATIONS)}")
+    return ACTIVATIONS[name]
+
+
+class Torso(nn.Module):
+    """Hidden layers only: ``[..., in] -> [..., hidden[-1]]`` (the input itself if none)."""
+
+    hidden: tuple[int, ...]
+    initializer: str = "fan_in_uniform"
+    activation: str = "relu"
+    dtype: Any = jnp.float32
+
+    @nn.compact
+    def __call__(self, x: jax.Array) -> jax.Array:
+        function, gain = _activation(self.activation)
+        for width in self.hidden:
+            x = function(dense(width, x.shape[-1], self.initializer, gain, self.dtype)(x))
+        return x
+
+
 class MLP(nn.Module):
-    """ReLU hidden layers, linear output. Parameters float32; ``dtype`` is the compute dtype."""
+    """Hidden layers (ReLU by default), linear output. Parameters float32; ``dtype`` is the
+    compute dtype."""
 
     hidden: tuple[int, ...]
     outputs: int
     initializer: str = "fan_in_uniform"
     output_gain: float = 1.0
     dtype: Any = jnp.float32
+    activation: str = "relu"
 
     @nn.compact
     def __call__(self, x: jax.Array) -> jax.Array:
+        # The layers sit directly in this module (not in a Torso): parameter names stay
+        # Dense_0 .. Dense_k, as saved checkpoints have them.
+        function, gain = _activation(self.activation)
         for width in self.hidden:
-            x = dense(width, x.shape[-1], self.initializer, 2.0**0.5, self.dtype)(x)
-            x = nn.relu(x)
+            x = function(dense(width, x.shape[-1], self.initializer, gain, self.dtype)(x))
         x = dense(self.outputs, x.shape[-1], self.initializer, self.output_gain, self.dtype)(x)
-        # Low-precision compute (bfloat16) still hands float32 to the losses.
-        return x.astype(jnp.promote_types(x.dtype, jnp.float32))
+        return _float32(x)
 
 
 class Actor(nn.Module):
@@ -98,6 +130,61 @@ class Critic(nn.Module):
     def __call__(self, obs: jax.Array, action: jax.Array) -> jax.Array:
         x = jnp.concatenate([obs, action], axis=-1)
         return MLP(self.hidden, 1, self.initializer, 1.0, self.dtype)(x)[..., 0]
+
+
+class QNetwork(nn.Module):
+    """Action values of a discrete action space: ``obs [..., obs_dim] -> q [..., num_actions]``.
+
+    ``dueling`` (Wang et al. 2016): the torso feeds a state-value head ``v`` and an advantage head
+    ``a``, combined as ``q = v + a - mean(a)`` (the mean makes the split identifiable)."""
+
+    hidden: tuple[int, ...]
+    num_actions: int
+    dueling: bool = False
+    initializer: str = "fan_in_uniform"
+    dtype: Any = jnp.float32
+
+    @nn.compact
+    def __call__(self, obs: jax.Array) -> jax.Array:
+        x = Torso(self.hidden, self.initializer, "relu", self.dtype)(obs)
+        head = lambda outputs: dense(outputs, x.shape[-1], self.initializer, 1.0, self.dtype)  # noqa: E731
+        if not self.dueling:
+            return _float32(head(self.num_actions)(x))
+        value, advantage = head(1)(x), head(self.num_actions)(x)
+        return _float32(value + advantage - jnp.mean(advantage, axis=-1, keepdims=True))
+
+
+class StochasticPolicy(nn.Module):
+    """A policy network for policy-gradient learners: a torso and heads on its features.
+
+    ``num_actions`` set: a categorical policy, ``logits [..., num_actions]``. Otherwise a diagonal
+    Gaussian over ``action_dim`` dims: ``mean`` and a state-dependent ``std = softplus(raw) +
+    std_floor`` (the floor keeps the std, and so the log-density, finite). ``value`` adds a
+    state-value head ``[...]`` on the same features (a learned baseline). Returns a dict.
+    """
+
+    hidden: tuple[int, ...]
+    action_dim: int = 1
+    num_actions: int | None = None
+    std_floor: float = 1e-3
+    value: bool = False
+    activation: str = "tanh"
+    initializer: str = "fan_in_uniform"
+
+    @nn.compact
+    def __call__(self, obs: jax.Array) -> dict[str, jax.Array]:
+        x = Torso(self.hidden, self.initializer, self.activation)(obs)
+        head = lambda outputs: dense(outputs, x.shape[-1], self.initializer, 0.01, jnp.float32)  # noqa: E731
+        if self.num_actions is not None:
+            out = {"logits": head(self.num_actions)(x)}
+        else:
+            out = {
+                "mean": head(self.action_dim)(x),
+                "std": nn.softplus(head(self.action_dim)(x)) + self.std_floor,
+            }
+        if self.value:
+            out["value"] = head(1)(x)[..., 0]
+        return out
 
 
 def init_stacked(module: nn.Module, key: jax.Array, count: int, *example_inputs: Any) -> Any:

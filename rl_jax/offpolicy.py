@@ -26,6 +26,7 @@ from typing import Any, NamedTuple
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 from flax import struct
 
 import envs
@@ -67,6 +68,10 @@ class OffPolicyConfig:
     def env_steps_per_chunk(self) -> int:
         return self.num_envs * self.iterations_per_chunk
 
+    def make_env(self) -> envs.Environment:
+        """The env as registered; learners that adapt it (e.g. discretise actions) override."""
+        return envs.make(self.env_id)
+
     def to_dict(self) -> dict[str, Any]:
         return dataclasses.asdict(self)
 
@@ -81,6 +86,28 @@ class OffPolicyConfig:
         if unknown:
             raise ValueError(f"unknown {cls.__name__} field(s): {', '.join(unknown)}")
         return cls(**{k: tuple(v) if isinstance(v, list) else v for k, v in values.items()})
+
+
+class HyperparamsMethods:
+    """Conversions for a learner's ``Hyperparams`` (a ``flax.struct`` dataclass of scalars)."""
+
+    def as_arrays(self):
+        """Every field as a float32 array (lists, e.g. from JSON of a stack, become [H])."""
+        return self.replace(
+            **{
+                f.name: jnp.asarray(getattr(self, f.name), jnp.float32)
+                for f in dataclasses.fields(self)
+            }
+        )
+
+    def to_dict(self) -> dict[str, Any]:
+        return {
+            f.name: np.asarray(getattr(self, f.name)).tolist() for f in dataclasses.fields(self)
+        }
+
+    @classmethod
+    def from_dict(cls, values: dict[str, Any]):
+        return cls(**values).as_arrays()
 
 
 @struct.dataclass
@@ -107,6 +134,14 @@ class TrainState:
     #                           that ended any (NaN until one does)
 
 
+def uniform_buffer(example: Transition, config: OffPolicyConfig) -> ReplayBuffer:
+    return replay.init(example, config.buffer_size, config.num_envs)
+
+
+def add_uniform(buffer: ReplayBuffer, transitions: Transition, config, hparams) -> ReplayBuffer:
+    return replay.add(buffer, transitions)
+
+
 class Learner(NamedTuple):
     """What an off-policy algorithm provides. ``config``/``hparams`` are its own types.
 
@@ -121,6 +156,9 @@ class Learner(NamedTuple):
         priorities back); ``update_index`` counts updates before this one (unbatched);
         ``metrics`` is a dict of [] float32, NaN where a quantity was not computed this update.
     metric_names: the keys of ``metrics``.
+    init_buffer(example_transition, config) -> buffer, and
+    add_to_buffer(buffer, transitions [N, ...], config, hparams) -> buffer
+        (optional) the replay memory; default: ``rl_jax.replay``'s uniform circular buffer.
     """
 
     init_agent: Callable[..., Any]
@@ -128,6 +166,8 @@ class Learner(NamedTuple):
     act: Callable[..., jax.Array]
     update: Callable[..., tuple[Any, ReplayBuffer, dict[str, jax.Array]]]
     metric_names: tuple[str, ...]
+    init_buffer: Callable[..., Any] = uniform_buffer
+    add_to_buffer: Callable[..., Any] = add_uniform
 
 
 # ---- environments -------------------------------------------------------------------------------
@@ -136,7 +176,10 @@ class Learner(NamedTuple):
 @functools.lru_cache(maxsize=64)
 def make_eval_env(config: OffPolicyConfig) -> envs.Environment:
     """The env as the policy sees it (obs flattened to one axis), without autoreset."""
-    env = envs.make(config.env_id)
+    # The first call may come while tracing (e.g. under eval_shape): constants an env computes
+    # when built (MuJoCo's initial obs, default params) must stay concrete, not leak tracers.
+    with jax.ensure_compile_time_eval():
+        env = config.make_env()
     if len(env.observation_space().shape) != 1:
         env = envs.FlattenObservation(env)
     return env
@@ -171,7 +214,7 @@ def init(learner: Learner, key: PRNGKey, config: OffPolicyConfig, hparams: Any) 
     agent = learner.init_agent(
         agent_key, config, hparams, env.observation_space(), env.action_space()
     )
-    buffer = replay.init(example_transition(env), config.buffer_size, config.num_envs)
+    buffer = learner.init_buffer(example_transition(env), config)
     zero = jnp.int32(0)
     return TrainState(
         agent=agent,
@@ -235,7 +278,7 @@ def train_iteration(learner, config, hparams, state: TrainState):
     transition = Transition(
         state.obs, actions, ts.reward, ts.info["final_obs"], ts.terminated, ts.truncated
     )
-    buffer = replay.add(state.buffer, transition)
+    buffer = learner.add_to_buffer(state.buffer, transition, config, hparams)
     agent, buffer, metrics, updates = _updates(learner, config, hparams, state, update_key, buffer)
     done = jnp.logical_or(ts.terminated, ts.truncated)
     noise = jnp.where(jnp.reshape(done, done.shape + (1,) * (noise.ndim - 1)), 0.0, noise)
@@ -255,6 +298,16 @@ def train_iteration(learner, config, hparams, state: TrainState):
     )
     episodes = (jnp.sum(jnp.where(done, ts.info["episode_return"], 0.0)), jnp.sum(done))
     return state, (metrics, episodes)
+
+
+def env_steps_at_update(update_index: jax.Array, config: OffPolicyConfig) -> jax.Array:
+    """Env steps taken (all envs, this one included) in the iteration that runs update number
+    ``update_index`` (0-based): updates start in the first iteration that begins with at least
+    ``learning_starts`` steps taken, ``updates_per_iteration`` per iteration. Lets an update-side
+    schedule (e.g. prioritized replay's beta) run on env steps, like exploration."""
+    first_iteration = -(-config.learning_starts // config.num_envs)
+    iteration = first_iteration + update_index // config.updates_per_iteration
+    return (iteration + 1) * config.num_envs
 
 
 # ---- evaluation ---------------------------------------------------------------------------------

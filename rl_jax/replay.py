@@ -110,3 +110,20 @@ def gather(buffer: ReplayBuffer, rows: jax.Array, columns: jax.Array) -> Any:
 def sample(buffer: ReplayBuffer, key: jax.Array, batch_size: int) -> Any:
     """A uniform batch of ``batch_size`` stored items."""
     return gather(buffer, *sample_indices(buffer, key, batch_size))
+
+
+def gather_windows(buffer: ReplayBuffer, rows: jax.Array, columns: jax.Array, length: int):
+    """``length`` consecutive steps of one env from each ``(row, column)`` on (n-step returns).
+
+    Returns ``(items, stored)``: leaves ``[len(rows), length, ...]`` and ``[len(rows), length]``
+    bool, true where the step is in the buffer. A window runs into older or unwritten data past
+    the newest row; those steps are marked not stored (their values are whatever is there).
+    Episode boundaries are the caller's business (the items carry their own done flags).
+    """
+    offsets = jnp.arange(length, dtype=jnp.int32)
+    window_rows = (rows[:, None] + offsets[None, :]) % buffer.rows
+    # Steps from the window's first row to the newest row written, around the circle.
+    to_newest = (buffer.position - 1 - rows) % buffer.rows
+    stored = offsets[None, :] <= to_newest[:, None]
+    items = jax.tree.map(lambda leaf: leaf[window_rows, columns[:, None]], buffer.data)
+    return items, stored

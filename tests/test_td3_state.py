@@ -44,10 +44,14 @@ def test_td3_and_ddpg_defaults_are_the_papers():
             "target_noise_clip": 0.5,
         }
     )
-    config = td3.default_config("rl_jax/HalfCheetah-v5")
+    # An env without a recipe gets the paper's settings (half cheetah has a faster recipe).
+    config = td3.default_config("rl_jax/InvertedPendulum-v5")
     assert (config.num_critics, config.policy_delay, config.batch_size) == (2, 2, 256)
     assert config.actor_hidden == config.critic_hidden == (256, 256)
-    ddpg_config = ddpg.default_config("rl_jax/HalfCheetah-v5")
+    cheetah = td3.default_config("rl_jax/HalfCheetah-v5")
+    assert cheetah.updates_per_iteration == cheetah.num_envs  # one update per env step, as paper
+    assert cheetah.critic_hidden == (256, 256)
+    ddpg_config = ddpg.default_config("rl_jax/InvertedPendulum-v5")
     assert (ddpg_config.num_critics, ddpg_config.policy_delay) == (1, 1)
     assert float(ddpg.default_hyperparams().target_noise) == 0.0
     # Everything else is shared: DDPG is TD3 with three settings changed.

@@ -1,0 +1,308 @@
+"""TD3 performance: update throughput against the CPU's matmul rate, scaling over seeds, compile
+time, and the PyTorch script our users ran, all measured in one run on the same cores.
+
+Every timed program runs in a child process (``python -m bench.bench_td3 --worker PART``): the
+CPU must be split into two JAX devices before JAX starts, and a compile-time measurement needs a
+fresh process and cache directory anyway. The machine is shared, so absolute rates move with the
+load; the ratios are what carry over (each part measures its reference in the same process,
+interleaved with the thing it is compared to).
+
+1. ``throughput``: achieved GFLOP/s of TD3 updates at the default sizes (256 x 256, batch 256)
+   for 1 seed, 5 seeds vmapped (every layer one batched matmul) and 5 seeds sharded over 2 CPU
+   devices, divided by the GFLOP/s of float32 1024-square matmuls (the better of one device and
+   one chain per device), in alternating rounds. FLOPs: see ``bench.td3_programs``.
+2. ``scaling``: seconds per seed of one fixed training chunk (half cheetah, MuJoCo C backend,
+   the default recipe) for 1, 5 and 20 seeds and a 4 x 5 grid of hyperparameter sets x seeds.
+3. ``compile``: time to the first chunk minus a steady chunk, for the half-cheetah TD3 program
+   with an empty persistent compilation cache (cold) and again from a new process (warm).
+4. ``torch``: ``bench/torch_td3.py`` as a user would run it on 2 cores (two single-thread
+   processes at a time) next to ours; time to eval return 3,000 / 5,000 of the baseline is
+   projected from these rates and its logged steps-to-return.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+from typing import Any
+
+ROOT = Path(__file__).resolve().parent.parent
+# Steps at which the baseline's eval return first reached 3,000 and 5,000, from full runs of
+# bench/torch_td3.py (seeds 1 and 2, eval every 10k env steps, 5 episodes; logs in
+# /work/baseline/torch_td3_s{1,2}.jsonl).
+TORCH_STEPS_TO_RETURN = {3000: (80_000, 60_000), 5000: (130_000, 120_000)}
+TORCH_LEARNING_STARTS = 25_000
+RAW = ROOT / "bench" / "results"  # the measured numbers behind each section, as JSON
+
+
+# ---- workers (child processes) -----------------------------------------------------------------
+def throughput(quick: bool) -> dict[str, Any]:
+    from bench import td3_programs as programs
+    from rl_jax.td3 import td3
+
+    config = td3.default_config(programs.ENV_ID)  # the paper sizes: 256 x 256, batch 256
+    paper = config.__class__(env_id=config.env_id)
+    flops = programs.update_flops(paper)
+    updates = 10 if quick else 50
+    matmuls = {d: programs.matmul_program(d) for d in (1, 2)}
+    cases = {"1 seed": (1, 1), "5 seeds, vmap": (5, 1), "5 seeds, vmap, 2 devices": (5, 2)}
+    calls = {name: programs.update_program(paper, s, d, updates) for name, (s, d) in cases.items()}
+    for call in [*calls.values(), *(c for c, _ in matmuls.values())]:
+        call()  # compile (and warm up) outside the timed rounds
+
+    def matmul_rate() -> float:
+        return max(f / programs.best_seconds(c, 1) for c, f in matmuls.values()) / 1e9
+
+    # Each program is timed between two matmul timings; its ratio is to their mean, so a load
+    # change on the shared machine moves both sides of a ratio alike.
+    rounds = {name: [] for name in cases}
+    references = {name: [] for name in cases}
+    for _ in range(1 if quick else 3):
+        for name, (seeds, _) in cases.items():
+            before = matmul_rate()
+            seconds = programs.best_seconds(calls[name], 1)
+            rounds[name].append(seeds * updates * flops["per_update"] / seconds / 1e9)
+            references[name].append((before + matmul_rate()) / 2)
+    return {
+        "flops": flops,
+        "updates_per_call": updates,
+        "gflops": rounds,
+        "matmul_gflops": references,
+        "load": programs.load(),
+    }
+
+
+def scaling(quick: bool) -> dict[str, Any]:
+    from bench.cheetah_recipe import measure
+
+    recipe = {"iterations_per_chunk": 50 if quick else 250, "num_eval_envs": 1}
+    recipe["buffer_size"] = 100_000  # 20 seeds of the default 1M would need ~3.5 GB
+    cases = [("1 seed", 1, 1), ("5 seeds", 5, 1), ("20 seeds", 20, 1), ("4 x 5 grid", 5, 4)]
+    if quick:
+        cases = cases[:2]
+    return {name: measure(recipe, seeds, 1, sets) for name, seeds, sets in cases}
+
+
+def compile_time(quick: bool) -> dict[str, Any]:
+    from bench.cheetah_recipe import measure
+
+    result = measure({"iterations_per_chunk": 20, "num_eval_envs": 1}, 5, 1)
+    result["compile_s"] = round(result["first_call_s"] - result["chunk_s"], 2)
+    return result
+
+
+def ours_vs_torch(quick: bool) -> dict[str, Any]:
+    from bench.cheetah_recipe import measure
+
+    # 400 updates per seed per timed chunk for either recipe (the default does 4 per iteration);
+    # the chunk's evaluation (one episode) is included.
+    iterations = {"paper": 400, "default": 100}
+    return {
+        name: measure({"iterations_per_chunk": iterations[name] // (10 if quick else 1), **r}, 5, 1)
+        for name, r in [("paper", _paper_recipe()), ("default", {"num_eval_envs": 1})]
+    }
+
+
+def _paper_recipe() -> dict[str, Any]:
+    from bench.td3_programs import ENV_ID
+    from rl_jax.td3 import Config
+
+    return {
+        k: v
+        for k, v in Config(env_id=ENV_ID).to_dict().items()
+        if k not in ("env_id", "iterations_per_chunk", "buffer_size", "learning_starts")
+    } | {"num_eval_envs": 1}
+
+
+WORKERS = {
+    "throughput": throughput,
+    "scaling": scaling,
+    "compile": compile_time,
+    "ours": ours_vs_torch,
+}
+
+
+def worker_main(part: str, quick: bool, devices: int) -> None:
+    from rl_jax.jax_setup import configure
+
+    configure(cpu_devices=devices)
+    print("RESULT " + json.dumps(WORKERS[part](quick)), flush=True)
+
+
+# ---- the driver ---------------------------------------------------------------------------------
+def _child(part: str, quick: bool, devices: int = 2, env: dict | None = None) -> dict[str, Any]:
+    command = [sys.executable, "-m", "bench.bench_td3", "--worker", part, "--devices", str(devices)]
+    command += ["--quick"] if quick else []
+    environment = {**os.environ, "PYTHONPATH": str(ROOT), **(env or {})}
+    done = subprocess.run(command, cwd=ROOT, env=environment, capture_output=True, text=True)
+    lines = [x for x in done.stdout.splitlines() if x.startswith("RESULT ")]
+    if done.returncode or not lines:
+        raise RuntimeError(f"bench_td3 worker {part} failed:\n{done.stderr[-3000:]}")
+    return json.loads(lines[-1].removeprefix("RESULT "))
+
+
+def _torch(quick: bool, processes: int = 2) -> list[dict[str, Any]]:
+    """``processes`` concurrent single-thread baseline processes (2 on 2 cores, as a user would)."""
+    steps = ["--learning-starts", "1000" if quick else "5000", "--time-only"]
+    steps += ["300" if quick else "2000"]
+    command = [sys.executable, "-m", "bench.torch_td3", *steps]
+    environment = {**os.environ, "PYTHONPATH": str(ROOT)}
+    children = [
+        subprocess.Popen(
+            [*command, "--seed", str(seed + 1)],
+            cwd=ROOT,
+            env=environment,
+            stdout=subprocess.PIPE,
+            text=True,
+        )
+        for seed in range(processes)
+    ]
+    runs = [json.loads(child.communicate()[0].strip().splitlines()[-1]) for child in children]
+    return [{**r, "load": round(os.getloadavg()[0], 2)} for r in runs]
+
+
+def run(quick: bool) -> str:
+    from bench.machine import describe
+
+    lines = [f"## TD3 performance\n\n{describe()}\n", "Command: `python -m bench td3`\n"]
+    started = time.strftime("%H:%M")
+    lines += _part(throughput_section, lambda: _child("throughput", quick))
+    lines += _part(scaling_section, lambda: _child("scaling", quick))
+    lines += _part(compile_section, lambda: _compile_cold_and_warm(quick))
+    lines += _part(torch_section, lambda: (_torch(quick), _child("ours", quick, devices=1)))
+    lines.append(f"\nStarted {started}, finished {time.strftime('%H:%M')} (UTC).\n")
+    return "\n".join(lines)
+
+
+def _part(section: Any, measure: Any) -> list[str]:
+    """One section; a failing part is reported in the output instead of losing the others."""
+    try:
+        result = measure()
+    except Exception as error:  # noqa: BLE001 - any failure of a child is reported as is
+        return [f"### {section.__name__} failed\n", "```", str(error)[-2000:], "```", ""]
+    RAW.mkdir(exist_ok=True)
+    (RAW / f"td3_{section.__name__}.json").write_text(json.dumps(result))
+    return section(*result) if isinstance(result, tuple) else section(result)
+
+
+def _compile_cold_and_warm(quick: bool) -> tuple[dict, dict]:
+    with tempfile.TemporaryDirectory() as cache:
+        cold = _child("compile", quick, env={"JAX_COMPILATION_CACHE_DIR": cache})
+        warm = _child("compile", quick, env={"JAX_COMPILATION_CACHE_DIR": cache})
+    return cold, warm
+
+
+def throughput_section(result: dict[str, Any]) -> list[str]:
+    flops, rounds, references = result["flops"], result["gflops"], result["matmul_gflops"]
+    round_count = len(next(iter(references.values())))
+    lines = [
+        "### Update throughput vs the CPU's matmul rate\n",
+        f"One TD3 update at 256 x 256, batch 256: {flops['critic_step'] / 1e6:.1f} MFLOP critic "
+        f"step + {flops['actor_step'] / 1e6:.1f} MFLOP actor step every 2nd update = "
+        f"**{flops['per_update'] / 1e6:.1f} MFLOP per update** (matmuls, forward + backward, "
+        f"counted from the traced program). {result['updates_per_call']} updates per timed "
+        "call. Each program is timed between two timings of the float32 1024x1024 matmul "
+        "reference (the better of one device and one chain per device); ratio = program / mean "
+        f"of the two, median over {round_count} rounds. Load avg "
+        f"{result['load']:.2f} at the end.\n",
+        "| program | GFLOP/s (best round) | seed-updates/s (best) | matmul GFLOP/s (same "
+        "rounds) | ratio (median) |",
+        "|---|---|---|---|---|",
+    ]
+    for name, values in rounds.items():
+        ratio = statistics.median(v / m for v, m in zip(values, references[name], strict=True))
+        rate = max(values) * 1e9 / flops["per_update"]
+        matmul = ", ".join(f"{m:.0f}" for m in references[name])
+        lines.append(
+            f"| TD3 update, {name} | {max(values):.1f} | {rate:.0f} | {matmul} | {ratio:.2f} |"
+        )
+    return lines + [""]
+
+
+def scaling_section(result: dict[str, Any]) -> list[str]:
+    chunk = next(iter(result.values()))["recipe"]["iterations_per_chunk"]
+    lines = [
+        "### Scaling over seeds and hyperparameter sets\n",
+        f"One training chunk ({chunk} iterations of the default recipe: env steps of all envs + "
+        "the updates, then a 1-episode evaluation), half cheetah on MuJoCo C, 100k buffer, "
+        "updates from the first step. Seconds per run (seed x hyperparameter set) and speed-up "
+        "per run over 1 seed. Runs are split over 2 CPU devices where they divide evenly "
+        "(`rl_jax.parallel.Runner`).\n",
+        "| runs | devices | s/chunk | s/chunk per run | per-run speed-up vs 1 seed | load |",
+        "|---|---|---|---|---|---|",
+    ]
+    base = result["1 seed"]["chunk_s"]
+    for name, one in result.items():
+        per_run = one["chunk_s"] / one["runs"]
+        lines.append(
+            f"| {name} | {one['devices']} | {one['chunk_s']:.2f} | {per_run:.3f} | "
+            f"{base / per_run:.1f}x | {one['load']:.1f} |"
+        )
+    return lines + [""]
+
+
+def compile_section(cold: dict[str, Any], warm: dict[str, Any]) -> list[str]:
+    return [
+        "### Compile time of the half-cheetah TD3 program (5 seeds)\n",
+        "Time to the first chunk (init + trace + compile + run) minus one steady chunk.\n",
+        "| cache | compile s | first call s | load |",
+        "|---|---|---|---|",
+        f"| cold (empty cache dir) | {cold['compile_s']:.1f} | {cold['first_call_s']:.1f} | "
+        f"{cold['load']:.1f} |",
+        f"| warm (same dir, new process) | {warm['compile_s']:.1f} | {warm['first_call_s']:.1f} | "
+        f"{warm['load']:.1f} |",
+        "",
+    ]
+
+
+def torch_section(torch_runs: list[dict[str, Any]], ours: dict[str, Any]) -> list[str]:
+    random_rate = statistics.mean(r["random_steps_per_s"] for r in torch_runs)
+    learning_rate = statistics.mean(r["learning_steps_per_s"] for r in torch_runs)
+    processes = len(torch_runs)
+    waves = -(-5 // processes)
+    lines = [
+        "### Against the PyTorch script (bench/torch_td3.py, HalfCheetah-v5)\n",
+        f"Baseline: {processes} single-thread processes at once (a user's best on 2 cores), "
+        f"measured side by side with ours; per-process rates averaged. 5 seeds take {waves} "
+        "waves of processes.\n",
+        "| | updates/s (all seeds) | env steps/s in learning (all seeds) | load |",
+        "|---|---|---|---|",
+        f"| torch, {processes} processes | {learning_rate * processes:.0f} | "
+        f"{learning_rate * processes:.0f} | {torch_runs[0].get('load', float('nan')):.1f} |",
+    ]
+    for name, result in ours.items():
+        lines.append(
+            f"| rl_jax, 5 seeds, {name} recipe | {result['updates_per_s_per_run'] * 5:.0f} | "
+            f"{result['env_steps_per_s_per_run'] * 5:.0f} | {result['load']:.1f} |"
+        )
+    lines += ["", "Baseline time to eval return (projected: measured rates x logged steps):\n"]
+    lines += ["| return | logged steps (seeds 1, 2) | per seed s | 5 seeds s (projected) |"]
+    lines += ["|---|---|---|---|"]
+    for target, steps in TORCH_STEPS_TO_RETURN.items():
+        mean_steps = statistics.mean(steps)
+        per_seed = TORCH_LEARNING_STARTS / random_rate
+        per_seed += (mean_steps - TORCH_LEARNING_STARTS) / learning_rate
+        lines.append(
+            f"| {target:,} | {steps[0]:,}, {steps[1]:,} | {per_seed:.0f} | {waves * per_seed:.0f} |"
+        )
+    return lines + [""]
+
+
+def main(argv: list[str] | None = None) -> None:
+    parser = argparse.ArgumentParser(description=__doc__)
+    parser.add_argument("--worker", choices=sorted(WORKERS), required=True)
+    parser.add_argument("--devices", type=int, default=2)
+    parser.add_argument("--quick", action="store_true")
+    args = parser.parse_args(argv)
+    worker_main(args.worker, args.quick, args.devices)
+
+
+if __name__ == "__main__":
+    main()
