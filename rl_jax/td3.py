@@ -314,6 +314,31 @@ RECIPES: dict[str, dict[str, Any]] = {
         "actor_hidden": (64, 64),
         "critic_hidden": (64, 64),
     },
+    # The rocket: the Pendulum loop with 5,000-step chunks (10 episodes) and a short warm-up.
+    "rl_jax/Rocket-v0": {
+        "num_envs": 4,
+        "updates_per_iteration": 4,
+        "iterations_per_chunk": 1250,
+        "learning_starts": 2000,
+        "actor_hidden": (64, 64),
+        "critic_hidden": (64, 64),
+    },
+}
+HPARAM_RECIPES: dict[str, dict[str, float]] = {
+    "rl_jax/Rocket-v0": {
+        # The reward pays 1 / (v^2 + 1) while approaching, so creeping in is almost as good as
+        # arriving. Scoring clipped PD laws u = -kp x - kd v from (1, 0) by discounted return:
+        # at gamma 0.99 the best (kp 5, kd 10) never gets inside |x|, |v| < 0.05 in 500 steps;
+        # at 0.995 the best (kp 10, kd 10) is inside from step 323 and slow gains lose ~1%.
+        "gamma": 0.995,
+        # dt = 0.01 s: independent noise of std 0.1 barely moves the velocity before it averages
+        # out. AR(1) noise with rho 0.98 (~0.5 s memory) at std 0.5 pushes for long enough to
+        # visit overshoots and reversals. Measured, 3 seeds, 15k-30k steps: rho 0.95 at std 0.3
+        # reached eval returns ~500-700 where independent noise of std 0.1 was still at ~-150-500
+        # (gamma 0.99); rho 0.98 at std 0.5 scored a little higher again (gamma 0.995).
+        "exploration_correlation": 0.98,
+        "exploration_noise": 0.5,
+    },
 }
 # Half cheetah: the TD3 paper's networks (256 x 256) and one update per env step, cut to fewer
 # FLOPs per unit of progress for a CPU, where updates (not env steps) are the cost:
@@ -334,7 +359,6 @@ RECIPES["rl_jax/HalfCheetah-v5"] = {
     "batch_size": 128,
     "learning_starts": 10_000,
 }
-HPARAM_RECIPES: dict[str, dict[str, float]] = {}
 
 
 class TD3Family:
