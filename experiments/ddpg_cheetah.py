@@ -15,31 +15,23 @@ examples:
   python experiments/ddpg_cheetah.py --resume runs/ddpg
 """
 
+import dataclasses
+
 import td3_cheetah
 
-from rl_jax import cli
 from rl_jax.td3 import ddpg
 
-ENV_ID = td3_cheetah.ENV_ID
 # The same budget and loop as the TD3 script, so the two compare like for like; the settings
-# that make TD3 what it is stay DDPG's.
+# that make TD3 what it is stay DDPG's. One critic and an actor update per critic update run
+# about as fast as TD3's two critics with the actor every second step, so the TD3 script's
+# measured throughput serves for the estimate.
 TD3_ONLY = ("num_critics", "policy_delay", "target_noise", "target_noise_clip")
-SEEDS = td3_cheetah.SEEDS
-TOTAL_STEPS = td3_cheetah.TOTAL_STEPS
-CONFIG_OVERRIDES = {k: v for k, v in td3_cheetah.CONFIG_OVERRIDES.items() if k not in TD3_ONLY}
-HPARAM_OVERRIDES = {k: v for k, v in td3_cheetah.HPARAM_OVERRIDES.items() if k not in TD3_ONLY}
-# One critic and an actor update per critic update: about as fast as TD3's two critics with the
-# actor every second step (measured figure of the TD3 script; same 2-core machine).
-THROUGHPUT = td3_cheetah.THROUGHPUT
+SCRIPT = dataclasses.replace(
+    td3_cheetah.SCRIPT,
+    algorithm=ddpg,
+    config={k: v for k, v in td3_cheetah.SCRIPT.config.items() if k not in TD3_ONLY},
+    hparams={k: v for k, v in td3_cheetah.SCRIPT.hparams.items() if k not in TD3_ONLY},
+)
 
 if __name__ == "__main__":
-    cli.main(
-        ddpg,
-        ENV_ID,
-        __doc__,
-        seeds=SEEDS,
-        total_steps=TOTAL_STEPS,
-        config=CONFIG_OVERRIDES,
-        hparams=HPARAM_OVERRIDES,
-        throughput=THROUGHPUT,
-    )
+    SCRIPT.main(__doc__)

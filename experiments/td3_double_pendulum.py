@@ -18,29 +18,20 @@ examples:
 from rl_jax import cli
 from rl_jax.td3 import td3
 
-ENV_ID = "rl_jax/InvertedDoublePendulum-v5"
-SEEDS = 5
-TOTAL_STEPS = 100_000  # env steps per seed
-CONFIG_OVERRIDES: dict = {
-    "num_envs": 4,
-    "updates_per_iteration": 4,  # one update per env step, as in the paper
-    "iterations_per_chunk": 1_250,  # the paper's 5,000 env steps between evaluations
-    "learning_starts": 10_000,
-    "buffer_size": 200_000,  # the whole run (x seeds) fits in memory with room to spare
-}
-HPARAM_OVERRIDES: dict = {}
-# None: no throughput measured for these defaults yet; the time is estimated after the first
-# training chunk.
-THROUGHPUT = None
+SCRIPT = cli.Script(
+    td3,
+    "rl_jax/InvertedDoublePendulum-v5",
+    seeds=5,
+    total_steps=100_000,  # env steps per seed
+    config={
+        "num_envs": 4,
+        "updates_per_iteration": 4,  # one update per env step, as in the paper
+        "iterations_per_chunk": 1_250,  # the paper's 5,000 env steps between evaluations
+        "learning_starts": 10_000,
+        "buffer_size": 200_000,  # the whole run (x seeds) fits in memory with room to spare
+    },
+    # No throughput measured for these defaults yet: the time is estimated after the first chunk.
+)
 
 if __name__ == "__main__":
-    cli.main(
-        td3,
-        ENV_ID,
-        __doc__,
-        seeds=SEEDS,
-        total_steps=TOTAL_STEPS,
-        config=CONFIG_OVERRIDES,
-        hparams=HPARAM_OVERRIDES,
-        throughput=THROUGHPUT,
-    )
+    SCRIPT.main(__doc__)

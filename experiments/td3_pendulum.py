@@ -17,23 +17,15 @@ examples:
 from rl_jax import cli
 from rl_jax.td3 import td3
 
-ENV_ID = "rl_jax/Pendulum-v1"
-SEEDS = 5
-TOTAL_STEPS = 20_000  # env steps per seed
-CONFIG_OVERRIDES: dict = {}  # on top of td3.default_config(ENV_ID), the Pendulum recipe
-HPARAM_OVERRIDES: dict = {}
-# (env steps/s per seed, seeds) measured with these defaults on the 2-core machine (shared with
-# other jobs), warm-up excluded: the plan's time estimate before training starts.
-THROUGHPUT = (170.0, 5)
+SCRIPT = cli.Script(
+    td3,
+    "rl_jax/Pendulum-v1",  # on top of td3.default_config: the Pendulum recipe
+    seeds=5,
+    total_steps=20_000,  # env steps per seed
+    # (env steps/s per seed, seeds) measured with these defaults on the 2-core machine (shared
+    # with other jobs), warm-up excluded: the plan's time estimate before training starts.
+    throughput=(170.0, 5),
+)
 
 if __name__ == "__main__":
-    cli.main(
-        td3,
-        ENV_ID,
-        __doc__,
-        seeds=SEEDS,
-        total_steps=TOTAL_STEPS,
-        config=CONFIG_OVERRIDES,
-        hparams=HPARAM_OVERRIDES,
-        throughput=THROUGHPUT,
-    )
+    SCRIPT.main(__doc__)

@@ -3,8 +3,11 @@ seeds as one compiled program.
 
 The rocket is inertial with a small time step, so independent exploration noise averages out
 before it moves anything: exploration here is temporally correlated (AR(1) noise with
-correlation 0.9, the discrete Ornstein-Uhlenbeck process of the original DDPG). 4 envs stepped
-together, one gradient update per env step, 64x64 networks, otherwise the TD3 paper's settings.
+correlation 0.98 and std 0.5, the discrete Ornstein-Uhlenbeck process of the original DDPG), and
+gamma is 0.995 (at 0.99 creeping towards the origin scores as well as arriving). 4 envs stepped
+together, one gradient update per env step, 64x64 networks, otherwise the TD3 paper's settings
+(td3.RECIPES / HPARAM_RECIPES, with the measurements behind them). Known shortfall: from (1, 0)
+the learned policies do not yet all settle inside |x|, |v| < 0.05 (tests/test_td3_slow.py).
 Episodes end after 500 steps, on leaving |x|, |v| <= 2 (-500) or on reaching the goal (+500).
 
 It prints its plan (envs, steps, memory, devices, estimated time) before it starts, then a
@@ -19,30 +22,15 @@ examples:
 from rl_jax import cli
 from rl_jax.td3 import td3
 
-ENV_ID = "rl_jax/Rocket-v0"
-SEEDS = 5
-TOTAL_STEPS = 50_000  # env steps per seed
-CONFIG_OVERRIDES: dict = {
-    "num_envs": 4,
-    "updates_per_iteration": 4,  # one update per env step, as in the paper
-    "iterations_per_chunk": 625,  # 2,500 env steps between evaluations
-    "learning_starts": 2_000,
-    "actor_hidden": (64, 64),
-    "critic_hidden": (64, 64),
-}
-HPARAM_OVERRIDES: dict = {"exploration_correlation": 0.9}
-# None: no throughput measured for these defaults yet; the time is estimated after the first
-# training chunk.
-THROUGHPUT = None
+SCRIPT = cli.Script(
+    td3,
+    "rl_jax/Rocket-v0",
+    seeds=5,
+    total_steps=50_000,  # env steps per seed
+    # On top of td3's rocket recipe (gamma 0.995, AR(1) exploration noise): evaluate more often.
+    config={"iterations_per_chunk": 625},  # 2,500 env steps between evaluations
+    # No throughput measured for these defaults yet: the time is estimated after the first chunk.
+)
 
 if __name__ == "__main__":
-    cli.main(
-        td3,
-        ENV_ID,
-        __doc__,
-        seeds=SEEDS,
-        total_steps=TOTAL_STEPS,
-        config=CONFIG_OVERRIDES,
-        hparams=HPARAM_OVERRIDES,
-        throughput=THROUGHPUT,
-    )
+    SCRIPT.main(__doc__)

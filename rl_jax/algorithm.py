@@ -62,3 +62,34 @@ class Algorithm(Protocol):
 
     def policy(self, state: Any, config: Any) -> Any:
         """A pure ``obs -> action`` function of the deterministic policy (for eval and GIFs)."""
+
+
+class RecipeBook:
+    """Per-env defaults shared by the algorithm objects: ``default_config(env_id)`` and
+    ``default_hyperparams(env_id)`` are the algorithm's own defaults, then the documented recipe
+    for that env (``recipes`` / ``hparam_recipes``), then the caller's overrides.
+
+    Subclasses set ``name``, ``config_type``, ``hparams_type`` (with ``as_arrays()``),
+    ``recipes`` and ``hparam_recipes``; ``config_overrides`` / ``hparam_overrides`` let one
+    module offer variants (DDPG is TD3 with other settings).
+    """
+
+    name: str
+    config_type: type
+    hparams_type: type
+    recipes: dict[str, dict[str, Any]] = {}
+    hparam_recipes: dict[str, dict[str, Any]] = {}
+    config_overrides: dict[str, Any] = {}
+    hparam_overrides: dict[str, Any] = {}
+
+    def default_config(self, env_id: str, **overrides: Any) -> Any:
+        recipe = {**self.recipes.get(env_id, {}), **self.config_overrides, **overrides}
+        return self.config_type(env_id=env_id, **recipe)
+
+    def default_hyperparams(self, env_id: str | None = None, **overrides: Any) -> Any:
+        recipe = self.hparam_recipes.get(env_id, {}) if env_id else {}
+        values = {**recipe, **self.hparam_overrides, **overrides}
+        return self.hparams_type(**values).as_arrays()
+
+    def __repr__(self) -> str:
+        return f"<algorithm {self.name}>"

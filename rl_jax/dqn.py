@@ -35,6 +35,7 @@ from flax import struct
 
 import envs
 from rl_jax import networks, offpolicy, prioritized, replay
+from rl_jax.algorithm import RecipeBook
 from rl_jax.offpolicy import OffPolicyConfig, TrainState
 from rl_jax.replay import Transition
 from rl_jax.td3 import polyak_update
@@ -317,17 +318,12 @@ HPARAM_RECIPES: dict[str, dict[str, float]] = {
 }
 
 
-class DQN:
+class DQN(RecipeBook):
     """DQN as an ``rl_jax.algorithm.Algorithm``."""
 
     name = "dqn"
-
-    def default_config(self, env_id: str, **overrides: Any) -> Config:
-        return Config(env_id=env_id, **{**RECIPES.get(env_id, {}), **overrides})
-
-    def default_hyperparams(self, env_id: str | None = None, **overrides: Any) -> Hyperparams:
-        recipe = HPARAM_RECIPES.get(env_id, {}) if env_id else {}
-        return Hyperparams(**{**recipe, **overrides}).as_arrays()
+    config_type, hparams_type = Config, Hyperparams
+    recipes, hparam_recipes = RECIPES, HPARAM_RECIPES
 
     def init(self, key: jax.Array, config: Config, hparams: Hyperparams) -> TrainState:
         return offpolicy.init(LEARNER, key, config, hparams)
@@ -343,9 +339,6 @@ class DQN:
     def make_env(self, config: Config) -> envs.Environment:
         """The env the policy acts in (discretised actions), for rendering."""
         return offpolicy.make_eval_env(config)
-
-    def __repr__(self) -> str:
-        return "<algorithm dqn>"
 
 
 dqn = DQN()

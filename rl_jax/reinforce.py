@@ -41,7 +41,7 @@ from flax import struct
 
 import envs
 from rl_jax import networks, offpolicy
-from rl_jax.algorithm import ChunkMetrics
+from rl_jax.algorithm import ChunkMetrics, RecipeBook
 
 BASELINES = ("none", "mean", "value")
 
@@ -374,17 +374,12 @@ HPARAM_RECIPES: dict[str, dict[str, float]] = {
 }
 
 
-class Reinforce:
+class Reinforce(RecipeBook):
     """REINFORCE as an ``rl_jax.algorithm.Algorithm``."""
 
     name = "reinforce"
-
-    def default_config(self, env_id: str, **overrides: Any) -> Config:
-        return Config(env_id=env_id, **{**RECIPES.get(env_id, {}), **overrides})
-
-    def default_hyperparams(self, env_id: str | None = None, **overrides: Any) -> Hyperparams:
-        recipe = HPARAM_RECIPES.get(env_id, {}) if env_id else {}
-        return Hyperparams(**{**recipe, **overrides}).as_arrays()
+    config_type, hparams_type = Config, Hyperparams
+    recipes, hparam_recipes = RECIPES, HPARAM_RECIPES
 
     def init(self, key: jax.Array, config: Config, hparams: Hyperparams) -> TrainState:
         return init(key, config, hparams)
@@ -402,9 +397,6 @@ class Reinforce:
 
     def make_env(self, config: Config) -> envs.Environment:
         return offpolicy.make_eval_env(config)
-
-    def __repr__(self) -> str:
-        return "<algorithm reinforce>"
 
 
 reinforce = Reinforce()

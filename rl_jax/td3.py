@@ -29,6 +29,7 @@ from flax import struct
 
 from envs.spaces import Box
 from rl_jax import networks, offpolicy, replay
+from rl_jax.algorithm import RecipeBook
 from rl_jax.offpolicy import OffPolicyConfig, TrainState
 from rl_jax.replay import ReplayBuffer, Transition
 
@@ -361,23 +362,18 @@ RECIPES["rl_jax/HalfCheetah-v5"] = {
 }
 
 
-class TD3Family:
+class TD3Family(RecipeBook):
     """TD3 or DDPG as an ``rl_jax.algorithm.Algorithm``; the two differ only in their settings."""
+
+    config_type, hparams_type = Config, Hyperparams
+    recipes, hparam_recipes = RECIPES, HPARAM_RECIPES
 
     def __init__(
         self, name: str, config_overrides: dict[str, Any], hparam_overrides: dict[str, Any]
     ):
         self.name = name
-        self._config_overrides = config_overrides
-        self._hparam_overrides = hparam_overrides
-
-    def default_config(self, env_id: str, **overrides: Any) -> Config:
-        recipe = {**RECIPES.get(env_id, {}), **self._config_overrides, **overrides}
-        return Config(env_id=env_id, **recipe)
-
-    def default_hyperparams(self, env_id: str | None = None, **overrides: Any) -> Hyperparams:
-        recipe = HPARAM_RECIPES.get(env_id, {}) if env_id else {}
-        return Hyperparams(**{**recipe, **self._hparam_overrides, **overrides}).as_arrays()
+        self.config_overrides = config_overrides
+        self.hparam_overrides = hparam_overrides
 
     def init(self, key: jax.Array, config: Config, hparams: Hyperparams) -> TrainState:
         return offpolicy.init(LEARNER, key, config, hparams)
@@ -389,9 +385,6 @@ class TD3Family:
         """``obs -> action`` (env units) of the deterministic policy of one seed's state."""
         actor, params = make_networks(config).actor, state.agent.actor
         return lambda obs: actor.apply(params, obs)
-
-    def __repr__(self) -> str:
-        return f"<algorithm {self.name}>"
 
 
 td3 = TD3Family("td3", {}, {})
