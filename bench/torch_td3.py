@@ -176,15 +176,20 @@ class TD3:
         return np.clip(action, self.low, self.high).astype(np.float32)
 
 
-def time_only(args: argparse.Namespace) -> dict[str, float]:
-    """Env steps/s of the random warm-up and of the learning phase (one env step plus one update
-    per step), measured separately: what a projection of a full run multiplies out."""
+def seeded_setup(args: argparse.Namespace) -> tuple[np.random.Generator, gym.Env, TD3]:
+    """Threads, seeds, the env and the agent, as every entry point starts."""
     torch.set_num_threads(args.threads)
     torch.manual_seed(args.seed)
     rng = np.random.default_rng(args.seed)
     env = gym.make(args.env_id)
     env.action_space.seed(args.seed)
-    agent = TD3(args, env)
+    return rng, env, TD3(args, env)
+
+
+def time_only(args: argparse.Namespace) -> dict[str, float]:
+    """Env steps/s of the random warm-up and of the learning phase (one env step plus one update
+    per step), measured separately: what a projection of a full run multiplies out."""
+    rng, env, agent = seeded_setup(args)
     total = args.learning_starts + args.time_only
     replay = Replay(total, *env.observation_space.shape, *env.action_space.shape)
     obs, _ = env.reset(seed=args.seed)
@@ -210,12 +215,7 @@ def time_only(args: argparse.Namespace) -> dict[str, float]:
 
 
 def train(args: argparse.Namespace) -> None:
-    torch.set_num_threads(args.threads)
-    torch.manual_seed(args.seed)
-    rng = np.random.default_rng(args.seed)
-    env = gym.make(args.env_id)
-    env.action_space.seed(args.seed)
-    agent = TD3(args, env)
+    rng, env, agent = seeded_setup(args)
     replay = Replay(min(args.buffer_size, args.total_steps), *env.observation_space.shape,
                     *env.action_space.shape)  # fmt: skip
     out = open(args.out, "a") if args.out else None  # noqa: SIM115 - closed below

@@ -11,12 +11,11 @@ given (unclipped), as gymnasium does. Never terminates; start ``qpos ~ U(-0.1, 0
 
 from __future__ import annotations
 
-import jax
 import jax.numpy as jnp
 import numpy as np
 from flax import struct
 
-from envs.core import Array, PRNGKey
+from envs.core import Array
 from envs.mujoco_backend import Measurement
 from envs.mujoco_env import MujocoEnv, MujocoParams
 
@@ -55,13 +54,6 @@ class HalfCheetah(MujocoEnv):
     @property
     def obs_size(self) -> int:
         return 17 if self.exclude_current_positions else 18
-
-    def sample_start(self, key: PRNGKey, params) -> tuple[Array, Array]:
-        key_qpos, key_qvel = jax.random.split(key)
-        scale = params.reset_noise_scale
-        qpos = self._init_qpos + jax.random.uniform(key_qpos, (9,), jnp.float32, -scale, scale)
-        qvel = scale * jax.random.normal(key_qvel, (9,), jnp.float32)
-        return qpos, qvel
 
     def observe(self, measurement: Measurement) -> Array:
         qpos = measurement.qpos[1:] if self.exclude_current_positions else measurement.qpos

@@ -12,12 +12,11 @@ with ``w`` the two hinge velocities; terminated when the tip height ``y_tip <= 1
 
 from __future__ import annotations
 
-import jax
 import jax.numpy as jnp
 import numpy as np
 from flax import struct
 
-from envs.core import Array, PRNGKey
+from envs.core import Array
 from envs.mujoco_backend import Measurement
 from envs.mujoco_env import MujocoEnv, MujocoParams
 
@@ -54,13 +53,6 @@ class InvertedDoublePendulum(MujocoEnv):
     @property
     def obs_size(self) -> int:
         return 9
-
-    def sample_start(self, key: PRNGKey, params) -> tuple[Array, Array]:
-        key_qpos, key_qvel = jax.random.split(key)
-        scale = params.reset_noise_scale
-        qpos = self._init_qpos + jax.random.uniform(key_qpos, (3,), jnp.float32, -scale, scale)
-        qvel = scale * jax.random.normal(key_qvel, (3,), jnp.float32)
-        return qpos, qvel
 
     def observe(self, measurement: Measurement) -> Array:
         qpos, qvel = measurement.qpos, measurement.qvel

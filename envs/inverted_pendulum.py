@@ -9,12 +9,11 @@ that ends the episode, terminated when ``|angle| > 0.2`` (or the state is not fi
 
 from __future__ import annotations
 
-import jax
 import jax.numpy as jnp
 import numpy as np
 from flax import struct
 
-from envs.core import Array, PRNGKey
+from envs.core import Array
 from envs.mujoco_backend import Measurement
 from envs.mujoco_env import MujocoEnv, MujocoParams
 
@@ -38,16 +37,11 @@ class InvertedPendulum(MujocoEnv):
     camera = {"trackbodyid": 0, "distance": 2.04}
     params_type = InvertedPendulumParams
 
+    qvel_noise = "uniform"  # gymnasium samples both qpos and qvel uniformly
+
     @property
     def obs_size(self) -> int:
         return 4
-
-    def sample_start(self, key: PRNGKey, params) -> tuple[Array, Array]:
-        key_qpos, key_qvel = jax.random.split(key)
-        scale = params.reset_noise_scale
-        qpos = self._init_qpos + jax.random.uniform(key_qpos, (2,), jnp.float32, -scale, scale)
-        qvel = jax.random.uniform(key_qvel, (2,), jnp.float32, -scale, scale)
-        return qpos, qvel
 
     def observe(self, measurement: Measurement) -> Array:
         return jnp.concatenate([measurement.qpos, measurement.qvel])

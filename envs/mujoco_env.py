@@ -298,9 +298,21 @@ class MujocoEnv(Environment[MujocoState, Any]):
         return camera
 
     # ---- hooks --------------------------------------------------------------------------------
+    #: gymnasium's reset noise on qvel: "normal" (std ``reset_noise_scale``) or "uniform" (in
+    #: +-``reset_noise_scale``); qpos is always uniform in +-``reset_noise_scale`` around qpos0.
+    qvel_noise = "normal"
+
     def sample_start(self, key: PRNGKey, params) -> tuple[Array, Array]:
         """float32 ``(qpos, qvel)`` of a random start, as gymnasium's ``reset_model``."""
-        raise NotImplementedError
+        key_qpos, key_qvel = jax.random.split(key)
+        scale = params.reset_noise_scale
+        nq, nv = self._init_qpos.shape[0], self.model.nv
+        qpos = self._init_qpos + jax.random.uniform(key_qpos, (nq,), jnp.float32, -scale, scale)
+        if self.qvel_noise == "uniform":
+            qvel = jax.random.uniform(key_qvel, (nv,), jnp.float32, -scale, scale)
+        else:
+            qvel = scale * jax.random.normal(key_qvel, (nv,), jnp.float32)
+        return qpos, qvel
 
     def observe(self, measurement: Measurement) -> Array:
         raise NotImplementedError

@@ -54,7 +54,7 @@ class Config(OffPolicyConfig):
 
 
 @struct.dataclass
-class Hyperparams:
+class Hyperparams(offpolicy.HyperparamsMethods):
     """What a sweep may vary without recompiling. Defaults: the TD3 paper's (code's) values."""
 
     actor_lr: Any = 3e-4
@@ -69,24 +69,6 @@ class Hyperparams:
     exploration_correlation: Any = 0.0
     target_noise: Any = 0.2  # std of target policy smoothing, x half-range (0 turns it off)
     target_noise_clip: Any = 0.5  # smoothing noise clipped to +-this, x half-range
-
-    def as_arrays(self) -> Hyperparams:
-        """Every field as a float32 array (lists, e.g. from JSON of a stack, become [H])."""
-        return self.replace(
-            **{
-                f.name: jnp.asarray(getattr(self, f.name), jnp.float32)
-                for f in dataclasses.fields(self)
-            }
-        )
-
-    def to_dict(self) -> dict[str, Any]:
-        return {
-            f.name: np.asarray(getattr(self, f.name)).tolist() for f in dataclasses.fields(self)
-        }
-
-    @classmethod
-    def from_dict(cls, values: dict[str, Any]) -> Hyperparams:
-        return cls(**values).as_arrays()
 
 
 @struct.dataclass
