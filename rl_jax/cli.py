@@ -196,7 +196,8 @@ def _kind(default: Any) -> str:
 def _parser_for(default: Any) -> Callable[[str], Any]:
     kind = _kind(default)
     if kind == "tuple":
-        element = _parser_for(default[0]) if default else parse_float
+        # An empty default says nothing of its elements: widths and sizes are whole numbers.
+        element = _parser_for(default[0]) if default else parse_int
 
         def parse_tuple(text: str) -> tuple:
             parts = [part for part in text.replace(" ", "").split(",") if part]

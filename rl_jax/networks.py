@@ -158,9 +158,12 @@ class StochasticPolicy(nn.Module):
     """A policy network for policy-gradient learners: a torso and heads on its features.
 
     ``num_actions`` set: a categorical policy, ``logits [..., num_actions]``. Otherwise a diagonal
-    Gaussian over ``action_dim`` dims: ``mean`` and a state-dependent ``std = softplus(raw) +
-    std_floor`` (the floor keeps the std, and so the log-density, finite). ``value`` adds a
-    state-value head ``[...]`` on the same features (a learned baseline). Returns a dict.
+    Gaussian over ``action_dim`` dims: ``mean`` and ``std``. ``std_mode="state"``: a state-dependent
+    head, ``std = softplus(raw) + std_floor``; ``"param"``: one learned log-std per action dim,
+    independent of the state (initially ``initial_std``), ``std = exp(log_std) + std_floor``. The
+    floor keeps the std, and so the log-density, finite. ``value`` adds a state-value head
+    ``[...]``: on the policy's features, or on a torso of its own when ``value_hidden`` is given
+    (the value loss then does not shape the policy's features). Returns a dict.
     """
 
     hidden: tuple[int, ...]
@@ -170,6 +173,9 @@ class StochasticPolicy(nn.Module):
     value: bool = False
     activation: str = "tanh"
     initializer: str = "fan_in_uniform"
+    std_mode: str = "state"
+    initial_std: float = 1.0
+    value_hidden: tuple[int, ...] = ()
 
     @nn.compact
     def __call__(self, obs: jax.Array) -> dict[str, jax.Array]:
@@ -178,13 +184,26 @@ class StochasticPolicy(nn.Module):
         if self.num_actions is not None:
             out = {"logits": head(self.num_actions)(x)}
         else:
-            out = {
-                "mean": head(self.action_dim)(x),
-                "std": nn.softplus(head(self.action_dim)(x)) + self.std_floor,
-            }
-        if self.value:
+            out = {"mean": head(self.action_dim)(x), "std": self._std(x, head)}
+        if self.value and self.value_hidden:
+            features = Torso(self.value_hidden, self.initializer, self.activation)(obs)
+            out["value"] = dense(1, self.value_hidden[-1], self.initializer, 1.0, jnp.float32)(
+                features
+            )[..., 0]
+        elif self.value:
             out["value"] = head(1)(x)[..., 0]
         return out
+
+    def _std(self, x: jax.Array, head: Any) -> jax.Array:
+        if self.std_mode == "state":
+            return nn.softplus(head(self.action_dim)(x)) + self.std_floor
+        if self.std_mode != "param":
+            raise ValueError(f"std_mode must be 'state' or 'param', got {self.std_mode!r}")
+        start = jnp.log(jnp.float32(self.initial_std))
+        log_std = self.param("log_std", lambda _, shape: jnp.full(shape, start), (self.action_dim,))
+        return jnp.broadcast_to(jnp.exp(log_std), x.shape[:-1] + (self.action_dim,)) + (
+            self.std_floor
+        )
 
 
 def init_stacked(module: nn.Module, key: jax.Array, count: int, *example_inputs: Any) -> Any:

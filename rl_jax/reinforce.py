@@ -40,7 +40,7 @@ import optax
 from flax import struct
 
 import envs
-from rl_jax import networks, offpolicy
+from rl_jax import networks, normalization, offpolicy
 from rl_jax.algorithm import ChunkMetrics, RecipeBook
 
 BASELINES = ("none", "mean", "value")
@@ -58,7 +58,11 @@ class Config:
     activation: str = "tanh"  # see rl_jax.networks.ACTIVATIONS
     baseline: str = "none"  # "none", "mean" (batch mean of returns) or "value" (learned)
     normalize_returns: bool = False  # standardise the returns over each batch
-    std_floor: float = 1e-6  # Gaussian policy: std = softplus(raw) + std_floor
+    std_floor: float = 1e-6  # Gaussian policy: the std's lower bound
+    std_mode: str = "state"  # Gaussian std: "state" (a head) or "param" (learned, state-free)
+    initial_std: float = 1.0  # with std_mode "param": the std before training
+    value_hidden: tuple[int, ...] = ()  # baseline "value": its own torso (empty: shares policy's)
+    normalize_obs: bool = False  # standardise observations by running mean and variance
     network_init: str = "fan_in_uniform"  # see rl_jax.networks
 
     def __post_init__(self) -> None:
@@ -69,6 +73,10 @@ class Config:
             raise ValueError(f"baseline must be one of {BASELINES}, got {self.baseline!r}")
         if self.activation not in networks.ACTIVATIONS:
             raise ValueError(f"activation must be one of {list(networks.ACTIVATIONS)}")
+        if self.std_mode not in ("state", "param"):
+            raise ValueError(f"std_mode must be 'state' or 'param', got {self.std_mode!r}")
+        if self.initial_std <= 0.0:
+            raise ValueError(f"initial_std must be > 0, got {self.initial_std}")
         if self.std_floor <= 0.0:
             raise ValueError(f"std_floor must be > 0, got {self.std_floor}")
         if self.network_init not in networks.INITS:
@@ -86,12 +94,16 @@ class Hyperparams(offpolicy.HyperparamsMethods):
     weight_decay: Any = 0.01  # AdamW's decoupled weight decay (torch's default)
     gamma: Any = 0.99  # discount of the reward-to-go
     value_coef: Any = 0.5  # weight of the value head's loss (baseline "value")
+    entropy_coef: Any = 0.0  # weight of the policy's mean entropy, subtracted from the loss
+    max_grad_norm: Any = 0.0  # clip the gradient's global norm to this (0: no clipping)
+    lr_decay_updates: Any = 0.0  # rate falls linearly to 0 over this many updates (0: constant)
 
 
 @struct.dataclass
 class Agent:
     params: Any  # policy (and value head) parameters
     opt_state: Any  # optax inject_hyperparams(adamw) state: holds the rates in use
+    obs_stats: Any = None  # normalization.RunningStats with normalize_obs, else None
 
 
 @struct.dataclass
@@ -129,7 +141,15 @@ def make_network(config: Config) -> networks.StochasticPolicy:
         value=config.baseline == "value",
         activation=config.activation,
         initializer=config.network_init,
+        std_mode=config.std_mode,
+        initial_std=config.initial_std,
+        value_hidden=config.value_hidden,
     )
+
+
+def policy_outputs(params, obs_stats, obs, config: Config) -> dict[str, jax.Array]:
+    """The network's outputs on (standardised, when there are statistics) observations."""
+    return make_network(config).apply(params, normalization.normalize(obs_stats, obs))
 
 
 # ---- the maths (pure) -------------------------------------------------------------------------
@@ -171,15 +191,24 @@ def policy_gradient_loss(log_prob, advantage, mask) -> jax.Array:
     return -jnp.sum(weighted) / log_prob.shape[1]
 
 
+def entropy(policy: dict[str, jax.Array]) -> jax.Array:
+    """Entropy of each distribution: ``[...]`` (a diagonal Gaussian's sums over its dims)."""
+    if "logits" in policy:
+        log_probs = jax.nn.log_softmax(policy["logits"], axis=-1)
+        return -jnp.sum(jnp.exp(log_probs) * log_probs, axis=-1)
+    return jnp.sum(jnp.log(policy["std"]) + 0.5 * jnp.log(2.0 * jnp.pi * jnp.e), axis=-1)
+
+
 def log_prob(policy: dict[str, jax.Array], action) -> jax.Array:
     if "logits" in policy:
         return categorical_log_prob(policy["logits"], action)
     return gaussian_log_prob(action, policy["mean"], policy["std"])
 
 
-def loss_fn(params, trajectory: Trajectory, hparams: Hyperparams, config: Config):
-    """``(loss, metrics)`` of one batch of whole episodes."""
-    policy = make_network(config).apply(params, trajectory.obs)
+def loss_fn(params, trajectory: Trajectory, hparams: Hyperparams, config: Config, obs_stats=None):
+    """``(loss, metrics)`` of one batch of whole episodes (``obs_stats``: the statistics the
+    episodes were collected with, ``None`` without observation normalisation)."""
+    policy = policy_outputs(params, obs_stats, trajectory.obs, config)
     mask = trajectory.mask
     returns = reward_to_go(trajectory.reward, mask, hparams.gamma)
     if config.normalize_returns:
@@ -194,7 +223,9 @@ def loss_fn(params, trajectory: Trajectory, hparams: Hyperparams, config: Config
     else:
         advantage = returns
     loss = policy_gradient_loss(log_prob(policy, trajectory.action), advantage, mask)
-    return loss + hparams.value_coef * value_loss, {"loss": loss, "value_loss": value_loss}
+    mean_entropy = jnp.sum(mask * entropy(policy)) / count
+    total = loss + hparams.value_coef * value_loss - hparams.entropy_coef * mean_entropy
+    return total, {"loss": loss, "value_loss": value_loss, "entropy": mean_entropy}
 
 
 # ---- acting and rollouts ----------------------------------------------------------------------
@@ -215,7 +246,7 @@ def to_env_action(action, space) -> jax.Array:
 
 def act(agent: Agent, obs: jax.Array, config: Config) -> jax.Array:
     """The deterministic policy: the Gaussian's mean (clipped) or the most likely action."""
-    policy = make_network(config).apply(agent.params, obs)
+    policy = policy_outputs(agent.params, agent.obs_stats, obs, config)
     if "logits" in policy:
         return jnp.argmax(policy["logits"], axis=-1).astype(jnp.int32)
     space = offpolicy.make_eval_env(config).action_space()
@@ -231,8 +262,9 @@ def _freeze(alive, new, old):
     return jax.tree.map(pick, new, old)
 
 
-def rollout(params, key, config: Config) -> Trajectory:
-    """``num_envs`` whole episodes, stopping as soon as all have ended."""
+def rollout(params, key, config: Config, obs_stats=None) -> Trajectory:
+    """``num_envs`` whole episodes, stopping as soon as all have ended (raw observations are
+    stored; the policy acts on them standardised by ``obs_stats`` when given)."""
     env = offpolicy.make_eval_env(config)
     space, network, count = env.action_space(), make_network(config), config.num_envs
     horizon = env.max_episode_steps
@@ -253,7 +285,8 @@ def rollout(params, key, config: Config) -> Trajectory:
     def step(carry):
         time, env_state, obs, alive, trajectory = carry
         action_key, step_key = jax.random.split(jax.random.fold_in(key, time))
-        action = sample_action(network.apply(params, obs), action_key).astype(empty.action.dtype)
+        policy = network.apply(params, normalization.normalize(obs_stats, obs))
+        action = sample_action(policy, action_key).astype(empty.action.dtype)
         keys = jax.random.split(step_key, count)
         new_state, ts = jax.vmap(env.step)(keys, env_state, to_env_action(action, space))
         alive_f = alive.astype(jnp.float32)
@@ -281,20 +314,41 @@ def _adamw(learning_rate, weight_decay) -> optax.GradientTransformation:
 _OPTIMIZER = optax.inject_hyperparams(_adamw)(learning_rate=1e-4, weight_decay=0.01)
 
 
-def update(agent: Agent, trajectory: Trajectory, hparams: Hyperparams, config: Config):
-    """One AdamW step on a batch of episodes at the hyperparameters' rates."""
-    grads, metrics = jax.grad(loss_fn, has_aux=True)(agent.params, trajectory, hparams, config)
+def clip_by_global_norm(grads, max_norm) -> tuple[Any, jax.Array]:
+    """``(grads scaled to global norm <= max_norm, norm before)``; ``max_norm <= 0`` keeps them."""
+    norm = optax.global_norm(grads)
+    scale = jnp.where(max_norm > 0.0, jnp.minimum(1.0, max_norm / jnp.maximum(norm, 1e-12)), 1.0)
+    return jax.tree.map(lambda g: g * scale, grads), norm
+
+
+def learning_rate(hparams: Hyperparams, updates: jax.Array) -> jax.Array:
+    """The rate of update number ``updates``: linear decay to 0 over ``lr_decay_updates``."""
+    decay = hparams.lr_decay_updates
+    fraction = jnp.clip(1.0 - updates / jnp.maximum(decay, 1.0), 0.0, 1.0)
+    return hparams.learning_rate * jnp.where(decay > 0.0, fraction, 1.0)
+
+
+def update(agent: Agent, trajectory: Trajectory, hparams: Hyperparams, config: Config, updates=0):
+    """One AdamW step on a batch of episodes at the hyperparameters' rates; the observation
+    statistics then take in the batch."""
+    grads, metrics = jax.grad(loss_fn, has_aux=True)(
+        agent.params, trajectory, hparams, config, agent.obs_stats
+    )
+    grads, metrics["grad_norm"] = clip_by_global_norm(grads, hparams.max_grad_norm)
     opt_state = agent.opt_state
-    rates = {"learning_rate": hparams.learning_rate, "weight_decay": hparams.weight_decay}
+    rates = {"learning_rate": learning_rate(hparams, updates), "weight_decay": hparams.weight_decay}
     opt_state = opt_state._replace(hyperparams={**opt_state.hyperparams, **rates})
-    updates, opt_state = _OPTIMIZER.update(grads, opt_state, agent.params)
-    return Agent(optax.apply_updates(agent.params, updates), opt_state), metrics
+    step, opt_state = _OPTIMIZER.update(grads, opt_state, agent.params)
+    obs_stats = agent.obs_stats
+    if obs_stats is not None:
+        obs_stats = normalization.update(obs_stats, trajectory.obs, trajectory.mask)
+    return Agent(optax.apply_updates(agent.params, step), opt_state, obs_stats), metrics
 
 
 def train_iteration(state: TrainState, config: Config, hparams: Hyperparams):
     key, rollout_key = jax.random.split(state.key)
-    trajectory = rollout(state.agent.params, rollout_key, config)
-    agent, metrics = update(state.agent, trajectory, hparams, config)
+    trajectory = rollout(state.agent.params, rollout_key, config, state.agent.obs_stats)
+    agent, metrics = update(state.agent, trajectory, hparams, config, state.clock.updates)
     episode_return = jnp.sum(trajectory.reward) / config.num_envs
     state = TrainState(
         agent=agent,
@@ -312,8 +366,10 @@ def init(key: jax.Array, config: Config, hparams: Hyperparams) -> TrainState:
     agent_key, key = jax.random.split(key)
     params = make_network(config).init(agent_key, jnp.zeros(env.observation_space().shape))
     optimizer = optax.inject_hyperparams(_adamw)(hparams.learning_rate, hparams.weight_decay)
+    obs_dim = env.observation_space().shape[0]
+    obs_stats = normalization.init(obs_dim) if config.normalize_obs else None
     return TrainState(
-        agent=Agent(params, optimizer.init(params)),
+        agent=Agent(params, optimizer.init(params), obs_stats),
         key=key,
         clock=Clock(updates=jnp.int32(0)),
         env_steps=jnp.int32(0),

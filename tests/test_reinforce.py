@@ -182,3 +182,53 @@ def test_mean_baseline_equals_centred_returns(cartpole_rollout):
     logits = network.apply(params, trajectory.obs)["logits"]
     log_prob = np.asarray(reinforce.categorical_log_prob(logits, trajectory.action))
     np.testing.assert_allclose(loss, -(mask * log_prob * advantage).sum() / 6, rtol=1e-5)
+
+
+def test_gaussian_and_categorical_entropy_match_closed_forms():
+    std = jnp.array([[0.5, 2.0]])
+    gaussian = reinforce.entropy({"mean": jnp.zeros_like(std), "std": std})
+    expected = np.sum(0.5 * np.log(2 * np.pi * np.e * np.asarray(std) ** 2), axis=-1)
+    np.testing.assert_allclose(gaussian, expected, rtol=1e-5)
+    probs = np.array([0.2, 0.3, 0.5])
+    categorical = reinforce.entropy({"logits": jnp.log(jnp.asarray(probs))})
+    np.testing.assert_allclose(categorical, -np.sum(probs * np.log(probs)), rtol=1e-5)
+
+
+def test_gradient_clipping_scales_to_the_bound_and_zero_turns_it_off():
+    grads = {"a": jnp.array([3.0, 0.0]), "b": jnp.array([[4.0]])}  # global norm 5
+    clipped, norm = reinforce.clip_by_global_norm(grads, jnp.float32(1.0))
+    np.testing.assert_allclose(norm, 5.0, rtol=1e-6)
+    np.testing.assert_allclose(clipped["a"], [0.6, 0.0], rtol=1e-6)
+    np.testing.assert_allclose(clipped["b"], [[0.8]], rtol=1e-6)
+    same, _ = reinforce.clip_by_global_norm(grads, jnp.float32(0.0))
+    np.testing.assert_allclose(same["b"], [[4.0]])
+
+
+def test_learning_rate_decays_linearly_to_zero_or_stays_constant():
+    decaying = reinforce.default_hyperparams(learning_rate=1e-3, lr_decay_updates=100.0)
+    rates = [float(reinforce.learning_rate(decaying, jnp.float32(u))) for u in (0, 25, 100, 500)]
+    np.testing.assert_allclose(rates, [1e-3, 7.5e-4, 0.0, 0.0], rtol=1e-6, atol=1e-12)
+    constant = reinforce.default_hyperparams(learning_rate=1e-3)
+    assert float(reinforce.learning_rate(constant, jnp.float32(10**6))) == np.float32(1e-3)
+
+
+def test_state_independent_std_starts_at_initial_std_for_every_obs():
+    network = networks.StochasticPolicy((8,), action_dim=3, std_mode="param", initial_std=0.5)
+    obs = jax.random.normal(jax.random.key(0), (4, 2))
+    out = network.apply(network.init(jax.random.key(1), obs), obs)
+    np.testing.assert_allclose(out["std"], np.full((4, 3), 0.5 + 1e-3), rtol=1e-6)
+
+
+def test_normalized_observations_reach_the_policy_and_the_stats_learn_the_batch():
+    config = reinforce.default_config(
+        "rl_jax/CartPole-v1", num_envs=4, normalize_obs=True, value_hidden=(8,), baseline="value"
+    )
+    hparams = reinforce.default_hyperparams()
+    state = reinforce.init(jax.random.key(0), config, hparams)
+    stats = state.agent.obs_stats
+    trajectory = reinforce.rollout(state.agent.params, jax.random.key(1), config, stats)
+    agent, metrics = reinforce.update(state.agent, trajectory, hparams, config)
+    mask = np.asarray(trajectory.mask, bool)
+    np.testing.assert_allclose(agent.obs_stats.mean, np.asarray(trajectory.obs)[mask].mean(0),
+                               rtol=1e-3, atol=1e-4)  # fmt: skip
+    assert np.isfinite(float(metrics["loss"])) and np.isfinite(float(metrics["value_loss"]))
