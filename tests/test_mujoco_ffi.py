@@ -173,10 +173,11 @@ CHILD = textwrap.dedent(
 )
 
 
-def _run_child(cache: Path, *backends: str) -> list[str]:
-    environment = {**os.environ, "JAX_COMPILATION_CACHE_DIR": str(cache), "PYTHONPATH": str(REPO)}
+def _python(code: str, *args: str, cache: str = "") -> str:
+    """The last stdout line of ``code`` run in a fresh process with this compilation cache dir."""
+    environment = {**os.environ, "JAX_COMPILATION_CACHE_DIR": cache, "PYTHONPATH": str(REPO)}
     result = subprocess.run(
-        [sys.executable, "-c", CHILD, *backends],
+        [sys.executable, "-c", code, *args],
         capture_output=True,
         text=True,
         env=environment,
@@ -184,15 +185,57 @@ def _run_child(cache: Path, *backends: str) -> list[str]:
         check=False,
     )
     assert result.returncode == 0, result.stderr[-2000:]
-    return json.loads(result.stdout.strip().splitlines()[-1])
+    return result.stdout.strip().splitlines()[-1]
+
+
+def _cache_hits(cache: Path, *backends: str) -> list[str]:
+    return json.loads(_python(CHILD, *backends, cache=str(cache)))
 
 
 @needs_ffi
 def test_programs_with_the_ffi_op_come_from_the_persistent_cache(tmp_path):
     """Two fresh processes, one cache dir: the second loads the FFI program, and (JAX stores no
     program with a host callback) compiles the callback one again."""
-    first = _run_child(tmp_path, "mujoco_ffi", "mujoco_callback")
+    first = _cache_hits(tmp_path, "mujoco_ffi", "mujoco_callback")
     assert "jit_steps_mujoco_ffi" not in first
-    second = _run_child(tmp_path, "mujoco_ffi", "mujoco_callback")
+    second = _cache_hits(tmp_path, "mujoco_ffi", "mujoco_callback")
     assert "jit_steps_mujoco_ffi" in second
     assert "jit_steps_mujoco_callback" not in second
+
+
+SHARDED_CHILD = textwrap.dedent(
+    """
+    from rl_jax.jax_setup import configure
+
+    configure(cpu_devices=2)
+    import jax, numpy as np
+    from jax.sharding import Mesh, PartitionSpec as P
+    import envs
+
+    mesh = Mesh(np.array(jax.devices()), ("seeds",))
+    keys = jax.random.split(jax.random.PRNGKey(0), 8).reshape(4, 2, -1)
+    results = []
+    for backend in ("mujoco_ffi", "mujoco_callback"):
+        env = envs.make("rl_jax/HalfCheetah-v5", backend=backend)
+        nested = lambda f: jax.vmap(jax.vmap(f))
+
+        def run(keys):
+            state, _ = nested(env.reset)(keys)
+            action = jax.numpy.full(keys.shape[:2] + (6,), 0.3)
+            for _ in range(3):
+                state, ts = nested(env.step)(keys, state, action)
+            return state.physics, ts.reward
+
+        sharded = jax.shard_map(run, mesh=mesh, in_specs=P("seeds"), out_specs=P("seeds"))
+        results.append(jax.device_get(jax.jit(sharded)(keys)))
+    for a, b in zip(*map(jax.tree.leaves, results), strict=True):
+        np.testing.assert_array_equal(a, b)
+    print("identical")
+    """
+)
+
+
+@needs_ffi
+def test_ffi_op_under_shard_map_over_two_devices_matches_the_callback():
+    """Runs sharded over CPU devices (as the experiment scripts do) call the op per device."""
+    assert _python(SHARDED_CHILD) == "identical"
