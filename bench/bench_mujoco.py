@@ -177,11 +177,13 @@ def _rate(call, min_time: float) -> float:
             return steps / elapsed
 
 
-def measure_batch(env_id: str, n_envs: int, min_time: float, rounds: int) -> dict:
-    """Raw C rollout and both backends at one batch size, timed in turn; best of ``rounds``."""
+def measure_batch(
+    env_id: str, n_envs: int, min_time: float, rounds: int, backends: tuple = BACKENDS
+) -> dict:
+    """Raw C rollout and ``backends`` at one batch size, timed in turn; best of ``rounds``."""
     calls = {"raw": raw_rollout_call(env_id, n_envs)}
     compile_seconds = {}
-    for backend in BACKENDS:
+    for backend in backends:
         calls[backend], compile_seconds[backend] = ours(env_id, backend, n_envs)
     best = dict.fromkeys(calls, 0.0)
     for _ in range(rounds):

@@ -1,9 +1,9 @@
-"""Two interchangeable physics backends for the MuJoCo envs: MJX (pure JAX) and MuJoCo C.
+"""Interchangeable physics backends for the MuJoCo envs: MJX (pure JAX) and MuJoCo C.
 
-Both step a batch of envs inside the caller's jitted program and expose the same small API
-(``Physics``): build a physics state from ``qpos``/``qvel`` (and optionally the solver warm start),
-advance it by ``frame_skip`` substeps with a control, and report a ``Measurement`` — the float32
-quantities an env needs for its observation, reward and termination.
+Every backend steps a batch of envs inside the caller's jitted program and exposes the same small
+API (``Physics``): build a physics state from ``qpos``/``qvel`` (and optionally the solver warm
+start), advance it by ``frame_skip`` substeps with a control, and report a ``Measurement`` — the
+float32 quantities an env needs for its observation, reward and termination.
 
 ``mjx``
     ``mujoco.mjx``: pure JAX, jit/vmap-able and forward-mode differentiable (MJX's solver loop
@@ -11,28 +11,43 @@ quantities an env needs for its observation, reward and termination.
     ``(qpos, qvel, qacc_warmstart)`` in float32. The default on GPU/TPU.
 
 ``mujoco``
-    MuJoCo C (float64) stepping the whole batch on a thread pool (``mujoco.batch.Batch``, one
-    thread per core), called through ``jax.pure_callback`` with ``vmap_method="broadcast_all"``:
-    under any number of nested vmaps (envs, seeds, hyperparameters) the callback receives the whole
-    batch once, flattens the batch axes and steps every env in one threaded call. Not
-    differentiable. The default on CPU: bit-identical to gymnasium, compiles in a second or two
-    (MJX: 10-60 s), and 4-6x faster than MJX on the contact-rich half cheetah; on the two
-    pendulums MJX is about as fast or up to ~1.5x faster from 64 envs on (bench/bench_mujoco.py).
+    MuJoCo C (float64) stepping the whole batch on a thread pool (MuJoCo's batch, ``mjBatch``,
+    one thread per core). Not differentiable. The default on CPU: bit-identical to gymnasium,
+    compiles in a second or two (MJX: 10-60 s), and 4-6x faster than MJX on the contact-rich half
+    cheetah; on the two pendulums MJX is about as fast or up to ~1.5x faster from 64 envs on
+    (bench/bench_mujoco.py). The jitted program reaches MuJoCo C in one of two ways, with
+    bit-identical results:
 
-Choosing a backend: ``envs.make(id, backend="mjx" | "mujoco")``; otherwise the environment
-variable ``RL_JAX_MUJOCO_BACKEND``; otherwise ``"mujoco"`` when JAX's default device is a CPU and
-``"mjx"`` on accelerators (see ``default_backend``).
+    ``mujoco_ffi``
+        an XLA FFI custom call (``envs.mujoco_ffi``), compiled on first use with the system C++
+        compiler: no Python runs in a step, and the program can be stored in JAX's persistent
+        compilation cache. What ``mujoco`` means when the op builds.
+    ``mujoco_callback``
+        ``jax.pure_callback`` into ``mujoco.batch`` (``MujocoCallbackPhysics``): needs no
+        compiler, but JAX does not cache programs with host callbacks, so each process compiles
+        them again. What ``mujoco`` falls back to, with one line on stderr, when the op cannot be
+        built.
 
-Exactness of the ``mujoco`` backend. JAX runs without x64, yet the C physics state must stay
-float64 so that trajectories are bit-identical to gymnasium's. The state therefore travels through
-JAX as the raw bits of the float64 values, two uint32 words per number (little-endian order, so a
-host-side ``.view(np.float64)`` recovers the numbers with no arithmetic). Bits are copied, never
-rounded, so a state can be carried, checkpointed and resumed exactly; everything the host needs
-is in that state and the control, so a step is a pure function of its inputs (the host keeps only
-scratch buffers that every call overwrites). ``mujoco.batch`` is used rather than
-``mujoco.rollout`` because it carries the solver warm start (``qacc_warmstart``) across calls and
-exposes derived fields (site positions, constraint forces) after the step, both needed for
-bit-identical gymnasium parity; its results do not depend on the thread count.
+    Under any number of nested vmaps (envs, seeds, hyperparameters) both receive the whole batch
+    at once (``vmap_method="broadcast_all"``), flatten its axes and step every env in one
+    threaded call.
+
+Choosing a backend: ``envs.make(id, backend=...)`` with one of ``BACKEND_NAMES``; otherwise the
+environment variable ``RL_JAX_MUJOCO_BACKEND``; otherwise ``"mujoco"`` when JAX's default device
+is a CPU and ``"mjx"`` on accelerators (see ``default_backend``). An env's ``backend`` attribute is
+the engine, "mujoco" or "mjx"; its ``physics.name`` is the concrete backend.
+
+Exactness of the C backend. JAX runs without x64, yet the C physics state must stay float64 so
+that trajectories are bit-identical to gymnasium's. The state therefore travels through JAX as the
+raw bits of the float64 values, two uint32 words per number (little-endian order, so a host-side
+``.view(np.float64)`` recovers the numbers with no arithmetic). Bits are copied, never rounded, so
+a state can be carried, checkpointed and resumed exactly (and moved between ``mujoco_ffi`` and
+``mujoco_callback``); everything MuJoCo needs is in that state and the control, so a step is a
+pure function of its inputs (the host keeps only scratch batches that every call overwrites).
+MuJoCo's batch is used rather than ``mujoco.rollout`` because it carries the solver warm start
+(``qacc_warmstart``) across calls and exposes derived fields (site positions, constraint forces)
+after the step, both needed for bit-identical gymnasium parity; its results do not depend on the
+thread count.
 
 Non-finite physics. MuJoCo C resets a simulation whose qpos/qvel/qacc becomes NaN, infinite or
 larger than ``mjMAXVAL`` (1e10) and counts a warning; MJX just propagates NaN. Both backends report
@@ -60,7 +75,9 @@ from mujoco import mjx  # noqa: E402
 
 Array = jax.Array
 
-BACKENDS = ("mujoco", "mjx")
+BACKENDS = ("mujoco", "mjx")  # physics engines
+C_BACKENDS = ("mujoco_ffi", "mujoco_callback")  # the two ways to MuJoCo C, concrete backends
+BACKEND_NAMES = ("mujoco", *C_BACKENDS, "mjx")  # what backend= and the env variable accept
 BACKEND_ENV_VAR = "RL_JAX_MUJOCO_BACKEND"
 # MuJoCo C treats |x| > mjMAXVAL as a diverged simulation; MJX is held to the same line.
 DIVERGENCE_LIMIT = float(mujoco.mjMAXVAL)
@@ -75,19 +92,35 @@ def default_backend() -> str:
     """``$RL_JAX_MUJOCO_BACKEND`` if set, else "mujoco" on CPU and "mjx" on accelerators."""
     chosen = os.environ.get(BACKEND_ENV_VAR, "").strip().lower()
     if chosen:
-        return resolve_backend(chosen)
+        return _backend_name(chosen)
     return "mujoco" if jax.default_backend() == "cpu" else "mjx"
 
 
-def resolve_backend(backend: str | None) -> str:
-    if backend is None:
-        return default_backend()
+def _backend_name(backend: str) -> str:
     name = backend.strip().lower()
     if name in ("c", "mujoco_c", "cpu"):
         name = "mujoco"
-    if name not in BACKENDS:
-        raise ValueError(f"unknown MuJoCo backend {backend!r}; choose one of {BACKENDS}")
+    if name not in BACKEND_NAMES:
+        raise ValueError(f"unknown MuJoCo backend {backend!r}; choose one of {BACKEND_NAMES}")
     return name
+
+
+def resolve_backend(backend: str | None) -> str:
+    """The concrete backend, one of ``C_BACKENDS`` or "mjx", for a name of ``BACKEND_NAMES``.
+
+    "mujoco" is the FFI op when it builds here (the first call may compile it), else the callback.
+    """
+    name = default_backend() if backend is None else _backend_name(backend)
+    if name == "mujoco":
+        from envs import mujoco_ffi_build
+
+        return "mujoco_ffi" if mujoco_ffi_build.available() else "mujoco_callback"
+    return name
+
+
+def engine(backend: str) -> str:
+    """The physics engine of a backend name: "mujoco" (C) or "mjx"."""
+    return "mjx" if _backend_name(backend) == "mjx" else "mujoco"
 
 
 def gymnasium_asset(xml_file: str) -> Path:
@@ -449,7 +482,95 @@ class MjxPhysics(Physics):
         return state[0], state[1]
 
 
-# ---- MuJoCo C via a batched host callback -------------------------------------------------------
+# ---- MuJoCo C: what both ways of calling it share ----------------------------------------------
+def default_thread_count() -> int:
+    """Cores this process may run on."""
+    try:
+        return max(1, len(os.sched_getaffinity(0)))
+    except AttributeError:
+        return max(1, os.cpu_count() or 1)
+
+
+class MujocoCPhysics(Physics):
+    """MuJoCo C in float64 on a thread pool; subclasses say how the program calls it.
+
+    State: uint32 ``[2 * (nq + 2 nv)]``, the float64 bits of ``qpos, qvel, qacc_warmstart``.
+    A call returns, in this order: (for a step) the new state, then qpos, qvel, qpos change,
+    diverged, and the extras in ``self.extras`` order (``_result_shapes``).
+    """
+
+    name = "mujoco"
+
+    def __init__(
+        self,
+        model: mujoco.MjModel,
+        frame_skip: int,
+        extras: tuple[str, ...] = (),
+        nthread: int | None = None,
+    ):
+        if model.na or model.nmocap or model.nplugin:
+            raise ValueError("the C backend supports models without activations, mocap, plugins")
+        super().__init__(model, frame_skip, extras)
+        self.nthread = default_thread_count() if nthread is None else int(nthread)
+        self.state_size = self.nq + 2 * self.nv
+
+    # -- building states ---------------------------------------------------------------------
+    def from_qpos_qvel(self, qpos: Any, qvel: Any, qacc_warmstart: Any = None) -> Array:
+        """Exact: float64 numpy inputs keep all their bits; float32/traced inputs are widened."""
+        parts = [qpos, qvel, np.zeros(np.shape(qvel)) if qacc_warmstart is None else qacc_warmstart]
+        if all(isinstance(p, np.ndarray | float | int) for p in parts):
+            vector = np.concatenate([np.asarray(p, np.float64) for p in parts], axis=-1)
+            return jnp.asarray(float64_to_bits(vector))
+        vector = jnp.concatenate([jnp.asarray(p, jnp.float32) for p in parts], axis=-1)
+        bits = float32_to_float64_bits(vector)
+        return bits.reshape(*bits.shape[:-2], 2 * bits.shape[-2])
+
+    def to_numpy(self, state: Array) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        values = bits_to_float64(np.asarray(state))
+        nq, nv = self.nq, self.nv
+        return values[..., :nq], values[..., nq : nq + nv], values[..., nq + nv :]
+
+    def qpos_qvel(self, state: Array) -> tuple[Array, Array]:
+        values = float64_bits_to_float32(state[..., : 2 * (self.nq + self.nv)])
+        return values[..., : self.nq], values[..., self.nq :]
+
+    # -- results of a call -------------------------------------------------------------------
+    def _result_shapes(self, with_state: bool) -> tuple:
+        f32 = jnp.float32
+        shapes = [
+            jax.ShapeDtypeStruct((self.nq,), f32),
+            jax.ShapeDtypeStruct((self.nv,), f32),
+            jax.ShapeDtypeStruct((self.nq,), f32),
+            jax.ShapeDtypeStruct((), jnp.bool_),
+            *(jax.ShapeDtypeStruct(s, f32) for s in self._extra_shapes.values()),
+        ]
+        if with_state:
+            shapes.insert(0, jax.ShapeDtypeStruct((2 * self.state_size,), jnp.uint32))
+        return tuple(shapes)
+
+    def _measurement(self, outputs: Any) -> Measurement:
+        qpos, qvel, change, diverged, *extras = outputs
+        return Measurement(
+            qpos, qvel, change, dict(zip(self.extras, extras, strict=True)), diverged
+        )
+
+    def step(self, state: Array, ctrl: Array) -> tuple[Array, Measurement]:
+        outputs = self._call_step(state, jnp.asarray(ctrl, jnp.float32))
+        return outputs[0], self._measurement(outputs[1:])
+
+    def forward(self, state: Array) -> Measurement:
+        return self._measurement(self._call_forward(state))
+
+    def _call_step(self, state: Array, ctrl: Array) -> Any:
+        """The results of ``_result_shapes(True)`` for a (batch of) state and control."""
+        raise NotImplementedError
+
+    def _call_forward(self, state: Array) -> Any:
+        """The results of ``_result_shapes(False)`` for a (batch of) state."""
+        raise NotImplementedError
+
+
+# ---- MuJoCo C through jax.pure_callback ---------------------------------------------------------
 def _state_columns(model: mujoco.MjModel, component: mujoco.mjtState) -> slice:
     """Columns of one component in an ``mjSTATE_INTEGRATION`` row (components in bit order)."""
     offset = 0
@@ -501,8 +622,6 @@ class _HostWorkspaces:
     """The workspaces of one model, one per (operation, batch size), made on first use."""
 
     def __init__(self, model: mujoco.MjModel, nthread: int, outputs: tuple[str, ...]):
-        if model.na or model.nmocap or model.nplugin:
-            raise ValueError("the C backend supports models without activations, mocap, plugins")
         self.model, self.nthread, self.outputs = model, nthread, outputs
         self._workspaces: dict[tuple[str, int], _Workspace] = {}
         self._guard = threading.Lock()
@@ -515,21 +634,10 @@ class _HostWorkspaces:
             return self._workspaces[key]
 
 
-def default_thread_count() -> int:
-    """Cores this process may run on."""
-    try:
-        return max(1, len(os.sched_getaffinity(0)))
-    except AttributeError:
-        return max(1, os.cpu_count() or 1)
+class MujocoCallbackPhysics(MujocoCPhysics):
+    """MuJoCo C called through ``jax.pure_callback`` (``mujoco.batch`` on the host)."""
 
-
-class MujocoCPhysics(Physics):
-    """MuJoCo C in float64 on a thread pool, behind ``jax.pure_callback``.
-
-    State: uint32 ``[2 * (nq + 2 nv)]``, the float64 bits of ``qpos, qvel, qacc_warmstart``.
-    """
-
-    name = "mujoco"
+    name = "mujoco_callback"
 
     def __init__(
         self,
@@ -538,63 +646,16 @@ class MujocoCPhysics(Physics):
         extras: tuple[str, ...] = (),
         nthread: int | None = None,
     ):
-        super().__init__(model, frame_skip, extras)
-        self.nthread = default_thread_count() if nthread is None else int(nthread)
+        super().__init__(model, frame_skip, extras, nthread)
         self._workspaces = _HostWorkspaces(model, self.nthread, self.extras)
-        self.state_size = self.nq + 2 * self.nv
 
-    # -- building states ---------------------------------------------------------------------
-    def from_qpos_qvel(self, qpos: Any, qvel: Any, qacc_warmstart: Any = None) -> Array:
-        """Exact: float64 numpy inputs keep all their bits; float32/traced inputs are widened."""
-        parts = [qpos, qvel, np.zeros(np.shape(qvel)) if qacc_warmstart is None else qacc_warmstart]
-        if all(isinstance(p, np.ndarray | float | int) for p in parts):
-            vector = np.concatenate([np.asarray(p, np.float64) for p in parts], axis=-1)
-            return jnp.asarray(float64_to_bits(vector))
-        vector = jnp.concatenate([jnp.asarray(p, jnp.float32) for p in parts], axis=-1)
-        bits = float32_to_float64_bits(vector)
-        return bits.reshape(*bits.shape[:-2], 2 * bits.shape[-2])
+    def _call_step(self, state: Array, ctrl: Array) -> Any:
+        shapes = self._result_shapes(True)
+        return jax.pure_callback(self._host_step, shapes, state, ctrl, vmap_method="broadcast_all")
 
-    def to_numpy(self, state: Array) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        values = bits_to_float64(np.asarray(state))
-        nq, nv = self.nq, self.nv
-        return values[..., :nq], values[..., nq : nq + nv], values[..., nq + nv :]
-
-    def qpos_qvel(self, state: Array) -> tuple[Array, Array]:
-        values = float64_bits_to_float32(state[..., : 2 * (self.nq + self.nv)])
-        return values[..., : self.nq], values[..., self.nq :]
-
-    # -- the callbacks -----------------------------------------------------------------------
-    def _result_shapes(self, with_state: bool) -> tuple:
-        f32 = jnp.float32
-        shapes = [
-            jax.ShapeDtypeStruct((self.nq,), f32),
-            jax.ShapeDtypeStruct((self.nv,), f32),
-            jax.ShapeDtypeStruct((self.nq,), f32),
-            *(jax.ShapeDtypeStruct(s, f32) for s in self._extra_shapes.values()),
-            jax.ShapeDtypeStruct((), jnp.bool_),
-        ]
-        if with_state:
-            shapes.insert(0, jax.ShapeDtypeStruct((2 * self.state_size,), jnp.uint32))
-        return tuple(shapes)
-
-    def _measurement(self, outputs: tuple) -> Measurement:
-        qpos, qvel, change, *extras, diverged = outputs
-        return Measurement(
-            qpos, qvel, change, dict(zip(self.extras, extras, strict=True)), diverged
-        )
-
-    def step(self, state: Array, ctrl: Array) -> tuple[Array, Measurement]:
-        ctrl = jnp.asarray(ctrl, jnp.float32)
-        outputs = jax.pure_callback(
-            self._host_step, self._result_shapes(True), state, ctrl, vmap_method="broadcast_all"
-        )
-        return outputs[0], self._measurement(outputs[1:])
-
-    def forward(self, state: Array) -> Measurement:
-        outputs = jax.pure_callback(
-            self._host_forward, self._result_shapes(False), state, vmap_method="broadcast_all"
-        )
-        return self._measurement(outputs)
+    def _call_forward(self, state: Array) -> Any:
+        shapes = self._result_shapes(False)
+        return jax.pure_callback(self._host_forward, shapes, state, vmap_method="broadcast_all")
 
     # -- host side ---------------------------------------------------------------------------
     def _split(self, state: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -610,8 +671,8 @@ class MujocoCPhysics(Physics):
             qpos.astype(np.float32),
             qvel.astype(np.float32),
             (qpos - qpos_before).astype(np.float32),
-            *(self._host_extra(name, work).astype(np.float32) for name in self.extras),
             diverged,
+            *(self._host_extra(name, work).astype(np.float32) for name in self.extras),
         ]
         return [o.reshape(batch_shape + o.shape[1:]) for o in outputs]
 
@@ -654,4 +715,8 @@ def make_physics(
     backend = resolve_backend(backend)
     if backend == "mjx":
         return MjxPhysics(model, frame_skip, extras, mjx_chunk)
-    return MujocoCPhysics(model, frame_skip, extras, nthread)
+    if backend == "mujoco_ffi":
+        from envs.mujoco_ffi import MujocoFfiPhysics
+
+        return MujocoFfiPhysics(model, frame_skip, extras, nthread)
+    return MujocoCallbackPhysics(model, frame_skip, extras, nthread)

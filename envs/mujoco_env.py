@@ -9,9 +9,10 @@ gymnasium package), frame skip, observation layout, reward terms, termination ru
     env = envs.make("rl_jax/HalfCheetah-v5", backend="mujoco", ctrl_cost_weight=0.2)
 
 The backend defaults to ``$RL_JAX_MUJOCO_BACKEND``, else MuJoCo C ("mujoco") on CPU and MJX on
-GPU/TPU. Keyword arguments named like gymnasium's constructor arguments (``reset_noise_scale``,
-``ctrl_cost_weight``, ...) set the default params; the params pytree can also be passed to
-``reset``/``step`` and vmapped.
+GPU/TPU; "mujoco_callback" forces MuJoCo C through ``jax.pure_callback`` instead of the FFI op
+(see ``envs.mujoco_backend``). Keyword arguments named like gymnasium's constructor arguments
+(``reset_noise_scale``, ``ctrl_cost_weight``, ...) set the default params; the params pytree can
+also be passed to ``reset``/``step`` and vmapped.
 
 Solver fidelity (``fidelity=``). ``"gymnasium"``: gymnasium's constraint-solver limits (100
 iterations, 50 line-search iterations). ``"parity"`` (default): the cheapest limits that still match
@@ -50,6 +51,7 @@ from envs.mujoco_backend import (
     DIVERGENCE_LIMIT,
     Measurement,
     Physics,
+    engine,
     extra_field,
     load_model,
     make_physics,
@@ -103,12 +105,13 @@ class MujocoEnv(Environment[MujocoState, Any]):
     ):
         if fidelity not in FIDELITIES:
             raise ValueError(f"unknown fidelity {fidelity!r}; choose from {FIDELITIES}")
-        self.backend = resolve_backend(backend)
+        physics_backend = resolve_backend(backend)  # e.g. "mujoco_ffi"
+        self.backend = engine(physics_backend)  # "mujoco" or "mjx"
         self.fidelity = fidelity
         self.model = load_model(self.xml_file, *self.solver_limits(self.backend, fidelity))
         chunk = self.mjx_cpu_chunk if jax.default_backend() == "cpu" else None
         self.physics: Physics = make_physics(
-            self.backend, self.model, self.frame_skip, self.extras, nthread, chunk
+            physics_backend, self.model, self.frame_skip, self.extras, nthread, chunk
         )
         self.dt = float(self.model.opt.timestep * self.frame_skip)
         self._params = self._make_default_params(param_overrides)

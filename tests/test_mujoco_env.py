@@ -1,8 +1,10 @@
 """The MuJoCo envs' API: construction, spaces, reset statistics, exact float64 state transport,
 non-finite physics, jit/vmap (with extra outer vmaps), wrappers, determinism.
 
-Most checks use the C backend ("mujoco"), whose compiled programs are small; the MJX ones reuse
-the compiled 256-env steps of test_mujoco_parity.py (same process, same cache) where they can.
+Most checks use the C backend, whose compiled programs are small, and those that concern its
+exactness run on both ways of calling it (the FFI op and the pure_callback path); the MJX ones
+reuse the compiled 256-env steps of test_mujoco_parity.py (same process, same cache) where they
+can.
 """
 
 from __future__ import annotations
@@ -15,23 +17,25 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 from scipy import stats
-from test_mujoco_parity import BATCH, engine
+from test_mujoco_parity import BATCH, C_BACKENDS, engine
 
 import envs
-from envs import mujoco_backend
+from envs import mujoco_backend, mujoco_ffi_build
 from envs.mujoco_backend import float32_to_float64_bits, float64_bits_to_float32
 
 ENV_IDS = ["InvertedPendulum-v5", "InvertedDoublePendulum-v5", "HalfCheetah-v5"]
 
 
 @functools.cache
-def c_env(env_id: str):
-    return envs.make("rl_jax/" + env_id, backend="mujoco")
+def c_env(env_id: str, backend: str = "mujoco"):
+    if backend == "mujoco_ffi" and not mujoco_ffi_build.available():
+        pytest.skip("the MuJoCo FFI op cannot be built here")
+    return envs.make("rl_jax/" + env_id, backend=backend)
 
 
 @functools.cache
-def c_functions(env_id: str):
-    env = c_env(env_id)
+def c_functions(env_id: str, backend: str = "mujoco"):
+    env = c_env(env_id, backend)
     return jax.jit(jax.vmap(env.reset)), jax.jit(jax.vmap(env.step))
 
 
@@ -44,6 +48,12 @@ def test_backend_choice(monkeypatch):
     monkeypatch.setenv(mujoco_backend.BACKEND_ENV_VAR, "mjx")
     assert envs.make("InvertedPendulum-v5").backend == "mjx"
     assert envs.make("InvertedPendulum-v5", backend="mujoco").backend == "mujoco"
+    callback = envs.make("InvertedPendulum-v5", backend="mujoco_callback")
+    assert (callback.backend, callback.physics.name) == ("mujoco", "mujoco_callback")
+    monkeypatch.setenv(mujoco_backend.BACKEND_ENV_VAR, "mujoco_callback")
+    assert envs.make("InvertedPendulum-v5").physics.name == "mujoco_callback"
+    if mujoco_ffi_build.available():  # "mujoco" is the FFI op wherever it builds
+        assert envs.make("InvertedPendulum-v5", backend="mujoco").physics.name == "mujoco_ffi"
     with pytest.raises(ValueError, match="unknown MuJoCo backend"):
         envs.make("InvertedPendulum-v5", backend="bullet")
     with pytest.raises(ValueError, match="fidelity"):
@@ -99,9 +109,10 @@ def test_float64_bits_to_float32_rounds_like_numpy():
     assert np.isnan(np.asarray(float64_bits_to_float32(np.array([np.nan]).view(np.uint32))))
 
 
+@pytest.mark.parametrize("backend", C_BACKENDS)
 @pytest.mark.parametrize("env_id", ENV_IDS)
-def test_c_backend_keeps_float64_starts_bit_exact(env_id):
-    env = c_env(env_id)
+def test_c_backend_keeps_float64_starts_bit_exact(env_id, backend):
+    env = c_env(env_id, backend)
     rng = np.random.default_rng(2)
     nq, nv = env.physics.nq, env.physics.nv
     vector = rng.normal(size=(3, nq + 2 * nv)) * np.pi
@@ -172,16 +183,17 @@ def diverging_starts(env, count: int) -> tuple[np.ndarray, np.ndarray, np.ndarra
     return vectors, actions, rows
 
 
+@pytest.mark.parametrize("backend", C_BACKENDS)
 @pytest.mark.parametrize("env_id", ENV_IDS)
-def test_c_backend_non_finite_physics_ends_the_episode(env_id):
-    env = c_env(env_id)
+def test_c_backend_non_finite_physics_ends_the_episode(env_id, backend):
+    env = c_env(env_id, backend)
     vectors, actions, rows = diverging_starts(env, 6)
     state, first = env.reset_to(vectors)
     assert np.isfinite(np.asarray(first.obs)).all()
     np.testing.assert_array_equal(
         np.asarray(first.info["physics_diverged"]), rows & ~(np.arange(6) == 4)
     )
-    _, step = c_functions(env_id)
+    _, step = c_functions(env_id, backend)
     keys = jax.random.split(jax.random.PRNGKey(4), 6)
     next_state, ts = step(keys, state, jnp.asarray(actions))
     check_divergence_handling(env, ts, next_state, rows)
@@ -217,10 +229,11 @@ def test_autoreset_after_divergence_keeps_nan_out_of_final_obs():
 
 
 # ---- jit / vmap / wrappers / determinism -----------------------------------------------------
+@pytest.mark.parametrize("backend", C_BACKENDS)
 @pytest.mark.parametrize("env_id", ENV_IDS)
-def test_outer_vmap_over_seeds_and_params_matches_flat_batch(env_id):
+def test_outer_vmap_over_seeds_and_params_matches_flat_batch(env_id, backend):
     """vmap(seeds) o vmap(envs) with per-seed params gives the per-env results of one flat batch."""
-    env = c_env(env_id)
+    env = c_env(env_id, backend)
     seeds, per_seed = 3, 4
     params = jax.tree.map(lambda x: jnp.stack([x, 1.5 * x, 0.5 * x]), env.default_params)
     keys = jax.random.split(jax.random.PRNGKey(6), seeds * per_seed).reshape(seeds, per_seed, -1)
@@ -243,10 +256,11 @@ def test_outer_vmap_over_seeds_and_params_matches_flat_batch(env_id):
         np.testing.assert_allclose(np.asarray(a).reshape(np.shape(b)), b, rtol=1e-6, atol=1e-6)
 
 
-def test_c_backend_is_pure_and_batch_independent():
+@pytest.mark.parametrize("backend", C_BACKENDS)
+def test_c_backend_is_pure_and_batch_independent(backend):
     """One env stepped alone, or as row 5 of a batch, or again from a copied state: same bits."""
-    env = c_env("HalfCheetah-v5")
-    reset, step = c_functions("HalfCheetah-v5")
+    env = c_env("HalfCheetah-v5", backend)
+    reset, step = c_functions("HalfCheetah-v5", backend)
     keys = jax.random.split(jax.random.PRNGKey(8), 8)
     state, _ = reset(keys)
     actions = jax.random.uniform(jax.random.PRNGKey(9), (8, 6), minval=-1)

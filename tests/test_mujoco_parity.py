@@ -1,9 +1,10 @@
-"""Our MuJoCo envs against gymnasium's own MuJoCo envs, on both physics backends.
+"""Our MuJoCo envs against gymnasium's own MuJoCo envs, on every physics backend.
 
 From the same qpos/qvel/qacc_warmstart and action, one step of ours and one of gymnasium's
 (``*-v5``, its default solver settings) must give the same observation, reward and termination;
 for the two pendulums also over 50-step trajectories (open-loop random actions, and a balancing
-feedback policy); and the two backends must agree.
+feedback policy); and the backends must agree: MJX with C to its tolerance, the two ways of
+calling MuJoCo C (``mujoco_ffi``, the XLA FFI op, and ``mujoco_callback``) bit for bit.
 States: 200 drawn from random-policy rollouts of gymnasium's env (10,000 states with their solver
 warm starts, stepped past termination so fallen pendulums are included), the 24 of that pool where
 gymnasium's constraint solver needed the most iterations, and, for every limited joint, states at
@@ -12,8 +13,9 @@ MuJoCo's control clamping (and half cheetah's unclipped control cost) is exercis
 
 Tolerances, and why:
 
-* ``mujoco`` (C, float64) backend — exact. It runs gymnasium's model with gymnasium's solver
-  settings in float64, so its physics state after a step must be bit-identical to gymnasium's.
+* ``mujoco_ffi`` and ``mujoco_callback`` (C, float64) backends — exact. They run gymnasium's
+  model with gymnasium's solver settings in float64, so the physics state after a step must be
+  bit-identical to gymnasium's.
   Observations then differ from gymnasium's float64 ones only by our float32 output: <= 2 float32
   ulps. Rewards are evaluated in float32 from float32 quantities: a few float32 roundings of the
   largest term, ``1e-6 * (1 + |r|)``. (Closed-loop trajectories feed each side's own float32
@@ -54,10 +56,11 @@ import pytest
 from scipy import linalg
 
 import envs
+from envs import mujoco_ffi_build
 
 ENV_IDS = ["InvertedPendulum-v5", "InvertedDoublePendulum-v5", "HalfCheetah-v5"]
 PENDULUMS = ENV_IDS[:2]
-BACKENDS = ["mujoco", "mjx"]
+C_BACKENDS = ["mujoco_ffi", "mujoco_callback"]
 BATCH = 256  # every check of one env/backend runs through one compiled program of this size
 N_RANDOM = 200
 N_HARDEST = 24
@@ -292,6 +295,8 @@ def trajectory_cases(env_id: str) -> dict:
 # ---- our envs, one compiled step per env and backend ----------------------------------------
 @functools.cache
 def engine(env_id: str, backend: str):
+    if backend == "mujoco_ffi" and not mujoco_ffi_build.available():
+        pytest.skip("the MuJoCo FFI op cannot be built here")
     env = envs.make("rl_jax/" + env_id, backend=backend)
     start = jax.jit(jax.vmap(env.start_from_physics))
     step = jax.jit(jax.vmap(env.step))
@@ -361,7 +366,7 @@ def _float32_ulps(reference: np.ndarray, ulps: float) -> np.ndarray:
 
 def _allowed(backend: str, reference: np.ndarray, sensitivity: np.ndarray) -> np.ndarray:
     rounding = SENSITIVITY_FACTOR * _per_case(sensitivity, reference)
-    if backend == "mujoco":
+    if backend in C_BACKENDS:
         return rounding + _float32_ulps(reference, 2)
     return rounding + MJX_FLOOR * (1.0 + np.abs(reference))
 
@@ -409,15 +414,17 @@ def test_cases_cover_random_hard_and_joint_limit_states(env_id):
         assert np.any(values <= low) and np.any(values >= high)
 
 
+@pytest.mark.parametrize("backend", C_BACKENDS)
 @pytest.mark.parametrize("env_id", ENV_IDS)
-def test_c_backend_state_is_bit_identical_to_gymnasium(env_id):
-    cases, ours = one_step_cases(env_id), one_step_outputs(env_id, "mujoco")
+def test_c_backend_state_is_bit_identical_to_gymnasium(env_id, backend):
+    cases, ours = one_step_cases(env_id), one_step_outputs(env_id, backend)
     np.testing.assert_array_equal(ours["state"], cases["state"])
 
 
+@pytest.mark.parametrize("backend", C_BACKENDS)
 @pytest.mark.parametrize("env_id", ENV_IDS)
-def test_c_backend_one_step_matches_gymnasium(env_id):
-    cases, ours = one_step_cases(env_id), one_step_outputs(env_id, "mujoco")
+def test_c_backend_one_step_matches_gymnasium(env_id, backend):
+    cases, ours = one_step_cases(env_id), one_step_outputs(env_id, backend)
     _assert_close("obs", ours["obs"], cases["obs"], _float32_ulps(cases["obs"], 2))
     reward_allowed = C_REWARD_RTOL * (1.0 + np.abs(cases["reward"]))
     _assert_close("reward", ours["reward"], cases["reward"], reward_allowed)
@@ -441,19 +448,20 @@ def test_mjx_backend_one_step_matches_gymnasium(env_id):
 def test_backends_agree(env_id):
     """MJX against our C backend directly (which equals gymnasium to float32 output rounding)."""
     cases = one_step_cases(env_id)
-    c, mjx = one_step_outputs(env_id, "mujoco"), one_step_outputs(env_id, "mjx")
+    c, mjx = one_step_outputs(env_id, "mujoco_callback"), one_step_outputs(env_id, "mjx")
     allowed = _allowed("mjx", c["obs"], cases["obs_sensitivity"]) + _float32_ulps(c["obs"], 2)
     _assert_close("obs", mjx["obs"], c["obs"], allowed)
     allowed = _allowed("mjx", c["reward"], cases["reward_sensitivity"])
     _assert_close("reward", mjx["reward"], c["reward"], allowed + C_REWARD_RTOL)
 
 
+@pytest.mark.parametrize("backend", C_BACKENDS)
 @pytest.mark.parametrize("env_id", PENDULUMS)
-def test_c_backend_trajectories_match_gymnasium(env_id):
-    cases, ours = trajectory_cases(env_id), trajectory_outputs(env_id, "mujoco")
-    allowed_obs = _allowed("mujoco", cases["obs"], cases["obs_sensitivity"])
+def test_c_backend_trajectories_match_gymnasium(env_id, backend):
+    cases, ours = trajectory_cases(env_id), trajectory_outputs(env_id, backend)
+    allowed_obs = _allowed(backend, cases["obs"], cases["obs_sensitivity"])
     _assert_close("obs", ours["obs"], cases["obs"], allowed_obs)
-    allowed = _allowed("mujoco", cases["reward"], cases["reward_sensitivity"])
+    allowed = _allowed(backend, cases["reward"], cases["reward_sensitivity"])
     _assert_close("reward", ours["reward"], cases["reward"], allowed + C_REWARD_RTOL)
     _assert_same_episode_ends(env_id, ours, cases, allowed_obs)
     # open loop: same inputs, same float64 physics, so exact up to the float32 output rounding
@@ -476,3 +484,18 @@ def test_mjx_backend_trajectories_match_gymnasium(env_id):
     mismatch = ours["terminated"] != cases["terminated"]
     borderline = _borderline(env_id, cases, np.nan_to_num(allowed_obs, nan=np.inf))
     assert not (mismatch & ~borderline & predictable).any()
+
+
+@pytest.mark.parametrize("env_id", ENV_IDS)
+def test_ffi_and_callback_backends_are_bit_identical(env_id):
+    """The FFI op and the pure_callback path: the same state bits and float32 outputs."""
+    ffi, callback = (
+        one_step_outputs(env_id, "mujoco_ffi"),
+        one_step_outputs(env_id, "mujoco_callback"),
+    )
+    for key in callback:
+        np.testing.assert_array_equal(ffi[key], callback[key], err_msg=key)
+    if env_id in PENDULUMS:
+        ffi, callback = (trajectory_outputs(env_id, b) for b in C_BACKENDS)
+        for key in callback:
+            np.testing.assert_array_equal(ffi[key], callback[key], err_msg=key)

@@ -1,0 +1,241 @@
+"""The MuJoCo FFI op's own machinery: build cache, version check, fallback, model keys, threads,
+errors, and the point of it all: a program that steps MuJoCo C comes from the persistent cache.
+
+Its physics is checked against gymnasium and the pure_callback path in test_mujoco_parity.py and
+test_mujoco_env.py (parametrised over both ways of calling MuJoCo C).
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+import textwrap
+from pathlib import Path
+
+import jax
+import jax.numpy as jnp
+import mujoco
+import numpy as np
+import pytest
+
+import envs
+from envs import mujoco_backend, mujoco_ffi_build
+from envs.mujoco_ffi import register_model
+
+REPO = Path(__file__).resolve().parents[1]
+
+needs_ffi = pytest.mark.skipif(
+    not mujoco_ffi_build.available(), reason="the MuJoCo FFI op cannot be built here"
+)
+
+
+@pytest.fixture
+def fresh_build_state(monkeypatch):
+    """A process-state as before the first load, so a failure is not remembered afterwards."""
+    monkeypatch.setattr(mujoco_ffi_build, "_state", {})
+
+
+@needs_ffi
+def test_library_is_cached_under_a_hash_of_its_inputs(tmp_path, monkeypatch):
+    path = mujoco_ffi_build.library_path()
+    assert path.exists() and path.parent == mujoco_ffi_build.cache_dir()
+    modified = path.stat().st_mtime_ns
+    assert mujoco_ffi_build.build() == path and path.stat().st_mtime_ns == modified  # not rebuilt
+    edited = tmp_path / "mujoco_ffi.cc"
+    edited.write_text(mujoco_ffi_build.SOURCE.read_text() + "\n// edited\n")
+    monkeypatch.setattr(mujoco_ffi_build, "SOURCE", edited)
+    assert mujoco_ffi_build.library_path() != path
+
+
+@needs_ffi
+def test_library_runs_with_the_mujoco_of_its_headers():
+    library = mujoco_ffi_build.load()
+    header = library.rl_jax_mujoco_header_version()
+    assert header == library.rl_jax_mujoco_library_version() == mujoco.mj_version()
+
+
+@needs_ffi
+def test_version_mismatch_is_refused(fresh_build_state, monkeypatch):
+    monkeypatch.setattr(mujoco, "mj_version", lambda: 1)
+    with pytest.raises(mujoco_ffi_build.FfiUnavailable, match="MuJoCo version mismatch"):
+        mujoco_ffi_build.load()
+
+
+def test_without_a_compiler_mujoco_falls_back_with_one_line(
+    fresh_build_state, monkeypatch, tmp_path, capsys
+):
+    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path))  # no library built before
+    monkeypatch.setenv("CXX", str(tmp_path / "no-compiler"))
+    assert mujoco_backend.resolve_backend("mujoco") == "mujoco_callback"
+    assert envs.make("InvertedPendulum-v5").physics.name == "mujoco_callback"
+    lines = capsys.readouterr().err.splitlines()
+    assert len(lines) == 1 and "no C++ compiler found" in lines[0], lines
+    with pytest.raises(mujoco_ffi_build.FfiUnavailable, match="no C\\+\\+ compiler"):
+        envs.make("InvertedPendulum-v5", backend="mujoco_ffi")
+
+
+def test_a_failed_build_falls_back_with_its_first_error(
+    fresh_build_state, monkeypatch, tmp_path, capsys
+):
+    compiler = tmp_path / "broken-g++"
+    compiler.write_text("#!/bin/sh\necho 'step.cc:1:1: error: no headers' >&2\nexit 1\n")
+    compiler.chmod(0o755)
+    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path))
+    monkeypatch.setenv("CXX", str(compiler))
+    assert not mujoco_ffi_build.available()
+    (line,) = capsys.readouterr().err.splitlines()
+    assert "compiling mujoco_ffi.cc failed: step.cc:1:1: error: no headers" in line
+    assert not list((tmp_path / "rl_jax" / "mujoco_ffi").glob("*.so"))
+
+
+@needs_ffi
+def test_model_key_is_content_addressed():
+    """Two loads of one model share a key (so do two processes); any change makes a new one."""
+    load = lambda: mujoco_backend.load_model("half_cheetah.xml", 100, 50)
+    key = register_model(load(), 5, ("site_xpos",), 2)
+    np.testing.assert_array_equal(register_model(load(), 5, ("site_xpos",), 2), key)
+    different = [
+        register_model(load(), 4, ("site_xpos",), 2),
+        register_model(load(), 5, (), 2),
+        register_model(load(), 5, ("site_xpos",), 1),
+        register_model(mujoco_backend.load_model("half_cheetah.xml", 4, 4), 5, ("site_xpos",), 2),
+    ]
+    assert len({tuple(k) for k in [key, *different]}) == 5
+    with pytest.raises(ValueError, match="cannot run this model: not a floating-point"):
+        register_model(load(), 5, ("no_such_field",), 2)
+
+
+@needs_ffi
+def test_thread_count_does_not_change_results():
+    keys = jax.random.split(jax.random.PRNGKey(0), 64)
+    actions = jax.random.uniform(jax.random.PRNGKey(1), (64, 6), minval=-1)
+    results = []
+    for nthread in (1, 2):
+        env = envs.make("HalfCheetah-v5", backend="mujoco_ffi", nthread=nthread)
+        state, _ = jax.jit(jax.vmap(env.reset))(keys)
+        step = jax.jit(jax.vmap(env.step))
+        for _ in range(5):
+            state, _ = step(keys, state, actions)
+        results.append(np.asarray(state.physics))
+    np.testing.assert_array_equal(*results)
+
+
+@needs_ffi
+def test_unregistered_model_key_fails_the_call_cleanly():
+    physics = envs.make("InvertedPendulum-v5", backend="mujoco_ffi").physics
+    call = jax.ffi.ffi_call(
+        mujoco_ffi_build.STEP_TARGET, physics._result_shapes(True), vmap_method="broadcast_all"
+    )
+    state = physics.from_qpos_qvel(np.zeros(2), np.zeros(2))
+    bogus = jnp.asarray(physics.key ^ np.uint32(1))
+    with pytest.raises(Exception, match="not registered in this process"):
+        jax.block_until_ready(call(bogus, state, jnp.zeros(1, jnp.float32)))
+
+
+# ---- the persistent compilation cache ----------------------------------------------------------
+CHILD = textwrap.dedent(
+    """
+    import json, logging, sys
+    from rl_jax.jax_setup import configure
+
+    configure()
+    import jax
+
+    jax.config.update("jax_persistent_cache_min_compile_time_secs", 0)
+    hits = []
+
+    class Hits(logging.Handler):
+        def emit(self, record):
+            if "Persistent compilation cache hit" in record.getMessage():
+                hits.append(record.args[0])
+
+    logger = logging.getLogger("jax._src.compiler")
+    logger.setLevel(logging.DEBUG)
+    logger.addHandler(Hits())
+    import envs
+
+    for backend in sys.argv[1:]:
+        env = envs.make("rl_jax/HalfCheetah-v5", backend=backend)
+
+        def steps(keys, env=env):
+            state, ts = jax.vmap(env.reset)(keys)
+            action = jax.numpy.full((keys.shape[0], 6), 0.5)
+            step = lambda s, _: (jax.vmap(env.step)(keys, s, action)[0], None)
+            state, _ = jax.lax.scan(step, state, None, length=3)
+            return state.physics
+
+        steps.__name__ = "steps_" + backend
+        jax.jit(steps)(jax.random.split(jax.random.PRNGKey(0), 4)).block_until_ready()
+    print(json.dumps(hits))
+    """
+)
+
+
+def _python(code: str, *args: str, cache: str = "") -> str:
+    """The last stdout line of ``code`` run in a fresh process with this compilation cache dir."""
+    environment = {**os.environ, "JAX_COMPILATION_CACHE_DIR": cache, "PYTHONPATH": str(REPO)}
+    result = subprocess.run(
+        [sys.executable, "-c", code, *args],
+        capture_output=True,
+        text=True,
+        env=environment,
+        timeout=300,
+        check=False,
+    )
+    assert result.returncode == 0, result.stderr[-2000:]
+    return result.stdout.strip().splitlines()[-1]
+
+
+def _cache_hits(cache: Path, *backends: str) -> list[str]:
+    return json.loads(_python(CHILD, *backends, cache=str(cache)))
+
+
+@needs_ffi
+def test_programs_with_the_ffi_op_come_from_the_persistent_cache(tmp_path):
+    """Two fresh processes, one cache dir: the second loads the FFI program, and (JAX stores no
+    program with a host callback) compiles the callback one again."""
+    first = _cache_hits(tmp_path, "mujoco_ffi", "mujoco_callback")
+    assert "jit_steps_mujoco_ffi" not in first
+    second = _cache_hits(tmp_path, "mujoco_ffi", "mujoco_callback")
+    assert "jit_steps_mujoco_ffi" in second
+    assert "jit_steps_mujoco_callback" not in second
+
+
+SHARDED_CHILD = textwrap.dedent(
+    """
+    from rl_jax.jax_setup import configure
+
+    configure(cpu_devices=2)
+    import jax, numpy as np
+    from jax.sharding import Mesh, PartitionSpec as P
+    import envs
+
+    mesh = Mesh(np.array(jax.devices()), ("seeds",))
+    keys = jax.random.split(jax.random.PRNGKey(0), 8).reshape(4, 2, -1)
+    results = []
+    for backend in ("mujoco_ffi", "mujoco_callback"):
+        env = envs.make("rl_jax/HalfCheetah-v5", backend=backend)
+        nested = lambda f: jax.vmap(jax.vmap(f))
+
+        def run(keys):
+            state, _ = nested(env.reset)(keys)
+            action = jax.numpy.full(keys.shape[:2] + (6,), 0.3)
+            for _ in range(3):
+                state, ts = nested(env.step)(keys, state, action)
+            return state.physics, ts.reward
+
+        sharded = jax.shard_map(run, mesh=mesh, in_specs=P("seeds"), out_specs=P("seeds"))
+        results.append(jax.device_get(jax.jit(sharded)(keys)))
+    for a, b in zip(*map(jax.tree.leaves, results), strict=True):
+        np.testing.assert_array_equal(a, b)
+    print("identical")
+    """
+)
+
+
+@needs_ffi
+def test_ffi_op_under_shard_map_over_two_devices_matches_the_callback():
+    """Runs sharded over CPU devices (as the experiment scripts do) call the op per device."""
+    assert _python(SHARDED_CHILD) == "identical"
