@@ -73,6 +73,8 @@ import mujoco  # noqa: E402
 import numpy as np  # noqa: E402
 from mujoco import mjx  # noqa: E402
 
+from envs.registry import BackendError  # noqa: E402
+
 Array = jax.Array
 
 BACKENDS = ("mujoco", "mjx")  # physics engines
@@ -92,7 +94,10 @@ def default_backend() -> str:
     """``$RL_JAX_MUJOCO_BACKEND`` if set, else "mujoco" on CPU and "mjx" on accelerators."""
     chosen = os.environ.get(BACKEND_ENV_VAR, "").strip().lower()
     if chosen:
-        return _backend_name(chosen)
+        try:
+            return _backend_name(chosen)
+        except BackendError as error:
+            raise BackendError(f"{error} (from ${BACKEND_ENV_VAR})") from None
     return "mujoco" if jax.default_backend() == "cpu" else "mjx"
 
 
@@ -101,7 +106,9 @@ def _backend_name(backend: str) -> str:
     if name in ("c", "mujoco_c", "cpu"):
         name = "mujoco"
     if name not in BACKEND_NAMES:
-        raise ValueError(f"unknown MuJoCo backend {backend!r}; choose one of {BACKEND_NAMES}")
+        raise BackendError(
+            f"unknown MuJoCo backend {backend!r}; choose one of {', '.join(BACKEND_NAMES)}"
+        )
     return name
 
 

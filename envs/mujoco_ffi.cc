@@ -269,6 +269,8 @@ ffi::Error Failures(mjBatch* batch, int64_t nsim, int nfail) {
 ffi::Error Run(Operation operation, ffi::Buffer<ffi::U32> key, ffi::Buffer<ffi::U32> state,
                const float* ctrl, size_t ctrl_count, uint32_t* state_after, Measured out,
                ffi::RemainingRets extra_rets) {
+  // An empty batch (zero envs) has nothing to step; its key operand is empty too under vmap.
+  if (state.element_count() == 0 && key.element_count() == 0) return ffi::Error::Success();
   if (key.element_count() < 2) return ffi::Error::InvalidArgument("model key needs 2 words");
   Context* context = Find(KeyOf(key));
   if (context == nullptr) {

@@ -37,6 +37,12 @@ class UnknownEnvError(ValueError):
     """Raised for a name that is not registered; the message lists the known ids."""
 
 
+class BackendError(ValueError):
+    """Raised for an unknown MuJoCo backend name (``backend=`` or ``$RL_JAX_MUJOCO_BACKEND``);
+    defined here, with the other user errors of env construction, so that reporting it does
+    not import MuJoCo."""
+
+
 def register(env_id: str, entry_point: str, max_episode_steps: int | None = None) -> None:
     """Add an env: ``entry_point`` is ``"package.module:Factory"``.
 

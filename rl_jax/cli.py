@@ -652,11 +652,11 @@ def run_experiment(
 
 def user_errors() -> tuple[type[BaseException], ...]:
     """Exception types that mean bad input, not a bug: reported in one line."""
-    from envs.registry import UnknownEnvError
+    from envs.registry import BackendError, UnknownEnvError
     from rl_jax.checkpoint import CheckpointError
     from rl_jax.render import RenderError
 
-    return (UsageError, RunError, CheckpointError, UnknownEnvError, RenderError)
+    return (UsageError, RunError, CheckpointError, UnknownEnvError, BackendError, RenderError)
 
 
 def guard(function: Callable[[], int]) -> int:

@@ -85,7 +85,8 @@ def test_a_failed_build_falls_back_with_its_first_error(
     monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path))
     monkeypatch.setenv("CXX", str(compiler))
     assert not mujoco_ffi_build.available()
-    (line,) = capsys.readouterr().err.splitlines()
+    building, line = capsys.readouterr().err.splitlines()  # the build announces itself once
+    assert building.startswith("rl_jax: building the MuJoCo FFI op (once)")
     assert "compiling mujoco_ffi.cc failed: step.cc:1:1: error: no headers" in line
     assert not list((tmp_path / "rl_jax" / "mujoco_ffi").glob("*.so"))
 
@@ -239,3 +240,22 @@ SHARDED_CHILD = textwrap.dedent(
 def test_ffi_op_under_shard_map_over_two_devices_matches_the_callback():
     """Runs sharded over CPU devices (as the experiment scripts do) call the op per device."""
     assert _python(SHARDED_CHILD) == "identical"
+
+
+@needs_ffi
+def test_an_empty_batch_steps_to_empty_results():
+    env = envs.make("InvertedPendulum-v5", backend="mujoco_ffi")
+    keys = jax.random.split(jax.random.PRNGKey(0), 0)
+    state, first = jax.jit(jax.vmap(env.reset))(keys)
+    state, step = jax.jit(jax.vmap(env.step))(keys, state, jnp.zeros((0, 1)))
+    assert first.obs.shape == (0, 4) and step.obs.shape == (0, 4) and step.reward.shape == (0,)
+
+
+def test_an_unknown_backend_in_the_environment_is_one_user_error(monkeypatch):
+    from envs.registry import BackendError
+    from rl_jax import cli
+
+    monkeypatch.setenv(mujoco_backend.BACKEND_ENV_VAR, "cuda")
+    with pytest.raises(BackendError, match=r"unknown MuJoCo backend 'cuda'.*RL_JAX_MUJOCO_BACKEND"):
+        envs.make("InvertedPendulum-v5")
+    assert BackendError in cli.user_errors()
