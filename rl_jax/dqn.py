@@ -76,6 +76,7 @@ class Hyperparams(offpolicy.HyperparamsMethods):
     """What a sweep may vary without recompiling. Defaults: CleanRL's classic-control DQN."""
 
     learning_rate: Any = 2.5e-4  # Adam step size
+    lr_decay_steps: Any = 0.0  # env steps (all envs) over which the rate falls to 0 (0: constant)
     gamma: Any = 0.99  # discount
     tau: Any = 1.0  # target step every target_update_period updates (1: hard copy)
     epsilon_start: Any = 1.0  # exploration rate at env step 0
@@ -214,9 +215,21 @@ def _optimizer(learning_rate, max_grad_norm) -> optax.GradientTransformation:
 _OPTIMIZER = optax.inject_hyperparams(_optimizer)(learning_rate=2.5e-4, max_grad_norm=10.0)
 
 
-def _gradient_step(agent: Agent, grads, hparams: Hyperparams) -> Agent:
+def learning_rate_at(env_steps, hparams: Hyperparams) -> jax.Array:
+    """The Adam rate after ``env_steps``: linear decay to 0 over ``lr_decay_steps`` (if > 0).
+    A rate that ends at 0 freezes the policy that the run has converged to: DQN's greedy policy
+    on CartPole otherwise keeps collapsing and recovering long after it first scores 500."""
+    decay = hparams.lr_decay_steps
+    fraction = jnp.clip(1.0 - env_steps / jnp.maximum(decay, 1.0), 0.0, 1.0)
+    return hparams.learning_rate * jnp.where(decay > 0.0, fraction, 1.0)
+
+
+def _gradient_step(agent: Agent, grads, hparams: Hyperparams, env_steps) -> Agent:
     opt_state = agent.opt_state
-    rates = {"learning_rate": hparams.learning_rate, "max_grad_norm": hparams.max_grad_norm}
+    rates = {
+        "learning_rate": learning_rate_at(env_steps, hparams),
+        "max_grad_norm": hparams.max_grad_norm,
+    }
     opt_state = opt_state._replace(hyperparams={**opt_state.hyperparams, **rates})
     updates, opt_state = _OPTIMIZER.update(grads, opt_state, agent.online)
     return agent.replace(online=optax.apply_updates(agent.online, updates), opt_state=opt_state)
@@ -228,7 +241,8 @@ def update(agent: Agent, buffer, key, config: Config, hparams: Hyperparams, upda
     (loss, (td_error, q)), grads = jax.value_and_grad(loss_fn, has_aux=True)(
         agent.online, agent.target, batch, weights, hparams, config
     )
-    agent = _gradient_step(agent, grads, hparams)
+    env_steps = offpolicy.env_steps_at_update(update_index, config)
+    agent = _gradient_step(agent, grads, hparams, env_steps)
     due = (update_index + 1) % config.target_update_period == 0
     target = jax.lax.cond(
         due, lambda: polyak_update(agent.target, agent.online, hparams.tau), lambda: agent.target
@@ -239,7 +253,6 @@ def update(agent: Agent, buffer, key, config: Config, hparams: Hyperparams, upda
         buffer = prioritized.update_priorities(
             buffer, rows, columns, priorities, hparams.priority_alpha
         )
-    env_steps = offpolicy.env_steps_at_update(update_index, config)
     epsilon = epsilon_at(env_steps, hparams)
     return agent, buffer, {"loss": loss, "q": q, "epsilon": epsilon}
 
