@@ -11,7 +11,7 @@ export JAX_COMPILATION_CACHE_DIR ?= $(HOME)/.cache/rl_jax/jax
 # Headless MuJoCo rendering through EGL (Mesa, software-rendered on a CPU-only machine).
 export MUJOCO_GL ?= egl
 
-.PHONY: install test test-slow lint format bench train lock system-deps clean help
+.PHONY: install test test-slow lint format bench results train lock system-deps clean help
 
 help:
 	@grep -E '^[a-z-]+:.*## ' $(MAKEFILE_LIST) | sed 's/:.*## /\t/' | sort
@@ -46,6 +46,9 @@ format: install ## apply ruff formatting and safe fixes
 
 bench: install ## run the benchmarks and print the tables (see BENCHMARKS.md)
 	$(BIN)/python -m bench
+
+results: install ## regenerate every row of RESULTS.md, one long training run at a time
+	$(BIN)/python -m bench.results all
 
 train: install ## train TD3 on half cheetah, 5 seeds in one compiled program
 	$(BIN)/python experiments/td3_cheetah.py --seeds 5

@@ -1,0 +1,364 @@
+"""``python -m bench.results ROW [ROW ...]``: regenerate rows of RESULTS.md, one command per row.
+
+Each row is one (algorithm, env) run of an experiment script at its documented settings: the
+script runs in a child process (as a user would run it) into ``runs/results/<row>/``, then the
+row is computed from that run directory alone and written into RESULTS.md's table in place, with
+the machine and the load average measured during the run. ``--from-run DIR`` recomputes a row
+from an existing run directory without training (the load is then unknown unless the run was made
+by this tool: ``runs/results/<row>.json`` keeps what was measured).
+
+The columns: seeds; env steps per seed; wall-clock; each seed's final eval return (deterministic
+policy, the run's own evaluation) with the mean, its 95% bootstrap CI over seeds and the IQM; the
+best evaluated policy's mean (the best eval of each seed, which ``RUN/best/`` keeps); whether the
+row's goal is met; and the reference it is measured against. ``make results`` runs every row, one
+at a time (each is a long CPU-bound job: never run two at once on this machine).
+
+The slow tests (``tests/test_results_slow.py``) run the rows with a goal and assert it.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import json
+import os
+import platform
+import shutil
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parent.parent
+RESULTS_FILE = ROOT / "RESULTS.md"
+RUNS = ROOT / "runs" / "results"
+
+
+@dataclasses.dataclass(frozen=True)
+class Goal:
+    """At least ``seeds`` seeds reach ``threshold`` with the ``policy`` ("final" or "best"), in
+    at most ``minutes`` of wall-clock (compilation included) when given."""
+
+    threshold: float
+    seeds: int
+    policy: str = "final"
+    minutes: float | None = None
+
+    def describe(self, total_seeds: int) -> str:
+        time_part = f" in < {self.minutes:g} min" if self.minutes else ""
+        return f"{self.policy} >= {self.threshold:,.0f} in {self.seeds}/{total_seeds}{time_part}"
+
+
+@dataclasses.dataclass(frozen=True)
+class Row:
+    title: str  # the first cell of the row in RESULTS.md: "algorithm, `env id`"
+    script: str  # under experiments/
+    args: tuple[str, ...]
+    seeds: int
+    reference: str
+    goal: Goal | None = None
+
+
+ROWS: dict[str, Row] = {
+    "reinforce-pendulum": Row(
+        "REINFORCE, `rl_jax/InvertedPendulum-v5`",
+        "reinforce_pendulum.py",
+        (),
+        5,
+        "gymnasium's REINFORCE tutorial (inverted pendulum); 1,000 is the maximum",
+        Goal(1000.0, 5, "final", 5.0),
+    ),
+    "reinforce-double-pendulum": Row(
+        "REINFORCE, `rl_jax/InvertedDoublePendulum-v5`",
+        "reinforce_double_pendulum.py",
+        (),
+        5,
+        "REINFORCE tutorial users: 'sometimes' balances after 30-50k episodes; max ~9,360",
+        Goal(9000.0, 5, "final", 20.0),
+    ),
+    "dqn-cartpole": Row(
+        "DQN, `rl_jax/CartPole-v1`",
+        "dqn_cartpole.py",
+        (),
+        10,
+        "500 is the maximum; CleanRL's DQN reaches it (`dqn.py`, 500k steps)",
+        Goal(500.0, 9, "final"),
+    ),
+    "td3-double-pendulum": Row(
+        "TD3, `rl_jax/InvertedDoublePendulum-v5`",
+        "td3_double_pendulum.py",
+        (),
+        5,
+        "TD3 paper (Fujimoto et al. 2018): 9,337 (v1, 1M steps); max ~9,360",
+        Goal(9000.0, 5, "final"),
+    ),
+    "td3-pendulum": Row(
+        "TD3, `rl_jax/Pendulum-v1`",
+        "td3_pendulum.py",
+        (),
+        5,
+        "-200, the usual bar (gymnasium's Pendulum has no official threshold)",
+        Goal(-200.0, 5, "final"),
+    ),
+    "td3-cheetah": Row(
+        "TD3, `rl_jax/HalfCheetah-v5`",
+        "td3_cheetah.py",
+        (),
+        5,
+        "TD3 paper, HalfCheetah-v1: 9,637 at 1M steps; ~5,000 near 150k in its curves",
+    ),
+    "ddpg-cheetah": Row(
+        "DDPG, `rl_jax/HalfCheetah-v5`",
+        "ddpg_cheetah.py",
+        (),
+        5,
+        "TD3 paper's DDPG ('our DDPG'): 8,577 at 1M steps",
+    ),
+    "td3-rocket": Row(
+        "TD3, `rl_jax/Rocket-v0`",
+        "td3_rocket.py",
+        (),
+        5,
+        "time-optimal bang-bang arrives at step 200 (return bound in the env's docstring)",
+    ),
+}
+
+
+class LoadSampler:
+    """The 1-minute load average, sampled every ``interval`` seconds while a run goes on."""
+
+    def __init__(self, interval: float = 15.0):
+        self.samples: list[float] = []
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._sample, args=(interval,), daemon=True)
+
+    def _sample(self, interval: float) -> None:
+        while True:
+            self.samples.append(os.getloadavg()[0])
+            if self._stop.wait(interval):
+                return
+
+    def __enter__(self) -> LoadSampler:
+        self._thread.start()
+        return self
+
+    def __exit__(self, *exc_info: Any) -> None:
+        self._stop.set()
+        self._thread.join()
+
+    def describe(self) -> str:
+        if not self.samples:
+            return "unknown"
+        return f"{min(self.samples):.1f}-{max(self.samples):.1f}"
+
+
+def machine() -> str:
+    cpu = platform.processor() or platform.machine()
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith("model name"):
+                cpu = line.split(":", 1)[1].strip()
+                break
+    except OSError:
+        pass
+    return f"{os.cpu_count()} cores, {cpu}"
+
+
+def train(name: str, row: Row, out: Path, extra: list[str]) -> dict[str, Any]:
+    """Run the row's script into ``out`` (replacing an earlier run); what was measured."""
+    if out.exists():
+        shutil.rmtree(out)
+    command = [sys.executable, str(ROOT / "experiments" / row.script), *row.args]
+    command += ["--seeds", str(row.seeds), *extra]
+    command += ["--out", str(out)]
+    print("$", " ".join(command[1:]), flush=True)
+    started = time.perf_counter()
+    with LoadSampler() as load:
+        done = subprocess.run(command, cwd=ROOT, check=False)
+    seconds = time.perf_counter() - started
+    if done.returncode != 0:
+        raise SystemExit(f"error: the {name} run failed with status {done.returncode}")
+    return {"wall_clock": seconds, "load": load.describe(), "machine": machine()}
+
+
+def _bootstrap_mean_ci(values: np.ndarray) -> tuple[float, float]:
+    from rl_jax import plots
+
+    if len(values) < 2:
+        return float("nan"), float("nan")
+    low, high = plots.bootstrap_ci(values[:, None], "mean")
+    return float(low[0]), float(high[0])
+
+
+def summarize(run_dir: Path) -> dict[str, Any]:
+    """Per-seed final and best eval returns of a single-config run, with their summaries."""
+    from rl_jax import plots
+    from rl_jax.metrics import read_rows
+
+    rows = read_rows(run_dir / "metrics.jsonl")
+    if not rows:
+        raise SystemExit(f"error: {run_dir} has no metrics.jsonl rows")
+    seeds = sorted({row["seed"] for row in rows})
+    final, best, steps = [], [], []
+    for seed in seeds:
+        own = [row for row in rows if row["seed"] == seed]
+        last = max(own, key=lambda row: row["step"])
+        final.append(last["eval_return"])
+        best.append(max(row["eval_return"] for row in own))
+        steps.append(last["step"])
+    final, best = np.asarray(final, np.float64), np.asarray(best, np.float64)
+    return {
+        "seeds": seeds,
+        "env_steps": int(max(steps)),
+        "final": final.tolist(),
+        "final_mean": float(final.mean()),
+        "final_ci": _bootstrap_mean_ci(final),
+        "final_iqm": float(plots.interquartile_mean(final)),
+        "best": best.tolist(),
+        "best_mean": float(best.mean()),
+        "wall_clock_logged": float(max(row.get("wall_time", 0.0) for row in rows)),
+    }
+
+
+def goal_met(goal: Goal, summary: dict[str, Any], wall_clock: float | None) -> tuple[bool, str]:
+    """Whether the goal holds, and the row's cell saying so."""
+    returns = np.asarray(summary[goal.policy])
+    reached = int(np.sum(returns >= goal.threshold))
+    ok = reached >= goal.seeds
+    if goal.minutes is not None and wall_clock is not None:
+        ok = ok and wall_clock <= goal.minutes * 60
+    verdict = "met" if ok else "**not met**"
+    return ok, f"{goal.describe(len(returns))}: {reached}/{len(returns)} reach it, {verdict}"
+
+
+def _fmt(value: float) -> str:
+    return f"{value:,.0f}" if abs(value) >= 100 else f"{value:,.1f}"
+
+
+def row_cells(name: str, row: Row, summary: dict[str, Any], measured: dict[str, Any]) -> str:
+    from rl_jax.plots import format_duration
+
+    wall = measured.get("wall_clock")
+    wall_text = format_duration(wall) if wall is not None else "n/a"
+    low, high = summary["final_ci"]
+    finals = " / ".join(_fmt(v) for v in summary["final"])
+    final_text = (
+        f"{finals}; mean {_fmt(summary['final_mean'])} [{_fmt(low)}, {_fmt(high)}], "
+        f"IQM {_fmt(summary['final_iqm'])}"
+    )
+    goal = "-"
+    if row.goal is not None:
+        goal = goal_met(row.goal, summary, wall)[1]
+    command = f"`python -m bench.results {name}`"
+    cells = [
+        row.title,
+        command,
+        str(len(summary["seeds"])),
+        f"{summary['env_steps']:,}",
+        f"{wall_text} (load {measured.get('load', 'unknown')})",
+        final_text,
+        _fmt(summary["best_mean"]),
+        goal,
+        row.reference,
+    ]
+    return "| " + " | ".join(cells) + " |"
+
+
+HEADER = (
+    "| algorithm, env | command | seeds | env steps per seed | wall-clock (load) "
+    "| final eval return per seed; mean [95% CI], IQM | best policy mean | goal | reference |\n"
+    "|---|---|---|---|---|---|---|---|---|"
+)
+TABLE_START = "<!-- results table: rows written by python -m bench.results -->"
+TABLE_END = "<!-- end of results table -->"
+
+
+def write_row(line: str, row: Row, path: Path = RESULTS_FILE) -> None:
+    """Replace the row titled ``row.title`` in RESULTS.md's generated table (or append it)."""
+    text = path.read_text()
+    if TABLE_START not in text:
+        text = text.rstrip() + f"\n\n{TABLE_START}\n{HEADER}\n{TABLE_END}\n"
+    head, rest = text.split(TABLE_START, 1)
+    table, tail = rest.split(TABLE_END, 1)
+    lines = [existing for existing in table.strip().splitlines()]
+    prefix = f"| {row.title} |"
+    for index, existing in enumerate(lines):
+        if existing.startswith(prefix):
+            lines[index] = line
+            break
+    else:
+        lines.append(line)
+    path.write_text(f"{head}{TABLE_START}\n" + "\n".join(lines) + f"\n{TABLE_END}{tail}")
+
+
+def regenerate(
+    name: str,
+    from_run: Path | None = None,
+    extra: list[str] | None = None,
+    write: bool = True,
+    load: str | None = None,
+) -> dict[str, Any]:
+    """Train (unless ``from_run``) and summarise one row; returns the record it stores."""
+    row = ROWS[name]
+    record_path = RUNS / f"{name}.json"
+    if from_run is None:
+        out = RUNS / name
+        measured = train(name, row, out, list(extra or []))
+    else:
+        out = from_run
+        measured = {"machine": machine(), "load": "unknown"}
+        if record_path.exists():
+            saved = json.loads(record_path.read_text())
+            if Path(saved.get("run_dir", "")).resolve() == from_run.resolve():
+                measured = saved["measured"]
+        measured.setdefault("wall_clock", None)
+        if load:
+            measured["load"] = load
+    summary = summarize(out)
+    if measured.get("wall_clock") is None:
+        measured["wall_clock"] = summary["wall_clock_logged"]
+    line = row_cells(name, row, summary, measured)
+    record = {"row": name, "run_dir": str(out), "measured": measured, "summary": summary}
+    if row.goal is not None:
+        record["goal_met"] = goal_met(row.goal, summary, measured["wall_clock"])[0]
+    RUNS.mkdir(parents=True, exist_ok=True)
+    record_path.write_text(json.dumps(record, indent=1) + "\n")
+    if write:
+        write_row(line, row)
+    print(line, flush=True)
+    return record
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(prog="python -m bench.results", description=__doc__)
+    parser.add_argument("rows", nargs="*", help=f"rows to regenerate: {', '.join(ROWS)} or all")
+    parser.add_argument("--from-run", type=Path, help="summarise this run directory, no training")
+    parser.add_argument("--load", help="with --from-run: the load average measured during it")
+    parser.add_argument("--list", action="store_true", help="list the rows and their commands")
+    args, extra = parser.parse_known_args(argv)
+    if args.list or not args.rows:
+        for name, row in ROWS.items():
+            print(f"{name:28} experiments/{row.script} {' '.join(row.args)}")
+        return 0
+    names = list(ROWS) if args.rows == ["all"] else args.rows
+    unknown = [name for name in names if name not in ROWS]
+    if unknown:
+        print(f"error: unknown row(s) {unknown}; rows: {', '.join(ROWS)}", file=sys.stderr)
+        return 2
+    if args.from_run is not None and len(names) != 1:
+        print("error: --from-run summarises one run: name one row", file=sys.stderr)
+        return 2
+    if args.from_run is not None and not (args.from_run / "metrics.jsonl").exists():
+        print(f"error: {args.from_run} is not a run directory (no metrics.jsonl)", file=sys.stderr)
+        return 2
+    for name in names:
+        regenerate(name, args.from_run, extra, load=args.load)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,53 @@
+"""The goals of RESULTS.md's rows (``pytest -m slow -s tests/test_results_slow.py``).
+
+Each test regenerates one row with ``bench.results`` (the experiment script at its defaults, in a
+child process, as a user runs it), writes the row into RESULTS.md and asserts the row's goal on
+the final or the best policy. These are the longest tests of the project (minutes to an hour per
+row): run them one at a time on a quiet machine, never in parallel with other heavy jobs.
+"""
+
+import pytest
+
+from bench import results
+
+GOALS = [name for name, row in results.ROWS.items() if row.goal is not None]
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("row", GOALS)
+def test_results_row_meets_its_goal(row):
+    record = results.regenerate(row)
+    goal = results.ROWS[row].goal
+    _, verdict = results.goal_met(goal, record["summary"], record["measured"]["wall_clock"])
+    assert record["goal_met"], f"RESULTS.md row {row!r}: {verdict}"
+
+
+def test_every_row_names_an_existing_script():
+    for name, row in results.ROWS.items():
+        assert (results.ROOT / "experiments" / row.script).exists(), name
+
+
+def test_a_row_is_summarised_and_written_in_place(tmp_path):
+    run = tmp_path / "run"
+    run.mkdir()
+    rows = [
+        {"step": step, "seed": seed, "eval_return": value, "wall_time": step / 10}
+        for seed, values in enumerate([[100.0, 500.0, 480.0], [200.0, 500.0, 500.0]])
+        for step, value in zip((1000, 2000, 3000), values, strict=True)
+    ]
+    (run / "metrics.jsonl").write_text("\n".join(map(results.json.dumps, rows)) + "\n")
+    summary = results.summarize(run)
+    assert summary["final"] == [480.0, 500.0] and summary["best"] == [500.0, 500.0]
+    assert summary["env_steps"] == 3000 and summary["final_mean"] == 490.0
+    goal = results.Goal(500.0, 2, "final")
+    assert not results.goal_met(goal, summary, 10.0)[0]
+    assert results.goal_met(results.Goal(500.0, 2, "best"), summary, 10.0)[0]
+    row = results.ROWS["dqn-cartpole"]
+    page = tmp_path / "RESULTS.md"
+    page.write_text("# Learning results\n")
+    line = results.row_cells("dqn-cartpole", row, summary, {"wall_clock": 300.0, "load": "0.5"})
+    results.write_row(line, row, page)
+    results.write_row(line.replace("490", "491"), row, page)  # replaced, not appended
+    text = page.read_text()
+    assert text.count(f"| {row.title} |") == 1 and "0:05:00 (load 0.5)" in text
+    assert "1/2 reach it, **not met**" in text
