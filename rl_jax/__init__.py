@@ -7,3 +7,14 @@ import os
 os.environ.setdefault("TF_CPP_MIN_LOG_LEVEL", "2")
 
 __version__ = "0.1.0"
+
+__all__ = ["load_policy"]
+
+
+def __getattr__(name: str):
+    # Imported on first use: ``import rl_jax`` stays cheap (no JAX until it is needed).
+    if name == "load_policy":
+        from rl_jax.policy import load_policy
+
+        return load_policy
+    raise AttributeError(f"module 'rl_jax' has no attribute {name!r}")

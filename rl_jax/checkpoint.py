@@ -203,6 +203,14 @@ class Checkpointer:
         steps = self.steps()
         return steps[-1] if steps else None
 
+    def discard_after(self, step: int) -> list[int]:
+        """Delete the checkpoints newer than ``step`` (left by a session that crashed between
+        two related saves); returns the steps deleted."""
+        newer = [s for s in self.steps() if s > step]
+        for s in newer:
+            self._manager.delete(s)
+        return newer
+
     def save(self, step: int, state: Any, metadata: dict[str, Any] | None = None) -> None:
         """Write ``state`` as checkpoint ``step`` (must be newer than the latest)."""
         latest = self.latest_step()

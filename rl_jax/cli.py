@@ -654,9 +654,11 @@ def user_errors() -> tuple[type[BaseException], ...]:
     """Exception types that mean bad input, not a bug: reported in one line."""
     from envs.registry import BackendError, UnknownEnvError
     from rl_jax.checkpoint import CheckpointError
+    from rl_jax.policy import PolicyError
     from rl_jax.render import RenderError
 
-    return (UsageError, RunError, CheckpointError, UnknownEnvError, BackendError, RenderError)
+    errors = (UsageError, RunError, CheckpointError, UnknownEnvError, BackendError)
+    return (*errors, RenderError, PolicyError)
 
 
 def guard(function: Callable[[], int]) -> int:

@@ -172,6 +172,12 @@ class FinalResult:
     ci_low: float
     ci_high: float
     iqm: float
+    best: np.ndarray | None = None  # [S] each seed's best eval return (its kept best policy)
+    best_steps: np.ndarray | None = None  # [S] the step of that eval
+
+    @property
+    def best_mean(self) -> float:
+        return float(np.mean(self.best)) if self.best is not None else math.nan
 
 
 def final_results(curves: list[Curves]) -> list[FinalResult]:
@@ -186,10 +192,31 @@ def final_results(curves: list[Curves]) -> list[FinalResult]:
         else:
             ci = (math.nan, math.nan)
         iqm = float(interquartile_mean(returns))
+        best, best_steps = best_evals(curve)
         results.append(
-            FinalResult(curve.label, int(curve.steps[-1]), curve.seeds, returns, mean, *ci, iqm)
+            FinalResult(
+                curve.label,
+                int(curve.steps[-1]),
+                curve.seeds,
+                returns,
+                mean,
+                *ci,
+                iqm,
+                best,
+                best_steps,
+            )
         )
     return results
+
+
+def best_evals(curve: Curves) -> tuple[np.ndarray, np.ndarray]:
+    """Per seed: the highest eval return (the first, on ties) and its step; NaN and -1 for a
+    seed without a finite eval. The runner keeps the policy of exactly that eval."""
+    finite = np.where(np.isfinite(curve.returns), curve.returns, -np.inf)
+    index = np.argmax(finite, axis=1)
+    best = finite[np.arange(len(index)), index]
+    has = np.isfinite(best)
+    return np.where(has, best, np.nan), np.where(has, curve.steps[index], -1)
 
 
 def _number(value: float) -> str:
@@ -204,11 +231,14 @@ def format_duration(seconds: float) -> str:
 def results_table(result: FinalResult, wall_clock: float | None = None) -> str:
     """The final-return table of a single-config run, as text."""
     lines = [f"final eval return at step {result.step:,} ({len(result.seeds)} seeds)", ""]
-    lines += ["  seed   eval return", "  ----   -----------"]
-    lines += [
-        f"  {s:>4}   {_number(r):>11}" for s, r in zip(result.seeds, result.returns, strict=True)
-    ]
-    lines += ["", f"  mean   {_number(result.mean):>11}"]
+    best = result.best if result.best is not None else np.full(len(result.seeds), np.nan)
+    steps = result.best_steps if result.best_steps is not None else np.full(len(best), -1)
+    lines += ["  seed   final eval   best eval (at step)"]
+    lines += ["  ----   ----------   -------------------"]
+    for s, r, b, at in zip(result.seeds, result.returns, best, steps, strict=True):
+        where = f" ({int(at):,})" if at >= 0 else ""
+        lines.append(f"  {s:>4}   {_number(r):>10}   {_number(b) + where:>19}")
+    lines += ["", f"  mean   {_number(result.mean):>10}   {_number(result.best_mean):>19}"]
     if len(result.seeds) > 1:
         ci = f"[{_number(result.ci_low)}, {_number(result.ci_high)}]"
         lines += [f"  95% CI of the mean (bootstrap over seeds): {ci}"]
@@ -222,13 +252,16 @@ def sweep_table(results: list[FinalResult], wall_clock: float | None = None) -> 
     """Configs ranked by mean final eval return, with 95% CIs, as text."""
     ranked = sorted(results, key=lambda r: -np.nan_to_num(r.mean, nan=-np.inf))
     width = max(len("config"), *(len(r.label) for r in ranked))
-    header = f"  rank  {'config':<{width}}  {'mean':>10}  {'95% CI':>22}  {'IQM':>10}  seeds"
+    header = (
+        f"  rank  {'config':<{width}}  {'mean':>10}  {'95% CI':>22}  {'IQM':>10}  "
+        f"{'best mean':>10}  seeds"
+    )
     lines = [f"final eval return at step {ranked[0].step:,}, ranked", "", header]
     for rank, r in enumerate(ranked, 1):
         ci = f"[{_number(r.ci_low)}, {_number(r.ci_high)}]"
         lines.append(
             f"  {rank:>4}  {r.label:<{width}}  {_number(r.mean):>10}  {ci:>22}  "
-            f"{_number(r.iqm):>10}  {len(r.seeds)}"
+            f"{_number(r.iqm):>10}  {_number(r.best_mean):>10}  {len(r.seeds)}"
         )
     if wall_clock is not None:
         lines += ["", f"  wall-clock {format_duration(wall_clock)}"]

@@ -1,6 +1,7 @@
-"""Watch a trained policy: a GIF of the deterministic policy from a run's latest checkpoint.
+"""Watch a trained policy: a GIF of a run's deterministic policy (each seed's best evaluated
+policy by default, ``--latest`` for the latest checkpoint's).
 
-    python -m rl_jax.render RUN_DIR [--seed K] [--config I] [--episodes N] [--out FILE]
+    python -m rl_jax.render RUN_DIR [--seed K] [--config I] [--episodes N] [--out FILE] [--latest]
 
 Frames come from the environment, through one of two hooks (the first one the env has):
 
@@ -30,6 +31,8 @@ from typing import Any
 
 import numpy as np
 
+from rl_jax.policy import LoadedPolicy  # loading lives there; render.LoadedPolicy stays
+
 NO_OPENGL = (
     "no OpenGL backend for headless rendering: install EGL "
     "(apt-get install libegl1 libegl-mesa0 libgl1-mesa-dri) and use MUJOCO_GL=egl, "
@@ -40,95 +43,6 @@ _GL_MARKERS = ("OpenGL", "EGL", "GLFW", "glGetError", "mjr_makeContext", "osmesa
 
 class RenderError(Exception):
     """The policy cannot be rendered (no OpenGL, no renderer for the env, no checkpoint)."""
-
-
-# ---- loading a policy -----------------------------------------------------------------------
-
-
-class LoadedPolicy:
-    """One (config, seed) of a run, restored from its latest checkpoint."""
-
-    def __init__(self, run_dir: Path, seed: int | None = None, config_index: int | None = None):
-        from rl_jax.run_dir import read_run_record
-
-        self.run_dir = Path(run_dir)
-        self.record = read_run_record(self.run_dir)
-        identity = self.record["identity"]
-        self.env_id = identity["env_id"]
-        self.seeds = [identity["base_seed"] + s for s in range(identity["seeds"])]
-        self.config_index, self.seed = self._choose(seed, config_index, len(identity["hparams"]))
-        self.algorithm, self.config, self.state, self.step = self._restore()
-
-    def _choose(self, seed: int | None, config_index: int | None, configs: int) -> tuple[int, int]:
-        """Defaults: the best (config, seed) by final eval return in metrics.jsonl."""
-        if config_index is not None and not 0 <= config_index < configs:
-            raise RenderError(f"--config {config_index} out of range: the run has {configs}")
-        if seed is not None and seed not in self.seeds:
-            raise RenderError(f"--seed {seed} is not in this run (seeds {self.seeds})")
-        best = _best_run(self.run_dir, config_index, seed)
-        return (
-            config_index if config_index is not None else best[0],
-            seed if seed is not None else best[1] if best[1] is not None else self.seeds[0],
-        )
-
-    def _restore(self) -> tuple[Any, Any, Any, int]:
-
-        from rl_jax.checkpoint import Checkpointer
-        from rl_jax.run_dir import dataclass_from_dict, load_algorithm
-        from rl_jax.runner import CHECKPOINT_DIR, RunSpec, make_plan
-
-        identity = self.record["identity"]
-        algorithm = load_algorithm(self.record["algorithm_module"])
-        config = dataclass_from_dict(algorithm.default_config(self.env_id), identity["config"])
-        template = algorithm.default_hyperparams()
-        hparams = tuple(dataclass_from_dict(template, h) for h in identity["hparams"])
-        # memory_limit: the state fitted during training; rendering restores the same.
-        spec = RunSpec(
-            algorithm,
-            self.env_id,
-            config,
-            hparams,
-            self.run_dir,
-            seeds=identity["seeds"],
-            base_seed=identity["base_seed"],
-            memory_limit=1 << 62,
-        )
-        plan = make_plan(spec)
-        with Checkpointer(self.run_dir / CHECKPOINT_DIR, read_only=True) as checkpointer:
-            state, meta = checkpointer.restore(
-                plan.template, expect={"identity_hash": self.record["identity_hash"]}
-            )
-        one = plan.parallel.select(state, self.config_index, self.seeds.index(self.seed))
-        return algorithm, config, one, meta["step"]
-
-    def env(self) -> Any:
-        """The env the policy acts in (``algorithm.make_env(config)`` when offered)."""
-        import envs
-
-        if hasattr(self.algorithm, "make_env"):
-            return self.algorithm.make_env(self.config)
-        return envs.make(self.env_id)
-
-
-def _best_run(run_dir: Path, config_index: int | None, seed: int | None) -> tuple[int, int | None]:
-    from rl_jax.metrics import METRICS_FILE, read_rows
-
-    rows = read_rows(run_dir / METRICS_FILE)
-    if not rows:
-        return (config_index or 0), seed
-    last = max(row["step"] for row in rows)
-    candidates = [
-        row
-        for row in rows
-        if row["step"] == last
-        and (config_index is None or row.get("config", 0) == config_index)
-        and (seed is None or row["seed"] == seed)
-        and row.get("eval_return") is not None
-    ]
-    if not candidates:
-        return (config_index or 0), seed
-    best = max(candidates, key=lambda row: row["eval_return"])
-    return best.get("config", 0), best["seed"]
 
 
 # ---- rollouts and frames --------------------------------------------------------------------
@@ -262,15 +176,17 @@ def write_gif(
     out: str | Path | None = None,
     config_index: int | None = None,
     max_frames: int = 600,
+    which: str = "best",
 ) -> Path:
-    """Render the deterministic policy of (config, seed) of ``run_dir`` to a GIF; its path."""
+    """Render the deterministic policy of (config, seed) of ``run_dir`` to a GIF; its path.
+    ``which``: the seed's best evaluated policy ("best") or its latest checkpoint ("latest")."""
     import jax
 
     os.environ.setdefault("MUJOCO_GL", "egl")
     with opengl_errors():  # a MuJoCo env may import mujoco (and fail) while being built
-        loaded = LoadedPolicy(Path(run_dir), seed, config_index)
+        loaded = LoadedPolicy(Path(run_dir), seed, config_index, which)
         env = loaded.env()
-        act = loaded.algorithm.policy(loaded.state, loaded.config)
+        act = loaded.act()
         episodes_data = rollout(env, act, jax.random.key(loaded.seed), episodes)
         frames = [f for episode in episodes_data for f in episode_frames(env, episode["states"])]
         path = Path(out) if out is not None else Path(run_dir) / "policy.gif"
@@ -278,9 +194,12 @@ def write_gif(
         plot_path = _save_episode_plot(env, episodes_data[-1]["states"], path)
     returns = ", ".join(f"{episode['return']:.1f}" for episode in episodes_data)
     plot_note = f" (episode plot: {plot_path})" if plot_path else ""
+    if loaded.note:
+        print(f"note: {loaded.note}")
     print(
-        f"rendered seed {loaded.seed} (config {loaded.config_index}) at step {loaded.step:,}: "
-        f"episode return {returns}; {len(frames)} frames -> {path}{plot_note}"
+        f"rendered seed {loaded.seed} (config {loaded.config_index}) at step {loaded.step:,}, "
+        f"its {loaded.which} policy: episode return {returns}; {len(frames)} frames -> "
+        f"{path}{plot_note}"
     )
     return path
 
@@ -304,7 +223,7 @@ def main(argv: list[str] | None = None) -> int:
         "--seed",
         type=parse_int,
         default=None,
-        help="seed to render (default: the best final eval return)",
+        help="seed to render (default: the one with the best eval return)",
     )
     parser.add_argument(
         "--config",
@@ -323,6 +242,11 @@ def main(argv: list[str] | None = None) -> int:
         default=600,
         help="longer episodes keep every k-th frame (default: 600)",
     )
+    parser.add_argument(
+        "--latest",
+        action="store_true",
+        help="render the latest checkpoint's policy (default: each seed's best evaluated one)",
+    )
     args = parser.parse_args(argv)
 
     def render() -> int:
@@ -330,7 +254,13 @@ def main(argv: list[str] | None = None) -> int:
 
         configure()
         write_gif(
-            args.run_dir, args.seed, args.episodes, args.out, args.config_index, args.max_frames
+            args.run_dir,
+            args.seed,
+            args.episodes,
+            args.out,
+            args.config_index,
+            args.max_frames,
+            "latest" if args.latest else "best",
         )
         return 0
 

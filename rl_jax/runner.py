@@ -36,6 +36,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from rl_jax import parallel, plots
+from rl_jax.best import BEST_DIR, BestPolicies, policy_fields, policy_part
 from rl_jax.checkpoint import Checkpointer
 from rl_jax.metrics import METRICS_FILE, MetricsLog, read_rows
 from rl_jax.progress import Progress
@@ -329,6 +330,7 @@ class Start:
     updates: int
     wall_clock: float  # seconds spent by earlier sessions
     checkpoint_step: int | None  # the checkpoint restored, if any
+    best: BestPolicies  # the best evaluated policy of every run so far
 
 
 def _checkpoint_expectation(spec: RunSpec) -> dict[str, Any]:
@@ -348,6 +350,13 @@ def restore_start(spec: RunSpec, plan: Plan) -> Start | None:
         if checkpointer.latest_step() is None:
             return None
         state, meta = checkpointer.restore(plan.template, expect=_checkpoint_expectation(spec))
+    best = BestPolicies.restore(
+        spec.out / BEST_DIR,
+        policy_fields(spec.algorithm, plan.template),
+        plan.template,
+        at_most=meta["step"],
+        expect=_checkpoint_expectation(spec),
+    )
     return Start(
         plan.parallel.place(state, stack_hparams(list(spec.hparams))),
         meta["chunk"] + 1,
@@ -355,13 +364,15 @@ def restore_start(spec: RunSpec, plan: Plan) -> Start | None:
         meta.get("updates", 0),
         meta.get("wall_clock", 0.0),
         meta["step"],
+        best,
     )
 
 
 def fresh_start(spec: RunSpec, plan: Plan) -> Start:
     keys = seed_keys(spec.seeds, spec.base_seed)
     state = plan.parallel.init(keys, stack_hparams(list(spec.hparams)))
-    return Start(state, 0, 0, 0, 0.0, None)
+    best = BestPolicies(policy_fields(spec.algorithm, state), (len(spec.hparams), spec.seeds))
+    return Start(state, 0, 0, 0, 0.0, None, best)
 
 
 def _write_run_record(spec: RunSpec, plan: Plan, start: Start) -> None:
@@ -436,6 +447,8 @@ class Session:
     step: int
     updates: int
     saved_step: int | None
+    best: BestPolicies
+    best_checkpointer: Checkpointer | None
     last_save: float = dataclasses.field(default_factory=time.perf_counter)
 
     @classmethod
@@ -447,6 +460,12 @@ class Session:
         # yet) belong to the interrupted session and will be written again.
         log = MetricsLog(spec.out, start.step if spec.resume else None, spec.grid_fields)
         checkpointer = Checkpointer(spec.out / CHECKPOINT_DIR, keep=spec.keep_checkpoints)
+        best_checkpointer = None
+        if start.best.enabled:
+            best_checkpointer = Checkpointer(spec.out / BEST_DIR, keep=spec.keep_checkpoints)
+            # Best policies newer than the checkpoint resumed from belong to the interrupted
+            # session (a crash between the two saves); they will be found again.
+            best_checkpointer.discard_after(start.step)
         return cls(
             spec,
             plan,
@@ -457,6 +476,8 @@ class Session:
             start.step,
             start.updates,
             start.checkpoint_step,
+            start.best,
+            best_checkpointer,
         )
 
     def wall_clock(self) -> float:
@@ -474,12 +495,18 @@ class Session:
             "updates": self.updates,
             "wall_clock": self.wall_clock(),
         }
+        # The best policies first: a crash between the two saves leaves a best checkpoint
+        # newer than the latest one, which a resume discards (never the other way round).
+        if self.best_checkpointer is not None and self.best.changed:
+            self.best.save(self.best_checkpointer, self.step, meta)
         self.checkpointer.save(self.step, self.plan.parallel.unpad(state, hparams), meta)
         self.saved_step, self.last_save = self.step, time.perf_counter()
 
     def close(self) -> None:
         self.log.close()
         self.checkpointer.close()
+        if self.best_checkpointer is not None:
+            self.best_checkpointer.close()
 
 
 def compile_chunk(plan: Plan, state: Any, hparams: Any, notify: Callable) -> Callable:
@@ -513,6 +540,11 @@ def _train(session: Session, start: Start, stop: GracefulStop, progress: Progres
         session.step = int(np.max(metrics.env_steps))
         session.updates = int(np.max(metrics.updates))
         session.log.write(metric_rows(metrics, spec, chunk, session.wall_clock(), grid))
+        session.best.observe(
+            metrics.eval_return,
+            metrics.env_steps,
+            lambda state=state: plan.parallel.gather(policy_part(state, session.best.fields)),
+        )
         progress.update(session.step, session.updates, metrics.eval_return)
         if not estimated and chunk + 1 < plan.chunks:
             estimated = _estimate(

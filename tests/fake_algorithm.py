@@ -123,6 +123,10 @@ class TrainState(NamedTuple):
     nothing: jax.Array  # [0] float32: zero-size on purpose
 
 
+#: The train-state fields ``policy`` reads: what a run keeps of each seed's best policy.
+policy_fields = ("params",)
+
+
 def default_config(env_id: str = ENV_ID) -> Config:
     return Config(env_id=env_id)
 

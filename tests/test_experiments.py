@@ -106,3 +106,136 @@ def test_replay_buffer_too_big_is_refused_before_allocating(tmp_path, capsys):
     # 5 seeds x 4e9 transitions x (obs 3 + action 1 + reward + next obs 3 + 2 flags) x 4 bytes.
     assert "buffer " in line and "TB" in line and "of memory is available" in line
     assert not out.exists()
+
+
+# ---- the best policy of every seed, and loading it -------------------------------------------
+
+
+def best_policies(run_dir: Path):
+    """The ``agent`` of the best-policy checkpoint of a run and its metadata."""
+    from rl_jax.best import BEST_DIR, policy_part
+
+    args, names = _parsed(td3, ENV_ID)
+    spec = cli.build_spec(args, td3, ENV_ID, cli.Defaults(), names, [])
+    plan = make_plan(dataclasses.replace(spec, out=run_dir))
+    with Checkpointer(run_dir / BEST_DIR, read_only=True) as checkpointer:
+        part, meta = checkpointer.restore(policy_part(plan.template, ("agent",)))
+    return part["agent"], meta
+
+
+def test_each_seed_keeps_the_policy_of_its_best_eval(runs):
+    import numpy as np
+
+    from rl_jax.metrics import read_rows
+
+    root, _ = runs
+    agent, meta = best_policies(root / "whole")
+    rows = read_rows(root / "whole" / "metrics.jsonl")
+    compared = 0
+    for s in range(2):
+        evals = [(row["eval_return"], -row["step"]) for row in rows if row["seed"] == s]
+        best_return, best_step = max(evals)
+        assert meta["best_returns"][0][s] == pytest.approx(best_return, rel=1e-6)
+        assert meta["best_steps"][0][s] == -best_step
+        # The kept policy is the one the run had at that step (its checkpoint, when kept).
+        with Checkpointer(root / "whole" / CHECKPOINT_DIR, read_only=True) as checkpointer:
+            kept = checkpointer.steps()
+        if -best_step in kept:
+            state, _ = final_state_at(root / "whole", -best_step)
+            one = jax_index(state.agent, s)
+            assert leaves_bytes(jax_index(agent, s)) == leaves_bytes(one)
+            compared += 1
+    # The latest policy differs from the best one unless the best eval was the last.
+    assert compared >= 1
+    assert np.isfinite(meta["best_returns"]).all()
+
+
+def test_a_resumed_run_keeps_the_same_best_policies(runs):
+    root, _ = runs
+    whole, whole_meta = best_policies(root / "whole")
+    split, split_meta = best_policies(root / "split")
+    assert leaves_bytes(whole) == leaves_bytes(split)
+    assert whole_meta["best_returns"] == split_meta["best_returns"]
+    assert whole_meta["best_steps"] == split_meta["best_steps"]
+
+
+def test_load_policy_drives_gymnasiums_own_pendulum_as_our_env(runs):
+    """numpy in, numpy out; from the same start state, gymnasium's Pendulum-v1 driven by the
+    loaded policy returns what our env gives for the same policy."""
+    import gymnasium
+    import jax
+    import numpy as np
+
+    import rl_jax
+    from rl_jax import render
+
+    root, _ = runs
+    policy = rl_jax.load_policy(root / "whole")
+    loaded = policy.loaded
+    meta = best_policies(root / "whole")[1]
+    best_seed = max(range(2), key=lambda s: meta["best_returns"][0][s])
+    assert loaded.which == "best" and loaded.seed == best_seed
+    assert loaded.step == meta["best_steps"][0][best_seed]
+    assert loaded.eval_return == meta["best_returns"][0][best_seed]
+    obs = np.array([[1.0, 0.0, 0.5], [0.0, -1.0, -2.0]], np.float32)
+    batch = policy(obs)
+    assert isinstance(batch, np.ndarray) and batch.shape == (2, 1)
+    np.testing.assert_array_equal(policy(obs[1]), batch[1])
+    np.testing.assert_allclose(batch, np.asarray(jax.vmap(loaded.act())(obs)), rtol=1e-6)
+    with pytest.raises(ValueError, match=r"expected an observation of shape \(3,\)"):
+        policy(np.zeros(4))
+
+    env = loaded.env()
+    gym_env = gymnasium.make("Pendulum-v1")
+    for episode in range(3):
+        (ours,) = render.rollout(env, loaded.act(), jax.random.key(episode), 1)
+        first = ours["states"][0]
+        gym_env.reset(seed=episode)
+        gym_env.unwrapped.state = np.array([float(first.theta), float(first.theta_dot)])
+        obs, total = gym_env.unwrapped._get_obs(), 0.0
+        for _ in range(200):
+            obs, reward, terminated, truncated, _ = gym_env.step(policy(obs))
+            total += reward
+            if terminated or truncated:
+                break
+        assert total == pytest.approx(ours["return"], rel=1e-3, abs=0.5)
+    latest = rl_jax.load_policy(root / "whole", seed=0, which="latest")
+    assert latest.loaded.which == "latest" and latest.loaded.step == 4 * CHUNK
+
+
+def test_load_policy_refuses_what_the_run_does_not_have(runs):
+    import rl_jax
+    from rl_jax.policy import PolicyError
+
+    root, _ = runs
+    with pytest.raises(PolicyError, match=r"--seed 7 is not in this run \(seeds \[0, 1\]\)"):
+        rl_jax.load_policy(root / "whole", seed=7)
+    with pytest.raises(PolicyError, match="which must be one of best, latest"):
+        rl_jax.load_policy(root / "whole", which="last")
+
+
+def final_state_at(run_dir: Path, step: int):
+    args, names = _parsed(td3, ENV_ID)
+    spec = cli.build_spec(args, td3, ENV_ID, cli.Defaults(), names, [])
+    plan = make_plan(dataclasses.replace(spec, out=run_dir))
+    with Checkpointer(run_dir / CHECKPOINT_DIR, read_only=True) as checkpointer:
+        return checkpointer.restore(plan.template, step=step)
+
+
+def jax_index(tree, seed: int):
+    import jax
+
+    return jax.tree.map(lambda leaf: leaf[0, seed], tree)
+
+
+def test_the_readme_load_policy_section_runs(runs, capsys):
+    """The README's block, as written, on a trained run."""
+    import re
+
+    root, _ = runs
+    readme = (Path(__file__).resolve().parent.parent / "README.md").read_text()
+    section = readme.split("### The trained policy in your own code", 1)[1]
+    (code,) = re.findall(r"```python\n(.*?)```", section, flags=re.S)[:1]
+    assert 'load_policy("runs/pendulum")' in code
+    exec(code.replace('"runs/pendulum"', repr(str(root / "whole"))), {})
+    assert re.search(r"^return -?\d+\.\d$", capsys.readouterr().out, flags=re.M)

@@ -109,7 +109,27 @@ def test_final_results_and_table():
     assert "4.50" in table and f"[{low[0]:.2f}, {high[0]:.2f}]" in table
     assert "wall-clock 1:02:05" in table
     for seed, value in zip(range(4), finals, strict=True):
-        assert f"{seed:>4}   {value:>11.2f}" in table
+        # The returns rise with the step here, so each seed's best eval is its final one.
+        assert f"{seed:>4}   {value:>10.2f}   {f'{value:.2f} (300)':>19}" in table
+
+
+def test_best_eval_is_each_seeds_highest_and_its_first_step():
+    rows = make_rows(seeds=(0, 1, 2))
+    for row in rows:
+        if row["seed"] == 1:  # peaks at step 200, then falls
+            row["eval_return"] = {100: 5.0, 200: 9.0, 300: 2.0}[row["step"]]
+        if row["seed"] == 2:  # a tie: the earlier step is kept
+            row["eval_return"] = {100: 7.0, 200: 7.0, 300: None}[row["step"]]
+    (result,) = plots.final_results(plots.curves_from_rows(rows))
+    np.testing.assert_array_equal(result.best, [3.0, 9.0, 7.0])
+    np.testing.assert_array_equal(result.best_steps, [300, 200, 100])
+    assert result.best_mean == pytest.approx(19.0 / 3)
+    assert "9.00 (200)" in plots.results_table(result)
+    nothing = make_rows(seeds=(0,))
+    for row in nothing:
+        row["eval_return"] = None
+    (empty,) = plots.final_results(plots.curves_from_rows(nothing))
+    assert np.isnan(empty.best[0]) and empty.best_steps[0] == -1
 
 
 def test_single_seed_table_has_no_interval():

@@ -51,7 +51,7 @@ def without_repeats(frames):
 def test_gif_holds_the_frames_of_the_policy_rollout(run_dir, tmp_path):
     path = render.write_gif(run_dir, seed=1, episodes=2, out=tmp_path / "p.gif")
     loaded = render.LoadedPolicy(run_dir, seed=1)
-    assert loaded.step == 60 and loaded.seed == 1
+    assert loaded.seed == 1 and loaded.which == "best"
     env = loaded.env()
     episodes = render.rollout(env, fake.policy(loaded.state, loaded.config), jax.random.key(1), 2)
     assert [len(e["states"]) for e in episodes] == [21, 21]  # reset + 20 steps to truncation
@@ -63,10 +63,15 @@ def test_gif_holds_the_frames_of_the_policy_rollout(run_dir, tmp_path):
         np.testing.assert_array_equal(got, want)
 
 
-def test_default_seed_is_the_best_final_eval(run_dir):
-    rows = [row for row in read_rows(run_dir / "metrics.jsonl") if row["step"] == 60]
-    best = max(rows, key=lambda row: row["eval_return"])["seed"]
-    assert render.LoadedPolicy(run_dir).seed == best
+def test_default_seed_is_the_best_eval_and_its_best_policy(run_dir):
+    rows = read_rows(run_dir / "metrics.jsonl")
+    final = [row for row in rows if row["step"] == 60]
+    best_final = max(final, key=lambda row: row["eval_return"])["seed"]
+    assert render.LoadedPolicy(run_dir, which="latest").seed == best_final
+    best = max(rows, key=lambda row: (row["eval_return"], -row["step"]))
+    loaded = render.LoadedPolicy(run_dir)
+    assert (loaded.which, loaded.seed, loaded.step) == ("best", best["seed"], best["step"])
+    assert loaded.eval_return == pytest.approx(best["eval_return"], rel=1e-6)
 
 
 def test_episode_return_matches_a_direct_rollout(run_dir):
@@ -90,7 +95,12 @@ def test_render_command_line(run_dir, tmp_path):
     ]
     done = subprocess.run(command, env=ENV, capture_output=True, text=True, timeout=300)
     assert done.returncode == 0, done.stderr
-    assert "rendered seed 0 (config 0) at step 60" in done.stdout
+    assert "rendered seed 0 (config 0) at step " in done.stdout
+    assert "its best policy" in done.stdout
+    latest = subprocess.run(
+        [*command, "--latest"], env=ENV, capture_output=True, text=True, timeout=300
+    )
+    assert "rendered seed 0 (config 0) at step 60, its latest policy" in latest.stdout
     assert (tmp_path / "cli.gif").stat().st_size > 100
     for args, message in (
         (["--seed", "9"], "--seed 9 is not in this run (seeds [0, 1])"),
