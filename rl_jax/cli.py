@@ -439,12 +439,21 @@ def _base(algorithm: Any, env_id: str, defaults: Defaults) -> tuple[Any, Any]:
 
 
 def _validate(algorithm: Any, config: Any, hparams_list: list[Any]) -> None:
-    """Generic checks plus the algorithm's own ``validate(config, hparams)`` when it has one."""
+    """Ranges (``rl_jax.validation``), then the algorithm's own ``validate(config, hparams)``
+    when it has one: before anything compiles, for every config of a grid."""
+    from rl_jax.validation import out_of_range
+
     for field in dataclasses.fields(config):
         value = getattr(config, field.name)
         if _kind(value) == "int" and not isinstance(value, bool) and value < 0:
             raise UsageError(f"{flag_name(field.name)} must be >= 0, got {value}")
+    problem = out_of_range(config, algorithm)
+    if problem:
+        raise UsageError(problem)
     for hparams in hparams_list:
+        problem = out_of_range(hparams, algorithm)
+        if problem:
+            raise UsageError(problem)
         if hasattr(algorithm, "validate"):
             try:
                 algorithm.validate(config, hparams)

@@ -34,7 +34,7 @@ import optax
 from flax import struct
 
 import envs
-from rl_jax import networks, offpolicy, prioritized, replay
+from rl_jax import networks, offpolicy, prioritized, replay, validation
 from rl_jax.algorithm import RecipeBook
 from rl_jax.offpolicy import OffPolicyConfig, TrainState
 from rl_jax.replay import Transition
@@ -337,6 +337,8 @@ class DQN(RecipeBook):
     name = "dqn"
     config_type, hparams_type = Config, Hyperparams
     recipes, hparam_recipes = RECIPES, HPARAM_RECIPES
+    # Gradients are always clipped here: a norm of 0 would zero them (REINFORCE's 0 means off).
+    ranges = {"max_grad_norm": validation.POSITIVE}
 
     def init(self, key: jax.Array, config: Config, hparams: Hyperparams) -> TrainState:
         return offpolicy.init(LEARNER, key, config, hparams)

@@ -243,8 +243,16 @@ def read_run_record(run_dir: Path) -> dict[str, Any]:
 
 
 def check_out_dir(out: Path, run_identity: dict[str, Any]) -> None:
-    """Refuse to start a fresh run in a directory that already holds something."""
+    """Refuse to start a fresh run in a directory that already holds something, or one that
+    cannot be created (checked again when it is created: some file systems only say then)."""
     if not out.exists():
+        ancestor = out.absolute().parent
+        while not ancestor.exists():
+            ancestor = ancestor.parent
+        if not ancestor.is_dir():
+            raise RunError(f"cannot create --out {out}: {ancestor} is not a directory")
+        if not os.access(ancestor, os.W_OK | os.X_OK):
+            raise RunError(f"cannot create --out {out}: {ancestor} is not writable")
         return
     if not out.is_dir():
         raise RunError(f"--out {out} exists and is not a directory")

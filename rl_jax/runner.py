@@ -57,7 +57,11 @@ CHECKPOINT_DIR = "checkpoints"
 CURVES_FILE = "curves.png"
 RESULTS_FILE = "results.txt"
 
-__all__ = ["RunError", "RunResult", "RunSpec", "make_plan", "run"]
+__all__ = ["DivergenceError", "RunError", "RunResult", "RunSpec", "make_plan", "run"]
+
+
+class DivergenceError(RunError):
+    """A run's parameters or evaluation became non-finite: the run stopped before saving it."""
 
 
 @dataclasses.dataclass(frozen=True)
@@ -454,8 +458,12 @@ class Session:
     @classmethod
     def open(cls, spec: RunSpec, plan: Plan, start: Start, started: float) -> Session:
         """The first writes of the run: directory, config.json, metrics, checkpointer."""
-        spec.out.mkdir(parents=True, exist_ok=True)
-        _write_run_record(spec, plan, start)
+        try:
+            spec.out.mkdir(parents=True, exist_ok=True)
+            _write_run_record(spec, plan, start)
+        except OSError as error:
+            reason = error.strerror or type(error).__name__
+            raise RunError(f"cannot write the run directory {spec.out}: {reason}") from None
         # On a resume, rows after the restored step (or all rows, if there was no checkpoint
         # yet) belong to the interrupted session and will be written again.
         log = MetricsLog(spec.out, start.step if spec.resume else None, spec.grid_fields)
@@ -540,6 +548,7 @@ def _train(session: Session, start: Start, stop: GracefulStop, progress: Progres
         session.step = int(np.max(metrics.env_steps))
         session.updates = int(np.max(metrics.updates))
         session.log.write(metric_rows(metrics, spec, chunk, session.wall_clock(), grid))
+        check_finite(session, metrics, plan.parallel.gather(_finite_runs(state, spec)))
         session.best.observe(
             metrics.eval_return,
             metrics.env_steps,
@@ -559,6 +568,63 @@ def _train(session: Session, start: Start, stop: GracefulStop, progress: Progres
         if due or stop.requested or chunk + 1 == plan.chunks:
             session.save(state, hparams, chunk)
     return state
+
+
+@jax.jit
+def _all_finite(tree: Any) -> jax.Array:
+    """``[H, S]``: whether every float leaf of each run of ``tree`` is finite."""
+    flags = [
+        jnp.all(jnp.isfinite(leaf), axis=tuple(range(2, leaf.ndim)))
+        for leaf in jax.tree.leaves(tree)
+        if jnp.issubdtype(leaf.dtype, jnp.floating)
+    ]
+    return jnp.all(jnp.stack(flags), axis=0) if flags else jnp.bool_(True)
+
+
+def _finite_runs(state: Any, spec: RunSpec) -> Any:
+    """Per run (padded ``[H, S]``), whether its policy part (or whole state) is finite."""
+    fields = policy_fields(spec.algorithm, state)
+    return _all_finite(policy_part(state, fields) if fields else state)
+
+
+def check_finite(session: Session, metrics: Any, finite_state: np.ndarray) -> None:
+    """Stop the run, before its state is saved, when a run's parameters or eval return are no
+    longer finite: one line names the runs, the step and the likely cause."""
+    finite = np.asarray(finite_state, bool) & np.isfinite(np.asarray(metrics.eval_return))
+    if finite.all():
+        return
+    spec = session.spec
+    bad = np.argwhere(~finite)
+    runs = ", ".join(
+        f"seed {spec.base_seed + s}" + (f" of config {h}" if len(spec.hparams) > 1 else "")
+        for h, s in bad
+    )
+    rates = sorted(
+        {
+            f"--{name.replace('_', '-')} {float(np.asarray(getattr(spec.hparams[h], name))):g}"
+            for h, _ in bad
+            for name in _rate_fields(spec.hparams[h])
+        }
+    )
+    kept = (
+        f"the last finite checkpoint (step {session.saved_step:,}) is kept"
+        if session.saved_step is not None
+        else "no checkpoint had been written yet"
+    )
+    raise DivergenceError(
+        f"training diverged at step {session.step:,}: {runs} got non-finite parameters or eval "
+        f"return; {kept} and the run stops here. Likely cause: a learning rate too high for "
+        f"this problem ({', '.join(rates) or 'see config.json'}) or exploding gradients; try "
+        "a lower rate or gradient clipping (--max-grad-norm where the learner has it)"
+    )
+
+
+def _rate_fields(hparams: Any) -> list[str]:
+    return [
+        f.name
+        for f in dataclasses.fields(hparams)
+        if f.name == "lr" or f.name.endswith(("_lr", "learning_rate"))
+    ]
 
 
 def _estimate(

@@ -239,3 +239,25 @@ def test_the_readme_load_policy_section_runs(runs, capsys):
     assert 'load_policy("runs/pendulum")' in code
     exec(code.replace('"runs/pendulum"', repr(str(root / "whole"))), {})
     assert re.search(r"^return -?\d+\.\d$", capsys.readouterr().out, flags=re.M)
+
+
+def test_a_diverging_run_stops_with_one_line_and_keeps_its_finite_checkpoint(tmp_path, capsys):
+    """TD3 with rates of 1e6: the first chunk (random actions, no updates) is checkpointed; the
+    updates of the second make the parameters non-finite, and the run stops there without
+    saving them."""
+    import jax
+    import numpy as np
+
+    out = tmp_path / "diverged"
+    argv = [*FLAGS, "--actor-lr", "1e6", "--critic-lr", "1e6", "--total-steps", str(4 * CHUNK)]
+    status = run_cli(td3, ENV_ID, [*argv, "--out", str(out)])
+    line = _one_line_error(capsys, status, f"training diverged at step {2 * CHUNK}: seed 0")
+    assert f"the last finite checkpoint (step {CHUNK}) is kept" in line
+    assert "--actor-lr 1e+06" in line and "--critic-lr 1e+06" in line
+    with Checkpointer(out / CHECKPOINT_DIR, read_only=True) as checkpointer:
+        assert checkpointer.steps() == [CHUNK]
+    state, step = final_state(out)
+    assert step == CHUNK
+    leaves = jax.tree.leaves(state.agent)
+    floats = [leaf for leaf in leaves if np.issubdtype(leaf.dtype, np.floating)]
+    assert all(np.isfinite(np.asarray(leaf)).all() for leaf in floats if leaf.size)
