@@ -324,8 +324,15 @@ RECIPES: dict[str, dict[str, Any]] = {
     "rl_jax/Rocket-v0": {**_CLASSIC, "action_bins": 3},
 }
 _FAST_DECAY = {"learning_rate": 1e-3, "epsilon_decay_steps": 8000.0, "epsilon_end": 0.04}
+# CartPole: the greedy policy reaches 500 near 30-45k env steps and then keeps collapsing and
+# recovering while the rate stays at 1e-3 (10 seeds at 60k: 6/10 at 500, mean 378). Decaying the
+# rate to 0 by 40k freezes it once most seeds are there: 9/10 at 500 at 60k, mean 466
+# (10 seeds x lr_decay_steps {0, 40k, 60k} in one program, load ~2; 50k/70k/80k over an 80k
+# budget gave 8, 8 and 7 of 10 at the end). The frozen policies still differ by eval episode:
+# a seed can score 500 on one evaluation and 356 on the next.
+_CARTPOLE = {**_FAST_DECAY, "lr_decay_steps": 40_000.0}
 HPARAM_RECIPES: dict[str, dict[str, float]] = {
-    "rl_jax/CartPole-v1": _FAST_DECAY,
+    "rl_jax/CartPole-v1": _CARTPOLE,
     "rl_jax/InvertedPendulum-v5": _FAST_DECAY,
     "rl_jax/Rocket-v0": {"learning_rate": 1e-3, "epsilon_decay_steps": 50_000.0},
 }

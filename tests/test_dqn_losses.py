@@ -72,6 +72,14 @@ def test_linear_schedule_values():
     np.testing.assert_allclose(got, [1.0, 0.55, 0.1, 0.1], rtol=1e-6)
 
 
+def test_learning_rate_decays_linearly_to_zero_and_is_off_at_zero():
+    decaying = dqn.default_hyperparams(learning_rate=1e-3, lr_decay_steps=40_000.0)
+    rates = [float(dqn.learning_rate_at(s, decaying)) for s in (0, 10_000, 40_000, 90_000)]
+    np.testing.assert_allclose(rates, [1e-3, 7.5e-4, 0.0, 0.0], rtol=1e-6, atol=1e-12)
+    constant = dqn.default_hyperparams(learning_rate=1e-3, lr_decay_steps=0.0)
+    assert float(dqn.learning_rate_at(1_000_000, constant)) == pytest.approx(1e-3)
+
+
 def test_pure_losses_check_grads():
     q_tm1 = jax.random.normal(jax.random.key(0), (6, 3))
     a_tm1 = jnp.array([0, 1, 2, 0, 1, 2])
