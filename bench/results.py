@@ -88,6 +88,23 @@ ROWS: dict[str, Row] = {
         "500 is the maximum; CleanRL's DQN reaches it (`dqn.py`, 500k steps)",
         Goal(500.0, 9, "final"),
     ),
+    # The DQN options side by side on CartPole, each alone on top of the recipe above (the
+    # exercise the users' DQN tutorial leaves open).
+    **{
+        f"dqn-cartpole-{name}": Row(
+            f"DQN + {label}, `rl_jax/CartPole-v1`",
+            "dqn_cartpole.py",
+            args,
+            10,
+            "plain DQN row above, same seeds and budget",
+        )
+        for name, label, args in (
+            ("double", "Double", ("--double",)),
+            ("dueling", "Dueling", ("--dueling",)),
+            ("nstep", "3-step returns", ("--n-step", "3")),
+            ("per", "prioritized replay", ("--prioritized",)),
+        )
+    },
     "td3-double-pendulum": Row(
         "TD3, `rl_jax/InvertedDoublePendulum-v5`",
         "td3_double_pendulum.py",
