@@ -52,6 +52,7 @@ from rl_jax.run_dir import (
     stack_hparams,
     write_json_atomic,
 )
+from rl_jax.validation import check_ranges
 
 CHECKPOINT_DIR = "checkpoints"
 CURVES_FILE = "curves.png"
@@ -733,6 +734,7 @@ def prepare(spec: RunSpec) -> tuple[Plan, Start]:
         raise RunError(f"--total-steps must be >= 1, got {spec.total_steps}")
     if not spec.hparams:
         raise RunError("no hyperparameter config to run")
+    check_ranges(spec.algorithm, spec.config, spec.hparams)  # scripts, grids and the API alike
     if spec.resume:
         check_resume_dir(spec.out, spec.identity)
     else:

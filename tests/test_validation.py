@@ -4,9 +4,10 @@ an --out that cannot be created is one line too."""
 
 import pytest
 
-from rl_jax import cli, validation
+from rl_jax import cli, runner, validation
 from rl_jax.dqn import dqn
 from rl_jax.reinforce import reinforce
+from rl_jax.run_dir import RunError
 from rl_jax.td3 import td3
 
 
@@ -42,6 +43,26 @@ def one_line(capsys, status: int) -> str:
             "--exploration-noise must be >= 0, got -0.1",
         ),
         (dqn, "rl_jax/CartPole-v1", ["--epsilon-end", "1.5"], "--epsilon-end must be in [0, 1]"),
+        (
+            dqn,
+            "rl_jax/CartPole-v1",
+            ["--epsilon-start", "1.5"],
+            "--epsilon-start must be in [0, 1], got 1.5",
+        ),
+        (dqn, "rl_jax/CartPole-v1", ["--learning-rate", "0"], "--learning-rate must be > 0, got 0"),
+        (dqn, "rl_jax/CartPole-v1", ["--tau", "1.5"], "--tau must be in (0, 1], got 1.5"),
+        (
+            dqn,
+            "rl_jax/CartPole-v1",
+            ["--priority-beta-start=-0.1"],
+            "--priority-beta-start must be in [0, 1], got -0.1",
+        ),
+        (
+            td3,
+            "rl_jax/Pendulum-v1",
+            ["--actor-hidden", "0,16"],
+            "--actor-hidden must have every value >= 1, got 0,16",
+        ),
         (dqn, "rl_jax/CartPole-v1", ["--priority-alpha", "2"], "--priority-alpha must be in"),
         (dqn, "rl_jax/CartPole-v1", ["--max-grad-norm", "0"], "--max-grad-norm must be > 0, got 0"),
         (dqn, "rl_jax/CartPole-v1", ["--batch-size", "0"], "batch_size must be >= 1, got 0"),
@@ -56,6 +77,12 @@ def one_line(capsys, status: int) -> str:
             "rl_jax/Pendulum-v1",
             ["--grid", "gamma=0.9,1.5"],
             "--gamma must be in [0, 1], got 1.5",
+        ),
+        (
+            td3,
+            "rl_jax/Pendulum-v1",
+            ["--grid", "tau=0.005,0"],
+            "--tau must be in (0, 1], got 0",
         ),
     ],
 )
@@ -91,3 +118,41 @@ def test_an_out_that_cannot_be_created_is_one_line(where, tmp_path, capsys):
         out = where
     line = one_line(capsys, run_cli(td3, "rl_jax/Pendulum-v1", ["--out", str(out)]))
     assert f"cannot create --out {out}" in line or f"cannot write the run directory {out}" in line
+
+
+def _spec(hparams, out):
+    return runner.RunSpec(
+        algorithm=td3,
+        env_id="rl_jax/Pendulum-v1",
+        config=td3.default_config("rl_jax/Pendulum-v1"),
+        hparams=tuple(hparams),
+        out=out,
+        total_steps=100,
+    )
+
+
+def test_the_python_api_path_checks_ranges_before_writing(tmp_path):
+    """``runner.prepare`` (scripts, grids, rl_jax.train, a hand-made RunSpec) checks every
+    hyperparameter config of a grid before the directory is touched."""
+    good = td3.default_hyperparams("rl_jax/Pendulum-v1")
+    out = tmp_path / "run"
+    with pytest.raises(validation.RangeError, match=r"^--gamma must be in \[0, 1\], got 2$"):
+        runner.prepare(_spec([good.replace(gamma=2.0)], out))
+    bad_second = [good, good.replace(exploration_correlation=1.5)]
+    with pytest.raises(
+        RunError, match=r"^--exploration-correlation must be in \[0, 1\), got 1.5 \(config 1"
+    ):
+        runner.prepare(_spec(bad_second, out))
+    assert not out.exists()
+
+
+def test_check_ranges_accepts_the_edges_for_every_config_of_a_grid():
+    base = td3.default_hyperparams()
+    edges = [
+        base.replace(gamma=1.0, tau=1.0, exploration_correlation=0.0),
+        base.replace(gamma=0.0, exploration_noise=0.0, target_noise=0.0),
+    ]
+    validation.check_ranges(td3, td3.default_config("rl_jax/Pendulum-v1"), edges)
+    config = dqn.default_config("rl_jax/CartPole-v1")
+    dqn_edges = [dqn.default_hyperparams().replace(epsilon_start=1.0, priority_alpha=0.0)]
+    validation.check_ranges(dqn, config, dqn_edges)
