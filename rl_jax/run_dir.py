@@ -8,6 +8,7 @@ a grid), number of seeds and first seed. Total steps are not part of it: resumin
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import hashlib
 import importlib
@@ -16,6 +17,7 @@ import os
 import platform
 import subprocess
 import sys
+import tempfile
 import time
 import types
 from pathlib import Path
@@ -244,7 +246,15 @@ def read_run_record(run_dir: Path) -> dict[str, Any]:
 
 def check_out_dir(out: Path, run_identity: dict[str, Any]) -> None:
     """Refuse to start a fresh run in a directory that already holds something, or one that
-    cannot be created (checked again when it is created: some file systems only say then)."""
+    cannot be created or written: a probe creates the missing directories and a file in the
+    last, then removes what it created (``/proc`` or a read-only mount only says so then)."""
+    try:
+        _check_out_dir(out, run_identity)
+    except OSError as error:
+        raise RunError(f"cannot use --out {out}: {_reason(error)}") from None
+
+
+def _check_out_dir(out: Path, run_identity: dict[str, Any]) -> None:
     if not out.exists():
         ancestor = out.absolute().parent
         while not ancestor.exists():
@@ -253,10 +263,15 @@ def check_out_dir(out: Path, run_identity: dict[str, Any]) -> None:
             raise RunError(f"cannot create --out {out}: {ancestor} is not a directory")
         if not os.access(ancestor, os.W_OK | os.X_OK):
             raise RunError(f"cannot create --out {out}: {ancestor} is not writable")
+        _probe_creatable(out)
         return
     if not out.is_dir():
         raise RunError(f"--out {out} exists and is not a directory")
     if not any(out.iterdir()):
+        try:
+            probe_writable(out)
+        except OSError as error:
+            raise RunError(f"cannot write to --out {out}: {_reason(error)}") from None
         return
     if (out / CONFIG_FILE).is_file():
         saved = read_run_record(out)["identity"]
@@ -269,8 +284,46 @@ def check_out_dir(out: Path, run_identity: dict[str, Any]) -> None:
     raise RunError(f"--out {out} is not empty; choose another --out")
 
 
+def _probe_creatable(out: Path) -> None:
+    """Create ``out`` (and its missing parents) and a file in it, then remove all of them."""
+    missing = []
+    directory = out.absolute()
+    while not directory.exists():
+        missing.append(directory)
+        directory = directory.parent
+    created: list[Path] = []
+    try:
+        for directory in reversed(missing):
+            try:
+                directory.mkdir()
+            except FileExistsError:  # made meanwhile by someone else: not ours to remove
+                continue
+            created.append(directory)
+        probe_writable(out)
+    except OSError as error:
+        raise RunError(f"cannot create --out {out}: {_reason(error)}") from None
+    finally:
+        for directory in reversed(created):
+            with contextlib.suppress(OSError):
+                directory.rmdir()
+
+
+def probe_writable(directory: Path) -> None:
+    """Create and remove a file in ``directory``; ``OSError`` if that is not possible."""
+    handle, name = tempfile.mkstemp(prefix=".write-probe-", dir=directory)
+    os.close(handle)
+    os.unlink(name)
+
+
+def _reason(error: OSError) -> str:
+    """The OS's reason for ``error``, with the path it concerns."""
+    reason = error.strerror or type(error).__name__
+    return f"{reason} ({error.filename})" if error.filename else reason
+
+
 def check_resume_dir(run_dir: Path, run_identity: dict[str, Any]) -> dict[str, Any]:
-    """The record of ``run_dir`` if it is the same run; ``RunError`` otherwise."""
+    """The record of ``run_dir`` if it is the same run and can be written; ``RunError``
+    otherwise."""
     record = read_run_record(run_dir)
     saved = record["identity"]
     if saved != run_identity:
@@ -278,6 +331,10 @@ def check_resume_dir(run_dir: Path, run_identity: dict[str, Any]) -> dict[str, A
             f"cannot resume {run_dir}: it is a different run "
             f"({describe_difference(saved, run_identity)})"
         )
+    try:
+        probe_writable(Path(run_dir))
+    except OSError as error:
+        raise RunError(f"cannot resume {run_dir}: it is not writable: {_reason(error)}") from None
     return record
 
 

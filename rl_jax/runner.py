@@ -52,6 +52,7 @@ from rl_jax.run_dir import (
     stack_hparams,
     write_json_atomic,
 )
+from rl_jax.validation import check_ranges
 
 CHECKPOINT_DIR = "checkpoints"
 CURVES_FILE = "curves.png"
@@ -589,16 +590,34 @@ def _finite_runs(state: Any, spec: RunSpec) -> Any:
 
 def check_finite(session: Session, metrics: Any, finite_state: np.ndarray) -> None:
     """Stop the run, before its state is saved, when a run's parameters or eval return are no
-    longer finite: one line names the runs, the step and the likely cause."""
-    finite = np.asarray(finite_state, bool) & np.isfinite(np.asarray(metrics.eval_return))
+    longer finite, or a loss overflowed to infinity: one line names the runs, the step and the
+    likely cause. (A NaN loss alone is no sign: learners report NaN for "no update here", e.g.
+    while warming up; a NaN that came from diverging reaches the parameters.)"""
+    spec = session.spec
+    params_ok = np.asarray(finite_state, bool)
+    eval_ok = np.isfinite(np.asarray(metrics.eval_return, dtype=np.float64))
+    losses_ok = np.ones_like(eval_ok)
+    for value in metrics.extra.values():
+        value = np.asarray(value)
+        if value.dtype.kind == "f" and value.shape == losses_ok.shape:
+            losses_ok &= ~np.isinf(value)
+    finite = params_ok & eval_ok & losses_ok
     if finite.all():
         return
-    spec = session.spec
     bad = np.argwhere(~finite)
     runs = ", ".join(
         f"seed {spec.base_seed + s}" + (f" of config {h}" if len(spec.hparams) > 1 else "")
         for h, s in bad
     )
+    what = [
+        name
+        for name, ok in (
+            ("parameters", params_ok),
+            ("eval return", eval_ok),
+            ("losses", losses_ok),
+        )
+        if not ok[~finite].all()
+    ]
     rates = sorted(
         {
             f"--{name.replace('_', '-')} {float(np.asarray(getattr(spec.hparams[h], name))):g}"
@@ -606,16 +625,20 @@ def check_finite(session: Session, metrics: Any, finite_state: np.ndarray) -> No
             for name in _rate_fields(spec.hparams[h])
         }
     )
+    clipping = any(
+        f.name == "max_grad_norm" for h, _ in bad for f in dataclasses.fields(spec.hparams[h])
+    )
     kept = (
         f"the last finite checkpoint (step {session.saved_step:,}) is kept"
         if session.saved_step is not None
         else "no checkpoint had been written yet"
     )
     raise DivergenceError(
-        f"training diverged at step {session.step:,}: {runs} got non-finite parameters or eval "
-        f"return; {kept} and the run stops here. Likely cause: a learning rate too high for "
-        f"this problem ({', '.join(rates) or 'see config.json'}) or exploding gradients; try "
-        "a lower rate or gradient clipping (--max-grad-norm where the learner has it)"
+        f"training diverged at step {session.step:,}: {runs} got non-finite "
+        f"{' and '.join(what)}; {kept} and the run stops here. Likely cause: a learning rate "
+        f"too high for this problem ({', '.join(rates) or 'see config.json'}) or exploding "
+        "gradients; try a lower rate"
+        + (" or a lower --max-grad-norm (gradient clipping)" if clipping else "")
     )
 
 
@@ -733,6 +756,7 @@ def prepare(spec: RunSpec) -> tuple[Plan, Start]:
         raise RunError(f"--total-steps must be >= 1, got {spec.total_steps}")
     if not spec.hparams:
         raise RunError("no hyperparameter config to run")
+    check_ranges(spec.algorithm, spec.config, spec.hparams)  # scripts, grids and the API alike
     if spec.resume:
         check_resume_dir(spec.out, spec.identity)
     else:

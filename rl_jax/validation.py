@@ -4,6 +4,10 @@ One table by field name serves every learner (the names mean the same thing wher
 appear); an algorithm may refine it with a ``ranges`` attribute (``{name: Range}``). A value out
 of range is refused with one line naming the flag and its range, e.g.
 ``--gamma must be in [0, 1], got 2``.
+
+``check_ranges`` applies the table to a run's config and every hyperparameter config of a grid;
+``runner.prepare`` calls it, so scripts, ``--grid`` sweeps and the Python API are all checked
+before anything is written or compiled.
 """
 
 from __future__ import annotations
@@ -13,6 +17,12 @@ import math
 from typing import Any, NamedTuple
 
 import numpy as np
+
+from rl_jax.run_dir import RunError
+
+
+class RangeError(RunError):
+    """A hyperparameter or config value outside its valid range (bad input, one line)."""
 
 
 class Range(NamedTuple):
@@ -72,6 +82,8 @@ def range_of(name: str, algorithm: Any = None) -> Range | None:
         return BY_NAME[name]
     if name == "lr" or name.endswith("_lr") or name.endswith("learning_rate"):
         return POSITIVE
+    if name.endswith("hidden"):  # layer widths (each one; an empty tuple is no hidden layer)
+        return AT_LEAST_ONE
     if "noise" in name or name.endswith(("_steps", "_updates", "_coef", "_decay", "_norm")):
         return NON_NEGATIVE
     return None
@@ -83,16 +95,36 @@ def out_of_range(instance: Any, algorithm: Any = None) -> str | None:
     for field in dataclasses.fields(instance):
         rule = range_of(field.name, algorithm)
         value = getattr(instance, field.name)
-        if rule is None or isinstance(value, (bool, np.bool_, str, tuple)) or value is None:
+        flag = "--" + field.name.replace("_", "-")
+        if rule is not None and isinstance(value, tuple):
+            numbers = [v for v in value if isinstance(v, (int, float)) and not isinstance(v, bool)]
+            if any(not math.isfinite(v) or not rule.holds(v) for v in numbers):
+                shown = ",".join(_number(v) for v in value)
+                return f"{flag} must have every value {rule}, got {shown}"
+            continue
+        if rule is None or isinstance(value, (bool, np.bool_, str)) or value is None:
             continue
         array = np.asarray(value)
         if array.dtype.kind not in "iuf" or array.size != 1:
             continue
         number = float(array)
         if not math.isfinite(number) or not rule.holds(number):
-            flag = "--" + field.name.replace("_", "-")
             return f"{flag} must be {rule}, got {_number(number)}"
     return None
+
+
+def check_ranges(algorithm: Any, config: Any, hparams_list: Any) -> None:
+    """``RangeError`` naming the first value of ``config`` or of any hyperparameter config (a
+    grid has several) outside its range."""
+    hparams_list = list(hparams_list)
+    problem = out_of_range(config, algorithm)
+    if problem:
+        raise RangeError(problem)
+    for index, hparams in enumerate(hparams_list):
+        problem = out_of_range(hparams, algorithm)
+        if problem:
+            where = f" (config {index} of {len(hparams_list)})" if len(hparams_list) > 1 else ""
+            raise RangeError(problem + where)
 
 
 def _number(value: float) -> str:
