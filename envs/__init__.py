@@ -1,11 +1,13 @@
 """rl_jax environments: a functional JAX env API, wrappers, and the registered envs.
 
 ``import envs`` also registers every id with gymnasium (``gymnasium.make`` and
-``gymnasium.make_vec(..., vectorization_mode="vector_entry_point")``).
+``gymnasium.make_vec(..., vectorization_mode="vector_entry_point")``). The other way round,
+``envs.from_gymnasium(id_or_env)`` makes any gymnasium env one of ours (``envs.gymnasium_host``).
 """
 
 from envs.core import Environment, EnvParams, EnvState, TimeStep
 from envs.gym_adapter import register_with_gymnasium
+from envs.gymnasium_host import from_gymnasium
 from envs.registry import UnknownEnvError, make, register, registered_ids
 from envs.spaces import Box, Discrete, Space
 from envs.wrappers import (
@@ -29,6 +31,7 @@ __all__ = [
     "Environment",
     "EpisodeStatistics",
     "FlattenObservation",
+    "from_gymnasium",
     "RescaleAction",
     "Space",
     "TimeStep",

@@ -43,8 +43,13 @@ class BackendError(ValueError):
     not import MuJoCo."""
 
 
-def register(env_id: str, entry_point: str, max_episode_steps: int | None = None) -> None:
-    """Add an env: ``entry_point`` is ``"package.module:Factory"``.
+def register(
+    env_id: str,
+    entry_point: str | Callable[..., Environment],
+    max_episode_steps: int | None = None,
+) -> None:
+    """Add an env: ``entry_point`` is ``"package.module:Factory"`` (imported on first use) or the
+    factory itself (an ``Environment`` class or a function returning one).
 
     ``max_episode_steps`` (optional) lets gymnasium's registration know the limit without
     importing the module; when omitted it is read from the env class on first use.
@@ -66,13 +71,20 @@ def resolve_id(name: str) -> str:
     for env_id in _ENTRY_POINTS:
         if env_id.lower().removeprefix("rl_jax/") == wanted:
             return env_id
+    if ":" in name:  # "gymnasium:ID" or "MODULE:ID": registered on first use
+        from envs.external_ids import resolve_external_id
+
+        return resolve_external_id(name)
     known = ", ".join(registered_ids())
     raise UnknownEnvError(f"unknown environment {name!r}; known environments: {known}")
 
 
 def factory(name: str) -> Callable[..., Environment]:
     """The class (or function) that builds the env; imports its module."""
-    module_name, factory_name = _ENTRY_POINTS[resolve_id(name)].split(":")
+    entry_point = _ENTRY_POINTS[resolve_id(name)]
+    if callable(entry_point):
+        return entry_point
+    module_name, factory_name = entry_point.split(":")
     return getattr(importlib.import_module(module_name), factory_name)
 
 
