@@ -12,6 +12,7 @@ from envs.core import Environment
 # id -> "module:factory". Factories take keyword arguments (e.g. ``backend=`` for MuJoCo envs).
 _ENTRY_POINTS: dict[str, str] = {
     "rl_jax/Rocket-v0": "envs.rocket:Rocket",
+    "rl_jax/RocketSettle-v0": "envs.rocket:RocketSettle",
     "rl_jax/CartPole-v1": "envs.cartpole:CartPole",
     "rl_jax/Pendulum-v1": "envs.pendulum:Pendulum",
     "rl_jax/InvertedPendulum-v5": "envs.inverted_pendulum:InvertedPendulum",
@@ -25,6 +26,7 @@ _ENTRY_POINTS: dict[str, str] = {
 # env class's ``max_episode_steps`` (tests/test_gym_adapter.py checks).
 _MAX_EPISODE_STEPS: dict[str, int] = {
     "rl_jax/Rocket-v0": 500,
+    "rl_jax/RocketSettle-v0": 500,
     "rl_jax/CartPole-v1": 500,
     "rl_jax/Pendulum-v1": 200,
     "rl_jax/InvertedPendulum-v5": 1000,

@@ -12,6 +12,20 @@ step of ``dt`` per agent step. Reward on the new state, terms in this order:
 Episodes are truncated after 500 steps. Reset draws |x| and |v| uniform in [0.5, 1] with
 independent random signs.
 
+``rl_jax/RocketSettle-v0`` (``RocketSettle``) is a documented variant for "come to rest at the
+origin and stay there", which the faithful reward does not ask for: near the origin it pays
+``2 - x^2 - v^2`` per step, so a policy that hovers 0.05 away loses ~0.3% of its return and the
+1e-8 goal is never reached, let alone held. The variant keeps the dynamics and every term above
+and changes three things, all params:
+
+  * the goal box is ``|x|, |v| <= 0.01`` (``goal_tolerance``) and reaching it does not end the
+    episode (``goal_terminates = 0``);
+  * instead of a one-off +500, every step inside the box earns ``settle_bonus`` (default 2, the
+    most the shaped terms can pay per step), so holding the goal is worth as much as reaching it;
+  * a sharp peak ``precision_weight * exp(-(|x| + |v|) / precision_scale)`` (0.5, 0.05) gives
+    the critic a slope at the scale of the box, where ``x^2`` has none;
+  * reset draws ``x`` and ``v`` uniform in [-1, 1], which includes starts at rest such as (1, 0).
+
 Rendering, for the run/render tools:
   * ``Rocket.render(state)`` -> an ``(H, W, 3)`` uint8 frame (numpy only): the track from -2 to
     2, the goal at 0, the rocket at ``x`` and an arrow for its velocity.
@@ -50,7 +64,11 @@ class RocketParams(EnvParams):
     bound: Array = _f32(2.0)  # |x| or |v| above this: crashed
     away_penalty: Array = _f32(10.0)  # weight of |v| when moving away from the origin
     crash_penalty: Array = _f32(500.0)
-    goal_bonus: Array = _f32(500.0)
+    goal_bonus: Array = _f32(500.0)  # paid once, on the step that reaches the goal box
+    goal_terminates: Array = _f32(1.0)  # 1: reaching the goal box ends the episode, 0: it does not
+    settle_bonus: Array = _f32(0.0)  # paid on every step that ends inside the goal box
+    precision_weight: Array = _f32(0.0)  # weight of exp(-(|x| + |v|) / precision_scale)
+    precision_scale: Array = _f32(0.05)
 
 
 def rk4_step(state: Array, thrust: Array, dt: Array) -> Array:
@@ -69,6 +87,11 @@ def rk4_step(state: Array, thrust: Array, dt: Array) -> Array:
     return state + dt / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
 
 
+def in_goal_box(x: Array, v: Array, tolerance: float | Array) -> Array:
+    """Whether ``(x, v)`` lies inside the goal box ``|x|, |v| <= tolerance``."""
+    return (jnp.abs(x) <= tolerance) & (jnp.abs(v) <= tolerance)
+
+
 def reward_and_termination(x: Array, v: Array, params: RocketParams) -> tuple[Array, Array]:
     """The reward of arriving at ``(x, v)`` and whether that state is terminal."""
     reward = 1 / (x**2 + 1)
@@ -78,9 +101,12 @@ def reward_and_termination(x: Array, v: Array, params: RocketParams) -> tuple[Ar
     )
     crashed = (jnp.abs(x) > params.bound) | (jnp.abs(v) > params.bound)
     reward = jnp.where(crashed, reward - params.crash_penalty, reward)
-    at_goal = (jnp.abs(x) <= params.goal_tolerance) & (jnp.abs(v) <= params.goal_tolerance)
-    reward = jnp.where(at_goal, reward + params.goal_bonus, reward)
-    return reward, crashed | at_goal
+    at_goal = in_goal_box(x, v, params.goal_tolerance)
+    reward = jnp.where(at_goal, reward + params.goal_bonus + params.settle_bonus, reward)
+    # The faithful env has weight 0: skip the exp there so its rewards stay bit-for-bit.
+    peak = params.precision_weight * jnp.exp(-(jnp.abs(x) + jnp.abs(v)) / params.precision_scale)
+    reward = jnp.where(params.precision_weight > 0, reward + peak, reward)
+    return reward, crashed | (at_goal & (params.goal_terminates > 0))
 
 
 class Rocket(Environment[RocketState, RocketParams]):
@@ -132,6 +158,24 @@ class Rocket(Environment[RocketState, RocketParams]):
         """A 600x160 RGB frame: track -2..2, goal flag at 0, rocket at x, velocity arrow."""
         params = self.default_params if params is None else params
         return draw_rocket(float(state.x), float(state.v), float(params.bound))
+
+
+class RocketSettle(Rocket):
+    """``rl_jax/RocketSettle-v0``: the rocket with a reward for coming to rest at the origin and
+    staying there (see the module docstring); same dynamics, spaces and episode limit."""
+
+    @property
+    def default_params(self) -> RocketParams:
+        return RocketParams(
+            goal_tolerance=np.float32(0.01),
+            goal_bonus=np.float32(0.0),
+            goal_terminates=np.float32(0.0),
+            settle_bonus=np.float32(2.0),
+            precision_weight=np.float32(0.5),
+        )
+
+    def reset_env(self, key: PRNGKey, params: RocketParams) -> tuple[RocketState, Array]:
+        return self._state_and_obs(jax.random.uniform(key, (2,), jnp.float32, -1.0, 1.0))
 
 
 # ---- rendering (host side) ---------------------------------------------------------------------

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 from scipy import stats
 
-from envs.rocket import Rocket, draw_rocket, plot_episode
+from envs.rocket import Rocket, RocketSettle, draw_rocket, plot_episode
 
 ENV = Rocket()
 PARAMS = ENV.default_params
@@ -257,3 +257,56 @@ def test_plot_episode_returns_image_and_writes_png(tmp_path):
     assert image.std() > 10  # not blank
     saved = iio.imread(path)
     assert saved.shape[:2] == image.shape[:2]
+
+
+# ---- rl_jax/RocketSettle-v0: the documented variant for coming to rest and staying there -------
+SETTLE = RocketSettle()
+SETTLE_PARAMS = SETTLE.default_params
+
+
+def settle_step_once(x: float, v: float, u: float):
+    state, _ = SETTLE.reset_to(jnp.array([x, v]), SETTLE_PARAMS)
+    _, timestep = step_settle(KEY, state, jnp.array([u]), SETTLE_PARAMS)
+    return jax.device_get(timestep)
+
+
+step_settle = jax.jit(SETTLE.step)
+
+
+def settle_reward(x: float, v: float) -> float:
+    """The variant's reward at the new state (x, v), written from its docstring."""
+    reward = 1 / (x**2 + 1) + (-10 * abs(v) if x * v > 0 else 1 / (v**2 + 1))
+    reward += 0.5 * np.exp(-(abs(x) + abs(v)) / 0.05)
+    if abs(x) <= 0.01 and abs(v) <= 0.01:
+        reward += 2.0
+    return reward
+
+
+@pytest.mark.parametrize(
+    "x, v, u",
+    [(1.0, 0.0, -1.0), (0.05, -0.02, 0.3), (0.004, 0.0, 0.0), (-0.003, 0.002, 0.1), (0.5, 0.9, 1)],
+)
+def test_settle_variant_reward_and_no_goal_termination(x, v, u):
+    ours = settle_step_once(x, v, u)
+    new_x, new_v = spec_step(x, v, u)[:2]
+    np.testing.assert_allclose(ours.obs, [new_x, new_v], rtol=1e-6, atol=1e-7)
+    np.testing.assert_allclose(ours.reward, settle_reward(new_x, new_v), rtol=1e-5, atol=1e-6)
+    assert not ours.terminated  # inside the box or not, the episode goes on
+
+
+def test_settle_variant_keeps_the_dynamics_and_crash_rule():
+    ours = settle_step_once(1.999, 0.5, 1.0)
+    assert ours.terminated and ours.reward < -400
+    # Same dynamics and spaces as the faithful rocket.
+    assert SETTLE.action_space() == ENV.action_space()
+    assert SETTLE.max_episode_steps == ENV.max_episode_steps
+
+
+def test_settle_variant_resets_cover_starts_at_rest():
+    _, timestep = jax.vmap(SETTLE.reset, in_axes=(0, None))(
+        jax.random.split(KEY, 4000), SETTLE_PARAMS
+    )
+    obs = np.asarray(timestep.obs)
+    assert np.all(np.abs(obs) <= 1.0)
+    for column in obs.T:  # uniform on [-1, 1]
+        assert stats.kstest(column, "uniform", args=(-1.0, 2.0)).pvalue > 1e-3
