@@ -55,10 +55,12 @@ _NO_LIMIT = np.iinfo(np.int32).max
 def register_with_gymnasium() -> None:
     """Register every id of ``envs.registry`` with gymnasium (ids already there are kept).
 
-    Entry points stay strings, so nothing is imported until an env is made.
+    Entry points stay strings, so nothing is imported until an env is made. ``MODULE:ID`` and
+    ``gymnasium:ID`` ids are left out: gymnasium reads ``MODULE:`` as a module to import, and
+    their plain ``ID`` is registered on its own (or is gymnasium's already).
     """
     for env_id in registry.registered_ids():
-        if env_id in gymnasium.registry:
+        if env_id in gymnasium.registry or ":" in env_id:
             continue
         gymnasium.register(
             id=env_id,

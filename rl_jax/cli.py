@@ -481,7 +481,14 @@ def _add_choice_flags(parser: argparse.ArgumentParser) -> None:
         "--algo", default=None, metavar="NAME", help=f"algorithm: {', '.join(sorted(ALGORITHMS))}"
     )
     parser.add_argument(
-        "--env", default=None, metavar="ID", help="environment id, e.g. rl_jax/Pendulum-v1"
+        "--env",
+        default=None,
+        metavar="ID",
+        help="environment id: a registered one (rl_jax/Pendulum-v1); gymnasium:ID for any "
+        "gymnasium env, stepped on the host (gymnasium:Pendulum-v1); or MODULE:ID to import "
+        "MODULE first, which registers ID with envs.register (your own env: "
+        "examples.hover_rocket:examples/HoverRocket-v0); MODULE is searched on the Python path "
+        "and in the current directory",
     )
 
 
@@ -661,13 +668,14 @@ def run_experiment(
 
 def user_errors() -> tuple[type[BaseException], ...]:
     """Exception types that mean bad input, not a bug: reported in one line."""
+    from envs.external_ids import UnsupportedEnvError
     from envs.registry import BackendError, UnknownEnvError
     from rl_jax.checkpoint import CheckpointError
     from rl_jax.policy import PolicyError
     from rl_jax.render import RenderError
 
     errors = (UsageError, RunError, CheckpointError, UnknownEnvError, BackendError)
-    return (*errors, RenderError, PolicyError)
+    return (*errors, UnsupportedEnvError, RenderError, PolicyError)
 
 
 def guard(function: Callable[[], int]) -> int:

@@ -1,0 +1,22 @@
+"""Train any algorithm on any env: --algo and --env choose them; every other flag is as in the
+other scripts (--help with --algo and --env lists the algorithm's flags and its defaults there).
+
+  python experiments/train.py --algo td3 --env rl_jax/Pendulum-v1 --seeds 5
+  python experiments/train.py --algo td3 --env gymnasium:Pendulum-v1 --seeds 5
+  python experiments/train.py --algo td3 --env examples.hover_rocket:examples/HoverRocket-v0
+  python experiments/train.py --resume runs/HoverRocket-v0__td3__...   # the run knows the rest
+
+--env takes a registered id; gymnasium:ID, any env gymnasium.make knows, stepped on the host
+through envs.from_gymnasium (slower than our JAX envs; a resume cuts the episodes that were in
+flight, since gymnasium's env state is not in the checkpoint); or MODULE:ID, which imports MODULE
+(your file, searched on the Python path and in the current directory) so that its
+envs.register(ID, ...) runs first. The whole string is recorded as the run's env, so --resume
+imports the module again. Algorithms without a recipe for an env start from their own defaults
+(the TD3 paper's for td3: 25,000 random steps first), so small budgets need flags such as
+--learning-starts.
+"""
+
+from rl_jax import cli
+
+if __name__ == "__main__":
+    cli.main(None, None, __doc__, seeds=1, total_steps=100_000)
