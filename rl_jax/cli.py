@@ -461,6 +461,18 @@ def _validate(algorithm: Any, config: Any, hparams_list: list[Any]) -> None:
                 raise UsageError(str(error)) from None
 
 
+def _check_env_fits(algorithm: Any, config: Any, hparams: Any) -> None:
+    """The algorithm can act in the env (TD3 needs a bounded Box action space, say): its init,
+    traced without running, raises the algorithm's own TypeError or ValueError otherwise, which
+    ``--env`` with any gymnasium id makes a user error rather than a bug."""
+    import jax
+
+    try:
+        jax.eval_shape(lambda key: algorithm.init(key, config, hparams), jax.random.key(0))
+    except (TypeError, ValueError) as error:
+        raise UsageError(f"{algorithm.name} cannot run {config.env_id}: {error}") from None
+
+
 def build_parser(
     algorithm: Any, env_id: str, description: str, defaults: Defaults, choose: bool
 ) -> tuple[argparse.ArgumentParser, list[str], list[str]]:
@@ -594,6 +606,7 @@ def build_spec(
             )
         hparams, grid_fields = expand_grid(hparams[0], grid), tuple(grid)
     _validate(algorithm, config, hparams)
+    _check_env_fits(algorithm, config, hparams[0])
     out = args.resume if resume else (args.out or default_run_dir(env_id, algorithm.name))
     script = shlex.join([Path(sys.executable).name, sys.argv[0]])
     return RunSpec(

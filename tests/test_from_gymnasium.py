@@ -231,13 +231,15 @@ def test_bad_input_is_one_user_error(make, error, message):
         ("gymnasium:NoSuchEnv-v0", "unknown gymnasium environment 'NoSuchEnv-v0'"),
         ("gymnasium:FrozenLake-v1", "observation space Discrete(16) is not supported"),
         ("no_such_module_here:X-v0", "cannot import module 'no_such_module_here'"),
+        ("gymnasium:CartPole-v1", "td3 cannot run gymnasium:CartPole-v1: TD3/DDPG need a"),
     ],
 )
-def test_the_cli_reports_bad_env_ids_in_one_line(env_id, message, capsys):
-    argv = ["--algo", "td3", "--env", env_id]
+def test_the_cli_reports_bad_env_ids_in_one_line(env_id, message, capsys, tmp_path):
+    argv = ["--algo", "td3", "--env", env_id, "--out", str(tmp_path / "run")]
     assert cli.guard(lambda: cli.run_experiment(None, None, "", argv)) == 2
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and err.startswith("error: ") and message in err
+    assert not (tmp_path / "run").exists()
 
 
 # ---- learners on it ------------------------------------------------------------------------------
