@@ -29,7 +29,10 @@ once, so the pool holds about one env per live episode: the batch, whatever its 
 Batching. Under any nesting of vmaps (envs, seeds, hyperparameters) the callbacks receive the
 whole batch at once (``vmap_method="broadcast_all"``) and step its envs one after another in one
 host call; under ``shard_map`` each device calls with its own block, serialised by a lock. Every
-lane of a batch is its own gymnasium env, so seeds never share one.
+lane of a batch is its own gymnasium env, so seeds never share one. Each env's inputs and outputs
+cross as one uint32 row (see ``_pack``): every array crossing a callback costs more than a
+classic env's step. Under ``AutoReset`` every env also pays a gymnasium ``reset(seed=...)`` per
+step (on the scratch env); ``envs.batched.autoreset_step`` resets only the envs that finished.
 
 Determinism. The reset seed is drawn from the JAX reset key and is the only randomness the host
 uses (a gymnasium env's stochastic steps draw from the ``np_random`` that ``reset(seed=...)``
