@@ -307,6 +307,9 @@ RECIPES: dict[str, dict[str, Any]] = {
         "critic_hidden": (64, 64),
     },
 }
+# The settle variant (same dynamics, reward for resting inside the 0.01 box) starts from the same
+# loop and exploration.
+RECIPES["rl_jax/RocketSettle-v0"] = RECIPES["rl_jax/Rocket-v0"]
 HPARAM_RECIPES: dict[str, dict[str, float]] = {
     "rl_jax/Rocket-v0": {
         # The reward pays 1 / (v^2 + 1) while approaching, so creeping in is almost as good as
@@ -323,6 +326,7 @@ HPARAM_RECIPES: dict[str, dict[str, float]] = {
         "exploration_noise": 0.5,
     },
 }
+HPARAM_RECIPES["rl_jax/RocketSettle-v0"] = HPARAM_RECIPES["rl_jax/Rocket-v0"]
 # Half cheetah: the TD3 paper's networks (256 x 256) and one update per env step, cut to fewer
 # FLOPs per unit of progress for a CPU, where updates (not env steps) are the cost:
 # * batch 128 instead of 256 halves every update's FLOPs (0.21 vs 0.41 GFLOP; the original TD3

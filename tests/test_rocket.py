@@ -275,7 +275,7 @@ step_settle = jax.jit(SETTLE.step)
 
 def settle_reward(x: float, v: float) -> float:
     """The variant's reward at the new state (x, v), written from its docstring."""
-    reward = 1 / (x**2 + 1) + (-10 * abs(v) if x * v > 0 else 1 / (v**2 + 1))
+    reward = 1 / (x**2 + 1) + (-10 * abs(v) if x * v > 0 else 0.0)
     reward += 0.5 * np.exp(-(abs(x) + abs(v)) / 0.05)
     if abs(x) <= 0.01 and abs(v) <= 0.01:
         reward += 2.0
