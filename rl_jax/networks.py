@@ -75,6 +75,84 @@ class Torso(nn.Module):
         return x
 
 
+def conv_layer_specs(layers: Sequence[int]) -> list[tuple[int, int, int]]:
+    """``(features, kernel, stride)`` per conv layer from the flat tuple a config holds (a flat
+    tuple of ints is one command-line flag: ``--conv-layers 32,8,4,64,4,2``)."""
+    if len(layers) % 3 or any(int(value) < 1 for value in layers):
+        raise ValueError(
+            "conv layers are (features, kernel, stride) triples of integers >= 1, got "
+            + ",".join(str(value) for value in layers)
+        )
+    return [tuple(int(v) for v in layers[i : i + 3]) for i in range(0, len(layers), 3)]
+
+
+def conv_output_sizes(layers: Sequence[int], size: int) -> list[int]:
+    """Side of the feature map after each conv layer (VALID padding) on a ``size`` square."""
+    sizes = []
+    for _, kernel, stride in conv_layer_specs(layers):
+        size = (size - kernel) // stride + 1 if size >= kernel else 0
+        sizes.append(size)
+    return sizes
+
+
+def check_conv_layers(layers: Sequence[int], size: int) -> None:
+    """``ValueError`` naming the first layer whose kernel no longer fits on ``size`` frames,
+    so a frame size too small for the conv stack is one line before anything is traced."""
+    side = size
+    for index, ((_, kernel, _), after) in enumerate(
+        zip(conv_layer_specs(layers), conv_output_sizes(layers, size), strict=True)
+    ):
+        if after < 1:
+            raise ValueError(
+                f"frames of {size}x{size} are too small for the conv layers: layer {index + 1} "
+                f"has a {kernel}x{kernel} kernel but sees {side}x{side} pixels; use larger "
+                "frames or smaller kernels/strides"
+            )
+        side = after
+
+
+def conv(features: int, kernel: int, stride: int, fan_in: int, initializer: str, dtype: Any):
+    """A VALID conv layer initialised as ``dense`` is (PyTorch's ``nn.Conv2d`` default bound
+    1/sqrt(fan_in) for ``fan_in_uniform``; orthogonal with the ReLU gain otherwise)."""
+    if initializer == "fan_in_uniform":
+        kernel_init = bias_init = _uniform(1.0 / fan_in**0.5)
+    elif initializer == "orthogonal":
+        kernel_init, bias_init = nn.initializers.orthogonal(2.0**0.5), nn.initializers.zeros
+    else:
+        raise ValueError(f"unknown initializer {initializer!r}; choose one of {INITS}")
+    return nn.Conv(
+        features,
+        (kernel, kernel),
+        (stride, stride),
+        "VALID",
+        dtype=dtype,
+        kernel_init=kernel_init,
+        bias_init=bias_init,
+    )
+
+
+class ConvTorso(nn.Module):
+    """Image features: ``[..., H, W, C]`` pixels in [0, 255] (uint8 frames) -> ``[..., F]``.
+
+    The network scales pixels to [0, 1] itself, so observations stay uint8 in the env, the
+    replay buffer and the train state (a quarter of float32's memory). ReLU conv layers with
+    VALID padding (``layers``: flat ``(features, kernel, stride)`` triples; Nature DQN's are
+    ``(32, 8, 4, 64, 4, 2, 64, 3, 1)``), then the feature map is flattened."""
+
+    layers: tuple[int, ...]
+    initializer: str = "fan_in_uniform"
+    dtype: Any = jnp.float32
+
+    @nn.compact
+    def __call__(self, pixels: jax.Array) -> jax.Array:
+        check_conv_layers(self.layers, min(pixels.shape[-3], pixels.shape[-2]))
+        x = pixels.astype(self.dtype) / 255.0
+        for features, kernel, stride in conv_layer_specs(self.layers):
+            fan_in = kernel * kernel * x.shape[-1]
+            x = nn.relu(conv(features, kernel, stride, fan_in, self.initializer, self.dtype)(x))
+        return x.reshape(x.shape[:-3] + (-1,))
+
+
 class MLP(nn.Module):
     """Hidden layers (ReLU by default), linear output. Parameters float32; ``dtype`` is the
     compute dtype."""
@@ -133,7 +211,8 @@ class Critic(nn.Module):
 
 
 class QNetwork(nn.Module):
-    """Action values of a discrete action space: ``obs [..., obs_dim] -> q [..., num_actions]``.
+    """Action values of a discrete action space: ``obs [..., obs_dim] -> q [..., num_actions]``
+    (or ``obs [..., H, W, C]`` through a ``ConvTorso`` when ``conv_layers`` is set).
 
     ``dueling`` (Wang et al. 2016): the torso feeds a state-value head ``v`` and an advantage head
     ``a``, combined as ``q = v + a - mean(a)`` (the mean makes the split identifiable)."""
@@ -143,9 +222,12 @@ class QNetwork(nn.Module):
     dueling: bool = False
     initializer: str = "fan_in_uniform"
     dtype: Any = jnp.float32
+    conv_layers: tuple[int, ...] = ()  # set: obs are images [..., H, W, C], see ConvTorso
 
     @nn.compact
     def __call__(self, obs: jax.Array) -> jax.Array:
+        if self.conv_layers:
+            obs = ConvTorso(self.conv_layers, self.initializer, self.dtype)(obs)
         x = Torso(self.hidden, self.initializer, "relu", self.dtype)(obs)
         head = lambda outputs: dense(outputs, x.shape[-1], self.initializer, 1.0, self.dtype)  # noqa: E731
         if not self.dueling:
