@@ -1,0 +1,120 @@
+"""DQN from pixels: the conv torso (shapes, [0, 255] scaling, gradients), a tiny DQN run on
+rl_jax/CartPolePixels-v1 with every option (plumbing only, no learning claim), and the script's
+one-line refusals of a frame size the conv stack cannot take and of a buffer that cannot fit."""
+
+import flax.linen as nn
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+from jax.test_util import check_grads
+
+from rl_jax import cli, networks
+from rl_jax.dqn import PixelConfig, dqn
+
+ENV_ID = "rl_jax/CartPolePixels-v1"
+
+
+# ---- the conv torso ------------------------------------------------------------------------
+def test_conv_output_sizes_follow_valid_padding():
+    nature = (32, 8, 4, 64, 4, 2, 64, 3, 1)
+    assert networks.conv_output_sizes(nature, 84) == [20, 9, 7]
+    assert networks.conv_output_sizes((16, 8, 4, 32, 4, 2), 84) == [20, 9]
+    with pytest.raises(ValueError, match="layer 3 has a 3x3 kernel but sees 2x2 pixels"):
+        networks.check_conv_layers(nature, 32)
+    with pytest.raises(ValueError, match="triples"):
+        networks.check_conv_layers((32, 8), 84)
+
+
+def test_q_network_on_frames_has_the_right_shapes_for_any_batch_dims():
+    net = networks.QNetwork((32,), 2, dueling=True, conv_layers=(16, 8, 4, 32, 4, 2))
+    frames = jax.random.randint(jax.random.key(0), (2, 3, 44, 44, 4), 0, 256).astype(jnp.uint8)
+    params = jax.jit(net.init)(jax.random.key(1), frames[0, 0])
+    assert params["params"]["ConvTorso_0"]["Conv_1"]["kernel"].shape == (4, 4, 16, 32)
+    assert params["params"]["Torso_0"]["Dense_0"]["kernel"].shape == (4 * 4 * 32, 32)
+    apply = jax.jit(net.apply)
+    q = apply(params, frames)
+    assert q.shape == (2, 3, 2) and q.dtype == jnp.float32
+    np.testing.assert_allclose(apply(params, frames[1, 2]), q[1, 2], rtol=1e-5, atol=1e-6)
+
+
+def test_pixels_are_scaled_to_unit_range_inside_the_network():
+    torso = networks.ConvTorso((4, 3, 1))
+    frames = jax.random.randint(jax.random.key(0), (2, 6, 6, 1), 0, 256).astype(jnp.uint8)
+    params = torso.init(jax.random.key(1), frames)
+    conv = {"params": params["params"]["Conv_0"]}
+    expected = nn.relu(nn.Conv(4, (3, 3), padding="VALID").apply(conv, frames / 255.0))
+    np.testing.assert_allclose(
+        torso.apply(params, frames), expected.reshape(2, -1), rtol=1e-5, atol=1e-6
+    )
+
+
+def test_conv_q_network_gradients_match_finite_differences():
+    net = networks.QNetwork((6,), 3, conv_layers=(3, 3, 2, 4, 2, 1))
+    frames = jax.random.uniform(jax.random.key(0), (2, 9, 9, 2), minval=0.0, maxval=255.0)
+    params = net.init(jax.random.key(1), frames)
+
+    @jax.jit
+    def loss(params, frames):
+        return jnp.sum(jnp.tanh(net.apply(params, frames)))
+
+    check_grads(loss, (params, frames), order=1, modes=["rev"], atol=2e-2, rtol=2e-2, eps=1e-2)
+
+
+# ---- DQN on pixels ---------------------------------------------------------------------------
+TINY = {
+    "frame_size": 36,
+    "conv_layers": (8, 8, 4, 8, 3, 1),
+    "hidden": (16,),
+    "num_envs": 2,
+    "iterations_per_chunk": 100,
+    "learning_starts": 60,
+    "batch_size": 8,
+    "buffer_size": 64,  # wraps within the run
+    "num_eval_envs": 2,
+    "target_update_period": 10,
+}
+
+
+@pytest.mark.parametrize(
+    "options", [{}, {"double": True, "dueling": True, "n_step": 3, "prioritized": True}]
+)
+def test_a_tiny_dqn_run_on_pixels_trains_and_evaluates(options):
+    config = dqn.default_config(ENV_ID, **TINY, **options)
+    assert isinstance(config, PixelConfig)
+    hparams = dqn.default_hyperparams(ENV_ID)
+    state = dqn.init(jax.random.key(0), config, hparams)
+    assert state.obs.shape == (2, 36, 36, 4) and state.obs.dtype == jnp.uint8
+    before = state.agent.online
+    chunk = jax.jit(dqn.train_chunk, static_argnums=1)
+    for _ in range(2):
+        state, metrics = chunk(state, config, hparams)
+    assert int(metrics.env_steps) == 400 and int(metrics.updates) == 2 * (200 - 30)
+    assert int(state.buffer.written) == 200 and state.buffer.frames.dtype == jnp.uint8
+    assert np.isfinite(float(metrics.extra["loss"])) and float(metrics.eval_return) >= 8.0
+    moved = jax.tree.map(lambda a, b: bool(jnp.any(a != b)), before, state.agent.online)
+    assert all(jax.tree.leaves(moved))
+    action = dqn.policy(state, config)(state.obs[0])
+    assert action.shape == () and action.dtype == jnp.int32
+
+
+def _run(argv: list[str]) -> int:
+    return cli.guard(lambda: cli.run_experiment(dqn, ENV_ID, "", argv))
+
+
+@pytest.mark.parametrize(
+    ("argv", "expected"),
+    [
+        (["--frame-size", "16"], "layer 2 has a 4x4 kernel but sees 3x3 pixels"),
+        (["--conv-layers", "16,8"], "(features, kernel, stride) triples"),
+        (["--buffer-size", "5000000", "--seeds", "3"], "the train state needs "),
+    ],
+)
+def test_bad_input_is_one_line_before_anything_compiles(tmp_path, capsys, argv, expected):
+    out = tmp_path / "run"
+    status = _run([*argv, "--out", str(out)])
+    captured = capsys.readouterr()
+    lines = captured.err.strip().splitlines()
+    assert status == 2 and len(lines) == 1 and lines[0].startswith("error: "), captured.err
+    assert expected in lines[0] and "compiling" not in captured.out
+    assert not out.exists()
