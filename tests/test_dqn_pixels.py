@@ -1,6 +1,9 @@
 """DQN from pixels: the conv torso (shapes, [0, 255] scaling, gradients), a tiny DQN run on
-rl_jax/CartPolePixels-v1 with every option (plumbing only, no learning claim), and the script's
+rl_jax/CartPolePixels-v1 with every option (plumbing only, no learning claim), the script's run
+contract (a resumed run ends bit-identical, with the frame replay in its checkpoints), and its
 one-line refusals of a frame size the conv stack cannot take and of a buffer that cannot fit."""
+
+import dataclasses
 
 import flax.linen as nn
 import jax
@@ -8,9 +11,12 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 from jax.test_util import check_grads
+from run_helpers import leaves_bytes
 
 from rl_jax import cli, networks
+from rl_jax.checkpoint import Checkpointer
 from rl_jax.dqn import PixelConfig, dqn
+from rl_jax.runner import CHECKPOINT_DIR, make_plan
 
 ENV_ID = "rl_jax/CartPolePixels-v1"
 
@@ -118,3 +124,31 @@ def test_bad_input_is_one_line_before_anything_compiles(tmp_path, capsys, argv, 
     assert status == 2 and len(lines) == 1 and lines[0].startswith("error: "), captured.err
     assert expected in lines[0] and "compiling" not in captured.out
     assert not out.exists()
+
+
+# ---- the script's run contract -------------------------------------------------------------
+FLAGS = [
+    "--frame-size", "36", "--conv-layers", "8,8,4,8,3,1", "--hidden", "16", "--num-envs", "2",
+    "--iterations-per-chunk", "100", "--learning-starts", "60", "--batch-size", "8",
+    "--buffer-size", "64", "--num-eval-envs", "2", "--seeds", "2", "--log-interval", "0",
+    "--checkpoint-interval", "0",
+]  # fmt: skip
+
+
+def _final_state(run_dir):
+    parser, *names = cli.build_parser(dqn, ENV_ID, "", cli.Defaults(), choose=False)
+    spec = cli.build_spec(parser.parse_args(FLAGS), dqn, ENV_ID, cli.Defaults(), names, [])
+    plan = make_plan(dataclasses.replace(spec, out=run_dir))
+    with Checkpointer(run_dir / CHECKPOINT_DIR, read_only=True) as checkpointer:
+        return checkpointer.restore(plan.template)[0]
+
+
+def test_a_resumed_pixel_run_ends_bit_identical_to_an_unstopped_one(tmp_path):
+    whole, split = tmp_path / "whole", tmp_path / "split"
+    assert _run([*FLAGS, "--total-steps", "400", "--out", str(whole)]) == 0
+    assert _run([*FLAGS, "--total-steps", "200", "--out", str(split)]) == 0
+    assert _run(["--resume", str(split), "--total-steps", "400"]) == 0
+    whole_state, split_state = _final_state(whole), _final_state(split)
+    assert np.asarray(whole_state.buffer.written).tolist() == [[200, 200]]
+    assert leaves_bytes(whole_state) == leaves_bytes(split_state)
+    assert (whole / "curves.png").is_file() and (whole / "metrics.jsonl").is_file()
