@@ -150,3 +150,7 @@ def test_registered_and_passes_check_env():
     assert env.render().shape == (400, 600, 3)
     small = gymnasium.make(ENV_ID, frame_size=48, frame_stack=2)
     assert small.reset(seed=1)[0].shape == (48, 48, 2)
+    vector = gymnasium.make_vec(ENV_ID, num_envs=3, vectorization_mode="vector_entry_point")
+    vector.reset(seed=0)
+    obs, reward, *_ = vector.step(np.array([0, 1, 1]))
+    assert obs.shape == (3, 84, 84, 4) and obs.dtype == np.uint8 and reward.tolist() == [1.0] * 3
