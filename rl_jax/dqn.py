@@ -85,6 +85,7 @@ class PixelConfig(Config):
     step on 84x84 frames took ~26 ms against ~72 ms (side by side, this 2-core machine under
     load), and CartPole's frames are simple."""
 
+    image_observations = True  # (not a field) offpolicy keeps the frames [H, W, C]
     hidden: tuple[int, ...] = (256,)  # hidden ReLU layers after the conv torso
     frame_size: int = 84  # frames are frame_size x frame_size grayscale pixels
     frame_stack: int = 4  # the last frame_stack frames are the observation's channels

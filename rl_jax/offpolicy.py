@@ -180,11 +180,10 @@ def make_eval_env(config: OffPolicyConfig) -> envs.Environment:
     # when built (MuJoCo's initial obs, default params) must stay concrete, not leak tracers.
     with jax.ensure_compile_time_eval():
         env = config.make_env()
-    space = env.observation_space()
-    # Images (H x W x channels of uint8, as frame-stacked pixel envs give) stay images: conv
-    # torsos read them so, and flattening would also make the space float32.
-    image = len(space.shape) == 3 and space.dtype == np.uint8
-    if len(space.shape) != 1 and not image:
+    # A config whose network reads images (a conv torso: ``dqn.PixelConfig``) keeps them
+    # [H, W, C]; flattening would also make a uint8 space float32.
+    keep_images = getattr(config, "image_observations", False)
+    if len(env.observation_space().shape) != 1 and not keep_images:
         env = envs.FlattenObservation(env)
     return env
 
