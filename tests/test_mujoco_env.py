@@ -217,6 +217,24 @@ def test_mjx_backend_non_finite_physics_ends_the_episode(env_id):
     assert not np.asarray(ts.info["physics_diverged"]).any()
 
 
+def test_mjx_half_cheetah_step_calls_no_lapack_cholesky():
+    """jaxlib 0.10.2 deadlocked in a batched LAPACK Cholesky under MJX half cheetah over ~1,000+
+    envs (test_mujoco_hang.py, slow). Our step factorises its small matrices unrolled, so its
+    program (the 256-env one compiled above) must call no LAPACK Cholesky (potrf)."""
+    env, start, step = engine("HalfCheetah-v5", "mjx")
+    keys = jax.random.split(jax.random.PRNGKey(4), BATCH)
+    state, _ = start(
+        env.physics.from_qpos_qvel(
+            np.zeros((BATCH, env.physics.nq)), np.zeros((BATCH, env.physics.nv))
+        )
+    )
+    program = step.lower(keys, state, jnp.zeros((BATCH, env.physics.nu))).as_text()
+    assert "potrf" not in program
+    # ... where a plain batched Cholesky would show one: the name searched for is the right one.
+    matrices = jnp.broadcast_to(jnp.eye(9), (BATCH, 9, 9))
+    assert "potrf" in jax.jit(jax.vmap(jax.scipy.linalg.cho_factor)).lower(matrices).as_text()
+
+
 def test_autoreset_after_divergence_keeps_nan_out_of_final_obs():
     env = envs.AutoReset(c_env("HalfCheetah-v5"))
     vectors, actions, rows = diverging_starts(c_env("HalfCheetah-v5"), 6)
