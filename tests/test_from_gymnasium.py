@@ -5,6 +5,7 @@ handles the pool no longer holds (resume), bad input in one line, and TD3 traini
 import dataclasses
 import os
 import re
+import shutil
 from pathlib import Path
 
 import gymnasium
@@ -263,26 +264,36 @@ def test_dqn_and_reinforce_run_on_gymnasium_envs(algorithm, env_id, config, tmp_
     )
 
 
+GYMNASIUM_SECTION = "Any gymnasium environment"
+
+
 def _readme_section(title: str) -> str:
     readme = (ROOT / "README.md").read_text()
     return readme.split(f"### {title}\n", 1)[1].split("\n### ", 1)[0]
 
 
-def test_the_readme_gymnasium_blocks_run(tmp_path):
-    section = _readme_section("Any gymnasium environment")
-    code = re.findall(r"```python\n(.*?)```", section, flags=re.S)[0]
-    namespace: dict = {}
-    exec(code, namespace)
-    assert namespace["ts"].obs.shape == (16, 2) and namespace["heavy"].max_episode_steps == 100
-    command = re.findall(r"```bash\n(.*?)```", section, flags=re.S)[0].replace("\\\n", " ")
-    argv = command.split()[2:]
+@pytest.fixture(scope="module")
+def readme_command_run(tmp_path_factory) -> Path:
+    """The README's command, tiny, as a sweep: TD3 on gymnasium's Pendulum, 2 configs x 2 seeds
+    in one program. Its compiled program steps gymnasium through a host callback, which the
+    persistent cache does not keep, so the tests below share this one run."""
+    command = re.findall(r"```bash\n(.*?)```", _readme_section(GYMNASIUM_SECTION), flags=re.S)[0]
+    argv = command.replace("\\\n", " ").split()[2:]
     assert argv[:4] == ["--algo", "td3", "--env", "gymnasium:Pendulum-v1"]
     tiny = [f"--{name.replace('_', '-')}={_flag(value)}" for name, value in TINY.items()]
-    out = tmp_path / "run"
+    out = tmp_path_factory.mktemp("readme") / "run"
     smaller = [*argv, *tiny, "--seeds=2", "--total-steps=200", f"--out={out}"]
     sweep = ["--grid", "tau=0.005,0.02"]  # and a sweep: 2 configs x 2 seeds in one program
     assert cli.guard(lambda: cli.run_experiment(None, None, "", [*smaller, *sweep])) == 0
-    rows = read_rows(out / METRICS_FILE)
+    return out
+
+
+def test_the_readme_gymnasium_blocks_run(readme_command_run):
+    code = re.findall(r"```python\n(.*?)```", _readme_section(GYMNASIUM_SECTION), flags=re.S)[0]
+    namespace: dict = {}
+    exec(code, namespace)
+    assert namespace["ts"].obs.shape == (16, 2) and namespace["heavy"].max_episode_steps == 100
+    rows = read_rows(readme_command_run / METRICS_FILE)
     assert len(rows) == 2 * 2 * 2 and all(np.isfinite(row["eval_return"]) for row in rows)
     assert {row["tau"] for row in rows} == {0.005, 0.02}
 
@@ -291,6 +302,30 @@ def _flag(value) -> str:
     return ",".join(map(str, value)) if isinstance(value, tuple) else str(value)
 
 
+def _forget_programs_and_envs() -> None:
+    """Trace again with new adapters (new pools), as a resume in a new process would."""
+    for cache in (offpolicy.make_eval_env, offpolicy.make_train_env):
+        cache.cache_clear()
+    parallel._PROGRAMS.clear()
+    parallel._COMPILED.clear()
+
+
+def test_td3_resumes_without_its_host_state(readme_command_run, tmp_path):
+    """The README's sweep resumed as in a new process (a new adapter and pool: every env's
+    episode is cut) trains on to finite results. Learning itself: the slow test below."""
+    out = tmp_path / "run"
+    shutil.copytree(readme_command_run, out)
+    _forget_programs_and_envs()
+    resumed = rl_jax.resume(out, total_steps=300, quiet=True)
+    assert len(resumed.results) == 2  # one result per config of the sweep
+    for result in resumed.results:
+        assert result.step == 300 and np.all(np.isfinite(result.returns))
+    config = dataclasses.replace(td3.default_config("gymnasium:Pendulum-v1"), **TINY)
+    adapter = offpolicy.make_eval_env(config)
+    assert adapter.pool.cut_episodes == 2 * 2 * TINY["num_envs"]  # configs x seeds x envs
+
+
+@pytest.mark.slow  # ~30 s of training; the resume path is test_td3_resumes_without_its_host_state
 def test_td3_learns_gymnasium_pendulum_and_resumes_without_its_host_state(tmp_path):
     """TD3's Pendulum recipe (3 seeds) on gymnasium's own Pendulum-v1: after 6,000 env steps per
     seed the deterministic policy scores far above the untrained one evaluated at step 1,000.
@@ -304,10 +339,7 @@ def test_td3_learns_gymnasium_pendulum_and_resumes_without_its_host_state(tmp_pa
     final = np.mean(run.results.returns)
     print(f"untrained {untrained:.0f}, final {np.round(run.results.returns)}")
     assert final > untrained + 300 and final > -900
-    for cache in (offpolicy.make_eval_env, offpolicy.make_train_env):
-        cache.cache_clear()
-    parallel._PROGRAMS.clear()  # traced again, as in a new process
-    parallel._COMPILED.clear()
+    _forget_programs_and_envs()
     resumed = rl_jax.resume(out, total_steps=7000, quiet=True)
     assert resumed.results.step == 7000 and np.all(np.isfinite(resumed.results.returns))
     adapter = offpolicy.make_eval_env(dataclasses.replace(td3.default_config(env_id), **config))
