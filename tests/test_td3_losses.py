@@ -189,7 +189,8 @@ def test_target_action_noise_is_relative_to_action_scale_and_clipped(setup):
 
 def test_critic_loss_has_exactly_zero_gradient_wrt_target_networks(setup):
     _, p, _, _ = setup
-    grads = jax.grad(lambda *args: _critic_loss(setup, *args), argnums=(0, 1, 2))(
+    # Jitted (as in training) rather than dispatched op by op: ~2x faster, the same zeros.
+    grads = jax.jit(jax.grad(lambda *args: _critic_loss(setup, *args), argnums=(0, 1, 2)))(
         p["critics"], p["target_actor"], p["target_critics"]
     )
     online, target_actor, target_critics = grads
@@ -200,20 +201,20 @@ def test_critic_loss_has_exactly_zero_gradient_wrt_target_networks(setup):
 
 def test_actor_gradient_flows_only_through_first_critic(setup):
     nets, p, batch, _ = setup
-    grad_actor, grad_critics = jax.grad(actor_loss_fn, argnums=(0, 1))(
-        p["actor"], p["critics"], batch.obs, nets
-    )
+    # One jitted gradient program for all three gradients below (as in training).
+    gradients = jax.jit(jax.grad(lambda *args: actor_loss_fn(*args, nets), argnums=(0, 1)))
+    grad_actor, grad_critics = gradients(p["actor"], p["critics"], batch.obs)
     for leaf in jax.tree.leaves(grad_critics):
         assert np.any(np.asarray(leaf[0]) != 0.0)
         assert np.all(np.asarray(leaf[1]) == 0.0)
     # Replacing the second critic changes nothing about the actor's gradient.
     other = p["target_critics"]
     mixed = jax.tree.map(lambda a, b: a.at[1].set(b[1]), p["critics"], other)
-    grad_mixed = jax.grad(actor_loss_fn)(p["actor"], mixed, batch.obs, nets)
+    grad_mixed, _ = gradients(p["actor"], mixed, batch.obs)
     jax.tree.map(np.testing.assert_array_equal, grad_actor, grad_mixed)
     # ... while replacing the first one does.
     mixed = jax.tree.map(lambda a, b: a.at[0].set(b[0]), p["critics"], other)
-    grad_mixed = jax.grad(actor_loss_fn)(p["actor"], mixed, batch.obs, nets)
+    grad_mixed, _ = gradients(p["actor"], mixed, batch.obs)
     assert not np.allclose(jax.tree.leaves(grad_actor)[0], jax.tree.leaves(grad_mixed)[0])
 
 
