@@ -2,6 +2,7 @@
 against gymnasium itself, terminated and truncated kept apart, jit and nested vmaps, seeds,
 handles the pool no longer holds (resume), bad input in one line, and TD3 training through it."""
 
+import contextlib
 import dataclasses
 import os
 import re
@@ -36,16 +37,24 @@ LOOP = {
 TINY = {**LOOP, "actor_hidden": (16, 16), "critic_hidden": (16, 16)}
 
 
-@pytest.fixture(autouse=True)
-def _restore_xla_flags():
+@contextlib.contextmanager
+def _xla_flags_kept():
     """The CLI sets the device count for a process not started yet: keep it out of the
     environment of later tests' subprocesses."""
     saved = os.environ.get("XLA_FLAGS")
-    yield
-    if saved is None:
-        os.environ.pop("XLA_FLAGS", None)
-    else:
-        os.environ["XLA_FLAGS"] = saved
+    try:
+        yield
+    finally:
+        if saved is None:
+            os.environ.pop("XLA_FLAGS", None)
+        else:
+            os.environ["XLA_FLAGS"] = saved
+
+
+@pytest.fixture(autouse=True)
+def _restore_xla_flags():
+    with _xla_flags_kept():
+        yield
 
 
 class Countdown(gymnasium.Env):
@@ -284,7 +293,8 @@ def readme_command_run(tmp_path_factory) -> Path:
     out = tmp_path_factory.mktemp("readme") / "run"
     smaller = [*argv, *tiny, "--seeds=2", "--total-steps=200", f"--out={out}"]
     sweep = ["--grid", "tau=0.005,0.02"]  # and a sweep: 2 configs x 2 seeds in one program
-    assert cli.guard(lambda: cli.run_experiment(None, None, "", [*smaller, *sweep])) == 0
+    with _xla_flags_kept():  # module-scoped: set up before the autouse fixture saves the flags
+        assert cli.guard(lambda: cli.run_experiment(None, None, "", [*smaller, *sweep])) == 0
     return out
 
 
