@@ -2,10 +2,11 @@
 
 Same learner as reinforce_pendulum.py; the double pendulum is much harder for a Monte-Carlo
 policy gradient, so the recipe (rl_jax.reinforce.RECIPES) uses 32 episodes per update, a 64x64
-tanh policy with a state-free std, a learned value baseline on its own 64x64 torso, standardised
-observations and returns, and gradients clipped to norm 0.5. The learning rate (3e-3) decays
-linearly to 0 over 600 updates, the default budget (19.2M step slots = 600 updates x 32 episodes
-x 1,000 slots); with another --total-steps set --lr-decay-updates to total_steps / 32,000.
+tanh policy with a small state-free std (0.2 at the start), a learned value baseline on its own
+64x64 torso, standardised observations and returns, and gradients clipped to norm 0.5. The
+learning rate (1.5e-3) decays linearly to 0 over 300 updates, the default budget (9.6M step slots
+= 300 updates x 32 episodes x 1,000 slots); with another --total-steps set --lr-decay-updates to
+total_steps / 32,000.
 
 examples:
   python experiments/reinforce_double_pendulum.py --seeds 3
@@ -17,4 +18,4 @@ from rl_jax.reinforce import reinforce
 
 if __name__ == "__main__":
     env_id = "rl_jax/InvertedDoublePendulum-v5"
-    cli.main(reinforce, env_id, __doc__, seeds=5, total_steps=19_200_000)
+    cli.main(reinforce, env_id, __doc__, seeds=5, total_steps=9_600_000)

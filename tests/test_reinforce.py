@@ -1,6 +1,8 @@
 """REINFORCE's pieces against things we did not write: a Python loop for the reward-to-go, the
 closed-form densities, the analytic policy gradient of a Gaussian bandit; and rollout masks."""
 
+import dataclasses
+
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -236,3 +238,18 @@ def test_normalized_observations_reach_the_policy_and_the_stats_learn_the_batch(
     np.testing.assert_allclose(agent.obs_stats.mean, np.asarray(trajectory.obs)[mask].mean(0),
                                rtol=1e-3, atol=1e-4)  # fmt: skip
     assert np.isfinite(float(metrics["loss"])) and np.isfinite(float(metrics["value_loss"]))
+
+
+def test_squashed_mean_stays_inside_the_action_bounds_and_equals_tanh_of_the_head():
+    config = reinforce.Config(env_id="rl_jax/InvertedDoublePendulum-v5", hidden=(8,))
+    squashed = dataclasses.replace(config, squash_mean=True)
+    params = reinforce.make_network(config).init(jax.random.PRNGKey(0), jnp.zeros(9))
+    # Scale the mean head up so the raw mean lies far outside [-1, 1] for many observations.
+    head = params["params"]["Dense_0"]
+    params = {"params": {**params["params"], "Dense_0": jax.tree.map(lambda w: 1e3 * w, head)}}
+    obs = jax.random.normal(jax.random.PRNGKey(1), (256, 9))
+    raw = reinforce.policy_outputs(params, None, obs, config)["mean"]
+    mean = reinforce.policy_outputs(params, None, obs, squashed)["mean"]
+    assert np.abs(np.asarray(raw)).max() > 10.0
+    np.testing.assert_allclose(mean, np.tanh(np.asarray(raw)), rtol=1e-5, atol=1e-6)
+    assert np.all(np.abs(np.asarray(mean)) <= 1.0)  # tanh rounds to 1 in float32 past ~9
