@@ -6,3 +6,7 @@ from rl_jax.jax_setup import configure
 
 configure()
 jax.config.update("jax_numpy_rank_promotion", "raise")
+# Cache every compiled program, not only those that took 0.5 s (configure's choice for scripts):
+# the suite compiles hundreds of small programs, eager ops and test-only jits, and a warm cache
+# makes a rerun of such files 2-3x faster here (test_dqn_losses 22 s -> 8 s, test_vmap 9 s -> 3 s).
+jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.0)
