@@ -2,9 +2,14 @@
 
 import os
 
-# XLA's C++ runtime logs a warning on every persistent-cache hit ("Assume version
-# compatibility"); it must be silenced before jax is imported. Set the variable to override.
-os.environ.setdefault("TF_CPP_MIN_LOG_LEVEL", "2")
+# XLA's C++ runtime logs on every persistent-cache hit: a warning ("Assume version
+# compatibility") and, in jaxlib 0.9.2, two error-level lines claiming the cached program was
+# built for other CPU features ("+prefer-no-gather is not supported ... could lead to SIGILL").
+# The latter is XLA reading its own tuning flags as CPU features; the program loads and runs
+# correctly, but a second run of any script would open with pages of alarming stderr (and a bad
+# flag would no longer be one line). Level 3 keeps only fatal C++ logs; failures still reach
+# Python as exceptions. It must be set before jax is imported. Set the variable to override.
+os.environ.setdefault("TF_CPP_MIN_LOG_LEVEL", "3")
 
 __version__ = "0.1.0"
 

@@ -6,8 +6,6 @@ import json
 import os
 import shutil
 import signal
-import threading
-import time
 from pathlib import Path
 
 import fake_algorithm as fake
@@ -16,6 +14,7 @@ import numpy as np
 import pytest
 from run_helpers import leaves_bytes, snapshot
 
+from rl_jax import runner
 from rl_jax.checkpoint import Checkpointer, CheckpointError
 from rl_jax.metrics import read_rows
 from rl_jax.runner import RunError, RunSpec, make_plan, run
@@ -99,18 +98,22 @@ def test_resume_after_a_stop_at_a_chunk_boundary_is_bit_identical(full_run, tmp_
     assert [session["from_step"] for session in sessions] == [0, 60]
 
 
-def test_sigint_mid_run_checkpoints_and_resume_is_bit_identical(full_run, tmp_path):
+def test_sigint_mid_run_checkpoints_and_resume_is_bit_identical(full_run, tmp_path, monkeypatch):
+    """The signal arrives while the first chunk's rows are written, as a Ctrl-C mid-run would.
+    (Sent from the run's own thread: a watcher thread raced the run, which with cached programs
+    could finish all 8 chunks before the signal landed.)"""
     out = tmp_path / "run"
+    rows_of = runner.metric_rows
 
-    def interrupt_after_first_rows():
-        deadline = time.monotonic() + 120
-        while time.monotonic() < deadline and not read_rows(out / "metrics.jsonl"):
-            time.sleep(0.005)
+    def rows_then_interrupt(*args, **kwargs):
+        rows = rows_of(*args, **kwargs)
         os.kill(os.getpid(), signal.SIGINT)
+        return rows
 
+    monkeypatch.setattr(runner, "metric_rows", rows_then_interrupt)
     messages = []
-    threading.Thread(target=interrupt_after_first_rows, daemon=True).start()
     stopped = run(spec_for(out), notify=messages.append)
+    monkeypatch.setattr(runner, "metric_rows", rows_of)
     assert stopped.stopped and STEPS_PER_CHUNK <= stopped.step < TOTAL
     with Checkpointer(out / "checkpoints", read_only=True) as checkpointer:
         assert checkpointer.latest_step() == stopped.step
