@@ -10,7 +10,7 @@ from pathlib import Path
 
 # Real scripts import rl_jax first, which sets this before jax loads; this one imports the fake
 # learner (and so jax) first.
-os.environ.setdefault("TF_CPP_MIN_LOG_LEVEL", "2")
+os.environ.setdefault("TF_CPP_MIN_LOG_LEVEL", "3")
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 

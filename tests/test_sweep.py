@@ -28,7 +28,7 @@ GRID = ["--grid", "lr=1e-4,1e-3"]
 def sweep(args: list[str], cwd: Path, devices: int) -> subprocess.Popen:
     env = {**os.environ, "PYTHONPATH": str(ROOT), "RL_JAX_CPU_DEVICES": str(devices)}
     env.pop("XLA_FLAGS", None)
-    env.pop("TF_CPP_MIN_LOG_LEVEL", None)  # set to 1 by importing jax here; rl_jax sets 2
+    env.pop("TF_CPP_MIN_LOG_LEVEL", None)  # set to 1 by importing jax here; rl_jax sets 3
     return subprocess.Popen(
         [sys.executable, str(SCRIPT), *TINY, *args],
         cwd=cwd,
