@@ -17,16 +17,13 @@ examples:
   python experiments/td3_rocket_settle.py --seeds 5 --out runs/rocket_settle --gif
 """
 
-from rl_jax import cli
-from rl_jax.td3 import td3
+import dataclasses
 
-SCRIPT = cli.Script(
-    td3,
-    "rl_jax/RocketSettle-v0",
-    seeds=5,
-    total_steps=50_000,  # env steps per seed
-    config={"iterations_per_chunk": 625},  # 2,500 env steps between evaluations
-)
+import td3_rocket
+
+# The faithful rocket's script (budget, evaluation interval, the rocket's TD3 recipe) on the
+# variant's reward.
+SCRIPT = dataclasses.replace(td3_rocket.SCRIPT, env_id="rl_jax/RocketSettle-v0")
 
 if __name__ == "__main__":
     SCRIPT.main(__doc__)
