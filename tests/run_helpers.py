@@ -2,8 +2,11 @@
 
 from pathlib import Path
 
+import fake_algorithm as fake
 import jax
 import numpy as np
+
+from rl_jax.runner import RunSpec, run
 
 
 def leaves_bytes(state) -> list[bytes]:
@@ -24,3 +27,20 @@ def snapshot(directory: Path) -> dict[str, bytes]:
         for path in sorted(Path(directory).rglob("*"))
         if path.is_file()
     }
+
+
+def fake_run(out: Path, total_steps: int, env_id: str = fake.ENV_ID, seeds: int = 2) -> Path:
+    """A finished run of the fake learner in ``out`` (seconds to make): a real run directory
+    for tools that read one (render, reports)."""
+    spec = RunSpec(
+        fake,
+        env_id,
+        fake.default_config(env_id),
+        (fake.default_hyperparams(),),
+        out,
+        seeds=seeds,
+        total_steps=total_steps,
+        log_interval=1e9,
+    )
+    run(spec, notify=lambda message: None)
+    return out

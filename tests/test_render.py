@@ -13,10 +13,10 @@ import imageio.v2 as imageio
 import jax
 import numpy as np
 import pytest
+from run_helpers import fake_run
 
 from rl_jax import render
 from rl_jax.metrics import read_rows
-from rl_jax.runner import RunSpec, run
 
 ROOT = Path(__file__).resolve().parent.parent
 ENV = {**os.environ, "PYTHONPATH": f"{ROOT}{os.pathsep}{ROOT / 'tests'}"}
@@ -24,19 +24,7 @@ ENV = {**os.environ, "PYTHONPATH": f"{ROOT}{os.pathsep}{ROOT / 'tests'}"}
 
 @pytest.fixture(scope="module")
 def run_dir(tmp_path_factory):
-    out = tmp_path_factory.mktemp("render") / "run"
-    spec = RunSpec(
-        fake,
-        fake.ENV_ID,
-        fake.default_config(),
-        (fake.default_hyperparams(),),
-        out,
-        seeds=2,
-        total_steps=60,
-        log_interval=1e9,
-    )
-    run(spec, notify=lambda message: None)
-    return out
+    return fake_run(tmp_path_factory.mktemp("render") / "run", total_steps=60)
 
 
 def without_repeats(frames):

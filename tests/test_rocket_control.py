@@ -17,6 +17,7 @@ import imageio.v3 as iio
 import numpy as np
 import pytest
 import scipy.linalg
+from run_helpers import fake_run
 
 from envs import rocket_control
 from envs.rocket import Rocket, RocketSettle, reward_and_termination
@@ -241,18 +242,7 @@ def test_settle_variant_keeps_the_rocket_dynamics():
 
 
 def _fake_run(out: Path, env_id: str) -> Path:
-    spec = RunSpec(
-        fake,
-        env_id,
-        fake.default_config(env_id),
-        (fake.default_hyperparams(),),
-        out,
-        seeds=2,
-        total_steps=40,
-        log_interval=1e9,
-    )
-    run(spec, notify=lambda message: None)
-    return out
+    return fake_run(out, total_steps=40, env_id=env_id)
 
 
 def _dqn_run(out: Path) -> Path:
