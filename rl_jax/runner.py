@@ -117,9 +117,15 @@ class RunResult:
 
 
 def parallel_runner(spec: RunSpec) -> parallel.Runner:
-    """All configs x seeds of ``spec`` as one program over every local device (padded when the
-    runs do not split evenly; see ``rl_jax.parallel``)."""
-    return parallel.Runner(spec.algorithm, spec.config, len(spec.hparams), spec.seeds)
+    """All configs x seeds of ``spec`` as one program over the most local devices that split the
+    runs evenly (``rl_jax.parallel.mesh_shape``): 5 seeds on 2 cores run on one device.
+
+    Never padded: on CPU one device's matmuls and env steps already use every core's threads, so
+    a padded run costs its full share. Measured (load 1-2): REINFORCE on the double pendulum, 5
+    seeds, 20 updates took 119 s on 1 device against 142 s padded to 3 + 3 on 2 devices (the
+    6/5 of the padded seed); TD3 updates, 6 seeds: 0.92 of the matmul rate on one device against
+    0.58 sharded (BENCHMARKS.md, TD3 section 1)."""
+    return parallel.Runner(spec.algorithm, spec.config, len(spec.hparams), spec.seeds, pad=False)
 
 
 def seed_keys(seeds: int, base_seed: int) -> jax.Array:
