@@ -50,6 +50,12 @@ StateT = TypeVar("StateT", bound=EnvState)
 ParamsT = TypeVar("ParamsT", bound=EnvParams)
 
 
+def keep_active(active: Array, new: Any, old: Any) -> Any:
+    """``new`` where ``active`` (a scalar bool: one env), else ``old``, leaf by leaf."""
+    active = jnp.asarray(active, jnp.bool_)
+    return jax.tree.map(lambda n, o: jnp.where(active, n, o), new, old)
+
+
 class Environment(Generic[StateT, ParamsT]):
     """Base class: subclasses implement ``reset_env`` and ``step_env`` for one unbatched env.
 
@@ -110,7 +116,28 @@ class Environment(Generic[StateT, ParamsT]):
         self, key: PRNGKey, state: StateT, action: Array, params: ParamsT | None = None
     ) -> tuple[StateT, TimeStep]:
         params = self.default_params if params is None else params
-        state, obs, reward, terminated, info = self.step_env(key, state, action, params)
+        return self._timestep(*self.step_env(key, state, action, params))
+
+    def step_active(
+        self,
+        key: PRNGKey,
+        state: StateT,
+        action: Array,
+        active: Array,
+        params: ParamsT | None = None,
+    ) -> tuple[StateT, TimeStep]:
+        """``step`` where ``active`` (a bool per env, under vmap) is True; elsewhere the state is
+        returned unchanged and the timestep is unspecified (read it only where active).
+
+        For learners whose finished envs wait for the others (REINFORCE's batches of whole
+        episodes). This default steps every env and keeps the old state where inactive; envs
+        whose step is costly override it to skip the inactive envs' work (the MuJoCo C
+        backends do, ``envs.mujoco_env``).
+        """
+        new_state, timestep = self.step(key, state, action, params)
+        return keep_active(active, new_state, state), timestep
+
+    def _timestep(self, state: StateT, obs, reward, terminated, info) -> tuple[StateT, TimeStep]:
         truncated = state.time >= self.max_episode_steps
         timestep = TimeStep(
             obs=obs,

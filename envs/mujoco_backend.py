@@ -350,8 +350,12 @@ class Physics:
         """Physics state; ``qacc_warmstart`` defaults to zero, as after ``mj_resetData``."""
         raise NotImplementedError
 
-    def step(self, state: Any, ctrl: Array) -> tuple[Any, Measurement]:
-        """``frame_skip`` substeps of ``mj_step`` with ``ctrl`` (gymnasium's ``do_simulation``)."""
+    def step(self, state: Any, ctrl: Array, active: Array | None = None) -> tuple[Any, Measurement]:
+        """``frame_skip`` substeps of ``mj_step`` with ``ctrl`` (gymnasium's ``do_simulation``).
+
+        ``active`` (bool, per env under vmap) may let a backend skip the envs where it is False:
+        their results are then unspecified, and the caller keeps their old state
+        (``MujocoEnv.step_active``). Backends are free to step them anyway."""
         raise NotImplementedError
 
     def forward(self, state: Any) -> Measurement:
@@ -448,7 +452,9 @@ class MjxPhysics(Physics):
 
         return stepper
 
-    def step(self, state: tuple, ctrl: Array) -> tuple[tuple, Measurement]:
+    def step(
+        self, state: tuple, ctrl: Array, active: Array | None = None
+    ) -> tuple[tuple, Measurement]:
         ctrl = jnp.asarray(ctrl, jnp.float32)
         if self._chunked_step is None:
             return self._step(state, ctrl)
@@ -561,15 +567,18 @@ class MujocoCPhysics(Physics):
             qpos, qvel, change, dict(zip(self.extras, extras, strict=True)), diverged
         )
 
-    def step(self, state: Array, ctrl: Array) -> tuple[Array, Measurement]:
-        outputs = self._call_step(state, jnp.asarray(ctrl, jnp.float32))
+    def step(
+        self, state: Array, ctrl: Array, active: Array | None = None
+    ) -> tuple[Array, Measurement]:
+        outputs = self._call_step(state, jnp.asarray(ctrl, jnp.float32), active)
         return outputs[0], self._measurement(outputs[1:])
 
     def forward(self, state: Array) -> Measurement:
         return self._measurement(self._call_forward(state))
 
-    def _call_step(self, state: Array, ctrl: Array) -> Any:
-        """The results of ``_result_shapes(True)`` for a (batch of) state and control."""
+    def _call_step(self, state: Array, ctrl: Array, active: Array | None = None) -> Any:
+        """The results of ``_result_shapes(True)`` for a (batch of) state and control; envs where
+        ``active`` is False may be skipped (see ``Physics.step``)."""
         raise NotImplementedError
 
     def _call_forward(self, state: Array) -> Any:
@@ -656,7 +665,9 @@ class MujocoCallbackPhysics(MujocoCPhysics):
         super().__init__(model, frame_skip, extras, nthread)
         self._workspaces = _HostWorkspaces(model, self.nthread, self.extras)
 
-    def _call_step(self, state: Array, ctrl: Array) -> Any:
+    def _call_step(self, state: Array, ctrl: Array, active: Array | None = None) -> Any:
+        # Steps every env: the host batch is cheap to fill, and skipping would need a second
+        # workspace layout for the pure_callback path, which is not the default.
         shapes = self._result_shapes(True)
         return jax.pure_callback(self._host_step, shapes, state, ctrl, vmap_method="broadcast_all")
 

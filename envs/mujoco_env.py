@@ -46,7 +46,7 @@ import jax.numpy as jnp
 import numpy as np
 from flax import struct
 
-from envs.core import Array, Environment, EnvParams, EnvState, PRNGKey, TimeStep
+from envs.core import Array, Environment, EnvParams, EnvState, PRNGKey, TimeStep, keep_active
 from envs.mujoco_backend import (
     DIVERGENCE_LIMIT,
     Measurement,
@@ -226,8 +226,18 @@ class MujocoEnv(Environment[MujocoState, Any]):
     def step_env(
         self, key: PRNGKey, state: MujocoState, action: Array, params
     ) -> tuple[MujocoState, Array, Array, Array, dict[str, Array]]:
+        return self._step_env(state, action, params)
+
+    def step_active(self, key, state, action, active, params=None):
+        """``Environment.step_active``: the MuJoCo C backends step only the active envs (the
+        others' physics is not computed at all); MJX computes them and discards the result."""
+        params = self.default_params if params is None else params
+        new_state, *rest = self._step_env(state, action, params, jnp.asarray(active, jnp.bool_))
+        return self._timestep(keep_active(active, new_state, state), *rest)
+
+    def _step_env(self, state: MujocoState, action: Array, params, active: Array | None = None):
         action = jnp.asarray(action, jnp.float32)
-        physics, measurement = self.physics.step(state.physics, action)
+        physics, measurement = self.physics.step(state.physics, action, active)
         obs = self.observe(measurement)
         reward, terminated, info = self.evaluate(measurement, action, params)
         diverged = (

@@ -265,10 +265,13 @@ ffi::Error Failures(mjBatch* batch, int64_t nsim, int nfail) {
   return ffi::Error::Internal("MuJoCo raised in " + std::to_string(nfail) + " simulations");
 }
 
-// Shared by both operations: resolve the model, check shapes, run, measure.
+// Shared by all operations: resolve the model, check shapes, run, measure. With ``active``
+// (one flag per simulation) only the active simulations are stepped; the others keep their
+// loaded state, so their state after is their state before, bit for bit, and their measured
+// results describe that unchanged state (with stale extras: callers must not read them).
 ffi::Error Run(Operation operation, ffi::Buffer<ffi::U32> key, ffi::Buffer<ffi::U32> state,
-               const float* ctrl, size_t ctrl_count, uint32_t* state_after, Measured out,
-               ffi::RemainingRets extra_rets) {
+               const float* ctrl, size_t ctrl_count, const bool* active, size_t active_count,
+               uint32_t* state_after, Measured out, ffi::RemainingRets extra_rets) {
   // An empty batch (zero envs) has nothing to step; its key operand is empty too under vmap.
   if (state.element_count() == 0 && key.element_count() == 0) return ffi::Error::Success();
   if (key.element_count() < 2) return ffi::Error::InvalidArgument("model key needs 2 words");
@@ -283,6 +286,7 @@ ffi::Error Run(Operation operation, ffi::Buffer<ffi::U32> key, ffi::Buffer<ffi::
   const int64_t nsim = state.element_count() / (2 * size);
   ffi::Error error = CheckSize("state", state.element_count(), 2 * size * nsim);
   if (error.success() && ctrl != nullptr) error = CheckSize("ctrl", ctrl_count, nsim * m->nu);
+  if (error.success() && active != nullptr) error = CheckSize("active", active_count, nsim);
   if (error.success()) error = ExtraBuffers(*context, nsim, extra_rets, &out.extras);
   if (error.failure() || nsim == 0) return error;
 
@@ -291,10 +295,22 @@ ffi::Error Run(Operation operation, ffi::Buffer<ffi::U32> key, ffi::Buffer<ffi::
   if (work == nullptr) return ffi::Error::Internal(message);
   std::lock_guard<std::mutex> lock(work->mutex);
   Load(work, m, nsim, state.typed_data(), ctrl);
-  const int n = static_cast<int>(nsim);
-  const int nfail = operation == Operation::kStep
-                        ? mjb_step(work->batch, nullptr, n, context->frame_skip, mjSTAGE_NONE)
-                        : mjb_forward(work->batch, nullptr, n, mjSTAGE_ACC);
+  int n = static_cast<int>(nsim);
+  const int* ids = nullptr;
+  std::vector<int> active_ids;
+  if (active != nullptr) {
+    for (int i = 0; i < n; ++i) {
+      if (active[i]) active_ids.push_back(i);
+    }
+    ids = active_ids.data();
+    n = static_cast<int>(active_ids.size());
+  }
+  int nfail = 0;
+  if (n > 0) {
+    nfail = operation == Operation::kStep
+                ? mjb_step(work->batch, ids, n, context->frame_skip, mjSTAGE_NONE)
+                : mjb_forward(work->batch, ids, n, mjSTAGE_ACC);
+  }
   if (nfail != 0) return Failures(work->batch, nsim, nfail);
   Measure(*context, *work, nsim, state.typed_data(), state_after, out);
   return ffi::Error::Success();
@@ -307,8 +323,23 @@ ffi::Error StepImpl(ffi::Buffer<ffi::U32> key, ffi::Buffer<ffi::U32> state,
                     ffi::ResultBuffer<ffi::PRED> diverged, ffi::RemainingRets extras) {
   Measured out{qpos->typed_data(), qvel->typed_data(), qpos_change->typed_data(),
                diverged->typed_data(), {}};
-  return Run(Operation::kStep, key, state, ctrl.typed_data(), ctrl.element_count(),
+  return Run(Operation::kStep, key, state, ctrl.typed_data(), ctrl.element_count(), nullptr, 0,
              state_after->typed_data(), std::move(out), extras);
+}
+
+// The step of the active simulations only (see Run): what a learner calls when the envs whose
+// episode ended wait, frozen, for the others (REINFORCE's whole-episode batches).
+ffi::Error StepActiveImpl(ffi::Buffer<ffi::U32> key, ffi::Buffer<ffi::U32> state,
+                          ffi::Buffer<ffi::F32> ctrl, ffi::Buffer<ffi::PRED> active,
+                          ffi::ResultBuffer<ffi::U32> state_after,
+                          ffi::ResultBuffer<ffi::F32> qpos, ffi::ResultBuffer<ffi::F32> qvel,
+                          ffi::ResultBuffer<ffi::F32> qpos_change,
+                          ffi::ResultBuffer<ffi::PRED> diverged, ffi::RemainingRets extras) {
+  Measured out{qpos->typed_data(), qvel->typed_data(), qpos_change->typed_data(),
+               diverged->typed_data(), {}};
+  return Run(Operation::kStep, key, state, ctrl.typed_data(), ctrl.element_count(),
+             active.typed_data(), active.element_count(), state_after->typed_data(),
+             std::move(out), extras);
 }
 
 ffi::Error ForwardImpl(ffi::Buffer<ffi::U32> key, ffi::Buffer<ffi::U32> state,
@@ -317,7 +348,8 @@ ffi::Error ForwardImpl(ffi::Buffer<ffi::U32> key, ffi::Buffer<ffi::U32> state,
                        ffi::ResultBuffer<ffi::PRED> diverged, ffi::RemainingRets extras) {
   Measured out{qpos->typed_data(), qvel->typed_data(), qpos_change->typed_data(),
                diverged->typed_data(), {}};
-  return Run(Operation::kForward, key, state, nullptr, 0, nullptr, std::move(out), extras);
+  return Run(Operation::kForward, key, state, nullptr, 0, nullptr, 0, nullptr, std::move(out),
+             extras);
 }
 
 // Parse "name,name,..." into extras; false and a message if a name is unknown.
@@ -403,6 +435,19 @@ XLA_FFI_DEFINE_HANDLER_SYMBOL(RlJaxMujocoStep, StepImpl,
                                   .Ret<ffi::Buffer<ffi::F32>>()  // qpos change
                                   .Ret<ffi::Buffer<ffi::PRED>>()  // diverged
                                   .RemainingRets());              // extras
+
+XLA_FFI_DEFINE_HANDLER_SYMBOL(RlJaxMujocoStepActive, StepActiveImpl,
+                              ffi::Ffi::Bind()
+                                  .Arg<ffi::Buffer<ffi::U32>>()   // model key
+                                  .Arg<ffi::Buffer<ffi::U32>>()   // state, float64 bits
+                                  .Arg<ffi::Buffer<ffi::F32>>()   // ctrl
+                                  .Arg<ffi::Buffer<ffi::PRED>>()  // active: step this env
+                                  .Ret<ffi::Buffer<ffi::U32>>()   // state after the step
+                                  .Ret<ffi::Buffer<ffi::F32>>()   // qpos
+                                  .Ret<ffi::Buffer<ffi::F32>>()   // qvel
+                                  .Ret<ffi::Buffer<ffi::F32>>()   // qpos change
+                                  .Ret<ffi::Buffer<ffi::PRED>>()  // diverged
+                                  .RemainingRets());               // extras
 
 XLA_FFI_DEFINE_HANDLER_SYMBOL(RlJaxMujocoForward, ForwardImpl,
                               ffi::Ffi::Bind()

@@ -10,6 +10,9 @@ The calls, in HLO::
 
     rl_jax_mujoco_step(key u32[..., 2], state u32[..., 2 (nq + 2 nv)], ctrl f32[..., nu])
         -> state, qpos, qvel, qpos change, diverged, extras...
+    rl_jax_mujoco_step_active(key, state, ctrl, active pred[...]) -> as rl_jax_mujoco_step,
+        stepping only the envs whose ``active`` is true (the others' state comes back as it
+        went in; their other results are unspecified)
     rl_jax_mujoco_forward(key, state) -> qpos, qvel, qpos change, diverged, extras...
 
 ``key`` names the model: 64 bits of a BLAKE2b hash of everything a call depends on (the model's
@@ -89,8 +92,11 @@ class MujocoFfiPhysics(MujocoCPhysics):
         )
         return call(jnp.asarray(self.key), *operands)
 
-    def _call_step(self, state: Array, ctrl: Array) -> Any:
-        return self._call(mujoco_ffi_build.STEP_TARGET, True, state, ctrl)
+    def _call_step(self, state: Array, ctrl: Array, active: Array | None = None) -> Any:
+        if active is None:
+            return self._call(mujoco_ffi_build.STEP_TARGET, True, state, ctrl)
+        active = jnp.asarray(active, jnp.bool_)
+        return self._call(mujoco_ffi_build.STEP_ACTIVE_TARGET, True, state, ctrl, active)
 
     def _call_forward(self, state: Array) -> Any:
         return self._call(mujoco_ffi_build.FORWARD_TARGET, False, state)

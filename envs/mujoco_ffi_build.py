@@ -9,7 +9,7 @@ versions, so any change to them builds it anew and nothing built is ever committ
 
 At load, the MuJoCo header version the library was compiled against must equal ``mj_version()``
 of the MuJoCo library it runs with, and that of the Python bindings. Then the two handlers are
-registered with XLA as ``STEP_TARGET`` and ``FORWARD_TARGET``.
+registered with XLA as ``STEP_TARGET``, ``STEP_ACTIVE_TARGET`` and ``FORWARD_TARGET``.
 
 ``load()`` returns the library or raises ``FfiUnavailable`` with a one-line reason (no compiler,
 a failed build, a version mismatch); ``available()`` is the same as a bool that prints the reason
@@ -29,6 +29,7 @@ from pathlib import Path
 
 SOURCE = Path(__file__).with_name("mujoco_ffi.cc")
 STEP_TARGET = "rl_jax_mujoco_step"
+STEP_ACTIVE_TARGET = "rl_jax_mujoco_step_active"
 FORWARD_TARGET = "rl_jax_mujoco_forward"
 FLAGS = ("-O2", "-std=c++17", "-shared", "-fPIC")
 BUILD_TIMEOUT_SECONDS = 600
@@ -182,7 +183,12 @@ def load() -> ctypes.CDLL:
 def _register_targets(library: ctypes.CDLL) -> None:
     import jax
 
-    for name, symbol in ((STEP_TARGET, "RlJaxMujocoStep"), (FORWARD_TARGET, "RlJaxMujocoForward")):
+    targets = (
+        (STEP_TARGET, "RlJaxMujocoStep"),
+        (STEP_ACTIVE_TARGET, "RlJaxMujocoStepActive"),
+        (FORWARD_TARGET, "RlJaxMujocoForward"),
+    )
+    for name, symbol in targets:
         handler = getattr(library, symbol)
         jax.ffi.register_ffi_target(name, jax.ffi.pycapsule(handler), platform="cpu")
 

@@ -266,19 +266,11 @@ def act(agent: Agent, obs: jax.Array, config: Config) -> jax.Array:
     return to_env_action(policy["mean"], space)
 
 
-def _freeze(alive, new, old):
-    """Keep ``old`` for envs whose episode already ended (leaves [N, ...])."""
-
-    def pick(n, o):
-        return jnp.where(jnp.reshape(alive, alive.shape + (1,) * (n.ndim - 1)), n, o)
-
-    return jax.tree.map(pick, new, old)
-
-
-def rollout(params, key, config: Config, obs_stats=None) -> Trajectory:
+def rollout(params, key, config: Config, obs_stats=None, env=None) -> Trajectory:
     """``num_envs`` whole episodes, stopping as soon as all have ended (raw observations are
-    stored; the policy acts on them standardised by ``obs_stats`` when given)."""
-    env = offpolicy.make_eval_env(config)
+    stored; the policy acts on them standardised by ``obs_stats`` when given). ``env``: the env
+    to run instead of the config's (as ``offpolicy.make_eval_env`` builds it)."""
+    env = offpolicy.make_eval_env(config) if env is None else env
     space, count = env.action_space(), config.num_envs
     horizon = env.max_episode_steps
     reset_key, key = jax.random.split(key)
@@ -301,16 +293,18 @@ def rollout(params, key, config: Config, obs_stats=None) -> Trajectory:
         policy = policy_outputs(params, obs_stats, obs, config)
         action = sample_action(policy, action_key).astype(empty.action.dtype)
         keys = jax.random.split(step_key, count)
-        new_state, ts = jax.vmap(env.step)(keys, env_state, to_env_action(action, space))
-        alive_f = alive.astype(jnp.float32)
+        # Envs whose episode ended keep their state; the MuJoCo C backends skip their physics
+        # altogether, so a step costs what the envs still running cost.
+        env_state, ts = jax.vmap(env.step_active)(
+            keys, env_state, to_env_action(action, space), alive
+        )
         trajectory = Trajectory(
             obs=trajectory.obs.at[time].set(obs),
             action=trajectory.action.at[time].set(action),
-            reward=trajectory.reward.at[time].set(alive_f * ts.reward),
-            mask=trajectory.mask.at[time].set(alive_f),
+            reward=trajectory.reward.at[time].set(jnp.where(alive, ts.reward, 0.0)),
+            mask=trajectory.mask.at[time].set(alive.astype(jnp.float32)),
         )
         ended = jnp.logical_or(ts.terminated, ts.truncated)
-        env_state = _freeze(alive, new_state, env_state)
         obs = jnp.where(alive[:, None], ts.obs, obs)
         return time + 1, env_state, obs, jnp.logical_and(alive, ~ended), trajectory
 
@@ -432,10 +426,12 @@ def step_slots_per_update(config: Config) -> int:
 # gradient only ever sees short episodes); with std 0.2 5 of 6 runs were above 7,500 after 160
 # updates. Rate 3e-3 left one seed stuck near 1,100 at 180 updates; 1e-3 had [9,359, 8,438,
 # 6,585]. The rate (1.5e-3) decays to 0 over the script's 300-update budget so the final policy
-# settles. With that recipe one seed in five sat at return ~130 from update 20 to 120, half its
-# actions at +-1: its unbounded mean had left the action bounds; the mean is now tanh-squashed
-# (that seed then oscillated instead, still near 130 at update 100). Std 0.3 kept every seed
-# moving but slowly: 540-2,270 after 160 updates, where 0.2 had three seeds near 9,000.
+# settles: all 5 seeds at 9,349-9,356 at the end (RESULTS.md). Cut to 250 updates decaying over
+# them, one seed ended at 8,435 (one of its 10 eval episodes failed). An earlier recipe left one seed in five at return ~130 from
+# update 20 to 120, half its actions at +-1: its unbounded mean had left the action bounds; the
+# mean is now tanh-squashed (that seed then oscillated instead, still near 130 at update 100).
+# Std 0.3 kept every seed moving but slowly: 540-2,270 after 160 updates, where 0.2 had three
+# seeds near 9,000.
 # CartPole's recipe is an untuned starting point.
 RECIPES: dict[str, dict[str, Any]] = {
     "rl_jax/InvertedPendulum-v5": {"num_envs": 16, "normalize_returns": True},

@@ -251,6 +251,53 @@ def test_an_empty_batch_steps_to_empty_results():
     assert first.obs.shape == (0, 4) and step.obs.shape == (0, 4) and step.reward.shape == (0,)
 
 
+# ---- stepping only the active envs -------------------------------------------------------------
+@pytest.mark.parametrize("backend", ["mujoco_ffi", "mujoco_callback", "mjx"])
+def test_step_active_steps_the_active_envs_exactly_and_keeps_the_others(backend):
+    """``step_active`` = ``step`` where active (bit for bit: the FFI op steps only those envs in
+    the same batch call) and the state unchanged elsewhere, on every backend."""
+    if backend == "mujoco_ffi" and not mujoco_ffi_build.available():
+        pytest.skip("the MuJoCo FFI op cannot be built here")
+    env = envs.make("rl_jax/HalfCheetah-v5", backend=backend)
+    keys = jax.random.split(jax.random.PRNGKey(0), 8)
+    actions = jax.random.uniform(jax.random.PRNGKey(1), (8, 6), minval=-1)
+    active = jnp.array([True, False, True, True, False, False, True, False])
+    state, _ = jax.jit(jax.vmap(env.reset))(keys)
+    state, _ = jax.jit(jax.vmap(env.step))(keys, state, actions)  # a state off the reset pose
+    full_state, full = jax.jit(jax.vmap(env.step))(keys, state, actions)
+    some_state, some = jax.jit(jax.vmap(env.step_active))(keys, state, actions, active)
+    mask = np.asarray(active)
+    for new, stepped, old in zip(
+        jax.tree.leaves(some_state),
+        jax.tree.leaves(full_state),
+        jax.tree.leaves(state),
+        strict=True,
+    ):
+        np.testing.assert_array_equal(np.asarray(new)[mask], np.asarray(stepped)[mask])
+        np.testing.assert_array_equal(np.asarray(new)[~mask], np.asarray(old)[~mask])
+    for got, want in ((some.obs, full.obs), (some.reward, full.reward)):
+        np.testing.assert_array_equal(np.asarray(got)[mask], np.asarray(want)[mask])
+    assert not np.asarray(some.terminated)[mask].any()
+
+
+@needs_ffi
+def test_the_ffi_op_skips_the_physics_of_inactive_envs():
+    """The inactive envs' physics is not computed: a state MuJoCo would reject (NaN qvel) passes
+    through an inactive env untouched, while the same state in an active env diverges."""
+    env = envs.make("InvertedPendulum-v5", backend="mujoco_ffi")
+    physics = env.physics
+    bad = physics.from_qpos_qvel(np.zeros(2), np.array([np.nan, 0.0]))
+    good = physics.from_qpos_qvel(np.zeros(2), np.zeros(2))
+    states = jnp.stack([bad, good])
+    ctrl = jnp.zeros((2, 1), jnp.float32)
+    step = jax.jit(jax.vmap(physics.step))
+    after, measured = step(states, ctrl, jnp.array([False, True]))
+    np.testing.assert_array_equal(np.asarray(after[0]), np.asarray(bad))
+    assert not bool(measured.diverged[1])
+    _, measured = step(states, ctrl, jnp.array([True, True]))
+    assert bool(measured.diverged[0])
+
+
 def test_an_unknown_backend_in_the_environment_is_one_user_error(monkeypatch):
     from envs.registry import BackendError
     from rl_jax import cli

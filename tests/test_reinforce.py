@@ -154,6 +154,27 @@ def test_rollout_masks_each_episode_after_its_end(cartpole_rollout):
     assert np.all(near_edge | (lengths == 500))
 
 
+def test_rollout_on_mujoco_c_skipping_ended_envs_equals_stepping_them_all():
+    """The rollout steps only the envs still in their episode (``Environment.step_active``, which
+    the MuJoCo C backend implements by skipping the others' physics); wrapped in a bare
+    ``Wrapper``, the same env takes the generic path that steps every env and keeps the ended
+    ones' state. The trajectories are identical."""
+    from envs.wrappers import Wrapper
+    from rl_jax import offpolicy
+
+    env_id = "rl_jax/InvertedDoublePendulum-v5"
+    config = reinforce.default_config(env_id, num_envs=8, normalize_obs=False)
+    params = reinforce.make_network(config).init(jax.random.key(5), jnp.zeros(9))
+    skipping = jax.jit(lambda p, k: reinforce.rollout(p, k, config))(params, jax.random.key(6))
+    wrapped = Wrapper(offpolicy.make_eval_env(config))
+    stepping = jax.jit(lambda p, k: reinforce.rollout(p, k, config, env=wrapped))
+    stepping = stepping(params, jax.random.key(6))
+    lengths = np.asarray(skipping.mask).sum(axis=0)
+    assert len(set(lengths.tolist())) > 1  # episodes end at different steps
+    for got, want in zip(skipping, stepping, strict=True):
+        np.testing.assert_array_equal(np.asarray(got), np.asarray(want))
+
+
 def test_value_baseline_trains_the_value_head_without_leaking_into_the_policy_loss(
     cartpole_rollout,
 ):
