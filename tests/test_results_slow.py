@@ -42,6 +42,11 @@ def test_a_row_is_summarised_and_written_in_place(tmp_path):
     goal = results.Goal(500.0, 2, "final")
     assert not results.goal_met(goal, summary, 10.0)[0]
     assert results.goal_met(results.Goal(500.0, 2, "best"), summary, 10.0)[0]
+    # On the mean over seeds: 490 misses 491 and reaches 490; the time limit still counts.
+    assert not results.goal_met(results.Goal(491.0, 2, mean=True), summary, 10.0)[0]
+    ok, cell = results.goal_met(results.Goal(490.0, 2, mean=True), summary, 10.0)
+    assert ok and cell == "final, mean of 2 >= 490: 490, met"
+    assert not results.goal_met(results.Goal(490.0, 2, minutes=0.1, mean=True), summary, 10.0)[0]
     row = results.ROWS["dqn-cartpole"]
     page = tmp_path / "RESULTS.md"
     page.write_text("# Learning results\n")
