@@ -383,6 +383,9 @@ RECIPES: dict[str, dict[str, Any]] = {
     "rl_jax/CartPolePixels-v1": {**_CLASSIC, "hidden": (256,), "buffer_size": 50_000},
     "rl_jax/InvertedPendulum-v5": _CLASSIC,
     "rl_jax/Rocket-v0": {**_CLASSIC, "action_bins": 3},
+    # The settle variant: thrust {-1, 0, +1} as on the faithful rocket, to set beside TD3's
+    # continuous thrust and the analytic controllers (python -m rl_jax.rocket_report).
+    "rl_jax/RocketSettle-v0": {**_CLASSIC, "action_bins": 3},
 }
 _FAST_DECAY = {"learning_rate": 1e-3, "epsilon_decay_steps": 8000.0, "epsilon_end": 0.04}
 # CartPole: the greedy policy reaches 500 near 30-45k env steps and then keeps collapsing and
@@ -397,6 +400,12 @@ HPARAM_RECIPES: dict[str, dict[str, float]] = {
     "rl_jax/CartPolePixels-v1": _FAST_DECAY,
     "rl_jax/InvertedPendulum-v5": _FAST_DECAY,
     "rl_jax/Rocket-v0": {"learning_rate": 1e-3, "epsilon_decay_steps": 50_000.0},
+    # gamma 0.995 as TD3's rocket recipe: at 0.99 creeping in scores about as well as arriving.
+    "rl_jax/RocketSettle-v0": {
+        "learning_rate": 1e-3,
+        "epsilon_decay_steps": 50_000.0,
+        "gamma": 0.995,
+    },
 }
 
 
