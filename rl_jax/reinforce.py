@@ -427,9 +427,10 @@ def step_slots_per_update(config: Config) -> int:
 # updates. Rate 3e-3 left one seed stuck near 1,100 at 180 updates; 1e-3 had [9,359, 8,438,
 # 6,585]. The rate (1.5e-3) decays to 0 over the script's 300-update budget so the final policy
 # settles: all 5 seeds at 9,349-9,356 at the end (RESULTS.md). Cut to 250 updates decaying over
-# them, one seed ended at 8,435 (one of its 10 eval episodes failed). An earlier recipe left one seed in five at return ~130 from
-# update 20 to 120, half its actions at +-1: its unbounded mean had left the action bounds; the
-# mean is now tanh-squashed (that seed then oscillated instead, still near 130 at update 100).
+# them, one seed ended at 8,435 (one of its 10 eval episodes failed). An earlier recipe left one
+# seed in five at return ~130 from update 20 to 120, half its actions at +-1: its unbounded mean
+# had left the action bounds; the mean is now tanh-squashed (that seed then oscillated instead,
+# still near 130 at update 100).
 # Std 0.3 kept every seed moving but slowly: 540-2,270 after 160 updates, where 0.2 had three
 # seeds near 9,000.
 # CartPole's recipe is an untuned starting point.
