@@ -17,10 +17,8 @@ scale with the batch.
 
 from __future__ import annotations
 
-import os
-
 from bench.bench_classic import baseline_rollout, jax_rollout, measure_interleaved
-from bench.machine import describe
+from bench.machine import rates_section
 
 SIZES = (1, 16, 256)
 ADAPTER_ID = "gymnasium:Pendulum-v1"
@@ -55,22 +53,12 @@ def run(quick: bool = False) -> str:
     min_time, rounds = (0.2, 1) if quick else (0.5, 3)
     sizes = SIZES[:2] if quick else SIZES
     rates = measure_interleaved(rollouts(quick, sizes), rounds, min_time)
-    baseline = next(iter(rates.values()))
-    lines = [
-        "## gymnasium envs through envs.from_gymnasium vs pure-JAX envs",
-        "",
-        describe(),
-        "",
-        "`PYTHONPATH=$PWD python -m bench gym_adapter" + (" --quick`" if quick else "`"),
-        "",
+    command = "PYTHONPATH=$PWD python -m bench gym_adapter" + (" --quick" if quick else "")
+    explanation = (
         "Env steps/s (agent steps, autoreset included, random actions), median of "
         f"{rounds} interleaved round(s) of >= {min_time} s each; ratio over gymnasium's "
-        "Pendulum stepped one at a time in the same rounds.",
-        "",
-        "| implementation | envs | steps/s | vs gymnasium one at a time |",
-        "|---|---:|---:|---:|",
-    ]
-    for (label, num_envs), rate in rates.items():
-        lines.append(f"| {label} | {num_envs:,} | {rate:,.0f} | {rate / baseline:,.2f}x |")
-    load = f"load avg {[round(x, 2) for x in os.getloadavg()]} at end"
-    return "\n".join([*lines, "", load, ""])
+        "Pendulum stepped one at a time in the same rounds."
+    )
+    title = "gymnasium envs through envs.from_gymnasium vs pure-JAX envs"
+    columns = ("steps/s", "vs gymnasium one at a time")
+    return rates_section(title, command, explanation, columns, rates)

@@ -20,7 +20,7 @@ import os
 import numpy as np
 
 from bench.bench_classic import jax_rollout, measure_interleaved
-from bench.machine import describe
+from bench.machine import rates_section
 
 SIZES = (1, 64, 1024)
 FRAME_SIZE, STACK = 84, 4
@@ -81,23 +81,12 @@ def run(quick: bool = False) -> str:
     min_time, rounds = (0.2, 1) if quick else (1.0, 3)
     sizes = SIZES[:2] if quick else SIZES
     rates = measure_interleaved(rollouts(quick, sizes), rounds, min_time)
-    baseline = next(iter(rates.values()))
-    lines = [
-        "## Pixel CartPole: frames drawn in JAX vs gymnasium's rgb_array + numpy",
-        "",
-        describe(),
-        "",
-        "`python -m bench pixels" + (" --quick`" if quick else "`"),
-        "",
+    command = "python -m bench pixels" + (" --quick" if quick else "")
+    explanation = (
         f"Frames/s = agent steps/s, each producing one new {FRAME_SIZE}x{FRAME_SIZE} grayscale "
         f"frame pushed onto a {STACK}-frame uint8 stack (random actions, autoreset included); "
         f"median of {rounds} interleaved round(s) of >= {min_time} s each; ratio over gymnasium "
-        "in the same rounds.",
-        "",
-        "| implementation | envs | frames/s | vs gymnasium |",
-        "|---|---:|---:|---:|",
-    ]
-    for (label, num_envs), rate in rates.items():
-        lines.append(f"| {label} | {num_envs:,} | {rate:,.0f} | {rate / baseline:,.1f}x |")
-    load = f"load avg {[round(x, 2) for x in os.getloadavg()]} at end"
-    return "\n".join([*lines, "", load, ""])
+        "in the same rounds."
+    )
+    title = "Pixel CartPole: frames drawn in JAX vs gymnasium's rgb_array + numpy"
+    return rates_section(title, command, explanation, ("frames/s", "vs gymnasium"), rates, 1)

@@ -37,3 +37,25 @@ def timeit(fn, *, min_time: float = 1.0, warmup: int = 1) -> float:
         elapsed = time.perf_counter() - start
         if elapsed >= min_time:
             return elapsed / calls
+
+
+def rates_section(
+    title: str,
+    command: str,
+    explanation: str,
+    columns: tuple[str, str],
+    rates: dict[tuple[str, int], float],
+    digits: int = 2,
+) -> str:
+    """A Markdown section of rates per (implementation, envs): title, machine line, command,
+    ``explanation``, then one row per entry of ``rates`` with its ratio over the first entry
+    (the baseline), and the load at the end. ``columns``: the rate's and the ratio's headers."""
+    baseline = next(iter(rates.values()))
+    rate_header, ratio_header = columns
+    lines = [f"## {title}", "", describe(), "", f"`{command}`", "", explanation, ""]
+    lines += [f"| implementation | envs | {rate_header} | {ratio_header} |", "|---|---:|---:|---:|"]
+    for (label, num_envs), rate in rates.items():
+        ratio = f"{rate / baseline:,.{digits}f}x"
+        lines.append(f"| {label} | {num_envs:,} | {rate:,.0f} | {ratio} |")
+    load = f"load avg {[round(x, 2) for x in os.getloadavg()]} at end"
+    return "\n".join([*lines, "", load, ""])
