@@ -424,30 +424,34 @@ int rl_jax_mujoco_register(uint64_t key, const void* mjb, int64_t mjb_size, int 
 
 }  // extern "C"
 
-XLA_FFI_DEFINE_HANDLER_SYMBOL(RlJaxMujocoStep, StepImpl,
-                              ffi::Ffi::Bind()
-                                  .Arg<ffi::Buffer<ffi::U32>>()  // model key
-                                  .Arg<ffi::Buffer<ffi::U32>>()  // state, float64 bits
-                                  .Arg<ffi::Buffer<ffi::F32>>()  // ctrl
-                                  .Ret<ffi::Buffer<ffi::U32>>()  // state after the step
-                                  .Ret<ffi::Buffer<ffi::F32>>()  // qpos
-                                  .Ret<ffi::Buffer<ffi::F32>>()  // qvel
-                                  .Ret<ffi::Buffer<ffi::F32>>()  // qpos change
-                                  .Ret<ffi::Buffer<ffi::PRED>>()  // diverged
-                                  .RemainingRets());              // extras
+namespace {
+
+// The results of both step handlers, after their arguments.
+template <typename Binding>
+auto StepResults(Binding binding) {
+  return std::move(binding)
+      .template Ret<ffi::Buffer<ffi::U32>>()             // state after the step
+      .template Ret<ffi::Buffer<ffi::F32>>()             // qpos
+      .template Ret<ffi::Buffer<ffi::F32>>()             // qvel
+      .template Ret<ffi::Buffer<ffi::F32>>()             // qpos change
+      .template Ret<ffi::Buffer<ffi::PRED>>()            // diverged
+      .RemainingRets();                                  // extras
+}
+
+// Model key, state (float64 bits) and ctrl: the arguments both step handlers start with.
+auto StepArgs() {
+  return ffi::Ffi::Bind()
+      .Arg<ffi::Buffer<ffi::U32>>()   // model key
+      .Arg<ffi::Buffer<ffi::U32>>()   // state, float64 bits
+      .Arg<ffi::Buffer<ffi::F32>>();  // ctrl
+}
+
+}  // namespace
+
+XLA_FFI_DEFINE_HANDLER_SYMBOL(RlJaxMujocoStep, StepImpl, StepResults(StepArgs()));
 
 XLA_FFI_DEFINE_HANDLER_SYMBOL(RlJaxMujocoStepActive, StepActiveImpl,
-                              ffi::Ffi::Bind()
-                                  .Arg<ffi::Buffer<ffi::U32>>()   // model key
-                                  .Arg<ffi::Buffer<ffi::U32>>()   // state, float64 bits
-                                  .Arg<ffi::Buffer<ffi::F32>>()   // ctrl
-                                  .Arg<ffi::Buffer<ffi::PRED>>()  // active: step this env
-                                  .Ret<ffi::Buffer<ffi::U32>>()   // state after the step
-                                  .Ret<ffi::Buffer<ffi::F32>>()   // qpos
-                                  .Ret<ffi::Buffer<ffi::F32>>()   // qvel
-                                  .Ret<ffi::Buffer<ffi::F32>>()   // qpos change
-                                  .Ret<ffi::Buffer<ffi::PRED>>()  // diverged
-                                  .RemainingRets());               // extras
+                              StepResults(StepArgs().Arg<ffi::Buffer<ffi::PRED>>()));  // active
 
 XLA_FFI_DEFINE_HANDLER_SYMBOL(RlJaxMujocoForward, ForwardImpl,
                               ffi::Ffi::Bind()
