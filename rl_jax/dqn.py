@@ -253,11 +253,9 @@ _OPTIMIZER = optax.inject_hyperparams(_optimizer)(learning_rate=2.5e-4, max_grad
 
 def learning_rate_at(env_steps, hparams: Hyperparams) -> jax.Array:
     """The Adam rate after ``env_steps``: linear decay to 0 over ``lr_decay_steps`` (if > 0).
-    A rate that ends at 0 freezes the policy that the run has converged to: DQN's greedy policy
-    on CartPole otherwise keeps collapsing and recovering long after it first scores 500."""
-    decay = hparams.lr_decay_steps
-    fraction = jnp.clip(1.0 - env_steps / jnp.maximum(decay, 1.0), 0.0, 1.0)
-    return hparams.learning_rate * jnp.where(decay > 0.0, fraction, 1.0)
+    DQN's greedy policy on CartPole otherwise keeps collapsing and recovering long after it first
+    scores 500."""
+    return offpolicy.linearly_decayed(hparams.learning_rate, env_steps, hparams.lr_decay_steps)
 
 
 def _gradient_step(agent: Agent, grads, hparams: Hyperparams, env_steps) -> Agent:

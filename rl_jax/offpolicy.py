@@ -313,6 +313,14 @@ def env_steps_at_update(update_index: jax.Array, config: OffPolicyConfig) -> jax
     return (iteration + 1) * config.num_envs
 
 
+def linearly_decayed(rate, env_steps, decay_steps) -> jax.Array:
+    """``rate`` falling linearly to 0 over ``decay_steps`` env steps (constant if that is <= 0).
+    A rate that ends at 0 freezes the policy a run has converged to, instead of leaving the
+    last updates to move it around a good solution."""
+    fraction = jnp.clip(1.0 - env_steps / jnp.maximum(decay_steps, 1.0), 0.0, 1.0)
+    return rate * jnp.where(decay_steps > 0.0, fraction, 1.0)
+
+
 # ---- evaluation ---------------------------------------------------------------------------------
 def evaluate(learner: Learner, agent: Any, config: OffPolicyConfig, key: PRNGKey) -> jax.Array:
     """Mean undiscounted return of ``num_eval_envs`` episodes of the deterministic policy on

@@ -69,6 +69,8 @@ class Hyperparams(offpolicy.HyperparamsMethods):
     exploration_correlation: Any = 0.0
     target_noise: Any = 0.2  # std of target policy smoothing, x half-range (0 turns it off)
     target_noise_clip: Any = 0.5  # smoothing noise clipped to +-this, x half-range
+    # Env steps (all envs) over which both learning rates fall linearly to 0 (0: constant).
+    lr_decay_steps: Any = 0.0
 
 
 @struct.dataclass
@@ -201,18 +203,19 @@ def _adam_step(grads, opt_state, params, learning_rate):
     return optax.apply_updates(params, updates), opt_state
 
 
-def _critic_step(agent: Agent, batch: Transition, key, hparams: Hyperparams, nets: Networks):
+def _critic_step(agent: Agent, batch: Transition, key, hparams: Hyperparams, nets: Networks, decay):
     noise = jax.random.normal(key, batch.action.shape, jnp.float32)
     (loss, q_tm1), grads = jax.value_and_grad(critic_loss_fn, has_aux=True)(
         agent.critics, agent.target_actor, agent.target_critics, batch, noise, hparams, nets
     )
-    critics, critic_opt = _adam_step(grads, agent.critic_opt, agent.critics, hparams.critic_lr)
+    rate = decay(hparams.critic_lr)
+    critics, critic_opt = _adam_step(grads, agent.critic_opt, agent.critics, rate)
     return agent.replace(critics=critics, critic_opt=critic_opt), loss, jnp.mean(q_tm1)
 
 
-def _actor_and_target_step(agent: Agent, obs, hparams: Hyperparams, nets: Networks):
+def _actor_and_target_step(agent: Agent, obs, hparams: Hyperparams, nets: Networks, decay):
     loss, grads = jax.value_and_grad(actor_loss_fn)(agent.actor, agent.critics, obs, nets)
-    actor, actor_opt = _adam_step(grads, agent.actor_opt, agent.actor, hparams.actor_lr)
+    actor, actor_opt = _adam_step(grads, agent.actor_opt, agent.actor, decay(hparams.actor_lr))
     agent = agent.replace(
         actor=actor,
         actor_opt=actor_opt,
@@ -234,11 +237,16 @@ def update(
     nets = make_networks(config)
     sample_key, noise_key = jax.random.split(key)
     batch = replay.sample(buffer, sample_key, config.batch_size)
-    agent, critic_loss_value, q = _critic_step(agent, batch, noise_key, hparams, nets)
+    env_steps = offpolicy.env_steps_at_update(update_index, config)
+
+    def decay(rate):
+        return offpolicy.linearly_decayed(rate, env_steps, hparams.lr_decay_steps)
+
+    agent, critic_loss_value, q = _critic_step(agent, batch, noise_key, hparams, nets, decay)
     delayed = (update_index + 1) % config.policy_delay == 0
     agent, actor_loss_value = jax.lax.cond(
         delayed,
-        lambda agent: _actor_and_target_step(agent, batch.obs, hparams, nets),
+        lambda agent: _actor_and_target_step(agent, batch.obs, hparams, nets, decay),
         lambda agent: (agent, jnp.full((), jnp.nan, jnp.float32)),
         agent,
     )

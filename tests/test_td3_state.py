@@ -8,7 +8,7 @@ import pytest
 from probe_runs import probe_config, train
 
 from rl_jax import offpolicy, parallel
-from rl_jax.td3 import Config, Hyperparams, ddpg, explore, td3
+from rl_jax.td3 import Config, Hyperparams, ddpg, explore, td3, update
 
 ENV_ID = "rl_jax/ProbeActionReward-v0"
 
@@ -42,6 +42,7 @@ def test_td3_and_ddpg_defaults_are_the_papers():
             "exploration_correlation": 0.0,
             "target_noise": 0.2,
             "target_noise_clip": 0.5,
+            "lr_decay_steps": 0.0,
         }
     )
     # An env without a recipe gets the paper's settings (half cheetah has a faster recipe).
@@ -69,6 +70,30 @@ def test_hyperparams_round_trip_single_and_stacked():
     assert Hyperparams.from_dict(stacked.to_dict()).gamma.tolist() == pytest.approx(
         [0.9, 0.99, 0.999] * 2
     )
+
+
+def test_learning_rates_decay_linearly_with_env_steps_when_asked():
+    config = probe_config(ENV_ID)  # 8 envs, learning starts at 256 env steps, 1 update/iteration
+    rates = {}
+    for decay in (0.0, 1_024.0):
+        hparams = td3.default_hyperparams(actor_lr=1e-3, critic_lr=2e-3, lr_decay_steps=decay)
+        state = td3.init(jax.random.key(0), config, hparams)
+        agent = state.agent
+        for index in (0, 1, 63):  # env steps 264, 272, 768 (after this iteration's envs)
+            agent, _, _ = jax.jit(update, static_argnums=3)(
+                agent, state.buffer, jax.random.key(1), config, hparams, jax.numpy.int32(index)
+            )
+            actor = float(agent.actor_opt.hyperparams["learning_rate"])
+            critic = float(agent.critic_opt.hyperparams["learning_rate"])
+            rates[decay, index] = (actor, critic)
+    # The actor steps on every second update (policy_delay 2): at 1 and 63, not at 0.
+    for index in (1, 63):
+        assert rates[0.0, index] == pytest.approx((1e-3, 2e-3))
+    fraction = {0: 1 - 264 / 1024, 1: 1 - 272 / 1024, 63: 1 - 768 / 1024}
+    assert rates[1_024.0, 0][1] == pytest.approx(2e-3 * fraction[0], rel=1e-5)
+    for index in (1, 63):
+        expected = (1e-3 * fraction[index], 2e-3 * fraction[index])
+        assert rates[1_024.0, index] == pytest.approx(expected, rel=1e-5)
 
 
 def test_train_state_is_only_nonempty_arrays_and_buffer_estimate_is_exact():
