@@ -24,7 +24,7 @@ $(STAMP): requirements.lock pyproject.toml
 	@test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
 	$(BIN)/python -m pip install --quiet --disable-pip-version-check -r requirements.lock
 	$(BIN)/python -m pip install --quiet --disable-pip-version-check --no-deps --no-build-isolation -e .
-	$(BIN)/python -m envs.mujoco_ffi_build  # the MuJoCo C step op (g++); without it: a callback
+	$(BIN)/python -m envs.mujoco.mujoco_ffi_build  # the MuJoCo C step op (g++); without it: a callback
 	@touch $@
 
 system-deps: ## install the system libraries for headless rendering (EGL), where possible

@@ -32,7 +32,7 @@ def main(argv: list[str] | None = None) -> int:
     if unknown:
         print(f"error: unknown benchmark(s) {unknown}; available: {available()}", file=sys.stderr)
         return 2
-    from rl_jax.jax_setup import configure
+    from rl_jax.training.jax_setup import configure
 
     configure()
     RESULTS.mkdir(exist_ok=True)

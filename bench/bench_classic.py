@@ -3,7 +3,7 @@ numpy baselines, measured side by side in one run.
 
 * JAX: ``jit(lax.scan(vmap(AutoReset(env).step)))`` over a block of steps, uniform random actions
   drawn inside the scan, ``block_until_ready`` after each block; the same with
-  ``envs.batched.autoreset_step`` (same semantics; resets, and their PRNG keys, computed only
+  ``envs.core.batched.autoreset_step`` (same semantics; resets, and their PRNG keys, computed only
   for the envs that finished);
   and, for the rocket, without autoreset (the env's own cost).
 * JAX via gymnasium: ``gymnasium.make_vec(id, vectorization_mode="vector_entry_point")``, one
@@ -28,7 +28,7 @@ import numpy as np
 import envs
 from bench.machine import describe
 from bench.numpy_rocket import NumpyRocketEnv, ScalarGoalNumpyRocketEnv
-from envs.batched import autoreset_step
+from envs.core.batched import autoreset_step
 
 SIZES = (1, 64, 4096)
 CASES = [
@@ -61,7 +61,7 @@ def _batch_step(env_id: str, mode: str, num_envs: int):
 def jax_rollout(env_id: str, num_envs: int, block: int, mode: str = "wrapper"):
     """A function running ``block`` steps of ``num_envs`` envs in one compiled scan; returns the
     number of env steps it ran. ``mode``: autoreset by the ``AutoReset`` wrapper under vmap
-    ("wrapper"), by ``envs.batched.autoreset_step`` ("batched"), or none ("none")."""
+    ("wrapper"), by ``envs.core.batched.autoreset_step`` ("batched"), or none ("none")."""
     env, step = _batch_step(env_id, mode, num_envs)
     space = env.action_space()
 
@@ -148,7 +148,7 @@ def _row(env: str, implementation: str, num_envs: int, rate: float, baseline: fl
 
 IMPLEMENTATIONS = {
     "wrapper": "JAX jit(scan(vmap(AutoReset(env).step)))",
-    "batched": "JAX jit(scan(envs.batched.autoreset_step))",
+    "batched": "JAX jit(scan(envs.core.batched.autoreset_step))",
     "make_vec": "JAX via gymnasium.make_vec, numpy per step",
     "none": "JAX jit(scan(vmap(env.step))), no autoreset",
     "scalar goal": "numpy gymnasium.Env, goal test on scalars instead of np.allclose",

@@ -4,9 +4,9 @@ stepped on the host from inside jit, next to our pure-JAX ``rl_jax/Pendulum-v1``
 
 * Adapter and JAX envs: ``jit(lax.scan(vmap(AutoReset(env).step)))`` over a block of steps with
   uniform random actions drawn inside the scan (what the learners run), and for the adapter also
-  ``envs.batched.autoreset_step``, which resets only the envs whose episode ended (``AutoReset``
-  computes a reset for every env on every step: for the adapter, a gymnasium ``reset(seed=...)``
-  on the host per env and step).
+  ``envs.core.batched.autoreset_step``, which resets only the envs whose episode ended
+  (``AutoReset`` computes a reset for every env on every step: for the adapter, a gymnasium
+  ``reset(seed=...)`` on the host per env and step).
 * Baseline: one ``gymnasium.make("Pendulum-v1")`` stepped from a Python loop with pre-drawn
   random actions and a reset whenever an episode ends (``bench_classic.baseline_rollout``).
 

@@ -245,7 +245,7 @@ def run(quick: bool = False) -> str:
 
 
 if __name__ == "__main__":
-    from rl_jax.jax_setup import configure
+    from rl_jax.training.jax_setup import configure
 
     configure()
     print(run(quick=True))

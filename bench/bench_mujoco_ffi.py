@@ -97,7 +97,7 @@ def start_script(backend: str, cache: str, out: Path, seeds: int) -> dict[str, f
 
 
 def warm_section(quick: bool) -> list[str]:
-    from envs import mujoco_ffi_build
+    from envs.mujoco import mujoco_ffi_build
 
     mujoco_ffi_build.build()  # a once-per-machine cost, not part of a start
     seeds = 1 if quick else 5
@@ -145,7 +145,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--part", choices=sorted(PARTS), action="append", help="default: all")
     parser.add_argument("--quick", action="store_true", help="one size, one env: a smoke run")
     args = parser.parse_args(argv)
-    from rl_jax.jax_setup import configure
+    from rl_jax.training.jax_setup import configure
 
     configure()
     print(run(args.quick, tuple(args.part or PARTS)))

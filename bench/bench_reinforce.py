@@ -29,9 +29,10 @@ def programs(run_dir: Path = RUN) -> tuple[dict, tuple]:
     batch for every seed of the run (seeds vmapped)."""
     import jax
 
-    from envs.wrappers import Wrapper
-    from rl_jax import offpolicy, reinforce
-    from rl_jax.policy import LoadedPolicy
+    from envs.core.wrappers import Wrapper
+    from rl_jax.agents import reinforce
+    from rl_jax.run.policy import LoadedPolicy
+    from rl_jax.training import offpolicy
 
     loaded = [LoadedPolicy(run_dir, seed=s, which="latest") for s in range(5)]
     config = loaded[0].config

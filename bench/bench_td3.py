@@ -45,7 +45,7 @@ RAW = ROOT / "bench" / "results"  # the measured numbers behind each section, as
 # ---- workers (child processes) -----------------------------------------------------------------
 def throughput(quick: bool) -> dict[str, Any]:
     from bench import td3_programs as programs
-    from rl_jax.td3 import td3
+    from rl_jax.agents.td3 import td3
 
     config = td3.default_config(programs.ENV_ID)  # the paper sizes: 256 x 256, batch 256
     paper = config.__class__(env_id=config.env_id)
@@ -112,7 +112,7 @@ def ours_vs_torch(quick: bool) -> dict[str, Any]:
 
 def _paper_recipe() -> dict[str, Any]:
     from bench.td3_programs import ENV_ID
-    from rl_jax.td3 import Config
+    from rl_jax.agents.td3 import Config
 
     return {
         k: v
@@ -130,7 +130,7 @@ WORKERS = {
 
 
 def worker_main(part: str, quick: bool, devices: int) -> None:
-    from rl_jax.jax_setup import configure
+    from rl_jax.training.jax_setup import configure
 
     configure(cpu_devices=devices)
     print("RESULT " + json.dumps(WORKERS[part](quick)), flush=True)
@@ -234,7 +234,7 @@ def scaling_section(result: dict[str, Any]) -> list[str]:
         "the updates, then a 1-episode evaluation), half cheetah on MuJoCo C, 100k buffer, "
         "updates from the first step. Seconds per run (seed x hyperparameter set) and speed-up "
         "per run over 1 seed. Runs are split over 2 CPU devices where they divide evenly "
-        "(`rl_jax.parallel.Runner`).\n",
+        "(`rl_jax.training.parallel.Runner`).\n",
         "| runs | devices | s/chunk | s/chunk per run | per-run speed-up vs 1 seed | load |",
         "|---|---|---|---|---|---|",
     ]

@@ -1,9 +1,9 @@
 """Train TD3 on half cheetah with S seeds in one program and log eval return vs steps and seconds.
 
 The evidence behind ``td3.RECIPES["rl_jax/HalfCheetah-v5"]``: a recipe (config overrides as
-JSON) runs with ``rl_jax.parallel.Runner`` on the MuJoCo C backend, one chunk at a time, and every
-chunk appends one JSON line (env steps per seed, wall-clock seconds since start with and without
-the first call's compilation, each seed's eval return, their mean, the load average)::
+JSON) runs with ``rl_jax.training.parallel.Runner`` on the MuJoCo C backend, one chunk at a time,
+and every chunk appends one JSON line (env steps per seed, wall-clock seconds since start with and
+without the first call's compilation, each seed's eval return, their mean, the load average)::
 
     nice -n 5 python -m bench.cheetah_recipe --seeds 5 --recipe '{"batch_size": 128}' \\
         --max-minutes 50 --stop-at 5000 --out bench/results/cheetah_recipe.jsonl
@@ -40,8 +40,8 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
 def make_runner(recipe: dict[str, Any], seeds: int, hparam_sets: int = 1) -> tuple:
     """``(runner, state, hparams, config)`` for ``seeds`` x ``hparam_sets`` runs of a recipe
     (hyperparameter sets identical: the grid benchmark measures cost, not learning)."""
-    from rl_jax import offpolicy, parallel
-    from rl_jax.td3 import td3
+    from rl_jax.agents.td3 import td3
+    from rl_jax.training import offpolicy, parallel
 
     # JSON gives lists; the static config must be hashable (it keys the compiled program)
     recipe = {k: tuple(v) if isinstance(v, list) else v for k, v in recipe.items()}
@@ -124,7 +124,7 @@ def train(args: argparse.Namespace) -> None:
 
 def main(argv: list[str] | None = None) -> None:
     args = parse_args(argv)
-    from rl_jax.jax_setup import configure
+    from rl_jax.training.jax_setup import configure
 
     configure(cpu_devices=args.devices)
     if args.measure:

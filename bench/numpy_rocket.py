@@ -1,6 +1,6 @@
 """The 1-D rocket as a plain numpy ``gymnasium.Env``: the baseline of ``bench_classic``.
 
-This is how a gymnasium user writes the rocket of ``envs/rocket.py`` (same spec: RK4 step of
+This is how a gymnasium user writes the rocket of ``envs/classic/rocket.py`` (same spec: RK4 step of
 ``x' = v, v' = u``, same reward, termination, 500-step truncation and reset), stepped one env at a
 time from Python.
 """

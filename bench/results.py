@@ -215,7 +215,7 @@ def train(name: str, row: Row, out: Path, extra: list[str]) -> dict[str, Any]:
 
 
 def _bootstrap_mean_ci(values: np.ndarray) -> tuple[float, float]:
-    from rl_jax import plots
+    from rl_jax.run import plots
 
     if len(values) < 2:
         return float("nan"), float("nan")
@@ -225,8 +225,8 @@ def _bootstrap_mean_ci(values: np.ndarray) -> tuple[float, float]:
 
 def summarize(run_dir: Path) -> dict[str, Any]:
     """Per-seed final and best eval returns of a single-config run, with their summaries."""
-    from rl_jax import plots
-    from rl_jax.metrics import read_rows
+    from rl_jax.run import plots
+    from rl_jax.run.metrics import read_rows
 
     rows = read_rows(run_dir / "metrics.jsonl")
     if not rows:
@@ -270,7 +270,7 @@ def _fmt(value: float) -> str:
 
 
 def row_cells(name: str, row: Row, summary: dict[str, Any], measured: dict[str, Any]) -> str:
-    from rl_jax.plots import format_duration
+    from rl_jax.run.plots import format_duration
 
     wall = measured.get("wall_clock")
     wall_text = format_duration(wall) if wall is not None else "n/a"

@@ -1,7 +1,7 @@
 """The programs ``bench_td3`` times, and their exact matmul FLOP counts.
 
 Kept apart from ``bench_td3`` because they run in a child process: the CPU must be split into
-two JAX devices (``rl_jax.jax_setup.configure(cpu_devices=2)``) before JAX starts, and the
+two JAX devices (``rl_jax.training.jax_setup.configure(cpu_devices=2)``) before JAX starts, and the
 benchmark driver's own process has started JAX already.
 """
 
@@ -19,8 +19,8 @@ import numpy as np
 from jax.extend import core as jax_core
 from jax.sharding import Mesh, PartitionSpec
 
-from rl_jax import td3 as td3_module
-from rl_jax.td3 import td3
+from rl_jax.agents import td3 as td3_module
+from rl_jax.agents.td3 import td3
 
 ENV_ID = "rl_jax/HalfCheetah-v5"
 MATMUL_SIZE = 1024

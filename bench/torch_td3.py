@@ -1,7 +1,7 @@
 """The baseline our users ran before rl_jax: a single-file PyTorch TD3 on gymnasium's C MuJoCo.
 
 One env, a numpy replay buffer, one gradient update per env step, the TD3 paper's
-hyperparameters (the same as ``rl_jax.td3``'s paper recipe). Written in the style of the
+hyperparameters (the same as ``rl_jax.agents.td3``'s paper recipe). Written in the style of the
 single-file scripts people learn from, so that the comparison in BENCHMARKS.md is against what a
 user would really run on this machine: two such processes at a time, one thread each.
 

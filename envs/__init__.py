@@ -2,15 +2,16 @@
 
 ``import envs`` also registers every id with gymnasium (``gymnasium.make`` and
 ``gymnasium.make_vec(..., vectorization_mode="vector_entry_point")``). The other way round,
-``envs.from_gymnasium(id_or_env)`` makes any gymnasium env one of ours (``envs.gymnasium_host``).
+``envs.from_gymnasium(id_or_env)`` makes any gymnasium env one of ours
+(``envs.adapters.gymnasium_host``).
 """
 
-from envs.core import Environment, EnvParams, EnvState, TimeStep
-from envs.gym_adapter import register_with_gymnasium
-from envs.gymnasium_host import from_gymnasium
-from envs.registry import UnknownEnvError, make, register, registered_ids
-from envs.spaces import Box, Discrete, Space
-from envs.wrappers import (
+from envs.adapters.gym_adapter import register_with_gymnasium
+from envs.adapters.gymnasium_host import from_gymnasium
+from envs.core.core import Environment, EnvParams, EnvState, TimeStep
+from envs.core.registry import UnknownEnvError, make, register, registered_ids
+from envs.core.spaces import Box, Discrete, Space
+from envs.core.wrappers import (
     AutoReset,
     DiscretizeActions,
     EpisodeStatistics,

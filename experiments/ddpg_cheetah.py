@@ -19,7 +19,7 @@ import dataclasses
 
 import td3_cheetah
 
-from rl_jax.td3 import ddpg
+from rl_jax.agents.td3 import ddpg
 
 # The same budget and loop as the TD3 script, so the two compare like for like; the settings
 # that make TD3 what it is stay DDPG's. One critic and an actor update per critic update run

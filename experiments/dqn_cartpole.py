@@ -1,6 +1,6 @@
 """DQN on rl_jax/CartPole-v1, all seeds as one compiled program.
 
-The recipe is rl_jax.dqn.RECIPES["rl_jax/CartPole-v1"]: a 256x256 Q-network, Adam 1e-3, Huber
+The recipe is rl_jax.agents.dqn.RECIPES["rl_jax/CartPole-v1"]: a 256x256 Q-network, Adam 1e-3, Huber
 loss, batch 64, 4 envs with one gradient update per 2 env steps, a hard target copy every 100
 updates, epsilon falling from 1 to 0.04 over the first 8,000 env steps, and the rate falling
 linearly to 0 by 40,000 env steps: the greedy policy reaches 500 near 30-45k steps, and a rate
@@ -15,8 +15,8 @@ examples:
   python experiments/dqn_cartpole.py --resume runs/<dir> --total-steps 100000
 """
 
-from rl_jax import cli
-from rl_jax.dqn import dqn
+from rl_jax.agents.dqn import dqn
+from rl_jax.run import cli
 
 if __name__ == "__main__":
     cli.main(dqn, "rl_jax/CartPole-v1", __doc__, seeds=3, total_steps=60_000)

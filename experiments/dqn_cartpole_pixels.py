@@ -8,7 +8,7 @@ pixels are scaled to [0, 1] inside the network. The replay keeps each frame once
 rebuilds the stacks when it samples (about 14 KB per transition at 84x84 instead of 56 KB for
 two uint8 stacks); the plan counts it before anything is allocated. The options of
 experiments/dqn_cartpole.py apply: --double, --dueling, --n-step 3, --prioritized. The recipe is
-a starting point, not yet tuned for pixels (rl_jax.dqn.RECIPES).
+a starting point, not yet tuned for pixels (rl_jax.agents.dqn.RECIPES).
 
 examples:
   python experiments/dqn_cartpole_pixels.py --seeds 3
@@ -16,8 +16,8 @@ examples:
   python experiments/dqn_cartpole_pixels.py --resume runs/<dir> --total-steps 200000
 """
 
-from rl_jax import cli
-from rl_jax.dqn import dqn
+from rl_jax.agents.dqn import dqn
+from rl_jax.run import cli
 
 SCRIPT = cli.Script(
     dqn,

@@ -38,8 +38,8 @@ import time
 from pathlib import Path
 from typing import Any
 
-from rl_jax import cli
-from rl_jax.run_dir import RunError
+from rl_jax.run import cli
+from rl_jax.run.run_dir import RunError
 
 ALIASES = {
     "lr": ("actor_lr", "critic_lr", "learning_rate"),
@@ -142,7 +142,7 @@ def build_specs(argv: list[str]) -> tuple[list[Any], list[str], Path, argparse.N
     import envs
 
     algorithm = cli.resolve_algorithm(sweep_args.algo)
-    env_id = envs.registry.resolve_id(sweep_args.env)
+    env_id = envs.core.registry.resolve_id(sweep_args.env)
     parser, config_names, hparam_names = cli.build_parser(
         algorithm, env_id, __doc__, cli.Defaults(), choose=False
     )
@@ -208,8 +208,8 @@ def _without_sweep_flags(argv: list[str]) -> list[str]:
 
 def summarize(out: Path, specs: list[Any], labels: list[str], wall_clock: float) -> str:
     """curves.png (one curve per config of every shape) and the ranked results.txt."""
-    from rl_jax import plots
-    from rl_jax.metrics import METRICS_FILE, read_rows
+    from rl_jax.run import plots
+    from rl_jax.run.metrics import METRICS_FILE, read_rows
 
     curves = []
     for spec, label in zip(specs, labels, strict=True):
@@ -229,7 +229,7 @@ def run_sweep(argv: list[str]) -> int:
     specs, labels, out, sweep_args = build_specs(argv)
     if sweep_args.num_processes > 1:
         return run_distributed(specs, labels, out, started)
-    from rl_jax import runner
+    from rl_jax.run import runner
 
     write_record(out, argv, sweep_args)
     for index, spec in enumerate(specs, 1):
@@ -247,9 +247,9 @@ def run_distributed(specs: list[Any], labels: list[str], out: Path, started: flo
     gathered to all, and process 0 writes metrics.jsonl, curves.png and results.txt."""
     import jax
 
-    from rl_jax import runner
-    from rl_jax.metrics import MetricsLog
-    from rl_jax.run_dir import stack_hparams
+    from rl_jax.run import runner
+    from rl_jax.run.metrics import MetricsLog
+    from rl_jax.run.run_dir import stack_hparams
 
     lead = jax.process_index() == 0
     if lead:

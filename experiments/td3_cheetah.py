@@ -19,8 +19,8 @@ examples:
   python experiments/td3_cheetah.py --resume runs/cheetah --total-steps 100000
 """
 
-from rl_jax import cli
-from rl_jax.td3 import td3
+from rl_jax.agents.td3 import td3
+from rl_jax.run import cli
 
 SCRIPT = cli.Script(
     td3,

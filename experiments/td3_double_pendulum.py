@@ -15,8 +15,8 @@ examples:
   python experiments/td3_double_pendulum.py --resume runs/idp --total-steps 200000
 """
 
-from rl_jax import cli
-from rl_jax.td3 import td3
+from rl_jax.agents.td3 import td3
+from rl_jax.run import cli
 
 SCRIPT = cli.Script(
     td3,

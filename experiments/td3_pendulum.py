@@ -14,8 +14,8 @@ examples:
   python experiments/td3_pendulum.py --grid actor_lr=1e-4,1e-3 --seeds 3
 """
 
-from rl_jax import cli
-from rl_jax.td3 import td3
+from rl_jax.agents.td3 import td3
+from rl_jax.run import cli
 
 SCRIPT = cli.Script(
     td3,

@@ -19,8 +19,8 @@ examples:
   python experiments/td3_rocket.py --exploration-correlation 0 --out runs/rocket_white
 """
 
-from rl_jax import cli
-from rl_jax.td3 import td3
+from rl_jax.agents.td3 import td3
+from rl_jax.run import cli
 
 SCRIPT = cli.Script(
     td3,

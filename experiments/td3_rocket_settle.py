@@ -5,13 +5,13 @@ The faithful rl_jax/Rocket-v0 (experiments/td3_rocket.py) pays 2 - x^2 - v^2 per
 origin, so hovering 0.05 away costs almost nothing and its 1e-8 goal is never reached. This
 variant keeps the dynamics and every reward term and adds what "come to rest" means: each step
 inside |x|, |v| <= 0.01 earns +2 (the episode goes on), plus a sharp peak at the scale of that box
-(envs/rocket.py). Same TD3 recipe as the faithful rocket: AR(1) exploration noise (correlation
-0.98, std 0.5), gamma 0.995, 64x64 networks, one update per env step.
+(envs/classic/rocket.py). Same TD3 recipe as the faithful rocket: AR(1) exploration noise
+(correlation 0.98, std 0.5), gamma 0.995, 64x64 networks, one update per env step.
 
 Compare the learned policy with the time-optimal bang-bang controller (at rest at t = 2.0 s from
 (1, 0)) and an LQR law:
 
-  python -m rl_jax.rocket_report runs/rocket_settle
+  python -m rl_jax.run.rocket_report runs/rocket_settle
 
 examples:
   python experiments/td3_rocket_settle.py --seeds 5 --out runs/rocket_settle --gif

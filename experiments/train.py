@@ -16,7 +16,7 @@ imports the module again. Algorithms without a recipe for an env start from thei
 --learning-starts.
 """
 
-from rl_jax import cli
+from rl_jax.run import cli
 
 if __name__ == "__main__":
     cli.main(None, None, __doc__, seeds=1, total_steps=100_000)

@@ -15,11 +15,11 @@ __version__ = "0.1.0"
 
 __all__ = ["Run", "load_policy", "open_run", "resume", "train"]
 _LAZY = {
-    "load_policy": "rl_jax.policy",
-    "train": "rl_jax.api",
-    "resume": "rl_jax.api",
-    "open_run": "rl_jax.api",
-    "Run": "rl_jax.api",
+    "load_policy": "rl_jax.run.policy",
+    "train": "rl_jax.run.api",
+    "resume": "rl_jax.run.api",
+    "open_run": "rl_jax.run.api",
+    "Run": "rl_jax.run.api",
 }
 
 

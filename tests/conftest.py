@@ -2,7 +2,7 @@
 
 import jax
 
-from rl_jax.jax_setup import configure
+from rl_jax.training.jax_setup import configure
 
 configure()
 jax.config.update("jax_numpy_rank_promotion", "raise")

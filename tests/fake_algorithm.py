@@ -1,4 +1,5 @@
-"""A tiny learner and env implementing ``rl_jax.algorithm.Algorithm`` for the run-machinery tests.
+"""A tiny learner and env implementing ``rl_jax.training.algorithm.Algorithm`` for the
+run-machinery tests.
 
 It compiles in about a second yet has everything a real learner's train state has: params and an
 optax optimizer (learning rate injected as a hyperparameter), a replay buffer, a batch of env
@@ -20,9 +21,9 @@ import optax
 from flax import struct
 
 import envs
-from envs.core import Environment, EnvParams, EnvState
-from envs.spaces import Box
-from rl_jax.algorithm import ChunkMetrics
+from envs.core.core import Environment, EnvParams, EnvState
+from envs.core.spaces import Box
+from rl_jax.training.algorithm import ChunkMetrics
 
 ENV_ID = "rl_jax/FakePoint-v0"
 name = "fake"
@@ -195,7 +196,7 @@ def _loss(params: dict, batch: jax.Array) -> jax.Array:
 
 
 def _iteration(state: TrainState, config: Config, hparams: Hyperparams) -> TrainState:
-    env = envs.wrappers.AutoReset(make_env(config))
+    env = envs.core.wrappers.AutoReset(make_env(config))
     key, key_noise, key_step, key_batch = jax.random.split(state.key, 4)
     action = _forward(state.params, state.obs)
     action = action + hparams.noise * jax.random.normal(key_noise, action.shape)

@@ -16,7 +16,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 import fake_algorithm  # noqa: E402
 
-from rl_jax import cli  # noqa: E402
+from rl_jax.run import cli  # noqa: E402
 
 cli.register_algorithm("fake", "fake_algorithm")
 

@@ -9,9 +9,9 @@ import functools
 import jax
 import jax.numpy as jnp
 
-import envs.probes  # noqa: F401  (registers the probe ids)
-from rl_jax import networks
-from rl_jax.td3 import ddpg, make_networks, td3
+import envs.core.probes  # noqa: F401  (registers the probe ids)
+from rl_jax.agents.td3 import ddpg, make_networks, td3
+from rl_jax.training import networks
 
 ALGORITHMS = {"td3": td3, "ddpg": ddpg}
 CHUNKS = 6

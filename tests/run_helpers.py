@@ -6,7 +6,7 @@ import fake_algorithm as fake
 import jax
 import numpy as np
 
-from rl_jax.runner import RunSpec, run
+from rl_jax.run.runner import RunSpec, run
 
 
 def leaves_bytes(state) -> list[bytes]:

@@ -5,7 +5,7 @@ import jax.numpy as jnp
 import numpy as np
 
 import envs
-from envs.batched import autoreset_step, reset_where
+from envs.core.batched import autoreset_step, reset_where
 
 NUM_ENVS, NUM_STEPS, MAX_RESETS = 64, 120, 4
 

@@ -11,7 +11,7 @@ import pytest
 import envs
 
 brax_envs = pytest.importorskip("brax.envs")
-from envs.brax_adapter import FromBrax, ToBrax, make_brax  # noqa: E402
+from envs.adapters.brax_adapter import FromBrax, ToBrax, make_brax  # noqa: E402
 
 
 def test_brax_env_steps_as_ours_with_autoreset():

@@ -22,8 +22,8 @@ import pytest
 from gymnasium.utils.env_checker import check_env
 
 import envs
-from envs.cartpole import CartPole, CartPoleParams
-from envs.cartpole_pixels import CartPolePixels, draw_frame
+from envs.classic.cartpole import CartPole, CartPoleParams
+from envs.classic.cartpole_pixels import CartPolePixels, draw_frame
 
 ENV_ID = "rl_jax/CartPolePixels-v1"
 MEAN_MAD, MAX_MAD = 0.15, 0.25

@@ -16,7 +16,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from rl_jax.checkpoint import Checkpointer, CheckpointError
+from rl_jax.run.checkpoint import Checkpointer, CheckpointError
 
 ROOT = Path(__file__).resolve().parent.parent
 
@@ -207,7 +207,7 @@ CRASH_SCRIPT = textwrap.dedent(
     import os, signal, sys
     import numpy as np
     import jax.numpy as jnp
-    from rl_jax.checkpoint import Checkpointer
+    from rl_jax.run.checkpoint import Checkpointer
     mode, directory = sys.argv[1], sys.argv[2]
     checkpointer = Checkpointer(directory)
     checkpointer.save(1, {"w": jnp.full((4,), 1.0)})

@@ -21,8 +21,8 @@ import pytest
 from scipy import stats
 
 import envs
-from envs.cartpole import CartPole
-from envs.pendulum import Pendulum
+from envs.classic.cartpole import CartPole
+from envs.classic.pendulum import Pendulum
 
 ATOL, RTOL, BAND = 4e-6, 1e-6, 1e-6
 TAU = 0.02

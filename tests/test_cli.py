@@ -15,10 +15,10 @@ import fake_algorithm as fake
 import pytest
 from run_helpers import leaves_bytes, snapshot
 
-from rl_jax import cli, runner
-from rl_jax.checkpoint import Checkpointer
-from rl_jax.run_dir import stack_hparams
-from rl_jax.runner import CHECKPOINT_DIR, RunSpec, make_plan
+from rl_jax.run import cli, runner
+from rl_jax.run.checkpoint import Checkpointer
+from rl_jax.run.run_dir import stack_hparams
+from rl_jax.run.runner import CHECKPOINT_DIR, RunSpec, make_plan
 
 ROOT = Path(__file__).resolve().parent.parent
 SCRIPT = ROOT / "tests" / "fake_experiment.py"

@@ -12,11 +12,11 @@ import jax
 import numpy as np
 import pytest
 
-from rl_jax import cli
-from rl_jax.checkpoint import Checkpointer
-from rl_jax.dqn import dqn
-from rl_jax.runner import CHECKPOINT_DIR, DivergenceError, check_finite, make_plan
-from rl_jax.td3 import td3
+from rl_jax.agents.dqn import dqn
+from rl_jax.agents.td3 import td3
+from rl_jax.run import cli
+from rl_jax.run.checkpoint import Checkpointer
+from rl_jax.run.runner import CHECKPOINT_DIR, DivergenceError, check_finite, make_plan
 
 ROOT = Path(__file__).resolve().parent.parent
 ENV_ID = "rl_jax/Pendulum-v1"

@@ -7,9 +7,10 @@ import numpy as np
 import pytest
 from jax.test_util import check_grads
 
-import envs.probes  # noqa: F401  (registers the probe ids)
-from rl_jax import dqn, networks, replay
-from rl_jax.replay import Transition
+import envs.core.probes  # noqa: F401  (registers the probe ids)
+from rl_jax.agents import dqn
+from rl_jax.training import networks, replay
+from rl_jax.training.replay import Transition
 
 modes = pytest.mark.parametrize("transform", [lambda f: f, jax.jit], ids=["nojit", "jit"])
 GAMMA = 0.9

@@ -1,14 +1,14 @@
-"""DQN (with its options) and REINFORCE run through ``rl_jax.parallel.Runner``: a 2 hyperparameter
-sets x 2 seeds program gives each run the same result as that run alone."""
+"""DQN (with its options) and REINFORCE run through ``rl_jax.training.parallel.Runner``: a 2
+hyperparameter sets x 2 seeds program gives each run the same result as that run alone."""
 
 import jax
 import numpy as np
 import pytest
 
-import envs.probes  # noqa: F401  (registers the probe ids)
-from rl_jax import parallel
-from rl_jax.dqn import dqn
-from rl_jax.reinforce import reinforce
+import envs.core.probes  # noqa: F401  (registers the probe ids)
+from rl_jax.agents.dqn import dqn
+from rl_jax.agents.reinforce import reinforce
+from rl_jax.training import parallel
 
 CASES = {
     "dqn": (

@@ -13,10 +13,11 @@ import pytest
 from jax.test_util import check_grads
 from run_helpers import leaves_bytes
 
-from rl_jax import cli, networks
-from rl_jax.checkpoint import Checkpointer
-from rl_jax.dqn import PixelConfig, dqn
-from rl_jax.runner import CHECKPOINT_DIR, make_plan
+from rl_jax.agents.dqn import PixelConfig, dqn
+from rl_jax.run import cli
+from rl_jax.run.checkpoint import Checkpointer
+from rl_jax.run.runner import CHECKPOINT_DIR, make_plan
+from rl_jax.training import networks
 
 ENV_ID = "rl_jax/CartPolePixels-v1"
 

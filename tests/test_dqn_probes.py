@@ -17,9 +17,9 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-import envs.probes  # noqa: F401  (registers the probe ids)
-from envs.probes import Truncation
-from rl_jax import dqn, reinforce
+import envs.core.probes  # noqa: F401  (registers the probe ids)
+from envs.core.probes import Truncation
+from rl_jax.agents import dqn, reinforce
 
 GAMMA = 0.5
 TOL = 0.05

@@ -1,5 +1,6 @@
 """Slow learning tests (``pytest -m slow tests/test_dqn_slow.py -s``): the documented recipes
-solve their envs in every seed, all seeds as one compiled program (``rl_jax.parallel.Runner``).
+solve their envs in every seed, all seeds as one compiled program
+(``rl_jax.training.parallel.Runner``).
 
 * DQN, ``rl_jax/CartPole-v1``: the greedy policy's eval return (10 episodes) reaches 500.
 * REINFORCE, ``rl_jax/InvertedPendulum-v5``: the deterministic policy's eval return reaches 1,000
@@ -14,9 +15,9 @@ import time
 import numpy as np
 import pytest
 
-from rl_jax import parallel
-from rl_jax.dqn import dqn
-from rl_jax.reinforce import reinforce
+from rl_jax.agents.dqn import dqn
+from rl_jax.agents.reinforce import reinforce
+from rl_jax.training import parallel
 
 SEEDS = 3
 

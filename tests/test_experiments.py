@@ -8,10 +8,10 @@ from pathlib import Path
 import pytest
 from run_helpers import leaves_bytes, snapshot
 
-from rl_jax import cli
-from rl_jax.checkpoint import Checkpointer
-from rl_jax.runner import CHECKPOINT_DIR, make_plan
-from rl_jax.td3 import ddpg, td3
+from rl_jax.agents.td3 import ddpg, td3
+from rl_jax.run import cli
+from rl_jax.run.checkpoint import Checkpointer
+from rl_jax.run.runner import CHECKPOINT_DIR, make_plan
 
 ENV_ID = "rl_jax/Pendulum-v1"
 # Tiny and fast: 2 envs x 50 iterations = 100 env steps per chunk; updates from step 100.
@@ -113,7 +113,7 @@ def test_replay_buffer_too_big_is_refused_before_allocating(tmp_path, capsys):
 
 def best_policies(run_dir: Path):
     """The ``agent`` of the best-policy checkpoint of a run and its metadata."""
-    from rl_jax.best import BEST_DIR, policy_part
+    from rl_jax.run.best import BEST_DIR, policy_part
 
     args, names = _parsed(td3, ENV_ID)
     spec = cli.build_spec(args, td3, ENV_ID, cli.Defaults(), names, [])
@@ -126,7 +126,7 @@ def best_policies(run_dir: Path):
 def test_each_seed_keeps_the_policy_of_its_best_eval(runs):
     import numpy as np
 
-    from rl_jax.metrics import read_rows
+    from rl_jax.run.metrics import read_rows
 
     root, _ = runs
     agent, meta = best_policies(root / "whole")
@@ -167,7 +167,7 @@ def test_load_policy_drives_gymnasiums_own_pendulum_as_our_env(runs):
     import numpy as np
 
     import rl_jax
-    from rl_jax import render
+    from rl_jax.run import render
 
     root, _ = runs
     policy = rl_jax.load_policy(root / "whole")
@@ -205,7 +205,7 @@ def test_load_policy_drives_gymnasiums_own_pendulum_as_our_env(runs):
 
 def test_load_policy_refuses_what_the_run_does_not_have(runs):
     import rl_jax
-    from rl_jax.policy import PolicyError
+    from rl_jax.run.policy import PolicyError
 
     root, _ = runs
     with pytest.raises(PolicyError, match=r"--seed 7 is not in this run \(seeds \[0, 1\]\)"):

@@ -1,6 +1,6 @@
-"""rl_jax.frame_replay: stacks rebuilt from single frames equal the env's own observations, across
-episode starts (termination and truncation) and after the ring wraps, in n-step windows, under
-uniform and prioritized rows; and the memory it takes is what the run's plan counts."""
+"""rl_jax.training.frame_replay: stacks rebuilt from single frames equal the env's own observations,
+across episode starts (termination and truncation) and after the ring wraps, in n-step windows,
+under uniform and prioritized rows; and the memory it takes is what the run's plan counts."""
 
 import jax
 import jax.numpy as jnp
@@ -8,11 +8,11 @@ import numpy as np
 import pytest
 
 import envs
-from envs.cartpole_pixels import CartPolePixels
-from rl_jax import frame_replay, prioritized, replay
-from rl_jax.dqn import dqn
-from rl_jax.replay import Transition
-from rl_jax.runner import memory_breakdown
+from envs.classic.cartpole_pixels import CartPolePixels
+from rl_jax.agents.dqn import dqn
+from rl_jax.run.runner import memory_breakdown
+from rl_jax.training import frame_replay, prioritized, replay
+from rl_jax.training.replay import Transition
 
 WIDTH, STEPS, CAPACITY_ROWS, LIMIT = 3, 70, 25, 9
 

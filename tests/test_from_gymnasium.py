@@ -17,11 +17,12 @@ import pytest
 
 import envs
 import rl_jax
-from envs.external_ids import UnsupportedEnvError
-from envs.gymnasium_host import LOST_KEY, HostGymnasiumEnv
-from rl_jax import cli, offpolicy, parallel
-from rl_jax.metrics import METRICS_FILE, read_rows
-from rl_jax.td3 import RECIPES, td3
+from envs.adapters.external_ids import UnsupportedEnvError
+from envs.adapters.gymnasium_host import LOST_KEY, HostGymnasiumEnv
+from rl_jax.agents.td3 import RECIPES, td3
+from rl_jax.run import cli
+from rl_jax.run.metrics import METRICS_FILE, read_rows
+from rl_jax.training import offpolicy, parallel
 
 ROOT = Path(__file__).resolve().parent.parent
 # The off-policy loop, tiny: 4 envs x 25 iterations = 100 env steps per chunk; TD3's networks.
@@ -226,7 +227,11 @@ def test_spaces_are_translated():
         (lambda: envs.make("gymnasium:FrozenLake-v1"), UnsupportedEnvError, "observation space"),
         (lambda: envs.from_gymnasium(Countdown), UnsupportedEnvError, "max_episode_steps"),
         (lambda: envs.make("no_such_module_here:X-v0"), envs.UnknownEnvError, "cannot import"),
-        (lambda: envs.make("envs.rocket:NoSuchEnv-v0"), envs.UnknownEnvError, "registers no"),
+        (
+            lambda: envs.make("envs.classic.rocket:NoSuchEnv-v0"),
+            envs.UnknownEnvError,
+            "registers no",
+        ),
     ],
 )
 def test_bad_input_is_one_user_error(make, error, message):

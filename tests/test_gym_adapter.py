@@ -14,9 +14,9 @@ from gymnasium.utils.env_checker import check_env
 from gymnasium.vector import AutoresetMode
 
 import envs
-from envs import registry
-from envs.gym_adapter import register_with_gymnasium
-from envs.rocket import Rocket, RocketState
+from envs.adapters.gym_adapter import register_with_gymnasium
+from envs.classic.rocket import Rocket, RocketState
+from envs.core import registry
 
 CLASSIC_IDS = ["rl_jax/Rocket-v0", "rl_jax/CartPole-v1", "rl_jax/Pendulum-v1"]
 # The contract of DESIGN.md (other tests may register extra envs of their own).

@@ -7,7 +7,7 @@ from pathlib import Path
 import numpy as np
 from tensorboardX.proto import event_pb2
 
-from rl_jax.metrics import METRICS_FILE, MetricsLog, read_rows, truncate_rows
+from rl_jax.run.metrics import METRICS_FILE, MetricsLog, read_rows, truncate_rows
 
 
 def rows_for(steps, seeds=(0, 1), offset=0.0):

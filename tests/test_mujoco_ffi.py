@@ -21,8 +21,8 @@ import numpy as np
 import pytest
 
 import envs
-from envs import mujoco_backend, mujoco_ffi_build
-from envs.mujoco_ffi import register_model
+from envs.mujoco import mujoco_backend, mujoco_ffi_build
+from envs.mujoco.mujoco_ffi import register_model
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -139,7 +139,7 @@ def test_unregistered_model_key_fails_the_call_cleanly():
 CHILD = textwrap.dedent(
     """
     import json, logging, sys
-    from rl_jax.jax_setup import configure
+    from rl_jax.training.jax_setup import configure
 
     configure()
     import jax
@@ -206,7 +206,7 @@ def test_programs_with_the_ffi_op_come_from_the_persistent_cache(tmp_path):
 
 SHARDED_CHILD = textwrap.dedent(
     """
-    from rl_jax.jax_setup import configure
+    from rl_jax.training.jax_setup import configure
 
     configure(cpu_devices=2)
     import jax, numpy as np
@@ -299,8 +299,8 @@ def test_the_ffi_op_skips_the_physics_of_inactive_envs():
 
 
 def test_an_unknown_backend_in_the_environment_is_one_user_error(monkeypatch):
-    from envs.registry import BackendError
-    from rl_jax import cli
+    from envs.core.registry import BackendError
+    from rl_jax.run import cli
 
     monkeypatch.setenv(mujoco_backend.BACKEND_ENV_VAR, "cuda")
     with pytest.raises(BackendError, match=r"unknown MuJoCo backend 'cuda'.*RL_JAX_MUJOCO_BACKEND"):

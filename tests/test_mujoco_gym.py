@@ -1,5 +1,5 @@
-"""Our MuJoCo envs through the gymnasium front ends (envs/gym_adapter.py), against gymnasium's
-own envs: check_env, exact starts from reset options, whole episodes, the vector env."""
+"""Our MuJoCo envs through the gymnasium front ends (envs/adapters/gym_adapter.py), against
+gymnasium's own envs: check_env, exact starts from reset options, whole episodes, the vector env."""
 
 from __future__ import annotations
 

@@ -25,7 +25,7 @@ TIMEOUT_SECONDS = 400
 
 SCRIPT = textwrap.dedent(
     f"""
-    from rl_jax.jax_setup import configure
+    from rl_jax.training.jax_setup import configure
     configure()
     import jax, jax.numpy as jnp
     import envs

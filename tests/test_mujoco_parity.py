@@ -56,7 +56,7 @@ import pytest
 from scipy import linalg
 
 import envs
-from envs import mujoco_ffi_build
+from envs.mujoco import mujoco_ffi_build
 
 ENV_IDS = ["InvertedPendulum-v5", "InvertedDoublePendulum-v5", "HalfCheetah-v5"]
 PENDULUMS = ENV_IDS[:2]

@@ -6,7 +6,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from rl_jax import networks
+from rl_jax.training import networks
 
 
 def _kernels_and_biases(mlp_params):

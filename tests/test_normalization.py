@@ -4,7 +4,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from rl_jax import normalization
+from rl_jax.training import normalization
 
 
 def test_batches_folded_in_one_by_one_give_the_moments_of_all_rows():

@@ -88,7 +88,7 @@ def test_gymnasium_make_runs_it_after_registering_with_gymnasium(hover_rocket):
     """Its plain id joins gymnasium's registry; the ``MODULE:ID`` alias is ours only."""
     import gymnasium
 
-    from envs.gym_adapter import register_with_gymnasium
+    from envs.adapters.gym_adapter import register_with_gymnasium
 
     register_with_gymnasium()
     assert "examples/HoverRocket-v0" in gymnasium.registry and ENV_ID not in gymnasium.registry

@@ -27,8 +27,8 @@ import numpy as np
 import pytest
 from probe_runs import probe_config, probe_hparams, train
 
-from rl_jax import parallel
-from rl_jax.td3 import td3
+from rl_jax.agents.td3 import td3
+from rl_jax.training import parallel
 
 ENV_ID = "rl_jax/ProbeActionReward-v0"
 CHUNKS = 1
@@ -119,14 +119,14 @@ def test_two_by_two_hyperparameter_grid_equals_four_single_runs(grid_run):
 SHARDED_SCRIPT = textwrap.dedent(
     """
     import sys
-    from rl_jax.jax_setup import configure
+    from rl_jax.training.jax_setup import configure
     configure(cpu_devices=2)  # before JAX starts
     import jax, numpy as np
     sys.path.insert(0, {tests!r})
     from test_parallel import ENV_ID, GRID, _leaves, _run_parallel
     from probe_runs import probe_config, probe_hparams
-    from rl_jax import parallel
-    from rl_jax.td3 import td3
+    from rl_jax.training import parallel
+    from rl_jax.agents.td3 import td3
     assert len(jax.devices()) == 2
     hparams, _ = parallel.grid(probe_hparams(), **GRID)
     _, state, history = _run_parallel(4, hparams, [0])

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 from scipy import stats
 
-from rl_jax import plots
+from rl_jax.run import plots
 
 
 @pytest.mark.parametrize("count", range(1, 13))

@@ -7,9 +7,10 @@ import numpy as np
 import pytest
 from scipy import stats
 
-import envs.probes  # noqa: F401  (registers the probe ids)
-from rl_jax import dqn, prioritized
-from rl_jax.replay import Transition
+import envs.core.probes  # noqa: F401  (registers the probe ids)
+from rl_jax.agents import dqn
+from rl_jax.training import prioritized
+from rl_jax.training.replay import Transition
 
 ALPHA = 0.6
 WIDTH, ROWS = 2, 5  # 10 transitions in a 12-slot buffer: two slots stay empty (16 tree leaves)

@@ -6,8 +6,8 @@ import re
 import numpy as np
 import pytest
 
-from rl_jax import progress as progress_module
-from rl_jax.progress import Progress, eval_summary
+from rl_jax.run import progress as progress_module
+from rl_jax.run.progress import Progress, eval_summary
 
 
 class FakeClock:

@@ -10,9 +10,10 @@ import pytest
 from jax.test_util import check_grads
 from scipy import stats
 
-import envs.probes  # noqa: F401  (registers the probe ids)
-from rl_jax import networks, reinforce
-from rl_jax.reinforce import Trajectory
+import envs.core.probes  # noqa: F401  (registers the probe ids)
+from rl_jax.agents import reinforce
+from rl_jax.agents.reinforce import Trajectory
+from rl_jax.training import networks
 
 GAMMA = 0.9
 
@@ -159,8 +160,8 @@ def test_rollout_on_mujoco_c_skipping_ended_envs_equals_stepping_them_all():
     the MuJoCo C backend implements by skipping the others' physics); wrapped in a bare
     ``Wrapper``, the same env takes the generic path that steps every env and keeps the ended
     ones' state. The trajectories are identical."""
-    from envs.wrappers import Wrapper
-    from rl_jax import offpolicy
+    from envs.core.wrappers import Wrapper
+    from rl_jax.training import offpolicy
 
     env_id = "rl_jax/InvertedDoublePendulum-v5"
     config = reinforce.default_config(env_id, num_envs=8, normalize_obs=False)

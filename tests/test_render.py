@@ -15,8 +15,8 @@ import numpy as np
 import pytest
 from run_helpers import fake_run
 
-from rl_jax import render
-from rl_jax.metrics import read_rows
+from rl_jax.run import render
+from rl_jax.run.metrics import read_rows
 
 ROOT = Path(__file__).resolve().parent.parent
 ENV = {**os.environ, "PYTHONPATH": f"{ROOT}{os.pathsep}{ROOT / 'tests'}"}
@@ -74,7 +74,7 @@ def test_render_command_line(run_dir, tmp_path):
     command = [
         sys.executable,
         "-m",
-        "rl_jax.render",
+        "rl_jax.run.render",
         str(run_dir),
         "--seed",
         "0",
@@ -101,7 +101,7 @@ def test_render_command_line(run_dir, tmp_path):
         assert bad.returncode != 0 and len(lines) == 1, bad.stderr
         assert lines[0].startswith("error: ") and message in lines[0]
     missing = subprocess.run(
-        [sys.executable, "-m", "rl_jax.render", str(tmp_path / "none")],
+        [sys.executable, "-m", "rl_jax.run.render", str(tmp_path / "none")],
         env=ENV,
         capture_output=True,
         text=True,
@@ -116,7 +116,7 @@ def test_render_command_line(run_dir, tmp_path):
 MUJOCO_RENDER = textwrap.dedent(
     """
     import numpy as np
-    from rl_jax import cli, render
+    from rl_jax.run import cli, render
 
     XML = '<mujoco><worldbody><light pos="0 0 3"/><body name="ball" mocap="true">'
     XML += '<geom type="sphere" size="0.2" rgba="1 0 0 1"/></body></worldbody></mujoco>'

@@ -8,7 +8,7 @@ import jax.numpy as jnp
 import numpy as np
 from scipy import stats
 
-from rl_jax import replay
+from rl_jax.training import replay
 
 
 def _item(value):

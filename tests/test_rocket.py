@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 from scipy import stats
 
-from envs.rocket import Rocket, RocketSettle, draw_rocket, plot_episode
+from envs.classic.rocket import Rocket, RocketSettle, draw_rocket, plot_episode
 
 ENV = Rocket()
 PARAMS = ENV.default_params

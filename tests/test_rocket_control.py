@@ -19,10 +19,10 @@ import pytest
 import scipy.linalg
 from run_helpers import fake_run
 
-from envs import rocket_control
-from envs.rocket import Rocket, RocketSettle, reward_and_termination
-from rl_jax import rocket_report
-from rl_jax.runner import RunSpec, run
+from envs.classic import rocket_control
+from envs.classic.rocket import Rocket, RocketSettle, reward_and_termination
+from rl_jax.run import rocket_report
+from rl_jax.run.runner import RunSpec, run
 
 ROOT = Path(__file__).resolve().parent.parent
 SETTLE = "rl_jax/RocketSettle-v0"
@@ -246,7 +246,7 @@ def _fake_run(out: Path, env_id: str) -> Path:
 
 
 def _dqn_run(out: Path) -> Path:
-    from rl_jax.dqn import dqn
+    from rl_jax.agents.dqn import dqn
 
     env_id = "rl_jax/Rocket-v0"
     config = dataclasses.replace(
@@ -352,7 +352,7 @@ def test_report_bad_input_is_one_line(runs, tmp_path, capsys):
 def test_report_command_line_reports_a_missing_run_in_one_line(tmp_path):
     missing = tmp_path / "none"
     done = subprocess.run(
-        [sys.executable, "-m", "rl_jax.rocket_report", str(missing)],
+        [sys.executable, "-m", "rl_jax.run.rocket_report", str(missing)],
         cwd=ROOT,
         capture_output=True,
         text=True,

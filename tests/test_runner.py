@@ -14,10 +14,10 @@ import numpy as np
 import pytest
 from run_helpers import leaves_bytes, snapshot
 
-from rl_jax import runner
-from rl_jax.checkpoint import Checkpointer, CheckpointError
-from rl_jax.metrics import read_rows
-from rl_jax.runner import RunError, RunSpec, make_plan, run
+from rl_jax.run import runner
+from rl_jax.run.checkpoint import Checkpointer, CheckpointError
+from rl_jax.run.metrics import read_rows
+from rl_jax.run.runner import RunError, RunSpec, make_plan, run
 
 STEPS_PER_CHUNK = 20  # 4 envs x 5 iterations
 TOTAL = 8 * STEPS_PER_CHUNK

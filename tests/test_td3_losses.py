@@ -6,10 +6,8 @@ import numpy as np
 import pytest
 from jax.test_util import check_grads
 
-from envs.spaces import Box
-from rl_jax import networks
-from rl_jax.replay import Transition
-from rl_jax.td3 import (
+from envs.core.spaces import Box
+from rl_jax.agents.td3 import (
     Config,
     Hyperparams,
     actor_loss_fn,
@@ -22,6 +20,8 @@ from rl_jax.td3 import (
     smoothed_target_action,
     target_action,
 )
+from rl_jax.training import networks
+from rl_jax.training.replay import Transition
 
 # Every pure loss runs plain and jitted: both must give the hand-computed value.
 modes = pytest.mark.parametrize("transform", [lambda f: f, jax.jit], ids=["nojit", "jit"])

@@ -12,7 +12,7 @@ import pytest
 from probe_runs import PROBE_HPARAMS, policy_actions, probe_config, probe_hparams, q_values, train
 
 import envs
-from envs.probes import ActionReward, Truncation
+from envs.core.probes import ActionReward, Truncation
 
 GAMMA = PROBE_HPARAMS["gamma"]
 TOL = 0.05

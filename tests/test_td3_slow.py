@@ -11,8 +11,8 @@ import numpy as np
 import pytest
 
 import envs
-from rl_jax import parallel
-from rl_jax.td3 import make_networks, td3
+from rl_jax.agents.td3 import make_networks, td3
+from rl_jax.training import parallel
 
 SEEDS = (0, 1, 2)
 ROCKET_STEPS = 40_000  # per seed: 8 chunks of the rocket recipe

@@ -7,8 +7,8 @@ import numpy as np
 import pytest
 from probe_runs import probe_config, train
 
-from rl_jax import offpolicy, parallel
-from rl_jax.td3 import Config, Hyperparams, ddpg, explore, td3, update
+from rl_jax.agents.td3 import Config, Hyperparams, ddpg, explore, td3, update
+from rl_jax.training import offpolicy, parallel
 
 ENV_ID = "rl_jax/ProbeActionReward-v0"
 

@@ -11,11 +11,12 @@ from pathlib import Path
 
 import pytest
 
-from rl_jax import cli, run_dir, runner, validation
-from rl_jax.dqn import dqn
-from rl_jax.reinforce import reinforce
-from rl_jax.run_dir import RunError
-from rl_jax.td3 import td3
+from rl_jax.agents.dqn import dqn
+from rl_jax.agents.reinforce import reinforce
+from rl_jax.agents.td3 import td3
+from rl_jax.run import cli, run_dir, runner
+from rl_jax.run.run_dir import RunError
+from rl_jax.training import validation
 
 ROOT = Path(__file__).resolve().parent.parent
 

@@ -7,8 +7,8 @@ import pytest
 from flax import struct
 
 import envs
-from envs.core import Environment, EnvParams, EnvState
-from envs.rocket import Rocket
+from envs.classic.rocket import Rocket
+from envs.core.core import Environment, EnvParams, EnvState
 
 
 @struct.dataclass

@@ -1,0 +1,455 @@
+"""Any gymnasium env as an rl_jax ``Environment``, stepped on the host from inside jit.
+
+    env = envs.from_gymnasium("MountainCarContinuous-v0")   # an id, a gymnasium.Env or a factory
+    state, ts = jax.vmap(env.reset)(jax.random.split(key, 8))
+    state, ts = jax.vmap(env.step)(jax.random.split(key, 8), state, actions)
+
+    python experiments/train.py --algo td3 --env gymnasium:Pendulum-v1
+
+No rewrite: ``reset`` and ``step`` reach the real gymnasium envs through ``jax.pure_callback``,
+so the learners' compiled programs, the seed and hyperparameter vmaps and ``shard_map`` run on
+them unchanged, only at the speed of the envs' Python code (``python -m bench gym_adapter``).
+
+Where the env state lives. A gymnasium env's state (its physics, its ``np_random``) is a Python
+object, not a pytree, so it stays on the host in a pool owned by the adapter. The JAX state
+(``HostEnvState``) is a *handle* to one episode running there: ``(pool id, episode serial)``,
+plus the step count, the episode's reset seed, the latest observation and whether the episode
+has ended. The host checks every step against the handle: the episode must be running in this
+pool at that step count.
+
+Lazy start. ``AutoReset`` (and every learner's rollout under vmap) computes a reset for every env
+on every step and keeps it only where an episode ended, so a reset must not take a host env, or
+the pool would fill with episodes nobody continues. ``reset`` therefore only draws the seed from
+its key and returns the start observation, computed by resetting a scratch env with that seed;
+the handle says "not started". The first ``step`` of that state takes an idle env from the pool
+(or makes one), resets it with the same seed (the same start, by gymnasium's seeding contract)
+and steps it. An episode that ends (terminated or truncated) returns its env to the idle list at
+once, so the pool holds about one env per live episode: the batch, whatever its shape.
+
+Batching. Under any nesting of vmaps (envs, seeds, hyperparameters) the callbacks receive the
+whole batch at once (``vmap_method="broadcast_all"``) and step its envs one after another in one
+host call; under ``shard_map`` each device calls with its own block, serialised by a lock. Every
+lane of a batch is its own gymnasium env, so seeds never share one. Each env's inputs and outputs
+cross as one uint32 row (see ``_pack``): every array crossing a callback costs more than a
+classic env's step. Under ``AutoReset`` every env also pays a gymnasium ``reset(seed=...)`` per
+step (on the scratch env); ``envs.core.batched.autoreset_step`` resets only the envs that finished.
+
+Determinism. The reset seed is drawn from the JAX reset key and is the only randomness the host
+uses (a gymnasium env's stochastic steps draw from the ``np_random`` that ``reset(seed=...)``
+seeds), so the same JAX seed gives the same run. Pool ids and serials are bookkeeping: results
+do not depend on them. An env whose reset is not a function of its seed breaks this; the adapter
+warns once when a start differs from the one ``reset`` reported.
+
+Resume. The host envs are not in a checkpoint (they cannot be saved in general). A handle that
+this pool does not hold at that step count (a run resumed in a new process, or a state stepped
+twice) cannot continue its episode: the step cuts it, reporting ``truncated=True``, reward 0, the
+last observation again and ``info["host_state_lost"]=True``, and ``AutoReset`` starts a fresh
+episode. A resumed run therefore continues without crashing, but the episodes in flight at the
+checkpoint are cut, and it is not bit-identical to a run that never stopped. In the same process
+a run resumed from the state it stopped at continues its episodes exactly.
+
+Spaces. gymnasium ``Box`` observations become float32 ``Box``es (values cast to float32); ``Box``
+actions of a float dtype become float32 ``Box``es with the same bounds, ``Discrete(n, start)``
+actions become ``Discrete(n)`` (``start`` is added on the host). Other spaces are refused with
+``UnsupportedEnvError``.
+
+Terminated and truncated stay apart: each is gymnasium's own flag from ``step``; ``truncated`` is
+also set when the step count reaches ``max_episode_steps`` (gymnasium's ``TimeLimit`` for an id,
+the adapter's count for an env without one). Learners bootstrap through truncation.
+
+Limits: params are empty (a gymnasium env's settings are constructor keyword arguments, fixed per
+adapter, not vmappable); gymnasium's ``info`` dicts are dropped (their keys vary); no rendering;
+``reset_to`` is unsupported; the step is not differentiable.
+"""
+
+from __future__ import annotations
+
+import copy
+import functools
+import secrets
+import threading
+import warnings
+from collections.abc import Callable
+from typing import Any, NamedTuple
+
+import gymnasium
+import jax
+import jax.numpy as jnp
+import numpy as np
+from flax import struct
+
+from envs.adapters.external_ids import UnsupportedEnvError
+from envs.core.core import Array, Environment, EnvParams, EnvState, PRNGKey, TimeStep
+from envs.core.registry import UnknownEnvError
+from envs.core.spaces import Box, Discrete, Space
+
+ID_PREFIX = "gymnasium:"
+LOST_KEY = "host_state_lost"
+_NOT_STARTED = 0  # the serial of a handle whose episode has not taken a host env yet
+
+
+@struct.dataclass
+class HostEnvState(EnvState):
+    handle: Array  # [2] uint32: (pool id, episode serial); serial 0: not started on the host yet
+    seed: Array  # [] uint32: the gymnasium reset seed of this episode, drawn from the reset key
+    obs: Array  # [*obs_shape] float32: the latest observation
+    terminated: Array  # [] bool: the episode has ended in a terminal state
+    truncated: Array  # [] bool: the episode has been cut (time limit or lost host state)
+
+
+# One uint32 row per env crosses the callback each way: every array that crosses costs tens of
+# microseconds here, more than a classic gymnasium step. Floats travel as their bits, so nothing
+# is rounded, and integers never pass through float arithmetic.
+_HANDLE, _SEED, _TIME, _TERMINATED, _TRUNCATED, _OBS = slice(0, 2), 2, 3, 4, 5, 6  # then action
+_OUT_TERMINATED, _OUT_TRUNCATED, _OUT_LOST, _OUT_REWARD, _OUT_OBS = 2, 3, 4, 5, 6  # 0-1: handle
+
+
+def _bits(value: Array) -> Array:
+    """A 32-bit array (or bool) as a flat uint32 vector of its bits."""
+    value = jnp.asarray(value)
+    if value.dtype == jnp.bool_:
+        value = value.astype(jnp.uint32)
+    return jax.lax.bitcast_convert_type(value, jnp.uint32).reshape(-1)
+
+
+def _pack(state: HostEnvState, action: Array) -> Array:
+    """The step's input row: handle, seed, time, ended flags, last obs, action."""
+    parts = (state.handle, state.seed, state.time, state.terminated, state.truncated, state.obs)
+    return jnp.concatenate([*(_bits(part) for part in parts), _bits(action)])
+
+
+# ---- spaces -------------------------------------------------------------------------------------
+def observation_space_from(space: gymnasium.Space, name: str) -> Box:
+    """Our float32 ``Box`` for a gymnasium ``Box`` observation space."""
+    if not isinstance(space, gymnasium.spaces.Box):
+        raise UnsupportedEnvError(
+            f"{name}: observation space {space} is not supported (the adapter takes Box "
+            "observations; wrap the env, e.g. with gymnasium.wrappers.FlattenObservation)"
+        )
+    return Box(space.low.astype(np.float32), space.high.astype(np.float32), space.shape)
+
+
+def action_space_from(space: gymnasium.Space, name: str) -> Space:
+    """Our ``Box`` (float32) or ``Discrete`` for a gymnasium action space."""
+    if isinstance(space, gymnasium.spaces.Box) and np.issubdtype(space.dtype, np.floating):
+        return Box(space.low.astype(np.float32), space.high.astype(np.float32), space.shape)
+    if isinstance(space, gymnasium.spaces.Discrete):
+        return Discrete(int(space.n))
+    raise UnsupportedEnvError(
+        f"{name}: action space {space} is not supported (the adapter takes float Box or "
+        "Discrete actions)"
+    )
+
+
+# ---- the host side ------------------------------------------------------------------------------
+class _Episode:
+    """A host env running one episode, and the steps it has taken."""
+
+    __slots__ = ("env", "time")
+
+    def __init__(self, env: gymnasium.Env):
+        self.env, self.time = env, 0
+
+
+class HostPool:
+    """The gymnasium envs of one adapter: idle ones, and running episodes by serial.
+
+    Every method takes a whole batch (any leading shape, flattened into lanes) and holds the
+    lock, since XLA may run a reset and a step callback, or two devices' shards, at once.
+    """
+
+    def __init__(
+        self,
+        make_env: Callable[[], gymnasium.Env],
+        action_space: gymnasium.Space,
+        obs_shape: tuple[int, ...],
+        max_episode_steps: int,
+    ):
+        self.make_env = make_env
+        self.action_space = action_space
+        self.obs_shape = obs_shape
+        self.max_episode_steps = max_episode_steps
+        discrete = isinstance(action_space, gymnasium.spaces.Discrete)
+        self._action_dtype = np.int32 if discrete else np.float32  # as the JAX side packs it
+        self.pool_id = secrets.randbits(32) or 1  # handles of another process are not ours
+        self.idle: list[gymnasium.Env] = []
+        self.running: dict[int, _Episode] = {}
+        self.cut_episodes = 0  # episodes cut because the pool did not hold them (see Resume)
+        self._next_serial = 1
+        self._scratch: gymnasium.Env | None = None
+        self._lock = threading.Lock()
+        self._warned_reset = False
+
+    def _take_env(self) -> gymnasium.Env:
+        return self.idle.pop() if self.idle else self.make_env()
+
+    def _reset(self, env: gymnasium.Env, seed: Any) -> np.ndarray:
+        obs, _ = env.reset(seed=int(seed))
+        return np.asarray(obs, np.float32).reshape(self.obs_shape)
+
+    def start_observations(self, seeds: np.ndarray) -> np.ndarray:
+        """Each seed's start observation, from a scratch env (no episode is started)."""
+        with self._lock:
+            if self._scratch is None:
+                self._scratch = self._take_env()
+            starts = [self._reset(self._scratch, seed) for seed in np.asarray(seeds).reshape(-1)]
+        return np.stack(starts).reshape(np.shape(seeds) + self.obs_shape)
+
+    def step(self, rows: np.ndarray) -> np.ndarray:
+        """One step of every env: ``rows`` [..., IN_WIDTH] -> [..., OUT_WIDTH] (see _pack)."""
+        rows = np.asarray(rows)
+        batch_shape, width = rows.shape[:-1], rows.shape[-1]
+        obs_size = int(np.prod(self.obs_shape, dtype=np.int64))
+        outputs = np.zeros(
+            (int(np.prod(batch_shape, dtype=np.int64)), _OUT_OBS + obs_size), np.uint32
+        )
+        with self._lock:
+            for lane, row in enumerate(rows.reshape(-1, width)):
+                outputs[lane] = self._step_row(row, obs_size)
+        return outputs.reshape(batch_shape + outputs.shape[1:])
+
+    def _step_row(self, row: np.ndarray, obs_size: int) -> np.ndarray:
+        """One env's output row from its input row."""
+        output = np.zeros(_OUT_OBS + obs_size, np.uint32)
+        handle, obs_bits = row[_HANDLE].copy(), row[_OBS : _OBS + obs_size]
+        output[_OUT_TERMINATED], output[_OUT_TRUNCATED] = row[_TERMINATED], row[_TRUNCATED]
+        output[_OUT_OBS:] = obs_bits  # an ended or lost episode reports its last obs again
+        if row[_TERMINATED] or row[_TRUNCATED]:
+            output[_HANDLE] = handle  # an ended episode stays where it ended (reward 0)
+            return output
+        obs = obs_bits.view(np.float32).reshape(self.obs_shape)
+        episode = self._episode_of(handle, row[_SEED], int(row[_TIME]), obs)
+        output[_HANDLE] = handle
+        if episode is None:
+            output[_OUT_TRUNCATED] = output[_OUT_LOST] = 1  # cut: see "Resume" above
+            self.cut_episodes += 1
+            return output
+        action = row[_OBS + obs_size :].view(self._action_dtype)
+        obs, reward, terminated, truncated = self._step_episode(int(handle[1]), episode, action)
+        output[_OUT_TERMINATED], output[_OUT_TRUNCATED] = terminated, truncated
+        output[_OUT_REWARD] = np.asarray(reward, np.float32).reshape(()).view(np.uint32)
+        output[_OUT_OBS:] = obs.reshape(-1).view(np.uint32)
+        return output
+
+    def _episode_of(self, handle: np.ndarray, seed, time: int, obs: np.ndarray) -> _Episode | None:
+        """The episode ``handle`` names, running at step ``time`` (started now if it has not
+        been, and ``handle`` filled in); None when this pool does not hold it at that step."""
+        if handle[1] == _NOT_STARTED and time == 0:
+            handle[:] = self.pool_id, self._start(seed, obs)
+            return self.running[int(handle[1])]
+        episode = self.running.get(int(handle[1])) if handle[0] == self.pool_id else None
+        return episode if episode is not None and episode.time == time else None
+
+    def _start(self, seed: Any, reported_obs: np.ndarray) -> int:
+        """Start an episode on an idle env with the seed ``reset`` used; its serial."""
+        episode = _Episode(self._take_env())
+        start = self._reset(episode.env, seed)
+        if not self._warned_reset and not np.array_equal(start, reported_obs, equal_nan=True):
+            self._warned_reset = True
+            warnings.warn(
+                "this gymnasium env's reset(seed=s) does not always give the same start: runs "
+                "on it are not reproducible from their seed",
+                RuntimeWarning,
+                stacklevel=1,
+            )
+        serial = self._next_serial
+        self._next_serial = self._next_serial % (2**32 - 1) + 1  # never _NOT_STARTED
+        self.running[serial] = episode
+        return serial
+
+    def _action(self, action: np.ndarray) -> Any:
+        space = self.action_space
+        if isinstance(space, gymnasium.spaces.Discrete):
+            return int(action[0]) + int(space.start)
+        return np.asarray(action, space.dtype).reshape(space.shape)
+
+    def _step_episode(self, serial: int, episode: _Episode, action: np.ndarray) -> tuple:
+        obs, reward, terminated, truncated, _ = episode.env.step(self._action(action))
+        episode.time += 1
+        truncated = bool(truncated) or episode.time >= self.max_episode_steps
+        if terminated or truncated:  # the env is free for the next episode at once
+            del self.running[serial]
+            self.idle.append(episode.env)
+        return np.asarray(obs, np.float32), reward, terminated, truncated
+
+
+# ---- the JAX side -------------------------------------------------------------------------------
+class HostGymnasiumEnv(Environment[HostEnvState, EnvParams]):
+    """A gymnasium env behind the functional API (see the module docstring).
+
+    ``make_env`` builds one gymnasium env (called for every env the pool needs);
+    ``max_episode_steps`` is the time limit (the step count at which ``truncated`` is set).
+    """
+
+    def __init__(
+        self,
+        make_env: Callable[[], gymnasium.Env],
+        name: str,
+        max_episode_steps: int,
+        first_env: gymnasium.Env | None = None,
+    ):
+        first_env = make_env() if first_env is None else first_env
+        self.id = name
+        self.max_episode_steps = int(max_episode_steps)
+        self._observation_space = observation_space_from(first_env.observation_space, name)
+        self._action_space = action_space_from(first_env.action_space, name)
+        self.pool = HostPool(
+            make_env,
+            first_env.action_space,
+            self._observation_space.shape,
+            self.max_episode_steps,
+        )
+        self.pool.idle.append(first_env)
+
+    @property
+    def default_params(self) -> EnvParams:
+        return EnvParams()
+
+    def observation_space(self, params: EnvParams | None = None) -> Box:
+        return self._observation_space
+
+    def action_space(self, params: EnvParams | None = None) -> Space:
+        return self._action_space
+
+    def empty_info(self) -> dict[str, Array]:
+        return {LOST_KEY: jnp.zeros((), jnp.bool_)}
+
+    def reset_env(self, key: PRNGKey, params: EnvParams) -> tuple[HostEnvState, Array]:
+        seed = jax.random.bits(key, (), jnp.uint32)
+        shape = jax.ShapeDtypeStruct(self._observation_space.shape, jnp.float32)
+        obs = jax.pure_callback(
+            self.pool.start_observations, shape, seed, vmap_method="broadcast_all"
+        )
+        false = jnp.zeros((), jnp.bool_)
+        handle = jnp.array([0, _NOT_STARTED], jnp.uint32)
+        state = HostEnvState(jnp.int32(0), handle, seed, obs, false, false)
+        return state, obs
+
+    def _host_step(self, state: HostEnvState, action: Array) -> tuple[HostEnvState, TimeStep]:
+        space = self._action_space
+        action = jnp.reshape(jnp.asarray(action, space.dtype), space.shape)
+        obs_size = int(np.prod(self._observation_space.shape, dtype=np.int64))
+        result = jax.ShapeDtypeStruct((_OUT_OBS + obs_size,), jnp.uint32)
+        row = jax.pure_callback(
+            self.pool.step, result, _pack(state, action), vmap_method="broadcast_all"
+        )
+        terminated, truncated = row[_OUT_TERMINATED] != 0, row[_OUT_TRUNCATED] != 0
+        reward = jax.lax.bitcast_convert_type(row[_OUT_REWARD], jnp.float32)
+        obs = jax.lax.bitcast_convert_type(row[_OUT_OBS:], jnp.float32)
+        obs = obs.reshape(self._observation_space.shape)
+        new_state = state.replace(
+            time=state.time + 1,
+            handle=row[_HANDLE],
+            obs=obs,
+            terminated=terminated,
+            truncated=truncated,
+        )
+        info = {LOST_KEY: row[_OUT_LOST] != 0}
+        return new_state, TimeStep(obs, reward, terminated, truncated, info)
+
+    def step_env(self, key: PRNGKey, state: HostEnvState, action: Array, params: EnvParams):
+        new_state, ts = self._host_step(state, action)
+        return new_state, ts.obs, ts.reward, ts.terminated, ts.info
+
+    def step(
+        self, key: PRNGKey, state: HostEnvState, action: Array, params: EnvParams | None = None
+    ) -> tuple[HostEnvState, TimeStep]:
+        """gymnasium's own ``truncated`` (its TimeLimit, or a cut), not only the step count."""
+        return self._host_step(state, action)
+
+
+# ---- construction -------------------------------------------------------------------------------
+class _Source(NamedTuple):
+    """How to build the pool's envs, what to call the adapter, its limit, and one env made."""
+
+    make_env: Callable[[], gymnasium.Env]
+    name: str
+    max_episode_steps: int
+    first_env: gymnasium.Env | None
+
+
+def _spec_of(env_id: str) -> Any:
+    try:
+        return gymnasium.spec(env_id)
+    except gymnasium.error.Error as error:
+        message = " ".join(str(error).split())
+        raise UnknownEnvError(f"unknown gymnasium environment {env_id!r}: {message}") from None
+
+
+def _checked_limit(limit: int | None, name: str) -> int:
+    if limit is None or limit < 1:
+        raise UnsupportedEnvError(
+            f"{name} has no time limit: pass max_episode_steps=N to envs.from_gymnasium"
+        )
+    return int(limit)
+
+
+def _source_from_id(env_id: str, max_episode_steps: int | None, kwargs: dict[str, Any]) -> _Source:
+    limit = _checked_limit(max_episode_steps or _spec_of(env_id).max_episode_steps, env_id)
+    make = functools.partial(gymnasium.make, env_id, max_episode_steps=limit, **kwargs)
+    try:
+        first_env = make()  # missing extras (box2d, ...) and bad keyword arguments: one line now
+    except (gymnasium.error.Error, TypeError, ImportError) as error:
+        message = " ".join(str(error).split())
+        raise UnsupportedEnvError(f"gymnasium {env_id!r} cannot be made: {message}") from None
+    return _Source(make, f"{ID_PREFIX}{env_id}", limit, first_env)
+
+
+def _source_from_object(source: Any, max_episode_steps: int | None) -> _Source:
+    if isinstance(source, gymnasium.Env):
+        # Copies are stepped, never the user's object, which keeps whatever state it had.
+        make, probe, first_env = functools.partial(copy.deepcopy, source), source, None
+    elif callable(source):
+        make = source
+        probe = first_env = source()
+    else:
+        raise UnsupportedEnvError(
+            "envs.from_gymnasium takes a gymnasium id, a gymnasium.Env or a function returning "
+            f"one, got {type(source).__name__}"
+        )
+    spec = getattr(probe, "spec", None)
+    name = ID_PREFIX + (spec.id if spec is not None else type(probe.unwrapped).__name__)
+    limit = _checked_limit(max_episode_steps or getattr(spec, "max_episode_steps", None), name)
+    return _Source(make, name, limit, first_env)
+
+
+def from_gymnasium(
+    env: str | gymnasium.Env | Callable[[], gymnasium.Env],
+    max_episode_steps: int | None = None,
+    **make_kwargs: Any,
+) -> HostGymnasiumEnv:
+    """Wrap a gymnasium env as an rl_jax ``Environment`` (see the module docstring).
+
+    ``env`` is a gymnasium id (``"Pendulum-v1"``, with or without the ``gymnasium:`` prefix;
+    ``make_kwargs`` go to ``gymnasium.make``), a ``gymnasium.Env`` (deep-copied for every env of
+    the pool, so it must be copyable; the object itself is never stepped) or a function that
+    returns a new ``gymnasium.Env``. The episode limit is ``max_episode_steps``, else the env's
+    registered one; an env with neither is refused, since evaluation needs episodes that end.
+    Unknown ids raise ``UnknownEnvError``; untranslatable spaces ``UnsupportedEnvError``.
+    """
+    if isinstance(env, str):
+        source = _source_from_id(env.removeprefix(ID_PREFIX), max_episode_steps, make_kwargs)
+    elif make_kwargs:
+        raise UnsupportedEnvError(
+            f"keyword arguments ({', '.join(make_kwargs)}) are for gymnasium ids; bind them in "
+            "the function that makes the env"
+        )
+    else:
+        source = _source_from_object(env, max_episode_steps)
+    return HostGymnasiumEnv(*source)
+
+
+def register_gymnasium_id(name: str) -> str:
+    """Register ``gymnasium:ID`` (for ``envs.make`` and ``--env``) as gymnasium's env ``ID`` and
+    return it. The id, its time limit and its spaces are checked now, so that a bad one is one
+    line before anything compiles."""
+    from envs.core import registry
+
+    env_id = name.removeprefix(ID_PREFIX)
+    source = _source_from_id(env_id, None, {})
+    observation_space_from(source.first_env.observation_space, env_id)
+    action_space_from(source.first_env.action_space, env_id)
+    source.first_env.close()
+    factory = functools.partial(from_gymnasium, env_id)
+    registry.register(name, factory, max_episode_steps=source.max_episode_steps)
+    return name

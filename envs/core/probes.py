@@ -1,0 +1,189 @@
+"""Probe environments: tiny MDPs whose value function and best action are known exactly.
+
+They isolate one piece of a learner at a time (the usual debugging ladder for RL):
+
+* ``ConstantReward`` — one step, reward 1: the value net must learn Q = 1 (fits a constant).
+* ``ActionReward`` — one step, reward ``1 - (a - 0.5)^2``: Q depends only on the action; the
+  policy must find a = 0.5 (the actor's gradient through the critic).
+* ``TwoStep`` — obs 0, then obs 1, reward 1 at the end: Q(obs 0) = gamma, Q(obs 1) = 1
+  (discounting and bootstrapping through a non-terminal step).
+* ``Truncation`` — obs in {0, 1}, reward = obs, obs flips every step, and every episode is *cut by
+  the time limit* after one step, never terminated. Bootstrapping through truncation from the true
+  final observation gives Q(0) = gamma / (1 - gamma^2), Q(1) = 1 / (1 - gamma^2); treating the cut
+  as terminal gives 0 and 1; bootstrapping from the next episode's first obs (a lost final obs)
+  gives gamma / (2 (1 - gamma)) and 1 + that. ``Termination`` is the same MDP ending in a true
+  terminal state: Q(0) = 0, Q(1) = 1.
+
+Every probe takes ``num_actions``: ``None`` gives a continuous ``Box(-1, 1, (1,))`` action, an int
+``n`` gives ``Discrete(n)`` whose index ``i`` stands for the i-th of ``n`` evenly spaced values in
+[-1, 1] (so the reward functions, and the known answers, are the same for DQN-style learners).
+Observations are ``(1,)`` float32. Importing this module registers the ``rl_jax/Probe*`` ids;
+``rl_jax/Probe*Discrete-v0`` are the discrete-action versions (``DISCRETE_ACTIONS`` = 5 actions:
+index 3 stands for 0.5, the best action of ``ActionReward``).
+"""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from flax import struct
+
+from envs.core.core import Array, Environment, EnvParams, EnvState
+from envs.core.registry import register
+from envs.core.spaces import Box, Discrete, Space
+
+
+@struct.dataclass
+class ProbeState(EnvState):
+    position: Array  # [] float32, the current observation value
+
+
+@struct.dataclass
+class ProbeParams(EnvParams):
+    pass
+
+
+class Probe(Environment):
+    """Shared plumbing: a scalar position observed as ``(1,)``, continuous or discrete actions."""
+
+    max_episode_steps = 1
+
+    def __init__(self, num_actions: int | None = None):
+        if num_actions is not None and num_actions < 2:
+            raise ValueError(f"num_actions must be None (continuous) or >= 2, got {num_actions}")
+        self.num_actions = num_actions
+
+    @property
+    def default_params(self) -> ProbeParams:
+        return ProbeParams()
+
+    def observation_space(self, params=None) -> Space:
+        return Box(-1.0, 1.0, (1,))
+
+    def action_space(self, params=None) -> Space:
+        if self.num_actions is None:
+            return Box(-1.0, 1.0, (1,))
+        return Discrete(self.num_actions)
+
+    def action_value(self, action: Array) -> Array:
+        """The scalar in [-1, 1] an action stands for (an index maps onto an even grid)."""
+        if self.num_actions is None:
+            return jnp.clip(jnp.reshape(action, ()), -1.0, 1.0)
+        grid = jnp.asarray(np.linspace(-1.0, 1.0, self.num_actions, dtype=np.float32))
+        return grid[jnp.asarray(action, jnp.int32)]
+
+    def start_position(self, key: Array) -> Array:
+        return jnp.zeros((), jnp.float32)
+
+    def reset_env(self, key, params):
+        position = self.start_position(key)
+        return ProbeState(time=jnp.int32(0), position=position), position[None]
+
+    def state_from_vector(self, vector, params=None):
+        position = jnp.asarray(vector, jnp.float32).reshape(())
+        return ProbeState(time=jnp.int32(0), position=position), position[None]
+
+    def _next(self, state: ProbeState, position: Array, reward: Array, terminated: bool | Array):
+        next_state = ProbeState(time=state.time + 1, position=jnp.asarray(position, jnp.float32))
+        terminated = jnp.asarray(terminated, jnp.bool_)
+        return next_state, next_state.position[None], jnp.asarray(reward, jnp.float32), terminated
+
+
+class ConstantReward(Probe):
+    """One step, reward 1, terminal. Q(s, a) = 1 for every action."""
+
+    def step_env(self, key, state, action, params):
+        return (*self._next(state, 0.0, 1.0, True), {})
+
+
+class ActionReward(Probe):
+    """One step, reward ``1 - (a - 0.5)^2``, terminal. Best action 0.5 with Q = 1."""
+
+    best_action = 0.5
+
+    def step_env(self, key, state, action, params):
+        reward = 1.0 - (self.action_value(action) - self.best_action) ** 2
+        return (*self._next(state, 0.0, reward, True), {})
+
+
+class TwoStep(Probe):
+    """Obs 0 (reward 0) -> obs 1 (reward 1, terminal). Q(0, a) = gamma, Q(1, a) = 1."""
+
+    max_episode_steps = 2
+
+    def step_env(self, key, state, action, params):
+        at_end = state.position >= 0.5
+        return (*self._next(state, 1.0, jnp.where(at_end, 1.0, 0.0), at_end), {})
+
+
+class Truncation(Probe):
+    """Obs in {0, 1} uniformly at reset; reward = obs; obs flips; the time limit cuts every episode
+    after one step. Values with correct bootstrapping: Q(0) = g / (1 - g^2), Q(1) = 1 / (1 - g^2).
+    """
+
+    terminal = False
+
+    def start_position(self, key):
+        return jax.random.bernoulli(key).astype(jnp.float32)
+
+    def step_env(self, key, state, action, params):
+        return (*self._next(state, 1.0 - state.position, state.position, self.terminal), {})
+
+    @staticmethod
+    def true_q(position: float, gamma: float, terminal: bool = False) -> float:
+        if terminal:
+            return float(position)
+        return (gamma ** (1.0 - position)) / (1.0 - gamma**2)
+
+
+class Termination(Truncation):
+    """The ``Truncation`` MDP, but each step ends in a true terminal state: Q(0) = 0, Q(1) = 1."""
+
+    terminal = True
+
+
+DISCRETE_ACTIONS = 5
+
+
+class _Discrete:
+    """Mixed in first: the probe with ``DISCRETE_ACTIONS`` discrete actions by default."""
+
+    def __init__(self, num_actions: int | None = DISCRETE_ACTIONS):
+        super().__init__(num_actions)
+
+
+class DiscreteConstantReward(_Discrete, ConstantReward):
+    """``ConstantReward`` with discrete actions."""
+
+
+class DiscreteActionReward(_Discrete, ActionReward):
+    """``ActionReward`` with discrete actions: Q(0, i) = 1 - (linspace(-1, 1, 5)[i] - 0.5)^2."""
+
+
+class DiscreteTwoStep(_Discrete, TwoStep):
+    """``TwoStep`` with discrete actions."""
+
+
+class DiscreteTruncation(_Discrete, Truncation):
+    """``Truncation`` with discrete actions."""
+
+
+class DiscreteTermination(_Discrete, Termination):
+    """``Termination`` with discrete actions."""
+
+
+PROBE_IDS = {
+    "rl_jax/ProbeConstantReward-v0": "envs.core.probes:ConstantReward",
+    "rl_jax/ProbeActionReward-v0": "envs.core.probes:ActionReward",
+    "rl_jax/ProbeTwoStep-v0": "envs.core.probes:TwoStep",
+    "rl_jax/ProbeTruncation-v0": "envs.core.probes:Truncation",
+    "rl_jax/ProbeTermination-v0": "envs.core.probes:Termination",
+    "rl_jax/ProbeConstantRewardDiscrete-v0": "envs.core.probes:DiscreteConstantReward",
+    "rl_jax/ProbeActionRewardDiscrete-v0": "envs.core.probes:DiscreteActionReward",
+    "rl_jax/ProbeTwoStepDiscrete-v0": "envs.core.probes:DiscreteTwoStep",
+    "rl_jax/ProbeTruncationDiscrete-v0": "envs.core.probes:DiscreteTruncation",
+    "rl_jax/ProbeTerminationDiscrete-v0": "envs.core.probes:DiscreteTermination",
+}
+for _env_id, _entry_point in PROBE_IDS.items():
+    register(_env_id, _entry_point)

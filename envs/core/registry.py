@@ -1,0 +1,110 @@
+"""Name -> environment registry. Entry points are imported lazily so that the pure-JAX envs do
+not pay for importing MuJoCo."""
+
+from __future__ import annotations
+
+import importlib
+from collections.abc import Callable
+from typing import Any
+
+from envs.core.core import Environment
+
+# id -> "module:factory". Factories take keyword arguments (e.g. ``backend=`` for MuJoCo envs).
+_ENTRY_POINTS: dict[str, str] = {
+    "rl_jax/Rocket-v0": "envs.classic.rocket:Rocket",
+    "rl_jax/RocketSettle-v0": "envs.classic.rocket:RocketSettle",
+    "rl_jax/CartPole-v1": "envs.classic.cartpole:CartPole",
+    "rl_jax/CartPolePixels-v1": "envs.classic.cartpole_pixels:CartPolePixels",
+    "rl_jax/Pendulum-v1": "envs.classic.pendulum:Pendulum",
+    "rl_jax/InvertedPendulum-v5": "envs.mujoco.inverted_pendulum:InvertedPendulum",
+    "rl_jax/InvertedDoublePendulum-v5": (
+        "envs.mujoco.inverted_double_pendulum:InvertedDoublePendulum"
+    ),
+    "rl_jax/HalfCheetah-v5": "envs.mujoco.half_cheetah:HalfCheetah",
+}
+
+
+# id -> episode limit, known without importing the env module: gymnasium's registration (its
+# ``spec.max_episode_steps`` and TimeLimit) needs it before MuJoCo is imported. It must equal the
+# env class's ``max_episode_steps`` (tests/test_gym_adapter.py checks).
+_MAX_EPISODE_STEPS: dict[str, int] = {
+    "rl_jax/Rocket-v0": 500,
+    "rl_jax/RocketSettle-v0": 500,
+    "rl_jax/CartPole-v1": 500,
+    "rl_jax/CartPolePixels-v1": 500,
+    "rl_jax/Pendulum-v1": 200,
+    "rl_jax/InvertedPendulum-v5": 1000,
+    "rl_jax/InvertedDoublePendulum-v5": 1000,
+    "rl_jax/HalfCheetah-v5": 1000,
+}
+
+
+class UnknownEnvError(ValueError):
+    """Raised for a name that is not registered; the message lists the known ids."""
+
+
+class BackendError(ValueError):
+    """Raised for an unknown MuJoCo backend name (``backend=`` or ``$RL_JAX_MUJOCO_BACKEND``);
+    defined here, with the other user errors of env construction, so that reporting it does
+    not import MuJoCo."""
+
+
+def register(
+    env_id: str,
+    entry_point: str | Callable[..., Environment],
+    max_episode_steps: int | None = None,
+) -> None:
+    """Add an env: ``entry_point`` is ``"package.module:Factory"`` (imported on first use) or the
+    factory itself (an ``Environment`` class or a function returning one).
+
+    ``max_episode_steps`` (optional) lets gymnasium's registration know the limit without
+    importing the module; when omitted it is read from the env class on first use.
+    """
+    _ENTRY_POINTS[env_id] = entry_point
+    if max_episode_steps is not None:
+        _MAX_EPISODE_STEPS[env_id] = max_episode_steps
+
+
+def registered_ids() -> list[str]:
+    return sorted(_ENTRY_POINTS)
+
+
+def resolve_id(name: str) -> str:
+    """Accept the full id (``rl_jax/Rocket-v0``) or the id without namespace, any case."""
+    if name in _ENTRY_POINTS:
+        return name
+    wanted = name.lower().removeprefix("rl_jax/")
+    for env_id in _ENTRY_POINTS:
+        if env_id.lower().removeprefix("rl_jax/") == wanted:
+            return env_id
+    if ":" in name:  # "gymnasium:ID" or "MODULE:ID": registered on first use
+        from envs.adapters.external_ids import resolve_external_id
+
+        return resolve_external_id(name)
+    known = ", ".join(registered_ids())
+    raise UnknownEnvError(f"unknown environment {name!r}; known environments: {known}")
+
+
+def factory(name: str) -> Callable[..., Environment]:
+    """The class (or function) that builds the env; imports its module."""
+    entry_point = _ENTRY_POINTS[resolve_id(name)]
+    if callable(entry_point):
+        return entry_point
+    module_name, factory_name = entry_point.split(":")
+    return getattr(importlib.import_module(module_name), factory_name)
+
+
+def max_episode_steps(name: str) -> int:
+    """The env's static episode limit, without importing its module when it is known."""
+    env_id = resolve_id(name)
+    if env_id not in _MAX_EPISODE_STEPS:
+        _MAX_EPISODE_STEPS[env_id] = int(factory(env_id).max_episode_steps)
+    return _MAX_EPISODE_STEPS[env_id]
+
+
+def make(name: str, **kwargs: Any) -> Environment:
+    """Build a registered env, e.g. ``envs.make("rl_jax/Rocket-v0")``."""
+    env_id = resolve_id(name)
+    env = factory(env_id)(**kwargs)
+    env.id = env_id
+    return env

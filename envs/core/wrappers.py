@@ -1,0 +1,268 @@
+"""Wrappers that adapt an env to a learner, each a pure transform of ``reset``/``step``.
+
+Usual stack for training: ``EpisodeStatistics(AutoReset(RescaleAction(env)))`` — statistics sit
+outside autoreset so they see the step that ended an episode, not the reset that followed it.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from flax import struct
+
+from envs.core.core import Array, Environment, TimeStep
+from envs.core.spaces import Box, Discrete, Space
+
+
+class Wrapper(Environment):
+    """Delegates everything to the wrapped env; subclasses override what they change."""
+
+    def __init__(self, env: Environment):
+        self.env = env
+        self.id = env.id
+        self.max_episode_steps = env.max_episode_steps
+
+    def __getattr__(self, name: str) -> Any:
+        # Only reached for attributes not found normally: expose the inner env's extras.
+        if name == "env":
+            raise AttributeError(name)
+        return getattr(self.env, name)
+
+    @property
+    def unwrapped(self) -> Environment:
+        return self.env.unwrapped if isinstance(self.env, Wrapper) else self.env
+
+    @property
+    def default_params(self):
+        return self.env.default_params
+
+    def observation_space(self, params=None) -> Space:
+        return self.env.observation_space(params)
+
+    def action_space(self, params=None) -> Space:
+        return self.env.action_space(params)
+
+    def empty_info(self) -> dict[str, Array]:
+        return self.env.empty_info()
+
+    def reset(self, key, params=None):
+        return self.env.reset(key, params)
+
+    def step(self, key, state, action, params=None):
+        return self.env.step(key, state, action, params)
+
+    def reset_to(self, vector, params=None):
+        return self.env.reset_to(vector, params)
+
+    def render(self, state, params=None):
+        return self.env.render(state, params)
+
+    def __repr__(self) -> str:
+        return f"{type(self).__name__}({self.env!r})"
+
+
+def _select(pred: Array, on_true: Any, on_false: Any) -> Any:
+    """``where(pred, a, b)`` over matching pytrees; ``pred`` is a scalar per env."""
+    return jax.tree.map(lambda a, b: jnp.where(pred, a, b), on_true, on_false)
+
+
+class AutoReset(Wrapper):
+    """Resets inside ``step`` when an episode ends ("same-step" autoreset).
+
+    The returned ``obs`` is the first observation of the new episode; the true last observation
+    of the finished episode is kept in ``info["final_obs"]`` so that a learner can bootstrap
+    from it at truncation. ``reward``, ``terminated`` and ``truncated`` are those of the
+    finishing step. ``info["final_obs"]`` equals ``obs`` on steps that did not end an episode.
+
+    The reset branch is computed every step and selected per env (under vmap a ``cond`` would
+    run both branches anyway); envs whose reset is expensive can override ``reset`` cheaply.
+    """
+
+    def empty_info(self) -> dict[str, Array]:
+        obs_space = self.observation_space()
+        final_obs = jnp.zeros(obs_space.shape, obs_space.dtype)
+        return {**self.env.empty_info(), "final_obs": final_obs}
+
+    def reset(self, key, params=None):
+        state, ts = self.env.reset(key, params)
+        return state, ts._replace(info={**ts.info, "final_obs": ts.obs})
+
+    def reset_to(self, vector, params=None):
+        state, ts = self.env.reset_to(vector, params)
+        return state, ts._replace(info={**ts.info, "final_obs": ts.obs})
+
+    def step(self, key, state, action, params=None):
+        key_step, key_reset = jax.random.split(key)
+        next_state, ts = self.env.step(key_step, state, action, params)
+        reset_state, reset_ts = self.env.reset(key_reset, params)
+        done = jnp.logical_or(ts.terminated, ts.truncated)
+        state = _select(done, reset_state, next_state)
+        obs = jnp.where(done, reset_ts.obs, ts.obs)
+        return state, ts._replace(obs=obs, info={**ts.info, "final_obs": ts.obs})
+
+
+@struct.dataclass
+class StatisticsState:
+    env_state: Any
+    episode_return: Array  # [] float32, running return of the current episode
+    episode_length: Array  # [] int32
+    returned_episode_return: Array  # [] float32, return of the last finished episode
+    returned_episode_length: Array  # [] int32
+
+    @property
+    def time(self) -> Array:
+        return self.env_state.time
+
+
+class EpisodeStatistics(Wrapper):
+    """Tracks undiscounted return and length; reports them in ``info``.
+
+    ``info["episode_done"]`` is true on the step that ended an episode, and then
+    ``info["episode_return"]``/``info["episode_length"]`` hold that episode's totals (otherwise
+    they hold the last finished episode's, or 0 before the first one ends).
+    """
+
+    def empty_info(self) -> dict[str, Array]:
+        return {
+            **self.env.empty_info(),
+            "episode_return": jnp.zeros((), jnp.float32),
+            "episode_length": jnp.zeros((), jnp.int32),
+            "episode_done": jnp.zeros((), jnp.bool_),
+        }
+
+    def _wrap(self, env_state, ts: TimeStep) -> tuple[StatisticsState, TimeStep]:
+        zero_f, zero_i = jnp.zeros((), jnp.float32), jnp.zeros((), jnp.int32)
+        state = StatisticsState(env_state, zero_f, zero_i, zero_f, zero_i)
+        info = {**ts.info, "episode_return": zero_f, "episode_length": zero_i}
+        return state, ts._replace(info={**info, "episode_done": jnp.zeros((), jnp.bool_)})
+
+    def reset(self, key, params=None):
+        return self._wrap(*self.env.reset(key, params))
+
+    def reset_to(self, vector, params=None):
+        return self._wrap(*self.env.reset_to(vector, params))
+
+    def step(self, key, state: StatisticsState, action, params=None):
+        env_state, ts = self.env.step(key, state.env_state, action, params)
+        done = jnp.logical_or(ts.terminated, ts.truncated)
+        episode_return = state.episode_return + ts.reward
+        episode_length = state.episode_length + 1
+        new_state = StatisticsState(
+            env_state=env_state,
+            episode_return=jnp.where(done, 0.0, episode_return),
+            episode_length=jnp.where(done, 0, episode_length),
+            returned_episode_return=jnp.where(done, episode_return, state.returned_episode_return),
+            returned_episode_length=jnp.where(done, episode_length, state.returned_episode_length),
+        )
+        info = {
+            **ts.info,
+            "episode_return": new_state.returned_episode_return,
+            "episode_length": new_state.returned_episode_length,
+            "episode_done": done,
+        }
+        return new_state, ts._replace(info=info)
+
+    def render(self, state: StatisticsState, params=None):
+        return self.env.render(state.env_state, params)
+
+
+class RescaleAction(Wrapper):
+    """Exposes a ``[-1, 1]`` Box action space and maps it affinely onto the env's bounds.
+
+    Actions outside ``[-1, 1]`` are mapped linearly too (not clipped): the env applies its own
+    clipping exactly as its reference does.
+    """
+
+    def __init__(self, env: Environment):
+        super().__init__(env)
+        space = env.action_space()
+        if not isinstance(space, Box) or not space.bounded:
+            raise TypeError(f"RescaleAction needs a bounded Box action space, got {space}")
+        self._low = np.asarray(space.low, np.float32)
+        self._high = np.asarray(space.high, np.float32)
+
+    def action_space(self, params=None) -> Space:
+        shape = self._low.shape
+        return Box(-np.ones(shape, np.float32), np.ones(shape, np.float32), shape)
+
+    def to_env_action(self, action: Array) -> Array:
+        return self._low + (jnp.asarray(action, jnp.float32) + 1.0) * 0.5 * (self._high - self._low)
+
+    def step(self, key, state, action, params=None):
+        return self.env.step(key, state, self.to_env_action(action), params)
+
+
+class DiscretizeActions(Wrapper):
+    """Lets a discrete-action learner drive a continuous env.
+
+    Each action dimension gets ``num_bins`` evenly spaced values from its low to its high bound
+    (or the explicit ``values``); the discrete action indexes the Cartesian product of the grids,
+    first dimension slowest. Rocket thrust in {-1, 0, +1} is ``DiscretizeActions(rocket, 3)``.
+    """
+
+    def __init__(self, env: Environment, num_bins: int = 3, values: Any = None):
+        super().__init__(env)
+        space = env.action_space()
+        if not isinstance(space, Box):
+            raise TypeError(f"DiscretizeActions needs a Box action space, got {space}")
+        dims = int(np.prod(space.shape)) if space.shape else 1
+        if values is None:
+            if num_bins < 2:
+                raise ValueError(f"num_bins must be >= 2, got {num_bins}")
+            low, high = space.low.reshape(-1), space.high.reshape(-1)
+            grids = [np.linspace(low[d], high[d], num_bins, dtype=np.float32) for d in range(dims)]
+        else:
+            grids = [np.asarray(values, np.float32)] * dims
+        mesh = np.meshgrid(*grids, indexing="ij")
+        table = np.stack([m.reshape(-1) for m in mesh], axis=-1)  # [n_actions, dims]
+        self._table = table.reshape((table.shape[0],) + tuple(space.shape))
+        self._space_shape = space.shape
+
+    @property
+    def action_values(self) -> np.ndarray:
+        """``[n, *action_shape]``: the continuous action each index stands for."""
+        return self._table
+
+    def action_space(self, params=None) -> Space:
+        return Discrete(self._table.shape[0])
+
+    def to_env_action(self, action: Array) -> Array:
+        return jnp.asarray(self._table)[jnp.asarray(action, jnp.int32)]
+
+    def step(self, key, state, action, params=None):
+        return self.env.step(key, state, self.to_env_action(action), params)
+
+
+class FlattenObservation(Wrapper):
+    """Reshapes observations (and ``info["final_obs"]`` if present) to one dimension."""
+
+    def observation_space(self, params=None) -> Space:
+        space = self.env.observation_space(params)
+        return Box(space.low.reshape(-1), space.high.reshape(-1), (int(np.prod(space.shape)),))
+
+    def _flatten(self, ts: TimeStep) -> TimeStep:
+        info = dict(ts.info)
+        if "final_obs" in info:
+            info["final_obs"] = info["final_obs"].reshape(-1)
+        return ts._replace(obs=ts.obs.reshape(-1), info=info)
+
+    def empty_info(self) -> dict[str, Array]:
+        info = dict(self.env.empty_info())
+        if "final_obs" in info:
+            info["final_obs"] = info["final_obs"].reshape(-1)
+        return info
+
+    def reset(self, key, params=None):
+        state, ts = self.env.reset(key, params)
+        return state, self._flatten(ts)
+
+    def reset_to(self, vector, params=None):
+        state, ts = self.env.reset_to(vector, params)
+        return state, self._flatten(ts)
+
+    def step(self, key, state, action, params=None):
+        state, ts = self.env.step(key, state, action, params)
+        return state, self._flatten(ts)

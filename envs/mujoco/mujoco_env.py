@@ -1,0 +1,365 @@
+"""Shared base of the MuJoCo envs (inverted pendulum, inverted double pendulum, half cheetah).
+
+Each env reproduces one gymnasium 1.4.0 ``*-v5`` env — same MJCF file (loaded from the installed
+gymnasium package), frame skip, observation layout, reward terms, termination rule, reset noise and
+1,000-step limit — on either physics backend of ``envs.mujoco.mujoco_backend``::
+
+    env = envs.make("rl_jax/HalfCheetah-v5")                  # default backend for the platform
+    env = envs.make("rl_jax/HalfCheetah-v5", backend="mjx")   # pure JAX
+    env = envs.make("rl_jax/HalfCheetah-v5", backend="mujoco", ctrl_cost_weight=0.2)
+
+The backend defaults to ``$RL_JAX_MUJOCO_BACKEND``, else MuJoCo C ("mujoco") on CPU and MJX on
+GPU/TPU; "mujoco_callback" forces MuJoCo C through ``jax.pure_callback`` instead of the FFI op
+(see ``envs.mujoco.mujoco_backend``). Keyword arguments named like gymnasium's constructor arguments
+(``reset_noise_scale``, ``ctrl_cost_weight``, ...) set the default params; the params pytree can
+also be passed to ``reset``/``step`` and vmapped.
+
+Solver fidelity (``fidelity=``). ``"gymnasium"``: gymnasium's constraint-solver limits (100
+iterations, 50 line-search iterations). ``"parity"`` (default): the cheapest limits that still match
+gymnasium — on the C backend these are gymnasium's own (MuJoCo C stops iterating at convergence, so
+tighter caps measured no faster, and the result is bit-identical to gymnasium); on MJX, where every
+env of a vmapped batch pays the full cap, each env's ``mjx_solver`` limits, the fewest that keep
+gymnasium parity including the states where gymnasium's solver works hardest
+(``tests/test_mujoco_parity.py``).
+
+Exact starts: ``state_from_vector(concatenate([qpos, qvel]))`` (optionally ``qacc_warmstart``
+appended). On the C backend a float64 numpy vector is kept bit for bit; a float32 or traced vector
+is widened exactly.
+
+Non-finite physics: if a step leaves the physics state non-finite (or beyond MuJoCo's 1e10
+divergence limit, where MuJoCo C itself resets the simulation), or the action is non-finite, the
+step reports ``terminated=True``, ``reward=0``, zero reward terms, ``info["physics_diverged"]=True``
+(a fixed key, ``False`` on every other step) and, as the observation, the last finite one of the
+episode; the returned state is the model's default pose, and ``AutoReset`` starts a fresh episode.
+Terminated rather than truncated: like gymnasium's own "state is not finite" rule (InvertedPendulum,
+Hopper), a blown-up simulation is treated as a terminal failure, so no TD target bootstraps from an
+observation that is not the true successor state.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from flax import struct
+
+from envs.core.core import Array, Environment, EnvParams, EnvState, PRNGKey, TimeStep, keep_active
+from envs.core.spaces import Box
+from envs.mujoco.mujoco_backend import (
+    DIVERGENCE_LIMIT,
+    Measurement,
+    Physics,
+    engine,
+    extra_field,
+    load_model,
+    make_physics,
+    resolve_backend,
+)
+
+DIVERGED_KEY = "physics_diverged"
+GYMNASIUM_SOLVER = (100, 50)  # MuJoCo's defaults, which gymnasium's models keep
+FIDELITIES = ("parity", "gymnasium")
+
+
+@struct.dataclass
+class MujocoState(EnvState):
+    # backend-specific: float32 (qpos, qvel, qacc_warmstart) for mjx, uint32 float64 bits for C
+    physics: Any
+    obs: Array  # [obs_size] float32, the last observation, reported again if the physics diverges
+
+
+@struct.dataclass
+class MujocoParams(EnvParams):
+    reset_noise_scale: Array
+
+
+class MujocoEnv(Environment[MujocoState, Any]):
+    """Subclasses set the class attributes and implement the four hooks at the bottom."""
+
+    xml_file: str = ""
+    frame_skip: int = 1
+    max_episode_steps: int = 1000
+    #: MJX (solver iterations, line-search iterations) of the "parity" fidelity
+    mjx_solver: tuple[int, int] = GYMNASIUM_SOLVER
+    #: on CPU, vmapped MJX steps run this many envs at a time (see ``MjxPhysics``); None: all
+    mjx_cpu_chunk: int | None = None
+    #: derived mjData fields the env reads after a step (see ``Measurement.extras``)
+    extras: tuple[str, ...] = ()
+    #: whether the reset observation needs ``mj_forward`` (constraint forces, site positions)
+    forward_at_reset: bool = False
+    #: float32 scalar reward terms in ``info``, in addition to ``physics_diverged``
+    info_keys: tuple[str, ...] = ()
+    #: gymnasium's free-camera settings for ``render``, or the name of a camera of the model
+    camera: dict[str, Any] | str = {}
+    params_type: type = MujocoParams
+
+    def __init__(
+        self,
+        backend: str | None = None,
+        fidelity: str = "parity",
+        nthread: int | None = None,
+        **param_overrides: float,
+    ):
+        if fidelity not in FIDELITIES:
+            raise ValueError(f"unknown fidelity {fidelity!r}; choose from {FIDELITIES}")
+        physics_backend = resolve_backend(backend)  # e.g. "mujoco_ffi"
+        self.backend = engine(physics_backend)  # "mujoco" or "mjx"
+        self.fidelity = fidelity
+        self.model = load_model(self.xml_file, *self.solver_limits(self.backend, fidelity))
+        chunk = self.mjx_cpu_chunk if jax.default_backend() == "cpu" else None
+        self.physics: Physics = make_physics(
+            physics_backend, self.model, self.frame_skip, self.extras, nthread, chunk
+        )
+        self.dt = float(self.model.opt.timestep * self.frame_skip)
+        self._params = self._make_default_params(param_overrides)
+        self._init_qpos = np.array(self.model.qpos0, np.float32)
+        self._initial_obs = self._compute_initial_obs()
+        self._renderer = None
+
+    def solver_limits(self, backend: str, fidelity: str) -> tuple[int, int]:
+        """(iterations, line-search iterations) of the constraint solver."""
+        if backend == "mjx" and fidelity == "parity":
+            return self.mjx_solver
+        return GYMNASIUM_SOLVER
+
+    def _make_default_params(self, overrides: dict[str, float]):
+        fields = {f.name for f in dataclasses.fields(self.params_type)}
+        unknown = sorted(set(overrides) - fields)
+        if unknown:
+            raise TypeError(f"{type(self).__name__} has no parameter(s) {unknown}; known: {fields}")
+        defaults = self.params_type()
+        return defaults.replace(**{k: jnp.float32(v) for k, v in overrides.items()})
+
+    @property
+    def default_params(self):
+        return self._params
+
+    @property
+    def render_fps(self) -> int:
+        """Frames per second of real time, as gymnasium's ``metadata["render_fps"]``."""
+        return int(np.round(1.0 / self.dt))
+
+    # ---- spaces -------------------------------------------------------------------------------
+    @property
+    def obs_size(self) -> int:
+        raise NotImplementedError
+
+    def observation_space(self, params=None) -> Box:
+        return Box(-np.inf, np.inf, (self.obs_size,))
+
+    def action_space(self, params=None) -> Box:
+        low, high = np.asarray(self.model.actuator_ctrlrange, np.float32).T
+        return Box(low, high, low.shape)
+
+    def empty_info(self) -> dict[str, Array]:
+        info = {key: jnp.zeros((), jnp.float32) for key in self.info_keys}
+        return {**info, DIVERGED_KEY: jnp.zeros((), jnp.bool_)}
+
+    # ---- reset --------------------------------------------------------------------------------
+    def reset(self, key: PRNGKey, params=None) -> tuple[MujocoState, TimeStep]:
+        params = self.default_params if params is None else params
+        qpos, qvel = self.sample_start(key, params)
+        return self.start_from_physics(self.physics.from_qpos_qvel(qpos, qvel), params)
+
+    def reset_env(self, key: PRNGKey, params) -> tuple[MujocoState, Array]:
+        state, timestep = self.reset(key, params)
+        return state, timestep.obs
+
+    def reset_to(self, vector: Any, params=None) -> tuple[MujocoState, TimeStep]:
+        """Start from ``[qpos, qvel(, qacc_warmstart)]``, with optional leading batch axes.
+
+        A float64 numpy vector is kept bit for bit on the C backend (do not wrap it in
+        ``jnp.asarray`` first: without x64 that rounds it to float32).
+        """
+        params = self.default_params if params is None else params
+        nq, nv = self.physics.nq, self.physics.nv
+        if not isinstance(vector, np.ndarray):
+            vector = jnp.asarray(vector)
+        if vector.shape[-1] not in (nq + nv, nq + 2 * nv):
+            raise ValueError(
+                f"{self.name}: a state vector is [qpos ({nq}), qvel ({nv})] optionally followed "
+                f"by qacc_warmstart ({nv}); got length {vector.shape[-1]}"
+            )
+        qpos, qvel = vector[..., :nq], vector[..., nq : nq + nv]
+        warm = vector[..., nq + nv :] if vector.shape[-1] == nq + 2 * nv else None
+        physics = self.physics.from_qpos_qvel(qpos, qvel, warm)
+        start = lambda p: self.start_from_physics(p, params)
+        for _ in range(vector.ndim - 1):
+            start = jax.vmap(start)
+        return start(physics)
+
+    def state_from_vector(self, vector: Any, params=None) -> tuple[MujocoState, Array]:
+        state, timestep = self.reset_to(vector, params)
+        return state, timestep.obs
+
+    def start_from_physics(self, physics: Any, params=None) -> tuple[MujocoState, TimeStep]:
+        """First timestep of an episode starting at a backend physics state (one env)."""
+        params = self.default_params if params is None else params
+        if self.forward_at_reset:
+            measurement = self.physics.forward(physics)
+        else:
+            # qpos/qvel are all the observation needs: no physics call
+            qpos, qvel = self.physics.qpos_qvel(physics)
+            finite = jnp.all(jnp.abs(jnp.concatenate([qpos, qvel], -1)) <= DIVERGENCE_LIMIT)
+            extras = self.physics.empty_extras()
+            measurement = Measurement(qpos, qvel, jnp.zeros_like(qpos), extras, ~finite)
+        obs = self.observe(measurement)
+        diverged = measurement.diverged | ~jnp.all(jnp.isfinite(obs))
+        obs = jnp.where(jnp.isfinite(obs), obs, 0.0)
+        info = {**self.empty_info(), **self.reset_info(measurement), DIVERGED_KEY: diverged}
+        info = {k: jnp.where(diverged, jnp.zeros_like(v), v) for k, v in info.items()}
+        info[DIVERGED_KEY] = diverged
+        state = MujocoState(time=jnp.zeros((), jnp.int32), physics=physics, obs=obs)
+        timestep = TimeStep(
+            obs=obs,
+            reward=jnp.zeros((), jnp.float32),
+            terminated=jnp.zeros((), jnp.bool_),
+            truncated=jnp.zeros((), jnp.bool_),
+            info=info,
+        )
+        return state, timestep
+
+    # ---- step ---------------------------------------------------------------------------------
+    def step_env(
+        self, key: PRNGKey, state: MujocoState, action: Array, params
+    ) -> tuple[MujocoState, Array, Array, Array, dict[str, Array]]:
+        return self._step_env(state, action, params)
+
+    def step_active(self, key, state, action, active, params=None):
+        """``Environment.step_active``: the MuJoCo C backends step only the active envs (the
+        others' physics is not computed at all); MJX computes them and discards the result."""
+        params = self.default_params if params is None else params
+        new_state, *rest = self._step_env(state, action, params, jnp.asarray(active, jnp.bool_))
+        return self._timestep(keep_active(active, new_state, state), *rest)
+
+    def _step_env(self, state: MujocoState, action: Array, params, active: Array | None = None):
+        action = jnp.asarray(action, jnp.float32)
+        physics, measurement = self.physics.step(state.physics, action, active)
+        obs = self.observe(measurement)
+        reward, terminated, info = self.evaluate(measurement, action, params)
+        diverged = (
+            measurement.diverged
+            | ~jnp.all(jnp.isfinite(action))
+            | ~jnp.all(jnp.isfinite(obs))
+            | ~jnp.isfinite(reward)
+        )
+        initial = self._initial_physics()
+        physics = jax.tree.map(lambda a, b: jnp.where(diverged, a, b), initial, physics)
+        last_finite_obs = _finite_or_zero(state.obs)
+        state = MujocoState(
+            time=state.time + 1,
+            physics=physics,
+            obs=jnp.where(diverged, self._initial_obs, obs),
+        )
+        obs = jnp.where(diverged, last_finite_obs, obs)
+        reward = jnp.where(diverged, 0.0, reward)
+        info = {k: jnp.where(diverged, jnp.zeros_like(v), v) for k, v in info.items()}
+        return state, obs, reward, terminated | diverged, {**info, DIVERGED_KEY: diverged}
+
+    def _initial_physics(self) -> Any:
+        zeros = np.zeros(self.physics.nv, np.float64)
+        return self.physics.from_qpos_qvel(np.asarray(self.model.qpos0, np.float64), zeros)
+
+    def _compute_initial_obs(self) -> np.ndarray:
+        """Observation at the model's default pose (host-side float64 forward pass)."""
+        import mujoco
+
+        data = mujoco.MjData(self.model)
+        mujoco.mj_forward(self.model, data)
+        as32 = lambda x: np.asarray(x, np.float32)
+        extras = {name: as32(extra_field(name, data, np)) for name in self.extras}
+        qpos, qvel = as32(data.qpos), as32(data.qvel)
+        measurement = Measurement(qpos, qvel, np.zeros_like(qpos), extras, np.bool_(False))
+        # Envs may be built while a learner's init is traced (jax.eval_shape of the state):
+        # computed eagerly, this stays a constant instead of becoming a tracer.
+        with jax.ensure_compile_time_eval():
+            return np.asarray(self.observe(measurement), np.float32)
+
+    # ---- rendering ----------------------------------------------------------------------------
+    def render(self, state: MujocoState, params=None, width: int = 320, height: int = 240):
+        """RGB frame ``[height, width, 3]`` uint8 of one unbatched state (host side)."""
+        import mujoco
+
+        qpos, qvel, _ = self.physics.to_numpy(state.physics)
+        data = mujoco.MjData(self.model)
+        data.qpos[:], data.qvel[:] = qpos, qvel
+        mujoco.mj_forward(self.model, data)
+        renderer = self._renderer
+        if renderer is None or (renderer.width, renderer.height) != (width, height):
+            _use_egl_if_headless()
+            self._renderer = renderer = mujoco.Renderer(self.model, height=height, width=width)
+        renderer.update_scene(data, self._camera())
+        return renderer.render()
+
+    def _camera(self) -> Any:
+        import mujoco
+
+        if isinstance(self.camera, str):
+            return self.camera
+        camera = mujoco.MjvCamera()
+        mujoco.mjv_defaultFreeCamera(self.model, camera)
+        for name, value in self.camera.items():
+            if name == "lookat":
+                camera.lookat[:] = value
+            else:
+                setattr(camera, name, value)
+        if "trackbodyid" in self.camera:
+            camera.type = mujoco.mjtCamera.mjCAMERA_TRACKING
+        return camera
+
+    # ---- hooks --------------------------------------------------------------------------------
+    #: gymnasium's reset noise on qvel: "normal" (std ``reset_noise_scale``) or "uniform" (in
+    #: +-``reset_noise_scale``); qpos is always uniform in +-``reset_noise_scale`` around qpos0.
+    qvel_noise = "normal"
+
+    def sample_start(self, key: PRNGKey, params) -> tuple[Array, Array]:
+        """float32 ``(qpos, qvel)`` of a random start, as gymnasium's ``reset_model``."""
+        key_qpos, key_qvel = jax.random.split(key)
+        scale = params.reset_noise_scale
+        nq, nv = self._init_qpos.shape[0], self.model.nv
+        qpos = self._init_qpos + jax.random.uniform(key_qpos, (nq,), jnp.float32, -scale, scale)
+        if self.qvel_noise == "uniform":
+            qvel = jax.random.uniform(key_qvel, (nv,), jnp.float32, -scale, scale)
+        else:
+            qvel = scale * jax.random.normal(key_qvel, (nv,), jnp.float32)
+        return qpos, qvel
+
+    def observe(self, measurement: Measurement) -> Array:
+        raise NotImplementedError
+
+    def evaluate(
+        self, measurement: Measurement, action: Array, params
+    ) -> tuple[Array, Array, dict[str, Array]]:
+        """``(reward, terminated, info)`` of a step; ``info`` has exactly ``info_keys``."""
+        raise NotImplementedError
+
+    def reset_info(self, measurement: Measurement) -> dict[str, Array]:
+        """Entries of ``info_keys`` that gymnasium reports at reset (the rest are 0)."""
+        return {}
+
+
+def _use_egl_if_headless() -> None:
+    """Render through EGL on a machine without a display, even if MuJoCo was imported first.
+
+    MuJoCo picks its GL backend when imported; ``envs.mujoco.mujoco_backend`` asks for EGL when
+    headless, but if something imported MuJoCo before it, GLFW was picked and would abort without a
+    display. An explicit ``MUJOCO_GL`` other than egl is respected.
+    """
+    import os
+
+    from mujoco.rendering.classic import gl_context
+
+    if os.environ.get("DISPLAY") or os.environ.get("MUJOCO_GL", "egl") != "egl":
+        return
+    context = getattr(gl_context, "GLContext", None)
+    if context is None or context.__module__.startswith("mujoco.glfw"):
+        from mujoco.egl import GLContext
+
+        gl_context.GLContext = GLContext
+
+
+def _finite_or_zero(x: Array) -> Array:
+    return jnp.where(jnp.isfinite(x), x, 0.0)

@@ -1,0 +1,386 @@
+"""TD3 (Fujimoto et al. 2018) and DDPG (that paper's "our DDPG" baseline) from one code path.
+
+What tells them apart is settings only: TD3 uses ``num_critics=2`` (clipped double Q: the target
+takes the min of twin target critics), ``policy_delay=2`` (actor and target networks update after
+every second critic update) and ``target_noise=0.2`` clipped at ``0.5`` (target policy smoothing);
+DDPG is ``num_critics=1``, ``policy_delay=1``, ``target_noise=0``. Noise scales are fractions of
+the action half-range ``(high - low) / 2``, as the reference code scales them by ``max_action``.
+
+Usage (one seed; ``rl_jax.training.parallel`` runs seeds x hyperparameters as one program)::
+
+    config = td3.default_config("rl_jax/Pendulum-v1")          # static, frozen
+    hparams = td3.default_hyperparams()                         # arrays, vmappable
+    state = td3.init(jax.random.key(0), config, hparams)
+    chunk = jax.jit(td3.train_chunk, static_argnums=1)
+    state, metrics = chunk(state, config, hparams)              # metrics.eval_return, ...
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+from typing import Any, NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import optax
+from flax import struct
+
+from envs.core.spaces import Box
+from rl_jax.training import networks, offpolicy, replay
+from rl_jax.training.algorithm import RecipeBook
+from rl_jax.training.offpolicy import OffPolicyConfig, TrainState
+from rl_jax.training.replay import ReplayBuffer, Transition
+
+
+@dataclasses.dataclass(frozen=True, kw_only=True)
+class Config(OffPolicyConfig):
+    """Static settings of TD3/DDPG (the loop's are in ``OffPolicyConfig``)."""
+
+    actor_hidden: tuple[int, ...] = (256, 256)
+    critic_hidden: tuple[int, ...] = (256, 256)
+    num_critics: int = 2  # TD3 2 (min of twins in the target); DDPG 1
+    policy_delay: int = 2  # critic updates per actor + target update; DDPG 1
+    network_init: str = "fan_in_uniform"  # see rl_jax.training.networks
+    compute_dtype: str = "float32"  # matmul dtype ("bfloat16" trades precision for speed)
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        if self.num_critics < 1 or self.policy_delay < 1:
+            raise ValueError("num_critics and policy_delay must be >= 1")
+        if self.network_init not in networks.INITS:
+            raise ValueError(f"network_init must be one of {networks.INITS}")
+
+
+@struct.dataclass
+class Hyperparams(offpolicy.HyperparamsMethods):
+    """What a sweep may vary without recompiling. Defaults: the TD3 paper's (code's) values."""
+
+    actor_lr: Any = 3e-4
+    critic_lr: Any = 3e-4
+    gamma: Any = 0.99
+    tau: Any = 0.005  # Polyak step of the target networks
+    exploration_noise: Any = 0.1  # std of the Gaussian added to actions, x half-range
+    # Step-to-step correlation rho of that noise, n_t = rho n_{t-1} + sqrt(1 - rho^2) eps_t (an
+    # AR(1), i.e. discretised Ornstein-Uhlenbeck, process with the same std). 0: independent
+    # noise, as in the TD3 paper. Near 1: slow pushes, as the original DDPG's OU noise; inertial
+    # systems with a small time step need them, since independent noise averages out.
+    exploration_correlation: Any = 0.0
+    target_noise: Any = 0.2  # std of target policy smoothing, x half-range (0 turns it off)
+    target_noise_clip: Any = 0.5  # smoothing noise clipped to +-this, x half-range
+    # Env steps (all envs) over which both learning rates fall linearly to 0 (0: constant).
+    lr_decay_steps: Any = 0.0
+
+
+@struct.dataclass
+class Agent:
+    actor: Any  # actor parameters
+    critics: Any  # critic parameters, leaves [num_critics, ...]
+    target_actor: Any
+    target_critics: Any
+    actor_opt: Any  # optax inject_hyperparams(adam) state: holds the learning rate
+    critic_opt: Any
+
+
+class Networks(NamedTuple):
+    actor: networks.Actor
+    critic: networks.Critic
+    low: np.ndarray  # [action_dim] action bounds
+    high: np.ndarray
+
+    @property
+    def half_range(self) -> np.ndarray:
+        return (self.high - self.low) / 2.0
+
+
+def build_networks(config: Config, action_space: Box) -> Networks:
+    """Actor and critic modules for an action space (bounds are baked into the actor)."""
+    if (
+        not isinstance(action_space, Box)
+        or not action_space.bounded
+        or len(action_space.shape) != 1
+    ):
+        raise TypeError(f"TD3/DDPG need a bounded 1-D Box action space, got {action_space}")
+    dtype = jnp.dtype(config.compute_dtype)
+    low = tuple(float(x) for x in action_space.low)
+    high = tuple(float(x) for x in action_space.high)
+    actor = networks.Actor(config.actor_hidden, low, high, config.network_init, dtype)
+    critic = networks.Critic(config.critic_hidden, config.network_init, dtype)
+    return Networks(actor, critic, action_space.low.copy(), action_space.high.copy())
+
+
+@functools.lru_cache(maxsize=64)
+def make_networks(config: Config) -> Networks:
+    """The networks for ``config.env_id`` (cached: called at every trace)."""
+    return build_networks(config, offpolicy.make_eval_env(config).action_space())
+
+
+# ---- loss maths (pure; rlax naming: tm1 = the transition's start, t = its end) -----------------
+def smoothed_target_action(a_t, noise, noise_clip, low, high) -> jax.Array:
+    """Target policy smoothing: ``clip(a_t + clip(noise, -noise_clip, noise_clip), low, high)``."""
+    return jnp.clip(a_t + jnp.clip(noise, -noise_clip, noise_clip), low, high)
+
+
+def clipped_double_q_target(r_t, discount_t, q_t) -> jax.Array:
+    """``r_t + discount_t * min_i q_t[i]`` with no gradient; ``q_t`` [num_critics, B] -> [B].
+    With one critic this is the plain DDPG target. ``discount_t`` is 0 at termination."""
+    return jax.lax.stop_gradient(r_t + discount_t * jnp.min(q_t, axis=0))
+
+
+def critic_loss(q_tm1, r_t, discount_t, q_t) -> jax.Array:
+    """Sum over critics of the mean squared error to the shared target; ``q_tm1`` [C, B]."""
+    target = clipped_double_q_target(r_t, discount_t, q_t)
+    return jnp.sum(jnp.mean((q_tm1 - target[None, :]) ** 2, axis=-1))
+
+
+def deterministic_policy_loss(q_tm1) -> jax.Array:
+    """The actor ascends Q at its own action: loss ``-mean(q_tm1)``."""
+    return -jnp.mean(q_tm1)
+
+
+def polyak_update(target, online, tau) -> Any:
+    """``target <- (1 - tau) * target + tau * online``, leaf by leaf."""
+    return jax.tree.map(lambda t, o: (1.0 - tau) * t + tau * o, target, online)
+
+
+# ---- losses on networks ----------------------------------------------------------------------
+def _row(x: np.ndarray, like: jax.Array) -> jax.Array:
+    """Bounds shaped to broadcast against ``like`` [..., action_dim] without rank promotion."""
+    return jnp.reshape(jnp.asarray(x, jnp.float32), (1,) * (like.ndim - 1) + (-1,))
+
+
+def target_action(target_actor_params, next_obs, noise, hparams: Hyperparams, nets: Networks):
+    """The target actor's action plus smoothing noise ``target_noise * noise`` clipped to
+    ``+-target_noise_clip`` (both x the action half-range); ``noise`` is standard normal."""
+    a_t = nets.actor.apply(target_actor_params, next_obs)
+    scale = _row(nets.half_range, a_t)
+    return smoothed_target_action(
+        a_t,
+        hparams.target_noise * scale * noise,
+        hparams.target_noise_clip * scale,
+        _row(nets.low, a_t),
+        _row(nets.high, a_t),
+    )
+
+
+def critic_loss_fn(
+    critic_params,
+    target_actor_params,
+    target_critic_params,
+    batch: Transition,
+    noise: jax.Array,
+    hparams: Hyperparams,
+    nets: Networks,
+):
+    """Critic loss on a batch; ``noise`` [B, action_dim] is standard normal. Returns
+    ``(loss, q_tm1 [C, B])``. Target networks enter only through the stopped-gradient target."""
+    a_t = target_action(target_actor_params, batch.next_obs, noise, hparams, nets)
+    q_t = networks.apply_stacked(nets.critic, target_critic_params, batch.next_obs, a_t)
+    q_tm1 = networks.apply_stacked(nets.critic, critic_params, batch.obs, batch.action)
+    discount_t = hparams.gamma * (1.0 - batch.terminated.astype(jnp.float32))
+    return critic_loss(q_tm1, batch.reward, discount_t, q_t), q_tm1
+
+
+def actor_loss_fn(actor_params, critic_params, obs: jax.Array, nets: Networks) -> jax.Array:
+    """Deterministic policy gradient through the *first* critic only (as TD3 prescribes)."""
+    first_critic = jax.tree.map(lambda x: x[0], critic_params)
+    return deterministic_policy_loss(
+        nets.critic.apply(first_critic, obs, nets.actor.apply(actor_params, obs))
+    )
+
+
+# ---- one update ---------------------------------------------------------------------------------
+_ADAM = optax.inject_hyperparams(optax.adam)(learning_rate=3e-4)
+
+
+def _adam_step(grads, opt_state, params, learning_rate):
+    """Adam at the hyperparameter's rate; the rate in use is recorded in the optimizer state."""
+    opt_state = opt_state._replace(
+        hyperparams={**opt_state.hyperparams, "learning_rate": learning_rate}
+    )
+    updates, opt_state = _ADAM.update(grads, opt_state, params)
+    return optax.apply_updates(params, updates), opt_state
+
+
+def _critic_step(agent: Agent, batch: Transition, key, hparams: Hyperparams, nets: Networks, decay):
+    noise = jax.random.normal(key, batch.action.shape, jnp.float32)
+    (loss, q_tm1), grads = jax.value_and_grad(critic_loss_fn, has_aux=True)(
+        agent.critics, agent.target_actor, agent.target_critics, batch, noise, hparams, nets
+    )
+    rate = decay(hparams.critic_lr)
+    critics, critic_opt = _adam_step(grads, agent.critic_opt, agent.critics, rate)
+    return agent.replace(critics=critics, critic_opt=critic_opt), loss, jnp.mean(q_tm1)
+
+
+def _actor_and_target_step(agent: Agent, obs, hparams: Hyperparams, nets: Networks, decay):
+    loss, grads = jax.value_and_grad(actor_loss_fn)(agent.actor, agent.critics, obs, nets)
+    actor, actor_opt = _adam_step(grads, agent.actor_opt, agent.actor, decay(hparams.actor_lr))
+    agent = agent.replace(
+        actor=actor,
+        actor_opt=actor_opt,
+        target_actor=polyak_update(agent.target_actor, actor, hparams.tau),
+        target_critics=polyak_update(agent.target_critics, agent.critics, hparams.tau),
+    )
+    return agent, loss
+
+
+def update(
+    agent: Agent,
+    buffer: ReplayBuffer,
+    key,
+    config: Config,
+    hparams: Hyperparams,
+    update_index: jax.Array,
+):
+    """One critic update; every ``policy_delay``-th also an actor and target update."""
+    nets = make_networks(config)
+    sample_key, noise_key = jax.random.split(key)
+    batch = replay.sample(buffer, sample_key, config.batch_size)
+    env_steps = offpolicy.env_steps_at_update(update_index, config)
+
+    def decay(rate):
+        return offpolicy.linearly_decayed(rate, env_steps, hparams.lr_decay_steps)
+
+    agent, critic_loss_value, q = _critic_step(agent, batch, noise_key, hparams, nets, decay)
+    delayed = (update_index + 1) % config.policy_delay == 0
+    agent, actor_loss_value = jax.lax.cond(
+        delayed,
+        lambda agent: _actor_and_target_step(agent, batch.obs, hparams, nets, decay),
+        lambda agent: (agent, jnp.full((), jnp.nan, jnp.float32)),
+        agent,
+    )
+    metrics = {"critic_loss": critic_loss_value, "actor_loss": actor_loss_value, "q": q}
+    return agent, buffer, metrics
+
+
+# ---- acting and init ----------------------------------------------------------------------------
+def act(agent: Agent, obs: jax.Array, config: Config) -> jax.Array:
+    """The deterministic policy, in the env's own action units."""
+    return make_networks(config).actor.apply(agent.actor, obs)
+
+
+def explore(agent: Agent, obs, noise, key, config: Config, hparams: Hyperparams, clock=None):
+    """``(actions, noise)``: the policy plus ``exploration_noise`` x half-range x an AR(1)
+    noise of unit std (independent when ``exploration_correlation`` is 0), clipped to bounds."""
+    nets = make_networks(config)
+    action = nets.actor.apply(agent.actor, obs)
+    rho = hparams.exploration_correlation
+    noise = rho * noise + jnp.sqrt(1.0 - rho**2) * jax.random.normal(key, action.shape)
+    scaled = hparams.exploration_noise * _row(nets.half_range, action) * noise
+    return jnp.clip(action + scaled, _row(nets.low, action), _row(nets.high, action)), noise
+
+
+def init_agent(key, config: Config, hparams: Hyperparams, obs_space, action_space) -> Agent:
+    nets = make_networks(config)
+    actor_key, critic_key = jax.random.split(key)
+    obs = jnp.zeros(obs_space.shape, jnp.float32)
+    action = jnp.zeros(action_space.shape, jnp.float32)
+    actor = nets.actor.init(actor_key, obs)
+    critics = networks.init_stacked(nets.critic, critic_key, config.num_critics, obs, action)
+    adam = optax.inject_hyperparams(optax.adam)
+    return Agent(
+        actor=actor,
+        critics=critics,
+        target_actor=actor,
+        target_critics=critics,
+        actor_opt=adam(learning_rate=hparams.actor_lr).init(actor),
+        critic_opt=adam(learning_rate=hparams.critic_lr).init(critics),
+    )
+
+
+LEARNER = offpolicy.Learner(init_agent, explore, act, update, ("critic_loss", "actor_loss", "q"))
+
+
+# ---- the Algorithm objects ------------------------------------------------------------------
+# Per-env recipes on top of the paper's defaults (measured: see the slow tests). Small networks
+# and 4 envs with 4 updates per iteration (one update per env step, as in the paper) suffice for
+# the classic envs and train ~16x faster than 256 x 256.
+RECIPES: dict[str, dict[str, Any]] = {
+    "rl_jax/Pendulum-v1": {
+        "num_envs": 4,
+        "updates_per_iteration": 4,
+        "iterations_per_chunk": 250,
+        "learning_starts": 1000,
+        "actor_hidden": (64, 64),
+        "critic_hidden": (64, 64),
+    },
+    # The rocket: the Pendulum loop with 5,000-step chunks (10 episodes) and a short warm-up.
+    "rl_jax/Rocket-v0": {
+        "num_envs": 4,
+        "updates_per_iteration": 4,
+        "iterations_per_chunk": 1250,
+        "learning_starts": 2000,
+        "actor_hidden": (64, 64),
+        "critic_hidden": (64, 64),
+    },
+}
+# The settle variant (same dynamics, reward for resting inside the 0.01 box) starts from the same
+# loop and exploration.
+RECIPES["rl_jax/RocketSettle-v0"] = RECIPES["rl_jax/Rocket-v0"]
+HPARAM_RECIPES: dict[str, dict[str, float]] = {
+    "rl_jax/Rocket-v0": {
+        # The reward pays 1 / (v^2 + 1) while approaching, so creeping in is almost as good as
+        # arriving. Scoring clipped PD laws u = -kp x - kd v from (1, 0) by discounted return:
+        # at gamma 0.99 the best (kp 5, kd 10) never gets inside |x|, |v| < 0.05 in 500 steps;
+        # at 0.995 the best (kp 10, kd 10) is inside from step 323 and slow gains lose ~1%.
+        "gamma": 0.995,
+        # dt = 0.01 s: independent noise of std 0.1 barely moves the velocity before it averages
+        # out. AR(1) noise with rho 0.98 (~0.5 s memory) at std 0.5 pushes for long enough to
+        # visit overshoots and reversals. Measured, 3 seeds, 15k-30k steps: rho 0.95 at std 0.3
+        # reached eval returns ~500-700 where independent noise of std 0.1 was still at ~-150-500
+        # (gamma 0.99); rho 0.98 at std 0.5 scored a little higher again (gamma 0.995).
+        "exploration_correlation": 0.98,
+        "exploration_noise": 0.5,
+    },
+}
+HPARAM_RECIPES["rl_jax/RocketSettle-v0"] = HPARAM_RECIPES["rl_jax/Rocket-v0"]
+# Half cheetah: the TD3 paper's networks (256 x 256) and one update per env step, cut to fewer
+# FLOPs per unit of progress for a CPU, where updates (not env steps) are the cost:
+# * batch 128 instead of 256 halves every update's FLOPs (0.21 vs 0.41 GFLOP; the original TD3
+#   paper trained with batch 100);
+# * 4 envs per seed with 4 updates per iteration keeps one update per env step but crosses into
+#   the MuJoCo C callback 4x less often (~0.5 ms per crossing on this machine, more under load);
+# * learning starts after 10k random steps instead of 25k.
+# ``Config(env_id=...)`` without this entry is the paper recipe (1 env, batch 256, 25k).
+# Measured (BENCHMARKS.md, "Half cheetah recipe"; python -m bench.cheetah_recipe): 1.6x
+# the paper recipe's updates/s in the training loop with 5 seeds; after 5k updates the mean return
+# matched the PyTorch paper-recipe baseline's. `make train` (5 seeds, 150k steps; BENCHMARKS.md
+# section 7): mean eval 3,015 at 65k steps, final mean 5,432 (95% CI 5,050-5,815), 61 minutes.
+RECIPES["rl_jax/HalfCheetah-v5"] = {
+    "num_envs": 4,
+    "updates_per_iteration": 4,
+    "iterations_per_chunk": 1250,  # eval every 5,000 env steps per seed
+    "batch_size": 128,
+    "learning_starts": 10_000,
+}
+
+
+class TD3Family(RecipeBook):
+    """TD3 or DDPG as an ``rl_jax.training.algorithm.Algorithm``; the two differ only in their
+    settings."""
+
+    config_type, hparams_type = Config, Hyperparams
+    recipes, hparam_recipes = RECIPES, HPARAM_RECIPES
+
+    def __init__(
+        self, name: str, config_overrides: dict[str, Any], hparam_overrides: dict[str, Any]
+    ):
+        self.name = name
+        self.config_overrides = config_overrides
+        self.hparam_overrides = hparam_overrides
+
+    def init(self, key: jax.Array, config: Config, hparams: Hyperparams) -> TrainState:
+        return offpolicy.init(LEARNER, key, config, hparams)
+
+    def train_chunk(self, state: TrainState, config: Config, hparams: Hyperparams):
+        return offpolicy.train_chunk(LEARNER, state, config, hparams)
+
+    def policy(self, state: TrainState, config: Config):
+        """``obs -> action`` (env units) of the deterministic policy of one seed's state."""
+        actor, params = make_networks(config).actor, state.agent.actor
+        return lambda obs: actor.apply(params, obs)
+
+
+td3 = TD3Family("td3", {}, {})
+ddpg = TD3Family("ddpg", {"num_critics": 1, "policy_delay": 1}, {"target_noise": 0.0})

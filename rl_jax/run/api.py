@@ -1,0 +1,238 @@
+"""Training and inspecting runs from Python (a notebook, a script), with the CLI's run contract.
+
+    import rl_jax
+
+    run = rl_jax.train("td3", "rl_jax/Pendulum-v1", seeds=5, total_steps=20_000)
+    run.results            # the final table: per seed final and best eval, mean, 95% CI
+    run.plot()             # curves.png (shown inline in a notebook)
+    run.evaluate(10)       # fresh evaluation of every seed's policy: {seed: mean return}
+    run.save_gif("p.gif")  # the best seed's best policy
+    act = run.policy(0)    # numpy obs -> numpy action
+
+    run = rl_jax.open_run("runs/Pendulum-v1__td3__...")   # the same object for an existing run
+
+``train`` writes the same run directory as the experiment scripts (config.json, metrics.jsonl,
+checkpoints/, best/, curves.png, results.txt), so ``python -m rl_jax.run.render`` and ``--resume``
+work on it. Progress is one line per ``log_interval`` seconds when the output is not a terminal
+(a notebook cell), never a line per chunk.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+
+class Run:
+    """A run directory, trained or opened: its results, curves, policies and GIFs."""
+
+    def __init__(self, run_dir: str | Path, results: list[Any] | None = None):
+        from rl_jax.run.run_dir import read_run_record
+
+        self.run_dir = Path(run_dir)
+        self.record = read_run_record(self.run_dir)
+        identity = self.record["identity"]
+        self.algorithm: str = identity["algorithm"]
+        self.env_id: str = identity["env_id"]
+        self.seeds: list[int] = [identity["base_seed"] + s for s in range(identity["seeds"])]
+        self._results = results
+
+    @property
+    def results(self) -> Any:
+        """The final results: a ``plots.FinalResult`` (per seed ``returns``, ``best``, ``mean``,
+        ``ci_low``/``ci_high``, ``iqm``), or a list of them for a sweep. Printing gives the
+        table."""
+        if self._results is None:
+            self._results = _results_from_metrics(self.run_dir, self.record)
+        return self._results[0] if len(self._results) == 1 else self._results
+
+    @property
+    def table(self) -> str:
+        """The final table as text (what the scripts print at the end)."""
+        from rl_jax.run import plots
+
+        results = self.results
+        if isinstance(results, list):
+            return plots.sweep_table(results)
+        return plots.results_table(results)
+
+    def policy(self, seed: int | None = None, which: str = "best", config: int | None = None):
+        """The numpy ``obs -> action`` callable of ``seed`` (default: the best seed)."""
+        from rl_jax.run.policy import load_policy
+
+        return load_policy(self.run_dir, seed, which, config)
+
+    def evaluate(self, episodes: int = 10, which: str = "best", key: int = 0) -> dict[int, float]:
+        """Mean undiscounted return of ``episodes`` fresh episodes of each seed's deterministic
+        policy (in the env the run trained on, episodes vmapped in one compiled call)."""
+        import jax
+
+        from rl_jax.run.policy import LoadedPolicy
+
+        returns = {}
+        for seed in self.seeds:
+            loaded = LoadedPolicy(self.run_dir, seed, None, which)
+            totals = evaluate_policy(loaded.env(), loaded.act(), jax.random.key(key), episodes)
+            returns[seed] = float(np.mean(totals))
+        return returns
+
+    def save_gif(
+        self,
+        path: str | Path | None = None,
+        seed: int | None = None,
+        which: str = "best",
+        episodes: int = 1,
+    ) -> Path:
+        """A GIF of the policy (default: ``RUN_DIR/policy.gif`` of the best seed's best)."""
+        import os
+
+        from rl_jax.run.render import write_gif
+
+        os.environ.setdefault("MUJOCO_GL", "egl")
+        return write_gif(self.run_dir, seed, episodes, path, which=which)
+
+    def plot(self) -> Any:
+        """curves.png (redrawn from metrics.jsonl): an inline image in IPython, else its path."""
+        from rl_jax.run import plots
+        from rl_jax.run.metrics import METRICS_FILE, read_rows
+        from rl_jax.run.runner import CURVES_FILE
+
+        path = self.run_dir / CURVES_FILE
+        curves = plots.curves_from_rows(
+            read_rows(self.run_dir / METRICS_FILE), tuple(self.record.get("grid_fields", ()))
+        )
+        plots.plot_curves(curves, path, title=f"{self.algorithm} on {self.env_id}")
+        try:
+            from IPython.display import Image
+        except ImportError:
+            return path
+        return Image(filename=str(path))
+
+    def __repr__(self) -> str:
+        return f"<Run {self.algorithm} on {self.env_id}, {len(self.seeds)} seeds: {self.run_dir}>"
+
+
+def train(
+    algorithm: str,
+    env_id: str,
+    seeds: int = 1,
+    total_steps: int | None = None,
+    out: str | Path | None = None,
+    config: dict[str, Any] | None = None,
+    hparams: dict[str, Any] | None = None,
+    log_interval: float = 30.0,
+    quiet: bool = False,
+) -> Run:
+    """Train ``algorithm`` ("td3", "ddpg", "dqn", "reinforce") on ``env_id`` with every seed in
+    one compiled program, into a run directory (default ``runs/<env>__<algo>__<time>/``).
+
+    ``config`` / ``hparams`` override the recipe's fields by name (as the scripts' flags do);
+    ``total_steps`` defaults to 100,000 env steps per seed.
+    """
+    from rl_jax.run import cli
+    from rl_jax.run.runner import RunSpec, run
+    from rl_jax.training.jax_setup import configure
+
+    configure()
+    learner = cli.resolve_algorithm(algorithm)
+    base_config = learner.default_config(env_id)
+    base_hparams = learner.default_hyperparams(env_id)
+    chosen_config = cli._replace(base_config, dict(config or {}), "config")
+    chosen_hparams = cli._replace(base_hparams, dict(hparams or {}), "hyperparameters")
+    cli._validate(learner, chosen_config, [chosen_hparams])
+    run_dir = Path(out) if out is not None else cli.default_run_dir(env_id, learner.name)
+    spec = RunSpec(
+        algorithm=learner,
+        env_id=env_id,
+        config=chosen_config,
+        hparams=(chosen_hparams,),
+        out=run_dir,
+        seeds=seeds,
+        total_steps=100_000 if total_steps is None else int(total_steps),
+        log_interval=log_interval,
+        command=f"rl_jax.train({algorithm!r}, {env_id!r}, seeds={seeds}, ...)",
+        resume_command=f"rl_jax.resume({str(run_dir)!r})",
+    )
+    result = run(spec, notify=(lambda message: None) if quiet else print)
+    return Run(result.run_dir, result.results or None)
+
+
+def resume(run_dir: str | Path, total_steps: int | None = None, quiet: bool = False) -> Run:
+    """Continue a run (from the scripts or ``train``) from its latest checkpoint."""
+    from rl_jax.run.run_dir import dataclass_from_dict, load_algorithm, read_run_record
+    from rl_jax.run.runner import RunSpec, run
+    from rl_jax.training.jax_setup import configure
+
+    configure()
+    run_dir = Path(run_dir)
+    record = read_run_record(run_dir)
+    identity = record["identity"]
+    learner = load_algorithm(record["algorithm_module"])
+    config = dataclass_from_dict(learner.default_config(identity["env_id"]), identity["config"])
+    template = learner.default_hyperparams()
+    spec = RunSpec(
+        algorithm=learner,
+        env_id=identity["env_id"],
+        config=config,
+        hparams=tuple(dataclass_from_dict(template, h) for h in identity["hparams"]),
+        out=run_dir,
+        seeds=identity["seeds"],
+        base_seed=identity["base_seed"],
+        total_steps=record.get("total_steps", 0) if total_steps is None else int(total_steps),
+        resume=True,
+        grid_fields=tuple(record.get("grid_fields", ())),
+    )
+    result = run(spec, notify=(lambda message: None) if quiet else print)
+    return Run(result.run_dir, result.results or None)
+
+
+def open_run(run_dir: str | Path) -> Run:
+    """The ``Run`` of an existing run directory."""
+    return Run(run_dir)
+
+
+def evaluate_policy(env: Any, act: Any, key: Any, episodes: int) -> np.ndarray:
+    """``[episodes]`` undiscounted returns of ``act`` in ``env``, all episodes vmapped in one
+    jitted while loop (each stops at termination or the env's step limit)."""
+    import jax
+    import jax.numpy as jnp
+
+    @jax.jit
+    def run_all(key):
+        reset_key, step_key = jax.random.split(key)
+        params = env.default_params
+        state, ts = jax.vmap(lambda k: env.reset(k, params))(jax.random.split(reset_key, episodes))
+
+        def running(carry):
+            time, _, _, alive, _ = carry
+            return (time < env.max_episode_steps) & jnp.any(alive)
+
+        def step(carry):
+            time, state, obs, alive, total = carry
+            keys = jax.random.split(jax.random.fold_in(step_key, time), episodes)
+            state, ts = jax.vmap(lambda k, s, a: env.step(k, s, a, params))(
+                keys, state, jax.vmap(act)(obs)
+            )
+            total = total + jnp.where(alive, ts.reward, 0.0)
+            alive = alive & ~(ts.terminated | ts.truncated)
+            return time + 1, state, ts.obs, alive, total
+
+        alive = jnp.ones(episodes, jnp.bool_)
+        carry = (jnp.int32(0), state, ts.obs, alive, jnp.zeros(episodes, jnp.float32))
+        return jax.lax.while_loop(running, step, carry)[-1]
+
+    return np.asarray(run_all(key))
+
+
+def _results_from_metrics(run_dir: Path, record: dict[str, Any]) -> list[Any]:
+    from rl_jax.run import plots
+    from rl_jax.run.metrics import METRICS_FILE, read_rows
+
+    rows = read_rows(run_dir / METRICS_FILE)
+    curves = plots.curves_from_rows(rows, tuple(record.get("grid_fields", ())))
+    return plots.final_results(curves)
+
+
+__all__ = ["Run", "evaluate_policy", "open_run", "resume", "train"]

@@ -1,0 +1,149 @@
+"""The best evaluated policy of every run, kept next to the latest checkpoint.
+
+A learner's last policy is not always its best: DQN on CartPole reaches 500 and can then fall
+away. After every chunk the runner compares each (config, seed)'s eval return with the best so
+far and, where it improved, keeps a host copy of that run's *policy part* of the train state:
+the fields ``algorithm.policy`` reads (``algorithm.policy_fields``, default ``("agent",)``). That
+is parameters and optimizer state, not the replay buffer, so it costs little to keep.
+
+On disk it is an ordinary checkpoint in ``RUN_DIR/best/``, written at the same step as (and just
+before) each checkpoint of ``RUN_DIR/checkpoints/``, with the per-run best returns and steps in
+its metadata. A resume restores the best from the step of the checkpoint it resumes, so a run
+that stopped and resumed keeps the same best as one that never stopped.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from pathlib import Path
+from typing import Any
+
+import jax
+import numpy as np
+
+from rl_jax.run.checkpoint import Checkpointer
+
+BEST_DIR = "best"
+
+
+def policy_fields(algorithm: Any, state: Any) -> tuple[str, ...]:
+    """The train-state fields the deterministic policy reads (empty: no best tracking)."""
+    fields = getattr(algorithm, "policy_fields", None)
+    if fields is None:
+        fields = ("agent",) if hasattr(state, "agent") else ()
+    return tuple(fields)
+
+
+def policy_part(state: Any, fields: tuple[str, ...]) -> dict[str, Any]:
+    return {name: getattr(state, name) for name in fields}
+
+
+def with_policy_part(state: Any, part: dict[str, Any]) -> Any:
+    """``state`` with the fields of ``part`` replaced (NamedTuple or dataclass states)."""
+    if hasattr(state, "_replace"):
+        return state._replace(**part)
+    return dataclasses.replace(state, **part)
+
+
+class BestPolicies:
+    """Per run of an ``[H, S]`` program: the best eval return, its step and its policy part."""
+
+    def __init__(self, fields: tuple[str, ...], runs: tuple[int, int]):
+        self.fields = fields
+        self.returns = np.full(runs, -np.inf)
+        self.steps = np.full(runs, -1, dtype=np.int64)
+        self.part: dict[str, Any] | None = None  # host arrays with leading [H, S]
+        self.changed = False  # since the last save
+
+    @property
+    def enabled(self) -> bool:
+        return bool(self.fields)
+
+    def observe(self, eval_return: np.ndarray, env_steps: np.ndarray, fetch: Any) -> np.ndarray:
+        """Take the runs whose finite eval return beats their best; ``fetch()`` gives the
+        ``[H, S]`` host copy of the policy part, called only when one improved. Returns the
+        ``[H, S]`` mask of improved runs."""
+        eval_return = np.asarray(eval_return, np.float64)
+        improved = np.isfinite(eval_return) & (eval_return > self.returns)
+        if not self.enabled or not improved.any():
+            return improved
+        current = jax.tree.map(np.asarray, fetch())
+        if self.part is None:
+            self.part = jax.tree.map(np.copy, current)
+        else:
+            self.part = jax.tree.map(
+                lambda old, new: np.where(_expand(improved, old.ndim), new, old),
+                self.part,
+                current,
+            )
+        self.returns = np.where(improved, eval_return, self.returns)
+        self.steps = np.where(improved, np.asarray(env_steps, np.int64), self.steps)
+        self.changed = True
+        return improved
+
+    def metadata(self) -> dict[str, Any]:
+        return {
+            "best_returns": [[_json_float(r) for r in row] for row in self.returns.tolist()],
+            "best_steps": self.steps.tolist(),
+        }
+
+    def save(self, checkpointer: Checkpointer, step: int, meta: dict[str, Any]) -> None:
+        """Write the best policies as checkpoint ``step`` (if there are any yet)."""
+        if self.part is None:
+            return
+        checkpointer.save(step, self.part, {**meta, **self.metadata()})
+        self.changed = False
+
+    @classmethod
+    def restore(
+        cls,
+        directory: Path,
+        fields: tuple[str, ...],
+        template: Any,
+        at_most: int,
+        expect: dict[str, Any],
+    ) -> BestPolicies:
+        """The best policies saved at the latest step <= ``at_most`` (none: a fresh tracker).
+        ``template``: the ``[H, S]`` abstract train state."""
+        best = cls(fields, _runs(template, fields))
+        if not best.enabled or not Path(directory).is_dir():
+            return best
+        with Checkpointer(directory, read_only=True) as checkpointer:
+            steps = [s for s in checkpointer.steps() if s <= at_most]
+            if not steps:
+                return best
+            part, meta = checkpointer.restore(
+                policy_part(template, fields), step=steps[-1], expect=expect
+            )
+        best.part = jax.tree.map(np.asarray, part)
+        best.returns = np.array(
+            [[-np.inf if r is None else r for r in row] for row in meta["best_returns"]]
+        )
+        best.steps = np.array(meta["best_steps"], dtype=np.int64)
+        return best
+
+
+def load_part(
+    directory: Path, fields: tuple[str, ...], template: Any, expect: dict[str, Any]
+) -> tuple[dict[str, Any], dict[str, Any]] | None:
+    """``(part, metadata)`` of the latest best-policy checkpoint, or None if there is none."""
+    if not Path(directory).is_dir():
+        return None
+    with Checkpointer(directory, read_only=True) as checkpointer:
+        if checkpointer.latest_step() is None:
+            return None
+        return checkpointer.restore(policy_part(template, fields), expect=expect)
+
+
+def _runs(template: Any, fields: tuple[str, ...]) -> tuple[int, int]:
+    leaves = jax.tree.leaves(policy_part(template, fields))
+    return tuple(leaves[0].shape[:2]) if leaves else (0, 0)
+
+
+def _expand(mask: np.ndarray, ndim: int) -> np.ndarray:
+    return mask.reshape(mask.shape + (1,) * (ndim - mask.ndim))
+
+
+def _json_float(value: float) -> float | None:
+    return value if math.isfinite(value) else None

@@ -1,0 +1,772 @@
+"""Command-line helpers for experiment scripts: the run contract, flags built from the algorithm's
+``Config``/``Hyperparams`` dataclasses (their field docstrings or comments become ``--help``),
+validation, and a top-level guard that turns every user error into one line on stderr.
+
+An experiment script is a few lines::
+
+    from rl_jax.run import cli
+    from rl_jax.agents import td3
+
+    if __name__ == "__main__":
+        cli.main(td3, "rl_jax/Pendulum-v1", __doc__, seeds=5, total_steps=20_000,
+                 config={"num_envs": 8}, hparams={"learning_rate": 1e-3})
+
+With ``algorithm=None`` / ``env_id=None`` the script takes ``--algo`` / ``--env`` flags instead.
+"""
+
+from __future__ import annotations
+
+import argparse
+import ast
+import dataclasses
+import inspect
+import io
+import math
+import os
+import shlex
+import sys
+import textwrap
+import time
+import tokenize
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any, NoReturn
+
+from rl_jax.run.run_dir import RunError
+
+#: name -> "module" or "module:attribute" of every algorithm the CLI knows (imported on use).
+ALGORITHMS: dict[str, str] = {
+    "td3": "rl_jax.agents.td3:td3",
+    "ddpg": "rl_jax.agents.td3:ddpg",
+    "dqn": "rl_jax.agents.dqn:dqn",
+    "reinforce": "rl_jax.agents.reinforce:reinforce",
+}
+RUNS_ROOT = Path("runs")
+#: Config fields that are not flags: the env is chosen by the script (or --env).
+NOT_FLAGS = ("env_id",)
+
+
+class UsageError(Exception):
+    """Bad command-line input (reported as one line, exit status 2)."""
+
+
+def register_algorithm(name: str, reference: str) -> None:
+    ALGORITHMS[name] = reference
+
+
+def resolve_algorithm(name: str) -> Any:
+    """The algorithm registered as ``name``."""
+    from rl_jax.run.run_dir import load_algorithm
+
+    if name not in ALGORITHMS:
+        known = ", ".join(sorted(ALGORITHMS))
+        raise UsageError(f"unknown algorithm {name!r}; known algorithms: {known}")
+    try:
+        return load_algorithm(ALGORITHMS[name])
+    except RunError as error:
+        raise UsageError(f"algorithm {name!r} is not available: {error}") from None
+
+
+# ---- field documentation --------------------------------------------------------------------
+
+
+def _comments(source: str) -> dict[int, str]:
+    """Line number -> text of the ``#`` comment on that line."""
+    comments = {}
+    for token in tokenize.generate_tokens(io.StringIO(source).readline):
+        if token.type == tokenize.COMMENT:
+            comments[token.start[0]] = token.string.lstrip("#").strip()
+    return comments
+
+
+def _class_field_docs(cls: type) -> dict[str, str]:
+    try:
+        source = textwrap.dedent(inspect.getsource(cls))
+    except (OSError, TypeError):
+        return {}
+    body = ast.parse(source).body[0].body
+    comments, lines = _comments(source), source.splitlines()
+    docs = {}
+    for index, node in enumerate(body):
+        if not (isinstance(node, ast.AnnAssign) and isinstance(node.target, ast.Name)):
+            continue
+        following = body[index + 1] if index + 1 < len(body) else None
+        if (
+            isinstance(following, ast.Expr)
+            and isinstance(following.value, ast.Constant)
+            and isinstance(following.value.value, str)
+        ):
+            docs[node.target.id] = inspect.cleandoc(following.value.value)
+        elif node.end_lineno in comments:
+            docs[node.target.id] = comments[node.end_lineno]
+        else:
+            above = []
+            line = node.lineno - 1
+            while line in comments and lines[line - 1].lstrip().startswith("#"):
+                above.insert(0, comments[line])
+                line -= 1
+            if above:
+                docs[node.target.id] = " ".join(above)
+    return docs
+
+
+def field_docs(cls: type) -> dict[str, str]:
+    """Each dataclass field's docstring (string after it), trailing comment, or comment above."""
+    docs: dict[str, str] = {}
+    for base in reversed(cls.__mro__):
+        if dataclasses.is_dataclass(base):
+            docs.update(_class_field_docs(base))
+    return docs
+
+
+def undocumented_fields(instance: Any) -> list[str]:
+    """Fields that would get no help text (a test keeps this empty for every algorithm)."""
+    docs = field_docs(type(instance))
+    return [f.name for f in dataclasses.fields(instance) if not docs.get(f.name)]
+
+
+# ---- value parsing --------------------------------------------------------------------------
+
+
+def parse_int(text: str) -> int:
+    """An integer; ``1e6`` and ``1_000_000`` are accepted when they are whole numbers."""
+    try:
+        return int(text)
+    except ValueError:
+        pass
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"invalid integer value: {text!r}") from None
+    if not value.is_integer():
+        raise argparse.ArgumentTypeError(f"invalid integer value: {text!r}")
+    return int(value)
+
+
+def parse_float(text: str) -> float:
+    """A finite number."""
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"invalid numeric value: {text!r}") from None
+    if not math.isfinite(value):
+        raise argparse.ArgumentTypeError(f"invalid numeric value: {text!r} (must be finite)")
+    return value
+
+
+def parse_bool(text: str) -> bool:
+    lowered = text.strip().lower()
+    if lowered in ("1", "true", "yes", "on"):
+        return True
+    if lowered in ("0", "false", "no", "off"):
+        return False
+    raise argparse.ArgumentTypeError(f"invalid boolean value: {text!r}")
+
+
+def positive_int(text: str) -> int:
+    value = parse_int(text)
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"must be >= 1, got {value}")
+    return value
+
+
+def non_negative_float(text: str) -> float:
+    value = parse_float(text)
+    if value < 0:
+        raise argparse.ArgumentTypeError(f"must be >= 0, got {value}")
+    return value
+
+
+def _kind(default: Any) -> str:
+    """bool, int, float, str or tuple: how a field's values are parsed."""
+    import numpy as np
+
+    if isinstance(default, tuple):
+        return "tuple"
+    if isinstance(default, (bool, np.bool_)):
+        return "bool"
+    if isinstance(default, (int, np.integer)):
+        return "int"
+    if isinstance(default, (float, np.floating)):
+        return "float"
+    if hasattr(default, "dtype") and getattr(default, "ndim", 1) == 0:
+        return {"b": "bool", "i": "int", "u": "int", "f": "float"}.get(default.dtype.kind, "str")
+    return "str"
+
+
+def _parser_for(default: Any) -> Callable[[str], Any]:
+    kind = _kind(default)
+    if kind == "tuple":
+        # An empty default says nothing of its elements: widths and sizes are whole numbers.
+        element = _parser_for(default[0]) if default else parse_int
+
+        def parse_tuple(text: str) -> tuple:
+            parts = [part for part in text.replace(" ", "").split(",") if part]
+            return tuple(element(part) for part in parts)
+
+        return parse_tuple
+    return {"bool": parse_bool, "int": parse_int, "float": parse_float}.get(kind, str)
+
+
+def _metavar(default: Any) -> str:
+    if _kind(default) == "tuple":
+        return f"{_kind(default[0]).upper() if default else 'X'},..."
+    return _kind(default).upper()
+
+
+def _describe(default: Any) -> str:
+    if isinstance(default, tuple):
+        return ",".join(str(v) for v in default)
+    if hasattr(default, "item"):
+        default = default.item()
+    if isinstance(default, float):
+        # Float32 leaves widen to noise digits (0.995 -> 0.9950000047683716): 7 significant
+        # digits are what float32 holds.
+        return f"{default:.7g}"
+    return str(default)
+
+
+# ---- the parser -----------------------------------------------------------------------------
+
+
+class OneLineParser(argparse.ArgumentParser):
+    """argparse that reports a bad flag in one line (no usage block) and exits with 2."""
+
+    def error(self, message: str) -> NoReturn:
+        self.exit(2, f"error: {message} (see --help)\n")
+
+
+def flag_name(field: str) -> str:
+    return "--" + field.replace("_", "-")
+
+
+def add_dataclass_flags(parser: argparse.ArgumentParser, instance: Any, title: str) -> list[str]:
+    """One flag per field of ``instance``; absent flags stay absent (explicit ones override)."""
+    group = parser.add_argument_group(title)
+    docs = field_docs(type(instance))
+    names = []
+    for field in dataclasses.fields(instance):
+        if field.name in NOT_FLAGS:
+            continue
+        default = getattr(instance, field.name)
+        doc = docs.get(field.name) or f"{type(instance).__name__}.{field.name}"
+        help_text = f"{doc} (default: {_describe(default)})".replace("%", "%%")
+        if _kind(default) == "bool":
+            group.add_argument(
+                flag_name(field.name),
+                dest=field.name,
+                help=help_text,
+                action=argparse.BooleanOptionalAction,
+                default=argparse.SUPPRESS,
+            )
+        else:
+            group.add_argument(
+                flag_name(field.name),
+                dest=field.name,
+                help=help_text,
+                type=_parser_for(default),
+                default=argparse.SUPPRESS,
+                metavar=_metavar(default),
+            )
+        names.append(field.name)
+    return names
+
+
+def add_run_flags(parser: argparse.ArgumentParser, seeds: int, total_steps: int) -> None:
+    """The run contract: --seeds, --total-steps, --out, --resume, --gif, and run settings."""
+    group = parser.add_argument_group("run")
+    add = group.add_argument
+    add(
+        "--seeds",
+        type=positive_int,
+        default=argparse.SUPPRESS,
+        metavar="N",
+        help=f"independent seeds, trained together in one compiled program (default: {seeds})",
+    )
+    add(
+        "--total-steps",
+        type=positive_int,
+        default=argparse.SUPPRESS,
+        metavar="N",
+        help=f"env steps per seed, rounded up to whole chunks (default: {total_steps:,})",
+    )
+    add(
+        "--out",
+        type=Path,
+        default=None,
+        metavar="DIR",
+        help="run directory to create (default: runs/<env>__<algo>__<time>/)",
+    )
+    add(
+        "--resume",
+        type=Path,
+        default=None,
+        metavar="DIR",
+        help="continue the run in DIR from its latest checkpoint (its config is reused)",
+    )
+    add(
+        "--gif",
+        action="store_true",
+        help="at the end, write policy.gif of the deterministic policy of the best seed",
+    )
+    add(
+        "--base-seed",
+        type=parse_int,
+        default=argparse.SUPPRESS,
+        metavar="N",
+        help="seed numbers are base-seed .. base-seed + seeds - 1 (default: 0)",
+    )
+    add(
+        "--grid",
+        action="append",
+        default=[],
+        metavar="NAME=V1,V2,...",
+        help="sweep a hyperparameter over values (repeat for a product grid); all configs and "
+        "seeds run as one compiled program",
+    )
+    add(
+        "--checkpoint-interval",
+        type=non_negative_float,
+        default=120.0,
+        metavar="SECONDS",
+        help="minimum seconds between checkpoints; one is always written at the end and when "
+        "stopped by Ctrl-C/SIGTERM (default: 120)",
+    )
+    add(
+        "--keep-checkpoints",
+        type=positive_int,
+        default=3,
+        metavar="N",
+        help="checkpoints kept on disk, newest first (default: 3)",
+    )
+    add(
+        "--log-interval",
+        type=non_negative_float,
+        default=30.0,
+        metavar="SECONDS",
+        help="seconds between progress lines when the output is not a terminal (default: 30)",
+    )
+
+
+# ---- grids ----------------------------------------------------------------------------------
+
+
+def parse_grid(specs: list[str], hparams: Any, config: Any) -> dict[str, list[Any]]:
+    """``["lr=1e-4,3e-4", "tau=0.005,0.02"]`` -> ``{"learning_rate": [...], "tau": [...]}``."""
+    fields = {f.name: getattr(hparams, f.name) for f in dataclasses.fields(hparams)}
+    static = {f.name for f in dataclasses.fields(config)}
+    grid: dict[str, list[Any]] = {}
+    for spec in specs:
+        name, equals, values = spec.partition("=")
+        name = name.strip().lstrip("-").replace("-", "_")
+        if not equals or not values.strip():
+            raise UsageError(f"--grid {spec!r}: expected NAME=V1,V2,...")
+        if name in static:
+            raise UsageError(
+                f"--grid {name}: {name} is a static config field (it changes shapes); only "
+                f"hyperparameters can be swept in one program: {', '.join(fields)}"
+            )
+        if name not in fields:
+            raise UsageError(f"--grid {name}: unknown hyperparameter; known: {', '.join(fields)}")
+        if name in grid:
+            raise UsageError(f"--grid {name} given twice")
+        parse = _parser_for(fields[name])
+        try:
+            grid[name] = [parse(value) for value in values.split(",") if value.strip()]
+        except argparse.ArgumentTypeError as error:
+            kind = _kind(fields[name])
+            raise UsageError(f"--grid {name} takes {kind} values: {error}") from None
+    return grid
+
+
+def expand_grid(hparams: Any, grid: dict[str, list[Any]]) -> list[Any]:
+    """The product grid, first field slowest."""
+    import itertools
+
+    names = list(grid)
+    return [
+        dataclasses.replace(hparams, **dict(zip(names, values, strict=True)))
+        for values in itertools.product(*(grid[name] for name in names))
+    ]
+
+
+# ---- building the run -----------------------------------------------------------------------
+
+
+def default_run_dir(env_id: str, algorithm_name: str) -> Path:
+    """``runs/<env>__<algo>__<time>/`` (a suffix if that name is taken)."""
+    env_name = env_id.split("/")[-1]
+    stamp = time.strftime("%Y%m%d-%H%M%S")
+    path = RUNS_ROOT / f"{env_name}__{algorithm_name}__{stamp}"
+    suffix = 1
+    while path.exists():
+        suffix += 1
+        path = RUNS_ROOT / f"{env_name}__{algorithm_name}__{stamp}-{suffix}"
+    return path
+
+
+def _explicit(args: argparse.Namespace, names: list[str]) -> dict[str, Any]:
+    return {name: getattr(args, name) for name in names if hasattr(args, name)}
+
+
+def _replace(instance: Any, values: dict[str, Any], what: str) -> Any:
+    try:
+        return dataclasses.replace(instance, **values)
+    except (TypeError, ValueError) as error:
+        raise UsageError(f"invalid {what}: {error}") from None
+
+
+@dataclasses.dataclass
+class Defaults:
+    """What a script chooses; flags override it."""
+
+    seeds: int = 1
+    total_steps: int = 100_000
+    config: dict[str, Any] = dataclasses.field(default_factory=dict)
+    hparams: dict[str, Any] = dataclasses.field(default_factory=dict)
+    # (env steps/s per seed, seeds) measured for this default config: the plan's time estimate
+    throughput: tuple[float, int] | None = None
+
+
+def _base(algorithm: Any, env_id: str, defaults: Defaults) -> tuple[Any, Any]:
+    """The algorithm's recipe for ``env_id`` with the script's overrides."""
+    try:
+        config = algorithm.default_config(env_id)
+        hparams = algorithm.default_hyperparams(env_id)
+    except (ValueError, TypeError, KeyError) as error:
+        raise UsageError(f"{algorithm.name} cannot run {env_id}: {error}") from None
+    config = _replace(config, defaults.config, "config")
+    return config, _replace(hparams, defaults.hparams, "hyperparameters")
+
+
+def _validate(algorithm: Any, config: Any, hparams_list: list[Any]) -> None:
+    """Ranges (``rl_jax.training.validation``), then the algorithm's own ``validate(config,
+    hparams)`` when it has one: before anything compiles, for every config of a grid."""
+    from rl_jax.training.validation import out_of_range
+
+    for field in dataclasses.fields(config):
+        value = getattr(config, field.name)
+        if _kind(value) == "int" and not isinstance(value, bool) and value < 0:
+            raise UsageError(f"{flag_name(field.name)} must be >= 0, got {value}")
+    problem = out_of_range(config, algorithm)
+    if problem:
+        raise UsageError(problem)
+    for hparams in hparams_list:
+        problem = out_of_range(hparams, algorithm)
+        if problem:
+            raise UsageError(problem)
+        if hasattr(algorithm, "validate"):
+            try:
+                algorithm.validate(config, hparams)
+            except ValueError as error:
+                raise UsageError(str(error)) from None
+
+
+def _check_env_fits(algorithm: Any, config: Any, hparams: Any) -> None:
+    """The algorithm can act in the env (TD3 needs a bounded Box action space, say): its init,
+    traced without running, raises the algorithm's own TypeError or ValueError otherwise, which
+    ``--env`` with any gymnasium id makes a user error rather than a bug."""
+    import jax
+
+    try:
+        jax.eval_shape(lambda key: algorithm.init(key, config, hparams), jax.random.key(0))
+    except (TypeError, ValueError) as error:
+        raise UsageError(f"{algorithm.name} cannot run {config.env_id}: {error}") from None
+
+
+def build_parser(
+    algorithm: Any, env_id: str, description: str, defaults: Defaults, choose: bool
+) -> tuple[argparse.ArgumentParser, list[str], list[str]]:
+    parser = OneLineParser(
+        description=description, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
+    if choose:
+        _add_choice_flags(parser)
+    add_run_flags(parser, defaults.seeds, defaults.total_steps)
+    config, hparams = _base(algorithm, env_id, defaults)
+    config_names = add_dataclass_flags(parser, config, f"{algorithm.name} config (static)")
+    hparam_names = add_dataclass_flags(parser, hparams, f"{algorithm.name} hyperparameters")
+    return parser, config_names, hparam_names
+
+
+def _add_choice_flags(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument(
+        "--algo", default=None, metavar="NAME", help=f"algorithm: {', '.join(sorted(ALGORITHMS))}"
+    )
+    parser.add_argument(
+        "--env",
+        default=None,
+        metavar="ID",
+        help="environment id: a registered one (rl_jax/Pendulum-v1); gymnasium:ID for any "
+        "gymnasium env, stepped on the host (gymnasium:Pendulum-v1); or MODULE:ID to import "
+        "MODULE first, which registers ID with envs.register (your own env: "
+        "examples.hover_rocket:examples/HoverRocket-v0); MODULE is searched on the Python path "
+        "and in the current directory",
+    )
+
+
+def _choose(argv: list[str], algorithm: Any, env_id: str | None) -> tuple[Any, str, bool]:
+    """Algorithm and env: fixed by the script, or from --algo/--env (or the resumed run)."""
+    import envs
+    from rl_jax.run.run_dir import read_run_record
+
+    if algorithm is not None and env_id is not None:
+        return algorithm, envs.core.registry.resolve_id(env_id), False
+    pre = OneLineParser(add_help=False)
+    _add_choice_flags(pre)
+    pre.add_argument("--resume", type=Path, default=None)
+    known, _ = pre.parse_known_args(argv)
+    record = read_run_record(known.resume)["identity"] if known.resume else None
+    name = known.algo or (record["algorithm"] if record else None)
+    env_name = env_id or known.env or (record["env_id"] if record else None)
+    if {"-h", "--help"} & set(argv) and (algorithm or name) is None:
+        return None, "", True
+    if algorithm is None and name is None:
+        raise UsageError("--algo is required")
+    if env_name is None:
+        raise UsageError("--env is required")
+    return algorithm or resolve_algorithm(name), envs.core.registry.resolve_id(env_name), True
+
+
+def _help_without_algorithm(description: str, defaults: Defaults) -> int:
+    parser = OneLineParser(
+        description=description, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
+    _add_choice_flags(parser)
+    add_run_flags(parser, defaults.seeds, defaults.total_steps)
+    parser.epilog = "Give --algo and --env to list the algorithm's config and hyperparameter flags."
+    parser.print_help()
+    return 0
+
+
+def _resumed_settings(args: argparse.Namespace, algorithm: Any, env_id: str) -> dict[str, Any]:
+    """Config, hyperparameters, seeds and steps recorded by the run being resumed."""
+    from rl_jax.run.run_dir import dataclass_from_dict, read_run_record
+
+    record = read_run_record(args.resume)
+    saved = record["identity"]
+    if saved["algorithm"] != algorithm.name or saved["env_id"] != env_id:
+        raise RunError(
+            f"cannot resume {args.resume}: it is a {saved['algorithm']} run on "
+            f"{saved['env_id']}, this is {algorithm.name} on {env_id}"
+        )
+    config = dataclass_from_dict(algorithm.default_config(env_id), saved["config"])
+    template = algorithm.default_hyperparams()
+    hparams = [dataclass_from_dict(template, values) for values in saved["hparams"]]
+    return {
+        "config": config,
+        "hparams": hparams,
+        "seeds": saved["seeds"],
+        "base_seed": saved["base_seed"],
+        "total_steps": record.get("total_steps", 1),
+        "grid_fields": tuple(record.get("grid_fields", ())),
+    }
+
+
+def _fresh_settings(algorithm: Any, env_id: str, defaults: Defaults) -> dict[str, Any]:
+    """The script's defaults for a new run (flags are applied on top)."""
+    config, hparams = _base(algorithm, env_id, defaults)
+    return {
+        "config": config,
+        "hparams": [hparams],
+        "seeds": defaults.seeds,
+        "base_seed": 0,
+        "total_steps": defaults.total_steps,
+        "grid_fields": (),
+    }
+
+
+def build_spec(
+    args: argparse.Namespace,
+    algorithm: Any,
+    env_id: str,
+    defaults: Defaults,
+    names: tuple[list[str], list[str]],
+    argv: list[str],
+) -> Any:
+    """The ``RunSpec`` the flags describe (for ``--resume``: the recorded run, then the flags)."""
+    from rl_jax.run.runner import RunSpec
+
+    if args.resume is not None and args.out is not None and args.out != args.resume:
+        raise UsageError("--out and --resume name different directories; give only --resume")
+    resume = args.resume is not None
+    settings = (
+        _resumed_settings(args, algorithm, env_id)
+        if resume
+        else _fresh_settings(algorithm, env_id, defaults)
+    )
+    config = _replace(settings["config"], _explicit(args, names[0]), "config")
+    explicit_hparams = _explicit(args, names[1])
+    hparams = [_replace(h, explicit_hparams, "hyperparameters") for h in settings["hparams"]]
+    grid_fields = settings["grid_fields"]
+    if args.grid:
+        grid = parse_grid(args.grid, hparams[0], config)
+        if set(grid) & set(explicit_hparams):
+            raise UsageError(
+                f"{', '.join(set(grid) & set(explicit_hparams))} given as flag and grid"
+            )
+        hparams, grid_fields = expand_grid(hparams[0], grid), tuple(grid)
+    _validate(algorithm, config, hparams)
+    _check_env_fits(algorithm, config, hparams[0])
+    out = args.resume if resume else (args.out or default_run_dir(env_id, algorithm.name))
+    script = shlex.join([Path(sys.executable).name, sys.argv[0]])
+    return RunSpec(
+        algorithm=algorithm,
+        env_id=env_id,
+        config=config,
+        hparams=tuple(hparams),
+        out=Path(out),
+        seeds=getattr(args, "seeds", settings["seeds"]),
+        total_steps=getattr(args, "total_steps", settings["total_steps"]),
+        resume=resume,
+        base_seed=getattr(args, "base_seed", settings["base_seed"]),
+        grid_fields=grid_fields,
+        checkpoint_interval=args.checkpoint_interval,
+        keep_checkpoints=args.keep_checkpoints,
+        log_interval=args.log_interval,
+        gif=args.gif,
+        command=shlex.join([Path(sys.executable).name, sys.argv[0], *argv]),
+        resume_command=f"{script} --resume {shlex.quote(str(out))}",
+        # The documented throughput holds for the script's own config only.
+        throughput=None
+        if resume or args.grid or _explicit(args, names[0])
+        else defaults.throughput,
+    )
+
+
+def cpu_count() -> int:
+    """CPU cores this process may use."""
+    try:
+        return len(os.sched_getaffinity(0))
+    except AttributeError:
+        return os.cpu_count() or 1
+
+
+def configure_jax() -> None:
+    """Compilation cache on and one JAX device per CPU core (seeds and configs are sharded over
+    them), before anything starts JAX. ``RL_JAX_CPU_DEVICES`` overrides the device count."""
+    from rl_jax.training.jax_setup import configure
+
+    configure(cpu_devices=int(os.environ.get("RL_JAX_CPU_DEVICES", cpu_count())))
+
+
+def run_experiment(
+    algorithm: Any = None,
+    env_id: str | None = None,
+    description: str | None = None,
+    argv: list[str] | None = None,
+    defaults: Defaults | None = None,
+) -> int:
+    """Parse flags, run, print the outcome. Returns the exit status."""
+    configure_jax()
+    argv = list(sys.argv[1:] if argv is None else argv)
+    defaults = defaults or Defaults()
+    description = (description or "").strip() or None
+    algorithm, env_id, choose = _choose(argv, algorithm, env_id)
+    if algorithm is None:
+        return _help_without_algorithm(description or "", defaults)
+    parser, config_names, hparam_names = build_parser(
+        algorithm, env_id, description or "", defaults, choose
+    )
+    args = parser.parse_args(argv)
+    spec = build_spec(args, algorithm, env_id, defaults, (config_names, hparam_names), argv)
+    from rl_jax.run.runner import run
+
+    result = run(spec)
+    print(f"run directory: {result.run_dir}")
+    if result.gif_error:
+        print(f"error: {result.gif_error}", file=sys.stderr)
+        return 1
+    return 0
+
+
+def user_errors() -> tuple[type[BaseException], ...]:
+    """Exception types that mean bad input, not a bug: reported in one line."""
+    from envs.adapters.external_ids import UnsupportedEnvError
+    from envs.core.registry import BackendError, UnknownEnvError
+    from rl_jax.run.checkpoint import CheckpointError
+    from rl_jax.run.policy import PolicyError
+    from rl_jax.run.render import RenderError
+
+    errors = (UsageError, RunError, CheckpointError, UnknownEnvError, BackendError)
+    return (*errors, UnsupportedEnvError, RenderError, PolicyError)
+
+
+def guard(function: Callable[[], int]) -> int:
+    """Run ``function``; a user error becomes ``error: <one line>`` on stderr and status 2."""
+    try:
+        return function()
+    except user_errors() as error:
+        message = " ".join(str(error).split("\n")).strip() or type(error).__name__
+        print(f"error: {message}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print("error: aborted (the latest checkpoint is kept)", file=sys.stderr)
+        return 130
+
+
+def main(
+    algorithm: Any = None,
+    env_id: str | None = None,
+    description: str | None = None,
+    *,
+    seeds: int = 1,
+    total_steps: int = 100_000,
+    config: dict[str, Any] | None = None,
+    hparams: dict[str, Any] | None = None,
+    argv: list[str] | None = None,
+    throughput: tuple[float, int] | None = None,
+) -> NoReturn:
+    """Entry point of an experiment script: parse, run, exit with the right status.
+    ``throughput`` = (env steps/s per seed, seeds) measured for the script's defaults gives the
+    plan a time estimate before anything runs."""
+    defaults = Defaults(
+        seeds, total_steps, dict(config or {}), dict(hparams or {}), throughput=throughput
+    )
+    exit_now(guard(lambda: run_experiment(algorithm, env_id, description, argv, defaults)))
+
+
+@dataclasses.dataclass(frozen=True)
+class Script:
+    """An experiment script's defaults, declared once and run by ``main``::
+
+        SCRIPT = cli.Script(td3, "rl_jax/Pendulum-v1", seeds=5, total_steps=20_000)
+        if __name__ == "__main__":
+            SCRIPT.main(__doc__)
+
+    ``config``/``hparams`` override the algorithm's recipe for the env; ``throughput`` is
+    (env steps/s per seed, seeds) measured with these defaults, for the plan's time estimate.
+    Another script can derive its own with ``dataclasses.replace``.
+    """
+
+    algorithm: Any
+    env_id: str
+    seeds: int = 1
+    total_steps: int = 100_000
+    config: dict[str, Any] = dataclasses.field(default_factory=dict)
+    hparams: dict[str, Any] = dataclasses.field(default_factory=dict)
+    throughput: tuple[float, int] | None = None
+
+    def main(self, description: str | None, argv: list[str] | None = None) -> NoReturn:
+        main(
+            self.algorithm,
+            self.env_id,
+            description,
+            seeds=self.seeds,
+            total_steps=self.total_steps,
+            config=self.config,
+            hparams=self.hparams,
+            argv=argv,
+            throughput=self.throughput,
+        )
+
+
+def exit_now(status: int) -> NoReturn:
+    """Exit with ``status``. After an error, skip interpreter shutdown: a failed checkpoint
+    read can leave tensorstore callbacks pending, and run during shutdown they print tracebacks
+    under our one-line error. Everything of ours is closed by then."""
+    if status == 0:
+        sys.exit(0)
+    sys.stdout.flush()
+    sys.stderr.flush()
+    os._exit(status)

@@ -1,0 +1,228 @@
+"""A trained policy out of a run directory, for rendering and for the user's own code.
+
+    import gymnasium, rl_jax
+
+    policy = rl_jax.load_policy("runs/td3_cheetah")      # the best seed's best policy
+    env = gymnasium.make("HalfCheetah-v5")
+    obs, _ = env.reset(seed=0)
+    for _ in range(1000):
+        obs, reward, terminated, truncated, _ = env.step(policy(obs))
+
+``which="best"`` (the default) is the policy of the seed's best evaluation, kept in
+``RUN_DIR/best/`` by the runner; ``which="latest"`` is the one of the latest checkpoint. Without
+a seed, the seed (and sweep config) with the highest such eval return is chosen.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+WHICH = ("best", "latest")
+
+
+class PolicyError(Exception):
+    """The policy cannot be loaded (no run, no checkpoint, a seed the run does not have)."""
+
+
+class LoadedPolicy:
+    """One (config, seed) of a run, restored from its best policy or its latest checkpoint.
+
+    Attributes: ``algorithm``, ``config``, ``env_id``, ``seed``, ``config_index``, ``which``
+    (what was loaded: "best" falls back to "latest" for a run that kept no best policy), ``step``
+    (the env step of that policy), ``eval_return`` (the run's eval of it, if known) and
+    ``state`` (a train state whose policy fields are this run's; pass it to
+    ``algorithm.policy(state, config)``).
+    """
+
+    def __init__(
+        self,
+        run_dir: Path,
+        seed: int | None = None,
+        config_index: int | None = None,
+        which: str = "best",
+    ):
+        from rl_jax.run.run_dir import read_run_record
+
+        if which not in WHICH:
+            raise PolicyError(f"which must be one of {', '.join(WHICH)}, got {which!r}")
+        self.run_dir = Path(run_dir)
+        self.record = read_run_record(self.run_dir)
+        identity = self.record["identity"]
+        self.env_id = identity["env_id"]
+        self.seeds = [identity["base_seed"] + s for s in range(identity["seeds"])]
+        self.which = which
+        self.note: str | None = None
+        self.eval_return: float | None = None
+        self.config_index, self.seed = self._choose(seed, config_index, len(identity["hparams"]))
+        self.algorithm, self.config, self.state, self.step = self._restore()
+
+    def _choose(self, seed: int | None, config_index: int | None, configs: int) -> tuple[int, int]:
+        """Defaults: the (config, seed) with the best eval return in metrics.jsonl (its final
+        one for ``which="latest"``, its highest for ``"best"``)."""
+        if config_index is not None and not 0 <= config_index < configs:
+            raise PolicyError(f"--config {config_index} out of range: the run has {configs}")
+        if seed is not None and seed not in self.seeds:
+            raise PolicyError(f"--seed {seed} is not in this run (seeds {self.seeds})")
+        best = _best_run(self.run_dir, config_index, seed, final_only=self.which == "latest")
+        return (
+            config_index if config_index is not None else best[0],
+            seed if seed is not None else best[1] if best[1] is not None else self.seeds[0],
+        )
+
+    def _restore(self) -> tuple[Any, Any, Any, int]:
+        from rl_jax.run.best import BEST_DIR, load_part, policy_fields, with_policy_part
+        from rl_jax.run.checkpoint import Checkpointer
+        from rl_jax.run.run_dir import dataclass_from_dict, load_algorithm
+        from rl_jax.run.runner import CHECKPOINT_DIR, RunSpec, make_plan
+
+        identity = self.record["identity"]
+        algorithm = load_algorithm(self.record["algorithm_module"])
+        config = dataclass_from_dict(algorithm.default_config(self.env_id), identity["config"])
+        template = algorithm.default_hyperparams()
+        hparams = tuple(dataclass_from_dict(template, h) for h in identity["hparams"])
+        # memory_limit: the state fitted during training; loading restores the same.
+        spec = RunSpec(
+            algorithm,
+            self.env_id,
+            config,
+            hparams,
+            self.run_dir,
+            seeds=identity["seeds"],
+            base_seed=identity["base_seed"],
+            memory_limit=1 << 62,
+        )
+        plan = make_plan(spec)
+        expect = {"identity_hash": self.record["identity_hash"]}
+        run = (self.config_index, self.seeds.index(self.seed))
+        if self.which == "best":
+            fields = policy_fields(algorithm, plan.template)
+            saved = load_part(self.run_dir / BEST_DIR, fields, plan.template, expect)
+            if saved is not None and saved[1]["best_steps"][run[0]][run[1]] >= 0:
+                part, meta = saved
+                one = {name: _index(value, run) for name, value in part.items()}
+                self.eval_return = meta["best_returns"][run[0]][run[1]]
+                state = with_policy_part(plan.template, one)
+                return algorithm, config, state, int(meta["best_steps"][run[0]][run[1]])
+            self.which = "latest"
+            self.note = "the run kept no best policy for this seed; using its latest checkpoint"
+        with Checkpointer(self.run_dir / CHECKPOINT_DIR, read_only=True) as checkpointer:
+            state, meta = checkpointer.restore(plan.template, expect=expect)
+        one = plan.parallel.select(state, *run)
+        self.eval_return = _final_eval(self.run_dir, self.config_index, self.seed, meta["step"])
+        return algorithm, config, one, meta["step"]
+
+    def env(self) -> Any:
+        """The env the policy acts in (``algorithm.make_env(config)`` when offered)."""
+        import envs
+
+        if hasattr(self.algorithm, "make_env"):
+            return self.algorithm.make_env(self.config)
+        return envs.make(self.env_id)
+
+    def act(self) -> Any:
+        """The pure ``obs -> action`` JAX function (actions as the env of ``env()`` takes)."""
+        return self.algorithm.policy(self.state, self.config)
+
+    def describe(self) -> str:
+        value = "" if self.eval_return is None else f", eval return {self.eval_return:.1f}"
+        return (
+            f"the {self.which} policy of seed {self.seed} "
+            f"(config {self.config_index}, step {self.step:,}{value})"
+        )
+
+
+class Policy:
+    """A plain ``obs -> action`` callable: numpy in, numpy out (one observation or a batch).
+
+    Actions are what the original environment takes: env units for continuous actions, the
+    index for discrete ones, and, for a continuous env a discrete learner drove through
+    ``envs.DiscretizeActions``, the continuous value the index stands for.
+    """
+
+    def __init__(self, loaded: LoadedPolicy):
+        import jax
+        import jax.numpy as jnp
+
+        self.loaded = loaded
+        env = loaded.env()
+        space = env.observation_space()
+        self.observation_shape = tuple(space.shape)
+        self._dtype = np.dtype(space.dtype)
+        act = loaded.act()
+        values = getattr(env, "action_values", None)
+        table = None if values is None else jnp.asarray(values)
+
+        def batched(obs):
+            action = jax.vmap(act)(obs)
+            return action if table is None else table[action]
+
+        self._act = jax.jit(batched)
+
+    def __call__(self, obs: Any) -> np.ndarray:
+        obs = np.asarray(obs, dtype=self._dtype)
+        single = obs.shape == self.observation_shape
+        if not single and obs.shape[1:] != self.observation_shape:
+            raise ValueError(
+                f"expected an observation of shape {self.observation_shape} or a batch "
+                f"[N, *{self.observation_shape}], got shape {obs.shape}"
+            )
+        action = np.asarray(self._act(obs[None] if single else obs))
+        return action[0] if single else action
+
+    def __repr__(self) -> str:
+        return f"<Policy: {self.loaded.describe()} of {self.loaded.run_dir}>"
+
+
+def load_policy(
+    run_dir: str | Path, seed: int | None = None, which: str = "best", config: int | None = None
+) -> Policy:
+    """The trained policy of a run as a numpy ``obs -> action`` callable.
+
+    ``seed``: which seed (default: the one with the best eval return); ``which``: "best" (the
+    policy of that seed's best evaluation) or "latest" (its latest checkpoint); ``config``: the
+    config index of a sweep (default: the best).
+    """
+    from rl_jax.training.jax_setup import configure
+
+    configure()
+    return Policy(LoadedPolicy(Path(run_dir), seed, config, which))
+
+
+def _index(tree: Any, run: tuple[int, int]) -> Any:
+    import jax
+
+    return jax.tree.map(lambda leaf: leaf[run], tree)
+
+
+def _rows(run_dir: Path) -> list[dict[str, Any]]:
+    from rl_jax.run.metrics import METRICS_FILE, read_rows
+
+    return [row for row in read_rows(run_dir / METRICS_FILE) if row.get("eval_return") is not None]
+
+
+def _best_run(
+    run_dir: Path, config_index: int | None, seed: int | None, final_only: bool
+) -> tuple[int, int | None]:
+    rows = [
+        row
+        for row in _rows(run_dir)
+        if (config_index is None or row.get("config", 0) == config_index)
+        and (seed is None or row["seed"] == seed)
+    ]
+    if final_only and rows:
+        last = max(row["step"] for row in rows)
+        rows = [row for row in rows if row["step"] == last]
+    if not rows:
+        return (config_index or 0), seed
+    best = max(rows, key=lambda row: row["eval_return"])
+    return best.get("config", 0), best["seed"]
+
+
+def _final_eval(run_dir: Path, config_index: int, seed: int, step: int) -> float | None:
+    for row in _rows(run_dir):
+        if row["step"] == step and row["seed"] == seed and row.get("config", 0) == config_index:
+            return float(row["eval_return"])
+    return None

@@ -1,0 +1,278 @@
+"""Watch a trained policy: a GIF of a run's deterministic policy (each seed's best evaluated
+policy by default, ``--latest`` for the latest checkpoint's).
+
+    python -m rl_jax.run.render RUN_DIR [--seed K] [--config I] [--episodes N] [--out FILE]
+                                [--latest]
+
+Frames come from the environment, through one of two hooks (the first one the env has):
+
+* ``env.render_episode(states, params) -> list of (H, W, 3) uint8 frames`` for a whole episode
+  (``states`` is the list of unbatched env states, first to last). An env that needs context
+  across frames uses it: a MuJoCo env keeps one ``mujoco.Renderer`` open and follows the torso
+  with its tracking camera; the rocket draws its x(t) and v(t) traces next to the moving point.
+* ``env.render(state, params) -> frame`` for one state (the ``Environment`` API).
+
+``EPISODE_PLOTS`` maps an env id to a function that writes a plot of the rendered episode next
+to the GIF as ``<name>_episode.png`` (the rocket's x(t), v(t) plot).
+
+MuJoCo renders headless through EGL (``MUJOCO_GL=egl``, set here unless the caller chose);
+without an OpenGL backend the command says in one line what to install.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import math
+import os
+import traceback
+import warnings
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from rl_jax.run.policy import LoadedPolicy  # loading lives there; render.LoadedPolicy stays
+
+NO_OPENGL = (
+    "no OpenGL backend for headless rendering: install EGL "
+    "(apt-get install libegl1 libegl-mesa0 libgl1-mesa-dri) and use MUJOCO_GL=egl, "
+    "or OSMesa (apt-get install libosmesa6) with MUJOCO_GL=osmesa"
+)
+_GL_MARKERS = ("OpenGL", "EGL", "GLFW", "glGetError", "mjr_makeContext", "osmesa", "gladLoad")
+
+
+class RenderError(Exception):
+    """The policy cannot be rendered (no OpenGL, no renderer for the env, no checkpoint)."""
+
+
+# ---- rollouts and frames --------------------------------------------------------------------
+
+
+def rollout(env: Any, act: Any, key: Any, episodes: int) -> list[dict[str, Any]]:
+    """``episodes`` episodes of ``act`` in ``env``: per episode the states and total reward."""
+    import jax
+
+    params = env.default_params
+    reset = jax.jit(lambda key: env.reset(key, params))
+    step = jax.jit(lambda key, state, obs: env.step(key, state, act(obs), params))
+    results = []
+    for _ in range(episodes):
+        key, key_reset = jax.random.split(key)
+        state, timestep = reset(key_reset)
+        states, total = [jax.device_get(state)], 0.0
+        for _ in range(env.max_episode_steps):
+            key, key_step = jax.random.split(key)
+            state, timestep = step(key_step, state, timestep.obs)
+            states.append(jax.device_get(state))
+            total += float(timestep.reward)
+            if bool(timestep.terminated) or bool(timestep.truncated):
+                break
+        results.append({"states": states, "return": total})
+    return results
+
+
+def _innermost(env: Any, states: list[Any]) -> tuple[Any, list[Any]]:
+    """Unwrap wrappers whose state wraps the inner env's state (``.env_state``)."""
+    from envs.core.wrappers import Wrapper
+
+    while isinstance(env, Wrapper) and not _has_own(env, "render_episode"):
+        if states and hasattr(states[0], "env_state"):
+            states = [state.env_state for state in states]
+        env = env.env
+    return env, states
+
+
+def _has_own(env: Any, name: str) -> bool:
+    return any(name in vars(cls) for cls in type(env).__mro__)
+
+
+@contextlib.contextmanager
+def opengl_errors() -> Iterator[None]:
+    """Turn a missing OpenGL backend, at MuJoCo's import or at rendering, into ``RenderError``."""
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")  # GLFW reports a missing display as warnings first
+            yield
+    except RenderError:
+        raise
+    except Exception as error:
+        if _is_gl_failure(error):
+            reason = (str(error).splitlines() or [type(error).__name__])[0][:120]
+            raise RenderError(f"{NO_OPENGL} ({type(error).__name__}: {reason})") from None
+        raise
+
+
+def episode_frames(env: Any, states: list[Any]) -> list[np.ndarray]:
+    """Frames of one episode through the env's hooks (``render_episode`` or ``render``)."""
+    inner, inner_states = _innermost(env, states)
+    params = inner.default_params
+    with opengl_errors():
+        try:
+            if _has_own(inner, "render_episode"):
+                return [np.asarray(f) for f in inner.render_episode(inner_states, params)]
+            return [np.asarray(inner.render(state, params)) for state in inner_states]
+        except NotImplementedError:
+            raise RenderError(f"{inner!r} has no renderer (render or render_episode)") from None
+
+
+def _is_gl_failure(error: BaseException) -> bool:
+    text = f"{type(error).__module__}.{type(error).__name__}: {error}"
+    if any(marker.lower() in text.lower() for marker in _GL_MARKERS):
+        return True
+    files = [frame.filename for frame in traceback.extract_tb(error.__traceback__)]
+    return any(
+        part in name
+        for name in files
+        for part in ("/OpenGL/", "/glfw/", "mujoco/egl", "mujoco/osmesa", "mujoco/glfw")
+    )
+
+
+def _fps(env: Any) -> float:
+    """Playback rate: the env's ``render_fps``, else ``1 / params.dt``, else 30."""
+    fps = getattr(env, "render_fps", None) or (getattr(env, "metadata", None) or {}).get(
+        "render_fps"
+    )
+    if fps:
+        return float(fps)
+    dt = getattr(env.default_params, "dt", None)
+    return float(1.0 / float(dt)) if dt is not None and float(dt) > 0 else 30.0
+
+
+#: GIF players round frame delays below 20 ms up to 100 ms: faster envs skip frames instead.
+MAX_GIF_FPS = 50.0
+
+
+def save_gif(frames: list[np.ndarray], path: Path, fps: float, max_frames: int = 600) -> None:
+    """Write frames as a looping GIF in real time; long episodes keep every k-th frame."""
+    import imageio.v2 as imageio
+
+    every = max(1, math.ceil(len(frames) / max_frames), math.ceil(fps / MAX_GIF_FPS))
+    kept = [np.asarray(frame, np.uint8) for frame in frames[::every]]
+    imageio.mimsave(path, kept, duration=1000.0 * every / fps, loop=0)
+
+
+def _rocket_episode_plot(states: list[Any], params: Any, path: Path) -> None:
+    from envs.classic.rocket import plot_episode
+
+    positions = np.array([float(state.x) for state in states])
+    velocities = np.array([float(state.v) for state in states])
+    plot_episode(
+        positions,
+        velocities,
+        dt=float(params.dt),
+        path=path,
+        title="Rocket: the deterministic policy",
+    )
+
+
+#: env id -> ``plot(states, params, path)`` writing a plot of one rendered episode.
+EPISODE_PLOTS: dict[str, Any] = {"rl_jax/Rocket-v0": _rocket_episode_plot}
+
+
+def write_gif(
+    run_dir: str | Path,
+    seed: int | None = None,
+    episodes: int = 1,
+    out: str | Path | None = None,
+    config_index: int | None = None,
+    max_frames: int = 600,
+    which: str = "best",
+) -> Path:
+    """Render the deterministic policy of (config, seed) of ``run_dir`` to a GIF; its path.
+    ``which``: the seed's best evaluated policy ("best") or its latest checkpoint ("latest")."""
+    import jax
+
+    os.environ.setdefault("MUJOCO_GL", "egl")
+    with opengl_errors():  # a MuJoCo env may import mujoco (and fail) while being built
+        loaded = LoadedPolicy(Path(run_dir), seed, config_index, which)
+        env = loaded.env()
+        act = loaded.act()
+        episodes_data = rollout(env, act, jax.random.key(loaded.seed), episodes)
+        frames = [f for episode in episodes_data for f in episode_frames(env, episode["states"])]
+        path = Path(out) if out is not None else Path(run_dir) / "policy.gif"
+        save_gif(frames, path, _fps(env), max_frames)
+        plot_path = _save_episode_plot(env, episodes_data[-1]["states"], path)
+    returns = ", ".join(f"{episode['return']:.1f}" for episode in episodes_data)
+    plot_note = f" (episode plot: {plot_path})" if plot_path else ""
+    if loaded.note:
+        print(f"note: {loaded.note}")
+    print(
+        f"rendered seed {loaded.seed} (config {loaded.config_index}) at step {loaded.step:,}, "
+        f"its {loaded.which} policy: episode return {returns}; {len(frames)} frames -> "
+        f"{path}{plot_note}"
+    )
+    return path
+
+
+def _save_episode_plot(env: Any, states: list[Any], gif_path: Path) -> Path | None:
+    plot = EPISODE_PLOTS.get(getattr(env, "id", ""))
+    if plot is None:
+        return None
+    inner, inner_states = _innermost(env, states)
+    path = gif_path.with_name(gif_path.stem + "_episode.png")
+    plot(inner_states, inner.default_params, path)
+    return path
+
+
+def main(argv: list[str] | None = None) -> int:
+    from rl_jax.run.cli import OneLineParser, guard, parse_int, positive_int
+
+    parser = OneLineParser(prog="python -m rl_jax.run.render", description=__doc__.split("\n")[0])
+    parser.add_argument("run_dir", type=Path, help="a run directory (holds config.json)")
+    parser.add_argument(
+        "--seed",
+        type=parse_int,
+        default=None,
+        help="seed to render (default: the one with the best eval return)",
+    )
+    parser.add_argument(
+        "--config",
+        type=parse_int,
+        default=None,
+        dest="config_index",
+        help="config index of a sweep (default: the best)",
+    )
+    parser.add_argument("--episodes", type=positive_int, default=1, help="episodes (default: 1)")
+    parser.add_argument(
+        "--out", type=Path, default=None, help="GIF path (default: RUN_DIR/policy.gif)"
+    )
+    parser.add_argument(
+        "--max-frames",
+        type=positive_int,
+        default=600,
+        help="longer episodes keep every k-th frame (default: 600)",
+    )
+    parser.add_argument(
+        "--latest",
+        action="store_true",
+        help="render the latest checkpoint's policy (default: each seed's best evaluated one)",
+    )
+    args = parser.parse_args(argv)
+
+    def render() -> int:
+        from rl_jax.training.jax_setup import configure
+
+        configure()
+        write_gif(
+            args.run_dir,
+            args.seed,
+            args.episodes,
+            args.out,
+            args.config_index,
+            args.max_frames,
+            "latest" if args.latest else "best",
+        )
+        return 0
+
+    return guard(render)
+
+
+if __name__ == "__main__":
+    os.environ.setdefault("MUJOCO_GL", "egl")
+    # Run the imported module's main, not this __main__ copy, so that its exception classes are
+    # the ones the guard knows.
+    from rl_jax.run.cli import exit_now
+    from rl_jax.run.render import main as module_main
+
+    exit_now(module_main())

@@ -1,0 +1,351 @@
+"""The run directory's identity: ``config.json``, what makes two runs "the same", and the checks
+that keep one run's directory from being overwritten or resumed by another.
+
+A run is identified by its algorithm, env, static config, hyperparameters (one set per config of
+a grid), number of seeds and first seed. Total steps are not part of it: resuming with a larger
+``--total-steps`` extends a run.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import dataclasses
+import hashlib
+import importlib
+import json
+import os
+import platform
+import subprocess
+import sys
+import tempfile
+import time
+import types
+from pathlib import Path
+from typing import Any
+
+import jax
+import numpy as np
+
+CONFIG_FILE = "config.json"
+
+
+class RunError(Exception):
+    """A user-facing problem with a run (bad directory, foreign resume, not enough memory)."""
+
+
+# ---- Config / Hyperparams <-> JSON ----------------------------------------------------------
+
+
+def _json_value(value: Any) -> Any:
+    """Plain JSON for config and hyperparameter values (tuples become lists)."""
+    if isinstance(value, (tuple, list)):
+        return [_json_value(v) for v in value]
+    if isinstance(value, (np.ndarray, jax.Array, np.generic)):
+        array = np.asarray(value)
+        if array.dtype == np.float32:
+            # The shortest decimal that round-trips the float32 (0.01, not 0.009999999776).
+            shortest = [float(str(x)) for x in array.reshape(-1)]
+            return np.array(shortest, dtype=object).reshape(array.shape).tolist()
+        return array.tolist()
+    return value
+
+
+def dataclass_to_dict(instance: Any) -> dict[str, Any]:
+    """Fields of a (frozen or flax struct) dataclass as JSON-ready values."""
+    return {f.name: _json_value(getattr(instance, f.name)) for f in dataclasses.fields(instance)}
+
+
+def dataclass_from_dict(template: Any, values: dict[str, Any]) -> Any:
+    """``template`` with ``values`` replaced, each converted to the template field's type."""
+    names = {f.name for f in dataclasses.fields(template)}
+    unknown = sorted(set(values) - names)
+    if unknown:
+        raise RunError(f"unknown {type(template).__name__} field(s): {', '.join(unknown)}")
+    converted = {
+        name: _like(getattr(template, name), value, name) for name, value in values.items()
+    }
+    try:
+        return dataclasses.replace(template, **converted)
+    except (TypeError, ValueError) as error:  # the dataclass's own validation
+        raise RunError(f"invalid {type(template).__name__}: {error}") from None
+
+
+def _like(default: Any, value: Any, name: str) -> Any:
+    """``value`` converted to the type of ``default`` (bool, int, float, str, tuple, array)."""
+    if isinstance(default, tuple):
+        if not isinstance(value, (list, tuple)):
+            raise RunError(f"{name} must be a list, got {value!r}")
+        element = default[0] if default else value[0] if value else 0
+        return tuple(_like(element, v, name) for v in value)
+    if isinstance(default, (np.ndarray, jax.Array, np.generic)):
+        return np.asarray(value, dtype=np.asarray(default).dtype)
+    if isinstance(default, bool):
+        if not isinstance(value, bool):
+            raise RunError(f"{name} must be true or false, got {value!r}")
+        return value
+    if isinstance(default, int) and not isinstance(value, bool):
+        if isinstance(value, float) and value.is_integer():
+            value = int(value)
+        if not isinstance(value, int):
+            raise RunError(f"{name} must be an integer, got {value!r}")
+        return value
+    if isinstance(default, float):
+        if isinstance(value, bool) or not isinstance(value, (int, float)):
+            raise RunError(f"{name} must be a number, got {value!r}")
+        return float(value)
+    return value
+
+
+def hparams_as_arrays(hparams: Any) -> Any:
+    """Every hyperparameter leaf as a 0-d numpy array: float32, int32 or bool."""
+
+    def convert(value: Any) -> np.ndarray:
+        array = np.asarray(value)
+        if array.dtype.kind == "f":
+            return array.astype(np.float32)
+        if array.dtype.kind in "iu":
+            return array.astype(np.int32)
+        return array
+
+    return jax.tree.map(convert, hparams)
+
+
+def stack_hparams(hparams_list: list[Any]) -> Any:
+    """``[H]``-stacked hyperparameters, the leading axis a grid's configs."""
+    arrays = [hparams_as_arrays(h) for h in hparams_list]
+    return jax.tree.map(lambda *leaves: np.stack(leaves), *arrays)
+
+
+# ---- identity -------------------------------------------------------------------------------
+
+
+def algorithm_reference(algorithm: Any) -> str:
+    """An importable reference to the algorithm: ``module`` or ``module:attribute``."""
+    if isinstance(algorithm, types.ModuleType):
+        return algorithm.__name__
+    module = sys.modules.get(type(algorithm).__module__)
+    for attribute, value in vars(module or types.ModuleType("none")).items():
+        if value is algorithm:
+            return f"{module.__name__}:{attribute}"
+    raise RunError(f"algorithm {algorithm!r} is not a module or a module-level object")
+
+
+def load_algorithm(reference: str) -> Any:
+    module_name, _, attribute = reference.partition(":")
+    try:
+        module = importlib.import_module(module_name)
+    except ImportError as error:
+        raise RunError(f"cannot import algorithm {reference!r}: {error}") from None
+    return getattr(module, attribute) if attribute else module
+
+
+def identity(
+    algorithm_name: str,
+    env_id: str,
+    config: Any,
+    hparams_list: list[Any],
+    seeds: int,
+    base_seed: int,
+) -> dict[str, Any]:
+    """What must agree for a checkpoint of one run to continue as another."""
+    return {
+        "algorithm": algorithm_name,
+        "env_id": env_id,
+        "config": dataclass_to_dict(config),
+        # Through float32, as the learner sees them: 3e-4 typed or computed compares equal.
+        "hparams": [dataclass_to_dict(hparams_as_arrays(h)) for h in hparams_list],
+        "seeds": seeds,
+        "base_seed": base_seed,
+    }
+
+
+def identity_hash(run_identity: dict[str, Any]) -> str:
+    canonical = json.dumps(run_identity, sort_keys=True, separators=(",", ":"))
+    return hashlib.sha256(canonical.encode()).hexdigest()[:16]
+
+
+def describe_difference(saved: dict[str, Any], wanted: dict[str, Any]) -> str:
+    """The first differences between two identities, as a short phrase."""
+    differences = []
+    for key in ("algorithm", "env_id", "seeds", "base_seed"):
+        if saved.get(key) != wanted.get(key):
+            differences.append(f"{key} {saved.get(key)!r} vs {wanted.get(key)!r}")
+    for key in ("config", "hparams"):
+        old, new = saved.get(key), wanted.get(key)
+        if key == "hparams" and isinstance(old, list) and isinstance(new, list):
+            if len(old) != len(new):
+                differences.append(f"{len(old)} vs {len(new)} hyperparameter configs")
+                continue
+            old, new = _merge_lists(old), _merge_lists(new)
+        for name in sorted(set(old or {}) | set(new or {})):
+            if (old or {}).get(name) != (new or {}).get(name):
+                differences.append(f"{name} {(old or {}).get(name)!r} vs {(new or {}).get(name)!r}")
+    return ", ".join(differences[:4]) + (", ..." if len(differences) > 4 else "")
+
+
+def _merge_lists(dicts: list[dict]) -> dict[str, Any]:
+    return {k: [d.get(k) for d in dicts] if len(dicts) > 1 else dicts[0].get(k) for k in dicts[0]}
+
+
+# ---- config.json ----------------------------------------------------------------------------
+
+
+def git_commit() -> str | None:
+    """The source tree's commit (with ``+dirty`` if modified), when run from a git checkout."""
+    root = Path(__file__).resolve().parent.parent
+    try:
+        commit = subprocess.run(
+            ["git", "-C", str(root), "rev-parse", "HEAD"], capture_output=True, text=True, timeout=5
+        ).stdout.strip()
+        dirty = subprocess.run(
+            ["git", "-C", str(root), "status", "--porcelain", "--untracked-files=no"],
+            capture_output=True,
+            text=True,
+            timeout=5,
+        ).stdout.strip()
+    except (OSError, subprocess.SubprocessError):
+        return None
+    return (commit + ("+dirty" if dirty else "")) or None
+
+
+def environment_record() -> dict[str, Any]:
+    """Versions and machine facts needed to reproduce a run."""
+    from rl_jax.run.checkpoint import library_versions
+
+    return {
+        "versions": {"python": platform.python_version(), **library_versions()},
+        "git_commit": git_commit(),
+        "platform": platform.platform(),
+        "devices": [str(d) for d in jax.devices()],
+        "xla_flags": os.environ.get("XLA_FLAGS", ""),
+    }
+
+
+def write_json_atomic(path: Path, payload: dict[str, Any]) -> None:
+    """Write JSON through a temporary file and a rename, so a crash never leaves half a file."""
+    temporary = path.with_name(path.name + ".tmp")
+    temporary.write_text(json.dumps(payload, indent=2, sort_keys=False) + "\n")
+    os.replace(temporary, path)
+
+
+def read_run_record(run_dir: Path) -> dict[str, Any]:
+    """``config.json`` of ``run_dir``; ``RunError`` if it is not a readable run directory."""
+    path = Path(run_dir) / CONFIG_FILE
+    if not Path(run_dir).is_dir():
+        raise RunError(f"no run directory at {run_dir}")
+    if not path.is_file():
+        raise RunError(f"{run_dir} is not a run directory (it has no {CONFIG_FILE})")
+    try:
+        record = json.loads(path.read_text())
+    except (OSError, ValueError) as error:
+        raise RunError(f"{path} is unreadable: {error}") from None
+    if not isinstance(record, dict) or "identity" not in record:
+        raise RunError(f"{path} is not an rl_jax run config")
+    return record
+
+
+def check_out_dir(out: Path, run_identity: dict[str, Any]) -> None:
+    """Refuse to start a fresh run in a directory that already holds something, or one that
+    cannot be created or written: a probe creates the missing directories and a file in the
+    last, then removes what it created (``/proc`` or a read-only mount only says so then)."""
+    try:
+        _check_out_dir(out, run_identity)
+    except OSError as error:
+        raise RunError(f"cannot use --out {out}: {_reason(error)}") from None
+
+
+def _check_out_dir(out: Path, run_identity: dict[str, Any]) -> None:
+    if not out.exists():
+        ancestor = out.absolute().parent
+        while not ancestor.exists():
+            ancestor = ancestor.parent
+        if not ancestor.is_dir():
+            raise RunError(f"cannot create --out {out}: {ancestor} is not a directory")
+        if not os.access(ancestor, os.W_OK | os.X_OK):
+            raise RunError(f"cannot create --out {out}: {ancestor} is not writable")
+        _probe_creatable(out)
+        return
+    if not out.is_dir():
+        raise RunError(f"--out {out} exists and is not a directory")
+    if not any(out.iterdir()):
+        try:
+            probe_writable(out)
+        except OSError as error:
+            raise RunError(f"cannot write to --out {out}: {_reason(error)}") from None
+        return
+    if (out / CONFIG_FILE).is_file():
+        saved = read_run_record(out)["identity"]
+        if saved == run_identity:
+            raise RunError(f"{out} already holds this run; continue it with --resume {out}")
+        raise RunError(
+            f"{out} already holds a different run ({describe_difference(saved, run_identity)}); "
+            "choose another --out"
+        )
+    raise RunError(f"--out {out} is not empty; choose another --out")
+
+
+def _probe_creatable(out: Path) -> None:
+    """Create ``out`` (and its missing parents) and a file in it, then remove all of them."""
+    missing = []
+    directory = out.absolute()
+    while not directory.exists():
+        missing.append(directory)
+        directory = directory.parent
+    created: list[Path] = []
+    try:
+        for directory in reversed(missing):
+            try:
+                directory.mkdir()
+            except FileExistsError:  # made meanwhile by someone else: not ours to remove
+                continue
+            created.append(directory)
+        probe_writable(out)
+    except OSError as error:
+        raise RunError(f"cannot create --out {out}: {_reason(error)}") from None
+    finally:
+        for directory in reversed(created):
+            with contextlib.suppress(OSError):
+                directory.rmdir()
+
+
+def probe_writable(directory: Path) -> None:
+    """Create and remove a file in ``directory``; ``OSError`` if that is not possible."""
+    handle, name = tempfile.mkstemp(prefix=".write-probe-", dir=directory)
+    os.close(handle)
+    os.unlink(name)
+
+
+def _reason(error: OSError) -> str:
+    """The OS's reason for ``error``, with the path it concerns."""
+    reason = error.strerror or type(error).__name__
+    return f"{reason} ({error.filename})" if error.filename else reason
+
+
+def check_resume_dir(run_dir: Path, run_identity: dict[str, Any]) -> dict[str, Any]:
+    """The record of ``run_dir`` if it is the same run and can be written; ``RunError``
+    otherwise."""
+    record = read_run_record(run_dir)
+    saved = record["identity"]
+    if saved != run_identity:
+        raise RunError(
+            f"cannot resume {run_dir}: it is a different run "
+            f"({describe_difference(saved, run_identity)})"
+        )
+    try:
+        probe_writable(Path(run_dir))
+    except OSError as error:
+        raise RunError(f"cannot resume {run_dir}: it is not writable: {_reason(error)}") from None
+    return record
+
+
+def new_run_record(
+    run_identity: dict[str, Any], algorithm_ref: str, extra: dict[str, Any]
+) -> dict[str, Any]:
+    return {
+        "identity": run_identity,
+        "identity_hash": identity_hash(run_identity),
+        "algorithm_module": algorithm_ref,
+        **extra,
+        "created": time.strftime("%Y-%m-%dT%H:%M:%S%z"),
+        "environment": environment_record(),
+    }

@@ -1,0 +1,95 @@
+"""The interface every learner (TD3, DDPG, DQN, REINFORCE) offers to the run machinery.
+
+Two kinds of settings, kept apart on purpose (the Rejax split):
+
+* ``Config`` — a frozen dataclass of *static* settings: shapes, loop counts, network widths,
+  buffer capacity, number of envs. Changing one recompiles. JSON-serialisable.
+* ``Hyperparams`` — a ``flax.struct`` dataclass whose leaves are float/int *arrays*: learning
+  rates, tau, gamma, noise scales, epsilon schedule. Stacking several along a leading axis and
+  ``jax.vmap``-ing over them is a sweep inside one compiled program.
+
+Everything a run needs to continue lives in the ``TrainState`` pytree (params, targets, optimizer
+state, replay buffer, env state, last obs, PRNG key, counters), so a checkpoint of it is a resume.
+
+The run machinery (experiments, sweeps, checkpoints, progress) only calls what is below; the
+outermost ``jit`` and the seed/hyperparameter ``vmap`` are applied by ``rl_jax.training.parallel``.
+
+A ``TrainState`` may have a field ``clock``: counters that depend only on the static ``Config``
+(env steps, updates), identical in every seed and hyperparameter set. ``rl_jax.training.parallel``
+keeps that one field unstacked (and replicated over devices), so learners can branch on it (warm-up,
+delayed updates) with real branches under vmap; every other leaf gains the ``[H, S]`` axes.
+"""
+
+from __future__ import annotations
+
+from typing import Any, NamedTuple, Protocol
+
+import jax
+
+PRNGKey = jax.Array
+
+
+class ChunkMetrics(NamedTuple):
+    """What one compiled chunk reports for one seed (leaves gain [hparams, seeds] axes).
+
+    ``extra`` holds algorithm-specific scalars (losses, q values, epsilon), each ``[]``.
+    """
+
+    env_steps: jax.Array  # [] int, total env steps taken so far (all envs of this seed)
+    updates: jax.Array  # [] int, total gradient updates so far
+    eval_return: jax.Array  # [] float32, mean undiscounted return of the deterministic policy
+    train_return: jax.Array  # [] float32, mean return of training episodes finished so far
+    extra: dict[str, jax.Array]
+
+
+class Algorithm(Protocol):
+    """A learner. Implementations are plain modules or small stateless objects."""
+
+    name: str  # "td3", "ddpg", "dqn", "reinforce"
+
+    def default_config(self, env_id: str) -> Any:
+        """The static ``Config`` for an env (the documented recipe)."""
+
+    def default_hyperparams(self, env_id: str | None = None) -> Any:
+        """The ``Hyperparams`` pytree of scalars (the documented recipe, for ``env_id`` if
+        given: some envs need, e.g., another discount)."""
+
+    def init(self, key: PRNGKey, config: Any, hparams: Any) -> Any:
+        """A fresh ``TrainState`` for one seed and one hyperparameter set."""
+
+    def train_chunk(self, state: Any, config: Any, hparams: Any) -> tuple[Any, ChunkMetrics]:
+        """``config.iterations_per_chunk`` train iterations, then one evaluation. Pure."""
+
+    def policy(self, state: Any, config: Any) -> Any:
+        """A pure ``obs -> action`` function of the deterministic policy (for eval and GIFs)."""
+
+
+class RecipeBook:
+    """Per-env defaults shared by the algorithm objects: ``default_config(env_id)`` and
+    ``default_hyperparams(env_id)`` are the algorithm's own defaults, then the documented recipe
+    for that env (``recipes`` / ``hparam_recipes``), then the caller's overrides.
+
+    Subclasses set ``name``, ``config_type``, ``hparams_type`` (with ``as_arrays()``),
+    ``recipes`` and ``hparam_recipes``; ``config_overrides`` / ``hparam_overrides`` let one
+    module offer variants (DDPG is TD3 with other settings).
+    """
+
+    name: str
+    config_type: type
+    hparams_type: type
+    recipes: dict[str, dict[str, Any]] = {}
+    hparam_recipes: dict[str, dict[str, Any]] = {}
+    config_overrides: dict[str, Any] = {}
+    hparam_overrides: dict[str, Any] = {}
+
+    def default_config(self, env_id: str, **overrides: Any) -> Any:
+        recipe = {**self.recipes.get(env_id, {}), **self.config_overrides, **overrides}
+        return self.config_type(env_id=env_id, **recipe)
+
+    def default_hyperparams(self, env_id: str | None = None, **overrides: Any) -> Any:
+        recipe = self.hparam_recipes.get(env_id, {}) if env_id else {}
+        values = {**recipe, **self.hparam_overrides, **overrides}
+        return self.hparams_type(**values).as_arrays()
+
+    def __repr__(self) -> str:
+        return f"<algorithm {self.name}>"

@@ -1,0 +1,375 @@
+"""The off-policy training loop shared by TD3, DDPG and DQN.
+
+One *iteration*: all ``num_envs`` envs act (uniformly random for the first ``learning_starts`` env
+steps, then the learner's exploration policy) and step once, the ``num_envs`` transitions go into
+the replay buffer as one row, then ``updates_per_iteration`` gradient updates run. A *chunk* is
+``iterations_per_chunk`` iterations under ``lax.scan`` followed by one evaluation of the
+deterministic policy on separate env copies, so one compiled call does thousands of env steps and
+updates, and evaluation happens at a fixed interval inside the same program.
+
+A learner plugs in through ``Learner``: how to build its ``agent`` pytree (parameters, targets,
+optimizer states), how to act, and one gradient update. Everything else is here.
+
+``TrainState.clock`` holds counters that depend only on the static config (never on the seed or
+hyperparameters), so ``rl_jax.training.parallel`` keeps it unbatched: branching on it (warm-up,
+delayed policy updates) then stays a real branch under the seed/hyperparameter vmap instead of
+running both sides.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+import json
+from collections.abc import Callable
+from typing import Any, NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from flax import struct
+
+import envs
+from rl_jax.training import replay
+from rl_jax.training.algorithm import ChunkMetrics
+from rl_jax.training.replay import ReplayBuffer, Transition
+
+PRNGKey = jax.Array
+
+
+@dataclasses.dataclass(frozen=True, kw_only=True)
+class OffPolicyConfig:
+    """Static settings of the loop (changing one recompiles). Learners subclass it."""
+
+    env_id: str
+    num_envs: int = 1  # envs stepped together; each iteration adds num_envs transitions
+    updates_per_iteration: int = 1  # gradient updates after each env step of all envs
+    iterations_per_chunk: int = 5000  # per compiled call; eval after each (paper: every 5,000)
+    batch_size: int = 256
+    buffer_size: int = 1_000_000  # transitions (rounded up to a multiple of num_envs)
+    learning_starts: int = 25_000  # env steps (all envs) with random actions and no updates
+    num_eval_envs: int = 10  # episodes of the deterministic policy per evaluation
+
+    def __post_init__(self) -> None:
+        for name in (
+            "num_envs",
+            "updates_per_iteration",
+            "iterations_per_chunk",
+            "batch_size",
+            "buffer_size",
+            "num_eval_envs",
+        ):
+            if getattr(self, name) < 1:
+                raise ValueError(f"{name} must be >= 1, got {getattr(self, name)}")
+        if self.learning_starts < 0:
+            raise ValueError(f"learning_starts must be >= 0, got {self.learning_starts}")
+
+    @property
+    def env_steps_per_chunk(self) -> int:
+        return self.num_envs * self.iterations_per_chunk
+
+    def make_env(self) -> envs.Environment:
+        """The env as registered; learners that adapt it (e.g. discretise actions) override."""
+        return envs.make(self.env_id)
+
+    def to_dict(self) -> dict[str, Any]:
+        return dataclasses.asdict(self)
+
+    def to_json(self) -> str:
+        return json.dumps(self.to_dict(), sort_keys=True)
+
+    @classmethod
+    def from_dict(cls, values: dict[str, Any]):
+        """Inverse of ``to_dict`` (JSON lists become tuples again); unknown keys are an error."""
+        fields = {f.name: f for f in dataclasses.fields(cls)}
+        unknown = sorted(set(values) - set(fields))
+        if unknown:
+            raise ValueError(f"unknown {cls.__name__} field(s): {', '.join(unknown)}")
+        return cls(**{k: tuple(v) if isinstance(v, list) else v for k, v in values.items()})
+
+
+class HyperparamsMethods:
+    """Conversions for a learner's ``Hyperparams`` (a ``flax.struct`` dataclass of scalars)."""
+
+    def as_arrays(self):
+        """Every field as a float32 array (lists, e.g. from JSON of a stack, become [H])."""
+        return self.replace(
+            **{
+                f.name: jnp.asarray(getattr(self, f.name), jnp.float32)
+                for f in dataclasses.fields(self)
+            }
+        )
+
+    def to_dict(self) -> dict[str, Any]:
+        return {
+            f.name: np.asarray(getattr(self, f.name)).tolist() for f in dataclasses.fields(self)
+        }
+
+    @classmethod
+    def from_dict(cls, values: dict[str, Any]):
+        return cls(**values).as_arrays()
+
+
+@struct.dataclass
+class Clock:
+    """Counters shared by every seed and hyperparameter set of a run (see module docstring)."""
+
+    env_steps: jax.Array  # [] int32, env steps so far, all envs of one run
+    updates: jax.Array  # [] int32, gradient updates so far
+    iterations: jax.Array  # [] int32
+
+
+@struct.dataclass
+class TrainState:
+    """Everything a run needs to continue; only arrays (checkpointable as is)."""
+
+    agent: Any  # the learner's parameters, targets and optimizer states
+    buffer: ReplayBuffer  # of Transition, leaves [rows, num_envs, ...]
+    env_state: Any  # [num_envs, ...]
+    obs: jax.Array  # [num_envs, *obs_shape], the observation the next action answers
+    noise: jax.Array  # [num_envs, *action_shape] float32, exploration state (see Learner)
+    key: PRNGKey
+    clock: Clock
+    train_return: jax.Array  # [] float32, mean return of the episodes ended in the last chunk
+    #                           that ended any (NaN until one does)
+
+
+def uniform_buffer(example: Transition, config: OffPolicyConfig) -> ReplayBuffer:
+    return replay.init(example, config.buffer_size, config.num_envs)
+
+
+def add_uniform(buffer: ReplayBuffer, transitions: Transition, config, hparams) -> ReplayBuffer:
+    return replay.add(buffer, transitions)
+
+
+class Learner(NamedTuple):
+    """What an off-policy algorithm provides. ``config``/``hparams`` are its own types.
+
+    init_agent(key, config, hparams, obs_space, action_space) -> agent
+    explore(agent, obs [N, ...], noise [N, ...], key, config, hparams, clock)
+        -> (actions [N, ...], noise): acting after warm-up. ``noise`` is per-env exploration
+        state carried from step to step (temporally correlated exploration; zeroed when an
+        episode ends); ``clock`` lets a schedule, e.g. epsilon, depend on progress.
+    act(agent, obs [N, ...], config) -> deterministic actions [N, ...]
+    update(agent, buffer, key, config, hparams, update_index []) -> (agent, buffer, metrics)
+        one gradient update (it samples the buffer itself, so prioritised replay can write
+        priorities back); ``update_index`` counts updates before this one (unbatched);
+        ``metrics`` is a dict of [] float32, NaN where a quantity was not computed this update.
+    metric_names: the keys of ``metrics``.
+    init_buffer(example_transition, config) -> buffer, and
+    add_to_buffer(buffer, transitions [N, ...], config, hparams) -> buffer
+        (optional) the replay memory; default: ``rl_jax.training.replay``'s uniform circular buffer.
+    """
+
+    init_agent: Callable[..., Any]
+    explore: Callable[..., tuple[jax.Array, jax.Array]]
+    act: Callable[..., jax.Array]
+    update: Callable[..., tuple[Any, ReplayBuffer, dict[str, jax.Array]]]
+    metric_names: tuple[str, ...]
+    init_buffer: Callable[..., Any] = uniform_buffer
+    add_to_buffer: Callable[..., Any] = add_uniform
+
+
+# ---- environments -------------------------------------------------------------------------------
+# Cached: every trace asks for the env, and building one (an MJX model) can be slow. Envs are
+# stateless, so sharing an instance is safe.
+@functools.lru_cache(maxsize=64)
+def make_eval_env(config: OffPolicyConfig) -> envs.Environment:
+    """The env as the policy sees it (obs flattened to one axis), without autoreset."""
+    # The first call may come while tracing (e.g. under eval_shape): constants an env computes
+    # when built (MuJoCo's initial obs, default params) must stay concrete, not leak tracers.
+    with jax.ensure_compile_time_eval():
+        env = config.make_env()
+    # A config whose network reads images (a conv torso: ``dqn.PixelConfig``) keeps them
+    # [H, W, C]; flattening would also make a uint8 space float32.
+    keep_images = getattr(config, "image_observations", False)
+    if len(env.observation_space().shape) != 1 and not keep_images:
+        env = envs.FlattenObservation(env)
+    return env
+
+
+@functools.lru_cache(maxsize=64)
+def make_train_env(config: OffPolicyConfig) -> envs.Environment:
+    """Training stack: statistics outside autoreset so they see the step that ended an episode."""
+    return envs.EpisodeStatistics(envs.AutoReset(make_eval_env(config)))
+
+
+def example_transition(env: envs.Environment) -> Transition:
+    obs_space, action_space = env.observation_space(), env.action_space()
+    obs = jnp.zeros(obs_space.shape, obs_space.dtype)
+    action = jnp.zeros(action_space.shape, action_space.dtype)
+    false = jnp.zeros((), jnp.bool_)
+    return Transition(obs, action, jnp.zeros((), jnp.float32), obs, false, false)
+
+
+def buffer_nbytes(config: OffPolicyConfig) -> int:
+    """Replay memory of one run (one seed, one hyperparameter set), without allocating it."""
+    example = example_transition(make_eval_env(config))
+    return replay.nbytes(example, config.buffer_size, config.num_envs)
+
+
+# ---- init ---------------------------------------------------------------------------------------
+def init(learner: Learner, key: PRNGKey, config: OffPolicyConfig, hparams: Any) -> TrainState:
+    """A fresh state for one seed and one hyperparameter set."""
+    env = make_train_env(config)
+    agent_key, env_key, key = jax.random.split(key, 3)
+    env_state, timestep = jax.vmap(env.reset)(jax.random.split(env_key, config.num_envs))
+    agent = learner.init_agent(
+        agent_key, config, hparams, env.observation_space(), env.action_space()
+    )
+    buffer = learner.init_buffer(example_transition(env), config)
+    zero = jnp.int32(0)
+    return TrainState(
+        agent=agent,
+        buffer=buffer,
+        env_state=env_state,
+        obs=timestep.obs,
+        noise=jnp.zeros((config.num_envs, *env.action_space().shape), jnp.float32),
+        key=key,
+        clock=Clock(env_steps=zero, updates=zero, iterations=zero),
+        train_return=jnp.float32(jnp.nan),
+    )
+
+
+# ---- one iteration -----------------------------------------------------------------------------
+def random_actions(space: Any, key: PRNGKey, count: int) -> jax.Array:
+    return jax.vmap(space.sample)(jax.random.split(key, count))
+
+
+def _choose_actions(learner, config, hparams, state: TrainState, key: PRNGKey, space):
+    """``(actions, noise)``: uniformly random while warming up, then the learner's choice."""
+    warming_up = state.clock.env_steps < config.learning_starts
+    return jax.lax.cond(
+        warming_up,
+        lambda: (random_actions(space, key, config.num_envs), state.noise),
+        lambda: learner.explore(
+            state.agent, state.obs, state.noise, key, config, hparams, state.clock
+        ),
+    )
+
+
+def _updates(learner, config, hparams, state: TrainState, key: PRNGKey, buffer: ReplayBuffer):
+    """``updates_per_iteration`` updates, or none (NaN metrics) while warming up."""
+    count = config.updates_per_iteration
+
+    def run(agent, buffer):
+        def one(carry, inputs):
+            update_key, index = inputs
+            agent, buffer, metrics = learner.update(*carry, update_key, config, hparams, index)
+            return (agent, buffer), metrics
+
+        inputs = (jax.random.split(key, count), state.clock.updates + jnp.arange(count))
+        (agent, buffer), metrics = jax.lax.scan(one, (agent, buffer), inputs)
+        return agent, buffer, jax.tree.map(jnp.nanmean, metrics)
+
+    def skip(agent, buffer):
+        nan = jnp.full((), jnp.nan, jnp.float32)
+        return agent, buffer, {name: nan for name in learner.metric_names}
+
+    learning = state.clock.env_steps >= config.learning_starts
+    agent, buffer, metrics = jax.lax.cond(learning, run, skip, state.agent, buffer)
+    return agent, buffer, metrics, jnp.where(learning, count, 0)
+
+
+def train_iteration(learner, config, hparams, state: TrainState):
+    """All envs act and step once, the transitions are stored, then the gradient updates."""
+    env = make_train_env(config)
+    key, act_key, step_key, update_key = jax.random.split(state.key, 4)
+    actions, noise = _choose_actions(learner, config, hparams, state, act_key, env.action_space())
+    step_keys = jax.random.split(step_key, config.num_envs)
+    env_state, ts = jax.vmap(env.step)(step_keys, state.env_state, actions)
+    transition = Transition(
+        state.obs, actions, ts.reward, ts.info["final_obs"], ts.terminated, ts.truncated
+    )
+    buffer = learner.add_to_buffer(state.buffer, transition, config, hparams)
+    agent, buffer, metrics, updates = _updates(learner, config, hparams, state, update_key, buffer)
+    done = jnp.logical_or(ts.terminated, ts.truncated)
+    noise = jnp.where(jnp.reshape(done, done.shape + (1,) * (noise.ndim - 1)), 0.0, noise)
+    clock = Clock(
+        env_steps=state.clock.env_steps + config.num_envs,
+        updates=state.clock.updates + updates,
+        iterations=state.clock.iterations + 1,
+    )
+    state = state.replace(
+        agent=agent,
+        buffer=buffer,
+        env_state=env_state,
+        obs=ts.obs,
+        noise=noise,
+        key=key,
+        clock=clock,
+    )
+    episodes = (jnp.sum(jnp.where(done, ts.info["episode_return"], 0.0)), jnp.sum(done))
+    return state, (metrics, episodes)
+
+
+def env_steps_at_update(update_index: jax.Array, config: OffPolicyConfig) -> jax.Array:
+    """Env steps taken (all envs, this one included) in the iteration that runs update number
+    ``update_index`` (0-based): updates start in the first iteration that begins with at least
+    ``learning_starts`` steps taken, ``updates_per_iteration`` per iteration. Lets an update-side
+    schedule (e.g. prioritized replay's beta) run on env steps, like exploration."""
+    first_iteration = -(-config.learning_starts // config.num_envs)
+    iteration = first_iteration + update_index // config.updates_per_iteration
+    return (iteration + 1) * config.num_envs
+
+
+def linearly_decayed(rate, env_steps, decay_steps) -> jax.Array:
+    """``rate`` falling linearly to 0 over ``decay_steps`` env steps (constant if that is <= 0).
+    A rate that ends at 0 freezes the policy a run has converged to, instead of leaving the
+    last updates to move it around a good solution."""
+    fraction = jnp.clip(1.0 - env_steps / jnp.maximum(decay_steps, 1.0), 0.0, 1.0)
+    return rate * jnp.where(decay_steps > 0.0, fraction, 1.0)
+
+
+# ---- evaluation ---------------------------------------------------------------------------------
+def evaluate(learner: Learner, agent: Any, config: OffPolicyConfig, key: PRNGKey) -> jax.Array:
+    """Mean undiscounted return of ``num_eval_envs`` episodes of the deterministic policy on
+    fresh env copies (no exploration noise, no autoreset); [] float32."""
+    env = make_eval_env(config)
+    reset_key, step_key = jax.random.split(key)
+    env_state, ts = jax.vmap(env.reset)(jax.random.split(reset_key, config.num_eval_envs))
+    alive = jnp.ones(config.num_eval_envs, jnp.bool_)
+    total = jnp.zeros(config.num_eval_envs, jnp.float32)
+
+    def running(carry):
+        time, _, _, alive, _ = carry
+        return jnp.logical_and(time < env.max_episode_steps, jnp.any(alive))
+
+    def step(carry):
+        time, env_state, obs, alive, total = carry
+        keys = jax.random.split(jax.random.fold_in(step_key, time), config.num_eval_envs)
+        actions = learner.act(agent, obs, config)
+        env_state, ts = jax.vmap(env.step)(keys, env_state, actions)
+        total = total + jnp.where(alive, ts.reward, 0.0)
+        alive = jnp.logical_and(alive, ~jnp.logical_or(ts.terminated, ts.truncated))
+        return time + 1, env_state, ts.obs, alive, total
+
+    carry = (jnp.int32(0), env_state, ts.obs, alive, total)
+    return jnp.mean(jax.lax.while_loop(running, step, carry)[-1])
+
+
+# ---- a chunk ------------------------------------------------------------------------------------
+def train_chunk(learner: Learner, state: TrainState, config: OffPolicyConfig, hparams: Any):
+    """``config.iterations_per_chunk`` iterations, then one evaluation. Pure; jit it outside."""
+
+    def body(state, _):
+        return train_iteration(learner, config, hparams, state)
+
+    state, (metrics, (return_sums, episode_counts)) = jax.lax.scan(
+        body, state, None, length=config.iterations_per_chunk
+    )
+    eval_key, key = jax.random.split(state.key)
+    eval_return = evaluate(learner, state.agent, config, eval_key)
+    count = jnp.sum(episode_counts)
+    train_return = jnp.where(
+        count > 0, jnp.sum(return_sums) / jnp.maximum(count, 1), state.train_return
+    )
+    state = state.replace(key=key, train_return=train_return)
+    chunk_metrics = ChunkMetrics(
+        env_steps=state.clock.env_steps,
+        updates=state.clock.updates,
+        eval_return=eval_return,
+        train_return=train_return,
+        extra=jax.tree.map(jnp.nanmean, metrics),
+    )
+    return state, chunk_metrics

@@ -1,0 +1,443 @@
+"""Seeds x hyperparameter sets as one compiled program, split over the local devices.
+
+``jit(vmap(vmap(train_chunk)))``: the outer vmap runs over a stack of ``H`` hyperparameter
+pytrees, the inner over ``S`` seed keys, so every leaf of the train state gains ``[H, S]`` leading
+axes. Seed ``s`` uses the same key under every hyperparameter set (common random numbers: a sweep
+compares configurations on identical initialisations and noise).
+
+The ``[H, S]`` grid is split over a device mesh with axes ``("hparams", "seeds")`` through
+``shard_map``: each device runs the same vmapped program on its block of runs with no
+communication. Runs that do not split evenly are padded with copies of the first seed (or
+hyperparameter set) that are computed and dropped: 5 seeds on 2 devices run as 3 + 3
+(``plan_layout``). The mesh may span several processes started with ``jax.distributed``. On a
+CPU-only machine, ``rl_jax.training.jax_setup.configure(cpu_devices=2)`` (before JAX starts)
+exposes both cores as devices.
+
+The train state's ``clock`` (counters that depend only on the static config) is *not* stacked:
+it is identical across runs, stays unbatched under vmap (so the learner's branches on it stay real
+branches) and is replicated over devices. ``select`` extracts one run's state.
+
+Usage::
+
+    runner = parallel.Runner(td3, config, num_hparams=2, num_seeds=3)
+    state = runner.init(parallel.seed_keys([0, 1, 2]), parallel.stack([hp_a, hp_b]))
+    state, metrics = runner.train_chunk(state, hparams)   # metrics leaves [H, S]
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import itertools
+from collections.abc import Sequence
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jax.sharding import Mesh, NamedSharding, PartitionSpec
+
+from rl_jax.training.algorithm import Algorithm
+
+AXES = ("hparams", "seeds")
+_PROGRAMS: dict[Any, tuple[Any, Any]] = {}  # see Runner._build
+_COMPILED: dict[Any, Any] = {}  # the chunk compiled ahead of time, per program
+SHARED_FIELD = "clock"  # the train-state field kept unbatched and replicated
+
+
+def stack(trees: Sequence[Any]) -> Any:
+    """Stack pytrees of the same structure along a new leading axis."""
+    return jax.tree.map(lambda *leaves: jnp.stack([jnp.asarray(x) for x in leaves]), *trees)
+
+
+def grid(base: Any, **values: Sequence[float]) -> tuple[Any, list[dict[str, float]]]:
+    """Every combination of the given field values on top of ``base`` (a struct dataclass):
+    ``(stacked pytree [H], [{field: value}, ...])``, first field varying slowest."""
+    names = list(values)
+    combos = [
+        dict(zip(names, combo, strict=True))
+        for combo in itertools.product(*(values[n] for n in names))
+    ]
+    trees = [base.replace(**{k: jnp.asarray(v, jnp.float32) for k, v in c.items()}) for c in combos]
+    return stack(trees), combos
+
+
+def seed_keys(seeds: Sequence[int]) -> jax.Array:
+    """``[S]`` typed PRNG keys; seed ``s`` gets ``jax.random.key(s)`` as a single run would."""
+    return jnp.stack([jax.random.key(int(s)) for s in seeds])
+
+
+def state_axes(state: Any) -> Any:
+    """vmap axes for a train state: 0 everywhere, ``None`` for the shared ``clock``."""
+    axes = jax.tree.map(lambda _: 0, state)
+    if hasattr(axes, SHARED_FIELD):
+        axes = axes.replace(**{SHARED_FIELD: None})
+    return axes
+
+
+def select(state: Any, hparam_index: int, seed_index: int) -> Any:
+    """One run's state out of a stacked ``[H, S]`` state."""
+    axes = state_axes(state)
+    return jax.tree.map(
+        lambda axis, leaf: leaf if axis is None else leaf[hparam_index, seed_index],
+        axes,
+        state,
+        is_leaf=lambda x: x is None,
+    )
+
+
+def mesh_shape(num_hparams: int, num_seeds: int, num_devices: int) -> tuple[int, int]:
+    """``(hparam_split, seed_split)``: the most devices that split the ``[H, S]`` runs evenly,
+    splitting seeds first. (3 seeds x 1 set on 2 devices can only use 1 device.)"""
+    for used in range(num_devices, 0, -1):
+        for seed_split in range(used, 0, -1):
+            hparam_split = used // seed_split
+            if (
+                seed_split * hparam_split == used
+                and num_seeds % seed_split == 0
+                and num_hparams % hparam_split == 0
+            ):
+                return hparam_split, seed_split
+    raise AssertionError("unreachable: one device always splits the runs")
+
+
+@dataclasses.dataclass(frozen=True)
+class Layout:
+    """How ``[H, S]`` runs sit on a ``(hparam_split, seed_split)`` device mesh.
+
+    When the runs do not split evenly, an axis is padded to a multiple of its split with copies
+    of its first run (seed 0, hyperparameter set 0); the copies compute alongside and are dropped
+    from everything reported. 5 seeds on 2 devices run as 3 + 3 instead of 5 on one device.
+    """
+
+    num_hparams: int
+    num_seeds: int
+    hparam_split: int = 1
+    seed_split: int = 1
+
+    @property
+    def padded_hparams(self) -> int:
+        return -(-self.num_hparams // self.hparam_split) * self.hparam_split
+
+    @property
+    def padded_seeds(self) -> int:
+        return -(-self.num_seeds // self.seed_split) * self.seed_split
+
+    @property
+    def devices(self) -> int:
+        return self.hparam_split * self.seed_split
+
+    @property
+    def runs_per_device(self) -> int:
+        return self.padded_hparams * self.padded_seeds // self.devices
+
+    @property
+    def padding(self) -> int:
+        """Extra runs computed and dropped."""
+        return self.padded_hparams * self.padded_seeds - self.num_hparams * self.num_seeds
+
+
+def plan_layout(num_hparams: int, num_seeds: int, num_devices: int, pad: bool = True) -> Layout:
+    """The mesh for ``[H, S]`` runs on up to ``num_devices`` devices.
+
+    Without padding: ``mesh_shape``. With padding: the fewest runs per device (the wall-clock of
+    a chunk), then the fewest padded runs (memory), then the fewest devices, then seeds split
+    before hyperparameters. A single run stays on one device.
+    """
+    if not pad:
+        return Layout(num_hparams, num_seeds, *mesh_shape(num_hparams, num_seeds, num_devices))
+    candidates = []
+    for used in range(1, num_devices + 1):
+        for seed_split in range(1, used + 1):
+            if used % seed_split:
+                continue
+            layout = Layout(num_hparams, num_seeds, used // seed_split, seed_split)
+            total = layout.padded_hparams * layout.padded_seeds
+            candidates.append(((layout.runs_per_device, total, used, -seed_split), layout))
+    return min(candidates, key=lambda candidate: candidate[0])[1]
+
+
+def make_mesh(num_hparams: int, num_seeds: int, devices: Sequence[Any] | None = None) -> Mesh:
+    """A ``("hparams", "seeds")`` device mesh shaped by ``mesh_shape`` (no padding)."""
+    devices = list(jax.devices() if devices is None else devices)
+    hparam_split, seed_split = mesh_shape(num_hparams, num_seeds, len(devices))
+    used = np.array(devices[: hparam_split * seed_split]).reshape(hparam_split, seed_split)
+    return Mesh(used, AXES)
+
+
+def _specs(axes: Any) -> Any:
+    runs = PartitionSpec(*AXES)
+    return jax.tree.map(
+        lambda axis: PartitionSpec() if axis is None else runs, axes, is_leaf=lambda x: x is None
+    )
+
+
+def _map_axes(function: Any, axes: Any, tree: Any) -> Any:
+    """``function(axis, leaf)`` on every leaf of ``tree``; a ``None`` axis (the shared clock)
+    covers a whole subtree, so it is handed to each leaf under it."""
+    return jax.tree.map(
+        lambda axis, subtree: jax.tree.map(lambda leaf: function(axis, leaf), subtree),
+        axes,
+        tree,
+        is_leaf=lambda x: x is None,
+    )
+
+
+def _is_key(leaf: Any) -> bool:
+    return hasattr(leaf, "dtype") and jax.dtypes.issubdtype(leaf.dtype, jax.dtypes.prng_key)
+
+
+def _pad_edge(array: np.ndarray, sizes: tuple[int, ...]) -> np.ndarray:
+    """``array`` grown along its leading axes to ``sizes`` by repeating index 0 of each."""
+    for axis, size in enumerate(sizes):
+        missing = size - array.shape[axis]
+        if missing > 0:
+            first = np.take(array, [0] * missing, axis=axis)
+            array = np.concatenate([array, first], axis=axis)
+    return array
+
+
+def _host(leaf: Any) -> np.ndarray:
+    """A host copy of a (fully addressable) array; typed keys as their key data."""
+    if _is_key(leaf):
+        leaf = jax.random.key_data(leaf)
+    return np.asarray(leaf)
+
+
+class Runner:
+    """Compiled init and chunk for ``[H, S]`` runs of one algorithm and one static config.
+
+    The state lives on the devices padded to ``layout.padded_hparams x layout.padded_seeds``
+    runs; ``unpad``/``gather`` give the ``[H, S]`` runs back on the host and ``place`` puts an
+    ``[H, S]`` state (a restored checkpoint) on the devices. The mesh may span the devices of
+    several processes (``jax.distributed``): every process then runs the same calls.
+    """
+
+    def __init__(
+        self,
+        algorithm: Algorithm,
+        config: Any,
+        num_hparams: int,
+        num_seeds: int,
+        devices: Sequence[Any] | None = None,
+        pad: bool = True,
+    ):
+        self.algorithm, self.config = algorithm, config
+        self.num_hparams, self.num_seeds = num_hparams, num_seeds
+        devices = list(jax.devices() if devices is None else devices)
+        self.layout = plan_layout(num_hparams, num_seeds, len(devices), pad)
+        used = np.array(devices[: self.layout.devices])
+        self.mesh = Mesh(used.reshape(self.layout.hparam_split, self.layout.seed_split), AXES)
+        self.multiprocess = any(d.process_index != jax.process_index() for d in used)
+        self._init = None
+        self._chunk = None
+        self._axes = None
+        self._key_impl: Any = None
+        self._placed_hparams: tuple[Any, Any] | None = None
+        self._program_key: Any = None
+
+    # ---- shapes and placement -------------------------------------------------------------
+
+    @property
+    def padded(self) -> tuple[int, int]:
+        return self.layout.padded_hparams, self.layout.padded_seeds
+
+    def sharding(self, spec: PartitionSpec | None = None) -> NamedSharding:
+        return NamedSharding(self.mesh, PartitionSpec(*AXES) if spec is None else spec)
+
+    def axes(self, hparams: Any) -> Any:
+        """vmap axes of the state (0, or ``None`` for the shared clock)."""
+        if self._axes is None:
+            one = jax.tree.map(lambda x: jnp.asarray(x[0]), hparams)
+            abstract = jax.eval_shape(
+                lambda key: self.algorithm.init(key, self.config, one), jax.random.key(0)
+            )
+            self._axes = state_axes(abstract)
+        return self._axes
+
+    def _put(self, array: np.ndarray, sharding: NamedSharding) -> jax.Array:
+        if self.multiprocess:
+            return jax.make_array_from_callback(array.shape, sharding, lambda index: array[index])
+        return jax.device_put(array, sharding)
+
+    def _place_leaf(self, axis: int | None, leaf: Any) -> Any:
+        key_impl = jax.random.key_impl(leaf) if _is_key(leaf) else None
+        array = _host(leaf)
+        if axis is None:
+            placed = self._put(array, self.sharding(PartitionSpec()))
+        else:
+            placed = self._put(_pad_edge(array, self.padded), self.sharding())
+        return placed if key_impl is None else jax.random.wrap_key_data(placed, impl=key_impl)
+
+    def place(self, state: Any, hparams: Any) -> Any:
+        """An ``[H, S]`` state (host or device arrays) padded and put on the mesh."""
+        axes = self.axes(hparams)
+        return _map_axes(self._place_leaf, axes, state)
+
+    def unpad(self, state: Any, hparams: Any) -> Any:
+        """The ``[H, S]`` runs of a device state, as host arrays (typed keys stay keys)."""
+        axes = self.axes(hparams)
+        real = (slice(0, self.num_hparams), slice(0, self.num_seeds))
+
+        def take(axis: int | None, leaf: Any) -> Any:
+            key_impl = jax.random.key_impl(leaf) if _is_key(leaf) else None
+            array = self._gather_leaf(leaf)
+            array = array if axis is None else array[real]
+            return array if key_impl is None else jax.random.wrap_key_data(array, impl=key_impl)
+
+        return _map_axes(take, axes, state)
+
+    def gather(self, metrics: Any) -> Any:
+        """Host copies of ``[H_padded, S_padded]`` outputs (chunk metrics), cut to ``[H, S]``."""
+        real = (slice(0, self.num_hparams), slice(0, self.num_seeds))
+        return jax.tree.map(lambda leaf: self._gather_leaf(leaf)[real], metrics)
+
+    def _gather_leaf(self, leaf: Any) -> np.ndarray:
+        if self.multiprocess and not leaf.is_fully_addressable:
+            from jax.experimental import multihost_utils
+
+            if _is_key(leaf):
+                leaf = jax.random.key_data(leaf)
+            return np.asarray(multihost_utils.process_allgather(leaf, tiled=True))
+        return _host(leaf)
+
+    def template(self, hparams: Any) -> Any:
+        """``jax.ShapeDtypeStruct`` tree (with shardings) of the device state: nothing allocated."""
+        axes = self.axes(hparams)
+        one = jax.tree.map(lambda x: jnp.asarray(x[0]), hparams)
+        abstract = jax.eval_shape(
+            lambda key: self.algorithm.init(key, self.config, one), jax.random.key(0)
+        )
+
+        def grow(axis: int | None, leaf: Any) -> jax.ShapeDtypeStruct:
+            if axis is None:
+                return jax.ShapeDtypeStruct(
+                    leaf.shape, leaf.dtype, sharding=self.sharding(PartitionSpec())
+                )
+            shape = (*self.padded, *leaf.shape)
+            return jax.ShapeDtypeStruct(shape, leaf.dtype, sharding=self.sharding())
+
+        return _map_axes(grow, axes, abstract)
+
+    def local_fraction(self) -> float:
+        """Share of the state held by this process's devices (1 without ``jax.distributed``)."""
+        local = sum(d.process_index == jax.process_index() for d in self.mesh.devices.flat)
+        return local / self.layout.devices
+
+    # ---- programs --------------------------------------------------------------------------
+
+    def _wrap(self, function: Any, in_specs: Any, out_specs: Any) -> Any:
+        """``shard_map`` over the mesh; on one device the vmapped function as it is (measured:
+        an MJX env step under a one-device ``shard_map`` ran many times slower)."""
+        if self.layout.devices == 1:
+            return function
+        # check_vma=False: each device's block is an independent program; the replication check
+        # would demand casts inside every learner's branches for no benefit.
+        return jax.shard_map(
+            function, mesh=self.mesh, in_specs=in_specs, out_specs=out_specs, check_vma=False
+        )
+
+    def _build(self, hparams: Any) -> None:
+        """The jitted init and chunk, shared by every ``Runner`` of the same algorithm, config
+        and layout in this process (a resumed or repeated run does not trace again)."""
+        if self._key_impl is None:  # a restored state trains before any init: the default
+            self._key_impl = jax.random.key_impl(jax.random.key(0))
+        key = (
+            self.algorithm,
+            self.config,
+            self.layout,
+            tuple(self.mesh.devices.flat),
+            str(self._key_impl),
+            jax.tree.structure(hparams),
+        )
+        if key not in _PROGRAMS:
+            _PROGRAMS[key] = self._programs(hparams)
+        self._init, self._chunk = _PROGRAMS[key]
+        self._program_key = key
+
+    def _programs(self, hparams: Any) -> tuple[Any, Any]:
+        algorithm, config = self.algorithm, self.config
+        axes = self.axes(hparams)
+        state_specs = _specs(axes)
+        runs, by_seed, by_hparam = (
+            PartitionSpec(*AXES),
+            PartitionSpec(AXES[1]),
+            PartitionSpec(AXES[0]),
+        )
+
+        key_impl = self._key_impl
+
+        def init_one(key_data, hp):
+            return algorithm.init(jax.random.wrap_key_data(key_data, impl=key_impl), config, hp)
+
+        init = jax.vmap(init_one, in_axes=(0, None), out_axes=axes)
+        init = jax.vmap(init, in_axes=(None, 0), out_axes=axes)
+        init = self._wrap(init, (by_seed, by_hparam), state_specs)
+        init = jax.jit(init, out_shardings=self._shardings(state_specs))
+
+        def chunk_one(state, hp):
+            return algorithm.train_chunk(state, config, hp)
+
+        chunk = jax.vmap(chunk_one, in_axes=(axes, None), out_axes=(axes, 0))
+        chunk = jax.vmap(chunk, in_axes=(axes, 0), out_axes=(axes, 0))
+        chunk = self._wrap(chunk, (state_specs, by_hparam), (state_specs, runs))
+        # The old state is dead after a chunk: donating it lets XLA update the replay buffer
+        # in place instead of holding two copies.
+        # Output shardings pinned: XLA may otherwise return a zero-size leaf replicated, and the
+        # next call, compiled for the sharded input, would refuse it.
+        out_shardings = (self._shardings(state_specs), self.sharding(runs))
+        return init, jax.jit(chunk, donate_argnums=0, out_shardings=out_shardings)
+
+    def _shardings(self, specs: Any) -> Any:
+        return jax.tree.map(self.sharding, specs, is_leaf=lambda x: isinstance(x, PartitionSpec))
+
+    def _placed(self, hparams: Any) -> Any:
+        """``[H]`` hyperparameters padded and put on the mesh (memoized per object)."""
+        if self._placed_hparams is None or self._placed_hparams[0] is not hparams:
+            sizes = (self.layout.padded_hparams,)
+            by_hparam = self.sharding(PartitionSpec(AXES[0]))
+            placed = jax.tree.map(
+                lambda x: self._put(_pad_edge(np.asarray(x), sizes), by_hparam), hparams
+            )
+            self._placed_hparams = (hparams, placed)
+        return self._placed_hparams[1]
+
+    def init(self, keys: jax.Array, hparams: Any) -> Any:
+        """Fresh device state (``[H_padded, S_padded]`` leaves) from ``[S]`` keys and
+        ``[H]``-stacked hyperparameters."""
+        self._check(keys.shape[0], hparams)
+        self._key_impl = jax.random.key_impl(keys)
+        if self._init is None:
+            self._build(hparams)
+        key_data = _pad_edge(_host(keys), (self.layout.padded_seeds,))
+        placed_keys = self._put(key_data, self.sharding(PartitionSpec(AXES[1])))
+        return self._init(placed_keys, self._placed(hparams))
+
+    def train_chunk(self, state: Any, hparams: Any) -> tuple[Any, Any]:
+        """One chunk for every run (metrics leaves ``[H_padded, S_padded]``; ``gather`` cuts
+        them). ``state`` is donated: use the returned one."""
+        if self._chunk is None:
+            self._build(hparams)
+        return self._chunk(state, self._placed(hparams))
+
+    def compile(self, state: Any, hparams: Any) -> Any:
+        """The chunk compiled ahead of time (to time compilation apart from training):
+        ``compiled(state, hparams) -> (state, metrics)``."""
+        if self._chunk is None:
+            self._build(hparams)
+        if self._program_key not in _COMPILED:
+            lowered = self._chunk.lower(state, self._placed(hparams))
+            _COMPILED[self._program_key] = lowered.compile()
+        compiled = _COMPILED[self._program_key]
+        return lambda state, hparams: compiled(state, self._placed(hparams))
+
+    def select(self, state: Any, hparam_index: int, seed_index: int) -> Any:
+        """One run's state (device or host state)."""
+        return select(state, hparam_index, seed_index)
+
+    def _check(self, num_keys: int, hparams: Any) -> None:
+        sizes = {np.shape(leaf)[0] for leaf in jax.tree.leaves(hparams)}
+        if num_keys != self.num_seeds or sizes != {self.num_hparams}:
+            raise ValueError(
+                f"expected {self.num_seeds} keys and hyperparameters stacked to "
+                f"{self.num_hparams}, got {num_keys} keys and leading sizes {sorted(sizes)}"
+            )
