@@ -130,8 +130,18 @@ def algorithm_reference(algorithm: Any) -> str:
     raise RunError(f"algorithm {algorithm!r} is not a module or a module-level object")
 
 
+#: Where the algorithms' modules were before they moved to ``rl_jax.agents``: run directories
+#: written then record these in ``algorithm_module``, and must still load and resume.
+MOVED_MODULES = {
+    "rl_jax.td3": "rl_jax.agents.td3",
+    "rl_jax.dqn": "rl_jax.agents.dqn",
+    "rl_jax.reinforce": "rl_jax.agents.reinforce",
+}
+
+
 def load_algorithm(reference: str) -> Any:
     module_name, _, attribute = reference.partition(":")
+    module_name = MOVED_MODULES.get(module_name, module_name)
     try:
         module = importlib.import_module(module_name)
     except ImportError as error:
