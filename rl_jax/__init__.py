@@ -1,4 +1,10 @@
-"""rl_jax: pure-functional TD3, DDPG, DQN and REINFORCE, jit-compiled with vmapped envs."""
+"""rl_jax: pure-functional TD3, DDPG, DQN and REINFORCE, jit-compiled with vmapped envs.
+
+What a user imports: ``train``, ``resume``, ``open_run`` and ``Run`` (``rl_jax.run.api``),
+``load_policy`` (``rl_jax.run.policy``) and the algorithms ``td3``, ``ddpg``, ``dqn`` and
+``reinforce`` (``rl_jax.agents``). The package: ``agents`` (the algorithms), ``training`` (what
+makes the compiled program), ``run`` (what touches disk, terminal and processes).
+"""
 
 import os
 
@@ -13,8 +19,12 @@ os.environ.setdefault("TF_CPP_MIN_LOG_LEVEL", "3")
 
 __version__ = "0.1.0"
 
-__all__ = ["Run", "load_policy", "open_run", "resume", "train"]
+__all__ = ["Run", "ddpg", "dqn", "load_policy", "open_run", "reinforce", "resume", "td3", "train"]
 _LAZY = {
+    "td3": "rl_jax.agents.td3",
+    "ddpg": "rl_jax.agents.td3",
+    "dqn": "rl_jax.agents.dqn",
+    "reinforce": "rl_jax.agents.reinforce",
     "load_policy": "rl_jax.run.policy",
     "train": "rl_jax.run.api",
     "resume": "rl_jax.run.api",
