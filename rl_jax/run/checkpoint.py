@@ -30,11 +30,9 @@ from typing import Any
 import jax
 import numpy as np
 
+from rl_jax.errors import CheckpointError
+
 _TMP_MARKER = ".orbax-checkpoint-tmp"
-
-
-class CheckpointError(Exception):
-    """A checkpoint is missing, unreadable, or does not match the state it should restore."""
 
 
 def library_versions() -> dict[str, str]:

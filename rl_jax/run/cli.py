@@ -21,7 +21,6 @@ import ast
 import dataclasses
 import inspect
 import io
-import math
 import os
 import shlex
 import sys
@@ -32,7 +31,17 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any, NoReturn
 
-from rl_jax.run.run_dir import RunError
+from rl_jax.errors import (
+    OneLineParser,
+    RunError,
+    UsageError,
+    exit_now,
+    guard,
+    parse_float,
+    parse_int,
+    positive_int,
+)
+from rl_jax.errors import user_errors as user_errors  # cli.user_errors, as before
 
 #: name -> "module" or "module:attribute" of every algorithm the CLI knows (imported on use).
 ALGORITHMS: dict[str, str] = {
@@ -44,10 +53,6 @@ ALGORITHMS: dict[str, str] = {
 RUNS_ROOT = Path("runs")
 #: Config fields that are not flags: the env is chosen by the script (or --env).
 NOT_FLAGS = ("env_id",)
-
-
-class UsageError(Exception):
-    """Bad command-line input (reported as one line, exit status 2)."""
 
 
 def register_algorithm(name: str, reference: str) -> None:
@@ -128,32 +133,6 @@ def undocumented_fields(instance: Any) -> list[str]:
 # ---- value parsing --------------------------------------------------------------------------
 
 
-def parse_int(text: str) -> int:
-    """An integer; ``1e6`` and ``1_000_000`` are accepted when they are whole numbers."""
-    try:
-        return int(text)
-    except ValueError:
-        pass
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"invalid integer value: {text!r}") from None
-    if not value.is_integer():
-        raise argparse.ArgumentTypeError(f"invalid integer value: {text!r}")
-    return int(value)
-
-
-def parse_float(text: str) -> float:
-    """A finite number."""
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"invalid numeric value: {text!r}") from None
-    if not math.isfinite(value):
-        raise argparse.ArgumentTypeError(f"invalid numeric value: {text!r} (must be finite)")
-    return value
-
-
 def parse_bool(text: str) -> bool:
     lowered = text.strip().lower()
     if lowered in ("1", "true", "yes", "on"):
@@ -161,13 +140,6 @@ def parse_bool(text: str) -> bool:
     if lowered in ("0", "false", "no", "off"):
         return False
     raise argparse.ArgumentTypeError(f"invalid boolean value: {text!r}")
-
-
-def positive_int(text: str) -> int:
-    value = parse_int(text)
-    if value < 1:
-        raise argparse.ArgumentTypeError(f"must be >= 1, got {value}")
-    return value
 
 
 def non_negative_float(text: str) -> float:
@@ -227,13 +199,6 @@ def _describe(default: Any) -> str:
 
 
 # ---- the parser -----------------------------------------------------------------------------
-
-
-class OneLineParser(argparse.ArgumentParser):
-    """argparse that reports a bad flag in one line (no usage block) and exits with 2."""
-
-    def error(self, message: str) -> NoReturn:
-        self.exit(2, f"error: {message} (see --help)\n")
 
 
 def flag_name(field: str) -> str:
@@ -680,31 +645,6 @@ def run_experiment(
     return 0
 
 
-def user_errors() -> tuple[type[BaseException], ...]:
-    """Exception types that mean bad input, not a bug: reported in one line."""
-    from envs.adapters.external_ids import UnsupportedEnvError
-    from envs.core.registry import BackendError, UnknownEnvError
-    from rl_jax.run.checkpoint import CheckpointError
-    from rl_jax.run.policy import PolicyError
-    from rl_jax.run.render import RenderError
-
-    errors = (UsageError, RunError, CheckpointError, UnknownEnvError, BackendError)
-    return (*errors, UnsupportedEnvError, RenderError, PolicyError)
-
-
-def guard(function: Callable[[], int]) -> int:
-    """Run ``function``; a user error becomes ``error: <one line>`` on stderr and status 2."""
-    try:
-        return function()
-    except user_errors() as error:
-        message = " ".join(str(error).split("\n")).strip() or type(error).__name__
-        print(f"error: {message}", file=sys.stderr)
-        return 2
-    except KeyboardInterrupt:
-        print("error: aborted (the latest checkpoint is kept)", file=sys.stderr)
-        return 130
-
-
 def main(
     algorithm: Any = None,
     env_id: str | None = None,
@@ -759,14 +699,3 @@ class Script:
             argv=argv,
             throughput=self.throughput,
         )
-
-
-def exit_now(status: int) -> NoReturn:
-    """Exit with ``status``. After an error, skip interpreter shutdown: a failed checkpoint
-    read can leave tensorstore callbacks pending, and run during shutdown they print tracebacks
-    under our one-line error. Everything of ours is closed by then."""
-    if status == 0:
-        sys.exit(0)
-    sys.stdout.flush()
-    sys.stderr.flush()
-    os._exit(status)

@@ -20,11 +20,9 @@ from typing import Any
 
 import numpy as np
 
+from rl_jax.errors import PolicyError
+
 WHICH = ("best", "latest")
-
-
-class PolicyError(Exception):
-    """The policy cannot be loaded (no run, no checkpoint, a seed the run does not have)."""
 
 
 class LoadedPolicy:

@@ -32,6 +32,7 @@ from typing import Any
 
 import numpy as np
 
+from rl_jax.errors import OneLineParser, RenderError, exit_now, guard, parse_int, positive_int
 from rl_jax.run.policy import LoadedPolicy  # loading lives there; render.LoadedPolicy stays
 
 NO_OPENGL = (
@@ -40,10 +41,6 @@ NO_OPENGL = (
     "or OSMesa (apt-get install libosmesa6) with MUJOCO_GL=osmesa"
 )
 _GL_MARKERS = ("OpenGL", "EGL", "GLFW", "glGetError", "mjr_makeContext", "osmesa", "gladLoad")
-
-
-class RenderError(Exception):
-    """The policy cannot be rendered (no OpenGL, no renderer for the env, no checkpoint)."""
 
 
 # ---- rollouts and frames --------------------------------------------------------------------
@@ -216,8 +213,6 @@ def _save_episode_plot(env: Any, states: list[Any], gif_path: Path) -> Path | No
 
 
 def main(argv: list[str] | None = None) -> int:
-    from rl_jax.run.cli import OneLineParser, guard, parse_int, positive_int
-
     parser = OneLineParser(prog="python -m rl_jax.run.render", description=__doc__.split("\n")[0])
     parser.add_argument("run_dir", type=Path, help="a run directory (holds config.json)")
     parser.add_argument(
@@ -272,7 +267,6 @@ if __name__ == "__main__":
     os.environ.setdefault("MUJOCO_GL", "egl")
     # Run the imported module's main, not this __main__ copy, so that its exception classes are
     # the ones the guard knows.
-    from rl_jax.run.cli import exit_now
     from rl_jax.run.render import main as module_main
 
     exit_now(module_main())

@@ -32,7 +32,7 @@ from pathlib import Path
 from typing import Any
 
 from envs.classic import rocket_control
-from rl_jax.run.cli import UsageError
+from rl_jax.errors import OneLineParser, UsageError, exit_now, guard, parse_float, positive_int
 
 PLOT_FILE = "rocket_comparison.png"
 TABLE_FILE = "rocket_comparison.md"
@@ -302,8 +302,6 @@ def write_report(entries: list[Entry], settings: Settings, out: Path) -> tuple[P
 
 
 def _parser() -> Any:
-    from rl_jax.run.cli import OneLineParser, parse_float, positive_int
-
     parser = OneLineParser(
         prog="python -m rl_jax.run.rocket_report", description=__doc__.split("\n")[0]
     )
@@ -354,8 +352,6 @@ def _parser() -> Any:
 
 
 def main(argv: list[str] | None = None) -> int:
-    from rl_jax.run.cli import guard
-
     args = _parser().parse_args(argv)
 
     def report() -> int:
@@ -380,7 +376,6 @@ def main(argv: list[str] | None = None) -> int:
 if __name__ == "__main__":
     # Run the imported module's main, not this __main__ copy, so that its exception classes are
     # the ones the guard knows.
-    from rl_jax.run.cli import exit_now
     from rl_jax.run.rocket_report import main as module_main
 
     exit_now(module_main())

@@ -26,11 +26,9 @@ from typing import Any
 import jax
 import numpy as np
 
+from rl_jax.errors import RunError
+
 CONFIG_FILE = "config.json"
-
-
-class RunError(Exception):
-    """A user-facing problem with a run (bad directory, foreign resume, not enough memory)."""
 
 
 # ---- Config / Hyperparams <-> JSON ----------------------------------------------------------

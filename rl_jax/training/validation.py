@@ -18,7 +18,7 @@ from typing import Any, NamedTuple
 
 import numpy as np
 
-from rl_jax.run.run_dir import RunError
+from rl_jax.errors import RunError
 
 
 class RangeError(RunError):
