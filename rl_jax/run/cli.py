@@ -42,6 +42,9 @@ from rl_jax.errors import (
     positive_int,
 )
 from rl_jax.errors import user_errors as user_errors  # cli.user_errors, as before
+from rl_jax.run.run_dir import dataclass_from_dict, load_algorithm, read_run_record
+from rl_jax.training.jax_setup import configure
+from rl_jax.training.validation import out_of_range
 
 #: name -> "module" or "module:attribute" of every algorithm the CLI knows (imported on use).
 ALGORITHMS: dict[str, str] = {
@@ -61,7 +64,6 @@ def register_algorithm(name: str, reference: str) -> None:
 
 def resolve_algorithm(name: str) -> Any:
     """The algorithm registered as ``name``."""
-    from rl_jax.run.run_dir import load_algorithm
 
     if name not in ALGORITHMS:
         known = ", ".join(sorted(ALGORITHMS))
@@ -407,7 +409,6 @@ def _base(algorithm: Any, env_id: str, defaults: Defaults) -> tuple[Any, Any]:
 def _validate(algorithm: Any, config: Any, hparams_list: list[Any]) -> None:
     """Ranges (``rl_jax.training.validation``), then the algorithm's own ``validate(config,
     hparams)`` when it has one: before anything compiles, for every config of a grid."""
-    from rl_jax.training.validation import out_of_range
 
     for field in dataclasses.fields(config):
         value = getattr(config, field.name)
@@ -473,7 +474,6 @@ def _add_choice_flags(parser: argparse.ArgumentParser) -> None:
 def _choose(argv: list[str], algorithm: Any, env_id: str | None) -> tuple[Any, str, bool]:
     """Algorithm and env: fixed by the script, or from --algo/--env (or the resumed run)."""
     import envs
-    from rl_jax.run.run_dir import read_run_record
 
     if algorithm is not None and env_id is not None:
         return algorithm, envs.core.registry.resolve_id(env_id), False
@@ -506,7 +506,6 @@ def _help_without_algorithm(description: str, defaults: Defaults) -> int:
 
 def _resumed_settings(args: argparse.Namespace, algorithm: Any, env_id: str) -> dict[str, Any]:
     """Config, hyperparameters, seeds and steps recorded by the run being resumed."""
-    from rl_jax.run.run_dir import dataclass_from_dict, read_run_record
 
     record = read_run_record(args.resume)
     saved = record["identity"]
@@ -610,7 +609,6 @@ def cpu_count() -> int:
 def configure_jax() -> None:
     """Compilation cache on and one JAX device per CPU core (seeds and configs are sharded over
     them), before anything starts JAX. ``RL_JAX_CPU_DEVICES`` overrides the device count."""
-    from rl_jax.training.jax_setup import configure
 
     configure(cpu_devices=int(os.environ.get("RL_JAX_CPU_DEVICES", cpu_count())))
 

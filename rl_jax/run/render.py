@@ -34,6 +34,7 @@ import numpy as np
 
 from rl_jax.errors import OneLineParser, RenderError, exit_now, guard, parse_int, positive_int
 from rl_jax.run.policy import LoadedPolicy  # loading lives there; render.LoadedPolicy stays
+from rl_jax.training.jax_setup import configure
 
 NO_OPENGL = (
     "no OpenGL backend for headless rendering: install EGL "
@@ -246,8 +247,6 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
 
     def render() -> int:
-        from rl_jax.training.jax_setup import configure
-
         configure()
         write_gif(
             args.run_dir,

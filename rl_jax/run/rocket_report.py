@@ -31,8 +31,13 @@ import os
 from pathlib import Path
 from typing import Any
 
+import envs
 from envs.classic import rocket_control
+from envs.classic.rocket import Rocket
 from rl_jax.errors import OneLineParser, UsageError, exit_now, guard, parse_float, positive_int
+from rl_jax.run.policy import load_policy
+from rl_jax.run.run_dir import read_run_record
+from rl_jax.training.jax_setup import configure
 
 PLOT_FILE = "rocket_comparison.png"
 TABLE_FILE = "rocket_comparison.md"
@@ -71,8 +76,6 @@ class Entry:
 
 def is_rocket_env(env_id: str) -> bool:
     """Whether ``env_id`` is registered as the rocket or a variant of it."""
-    import envs
-    from envs.classic.rocket import Rocket
 
     builder = envs.core.registry.factory(env_id)
     return isinstance(builder, type) and issubclass(builder, Rocket)
@@ -80,7 +83,6 @@ def is_rocket_env(env_id: str) -> bool:
 
 def run_env_id(run_dir: Path) -> str:
     """The env a run trained on; ``ReportError`` unless it is a rocket."""
-    from rl_jax.run.run_dir import read_run_record
 
     identity = read_run_record(run_dir)["identity"]
     if not is_rocket_env(identity["env_id"]):
@@ -93,7 +95,6 @@ def run_env_id(run_dir: Path) -> str:
 
 def choose_env(run_dirs: list[Path], env_id: str | None) -> str:
     """``env_id`` if given (it must be a rocket), else the env all runs share."""
-    import envs
 
     run_envs = {run_env_id(run_dir) for run_dir in run_dirs}
     if env_id is not None:
@@ -111,7 +112,6 @@ def choose_env(run_dirs: list[Path], env_id: str | None) -> str:
 
 def check_start(start: tuple[float, float], env_id: str) -> None:
     """A start the env would end at once (off the track) compares nothing."""
-    import envs
 
     bound = float(envs.make(env_id).default_params.bound)
     if max(abs(start[0]), abs(start[1])) > bound:
@@ -138,8 +138,6 @@ def _entry(name: str, seed: int | None, policy: str, controller: Any, settings: 
 
 def run_entries(run_dir: Path, which: str, settings: Settings) -> list[Entry]:
     """Every (config, seed) policy of ``run_dir``, rolled out as ``settings`` say."""
-    from rl_jax.run.policy import load_policy
-    from rl_jax.run.run_dir import read_run_record
 
     identity = read_run_record(run_dir)["identity"]
     seeds = [identity["base_seed"] + index for index in range(identity["seeds"])]
@@ -164,7 +162,6 @@ def compare(
     tolerance: float = rocket_control.TOLERANCE,
 ) -> tuple[list[Entry], Settings]:
     """Analytic controllers first, then every seed of every run; and the settings used."""
-    import envs
 
     env_id = choose_env(list(run_dirs), env_id)
     check_start(start, env_id)
@@ -355,8 +352,6 @@ def main(argv: list[str] | None = None) -> int:
     args = _parser().parse_args(argv)
 
     def report() -> int:
-        from rl_jax.training.jax_setup import configure
-
         configure()
         if args.tolerance <= 0:
             raise ReportError(f"--tolerance must be > 0, got {args.tolerance:g}")
