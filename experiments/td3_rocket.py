@@ -7,7 +7,7 @@ correlation 0.98 and std 0.5, the discrete Ornstein-Uhlenbeck process of the ori
 gamma is 0.995 (at 0.99 creeping towards the origin scores as well as arriving). 4 envs stepped
 together, one gradient update per env step, 64x64 networks, otherwise the TD3 paper's settings
 (td3.RECIPES / HPARAM_RECIPES, with the measurements behind them). Known shortfall: from (1, 0)
-the learned policies do not yet all settle inside |x|, |v| < 0.05 (tests/test_td3_slow.py).
+the learned policies do not yet all settle inside |x|, |v| < 0.05 (tests/agents/test_td3_slow.py).
 Episodes end after 500 steps, on leaving |x|, |v| <= 2 (-500) or on reaching the goal (+500).
 
 It prints its plan (envs, steps, memory, devices, estimated time) before it starts, then a

@@ -1,6 +1,15 @@
 """Test-wide JAX settings: fail on silent rank promotion, share the compilation cache."""
 
+import sys
+from pathlib import Path
+
 import jax
+
+# The tests live in folders that mirror the package (agents/, training/, run/, envs/); the helpers
+# they share (fake_algorithm, fake_experiment, probe_runs, run_helpers) stay here, importable from
+# every folder.
+if str(Path(__file__).resolve().parent) not in sys.path:
+    sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from rl_jax.training.jax_setup import configure
 

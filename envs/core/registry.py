@@ -26,7 +26,7 @@ _ENTRY_POINTS: dict[str, str] = {
 
 # id -> episode limit, known without importing the env module: gymnasium's registration (its
 # ``spec.max_episode_steps`` and TimeLimit) needs it before MuJoCo is imported. It must equal the
-# env class's ``max_episode_steps`` (tests/test_gym_adapter.py checks).
+# env class's ``max_episode_steps`` (tests/envs/test_gym_adapter.py checks).
 _MAX_EPISODE_STEPS: dict[str, int] = {
     "rl_jax/Rocket-v0": 500,
     "rl_jax/RocketSettle-v0": 500,

@@ -20,7 +20,7 @@ gymnasium — on the C backend these are gymnasium's own (MuJoCo C stops iterati
 tighter caps measured no faster, and the result is bit-identical to gymnasium); on MJX, where every
 env of a vmapped batch pays the full cap, each env's ``mjx_solver`` limits, the fewest that keep
 gymnasium parity including the states where gymnasium's solver works hardest
-(``tests/test_mujoco_parity.py``).
+(``tests/envs/test_mujoco_parity.py``).
 
 Exact starts: ``state_from_vector(concatenate([qpos, qvel]))`` (optionally ``qacc_warmstart``
 appended). On the C backend a float64 numpy vector is kept bit for bit; a float32 or traced vector

@@ -362,7 +362,7 @@ LEARNER = offpolicy.Learner(
 
 
 # ---- the Algorithm object -----------------------------------------------------------------------
-# Per-env recipes on top of the defaults (measured: tests/test_dqn_slow.py). CartPole: wider
+# Per-env recipes on top of the defaults (measured: tests/agents/test_dqn_slow.py). CartPole: wider
 # layers, a faster rate and a short epsilon decay (as in rl-baselines3-zoo's tuned DQN), with 4
 # envs and one update per 2 env steps; every seed balanced 500 steps within ~40k env steps.
 _CLASSIC = {

@@ -417,7 +417,7 @@ def step_slots_per_update(config: Config) -> int:
 
 # ---- the Algorithm object ---------------------------------------------------------------------
 # Per-env recipes on top of the tutorial's defaults. Inverted pendulum: the tutorial's network with
-# 16 episodes per update, normalised returns and a 10x larger rate; in tests/test_dqn_slow.py
+# 16 episodes per update, normalised returns and a 10x larger rate; in tests/agents/test_dqn_slow.py
 # seeds 0, 1, 2 first reached eval return 1,000 after 424k, 536k and 215k real env steps. Double
 # pendulum: 32 episodes per update, standardised observations, a state-free std, a value baseline
 # on its own torso, clipped gradients, and a small state-free exploration std (0.2). Measured

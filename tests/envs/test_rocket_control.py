@@ -24,7 +24,7 @@ from envs.classic.rocket import Rocket, RocketSettle, reward_and_termination
 from rl_jax.run import rocket_report
 from rl_jax.run.runner import RunSpec, run
 
-ROOT = Path(__file__).resolve().parent.parent
+ROOT = Path(__file__).resolve().parents[2]
 SETTLE = "rl_jax/RocketSettle-v0"
 DT = rocket_control.DT
 A = np.array([[0.0, 1.0], [0.0, 0.0]])

@@ -18,7 +18,7 @@ import pytest
 
 from rl_jax.run.checkpoint import Checkpointer, CheckpointError
 
-ROOT = Path(__file__).resolve().parent.parent
+ROOT = Path(__file__).resolve().parents[2]
 
 
 class Inner(NamedTuple):

@@ -28,7 +28,7 @@ TINY = {
     "actor_hidden": (16, 16),
     "critic_hidden": (16, 16),
 }
-ROOT = Path(__file__).resolve().parent.parent
+ROOT = Path(__file__).resolve().parents[2]
 
 
 @pytest.fixture(scope="module")

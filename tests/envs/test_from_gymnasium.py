@@ -24,7 +24,7 @@ from rl_jax.run import cli
 from rl_jax.run.metrics import METRICS_FILE, read_rows
 from rl_jax.training import offpolicy, parallel
 
-ROOT = Path(__file__).resolve().parent.parent
+ROOT = Path(__file__).resolve().parents[2]
 # The off-policy loop, tiny: 4 envs x 25 iterations = 100 env steps per chunk; TD3's networks.
 LOOP = {
     "num_envs": 4,

@@ -24,7 +24,7 @@ import envs
 from envs.mujoco import mujoco_backend, mujoco_ffi_build
 from envs.mujoco.mujoco_ffi import register_model
 
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[2]
 
 needs_ffi = pytest.mark.skipif(
     not mujoco_ffi_build.available(), reason="the MuJoCo FFI op cannot be built here"

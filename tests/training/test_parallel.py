@@ -122,7 +122,7 @@ SHARDED_SCRIPT = textwrap.dedent(
     from rl_jax.training.jax_setup import configure
     configure(cpu_devices=2)  # before JAX starts
     import jax, numpy as np
-    sys.path.insert(0, {tests!r})
+    sys.path[:0] = [{tests!r}, {helpers!r}]
     from test_parallel import ENV_ID, GRID, _leaves, _run_parallel
     from probe_runs import probe_config, probe_hparams
     from rl_jax.training import parallel
@@ -169,7 +169,10 @@ def _assert_leaves_close(got: list[np.ndarray], expected: list[np.ndarray]) -> N
 def test_sharded_over_two_cpu_devices_equals_one_device(grid_run, three_seeds_run, tmp_path: Path):
     out, padded_out = tmp_path / "sharded.npz", tmp_path / "padded.npz"
     script = SHARDED_SCRIPT.format(
-        tests=str(Path(__file__).parent), out=str(out), padded_out=str(padded_out)
+        tests=str(Path(__file__).parent),
+        helpers=str(Path(__file__).resolve().parents[1]),
+        out=str(out),
+        padded_out=str(padded_out),
     )
     env = {**os.environ, "XLA_FLAGS": ""}
     result = subprocess.run(

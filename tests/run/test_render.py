@@ -18,7 +18,7 @@ from run_helpers import fake_run
 from rl_jax.run import render
 from rl_jax.run.metrics import read_rows
 
-ROOT = Path(__file__).resolve().parent.parent
+ROOT = Path(__file__).resolve().parents[2]
 ENV = {**os.environ, "PYTHONPATH": f"{ROOT}{os.pathsep}{ROOT / 'tests'}"}
 
 

@@ -18,7 +18,7 @@ from pathlib import Path
 
 import pytest
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 N_ENVS = 2048
 # Compiling MJX half cheetah takes 20-90 s on a shared 2-core machine, the steps ~1 s.
 TIMEOUT_SECONDS = 400

@@ -18,7 +18,7 @@ from rl_jax.run import cli, run_dir, runner
 from rl_jax.run.run_dir import RunError
 from rl_jax.training import validation
 
-ROOT = Path(__file__).resolve().parent.parent
+ROOT = Path(__file__).resolve().parents[2]
 
 
 def run_cli(algorithm, env_id, argv) -> int:

@@ -20,7 +20,7 @@ from rl_jax.run.checkpoint import Checkpointer
 from rl_jax.run.run_dir import stack_hparams
 from rl_jax.run.runner import CHECKPOINT_DIR, RunSpec, make_plan
 
-ROOT = Path(__file__).resolve().parent.parent
+ROOT = Path(__file__).resolve().parents[2]
 SCRIPT = ROOT / "tests" / "fake_experiment.py"
 # A user's shell: without the TF_CPP_MIN_LOG_LEVEL=1 that importing jax (conftest) put into this
 # process's environment, which would let XLA log a warning line on every compilation-cache hit.

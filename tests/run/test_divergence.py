@@ -18,7 +18,7 @@ from rl_jax.run import cli
 from rl_jax.run.checkpoint import Checkpointer
 from rl_jax.run.runner import CHECKPOINT_DIR, DivergenceError, check_finite, make_plan
 
-ROOT = Path(__file__).resolve().parent.parent
+ROOT = Path(__file__).resolve().parents[2]
 ENV_ID = "rl_jax/Pendulum-v1"
 
 

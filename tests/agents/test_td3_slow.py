@@ -1,6 +1,6 @@
-"""Long TD3 learning runs (``pytest -m slow -s tests/test_td3_slow.py``): 3 seeds each, vmapped
-in one compiled program, with each env's documented recipe (``td3.default_config(env_id)`` and
-``td3.default_hyperparams(env_id)``). They print env steps, wall-clock and the per-seed results.
+"""Long TD3 learning runs (``pytest -m slow -s tests/agents/test_td3_slow.py``): 3 seeds each,
+vmapped in one compiled program, with each env's documented recipe (``td3.default_config(env_id)``
+and ``td3.default_hyperparams(env_id)``). They print env steps, wall-clock and the per-seed results.
 """
 
 import time

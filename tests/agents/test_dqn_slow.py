@@ -1,4 +1,4 @@
-"""Slow learning tests (``pytest -m slow tests/test_dqn_slow.py -s``): the documented recipes
+"""Slow learning tests (``pytest -m slow tests/agents/test_dqn_slow.py -s``): the documented recipes
 solve their envs in every seed, all seeds as one compiled program
 (``rl_jax.training.parallel.Runner``).
 
