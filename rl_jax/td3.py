@@ -289,7 +289,14 @@ def init_agent(key, config: Config, hparams: Hyperparams, obs_space, action_spac
     )
 
 
-LEARNER = offpolicy.Learner(init_agent, explore, act, update, ("critic_loss", "actor_loss", "q"))
+LEARNER = offpolicy.Learner(
+    init_agent,
+    explore,
+    act,
+    update,
+    ("critic_loss", "actor_loss", "q"),
+    writes_buffer=lambda config: False,
+)
 
 
 # ---- the Algorithm objects ------------------------------------------------------------------
