@@ -367,7 +367,6 @@ LEARNER = offpolicy.Learner(
     ("loss", "q", "epsilon"),
     init_buffer,
     add_to_buffer,
-    writes_buffer=lambda config: config.prioritized,  # priorities are written back
 )
 
 

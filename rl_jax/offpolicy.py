@@ -159,10 +159,6 @@ class Learner(NamedTuple):
     init_buffer(example_transition, config) -> buffer, and
     add_to_buffer(buffer, transitions [N, ...], config, hparams) -> buffer
         (optional) the replay memory; default: ``rl_jax.replay``'s uniform circular buffer.
-    writes_buffer(config) -> bool
-        (optional) whether ``update`` may change the buffer (prioritised replay writes its
-        priorities). When it does not, the updates read the buffer without carrying it, and
-        XLA need not copy it around the update loop (measured on pixel DQN: see ``_updates``).
     """
 
     init_agent: Callable[..., Any]
@@ -172,7 +168,6 @@ class Learner(NamedTuple):
     metric_names: tuple[str, ...]
     init_buffer: Callable[..., Any] = uniform_buffer
     add_to_buffer: Callable[..., Any] = add_uniform
-    writes_buffer: Callable[[Any], bool] = lambda config: True
 
 
 # ---- environments -------------------------------------------------------------------------------
@@ -254,44 +249,25 @@ def _choose_actions(learner, config, hparams, state: TrainState, key: PRNGKey, s
 
 
 def _updates(learner, config, hparams, state: TrainState, key: PRNGKey, buffer: ReplayBuffer):
-    """``updates_per_iteration`` updates, or none (NaN metrics) while warming up.
-
-    A learner that does not write its buffer reads it as a constant of the update loop instead
-    of carrying it through the ``cond`` and ``scan``: carried, XLA copied the whole buffer on
-    every update (pixel DQN: see BENCHMARKS.md)."""
+    """``updates_per_iteration`` updates, or none (NaN metrics) while warming up."""
     count = config.updates_per_iteration
-    inputs = (jax.random.split(key, count), state.clock.updates + jnp.arange(count))
-    nan = jnp.full((), jnp.nan, jnp.float32)
-    skipped = {name: nan for name in learner.metric_names}
-    learning = state.clock.env_steps >= config.learning_starts
 
-    def updates(agent, buffer, carry_buffer: bool):
+    def run(agent, buffer):
         def one(carry, inputs):
-            agent, read = carry if carry_buffer else (carry, buffer)
             update_key, index = inputs
-            agent, written, metrics = learner.update(
-                agent, read, update_key, config, hparams, index
-            )
-            return ((agent, written) if carry_buffer else agent), metrics
+            agent, buffer, metrics = learner.update(*carry, update_key, config, hparams, index)
+            return (agent, buffer), metrics
 
-        carry, metrics = jax.lax.scan(one, (agent, buffer) if carry_buffer else agent, inputs)
-        return carry, jax.tree.map(jnp.nanmean, metrics)
+        inputs = (jax.random.split(key, count), state.clock.updates + jnp.arange(count))
+        (agent, buffer), metrics = jax.lax.scan(one, (agent, buffer), inputs)
+        return agent, buffer, jax.tree.map(jnp.nanmean, metrics)
 
-    if learner.writes_buffer(config):
-        (agent, buffer), metrics = jax.lax.cond(
-            learning,
-            lambda agent, buffer: updates(agent, buffer, True),
-            lambda agent, buffer: ((agent, buffer), skipped),
-            state.agent,
-            buffer,
-        )
-    else:
-        agent, metrics = jax.lax.cond(
-            learning,
-            lambda agent: updates(agent, buffer, False),
-            lambda agent: (agent, skipped),
-            state.agent,
-        )
+    def skip(agent, buffer):
+        nan = jnp.full((), jnp.nan, jnp.float32)
+        return agent, buffer, {name: nan for name in learner.metric_names}
+
+    learning = state.clock.env_steps >= config.learning_starts
+    agent, buffer, metrics = jax.lax.cond(learning, run, skip, state.agent, buffer)
     return agent, buffer, metrics, jnp.where(learning, count, 0)
 
 

@@ -295,7 +295,6 @@ LEARNER = offpolicy.Learner(
     act,
     update,
     ("critic_loss", "actor_loss", "q"),
-    writes_buffer=lambda config: False,
 )
 
 
