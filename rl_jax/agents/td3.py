@@ -289,7 +289,13 @@ def init_agent(key, config: Config, hparams: Hyperparams, obs_space, action_spac
     )
 
 
-LEARNER = offpolicy.Learner(init_agent, explore, act, update, ("critic_loss", "actor_loss", "q"))
+LEARNER = offpolicy.Learner(
+    init_agent,
+    explore,
+    act,
+    update,
+    ("critic_loss", "actor_loss", "q"),
+)
 
 
 # ---- the Algorithm objects ------------------------------------------------------------------

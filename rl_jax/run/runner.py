@@ -125,8 +125,19 @@ def parallel_runner(spec: RunSpec) -> parallel.Runner:
     a padded run costs its full share. Measured (load 1-2): REINFORCE on the double pendulum, 5
     seeds, 20 updates took 119 s on 1 device against 142 s padded to 3 + 3 on 2 devices (the
     6/5 of the padded seed); TD3 updates, 6 seeds: 0.92 of the matmul rate on one device against
-    0.58 sharded (BENCHMARKS.md, TD3 section 1)."""
-    return parallel.Runner(spec.algorithm, spec.config, len(spec.hparams), spec.seeds, pad=False)
+    0.58 sharded (BENCHMARKS.md, TD3 section 1).
+
+    A config with ``loop_seeds`` set (DQN on frames) runs its seeds as an unrolled loop instead
+    of a vmap (``rl_jax.parallel.seed_loop``): conv nets vmapped over seeds are slow on CPU."""
+    loop_seeds = bool(getattr(spec.config, "loop_seeds", False))
+    return parallel.Runner(
+        spec.algorithm,
+        spec.config,
+        len(spec.hparams),
+        spec.seeds,
+        pad=False,
+        loop_seeds=loop_seeds,
+    )
 
 
 def seed_keys(seeds: int, base_seed: int) -> jax.Array:

@@ -111,24 +111,66 @@ def check_conv_layers(layers: Sequence[int], size: int) -> None:
         side = after
 
 
-def conv(features: int, kernel: int, stride: int, fan_in: int, initializer: str, dtype: Any):
-    """A VALID conv layer initialised as ``dense`` is (PyTorch's ``nn.Conv2d`` default bound
-    1/sqrt(fan_in) for ``fan_in_uniform``; orthogonal with the ReLU gain otherwise)."""
+def _conv_inits(initializer: str, fan_in: int) -> tuple[Any, Any]:
+    """Kernel and bias initializers of a conv layer, as ``dense``'s (PyTorch's ``nn.Conv2d``
+    default bound 1/sqrt(fan_in) for ``fan_in_uniform``; orthogonal with the ReLU gain
+    otherwise)."""
     if initializer == "fan_in_uniform":
-        kernel_init = bias_init = _uniform(1.0 / fan_in**0.5)
-    elif initializer == "orthogonal":
-        kernel_init, bias_init = nn.initializers.orthogonal(2.0**0.5), nn.initializers.zeros
-    else:
-        raise ValueError(f"unknown initializer {initializer!r}; choose one of {INITS}")
-    return nn.Conv(
-        features,
-        (kernel, kernel),
-        (stride, stride),
-        "VALID",
-        dtype=dtype,
-        kernel_init=kernel_init,
-        bias_init=bias_init,
-    )
+        return _uniform(1.0 / fan_in**0.5), _uniform(1.0 / fan_in**0.5)
+    if initializer == "orthogonal":
+        return nn.initializers.orthogonal(2.0**0.5), nn.initializers.zeros
+    raise ValueError(f"unknown initializer {initializer!r}; choose one of {INITS}")
+
+
+class MatmulConv(nn.Module):
+    """A VALID, square-strided 2-D convolution computed as one matmul, with ``nn.Conv``'s
+    parameters (``kernel`` [k, k, C, F], ``bias`` [F]) and results (to float rounding).
+
+    Why not ``nn.Conv``: on XLA's CPU backend a convolution's gradient inside a loop body (the
+    training chunk's ``scan``) runs several times slower than the same convolution outside one
+    (jax-ml/jax#12868; measured here 35 ms against 6-8 ms per pixel-DQN update), and vmapped
+    over seeds each conv with per-seed weights becomes one slow grouped conv. Matmuls have
+    neither problem.
+
+    How: the input is cut to the rows and columns the conv reads, rearranged space-to-depth by
+    the stride (``[n, n, s*s*C]`` blocks of ``s x s`` pixels), so a ``k x k`` kernel with stride
+    ``s`` becomes ``m x m`` taps of stride 1 over blocks (``m = ceil(k / s)``; the kernel is
+    zero-padded to ``m*s`` when ``s`` does not divide ``k``); the ``m*m`` shifted views are
+    concatenated along channels and multiplied by the kernel reshaped to match."""
+
+    features: int
+    kernel: int
+    stride: int
+    initializer: str = "fan_in_uniform"
+    dtype: Any = jnp.float32
+
+    @nn.compact
+    def __call__(self, x: jax.Array) -> jax.Array:
+        k, s, channels = self.kernel, self.stride, x.shape[-1]
+        kernel_init, bias_init = _conv_inits(self.initializer, k * k * channels)
+        kernel = self.param("kernel", kernel_init, (k, k, channels, self.features), jnp.float32)
+        bias = self.param("bias", bias_init, (self.features,), jnp.float32)
+        out = (x.shape[-3] - k) // s + 1, (x.shape[-2] - k) // s + 1
+        taps = -(-k // s)
+        blocks = out[0] + taps - 1, out[1] + taps - 1
+        # Exactly the rows and columns the conv reads (zero rows for a zero-padded kernel).
+        x = x[..., : blocks[0] * s, : blocks[1] * s, :]
+        pad = [(0, 0)] * (x.ndim - 3)
+        pad += [(0, blocks[0] * s - x.shape[-3]), (0, blocks[1] * s - x.shape[-2]), (0, 0)]
+        x = jnp.pad(x, pad)
+        lead = x.shape[:-3]
+        x = x.reshape(*lead, blocks[0], s, blocks[1], s, channels)
+        x = jnp.moveaxis(x, -4, -3).reshape(*lead, blocks[0], blocks[1], s * s * channels)
+        views = [
+            x[..., u : u + out[0], v : v + out[1], :] for u in range(taps) for v in range(taps)
+        ]
+        patches = jnp.concatenate(views, axis=-1).astype(self.dtype)
+        size = taps * s
+        kernel = jnp.pad(kernel, [(0, size - k), (0, size - k), (0, 0), (0, 0)])
+        kernel = kernel.reshape(taps, s, taps, s, channels, self.features)
+        kernel = kernel.transpose(0, 2, 1, 3, 4, 5).reshape(-1, self.features)
+        bias = jnp.reshape(bias.astype(self.dtype), (1,) * (patches.ndim - 1) + (-1,))
+        return patches @ kernel.astype(self.dtype) + bias
 
 
 class ConvTorso(nn.Module):
@@ -137,7 +179,8 @@ class ConvTorso(nn.Module):
     The network scales pixels to [0, 1] itself, so observations stay uint8 in the env, the
     replay buffer and the train state (a quarter of float32's memory). ReLU conv layers with
     VALID padding (``layers``: flat ``(features, kernel, stride)`` triples; Nature DQN's are
-    ``(32, 8, 4, 64, 4, 2, 64, 3, 1)``), then the feature map is flattened."""
+    ``(32, 8, 4, 64, 4, 2, 64, 3, 1)``), then the feature map is flattened. The layers are
+    ``MatmulConv`` (``nn.Conv``'s parameters under ``nn.Conv``'s names, ``Conv_0``, ...)."""
 
     layers: tuple[int, ...]
     initializer: str = "fan_in_uniform"
@@ -147,9 +190,11 @@ class ConvTorso(nn.Module):
     def __call__(self, pixels: jax.Array) -> jax.Array:
         check_conv_layers(self.layers, min(pixels.shape[-3], pixels.shape[-2]))
         x = pixels.astype(self.dtype) / 255.0
-        for features, kernel, stride in conv_layer_specs(self.layers):
-            fan_in = kernel * kernel * x.shape[-1]
-            x = nn.relu(conv(features, kernel, stride, fan_in, self.initializer, self.dtype)(x))
+        for index, (features, kernel, stride) in enumerate(conv_layer_specs(self.layers)):
+            layer = MatmulConv(
+                features, kernel, stride, self.initializer, self.dtype, name=f"Conv_{index}"
+            )
+            x = nn.relu(layer(x))
         return x.reshape(x.shape[:-3] + (-1,))
 
 

@@ -203,6 +203,39 @@ def _host(leaf: Any) -> np.ndarray:
     return np.asarray(leaf)
 
 
+def seed_loop(chunk_one: Any, axes: Any, num_seeds: int) -> Any:
+    """``chunk_one(state, hp)`` over the ``num_seeds`` seeds of an ``[S]`` state as an unrolled
+    loop in one program: what ``vmap(chunk_one, in_axes=(axes, None), out_axes=(axes, 0))``
+    computes, but each seed keeps its own ops instead of one batched op for all. For
+    convolutions this is the fast layout on a CPU: vmapped over seeds, XLA lowers a conv with
+    per-seed weights to one grouped conv, ~3x slower on this machine than the seeds' convs one
+    after another (BENCHMARKS.md, pixel DQN). Compile time grows with the number of seeds."""
+
+    def looped(state: Any, hp: Any) -> tuple[Any, Any]:
+        outputs = [
+            chunk_one(_map_axes(lambda axis, leaf, i=i: _take(axis, leaf, i), axes, state), hp)
+            for i in range(num_seeds)
+        ]
+        states = [output[0] for output in outputs]
+        stacked = jax.tree.map(
+            lambda axis, *runs: runs[0] if axis is None else jax.tree.map(_stack, *runs),
+            axes,
+            *states,
+            is_leaf=lambda x: x is None,
+        )
+        return stacked, jax.tree.map(_stack, *[output[1] for output in outputs])
+
+    return looped
+
+
+def _take(axis: int | None, leaf: Any, index: int) -> Any:
+    return leaf if axis is None else leaf[index]
+
+
+def _stack(*leaves: Any) -> Any:
+    return jnp.stack(leaves)
+
+
 class Runner:
     """Compiled init and chunk for ``[H, S]`` runs of one algorithm and one static config.
 
@@ -220,8 +253,10 @@ class Runner:
         num_seeds: int,
         devices: Sequence[Any] | None = None,
         pad: bool = True,
+        loop_seeds: bool = False,
     ):
         self.algorithm, self.config = algorithm, config
+        self.loop_seeds = loop_seeds
         self.num_hparams, self.num_seeds = num_hparams, num_seeds
         devices = list(jax.devices() if devices is None else devices)
         self.layout = plan_layout(num_hparams, num_seeds, len(devices), pad)
@@ -345,6 +380,7 @@ class Runner:
             self.algorithm,
             self.config,
             self.layout,
+            self.loop_seeds,
             tuple(self.mesh.devices.flat),
             str(self._key_impl),
             jax.tree.structure(hparams),
@@ -377,7 +413,11 @@ class Runner:
         def chunk_one(state, hp):
             return algorithm.train_chunk(state, config, hp)
 
-        chunk = jax.vmap(chunk_one, in_axes=(axes, None), out_axes=(axes, 0))
+        if self.loop_seeds:
+            seeds_per_device = self.layout.padded_seeds // self.layout.seed_split
+            chunk = seed_loop(chunk_one, axes, seeds_per_device)
+        else:
+            chunk = jax.vmap(chunk_one, in_axes=(axes, None), out_axes=(axes, 0))
         chunk = jax.vmap(chunk, in_axes=(axes, 0), out_axes=(axes, 0))
         chunk = self._wrap(chunk, (state_specs, by_hparam), (state_specs, runs))
         # The old state is dead after a chunk: donating it lets XLA update the replay buffer

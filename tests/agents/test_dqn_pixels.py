@@ -56,6 +56,34 @@ def test_pixels_are_scaled_to_unit_range_inside_the_network():
     )
 
 
+@pytest.mark.parametrize(
+    "kernel, stride, size",
+    [(8, 4, 84), (8, 4, 42), (4, 2, 20), (4, 2, 9), (3, 1, 7), (3, 2, 9), (5, 3, 17)],
+)
+def test_matmul_conv_equals_flax_conv_and_its_gradients(kernel, stride, size):
+    """MatmulConv (space-to-depth, then one matmul) against nn.Conv with the same parameters:
+    outputs, parameter gradients and input gradients, strides that divide the kernel or not."""
+    x = jax.random.normal(jax.random.key(1), (2, 3, size, size, 5))
+    layer = networks.MatmulConv(7, kernel, stride)
+    params = layer.init(jax.random.key(0), x)
+    reference = nn.Conv(7, (kernel, kernel), (stride, stride), "VALID")
+    np.testing.assert_allclose(
+        layer.apply(params, x), reference.apply(params, x), rtol=1e-5, atol=1e-5
+    )
+
+    def grads(module):
+        def objective(params, x):
+            return jnp.sum(jnp.sin(module.apply(params, x)))
+
+        return jax.grad(objective, argnums=(0, 1))(params, x)
+
+    for got, expected in zip(
+        jax.tree.leaves(grads(layer)), jax.tree.leaves(grads(reference)), strict=True
+    ):
+        scale = float(jnp.max(jnp.abs(expected)))
+        np.testing.assert_allclose(got, expected, rtol=1e-5, atol=1e-5 * scale)
+
+
 def test_conv_q_network_gradients_match_finite_differences():
     net = networks.QNetwork((6,), 3, conv_layers=(3, 3, 2, 4, 2, 1))
     frames = jax.random.uniform(jax.random.key(0), (2, 9, 9, 2), minval=0.0, maxval=255.0)

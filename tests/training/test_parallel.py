@@ -57,9 +57,11 @@ def assert_same(got, expected, atol=1e-5):
             np.testing.assert_array_equal(a, b)
 
 
-def _run_parallel(num_hparams, hparams, seeds):
+def _run_parallel(num_hparams, hparams, seeds, loop_seeds=False):
     config = probe_config(ENV_ID)
-    runner = parallel.Runner(td3, config, num_hparams=num_hparams, num_seeds=len(seeds))
+    runner = parallel.Runner(
+        td3, config, num_hparams=num_hparams, num_seeds=len(seeds), loop_seeds=loop_seeds
+    )
     keys = parallel.seed_keys(seeds)
     state = runner.init(keys, hparams)
     initial = jax.tree.map(_numpy, state)  # copied now: train_chunk donates the state
@@ -149,6 +151,14 @@ SHARDED_SCRIPT = textwrap.dedent(
 def three_seeds_run():
     """Seeds 0, 1, 2 with the probe hyperparameters, as one program on one device."""
     return _run_parallel(1, parallel.stack([probe_hparams()]), [0, 1, 2])
+
+
+def test_seeds_as_a_loop_equal_seeds_vmapped(three_seeds_run):
+    """``loop_seeds`` (each seed's ops of their own, for conv nets) computes what the vmap does,
+    in the same [H, S] layout, clock shared."""
+    looped = _run_parallel(1, parallel.stack([probe_hparams()]), [0, 1, 2], loop_seeds=True)
+    for got, expected in zip(looped, three_seeds_run, strict=True):
+        assert_same(got, expected)
 
 
 def _load(path: Path) -> list[np.ndarray]:
