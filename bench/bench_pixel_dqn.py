@@ -18,8 +18,8 @@ import jax
 import numpy as np
 
 from bench.machine import describe
-from rl_jax import parallel
-from rl_jax.dqn import dqn
+from rl_jax.agents.dqn import dqn
+from rl_jax.training import parallel
 
 ENV_ID = "rl_jax/CartPolePixels-v1"
 ITERATIONS = 100  # per timed chunk: 200 updates per seed

@@ -128,7 +128,7 @@ def parallel_runner(spec: RunSpec) -> parallel.Runner:
     0.58 sharded (BENCHMARKS.md, TD3 section 1).
 
     A config with ``loop_seeds`` set (DQN on frames) runs its seeds as an unrolled loop instead
-    of a vmap (``rl_jax.parallel.seed_loop``): conv nets vmapped over seeds are slow on CPU."""
+    of a vmap (``rl_jax.training.parallel.seed_loop``): faster for conv nets on CPU."""
     loop_seeds = bool(getattr(spec.config, "loop_seeds", False))
     return parallel.Runner(
         spec.algorithm,
