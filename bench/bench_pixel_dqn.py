@@ -19,7 +19,7 @@ import numpy as np
 
 from bench.machine import describe
 from rl_jax.agents.dqn import dqn
-from rl_jax.training import parallel
+from rl_jax.training import parallel, params
 
 ENV_ID = "rl_jax/CartPolePixels-v1"
 ITERATIONS = 100  # per timed chunk: 200 updates per seed
@@ -35,7 +35,7 @@ def program(frame_size: int, seeds: int, loop_seeds: bool):
         buffer_size=4_000,
         loop_seeds=loop_seeds,
     )
-    hparams = parallel.stack([dqn.default_hyperparams(ENV_ID)])
+    hparams = params.stack([dqn.default_hyperparams(ENV_ID)])
     runner = parallel.Runner(dqn, config, 1, seeds, pad=False, loop_seeds=loop_seeds)
     state = runner.init(parallel.seed_keys(range(seeds)), hparams)
     box = {"state": state}

@@ -32,7 +32,6 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-import itertools
 import sys
 import time
 from pathlib import Path
@@ -40,6 +39,7 @@ from typing import Any
 
 from rl_jax.run import cli
 from rl_jax.run.run_dir import RunError
+from rl_jax.training import parallel, params
 
 ALIASES = {
     "lr": ("actor_lr", "critic_lr", "learning_rate"),
@@ -89,13 +89,8 @@ def parse_axis(spec: str, config: Any, hparams: Any) -> Axis:
 
 def combos(axes: list[Axis]) -> list[dict[str, Any]]:
     """Field values of every point of the product grid (first axis slowest)."""
-    points = []
-    for values in itertools.product(*(axis.values for axis in axes)):
-        point = {}
-        for axis, value in zip(axes, values, strict=True):
-            point.update({field: value for field in axis.fields})
-        points.append(point)
-    return points
+    points = params.product({axis.name: axis.values for axis in axes})
+    return [{field: point[axis.name] for axis in axes for field in axis.fields} for point in points]
 
 
 def shape_label(point: dict[str, Any], axes: list[Axis]) -> str:
@@ -249,7 +244,6 @@ def run_distributed(specs: list[Any], labels: list[str], out: Path, started: flo
 
     from rl_jax.run import runner
     from rl_jax.run.metrics import MetricsLog
-    from rl_jax.run.run_dir import stack_hparams
 
     lead = jax.process_index() == 0
     if lead:
@@ -258,8 +252,8 @@ def run_distributed(specs: list[Any], labels: list[str], out: Path, started: flo
     for index, spec in enumerate(specs, 1):
         plan = runner.make_plan(spec)
         runner.check_memory(plan)
-        hparams = stack_hparams(list(spec.hparams))
-        state = plan.parallel.init(runner.seed_keys(spec.seeds, spec.base_seed), hparams)
+        hparams = params.stack(list(spec.hparams))
+        state = plan.parallel.init(parallel.seed_keys(spec.seed_numbers), hparams)
         if lead:
             spec.out.mkdir(parents=True, exist_ok=True)
         log = MetricsLog(spec.out, None, spec.grid_fields) if lead else None

@@ -35,7 +35,15 @@ from flax import struct
 
 import envs
 from rl_jax.agents.td3 import polyak_update
-from rl_jax.training import frame_replay, networks, offpolicy, prioritized, replay, validation
+from rl_jax.training import (
+    frame_replay,
+    networks,
+    offpolicy,
+    params,
+    prioritized,
+    replay,
+    validation,
+)
 from rl_jax.training.algorithm import RecipeBook
 from rl_jax.training.offpolicy import OffPolicyConfig, TrainState
 from rl_jax.training.replay import Transition
@@ -105,7 +113,7 @@ class PixelConfig(Config):
 
 
 @struct.dataclass
-class Hyperparams(offpolicy.HyperparamsMethods):
+class Hyperparams(params.HyperparamsMethods):
     """What a sweep may vary without recompiling. Defaults: CleanRL's classic-control DQN."""
 
     learning_rate: Any = 2.5e-4  # Adam step size

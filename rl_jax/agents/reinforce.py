@@ -40,7 +40,7 @@ import optax
 from flax import struct
 
 import envs
-from rl_jax.training import networks, normalization, offpolicy
+from rl_jax.training import networks, normalization, offpolicy, params
 from rl_jax.training.algorithm import ChunkMetrics, RecipeBook
 
 BASELINES = ("none", "mean", "value")
@@ -88,7 +88,7 @@ class Config:
 
 
 @struct.dataclass
-class Hyperparams(offpolicy.HyperparamsMethods):
+class Hyperparams(params.HyperparamsMethods):
     """What a sweep may vary without recompiling. Defaults: gymnasium's REINFORCE tutorial."""
 
     learning_rate: Any = 1e-4  # AdamW step size

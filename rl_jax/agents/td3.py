@@ -28,7 +28,7 @@ import optax
 from flax import struct
 
 from envs.core.spaces import Box
-from rl_jax.training import networks, offpolicy, replay
+from rl_jax.training import networks, offpolicy, params, replay
 from rl_jax.training.algorithm import RecipeBook
 from rl_jax.training.offpolicy import OffPolicyConfig, TrainState
 from rl_jax.training.replay import ReplayBuffer, Transition
@@ -54,7 +54,7 @@ class Config(OffPolicyConfig):
 
 
 @struct.dataclass
-class Hyperparams(offpolicy.HyperparamsMethods):
+class Hyperparams(params.HyperparamsMethods):
     """What a sweep may vary without recompiling. Defaults: the TD3 paper's (code's) values."""
 
     actor_lr: Any = 3e-4

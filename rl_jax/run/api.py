@@ -161,9 +161,10 @@ def train(
 
 def resume(run_dir: str | Path, total_steps: int | None = None, quiet: bool = False) -> Run:
     """Continue a run (from the scripts or ``train``) from its latest checkpoint."""
-    from rl_jax.run.run_dir import dataclass_from_dict, load_algorithm, read_run_record
+    from rl_jax.run.run_dir import load_algorithm, read_run_record
     from rl_jax.run.runner import RunSpec, run
     from rl_jax.training.jax_setup import configure
+    from rl_jax.training.params import dataclass_from_dict
 
     configure()
     run_dir = Path(run_dir)

@@ -42,8 +42,10 @@ from rl_jax.errors import (
     positive_int,
 )
 from rl_jax.errors import user_errors as user_errors  # cli.user_errors, as before
-from rl_jax.run.run_dir import dataclass_from_dict, load_algorithm, read_run_record
+from rl_jax.run.run_dir import load_algorithm, read_run_record
+from rl_jax.training import params
 from rl_jax.training.jax_setup import configure
+from rl_jax.training.params import dataclass_from_dict
 from rl_jax.training.validation import out_of_range
 
 #: name -> "module" or "module:attribute" of every algorithm the CLI knows (imported on use).
@@ -346,17 +348,6 @@ def parse_grid(specs: list[str], hparams: Any, config: Any) -> dict[str, list[An
     return grid
 
 
-def expand_grid(hparams: Any, grid: dict[str, list[Any]]) -> list[Any]:
-    """The product grid, first field slowest."""
-    import itertools
-
-    names = list(grid)
-    return [
-        dataclasses.replace(hparams, **dict(zip(names, values, strict=True)))
-        for values in itertools.product(*(grid[name] for name in names))
-    ]
-
-
 # ---- building the run -----------------------------------------------------------------------
 
 
@@ -569,7 +560,7 @@ def build_spec(
             raise UsageError(
                 f"{', '.join(set(grid) & set(explicit_hparams))} given as flag and grid"
             )
-        hparams, grid_fields = expand_grid(hparams[0], grid), tuple(grid)
+        hparams, grid_fields = params.expand(hparams[0], grid), tuple(grid)
     _validate(algorithm, config, hparams)
     _check_env_fits(algorithm, config, hparams[0])
     out = args.resume if resume else (args.out or default_run_dir(env_id, algorithm.name))

@@ -73,8 +73,9 @@ class LoadedPolicy:
     def _restore(self) -> tuple[Any, Any, Any, int]:
         from rl_jax.run.best import BEST_DIR, load_part, policy_fields, with_policy_part
         from rl_jax.run.checkpoint import Checkpointer
-        from rl_jax.run.run_dir import dataclass_from_dict, load_algorithm
+        from rl_jax.run.run_dir import load_algorithm
         from rl_jax.run.runner import CHECKPOINT_DIR, RunSpec, make_plan
+        from rl_jax.training.params import dataclass_from_dict
 
         identity = self.record["identity"]
         algorithm = load_algorithm(self.record["algorithm_module"])

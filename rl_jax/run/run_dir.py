@@ -9,7 +9,6 @@ a grid), number of seeds and first seed. Total steps are not part of it: resumin
 from __future__ import annotations
 
 import contextlib
-import dataclasses
 import hashlib
 import importlib
 import json
@@ -24,94 +23,11 @@ from pathlib import Path
 from typing import Any
 
 import jax
-import numpy as np
 
 from rl_jax.errors import RunError
+from rl_jax.training import params
 
 CONFIG_FILE = "config.json"
-
-
-# ---- Config / Hyperparams <-> JSON ----------------------------------------------------------
-
-
-def _json_value(value: Any) -> Any:
-    """Plain JSON for config and hyperparameter values (tuples become lists)."""
-    if isinstance(value, (tuple, list)):
-        return [_json_value(v) for v in value]
-    if isinstance(value, (np.ndarray, jax.Array, np.generic)):
-        array = np.asarray(value)
-        if array.dtype == np.float32:
-            # The shortest decimal that round-trips the float32 (0.01, not 0.009999999776).
-            shortest = [float(str(x)) for x in array.reshape(-1)]
-            return np.array(shortest, dtype=object).reshape(array.shape).tolist()
-        return array.tolist()
-    return value
-
-
-def dataclass_to_dict(instance: Any) -> dict[str, Any]:
-    """Fields of a (frozen or flax struct) dataclass as JSON-ready values."""
-    return {f.name: _json_value(getattr(instance, f.name)) for f in dataclasses.fields(instance)}
-
-
-def dataclass_from_dict(template: Any, values: dict[str, Any]) -> Any:
-    """``template`` with ``values`` replaced, each converted to the template field's type."""
-    names = {f.name for f in dataclasses.fields(template)}
-    unknown = sorted(set(values) - names)
-    if unknown:
-        raise RunError(f"unknown {type(template).__name__} field(s): {', '.join(unknown)}")
-    converted = {
-        name: _like(getattr(template, name), value, name) for name, value in values.items()
-    }
-    try:
-        return dataclasses.replace(template, **converted)
-    except (TypeError, ValueError) as error:  # the dataclass's own validation
-        raise RunError(f"invalid {type(template).__name__}: {error}") from None
-
-
-def _like(default: Any, value: Any, name: str) -> Any:
-    """``value`` converted to the type of ``default`` (bool, int, float, str, tuple, array)."""
-    if isinstance(default, tuple):
-        if not isinstance(value, (list, tuple)):
-            raise RunError(f"{name} must be a list, got {value!r}")
-        element = default[0] if default else value[0] if value else 0
-        return tuple(_like(element, v, name) for v in value)
-    if isinstance(default, (np.ndarray, jax.Array, np.generic)):
-        return np.asarray(value, dtype=np.asarray(default).dtype)
-    if isinstance(default, bool):
-        if not isinstance(value, bool):
-            raise RunError(f"{name} must be true or false, got {value!r}")
-        return value
-    if isinstance(default, int) and not isinstance(value, bool):
-        if isinstance(value, float) and value.is_integer():
-            value = int(value)
-        if not isinstance(value, int):
-            raise RunError(f"{name} must be an integer, got {value!r}")
-        return value
-    if isinstance(default, float):
-        if isinstance(value, bool) or not isinstance(value, (int, float)):
-            raise RunError(f"{name} must be a number, got {value!r}")
-        return float(value)
-    return value
-
-
-def hparams_as_arrays(hparams: Any) -> Any:
-    """Every hyperparameter leaf as a 0-d numpy array: float32, int32 or bool."""
-
-    def convert(value: Any) -> np.ndarray:
-        array = np.asarray(value)
-        if array.dtype.kind == "f":
-            return array.astype(np.float32)
-        if array.dtype.kind in "iu":
-            return array.astype(np.int32)
-        return array
-
-    return jax.tree.map(convert, hparams)
-
-
-def stack_hparams(hparams_list: list[Any]) -> Any:
-    """``[H]``-stacked hyperparameters, the leading axis a grid's configs."""
-    arrays = [hparams_as_arrays(h) for h in hparams_list]
-    return jax.tree.map(lambda *leaves: np.stack(leaves), *arrays)
 
 
 # ---- identity -------------------------------------------------------------------------------
@@ -159,9 +75,9 @@ def identity(
     return {
         "algorithm": algorithm_name,
         "env_id": env_id,
-        "config": dataclass_to_dict(config),
+        "config": params.dataclass_to_dict(config),
         # Through float32, as the learner sees them: 3e-4 typed or computed compares equal.
-        "hparams": [dataclass_to_dict(hparams_as_arrays(h)) for h in hparams_list],
+        "hparams": [params.dataclass_to_dict(params.as_arrays(h)) for h in hparams_list],
         "seeds": seeds,
         "base_seed": base_seed,
     }

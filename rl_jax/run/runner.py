@@ -49,10 +49,9 @@ from rl_jax.run.run_dir import (
     identity,
     identity_hash,
     new_run_record,
-    stack_hparams,
     write_json_atomic,
 )
-from rl_jax.training import parallel
+from rl_jax.training import parallel, params
 from rl_jax.training.validation import check_ranges
 
 CHECKPOINT_DIR = "checkpoints"
@@ -90,6 +89,11 @@ class RunSpec:
     # (env steps/s per seed, number of seeds) measured for the script's default config: the
     # plan's time estimate before anything runs. None: estimated after the first training chunk.
     throughput: tuple[float, int] | None = None
+
+    @property
+    def seed_numbers(self) -> range:
+        """The seeds of the run: ``base_seed`` and on, the same under every config of a grid."""
+        return range(self.base_seed, self.base_seed + self.seeds)
 
     @property
     def identity(self) -> dict[str, Any]:
@@ -138,12 +142,6 @@ def parallel_runner(spec: RunSpec) -> parallel.Runner:
         pad=False,
         loop_seeds=loop_seeds,
     )
-
-
-def seed_keys(seeds: int, base_seed: int) -> jax.Array:
-    """``[S]`` keys: seed ``s`` of a run is ``jax.random.key(base_seed + s)``, whatever the
-    number of seeds or configs (every config of a grid sees the same seeds)."""
-    return jnp.stack([jax.random.key(base_seed + s) for s in range(seeds)])
 
 
 def env_steps_per_chunk(algorithm: Any, config: Any) -> int:
@@ -214,7 +212,7 @@ def make_plan(spec: RunSpec) -> Plan:
         raise RunError(f"the config takes {steps_per_chunk} env steps per chunk; need >= 1")
     chunks = math.ceil(spec.total_steps / steps_per_chunk)
     runner = parallel_runner(spec)
-    hparams = stack_hparams(list(spec.hparams))
+    hparams = params.stack(list(spec.hparams))
     template = runs_template(spec, hparams)
     on_devices = memory_breakdown(runner.template(hparams))
     # Checkpoints go through a host copy of the real runs: count it too.
@@ -381,7 +379,7 @@ def restore_start(spec: RunSpec, plan: Plan) -> Start | None:
         expect=_checkpoint_expectation(spec),
     )
     return Start(
-        plan.parallel.place(state, stack_hparams(list(spec.hparams))),
+        plan.parallel.place(state, params.stack(list(spec.hparams))),
         meta["chunk"] + 1,
         meta["step"],
         meta.get("updates", 0),
@@ -392,8 +390,8 @@ def restore_start(spec: RunSpec, plan: Plan) -> Start | None:
 
 
 def fresh_start(spec: RunSpec, plan: Plan) -> Start:
-    keys = seed_keys(spec.seeds, spec.base_seed)
-    state = plan.parallel.init(keys, stack_hparams(list(spec.hparams)))
+    keys = parallel.seed_keys(spec.seed_numbers)
+    state = plan.parallel.init(keys, params.stack(list(spec.hparams)))
     best = BestPolicies(policy_fields(spec.algorithm, state), (len(spec.hparams), spec.seeds))
     return Start(state, 0, 0, 0, 0.0, None, best)
 
@@ -551,7 +549,7 @@ def _train(session: Session, start: Start, stop: GracefulStop, progress: Progres
     if start.chunk >= plan.chunks:
         progress.write(f"nothing to train: the run already reached step {start.step:,}")
         return state
-    hparams = stack_hparams(list(spec.hparams))
+    hparams = params.stack(list(spec.hparams))
     chunk_fn = compile_chunk(plan, state, hparams, progress.write)
     progress.start()
     grid = grid_values(spec)
@@ -801,7 +799,7 @@ def run(spec: RunSpec, notify: Callable[[str], None] = print) -> RunResult:
     try:
         with GracefulStop(progress.write) as stop:
             state = _train(session, start, stop, progress)
-            state = plan.parallel.unpad(state, stack_hparams(list(spec.hparams)))
+            state = plan.parallel.unpad(state, params.stack(list(spec.hparams)))
     finally:
         progress.close()
         session.close()

@@ -26,7 +26,6 @@ from typing import Any, NamedTuple
 
 import jax
 import jax.numpy as jnp
-import numpy as np
 from flax import struct
 
 import envs
@@ -86,28 +85,6 @@ class OffPolicyConfig:
         if unknown:
             raise ValueError(f"unknown {cls.__name__} field(s): {', '.join(unknown)}")
         return cls(**{k: tuple(v) if isinstance(v, list) else v for k, v in values.items()})
-
-
-class HyperparamsMethods:
-    """Conversions for a learner's ``Hyperparams`` (a ``flax.struct`` dataclass of scalars)."""
-
-    def as_arrays(self):
-        """Every field as a float32 array (lists, e.g. from JSON of a stack, become [H])."""
-        return self.replace(
-            **{
-                f.name: jnp.asarray(getattr(self, f.name), jnp.float32)
-                for f in dataclasses.fields(self)
-            }
-        )
-
-    def to_dict(self) -> dict[str, Any]:
-        return {
-            f.name: np.asarray(getattr(self, f.name)).tolist() for f in dataclasses.fields(self)
-        }
-
-    @classmethod
-    def from_dict(cls, values: dict[str, Any]):
-        return cls(**values).as_arrays()
 
 
 @struct.dataclass

@@ -20,14 +20,13 @@ branches) and is replicated over devices. ``select`` extracts one run's state.
 Usage::
 
     runner = parallel.Runner(td3, config, num_hparams=2, num_seeds=3)
-    state = runner.init(parallel.seed_keys([0, 1, 2]), parallel.stack([hp_a, hp_b]))
+    state = runner.init(parallel.seed_keys([0, 1, 2]), params.stack([hp_a, hp_b]))
     state, metrics = runner.train_chunk(state, hparams)   # metrics leaves [H, S]
 """
 
 from __future__ import annotations
 
 import dataclasses
-import itertools
 from collections.abc import Sequence
 from typing import Any
 
@@ -37,28 +36,12 @@ import numpy as np
 from jax.sharding import Mesh, NamedSharding, PartitionSpec
 
 from rl_jax.training.algorithm import Algorithm
+from rl_jax.training.params import stack as stack  # parallel.stack, as before
 
 AXES = ("hparams", "seeds")
 _PROGRAMS: dict[Any, tuple[Any, Any]] = {}  # see Runner._build
 _COMPILED: dict[Any, Any] = {}  # the chunk compiled ahead of time, per program
 SHARED_FIELD = "clock"  # the train-state field kept unbatched and replicated
-
-
-def stack(trees: Sequence[Any]) -> Any:
-    """Stack pytrees of the same structure along a new leading axis."""
-    return jax.tree.map(lambda *leaves: jnp.stack([jnp.asarray(x) for x in leaves]), *trees)
-
-
-def grid(base: Any, **values: Sequence[float]) -> tuple[Any, list[dict[str, float]]]:
-    """Every combination of the given field values on top of ``base`` (a struct dataclass):
-    ``(stacked pytree [H], [{field: value}, ...])``, first field varying slowest."""
-    names = list(values)
-    combos = [
-        dict(zip(names, combo, strict=True))
-        for combo in itertools.product(*(values[n] for n in names))
-    ]
-    trees = [base.replace(**{k: jnp.asarray(v, jnp.float32) for k, v in c.items()}) for c in combos]
-    return stack(trees), combos
 
 
 def seed_keys(seeds: Sequence[int]) -> jax.Array:

@@ -8,7 +8,7 @@ import pytest
 import envs.core.probes  # noqa: F401  (registers the probe ids)
 from rl_jax.agents.dqn import dqn
 from rl_jax.agents.reinforce import reinforce
-from rl_jax.training import parallel
+from rl_jax.training import parallel, params
 
 CASES = {
     "dqn": (
@@ -54,8 +54,8 @@ def test_grid_of_seeds_and_hyperparameters_equals_single_runs(name):
     config = algorithm.default_config(env_id, **overrides)
     hparams = [algorithm.default_hyperparams(**{field: value}) for value in values]
     runner = parallel.Runner(algorithm, config, num_hparams=2, num_seeds=2)
-    state = runner.init(parallel.seed_keys([0, 1]), parallel.stack(hparams))
-    state, metrics = runner.train_chunk(state, parallel.stack(hparams))
+    state = runner.init(parallel.seed_keys([0, 1]), params.stack(hparams))
+    state, metrics = runner.train_chunk(state, params.stack(hparams))
     # The last run alone (hyperparameter set 1, seed 1).
     single = algorithm.init(jax.random.key(1), config, hparams[1])
     single, single_metrics = jax.jit(algorithm.train_chunk, static_argnums=1)(

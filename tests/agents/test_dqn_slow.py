@@ -17,7 +17,7 @@ import pytest
 
 from rl_jax.agents.dqn import dqn
 from rl_jax.agents.reinforce import reinforce
-from rl_jax.training import parallel
+from rl_jax.training import parallel, params
 
 SEEDS = 3
 
@@ -27,7 +27,7 @@ def first_reach(algorithm, env_id, target, budget, seeds, steps_of=None):
     or every unfinished seed has spent ``budget`` env steps; ``steps_of(metrics)`` gives the
     per-seed env steps. Returns the env steps of each seed's first success (``None``: never)."""
     config = algorithm.default_config(env_id)
-    hparams = parallel.stack([algorithm.default_hyperparams(env_id)])
+    hparams = params.stack([algorithm.default_hyperparams(env_id)])
     runner = parallel.Runner(algorithm, config, 1, len(seeds))
     started = time.perf_counter()
     state = runner.init(parallel.seed_keys(list(seeds)), hparams)

@@ -12,7 +12,7 @@ import pytest
 
 import envs
 from rl_jax.agents.td3 import make_networks, td3
-from rl_jax.training import parallel
+from rl_jax.training import parallel, params
 
 SEEDS = (0, 1, 2)
 ROCKET_STEPS = 40_000  # per seed: 8 chunks of the rocket recipe
@@ -24,7 +24,7 @@ def _train(env_id: str, env_steps: int):
     chunks, rest = divmod(env_steps, config.env_steps_per_chunk)
     assert rest == 0 and chunks > 0, (env_steps, config.env_steps_per_chunk)
     runner = parallel.Runner(td3, config, num_hparams=1, num_seeds=len(SEEDS))
-    stacked = parallel.stack([hparams])
+    stacked = params.stack([hparams])
     start = time.perf_counter()
     state = runner.init(parallel.seed_keys(SEEDS), stacked)
     history = []

@@ -8,7 +8,7 @@ import pytest
 from probe_runs import probe_config, train
 
 from rl_jax.agents.td3 import Config, Hyperparams, ddpg, explore, td3, update
-from rl_jax.training import offpolicy, parallel
+from rl_jax.training import offpolicy, params
 
 ENV_ID = "rl_jax/ProbeActionReward-v0"
 
@@ -65,7 +65,7 @@ def test_hyperparams_round_trip_single_and_stacked():
     again = Hyperparams.from_dict(json.loads(json.dumps(hparams.to_dict())))
     jax.tree.map(np.testing.assert_array_equal, again, hparams)
     assert {leaf.dtype for leaf in jax.tree.leaves(again)} == {np.dtype(np.float32)}
-    stacked, combos = parallel.grid(hparams, tau=[0.01, 0.02], gamma=[0.9, 0.99, 0.999])
+    stacked, combos = params.grid(hparams, tau=[0.01, 0.02], gamma=[0.9, 0.99, 0.999])
     assert stacked.tau.shape == (6,) and combos[1] == {"tau": 0.01, "gamma": 0.99}
     assert Hyperparams.from_dict(stacked.to_dict()).gamma.tolist() == pytest.approx(
         [0.9, 0.99, 0.999] * 2

@@ -17,8 +17,8 @@ from run_helpers import leaves_bytes, snapshot
 
 from rl_jax.run import cli, runner
 from rl_jax.run.checkpoint import Checkpointer
-from rl_jax.run.run_dir import stack_hparams
 from rl_jax.run.runner import CHECKPOINT_DIR, RunSpec, make_plan
+from rl_jax.training import params
 
 ROOT = Path(__file__).resolve().parents[2]
 SCRIPT = ROOT / "tests" / "fake_experiment.py"
@@ -106,7 +106,7 @@ def test_grid_parsing_checks_names_and_types():
     hparams, config = fake.default_hyperparams(), fake.default_config()
     grid = cli.parse_grid(["learning-rate=1e-3,3e-3", "updates_per_step=1,2"], hparams, config)
     assert grid == {"learning_rate": [1e-3, 3e-3], "updates_per_step": [1, 2]}
-    expanded = cli.expand_grid(hparams, grid)
+    expanded = params.expand(hparams, grid)
     assert [(h.learning_rate, h.updates_per_step) for h in expanded] == [
         (1e-3, 1),
         (1e-3, 2),
@@ -360,5 +360,5 @@ def test_sigterm_checkpoints_exits_zero_and_resume_is_bit_identical(workspace):
     assert leaves_bytes(final["stopped"]) == leaves_bytes(final["unstopped"])
     # Training happened between the stop and the end (the comparison is not of two copies).
     fresh = runner.fresh_start(spec, plan).state
-    fresh = plan.parallel.unpad(fresh, stack_hparams([fake.default_hyperparams()]))
+    fresh = plan.parallel.unpad(fresh, params.stack([fake.default_hyperparams()]))
     assert leaves_bytes(fresh) != leaves_bytes(final["stopped"])

@@ -28,7 +28,7 @@ import pytest
 from probe_runs import probe_config, probe_hparams, train
 
 from rl_jax.agents.td3 import td3
-from rl_jax.training import parallel
+from rl_jax.training import parallel, params
 
 ENV_ID = "rl_jax/ProbeActionReward-v0"
 CHUNKS = 1
@@ -75,7 +75,7 @@ def _run_parallel(num_hparams, hparams, seeds, loop_seeds=False):
 @pytest.fixture(scope="module")
 def grid_run():
     """The 2x2 grid of (actor_lr, tau), one seed, as one program on one device."""
-    hparams, combos = parallel.grid(probe_hparams(), **GRID)
+    hparams, combos = params.grid(probe_hparams(), **GRID)
     return combos, _run_parallel(4, hparams, [0])
 
 
@@ -127,10 +127,10 @@ SHARDED_SCRIPT = textwrap.dedent(
     sys.path[:0] = [{tests!r}, {helpers!r}]
     from test_parallel import ENV_ID, GRID, _leaves, _run_parallel
     from probe_runs import probe_config, probe_hparams
-    from rl_jax.training import parallel
+    from rl_jax.training import parallel, params
     from rl_jax.agents.td3 import td3
     assert len(jax.devices()) == 2
-    hparams, _ = parallel.grid(probe_hparams(), **GRID)
+    hparams, _ = params.grid(probe_hparams(), **GRID)
     _, state, history = _run_parallel(4, hparams, [0])
     devices = {{d.id for d in state.agent.critics["params"]["MLP_0"]["Dense_0"]["kernel"]
                .sharding.device_set}}
@@ -138,7 +138,7 @@ SHARDED_SCRIPT = textwrap.dedent(
     # 3 seeds on 2 devices: padded to 2 + 2 (a copy of seed 0 computed and dropped).
     runner = parallel.Runner(td3, probe_config(ENV_ID), num_hparams=1, num_seeds=3)
     assert (runner.layout.seed_split, runner.layout.padded_seeds) == (2, 4)
-    one = parallel.stack([probe_hparams()])
+    one = params.stack([probe_hparams()])
     padded = runner.init(parallel.seed_keys([0, 1, 2]), one)
     padded, metrics = runner.train_chunk(padded, one)
     np.savez({padded_out!r}, *_leaves((runner.unpad(padded, one), runner.gather(metrics))))
@@ -150,13 +150,13 @@ SHARDED_SCRIPT = textwrap.dedent(
 @pytest.fixture(scope="module")
 def three_seeds_run():
     """Seeds 0, 1, 2 with the probe hyperparameters, as one program on one device."""
-    return _run_parallel(1, parallel.stack([probe_hparams()]), [0, 1, 2])
+    return _run_parallel(1, params.stack([probe_hparams()]), [0, 1, 2])
 
 
 def test_seeds_as_a_loop_equal_seeds_vmapped(three_seeds_run):
     """``loop_seeds`` (each seed's ops of their own, for conv nets) computes what the vmap does,
     in the same [H, S] layout, clock shared."""
-    looped = _run_parallel(1, parallel.stack([probe_hparams()]), [0, 1, 2], loop_seeds=True)
+    looped = _run_parallel(1, params.stack([probe_hparams()]), [0, 1, 2], loop_seeds=True)
     for got, expected in zip(looped, three_seeds_run, strict=True):
         assert_same(got, expected)
 

@@ -1,0 +1,155 @@
+"""Hyperparameters and configs as data: their conversion to arrays and JSON, stacking several
+into one ``[H]`` pytree, and product grids over their fields.
+
+Every place that turns hyperparameters into arrays (the learners' ``Hyperparams.as_arrays``, the
+run's identity, the stacked ``[H]`` input of the compiled program) converts through ``as_arrays``
+here, so a value has one dtype wherever it is seen; grids (``parallel``-style stacked grids, the
+CLI's ``--grid``, the sweep script's axes) expand through ``product``.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import itertools
+from collections.abc import Sequence
+from typing import Any
+
+import jax
+import numpy as np
+
+from rl_jax.errors import RunError
+
+# ---- arrays ---------------------------------------------------------------------------------
+
+_DTYPES = {"f": np.float32, "i": np.int32, "u": np.int32, "b": np.bool_}
+
+
+def _as_array(value: Any, like: Any = None) -> np.ndarray:
+    """``value`` as an array of the kind of ``like`` (else its own): float32, int32 or bool."""
+    array = np.asarray(value)
+    kind = np.asarray(like).dtype.kind if like is not None else array.dtype.kind
+    dtype = _DTYPES.get(kind)
+    return array if dtype is None else array.astype(dtype)
+
+
+def as_arrays(hparams: Any) -> Any:
+    """Every hyperparameter as a numpy array (0-d, or ``[H]`` from a stack's JSON).
+
+    The dtype follows the field's default where the field has one (a float default makes 3 and
+    3.0 the same float32), else the value: float32 for numbers with a fraction, int32 for
+    integers, bool for flags. A pytree that is not a dataclass converts leaf by leaf."""
+    if not dataclasses.is_dataclass(hparams):
+        return jax.tree.map(_as_array, hparams)
+    values = {}
+    for field in dataclasses.fields(hparams):
+        default = None if field.default is dataclasses.MISSING else field.default
+        values[field.name] = _as_array(getattr(hparams, field.name), default)
+    return dataclasses.replace(hparams, **values)
+
+
+def stack(hparams_list: Sequence[Any]) -> Any:
+    """``[H]``-stacked hyperparameters (each through ``as_arrays``), the leading axis a grid's
+    configs: the ``hparams`` input of ``rl_jax.training.parallel.Program``."""
+    arrays = [as_arrays(h) for h in hparams_list]
+    return jax.tree.map(lambda *leaves: np.stack(leaves), *arrays)
+
+
+# ---- grids ----------------------------------------------------------------------------------
+
+
+def product(values: dict[str, Sequence[Any]]) -> list[dict[str, Any]]:
+    """Every combination of the named values, ``{name: value}`` each, first name slowest."""
+    names = list(values)
+    return [
+        dict(zip(names, combo, strict=True))
+        for combo in itertools.product(*(values[name] for name in names))
+    ]
+
+
+def expand(base: Any, values: dict[str, Sequence[Any]]) -> list[Any]:
+    """``base`` (a dataclass) with each combination of ``product(values)`` replaced in it."""
+    return [dataclasses.replace(base, **point) for point in product(values)]
+
+
+def grid(base: Any, **values: Sequence[float]) -> tuple[Any, list[dict[str, Any]]]:
+    """The product grid on top of ``base``: ``(stacked pytree [H], [{field: value}, ...])``,
+    first field varying slowest."""
+    return stack(expand(base, values)), product(values)
+
+
+# ---- JSON -----------------------------------------------------------------------------------
+
+
+def _json_value(value: Any) -> Any:
+    """Plain JSON for config and hyperparameter values (tuples become lists)."""
+    if isinstance(value, (tuple, list)):
+        return [_json_value(v) for v in value]
+    if isinstance(value, (np.ndarray, jax.Array, np.generic)):
+        array = np.asarray(value)
+        if array.dtype == np.float32:
+            # The shortest decimal that round-trips the float32 (0.01, not 0.009999999776).
+            shortest = [float(str(x)) for x in array.reshape(-1)]
+            return np.array(shortest, dtype=object).reshape(array.shape).tolist()
+        return array.tolist()
+    return value
+
+
+def dataclass_to_dict(instance: Any) -> dict[str, Any]:
+    """Fields of a (frozen or flax struct) dataclass as JSON-ready values."""
+    return {f.name: _json_value(getattr(instance, f.name)) for f in dataclasses.fields(instance)}
+
+
+def dataclass_from_dict(template: Any, values: dict[str, Any]) -> Any:
+    """``template`` with ``values`` replaced, each converted to the template field's type."""
+    names = {f.name for f in dataclasses.fields(template)}
+    unknown = sorted(set(values) - names)
+    if unknown:
+        raise RunError(f"unknown {type(template).__name__} field(s): {', '.join(unknown)}")
+    converted = {
+        name: _like(getattr(template, name), value, name) for name, value in values.items()
+    }
+    try:
+        return dataclasses.replace(template, **converted)
+    except (TypeError, ValueError) as error:  # the dataclass's own validation
+        raise RunError(f"invalid {type(template).__name__}: {error}") from None
+
+
+def _like(default: Any, value: Any, name: str) -> Any:
+    """``value`` converted to the type of ``default`` (bool, int, float, str, tuple, array)."""
+    if isinstance(default, tuple):
+        if not isinstance(value, (list, tuple)):
+            raise RunError(f"{name} must be a list, got {value!r}")
+        element = default[0] if default else value[0] if value else 0
+        return tuple(_like(element, v, name) for v in value)
+    if isinstance(default, (np.ndarray, jax.Array, np.generic)):
+        return np.asarray(value, dtype=np.asarray(default).dtype)
+    if isinstance(default, bool):
+        if not isinstance(value, bool):
+            raise RunError(f"{name} must be true or false, got {value!r}")
+        return value
+    if isinstance(default, int) and not isinstance(value, bool):
+        if isinstance(value, float) and value.is_integer():
+            value = int(value)
+        if not isinstance(value, int):
+            raise RunError(f"{name} must be an integer, got {value!r}")
+        return value
+    if isinstance(default, float):
+        if isinstance(value, bool) or not isinstance(value, (int, float)):
+            raise RunError(f"{name} must be a number, got {value!r}")
+        return float(value)
+    return value
+
+
+class HyperparamsMethods:
+    """Conversions for a learner's ``Hyperparams`` (a ``flax.struct`` dataclass of scalars)."""
+
+    def as_arrays(self):
+        """Every field as an array, as ``as_arrays`` (lists, e.g. a stack's JSON, become [H])."""
+        return as_arrays(self)
+
+    def to_dict(self) -> dict[str, Any]:
+        return dataclass_to_dict(self)
+
+    @classmethod
+    def from_dict(cls, values: dict[str, Any]):
+        return cls(**values).as_arrays()
