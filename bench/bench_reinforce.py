@@ -32,14 +32,14 @@ def programs(run_dir: Path = RUN) -> tuple[dict, tuple]:
     from envs.core.wrappers import Wrapper
     from rl_jax.agents import reinforce
     from rl_jax.run.policy import LoadedPolicy
-    from rl_jax.training import offpolicy
+    from rl_jax.training import episodes
 
     loaded = [LoadedPolicy(run_dir, seed=s, which="latest") for s in range(5)]
     config = loaded[0].config
     stack = lambda trees: jax.tree.map(lambda *x: np.stack(x), *trees)
     params = stack([p.state.agent.params for p in loaded])
     stats = stack([p.state.agent.obs_stats for p in loaded])
-    env = offpolicy.make_eval_env(config)
+    env = episodes.make_eval_env(config)
 
     def program(which_env):
         one = lambda p, s, k: reinforce.rollout(p, k, config, s, env=which_env)

@@ -41,14 +41,14 @@ def make_runner(recipe: dict[str, Any], seeds: int, hparam_sets: int = 1) -> tup
     """``(runner, state, hparams, config)`` for ``seeds`` x ``hparam_sets`` runs of a recipe
     (hyperparameter sets identical: the grid benchmark measures cost, not learning)."""
     from rl_jax.agents.td3 import td3
-    from rl_jax.training import offpolicy, parallel, params
+    from rl_jax.training import episodes, parallel, params
 
     # JSON gives lists; the static config must be hashable (it keys the compiled program)
     recipe = {k: tuple(v) if isinstance(v, list) else v for k, v in recipe.items()}
     config = td3.default_config(ENV_ID, **recipe)
     # Build (and cache) the envs outside any trace: the MuJoCo env's constructor computes its
     # initial observation with jnp, which fails when first called under Runner's eval_shape.
-    offpolicy.make_train_env(config)
+    episodes.make_train_env(config)
     one = td3.default_hyperparams(ENV_ID)
     hparams = params.stack([one] * hparam_sets)
     runner = parallel.Runner(td3, config, num_hparams=hparam_sets, num_seeds=seeds)

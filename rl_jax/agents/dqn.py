@@ -34,8 +34,9 @@ import optax
 from flax import struct
 
 import envs
-from rl_jax.agents.td3 import polyak_update
+from rl_jax.agents.common import linearly_decayed, optimizer_step, polyak_update
 from rl_jax.training import (
+    episodes,
     frame_replay,
     networks,
     offpolicy,
@@ -141,7 +142,7 @@ class Agent:
 @functools.lru_cache(maxsize=64)
 def make_network(config: Config) -> networks.QNetwork:
     """The Q-network for ``config`` (cached: called at every trace)."""
-    space = offpolicy.make_eval_env(config).action_space()
+    space = episodes.make_eval_env(config).action_space()
     if not isinstance(space, envs.Discrete):
         raise TypeError(f"DQN needs a discrete action space, got {space}")
     conv_layers = config.conv_layers if isinstance(config, PixelConfig) else ()
@@ -266,18 +267,19 @@ def learning_rate_at(env_steps, hparams: Hyperparams) -> jax.Array:
     """The Adam rate after ``env_steps``: linear decay to 0 over ``lr_decay_steps`` (if > 0).
     DQN's greedy policy on CartPole otherwise keeps collapsing and recovering long after it first
     scores 500."""
-    return offpolicy.linearly_decayed(hparams.learning_rate, env_steps, hparams.lr_decay_steps)
+    return linearly_decayed(hparams.learning_rate, env_steps, hparams.lr_decay_steps)
 
 
 def _gradient_step(agent: Agent, grads, hparams: Hyperparams, env_steps) -> Agent:
-    opt_state = agent.opt_state
-    rates = {
-        "learning_rate": learning_rate_at(env_steps, hparams),
-        "max_grad_norm": hparams.max_grad_norm,
-    }
-    opt_state = opt_state._replace(hyperparams={**opt_state.hyperparams, **rates})
-    updates, opt_state = _OPTIMIZER.update(grads, opt_state, agent.online)
-    return agent.replace(online=optax.apply_updates(agent.online, updates), opt_state=opt_state)
+    online, opt_state = optimizer_step(
+        _OPTIMIZER,
+        grads,
+        agent.opt_state,
+        agent.online,
+        learning_rate=learning_rate_at(env_steps, hparams),
+        max_grad_norm=hparams.max_grad_norm,
+    )
+    return agent.replace(online=online, opt_state=opt_state)
 
 
 def update(agent: Agent, buffer, key, config: Config, hparams: Hyperparams, update_index):
@@ -453,7 +455,7 @@ class DQN(RecipeBook):
 
     def make_env(self, config: Config) -> envs.Environment:
         """The env the policy acts in (discretised actions), for rendering."""
-        return offpolicy.make_eval_env(config)
+        return episodes.make_eval_env(config)
 
 
 dqn = DQN()

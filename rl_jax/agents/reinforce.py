@@ -40,7 +40,8 @@ import optax
 from flax import struct
 
 import envs
-from rl_jax.training import networks, normalization, offpolicy, params
+from rl_jax.agents.common import linearly_decayed, optimizer_step
+from rl_jax.training import episodes, networks, normalization, params
 from rl_jax.training.algorithm import ChunkMetrics, RecipeBook
 
 BASELINES = ("none", "mean", "value")
@@ -132,7 +133,7 @@ class Trajectory(NamedTuple):
 
 @functools.lru_cache(maxsize=64)
 def make_network(config: Config) -> networks.StochasticPolicy:
-    space = offpolicy.make_eval_env(config).action_space()
+    space = episodes.make_eval_env(config).action_space()
     discrete = isinstance(space, envs.Discrete)
     return networks.StochasticPolicy(
         hidden=config.hidden,
@@ -158,7 +159,7 @@ def policy_outputs(params, obs_stats, obs, config: Config) -> dict[str, jax.Arra
     return ~130 for 100 updates this way, half its actions at +-1)."""
     policy = make_network(config).apply(params, normalization.normalize(obs_stats, obs))
     if config.squash_mean and "mean" in policy:
-        space = offpolicy.make_eval_env(config).action_space()
+        space = episodes.make_eval_env(config).action_space()
         shape = policy["mean"].shape
         low, high = (jnp.broadcast_to(jnp.float32(b), shape) for b in (space.low, space.high))
         policy = {**policy, "mean": low + (high - low) * (jnp.tanh(policy["mean"]) + 1.0) / 2.0}
@@ -262,20 +263,20 @@ def act(agent: Agent, obs: jax.Array, config: Config) -> jax.Array:
     policy = policy_outputs(agent.params, agent.obs_stats, obs, config)
     if "logits" in policy:
         return jnp.argmax(policy["logits"], axis=-1).astype(jnp.int32)
-    space = offpolicy.make_eval_env(config).action_space()
+    space = episodes.make_eval_env(config).action_space()
     return to_env_action(policy["mean"], space)
 
 
 def rollout(params, key, config: Config, obs_stats=None, env=None) -> Trajectory:
     """``num_envs`` whole episodes, stopping as soon as all have ended (raw observations are
     stored; the policy acts on them standardised by ``obs_stats`` when given). ``env``: the env
-    to run instead of the config's (as ``offpolicy.make_eval_env`` builds it)."""
-    env = offpolicy.make_eval_env(config) if env is None else env
+    to run instead of the config's (as ``episodes.make_eval_env`` builds it)."""
+    env = episodes.make_eval_env(config) if env is None else env
     space, count = env.action_space(), config.num_envs
     horizon = env.max_episode_steps
     reset_key, key = jax.random.split(key)
     env_state, ts = jax.vmap(env.reset)(jax.random.split(reset_key, count))
-    example = offpolicy.example_transition(env)
+    example = episodes.example_transition(env)
     empty = Trajectory(
         obs=jnp.zeros((horizon, count, *ts.obs.shape[1:]), jnp.float32),
         action=jnp.zeros((horizon, count, *space.shape), example.action.dtype),
@@ -330,9 +331,7 @@ def clip_by_global_norm(grads, max_norm) -> tuple[Any, jax.Array]:
 
 def learning_rate(hparams: Hyperparams, updates: jax.Array) -> jax.Array:
     """The rate of update number ``updates``: linear decay to 0 over ``lr_decay_updates``."""
-    decay = hparams.lr_decay_updates
-    fraction = jnp.clip(1.0 - updates / jnp.maximum(decay, 1.0), 0.0, 1.0)
-    return hparams.learning_rate * jnp.where(decay > 0.0, fraction, 1.0)
+    return linearly_decayed(hparams.learning_rate, updates, hparams.lr_decay_updates)
 
 
 def update(agent: Agent, trajectory: Trajectory, hparams: Hyperparams, config: Config, updates=0):
@@ -342,14 +341,18 @@ def update(agent: Agent, trajectory: Trajectory, hparams: Hyperparams, config: C
         agent.params, trajectory, hparams, config, agent.obs_stats
     )
     grads, metrics["grad_norm"] = clip_by_global_norm(grads, hparams.max_grad_norm)
-    opt_state = agent.opt_state
-    rates = {"learning_rate": learning_rate(hparams, updates), "weight_decay": hparams.weight_decay}
-    opt_state = opt_state._replace(hyperparams={**opt_state.hyperparams, **rates})
-    step, opt_state = _OPTIMIZER.update(grads, opt_state, agent.params)
+    params, opt_state = optimizer_step(
+        _OPTIMIZER,
+        grads,
+        agent.opt_state,
+        agent.params,
+        learning_rate=learning_rate(hparams, updates),
+        weight_decay=hparams.weight_decay,
+    )
     obs_stats = agent.obs_stats
     if obs_stats is not None:
         obs_stats = normalization.update(obs_stats, trajectory.obs, trajectory.mask)
-    return Agent(optax.apply_updates(agent.params, step), opt_state, obs_stats), metrics
+    return Agent(params, opt_state, obs_stats), metrics
 
 
 def train_iteration(state: TrainState, config: Config, hparams: Hyperparams):
@@ -369,7 +372,7 @@ def train_iteration(state: TrainState, config: Config, hparams: Hyperparams):
 
 def init(key: jax.Array, config: Config, hparams: Hyperparams) -> TrainState:
     """A fresh state for one seed and one hyperparameter set."""
-    env = offpolicy.make_eval_env(config)
+    env = episodes.make_eval_env(config)
     agent_key, key = jax.random.split(key)
     params = make_network(config).init(agent_key, jnp.zeros(env.observation_space().shape))
     optimizer = optax.inject_hyperparams(_adamw)(hparams.learning_rate, hparams.weight_decay)
@@ -384,10 +387,6 @@ def init(key: jax.Array, config: Config, hparams: Hyperparams) -> TrainState:
     )
 
 
-class _Actor(NamedTuple):
-    act: Any  # what offpolicy.evaluate needs of a learner
-
-
 def train_chunk(state: TrainState, config: Config, hparams: Hyperparams):
     """``iterations_per_chunk`` rollouts and updates, then one evaluation. Pure; jit outside."""
     state, metrics = jax.lax.scan(
@@ -397,7 +396,7 @@ def train_chunk(state: TrainState, config: Config, hparams: Hyperparams):
         length=config.iterations_per_chunk,
     )
     eval_key, key = jax.random.split(state.key)
-    eval_return = offpolicy.evaluate(_Actor(act), state.agent, config, eval_key)
+    eval_return = episodes.evaluate(act, state.agent, config, eval_key)
     state = state.replace(key=key)
     extra = {**jax.tree.map(jnp.mean, metrics), "env_steps_taken": state.env_steps}
     return state, ChunkMetrics(
@@ -412,7 +411,7 @@ def train_chunk(state: TrainState, config: Config, hparams: Hyperparams):
 def step_slots_per_update(config: Config) -> int:
     """``num_envs * max_episode_steps``: the env steps of a batch whose episodes all run to the
     time limit (the unit of the shared step axis, see the module docstring)."""
-    return config.num_envs * offpolicy.make_eval_env(config).max_episode_steps
+    return config.num_envs * episodes.make_eval_env(config).max_episode_steps
 
 
 # ---- the Algorithm object ---------------------------------------------------------------------
@@ -486,7 +485,7 @@ class Reinforce(RecipeBook):
         return lambda obs: act(state.agent, obs, config)
 
     def make_env(self, config: Config) -> envs.Environment:
-        return offpolicy.make_eval_env(config)
+        return episodes.make_eval_env(config)
 
 
 reinforce = Reinforce()

@@ -28,7 +28,8 @@ import optax
 from flax import struct
 
 from envs.core.spaces import Box
-from rl_jax.training import networks, offpolicy, params, replay
+from rl_jax.agents.common import linearly_decayed, optimizer_step, polyak_update
+from rl_jax.training import episodes, networks, offpolicy, params, replay
 from rl_jax.training.algorithm import RecipeBook
 from rl_jax.training.offpolicy import OffPolicyConfig, TrainState
 from rl_jax.training.replay import ReplayBuffer, Transition
@@ -113,7 +114,7 @@ def build_networks(config: Config, action_space: Box) -> Networks:
 @functools.lru_cache(maxsize=64)
 def make_networks(config: Config) -> Networks:
     """The networks for ``config.env_id`` (cached: called at every trace)."""
-    return build_networks(config, offpolicy.make_eval_env(config).action_space())
+    return build_networks(config, episodes.make_eval_env(config).action_space())
 
 
 # ---- loss maths (pure; rlax naming: tm1 = the transition's start, t = its end) -----------------
@@ -137,11 +138,6 @@ def critic_loss(q_tm1, r_t, discount_t, q_t) -> jax.Array:
 def deterministic_policy_loss(q_tm1) -> jax.Array:
     """The actor ascends Q at its own action: loss ``-mean(q_tm1)``."""
     return -jnp.mean(q_tm1)
-
-
-def polyak_update(target, online, tau) -> Any:
-    """``target <- (1 - tau) * target + tau * online``, leaf by leaf."""
-    return jax.tree.map(lambda t, o: (1.0 - tau) * t + tau * o, target, online)
 
 
 # ---- losses on networks ----------------------------------------------------------------------
@@ -196,11 +192,7 @@ _ADAM = optax.inject_hyperparams(optax.adam)(learning_rate=3e-4)
 
 def _adam_step(grads, opt_state, params, learning_rate):
     """Adam at the hyperparameter's rate; the rate in use is recorded in the optimizer state."""
-    opt_state = opt_state._replace(
-        hyperparams={**opt_state.hyperparams, "learning_rate": learning_rate}
-    )
-    updates, opt_state = _ADAM.update(grads, opt_state, params)
-    return optax.apply_updates(params, updates), opt_state
+    return optimizer_step(_ADAM, grads, opt_state, params, learning_rate=learning_rate)
 
 
 def _critic_step(agent: Agent, batch: Transition, key, hparams: Hyperparams, nets: Networks, decay):
@@ -240,7 +232,7 @@ def update(
     env_steps = offpolicy.env_steps_at_update(update_index, config)
 
     def decay(rate):
-        return offpolicy.linearly_decayed(rate, env_steps, hparams.lr_decay_steps)
+        return linearly_decayed(rate, env_steps, hparams.lr_decay_steps)
 
     agent, critic_loss_value, q = _critic_step(agent, batch, noise_key, hparams, nets, decay)
     delayed = (update_index + 1) % config.policy_delay == 0

@@ -19,7 +19,6 @@ running both sides.
 from __future__ import annotations
 
 import dataclasses
-import functools
 import json
 from collections.abc import Callable
 from typing import Any, NamedTuple
@@ -31,6 +30,7 @@ from flax import struct
 import envs
 from rl_jax.training import replay
 from rl_jax.training.algorithm import ChunkMetrics
+from rl_jax.training.episodes import evaluate, example_transition, make_eval_env, make_train_env
 from rl_jax.training.replay import ReplayBuffer, Transition
 
 PRNGKey = jax.Array
@@ -147,38 +147,6 @@ class Learner(NamedTuple):
     add_to_buffer: Callable[..., Any] = add_uniform
 
 
-# ---- environments -------------------------------------------------------------------------------
-# Cached: every trace asks for the env, and building one (an MJX model) can be slow. Envs are
-# stateless, so sharing an instance is safe.
-@functools.lru_cache(maxsize=64)
-def make_eval_env(config: OffPolicyConfig) -> envs.Environment:
-    """The env as the policy sees it (obs flattened to one axis), without autoreset."""
-    # The first call may come while tracing (e.g. under eval_shape): constants an env computes
-    # when built (MuJoCo's initial obs, default params) must stay concrete, not leak tracers.
-    with jax.ensure_compile_time_eval():
-        env = config.make_env()
-    # A config whose network reads images (a conv torso: ``dqn.PixelConfig``) keeps them
-    # [H, W, C]; flattening would also make a uint8 space float32.
-    keep_images = getattr(config, "image_observations", False)
-    if len(env.observation_space().shape) != 1 and not keep_images:
-        env = envs.FlattenObservation(env)
-    return env
-
-
-@functools.lru_cache(maxsize=64)
-def make_train_env(config: OffPolicyConfig) -> envs.Environment:
-    """Training stack: statistics outside autoreset so they see the step that ended an episode."""
-    return envs.EpisodeStatistics(envs.AutoReset(make_eval_env(config)))
-
-
-def example_transition(env: envs.Environment) -> Transition:
-    obs_space, action_space = env.observation_space(), env.action_space()
-    obs = jnp.zeros(obs_space.shape, obs_space.dtype)
-    action = jnp.zeros(action_space.shape, action_space.dtype)
-    false = jnp.zeros((), jnp.bool_)
-    return Transition(obs, action, jnp.zeros((), jnp.float32), obs, false, false)
-
-
 def buffer_nbytes(config: OffPolicyConfig) -> int:
     """Replay memory of one run (one seed, one hyperparameter set), without allocating it."""
     example = example_transition(make_eval_env(config))
@@ -290,41 +258,6 @@ def env_steps_at_update(update_index: jax.Array, config: OffPolicyConfig) -> jax
     return (iteration + 1) * config.num_envs
 
 
-def linearly_decayed(rate, env_steps, decay_steps) -> jax.Array:
-    """``rate`` falling linearly to 0 over ``decay_steps`` env steps (constant if that is <= 0).
-    A rate that ends at 0 freezes the policy a run has converged to, instead of leaving the
-    last updates to move it around a good solution."""
-    fraction = jnp.clip(1.0 - env_steps / jnp.maximum(decay_steps, 1.0), 0.0, 1.0)
-    return rate * jnp.where(decay_steps > 0.0, fraction, 1.0)
-
-
-# ---- evaluation ---------------------------------------------------------------------------------
-def evaluate(learner: Learner, agent: Any, config: OffPolicyConfig, key: PRNGKey) -> jax.Array:
-    """Mean undiscounted return of ``num_eval_envs`` episodes of the deterministic policy on
-    fresh env copies (no exploration noise, no autoreset); [] float32."""
-    env = make_eval_env(config)
-    reset_key, step_key = jax.random.split(key)
-    env_state, ts = jax.vmap(env.reset)(jax.random.split(reset_key, config.num_eval_envs))
-    alive = jnp.ones(config.num_eval_envs, jnp.bool_)
-    total = jnp.zeros(config.num_eval_envs, jnp.float32)
-
-    def running(carry):
-        time, _, _, alive, _ = carry
-        return jnp.logical_and(time < env.max_episode_steps, jnp.any(alive))
-
-    def step(carry):
-        time, env_state, obs, alive, total = carry
-        keys = jax.random.split(jax.random.fold_in(step_key, time), config.num_eval_envs)
-        actions = learner.act(agent, obs, config)
-        env_state, ts = jax.vmap(env.step)(keys, env_state, actions)
-        total = total + jnp.where(alive, ts.reward, 0.0)
-        alive = jnp.logical_and(alive, ~jnp.logical_or(ts.terminated, ts.truncated))
-        return time + 1, env_state, ts.obs, alive, total
-
-    carry = (jnp.int32(0), env_state, ts.obs, alive, total)
-    return jnp.mean(jax.lax.while_loop(running, step, carry)[-1])
-
-
 # ---- a chunk ------------------------------------------------------------------------------------
 def train_chunk(learner: Learner, state: TrainState, config: OffPolicyConfig, hparams: Any):
     """``config.iterations_per_chunk`` iterations, then one evaluation. Pure; jit it outside."""
@@ -336,7 +269,7 @@ def train_chunk(learner: Learner, state: TrainState, config: OffPolicyConfig, hp
         body, state, None, length=config.iterations_per_chunk
     )
     eval_key, key = jax.random.split(state.key)
-    eval_return = evaluate(learner, state.agent, config, eval_key)
+    eval_return = evaluate(learner.act, state.agent, config, eval_key)
     count = jnp.sum(episode_counts)
     train_return = jnp.where(
         count > 0, jnp.sum(return_sums) / jnp.maximum(count, 1), state.train_return

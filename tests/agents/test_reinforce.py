@@ -161,13 +161,13 @@ def test_rollout_on_mujoco_c_skipping_ended_envs_equals_stepping_them_all():
     ``Wrapper``, the same env takes the generic path that steps every env and keeps the ended
     ones' state. The trajectories are identical."""
     from envs.core.wrappers import Wrapper
-    from rl_jax.training import offpolicy
+    from rl_jax.training import episodes
 
     env_id = "rl_jax/InvertedDoublePendulum-v5"
     config = reinforce.default_config(env_id, num_envs=8, normalize_obs=False)
     params = reinforce.make_network(config).init(jax.random.key(5), jnp.zeros(9))
     skipping = jax.jit(lambda p, k: reinforce.rollout(p, k, config))(params, jax.random.key(6))
-    wrapped = Wrapper(offpolicy.make_eval_env(config))
+    wrapped = Wrapper(episodes.make_eval_env(config))
     stepping = jax.jit(lambda p, k: reinforce.rollout(p, k, config, env=wrapped))
     stepping = stepping(params, jax.random.key(6))
     lengths = np.asarray(skipping.mask).sum(axis=0)

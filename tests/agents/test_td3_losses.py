@@ -7,6 +7,7 @@ import pytest
 from jax.test_util import check_grads
 
 from envs.core.spaces import Box
+from rl_jax.agents.common import polyak_update
 from rl_jax.agents.td3 import (
     Config,
     Hyperparams,
@@ -16,7 +17,6 @@ from rl_jax.agents.td3 import (
     critic_loss,
     critic_loss_fn,
     deterministic_policy_loss,
-    polyak_update,
     smoothed_target_action,
     target_action,
 )

@@ -22,7 +22,7 @@ from envs.adapters.gymnasium_host import LOST_KEY, HostGymnasiumEnv
 from rl_jax.agents.td3 import RECIPES, td3
 from rl_jax.run import cli
 from rl_jax.run.metrics import METRICS_FILE, read_rows
-from rl_jax.training import offpolicy, parallel
+from rl_jax.training import episodes, parallel
 
 ROOT = Path(__file__).resolve().parents[2]
 # The off-policy loop, tiny: 4 envs x 25 iterations = 100 env steps per chunk; TD3's networks.
@@ -319,7 +319,7 @@ def _flag(value) -> str:
 
 def _forget_programs_and_envs() -> None:
     """Trace again with new adapters (new pools), as a resume in a new process would."""
-    for cache in (offpolicy.make_eval_env, offpolicy.make_train_env):
+    for cache in (episodes.make_eval_env, episodes.make_train_env):
         cache.cache_clear()
     parallel._PROGRAMS.clear()
     parallel._COMPILED.clear()
@@ -336,7 +336,7 @@ def test_td3_resumes_without_its_host_state(readme_command_run, tmp_path):
     for result in resumed.results:
         assert result.step == 300 and np.all(np.isfinite(result.returns))
     config = dataclasses.replace(td3.default_config("gymnasium:Pendulum-v1"), **TINY)
-    adapter = offpolicy.make_eval_env(config)
+    adapter = episodes.make_eval_env(config)
     assert adapter.pool.cut_episodes == 2 * 2 * TINY["num_envs"]  # configs x seeds x envs
 
 
@@ -357,5 +357,5 @@ def test_td3_learns_gymnasium_pendulum_and_resumes_without_its_host_state(tmp_pa
     _forget_programs_and_envs()
     resumed = rl_jax.resume(out, total_steps=7000, quiet=True)
     assert resumed.results.step == 7000 and np.all(np.isfinite(resumed.results.returns))
-    adapter = offpolicy.make_eval_env(dataclasses.replace(td3.default_config(env_id), **config))
+    adapter = episodes.make_eval_env(dataclasses.replace(td3.default_config(env_id), **config))
     assert adapter.pool.cut_episodes == 3 * config["num_envs"]

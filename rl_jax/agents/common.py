@@ -1,0 +1,38 @@
+"""What the learners (TD3 and DDPG, DQN, REINFORCE) share of their maths: the optimizer step at
+this update's rates, rate schedules, and target-network steps.
+
+The envs they train and evaluate on, and the evaluation itself, are in
+``rl_jax.training.episodes`` (the off-policy loop uses them too).
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+import optax
+
+
+def optimizer_step(
+    optimizer: optax.GradientTransformation, grads: Any, opt_state: Any, params: Any, **rates: Any
+) -> tuple[Any, Any]:
+    """One step of an ``optax.inject_hyperparams`` optimizer at ``rates`` (this update's values of
+    its hyperparameters, e.g. a decayed learning rate): ``(new params, new opt_state)``. The
+    rates are written into the state first, so a checkpoint holds the rates in use."""
+    opt_state = opt_state._replace(hyperparams={**opt_state.hyperparams, **rates})
+    updates, opt_state = optimizer.update(grads, opt_state, params)
+    return optax.apply_updates(params, updates), opt_state
+
+
+def linearly_decayed(rate, progress, decay_length) -> jax.Array:
+    """``rate`` falling linearly to 0 over ``decay_length`` (env steps or updates, as
+    ``progress``; constant if the length is <= 0). A rate that ends at 0 freezes the policy a run
+    has converged to, instead of leaving the last updates to move it around a good solution."""
+    fraction = jnp.clip(1.0 - progress / jnp.maximum(decay_length, 1.0), 0.0, 1.0)
+    return rate * jnp.where(decay_length > 0.0, fraction, 1.0)
+
+
+def polyak_update(target, online, tau) -> Any:
+    """``target <- (1 - tau) * target + tau * online``, leaf by leaf."""
+    return jax.tree.map(lambda t, o: (1.0 - tau) * t + tau * o, target, online)

@@ -1,0 +1,77 @@
+"""The envs a learner trains and is evaluated on, built from its config, and the evaluation of
+its deterministic policy: the same for the off-policy loop (TD3, DDPG, DQN) and REINFORCE.
+
+A config offers ``make_env()`` (the env as registered, or adapted: DQN discretises actions) and
+``num_eval_envs``; a config whose network reads images sets ``image_observations``.
+"""
+
+from __future__ import annotations
+
+import functools
+from collections.abc import Callable
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+
+import envs
+from rl_jax.training.replay import Transition
+
+
+# Cached: every trace asks for the env, and building one (an MJX model) can be slow. Envs are
+# stateless, so sharing an instance is safe.
+@functools.lru_cache(maxsize=64)
+def make_eval_env(config: Any) -> envs.Environment:
+    """The env as the policy sees it (obs flattened to one axis), without autoreset."""
+    # The first call may come while tracing (e.g. under eval_shape): constants an env computes
+    # when built (MuJoCo's initial obs, default params) must stay concrete, not leak tracers.
+    with jax.ensure_compile_time_eval():
+        env = config.make_env()
+    # A config whose network reads images (a conv torso: ``dqn.PixelConfig``) keeps them
+    # [H, W, C]; flattening would also make a uint8 space float32.
+    keep_images = getattr(config, "image_observations", False)
+    if len(env.observation_space().shape) != 1 and not keep_images:
+        env = envs.FlattenObservation(env)
+    return env
+
+
+@functools.lru_cache(maxsize=64)
+def make_train_env(config: Any) -> envs.Environment:
+    """Training stack: statistics outside autoreset so they see the step that ended an episode."""
+    return envs.EpisodeStatistics(envs.AutoReset(make_eval_env(config)))
+
+
+def example_transition(env: envs.Environment) -> Transition:
+    """A zero transition of the env's spaces: the shapes and dtypes of what it gives."""
+    obs_space, action_space = env.observation_space(), env.action_space()
+    obs = jnp.zeros(obs_space.shape, obs_space.dtype)
+    action = jnp.zeros(action_space.shape, action_space.dtype)
+    false = jnp.zeros((), jnp.bool_)
+    return Transition(obs, action, jnp.zeros((), jnp.float32), obs, false, false)
+
+
+def evaluate(act: Callable[..., jax.Array], agent: Any, config: Any, key: jax.Array) -> jax.Array:
+    """Mean undiscounted return of ``num_eval_envs`` episodes of the deterministic policy
+    ``act(agent, obs [N, ...], config)`` on fresh env copies (no exploration noise, no
+    autoreset); [] float32."""
+    env = make_eval_env(config)
+    reset_key, step_key = jax.random.split(key)
+    env_state, ts = jax.vmap(env.reset)(jax.random.split(reset_key, config.num_eval_envs))
+    alive = jnp.ones(config.num_eval_envs, jnp.bool_)
+    total = jnp.zeros(config.num_eval_envs, jnp.float32)
+
+    def running(carry):
+        time, _, _, alive, _ = carry
+        return jnp.logical_and(time < env.max_episode_steps, jnp.any(alive))
+
+    def step(carry):
+        time, env_state, obs, alive, total = carry
+        keys = jax.random.split(jax.random.fold_in(step_key, time), config.num_eval_envs)
+        actions = act(agent, obs, config)
+        env_state, ts = jax.vmap(env.step)(keys, env_state, actions)
+        total = total + jnp.where(alive, ts.reward, 0.0)
+        alive = jnp.logical_and(alive, ~jnp.logical_or(ts.terminated, ts.truncated))
+        return time + 1, env_state, ts.obs, alive, total
+
+    carry = (jnp.int32(0), env_state, ts.obs, alive, total)
+    return jnp.mean(jax.lax.while_loop(running, step, carry)[-1])
