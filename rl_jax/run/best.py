@@ -23,13 +23,14 @@ import jax
 import numpy as np
 
 from rl_jax.run.checkpoint import Checkpointer
+from rl_jax.training.algorithm import hooks
 
 BEST_DIR = "best"
 
 
 def policy_fields(algorithm: Any, state: Any) -> tuple[str, ...]:
     """The train-state fields the deterministic policy reads (empty: no best tracking)."""
-    fields = getattr(algorithm, "policy_fields", None)
+    fields = hooks(algorithm).policy_fields
     if fields is None:
         fields = ("agent",) if hasattr(state, "agent") else ()
     return tuple(fields)

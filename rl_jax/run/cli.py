@@ -44,6 +44,7 @@ from rl_jax.errors import (
 from rl_jax.errors import user_errors as user_errors  # cli.user_errors, as before
 from rl_jax.run.run_dir import load_algorithm, read_run_record
 from rl_jax.training import params
+from rl_jax.training.algorithm import hooks
 from rl_jax.training.jax_setup import configure
 from rl_jax.training.params import dataclass_from_dict
 from rl_jax.training.validation import out_of_range
@@ -412,11 +413,10 @@ def _validate(algorithm: Any, config: Any, hparams_list: list[Any]) -> None:
         problem = out_of_range(hparams, algorithm)
         if problem:
             raise UsageError(problem)
-        if hasattr(algorithm, "validate"):
-            try:
-                algorithm.validate(config, hparams)
-            except ValueError as error:
-                raise UsageError(str(error)) from None
+        try:
+            hooks(algorithm).validate(config, hparams)
+        except ValueError as error:
+            raise UsageError(str(error)) from None
 
 
 def _check_env_fits(algorithm: Any, config: Any, hparams: Any) -> None:

@@ -21,6 +21,7 @@ from typing import Any
 import numpy as np
 
 from rl_jax.errors import PolicyError
+from rl_jax.training.algorithm import hooks
 
 WHICH = ("best", "latest")
 
@@ -114,12 +115,8 @@ class LoadedPolicy:
         return algorithm, config, one, meta["step"]
 
     def env(self) -> Any:
-        """The env the policy acts in (``algorithm.make_env(config)`` when offered)."""
-        import envs
-
-        if hasattr(self.algorithm, "make_env"):
-            return self.algorithm.make_env(self.config)
-        return envs.make(self.env_id)
+        """The env the policy acts in (``algorithm.make_env(config)``, by default the run's env)."""
+        return hooks(self.algorithm).make_env(self.config)
 
     def act(self) -> Any:
         """The pure ``obs -> action`` JAX function (actions as the env of ``env()`` takes)."""

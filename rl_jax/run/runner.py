@@ -52,6 +52,7 @@ from rl_jax.run.run_dir import (
     write_json_atomic,
 )
 from rl_jax.training import parallel, params
+from rl_jax.training.algorithm import hooks
 from rl_jax.training.validation import check_ranges
 
 CHECKPOINT_DIR = "checkpoints"
@@ -144,16 +145,6 @@ def parallel_runner(spec: RunSpec) -> parallel.Runner:
     )
 
 
-def env_steps_per_chunk(algorithm: Any, config: Any) -> int:
-    """Env steps one chunk takes per seed: ``algorithm.env_steps_per_chunk(config)``, else the
-    config's ``env_steps_per_chunk``, else ``num_envs * iterations_per_chunk``."""
-    if hasattr(algorithm, "env_steps_per_chunk"):
-        return int(algorithm.env_steps_per_chunk(config))
-    if hasattr(config, "env_steps_per_chunk"):
-        return int(config.env_steps_per_chunk)
-    return int(config.num_envs * config.iterations_per_chunk)
-
-
 # ---- the plan -------------------------------------------------------------------------------
 
 
@@ -207,7 +198,7 @@ def available_memory() -> int:
 
 def make_plan(spec: RunSpec) -> Plan:
     """Sizes of the run, computed with ``jax.eval_shape`` (nothing is allocated)."""
-    steps_per_chunk = env_steps_per_chunk(spec.algorithm, spec.config)
+    steps_per_chunk = int(hooks(spec.algorithm).env_steps_per_chunk(spec.config))
     if steps_per_chunk <= 0:
         raise RunError(f"the config takes {steps_per_chunk} env steps per chunk; need >= 1")
     chunks = math.ceil(spec.total_steps / steps_per_chunk)

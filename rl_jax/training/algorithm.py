@@ -26,6 +26,8 @@ from typing import Any, NamedTuple, Protocol
 
 import jax
 
+import envs
+
 PRNGKey = jax.Array
 
 
@@ -43,7 +45,11 @@ class ChunkMetrics(NamedTuple):
 
 
 class Algorithm(Protocol):
-    """A learner. Implementations are plain modules or small stateless objects."""
+    """A learner. Implementations are plain modules or small stateless objects.
+
+    Beyond the methods below, an algorithm may define the hooks of ``OptionalHooks``
+    (``policy_fields``, ``ranges``, ``env_steps_per_chunk``, ``validate``, ``make_env``); callers
+    reach them through ``hooks(algorithm)``, which supplies the defaults."""
 
     name: str  # "td3", "ddpg", "dqn", "reinforce"
 
@@ -64,7 +70,52 @@ class Algorithm(Protocol):
         """A pure ``obs -> action`` function of the deterministic policy (for eval and GIFs)."""
 
 
-class RecipeBook:
+class OptionalHooks:
+    """The optional part of ``Algorithm``: what the run machinery asks of an algorithm beyond
+    the protocol's methods, each with the default it gets when the algorithm does not define it.
+
+    ``RecipeBook`` (and so every algorithm object here) inherits them. An algorithm written as a
+    plain module has no base class: ``hooks(algorithm)`` gives it these defaults, so callers
+    call ``hooks(algorithm).make_env(config)`` and never ask ``hasattr``."""
+
+    #: Train-state fields the deterministic policy reads (kept for the best-policy checkpoint).
+    #: None: ``("agent",)`` when the state has that field, else no best-policy tracking.
+    policy_fields: tuple[str, ...] | None = None
+    #: ``validation.Range`` of config or hyperparameter fields, before the rules by name.
+    ranges: dict[str, Any] = {}
+
+    def env_steps_per_chunk(self, config: Any) -> int:
+        """Env steps one ``train_chunk`` takes per seed: ``num_envs * iterations_per_chunk``."""
+        return int(config.num_envs * config.iterations_per_chunk)
+
+    def validate(self, config: Any, hparams: Any) -> None:
+        """``ValueError`` for settings each valid alone that the algorithm cannot run together."""
+
+    def make_env(self, config: Any) -> envs.Environment:
+        """The env the policy acts in (loaded policies, rendering): the registered ``env_id``."""
+        return envs.make(config.env_id)
+
+
+HOOKS = ("policy_fields", "ranges", "env_steps_per_chunk", "validate", "make_env")
+
+
+class _WithDefaults(OptionalHooks):
+    """An algorithm module's own hooks, and the defaults for those it does not define."""
+
+    def __init__(self, algorithm: Any) -> None:
+        for name in HOOKS:
+            if hasattr(algorithm, name):
+                setattr(self, name, getattr(algorithm, name))
+
+
+def hooks(algorithm: Any) -> OptionalHooks:
+    """The optional hooks of ``algorithm``: its own where it defines them, else the defaults."""
+    if isinstance(algorithm, OptionalHooks):
+        return algorithm
+    return _WithDefaults(algorithm)
+
+
+class RecipeBook(OptionalHooks):
     """Per-env defaults shared by the algorithm objects: ``default_config(env_id)`` and
     ``default_hyperparams(env_id)`` are the algorithm's own defaults, then the documented recipe
     for that env (``recipes`` / ``hparam_recipes``), then the caller's overrides.

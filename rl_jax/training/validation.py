@@ -19,6 +19,7 @@ from typing import Any, NamedTuple
 import numpy as np
 
 from rl_jax.errors import RunError
+from rl_jax.training.algorithm import hooks
 
 
 class RangeError(RunError):
@@ -75,7 +76,7 @@ BY_NAME: dict[str, Range] = {
 
 def range_of(name: str, algorithm: Any = None) -> Range | None:
     """The valid range of field ``name`` (None: no numeric range to check)."""
-    own = getattr(algorithm, "ranges", None) or {}
+    own = hooks(algorithm).ranges if algorithm is not None else {}
     if name in own:
         return own[name]
     if name in BY_NAME:
