@@ -40,7 +40,8 @@ import mujoco
 import numpy as np
 
 from envs.mujoco import mujoco_ffi_build
-from envs.mujoco.mujoco_backend import Array, MujocoCPhysics
+from envs.mujoco.mujoco_backend import Array
+from envs.mujoco.mujoco_c import MujocoCPhysics
 
 ERROR_BUFFER_SIZE = 1000
 
@@ -76,15 +77,8 @@ class MujocoFfiPhysics(MujocoCPhysics):
 
     name = "mujoco_ffi"
 
-    def __init__(
-        self,
-        model: mujoco.MjModel,
-        frame_skip: int,
-        extras: tuple[str, ...] = (),
-        nthread: int | None = None,
-    ):
-        super().__init__(model, frame_skip, extras, nthread)
-        self.key = register_model(model, frame_skip, self.extras, self.nthread)
+    def _connect(self) -> None:
+        self.key = register_model(self.model, self.frame_skip, self.extras, self.nthread)
 
     def _call(self, target: str, with_state: bool, *operands: Array) -> Any:
         call = jax.ffi.ffi_call(

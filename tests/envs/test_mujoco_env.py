@@ -21,7 +21,7 @@ from test_mujoco_parity import BATCH, C_BACKENDS, engine
 
 import envs
 from envs.mujoco import mujoco_backend, mujoco_ffi_build
-from envs.mujoco.mujoco_backend import float32_to_float64_bits, float64_bits_to_float32
+from envs.mujoco.float64_bits import float32_to_float64_bits, float64_bits_to_float32
 
 ENV_IDS = ["InvertedPendulum-v5", "InvertedDoublePendulum-v5", "HalfCheetah-v5"]
 

@@ -1,0 +1,142 @@
+"""The MJX backend: ``mujoco.mjx`` in float32, pure JAX (see ``envs.mujoco.mujoco_backend``)."""
+
+from __future__ import annotations
+
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+import mujoco
+import numpy as np
+from mujoco import mjx
+
+from envs.mujoco.mujoco_backend import (
+    DIVERGENCE_LIMIT,
+    Array,
+    Measurement,
+    Physics,
+    extra_field,
+    small_cholesky,
+)
+
+
+def _jax_diverged(*arrays: Array) -> Array:
+    ok = [jnp.all(jnp.abs(a) <= DIVERGENCE_LIMIT) for a in arrays]
+    return ~jnp.all(jnp.stack(ok))
+
+
+def _map_in_chunks(function: Any, args: Any, size: int, chunk: int) -> Any:
+    """``function`` (batched over axis 0) on ``chunk`` rows at a time, in sequence."""
+    chunks = -(-size // chunk)
+    pad = chunks * chunk - size
+
+    def split(x: Array) -> Array:
+        if pad:  # repeat the first rows: valid inputs whose results are dropped
+            x = jnp.concatenate([x, x[:pad]], axis=0)
+        return x.reshape(chunks, chunk, *x.shape[1:])
+
+    out = jax.lax.map(function, jax.tree.map(split, args))
+    return jax.tree.map(lambda x: x.reshape(chunks * chunk, *x.shape[2:])[:size], out)
+
+
+class MjxPhysics(Physics):
+    """``mujoco.mjx`` in float32. State: ``(qpos, qvel, qacc_warmstart)``.
+
+    ``chunk``: under ``vmap`` over more envs than this, step them ``chunk`` at a time in a loop
+    instead of all at once. On CPU a contact-rich model then keeps its working set in cache
+    (half cheetah, 4,096 envs: ~1.25x faster with chunks of 32-128); the pendulums are fastest
+    unchunked. Implemented as a custom batching rule, so jit, jvp and nested vmaps (seeds x envs:
+    each chunk then holds every seed's share) work as before.
+    """
+
+    name = "mjx"
+
+    def __init__(
+        self,
+        model: mujoco.MjModel,
+        frame_skip: int,
+        extras: tuple[str, ...] = (),
+        chunk: int | None = None,
+    ):
+        super().__init__(model, frame_skip, extras)
+        self.mjx_model = mjx.put_model(model, impl="jax")
+        # Every field a step reads other than the state and ctrl is recomputed by the forward pass,
+        # so one template Data serves every env and only the state travels between steps.
+        self._template = mjx.make_data(self.mjx_model, impl="jax")
+        self.chunk = chunk
+        self._chunked_step = self._make_chunked_step() if chunk else None
+
+    def from_qpos_qvel(self, qpos: Any, qvel: Any, qacc_warmstart: Any = None) -> tuple:
+        qpos = jnp.asarray(qpos, jnp.float32)
+        qvel = jnp.asarray(qvel, jnp.float32)
+        warm = jnp.zeros_like(qvel) if qacc_warmstart is None else qacc_warmstart
+        return (qpos, qvel, jnp.asarray(warm, jnp.float32))
+
+    def _data(self, state: tuple, ctrl: Array | None = None) -> mjx.Data:
+        qpos, qvel, warm = state
+        data = self._template.replace(qpos=qpos, qvel=qvel, qacc_warmstart=warm)
+        if ctrl is not None:
+            data = data.replace(ctrl=jnp.asarray(ctrl, jnp.float32))
+        return data
+
+    def _make_chunked_step(self) -> Any:
+        from jax.custom_batching import custom_vmap
+
+        stepper = custom_vmap(self._step)
+
+        @stepper.def_vmap
+        def rule(axis_size: int, in_batched: Any, state: tuple, ctrl: Array) -> tuple:
+            broadcast = lambda x, batched: (
+                x if batched else jnp.broadcast_to(x, (axis_size, *x.shape))
+            )
+            args = jax.tree.map(broadcast, (state, ctrl), tuple(in_batched))
+            batched_step = jax.vmap(self._step)
+            if axis_size <= self.chunk:
+                out = batched_step(*args)
+            else:
+                out = _map_in_chunks(lambda a: batched_step(*a), args, axis_size, self.chunk)
+            return out, jax.tree.map(lambda _: True, out)
+
+        return stepper
+
+    def step(
+        self, state: tuple, ctrl: Array, active: Array | None = None
+    ) -> tuple[tuple, Measurement]:
+        ctrl = jnp.asarray(ctrl, jnp.float32)
+        if self._chunked_step is None:
+            return self._step(state, ctrl)
+        return self._chunked_step(state, ctrl)
+
+    def _step(self, state: tuple, ctrl: Array) -> tuple[tuple, Measurement]:
+        data = self._data(state, ctrl)
+        # MJX's own code broadcasts implicitly; allow it even under rank_promotion="raise"
+        with jax.numpy_rank_promotion("allow"), small_cholesky():
+            data = jax.lax.fori_loop(
+                0, self.frame_skip, lambda _, d: mjx.step(self.mjx_model, d), data
+            )
+        new_state = (data.qpos, data.qvel, data.qacc_warmstart)
+        measurement = Measurement(
+            qpos=data.qpos,
+            qvel=data.qvel,
+            qpos_change=data.qpos - state[0],
+            extras={name: extra_field(name, data, jnp) for name in self.extras},
+            diverged=_jax_diverged(*new_state),
+        )
+        return new_state, measurement
+
+    def forward(self, state: tuple) -> Measurement:
+        with jax.numpy_rank_promotion("allow"), small_cholesky():
+            data = mjx.forward(self.mjx_model, self._data(state))
+        return Measurement(
+            qpos=state[0],
+            qvel=state[1],
+            qpos_change=jnp.zeros_like(state[0]),
+            extras={name: extra_field(name, data, jnp) for name in self.extras},
+            diverged=_jax_diverged(state[0], state[1]),
+        )
+
+    def to_numpy(self, state: tuple) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        return tuple(np.asarray(x, np.float64) for x in state)
+
+    def qpos_qvel(self, state: tuple) -> tuple[Array, Array]:
+        return state[0], state[1]
