@@ -37,7 +37,8 @@ import time
 from pathlib import Path
 from typing import Any
 
-from rl_jax.run import cli
+from rl_jax.errors import OneLineParser, UsageError, exit_now, guard, parse_int, positive_int
+from rl_jax.run import cli, flags
 from rl_jax.run.run_dir import RunError
 from rl_jax.training import parallel, params
 
@@ -61,29 +62,15 @@ class Axis:
 
 
 def parse_axis(spec: str, config: Any, hparams: Any) -> Axis:
-    name, equals, text = spec.partition("=")
-    name = name.strip().lstrip("-").replace("-", "_")
-    if not equals or not text.strip():
-        raise cli.UsageError(f"--grid {spec!r}: expected NAME=V1,V2,...")
+    name, text = flags.split_grid_spec(spec)
     static = {f.name: getattr(config, f.name) for f in dataclasses.fields(config)}
     dynamic = {f.name: getattr(hparams, f.name) for f in dataclasses.fields(hparams)}
     known = {**static, **dynamic}
-    fields = tuple(f for f in ALIASES.get(name, (name,)) if f in known and f not in cli.NOT_FLAGS)
+    fields = tuple(f for f in ALIASES.get(name, (name,)) if f in known and f not in flags.NOT_FLAGS)
     if not fields:
         choices = ", ".join([*ALIASES, *dynamic, *static])
-        raise cli.UsageError(f"--grid {name}: unknown field; known: {choices}")
-    default = known[fields[0]]
-    parse = cli._parser_for(default)
-    kind = cli._kind(default)
-    try:
-        # Tuple values (widths) are written 64x64 so that commas can separate values.
-        values = tuple(
-            parse(value.replace("x", ",") if kind == "tuple" else value)
-            for value in text.split(",")
-            if value.strip()
-        )
-    except argparse.ArgumentTypeError as error:
-        raise cli.UsageError(f"--grid {name} takes {kind} values: {error}") from None
+        raise UsageError(f"--grid {name}: unknown field; known: {choices}")
+    values = flags.grid_values(name, text, known[fields[0]])
     return Axis(name, fields, values, fields[0] in static)
 
 
@@ -103,13 +90,13 @@ def shape_label(point: dict[str, Any], axes: list[Axis]) -> str:
 
 
 def parse_args(argv: list[str]) -> tuple[argparse.Namespace, list[str]]:
-    parser = cli.OneLineParser(add_help=False)
+    parser = OneLineParser(add_help=False)
     parser.add_argument("--algo")
     parser.add_argument("--env")
     parser.add_argument("--grid", action="append", default=[])
     parser.add_argument("--coordinator")
-    parser.add_argument("--num-processes", type=cli.positive_int, default=1)
-    parser.add_argument("--process-id", type=cli.parse_int, default=0)
+    parser.add_argument("--num-processes", type=positive_int, default=1)
+    parser.add_argument("--process-id", type=parse_int, default=0)
     return parser.parse_known_args(argv)
 
 
@@ -133,7 +120,7 @@ def build_specs(argv: list[str]) -> tuple[list[Any], list[str], Path, argparse.N
         sweep_args.grid = saved["grid"]
         rest = [*saved["argv"], *rest]
     if not sweep_args.algo or not sweep_args.env:
-        raise cli.UsageError("--algo and --env are required")
+        raise UsageError("--algo and --env are required")
     import envs
 
     algorithm = cli.resolve_algorithm(sweep_args.algo)
@@ -150,9 +137,11 @@ def build_specs(argv: list[str]) -> tuple[list[Any], list[str], Path, argparse.N
     dynamic = [axis for axis in axes if not axis.static]
     specs, labels = [], []
     for point in combos(static):
-        config = cli._replace(base.config, point, "config")
-        hparams = [cli._replace(base.hparams[0], p, "hyperparameters") for p in combos(dynamic)]
-        cli._validate(algorithm, config, hparams)
+        config = cli.replace_fields(base.config, point, "config")
+        hparams = [
+            cli.replace_fields(base.hparams[0], p, "hyperparameters") for p in combos(dynamic)
+        ]
+        cli.validate_settings(algorithm, config, hparams)
         label = shape_label(point, static)
         specs.append(
             dataclasses.replace(
@@ -276,7 +265,7 @@ def run_distributed(specs: list[Any], labels: list[str], out: Path, started: flo
 def main() -> None:
     argv = sys.argv[1:]
     if {"-h", "--help"} & set(argv):
-        cli.exit_now(cli.guard(lambda: cli.run_experiment(None, None, __doc__, argv)))
+        exit_now(guard(lambda: cli.run_experiment(None, None, __doc__, argv)))
     sweep_args, _ = parse_args(argv)
     cli.configure_jax()  # before JAX starts: device count and compilation cache
     if sweep_args.num_processes > 1:
@@ -287,7 +276,7 @@ def main() -> None:
             num_processes=sweep_args.num_processes,
             process_id=sweep_args.process_id,
         )
-    cli.exit_now(cli.guard(lambda: run_sweep(argv)))
+    exit_now(guard(lambda: run_sweep(argv)))
 
 
 if __name__ == "__main__":

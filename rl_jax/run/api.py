@@ -139,9 +139,9 @@ def train(
     learner = cli.resolve_algorithm(algorithm)
     base_config = learner.default_config(env_id)
     base_hparams = learner.default_hyperparams(env_id)
-    chosen_config = cli._replace(base_config, dict(config or {}), "config")
-    chosen_hparams = cli._replace(base_hparams, dict(hparams or {}), "hyperparameters")
-    cli._validate(learner, chosen_config, [chosen_hparams])
+    chosen_config = cli.replace_fields(base_config, dict(config or {}), "config")
+    chosen_hparams = cli.replace_fields(base_hparams, dict(hparams or {}), "hyperparameters")
+    cli.validate_settings(learner, chosen_config, [chosen_hparams])
     run_dir = Path(out) if out is not None else cli.default_run_dir(env_id, learner.name)
     spec = RunSpec(
         algorithm=learner,

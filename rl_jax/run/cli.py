@@ -17,17 +17,11 @@ With ``algorithm=None`` / ``env_id=None`` the script takes ``--algo`` / ``--env`
 from __future__ import annotations
 
 import argparse
-import ast
 import dataclasses
-import inspect
-import io
 import os
 import shlex
 import sys
-import textwrap
 import time
-import tokenize
-from collections.abc import Callable
 from pathlib import Path
 from typing import Any, NoReturn
 
@@ -37,11 +31,15 @@ from rl_jax.errors import (
     UsageError,
     exit_now,
     guard,
-    parse_float,
-    parse_int,
-    positive_int,
 )
 from rl_jax.errors import user_errors as user_errors  # cli.user_errors, as before
+from rl_jax.run.flags import (
+    add_dataclass_flags,
+    add_run_flags,
+    flag_name,
+    kind_of,
+    parse_grid,
+)
 from rl_jax.run.run_dir import load_algorithm, read_run_record
 from rl_jax.training import params
 from rl_jax.training.algorithm import hooks
@@ -57,8 +55,6 @@ ALGORITHMS: dict[str, str] = {
     "reinforce": "rl_jax.agents.reinforce:reinforce",
 }
 RUNS_ROOT = Path("runs")
-#: Config fields that are not flags: the env is chosen by the script (or --env).
-NOT_FLAGS = ("env_id",)
 
 
 def register_algorithm(name: str, reference: str) -> None:
@@ -75,278 +71,6 @@ def resolve_algorithm(name: str) -> Any:
         return load_algorithm(ALGORITHMS[name])
     except RunError as error:
         raise UsageError(f"algorithm {name!r} is not available: {error}") from None
-
-
-# ---- field documentation --------------------------------------------------------------------
-
-
-def _comments(source: str) -> dict[int, str]:
-    """Line number -> text of the ``#`` comment on that line."""
-    comments = {}
-    for token in tokenize.generate_tokens(io.StringIO(source).readline):
-        if token.type == tokenize.COMMENT:
-            comments[token.start[0]] = token.string.lstrip("#").strip()
-    return comments
-
-
-def _class_field_docs(cls: type) -> dict[str, str]:
-    try:
-        source = textwrap.dedent(inspect.getsource(cls))
-    except (OSError, TypeError):
-        return {}
-    body = ast.parse(source).body[0].body
-    comments, lines = _comments(source), source.splitlines()
-    docs = {}
-    for index, node in enumerate(body):
-        if not (isinstance(node, ast.AnnAssign) and isinstance(node.target, ast.Name)):
-            continue
-        following = body[index + 1] if index + 1 < len(body) else None
-        if (
-            isinstance(following, ast.Expr)
-            and isinstance(following.value, ast.Constant)
-            and isinstance(following.value.value, str)
-        ):
-            docs[node.target.id] = inspect.cleandoc(following.value.value)
-        elif node.end_lineno in comments:
-            docs[node.target.id] = comments[node.end_lineno]
-        else:
-            above = []
-            line = node.lineno - 1
-            while line in comments and lines[line - 1].lstrip().startswith("#"):
-                above.insert(0, comments[line])
-                line -= 1
-            if above:
-                docs[node.target.id] = " ".join(above)
-    return docs
-
-
-def field_docs(cls: type) -> dict[str, str]:
-    """Each dataclass field's docstring (string after it), trailing comment, or comment above."""
-    docs: dict[str, str] = {}
-    for base in reversed(cls.__mro__):
-        if dataclasses.is_dataclass(base):
-            docs.update(_class_field_docs(base))
-    return docs
-
-
-def undocumented_fields(instance: Any) -> list[str]:
-    """Fields that would get no help text (a test keeps this empty for every algorithm)."""
-    docs = field_docs(type(instance))
-    return [f.name for f in dataclasses.fields(instance) if not docs.get(f.name)]
-
-
-# ---- value parsing --------------------------------------------------------------------------
-
-
-def parse_bool(text: str) -> bool:
-    lowered = text.strip().lower()
-    if lowered in ("1", "true", "yes", "on"):
-        return True
-    if lowered in ("0", "false", "no", "off"):
-        return False
-    raise argparse.ArgumentTypeError(f"invalid boolean value: {text!r}")
-
-
-def non_negative_float(text: str) -> float:
-    value = parse_float(text)
-    if value < 0:
-        raise argparse.ArgumentTypeError(f"must be >= 0, got {value}")
-    return value
-
-
-def _kind(default: Any) -> str:
-    """bool, int, float, str or tuple: how a field's values are parsed."""
-    import numpy as np
-
-    if isinstance(default, tuple):
-        return "tuple"
-    if isinstance(default, (bool, np.bool_)):
-        return "bool"
-    if isinstance(default, (int, np.integer)):
-        return "int"
-    if isinstance(default, (float, np.floating)):
-        return "float"
-    if hasattr(default, "dtype") and getattr(default, "ndim", 1) == 0:
-        return {"b": "bool", "i": "int", "u": "int", "f": "float"}.get(default.dtype.kind, "str")
-    return "str"
-
-
-def _parser_for(default: Any) -> Callable[[str], Any]:
-    kind = _kind(default)
-    if kind == "tuple":
-        # An empty default says nothing of its elements: widths and sizes are whole numbers.
-        element = _parser_for(default[0]) if default else parse_int
-
-        def parse_tuple(text: str) -> tuple:
-            parts = [part for part in text.replace(" ", "").split(",") if part]
-            return tuple(element(part) for part in parts)
-
-        return parse_tuple
-    return {"bool": parse_bool, "int": parse_int, "float": parse_float}.get(kind, str)
-
-
-def _metavar(default: Any) -> str:
-    if _kind(default) == "tuple":
-        return f"{_kind(default[0]).upper() if default else 'X'},..."
-    return _kind(default).upper()
-
-
-def _describe(default: Any) -> str:
-    if isinstance(default, tuple):
-        return ",".join(str(v) for v in default)
-    if hasattr(default, "item"):
-        default = default.item()
-    if isinstance(default, float):
-        # Float32 leaves widen to noise digits (0.995 -> 0.9950000047683716): 7 significant
-        # digits are what float32 holds.
-        return f"{default:.7g}"
-    return str(default)
-
-
-# ---- the parser -----------------------------------------------------------------------------
-
-
-def flag_name(field: str) -> str:
-    return "--" + field.replace("_", "-")
-
-
-def add_dataclass_flags(parser: argparse.ArgumentParser, instance: Any, title: str) -> list[str]:
-    """One flag per field of ``instance``; absent flags stay absent (explicit ones override)."""
-    group = parser.add_argument_group(title)
-    docs = field_docs(type(instance))
-    names = []
-    for field in dataclasses.fields(instance):
-        if field.name in NOT_FLAGS:
-            continue
-        default = getattr(instance, field.name)
-        doc = docs.get(field.name) or f"{type(instance).__name__}.{field.name}"
-        help_text = f"{doc} (default: {_describe(default)})".replace("%", "%%")
-        if _kind(default) == "bool":
-            group.add_argument(
-                flag_name(field.name),
-                dest=field.name,
-                help=help_text,
-                action=argparse.BooleanOptionalAction,
-                default=argparse.SUPPRESS,
-            )
-        else:
-            group.add_argument(
-                flag_name(field.name),
-                dest=field.name,
-                help=help_text,
-                type=_parser_for(default),
-                default=argparse.SUPPRESS,
-                metavar=_metavar(default),
-            )
-        names.append(field.name)
-    return names
-
-
-def add_run_flags(parser: argparse.ArgumentParser, seeds: int, total_steps: int) -> None:
-    """The run contract: --seeds, --total-steps, --out, --resume, --gif, and run settings."""
-    group = parser.add_argument_group("run")
-    add = group.add_argument
-    add(
-        "--seeds",
-        type=positive_int,
-        default=argparse.SUPPRESS,
-        metavar="N",
-        help=f"independent seeds, trained together in one compiled program (default: {seeds})",
-    )
-    add(
-        "--total-steps",
-        type=positive_int,
-        default=argparse.SUPPRESS,
-        metavar="N",
-        help=f"env steps per seed, rounded up to whole chunks (default: {total_steps:,})",
-    )
-    add(
-        "--out",
-        type=Path,
-        default=None,
-        metavar="DIR",
-        help="run directory to create (default: runs/<env>__<algo>__<time>/)",
-    )
-    add(
-        "--resume",
-        type=Path,
-        default=None,
-        metavar="DIR",
-        help="continue the run in DIR from its latest checkpoint (its config is reused)",
-    )
-    add(
-        "--gif",
-        action="store_true",
-        help="at the end, write policy.gif of the deterministic policy of the best seed",
-    )
-    add(
-        "--base-seed",
-        type=parse_int,
-        default=argparse.SUPPRESS,
-        metavar="N",
-        help="seed numbers are base-seed .. base-seed + seeds - 1 (default: 0)",
-    )
-    add(
-        "--grid",
-        action="append",
-        default=[],
-        metavar="NAME=V1,V2,...",
-        help="sweep a hyperparameter over values (repeat for a product grid); all configs and "
-        "seeds run as one compiled program",
-    )
-    add(
-        "--checkpoint-interval",
-        type=non_negative_float,
-        default=120.0,
-        metavar="SECONDS",
-        help="minimum seconds between checkpoints; one is always written at the end and when "
-        "stopped by Ctrl-C/SIGTERM (default: 120)",
-    )
-    add(
-        "--keep-checkpoints",
-        type=positive_int,
-        default=3,
-        metavar="N",
-        help="checkpoints kept on disk, newest first (default: 3)",
-    )
-    add(
-        "--log-interval",
-        type=non_negative_float,
-        default=30.0,
-        metavar="SECONDS",
-        help="seconds between progress lines when the output is not a terminal (default: 30)",
-    )
-
-
-# ---- grids ----------------------------------------------------------------------------------
-
-
-def parse_grid(specs: list[str], hparams: Any, config: Any) -> dict[str, list[Any]]:
-    """``["lr=1e-4,3e-4", "tau=0.005,0.02"]`` -> ``{"learning_rate": [...], "tau": [...]}``."""
-    fields = {f.name: getattr(hparams, f.name) for f in dataclasses.fields(hparams)}
-    static = {f.name for f in dataclasses.fields(config)}
-    grid: dict[str, list[Any]] = {}
-    for spec in specs:
-        name, equals, values = spec.partition("=")
-        name = name.strip().lstrip("-").replace("-", "_")
-        if not equals or not values.strip():
-            raise UsageError(f"--grid {spec!r}: expected NAME=V1,V2,...")
-        if name in static:
-            raise UsageError(
-                f"--grid {name}: {name} is a static config field (it changes shapes); only "
-                f"hyperparameters can be swept in one program: {', '.join(fields)}"
-            )
-        if name not in fields:
-            raise UsageError(f"--grid {name}: unknown hyperparameter; known: {', '.join(fields)}")
-        if name in grid:
-            raise UsageError(f"--grid {name} given twice")
-        parse = _parser_for(fields[name])
-        try:
-            grid[name] = [parse(value) for value in values.split(",") if value.strip()]
-        except argparse.ArgumentTypeError as error:
-            kind = _kind(fields[name])
-            raise UsageError(f"--grid {name} takes {kind} values: {error}") from None
-    return grid
 
 
 # ---- building the run -----------------------------------------------------------------------
@@ -368,7 +92,7 @@ def _explicit(args: argparse.Namespace, names: list[str]) -> dict[str, Any]:
     return {name: getattr(args, name) for name in names if hasattr(args, name)}
 
 
-def _replace(instance: Any, values: dict[str, Any], what: str) -> Any:
+def replace_fields(instance: Any, values: dict[str, Any], what: str) -> Any:
     try:
         return dataclasses.replace(instance, **values)
     except (TypeError, ValueError) as error:
@@ -394,17 +118,17 @@ def _base(algorithm: Any, env_id: str, defaults: Defaults) -> tuple[Any, Any]:
         hparams = algorithm.default_hyperparams(env_id)
     except (ValueError, TypeError, KeyError) as error:
         raise UsageError(f"{algorithm.name} cannot run {env_id}: {error}") from None
-    config = _replace(config, defaults.config, "config")
-    return config, _replace(hparams, defaults.hparams, "hyperparameters")
+    config = replace_fields(config, defaults.config, "config")
+    return config, replace_fields(hparams, defaults.hparams, "hyperparameters")
 
 
-def _validate(algorithm: Any, config: Any, hparams_list: list[Any]) -> None:
+def validate_settings(algorithm: Any, config: Any, hparams_list: list[Any]) -> None:
     """Ranges (``rl_jax.training.validation``), then the algorithm's own ``validate(config,
     hparams)`` when it has one: before anything compiles, for every config of a grid."""
 
     for field in dataclasses.fields(config):
         value = getattr(config, field.name)
-        if _kind(value) == "int" and not isinstance(value, bool) and value < 0:
+        if kind_of(value) == "int" and not isinstance(value, bool) and value < 0:
             raise UsageError(f"{flag_name(field.name)} must be >= 0, got {value}")
     problem = out_of_range(config, algorithm)
     if problem:
@@ -550,9 +274,9 @@ def build_spec(
         if resume
         else _fresh_settings(algorithm, env_id, defaults)
     )
-    config = _replace(settings["config"], _explicit(args, names[0]), "config")
+    config = replace_fields(settings["config"], _explicit(args, names[0]), "config")
     explicit_hparams = _explicit(args, names[1])
-    hparams = [_replace(h, explicit_hparams, "hyperparameters") for h in settings["hparams"]]
+    hparams = [replace_fields(h, explicit_hparams, "hyperparameters") for h in settings["hparams"]]
     grid_fields = settings["grid_fields"]
     if args.grid:
         grid = parse_grid(args.grid, hparams[0], config)
@@ -561,7 +285,7 @@ def build_spec(
                 f"{', '.join(set(grid) & set(explicit_hparams))} given as flag and grid"
             )
         hparams, grid_fields = params.expand(hparams[0], grid), tuple(grid)
-    _validate(algorithm, config, hparams)
+    validate_settings(algorithm, config, hparams)
     _check_env_fits(algorithm, config, hparams[0])
     out = args.resume if resume else (args.out or default_run_dir(env_id, algorithm.name))
     script = shlex.join([Path(sys.executable).name, sys.argv[0]])

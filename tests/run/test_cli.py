@@ -15,7 +15,7 @@ import fake_algorithm as fake
 import pytest
 from run_helpers import leaves_bytes, snapshot
 
-from rl_jax.run import cli, runner
+from rl_jax.run import cli, field_docs, flags, runner
 from rl_jax.run.checkpoint import Checkpointer
 from rl_jax.run.runner import CHECKPOINT_DIR, RunSpec, make_plan
 from rl_jax.training import params
@@ -60,15 +60,15 @@ class Documented(Base):
 
 
 def test_field_docs_reads_docstrings_comments_and_bases():
-    docs = cli.field_docs(Documented)
+    docs = field_docs.field_docs(Documented)
     assert docs == {
         "alpha": "Docstring style.",
         "beta": "trailing comment style",
         "gamma": "comment above, over two lines",
     }
-    assert cli.undocumented_fields(Documented()) == ["delta"]
-    assert cli.undocumented_fields(fake.default_config()) == []
-    assert cli.undocumented_fields(fake.default_hyperparams()) == []
+    assert field_docs.undocumented_fields(Documented()) == ["delta"]
+    assert field_docs.undocumented_fields(fake.default_config()) == []
+    assert field_docs.undocumented_fields(fake.default_hyperparams()) == []
 
 
 def test_help_documents_every_flag(capsys):
@@ -95,16 +95,20 @@ def test_generic_help_without_an_algorithm(capsys):
 
 
 def test_value_parsers():
-    assert cli.parse_int("1e6") == 1_000_000 and cli.parse_int("1_000") == 1000
-    assert cli.parse_bool("yes") is True and cli.parse_bool("0") is False
-    for parse, text in ((cli.parse_int, "2.5"), (cli.parse_float, "nan"), (cli.parse_float, "x")):
+    assert flags.parse_int("1e6") == 1_000_000 and flags.parse_int("1_000") == 1000
+    assert flags.parse_bool("yes") is True and flags.parse_bool("0") is False
+    for parse, text in (
+        (flags.parse_int, "2.5"),
+        (flags.parse_float, "nan"),
+        (flags.parse_float, "x"),
+    ):
         with pytest.raises(Exception, match="invalid"):
             parse(text)
 
 
 def test_grid_parsing_checks_names_and_types():
     hparams, config = fake.default_hyperparams(), fake.default_config()
-    grid = cli.parse_grid(["learning-rate=1e-3,3e-3", "updates_per_step=1,2"], hparams, config)
+    grid = flags.parse_grid(["learning-rate=1e-3,3e-3", "updates_per_step=1,2"], hparams, config)
     assert grid == {"learning_rate": [1e-3, 3e-3], "updates_per_step": [1, 2]}
     expanded = params.expand(hparams, grid)
     assert [(h.learning_rate, h.updates_per_step) for h in expanded] == [
@@ -122,7 +126,7 @@ def test_grid_parsing_checks_names_and_types():
     }
     for spec, message in bad.items():
         with pytest.raises(cli.UsageError, match=message):
-            cli.parse_grid([spec], hparams, config)
+            flags.parse_grid([spec], hparams, config)
 
 
 def test_default_run_dir_names_env_algorithm_and_time(tmp_path, monkeypatch):
