@@ -233,14 +233,16 @@ def run_distributed(specs: list[Any], labels: list[str], out: Path, started: flo
 
     from rl_jax.run import runner
     from rl_jax.run.metrics import MetricsLog
+    from rl_jax.run.plan import check_memory, make_plan
+    from rl_jax.run.run_dir import check_out_dir
 
     lead = jax.process_index() == 0
     if lead:
         for spec in specs:
-            runner.check_out_dir(spec.out, spec.identity)
+            check_out_dir(spec.out, spec.identity)
     for index, spec in enumerate(specs, 1):
-        plan = runner.make_plan(spec)
-        runner.check_memory(plan)
+        plan = make_plan(spec)
+        check_memory(plan)
         hparams = params.stack(list(spec.hparams))
         state = plan.parallel.init(parallel.seed_keys(spec.seed_numbers), hparams)
         if lead:

@@ -6,7 +6,8 @@ import fake_algorithm as fake
 import jax
 import numpy as np
 
-from rl_jax.run.runner import RunSpec, run
+from rl_jax.run.runner import run
+from rl_jax.run.spec import RunSpec
 
 
 def leaves_bytes(state) -> list[bytes]:

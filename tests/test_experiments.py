@@ -11,7 +11,8 @@ from run_helpers import leaves_bytes, snapshot
 from rl_jax.agents.td3 import ddpg, td3
 from rl_jax.run import cli
 from rl_jax.run.checkpoint import Checkpointer
-from rl_jax.run.runner import CHECKPOINT_DIR, make_plan
+from rl_jax.run.plan import make_plan
+from rl_jax.run.run_dir import CHECKPOINT_DIR
 
 ENV_ID = "rl_jax/Pendulum-v1"
 # Tiny and fast: 2 envs x 50 iterations = 100 env steps per chunk; updates from step 100.

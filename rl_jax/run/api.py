@@ -97,7 +97,7 @@ class Run:
         """curves.png (redrawn from metrics.jsonl): an inline image in IPython, else its path."""
         from rl_jax.run import plots
         from rl_jax.run.metrics import METRICS_FILE, read_rows
-        from rl_jax.run.runner import CURVES_FILE
+        from rl_jax.run.run_dir import CURVES_FILE
 
         path = self.run_dir / CURVES_FILE
         curves = plots.curves_from_rows(
@@ -132,7 +132,8 @@ def train(
     ``total_steps`` defaults to 100,000 env steps per seed.
     """
     from rl_jax.run import cli
-    from rl_jax.run.runner import RunSpec, run
+    from rl_jax.run.runner import run
+    from rl_jax.run.spec import RunSpec
     from rl_jax.training.jax_setup import configure
 
     configure()
@@ -162,7 +163,8 @@ def train(
 def resume(run_dir: str | Path, total_steps: int | None = None, quiet: bool = False) -> Run:
     """Continue a run (from the scripts or ``train``) from its latest checkpoint."""
     from rl_jax.run.run_dir import load_algorithm, read_run_record
-    from rl_jax.run.runner import RunSpec, run
+    from rl_jax.run.runner import run
+    from rl_jax.run.spec import RunSpec
     from rl_jax.training.jax_setup import configure
     from rl_jax.training.params import dataclass_from_dict
 

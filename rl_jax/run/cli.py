@@ -264,7 +264,7 @@ def build_spec(
     argv: list[str],
 ) -> Any:
     """The ``RunSpec`` the flags describe (for ``--resume``: the recorded run, then the flags)."""
-    from rl_jax.run.runner import RunSpec
+    from rl_jax.run.spec import RunSpec
 
     if args.resume is not None and args.out is not None and args.out != args.resume:
         raise UsageError("--out and --resume name different directories; give only --resume")

@@ -74,8 +74,9 @@ class LoadedPolicy:
     def _restore(self) -> tuple[Any, Any, Any, int]:
         from rl_jax.run.best import BEST_DIR, load_part, policy_fields, with_policy_part
         from rl_jax.run.checkpoint import Checkpointer
-        from rl_jax.run.run_dir import load_algorithm
-        from rl_jax.run.runner import CHECKPOINT_DIR, RunSpec, make_plan
+        from rl_jax.run.plan import make_plan
+        from rl_jax.run.run_dir import CHECKPOINT_DIR, load_algorithm
+        from rl_jax.run.spec import RunSpec
         from rl_jax.training.params import dataclass_from_dict
 
         identity = self.record["identity"]
@@ -83,7 +84,6 @@ class LoadedPolicy:
         config = dataclass_from_dict(algorithm.default_config(self.env_id), identity["config"])
         template = algorithm.default_hyperparams()
         hparams = tuple(dataclass_from_dict(template, h) for h in identity["hparams"])
-        # memory_limit: the state fitted during training; loading restores the same.
         spec = RunSpec(
             algorithm,
             self.env_id,
@@ -92,7 +92,6 @@ class LoadedPolicy:
             self.run_dir,
             seeds=identity["seeds"],
             base_seed=identity["base_seed"],
-            memory_limit=1 << 62,
         )
         plan = make_plan(spec)
         expect = {"identity_hash": self.record["identity_hash"]}

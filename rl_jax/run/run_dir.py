@@ -28,6 +28,9 @@ from rl_jax.errors import RunError
 from rl_jax.training import params
 
 CONFIG_FILE = "config.json"
+CHECKPOINT_DIR = "checkpoints"
+CURVES_FILE = "curves.png"
+RESULTS_FILE = "results.txt"
 
 
 # ---- identity -------------------------------------------------------------------------------

@@ -16,7 +16,8 @@ from run_helpers import leaves_bytes
 from rl_jax.agents.dqn import PixelConfig, dqn
 from rl_jax.run import cli
 from rl_jax.run.checkpoint import Checkpointer
-from rl_jax.run.runner import CHECKPOINT_DIR, make_plan
+from rl_jax.run.plan import make_plan
+from rl_jax.run.run_dir import CHECKPOINT_DIR
 from rl_jax.training import networks
 
 ENV_ID = "rl_jax/CartPolePixels-v1"

@@ -22,7 +22,8 @@ from run_helpers import fake_run
 from envs.classic import rocket_control
 from envs.classic.rocket import Rocket, RocketSettle, reward_and_termination
 from rl_jax.run import rocket_report
-from rl_jax.run.runner import RunSpec, run
+from rl_jax.run.runner import run
+from rl_jax.run.spec import RunSpec
 
 ROOT = Path(__file__).resolve().parents[2]
 SETTLE = "rl_jax/RocketSettle-v0"

@@ -15,9 +15,12 @@ import fake_algorithm as fake
 import pytest
 from run_helpers import leaves_bytes, snapshot
 
-from rl_jax.run import cli, field_docs, flags, runner
+from rl_jax.run import cli, field_docs, flags
 from rl_jax.run.checkpoint import Checkpointer
-from rl_jax.run.runner import CHECKPOINT_DIR, RunSpec, make_plan
+from rl_jax.run.plan import make_plan
+from rl_jax.run.run_dir import CHECKPOINT_DIR
+from rl_jax.run.spec import RunSpec
+from rl_jax.run.start import fresh_start
 from rl_jax.training import params
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -363,6 +366,6 @@ def test_sigterm_checkpoints_exits_zero_and_resume_is_bit_identical(workspace):
             final[name] = checkpointer.restore(plan.template)[0]
     assert leaves_bytes(final["stopped"]) == leaves_bytes(final["unstopped"])
     # Training happened between the stop and the end (the comparison is not of two copies).
-    fresh = runner.fresh_start(spec, plan).state
+    fresh = fresh_start(spec, plan).state
     fresh = plan.parallel.unpad(fresh, params.stack([fake.default_hyperparams()]))
     assert leaves_bytes(fresh) != leaves_bytes(final["stopped"])

@@ -16,7 +16,9 @@ from rl_jax.agents.dqn import dqn
 from rl_jax.agents.td3 import td3
 from rl_jax.run import cli
 from rl_jax.run.checkpoint import Checkpointer
-from rl_jax.run.runner import CHECKPOINT_DIR, DivergenceError, check_finite, make_plan
+from rl_jax.run.divergence import DivergenceError, check_finite
+from rl_jax.run.plan import make_plan
+from rl_jax.run.run_dir import CHECKPOINT_DIR
 
 ROOT = Path(__file__).resolve().parents[2]
 ENV_ID = "rl_jax/Pendulum-v1"

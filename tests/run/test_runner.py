@@ -17,7 +17,10 @@ from run_helpers import leaves_bytes, snapshot
 from rl_jax.run import runner
 from rl_jax.run.checkpoint import Checkpointer, CheckpointError
 from rl_jax.run.metrics import read_rows
-from rl_jax.run.runner import RunError, RunSpec, make_plan, run
+from rl_jax.run.plan import make_plan
+from rl_jax.run.run_dir import RunError
+from rl_jax.run.runner import run
+from rl_jax.run.spec import RunSpec
 
 STEPS_PER_CHUNK = 20  # 4 envs x 5 iterations
 TOTAL = 8 * STEPS_PER_CHUNK

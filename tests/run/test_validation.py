@@ -16,6 +16,7 @@ from rl_jax.agents.reinforce import reinforce
 from rl_jax.agents.td3 import td3
 from rl_jax.run import cli, run_dir, runner
 from rl_jax.run.run_dir import RunError
+from rl_jax.run.spec import RunSpec
 from rl_jax.training import validation
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -178,7 +179,7 @@ def test_a_read_only_out_or_resume_directory_is_refused(tmp_path, monkeypatch):
 
 
 def _spec(hparams, out):
-    return runner.RunSpec(
+    return RunSpec(
         algorithm=td3,
         env_id="rl_jax/Pendulum-v1",
         config=td3.default_config("rl_jax/Pendulum-v1"),

@@ -10,7 +10,7 @@ import pytest
 import envs
 from envs.classic.cartpole_pixels import CartPolePixels
 from rl_jax.agents.dqn import dqn
-from rl_jax.run.runner import memory_breakdown
+from rl_jax.run.plan import memory_breakdown
 from rl_jax.training import frame_replay, prioritized, replay
 from rl_jax.training.replay import Transition
 

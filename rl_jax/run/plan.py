@@ -1,0 +1,238 @@
+"""The plan of a run, before anything runs: its compiled program over the devices, chunks, the
+state's memory (refused when it would not fit) and the time estimates.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import os
+from pathlib import Path
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from rl_jax.run import plots
+from rl_jax.run.progress import Progress
+from rl_jax.run.run_dir import RunError
+from rl_jax.run.spec import RunSpec
+from rl_jax.training import parallel, params
+from rl_jax.training.algorithm import hooks
+
+
+def parallel_runner(spec: RunSpec) -> parallel.Runner:
+    """All configs x seeds of ``spec`` as one program over the most local devices that split the
+    runs evenly (``rl_jax.training.parallel.mesh_shape``): 5 seeds on 2 cores run on one device.
+
+    Never padded: on CPU one device's matmuls and env steps already use every core's threads, so
+    a padded run costs its full share. Measured (load 1-2): REINFORCE on the double pendulum, 5
+    seeds, 20 updates took 119 s on 1 device against 142 s padded to 3 + 3 on 2 devices (the
+    6/5 of the padded seed); TD3 updates, 6 seeds: 0.92 of the matmul rate on one device against
+    0.58 sharded (BENCHMARKS.md, TD3 section 1).
+
+    A config with ``loop_seeds`` set (DQN on frames) runs its seeds as an unrolled loop instead
+    of a vmap (``rl_jax.training.parallel.seed_loop``): faster for conv nets on CPU."""
+    loop_seeds = bool(getattr(spec.config, "loop_seeds", False))
+    return parallel.Runner(
+        spec.algorithm,
+        spec.config,
+        len(spec.hparams),
+        spec.seeds,
+        pad=False,
+        loop_seeds=loop_seeds,
+    )
+
+
+@dataclasses.dataclass
+class Plan:
+    steps_per_chunk: int
+    chunks: int
+    final_steps: int
+    state_bytes: int  # device_bytes + checkpoint_bytes
+    breakdown: list[tuple[str, int]]  # (top-level field of the state, bytes), largest first
+    available_bytes: int
+    template: Any  # jax.ShapeDtypeStruct tree of the [configs, seeds] state (as checkpointed)
+    parallel: parallel.Runner  # the compiled init/chunk of all runs
+    device_bytes: int = 0  # the state on the devices, padding copies included
+    checkpoint_bytes: int = 0  # the host copy of the real runs a checkpoint write takes
+
+
+def _leaf_bytes(leaf: Any) -> int:
+    if jax.dtypes.issubdtype(leaf.dtype, jax.dtypes.prng_key):
+        leaf = jax.eval_shape(jax.random.key_data, leaf)
+    return int(np.prod(leaf.shape)) * np.dtype(leaf.dtype).itemsize
+
+
+def memory_breakdown(template: Any) -> list[tuple[str, int]]:
+    """Bytes of the state per top-level field, largest first."""
+    totals: dict[str, int] = {}
+    for path, leaf in jax.tree_util.tree_flatten_with_path(template)[0]:
+        name = jax.tree_util.keystr(path[:1]).strip(".[]'\"") or "state"
+        totals[name] = totals.get(name, 0) + _leaf_bytes(leaf)
+    return sorted(totals.items(), key=lambda item: -item[1])
+
+
+def available_memory() -> int:
+    """Bytes a new allocation can use: MemAvailable, capped by a cgroup limit if any."""
+    available = os.sysconf("SC_AVPHYS_PAGES") * os.sysconf("SC_PAGE_SIZE")
+    try:
+        for line in Path("/proc/meminfo").read_text().splitlines():
+            if line.startswith("MemAvailable:"):
+                available = int(line.split()[1]) * 1024
+    except OSError:
+        pass
+    try:
+        limit = Path("/sys/fs/cgroup/memory.max").read_text().strip()
+        used = int(Path("/sys/fs/cgroup/memory.current").read_text())
+        if limit != "max":
+            available = min(available, int(limit) - used)
+    except (OSError, ValueError):
+        pass
+    return available
+
+
+def make_plan(spec: RunSpec) -> Plan:
+    """Sizes of the run, computed with ``jax.eval_shape`` (nothing is allocated)."""
+    steps_per_chunk = int(hooks(spec.algorithm).env_steps_per_chunk(spec.config))
+    if steps_per_chunk <= 0:
+        raise RunError(f"the config takes {steps_per_chunk} env steps per chunk; need >= 1")
+    chunks = math.ceil(spec.total_steps / steps_per_chunk)
+    runner = parallel_runner(spec)
+    hparams = params.stack(list(spec.hparams))
+    template = runs_template(spec, hparams)
+    on_devices = memory_breakdown(runner.template(hparams))
+    # Checkpoints go through a host copy of the real runs: count it too.
+    checkpoint_copy = dict(memory_breakdown(template))
+    breakdown = sorted(
+        ((name, size + checkpoint_copy.get(name, 0)) for name, size in on_devices),
+        key=lambda item: -item[1],
+    )
+    available = spec.memory_limit if spec.memory_limit is not None else available_memory()
+    device_bytes = sum(size for _, size in on_devices)
+    checkpoint_bytes = sum(checkpoint_copy.values())
+    return Plan(
+        steps_per_chunk,
+        chunks,
+        chunks * steps_per_chunk,
+        device_bytes + checkpoint_bytes,
+        breakdown,
+        available,
+        template,
+        runner,
+        device_bytes,
+        checkpoint_bytes,
+    )
+
+
+def runs_template(spec: RunSpec, hparams: Any) -> Any:
+    """Shapes and dtypes of the ``[configs, seeds]`` state (the shared clock unstacked), without
+    allocating: what a checkpoint holds, whatever the device layout."""
+    one = jax.tree.map(lambda x: jnp.asarray(x[0]), hparams)
+    abstract = jax.eval_shape(
+        lambda key: spec.algorithm.init(key, spec.config, one), jax.random.key(0)
+    )
+    runs = (len(spec.hparams), spec.seeds)
+    return parallel._map_axes(
+        lambda axis, leaf: (
+            leaf if axis is None else jax.ShapeDtypeStruct((*runs, *leaf.shape), leaf.dtype)
+        ),
+        parallel.state_axes(abstract),
+        abstract,
+    )
+
+
+def format_bytes(size: float) -> str:
+    for unit in ("B", "KB", "MB", "GB", "TB"):
+        if abs(size) < 1024 or unit == "TB":
+            return f"{size:.0f} {unit}" if unit == "B" else f"{size:.2f} {unit}"
+        size /= 1024
+    return f"{size:.2f} TB"
+
+
+def check_memory(plan: Plan) -> None:
+    """Refuse, with the estimate, a state that would not fit in memory."""
+    if plan.state_bytes > plan.available_bytes:
+        largest = ", ".join(f"{name} {format_bytes(size)}" for name, size in plan.breakdown[:2])
+        raise RunError(
+            f"the train state needs {format_bytes(plan.state_bytes)} ({largest}; "
+            f"{format_bytes(plan.device_bytes)} in training and "
+            f"{format_bytes(plan.checkpoint_bytes)} for the copy a checkpoint writes) but only "
+            f"{format_bytes(plan.available_bytes)} of memory is available; reduce the replay "
+            "buffer, the number of envs, --seeds or the grid"
+        )
+
+
+def format_plan(spec: RunSpec, plan: Plan) -> str:
+    configs = len(spec.hparams)
+    runs = f"{spec.seeds} seed{'s' * (spec.seeds > 1)}"
+    if configs > 1:
+        runs += f" x {configs} configs ({', '.join(spec.grid_fields)})"
+    num_envs = getattr(spec.config, "num_envs", None)
+    envs = f", {num_envs} envs each" if num_envs else ""
+    largest = ", ".join(f"{name} {format_bytes(size)}" for name, size in plan.breakdown[:3])
+    lines = [
+        f"plan: {spec.algorithm.name} on {spec.env_id}, {runs}{envs}, one compiled program",
+        f"  {plan.final_steps:,} env steps per seed in {plan.chunks} chunks of "
+        f"{plan.steps_per_chunk:,} (asked for {spec.total_steps:,})",
+        f"  train state {format_bytes(plan.state_bytes)} ({largest}); "
+        f"{format_bytes(plan.available_bytes)} of memory available",
+        f"  devices: {describe_layout(plan.parallel)}",
+        f"  run directory: {spec.out}",
+    ]
+    estimate = estimate_from_throughput(spec, plan)
+    lines.append(estimate or "  estimated time: measured on the first training chunk")
+    return "\n".join(lines)
+
+
+def describe_layout(runner: parallel.Runner) -> str:
+    """Which devices run how many runs, padding included."""
+    layout = runner.layout
+    names = ", ".join(str(device) for device in runner.mesh.devices.flat)
+    text = f"{names} ({layout.runs_per_device} run{'s' * (layout.runs_per_device > 1)} each"
+    if layout.padding:
+        text += f"; {layout.padding} padding copy of a run computed and dropped"
+    return text + ")"
+
+
+# ---- time estimates -------------------------------------------------------------------------
+
+
+def estimate_remaining(
+    spec: RunSpec,
+    progress: Progress,
+    chunk_seconds: float,
+    remaining_chunks: int,
+    prior_updates: int,
+    updates: int,
+) -> bool:
+    """Print the time left from a measured chunk, once the chunk is representative: warm-up
+    chunks (random actions, no gradient updates) run many times faster than training ones.
+    Returns whether it printed."""
+    no_warm_up = getattr(spec.config, "learning_starts", 0) == 0
+    if updates == 0 or not (prior_updates > 0 or no_warm_up):
+        return False
+    remaining = plots.format_duration(chunk_seconds * remaining_chunks)
+    progress.write(
+        f"measured: a training chunk took {chunk_seconds:.2f} s; about {remaining} left for "
+        f"the remaining {remaining_chunks} chunks"
+    )
+    return True
+
+
+def estimate_from_throughput(spec: RunSpec, plan: Plan) -> str | None:
+    """The plan's time estimate from the script's documented throughput (for its own default
+    config only), scaled to the number of runs: a CPU-bound program shares the cores."""
+    if spec.throughput is None or spec.resume:
+        return None
+    steps_per_second, measured_runs = spec.throughput
+    runs = spec.seeds * len(spec.hparams)
+    rate = steps_per_second * measured_runs / runs
+    seconds = plan.final_steps / rate
+    return (
+        f"  estimated time: about {plots.format_duration(seconds)} of training plus compilation "
+        f"(from the script's documented {steps_per_second:,.0f} env steps/s per seed measured "
+        f"with {measured_runs} seeds on a 2-core machine; re-estimated after the first training "
+        "chunk)"
+    )

@@ -1,0 +1,63 @@
+"""What a run is asked to do (``RunSpec``) and what it returns (``RunResult``)."""
+
+from __future__ import annotations
+
+import dataclasses
+from pathlib import Path
+from typing import Any
+
+from rl_jax.run import plots
+from rl_jax.run.run_dir import identity
+
+
+@dataclasses.dataclass(frozen=True)
+class RunSpec:
+    """Everything a run needs. ``hparams`` holds one ``Hyperparams`` per config of a grid."""
+
+    algorithm: Any
+    env_id: str
+    config: Any
+    hparams: tuple[Any, ...]
+    out: Path
+    seeds: int = 1
+    total_steps: int = 100_000
+    resume: bool = False
+    base_seed: int = 0
+    grid_fields: tuple[str, ...] = ()  # hyperparameters a grid varies (logged on every row)
+    checkpoint_interval: float = 120.0  # seconds; also at the end and when stopped
+    keep_checkpoints: int = 3
+    log_interval: float = 30.0  # seconds between progress lines when not on a terminal
+    gif: bool = False
+    command: str = ""  # the command line, recorded in config.json
+    resume_command: str = ""  # printed when stopped
+    memory_limit: int | None = None  # bytes the state may use (default: what the OS reports)
+    # (env steps/s per seed, number of seeds) measured for the script's default config: the
+    # plan's time estimate before anything runs. None: estimated after the first training chunk.
+    throughput: tuple[float, int] | None = None
+
+    @property
+    def seed_numbers(self) -> range:
+        """The seeds of the run: ``base_seed`` and on, the same under every config of a grid."""
+        return range(self.base_seed, self.base_seed + self.seeds)
+
+    @property
+    def identity(self) -> dict[str, Any]:
+        return identity(
+            self.algorithm.name,
+            self.env_id,
+            self.config,
+            list(self.hparams),
+            self.seeds,
+            self.base_seed,
+        )
+
+
+@dataclasses.dataclass
+class RunResult:
+    run_dir: Path
+    step: int  # env steps per seed reached
+    stopped: bool  # True when a signal ended the run before total_steps
+    state: Any  # the final train state, leaves [configs, seeds, ...]
+    results: list[plots.FinalResult]
+    wall_clock: float  # seconds over all sessions of the run, compilation included
+    gif_error: str | None = None

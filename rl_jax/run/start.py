@@ -1,0 +1,133 @@
+"""Where a run starts: fresh, or from the latest checkpoint of a resumed run; the run record
+(``config.json``) each session writes; and stopping on signals after the current chunk."""
+
+from __future__ import annotations
+
+import contextlib
+import dataclasses
+import signal
+import time
+from collections.abc import Callable
+from typing import Any
+
+from rl_jax.run.best import BEST_DIR, BestPolicies, policy_fields
+from rl_jax.run.checkpoint import Checkpointer
+from rl_jax.run.plan import Plan
+from rl_jax.run.run_dir import (
+    CHECKPOINT_DIR,
+    CONFIG_FILE,
+    algorithm_reference,
+    identity_hash,
+    new_run_record,
+    write_json_atomic,
+)
+from rl_jax.run.spec import RunSpec
+from rl_jax.training import parallel, params
+
+
+class GracefulStop:
+    """The first SIGINT/SIGTERM asks to stop after the current chunk; a second SIGINT aborts."""
+
+    def __init__(self, notify: Callable[[str], None] = print):
+        self.requested: str | None = None
+        self._notify = notify
+        self._previous: dict[int, Any] = {}
+
+    def _handle(self, signum: int, frame: Any) -> None:
+        name = signal.Signals(signum).name
+        if self.requested is not None and signum == signal.SIGINT:
+            raise KeyboardInterrupt
+        self.requested = name
+        self._notify(
+            f"{name}: stopping after this chunk (a checkpoint follows; Ctrl-C again aborts)"
+        )
+
+    def __enter__(self) -> GracefulStop:
+        for signum in (signal.SIGINT, signal.SIGTERM):
+            # Outside the main thread signals cannot be caught: they stay with the caller.
+            with contextlib.suppress(ValueError):
+                self._previous[signum] = signal.signal(signum, self._handle)
+        return self
+
+    def __exit__(self, *exc_info: Any) -> None:
+        for signum, handler in self._previous.items():
+            signal.signal(signum, handler)
+
+
+@dataclasses.dataclass
+class Start:
+    state: Any
+    chunk: int  # first chunk to run
+    step: int  # env steps per seed already done
+    updates: int
+    wall_clock: float  # seconds spent by earlier sessions
+    checkpoint_step: int | None  # the checkpoint restored, if any
+    best: BestPolicies  # the best evaluated policy of every run so far
+
+
+def checkpoint_expectation(spec: RunSpec) -> dict[str, Any]:
+    return {
+        "identity_hash": identity_hash(spec.identity),
+        "algorithm": spec.algorithm.name,
+        "env_id": spec.env_id,
+    }
+
+
+def restore_start(spec: RunSpec, plan: Plan) -> Start | None:
+    """The latest checkpoint of a resumed run (None if it has none yet). Writes nothing."""
+    directory = spec.out / CHECKPOINT_DIR
+    if not directory.is_dir():
+        return None
+    with Checkpointer(directory, read_only=True) as checkpointer:
+        if checkpointer.latest_step() is None:
+            return None
+        state, meta = checkpointer.restore(plan.template, expect=checkpoint_expectation(spec))
+    best = BestPolicies.restore(
+        spec.out / BEST_DIR,
+        policy_fields(spec.algorithm, plan.template),
+        plan.template,
+        at_most=meta["step"],
+        expect=checkpoint_expectation(spec),
+    )
+    return Start(
+        plan.parallel.place(state, params.stack(list(spec.hparams))),
+        meta["chunk"] + 1,
+        meta["step"],
+        meta.get("updates", 0),
+        meta.get("wall_clock", 0.0),
+        meta["step"],
+        best,
+    )
+
+
+def fresh_start(spec: RunSpec, plan: Plan) -> Start:
+    keys = parallel.seed_keys(spec.seed_numbers)
+    state = plan.parallel.init(keys, params.stack(list(spec.hparams)))
+    best = BestPolicies(policy_fields(spec.algorithm, state), (len(spec.hparams), spec.seeds))
+    return Start(state, 0, 0, 0, 0.0, None, best)
+
+
+def write_run_record(spec: RunSpec, plan: Plan, start: Start) -> None:
+    """config.json: created on a fresh run, updated (total steps, sessions) on a resume."""
+    path = spec.out / CONFIG_FILE
+    session = {
+        "started": time.strftime("%Y-%m-%dT%H:%M:%S%z"),
+        "command": spec.command,
+        "from_step": start.step,
+    }
+    if spec.resume:
+        from rl_jax.run.run_dir import read_run_record
+
+        record = read_run_record(spec.out)
+        record["total_steps"] = spec.total_steps
+        record["sessions"] = [*record.get("sessions", []), session]
+    else:
+        extra = {
+            "total_steps": spec.total_steps,
+            "steps_per_chunk": plan.steps_per_chunk,
+            "grid_fields": list(spec.grid_fields),
+            "command": spec.command,
+            "sessions": [session],
+        }
+        record = new_run_record(spec.identity, algorithm_reference(spec.algorithm), extra)
+    write_json_atomic(path, record)
