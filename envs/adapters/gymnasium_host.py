@@ -66,9 +66,6 @@ from __future__ import annotations
 
 import copy
 import functools
-import secrets
-import threading
-import warnings
 from collections.abc import Callable
 from typing import Any, NamedTuple
 
@@ -79,13 +76,22 @@ import numpy as np
 from flax import struct
 
 from envs.adapters.external_ids import UnsupportedEnvError
+from envs.adapters.gymnasium_pool import (
+    HANDLE,
+    NOT_STARTED,
+    OUT_LOST,
+    OUT_OBS,
+    OUT_REWARD,
+    OUT_TERMINATED,
+    OUT_TRUNCATED,
+    HostPool,
+)
 from envs.core.core import Array, Environment, EnvParams, EnvState, PRNGKey, TimeStep
 from envs.core.registry import UnknownEnvError
 from envs.core.spaces import Box, Discrete, Space
 
 ID_PREFIX = "gymnasium:"
 LOST_KEY = "host_state_lost"
-_NOT_STARTED = 0  # the serial of a handle whose episode has not taken a host env yet
 
 
 @struct.dataclass
@@ -95,13 +101,6 @@ class HostEnvState(EnvState):
     obs: Array  # [*obs_shape] float32: the latest observation
     terminated: Array  # [] bool: the episode has ended in a terminal state
     truncated: Array  # [] bool: the episode has been cut (time limit or lost host state)
-
-
-# One uint32 row per env crosses the callback each way: every array that crosses costs tens of
-# microseconds here, more than a classic gymnasium step. Floats travel as their bits, so nothing
-# is rounded, and integers never pass through float arithmetic.
-_HANDLE, _SEED, _TIME, _TERMINATED, _TRUNCATED, _OBS = slice(0, 2), 2, 3, 4, 5, 6  # then action
-_OUT_TERMINATED, _OUT_TRUNCATED, _OUT_LOST, _OUT_REWARD, _OUT_OBS = 2, 3, 4, 5, 6  # 0-1: handle
 
 
 def _bits(value: Array) -> Array:
@@ -139,138 +138,6 @@ def action_space_from(space: gymnasium.Space, name: str) -> Space:
         f"{name}: action space {space} is not supported (the adapter takes float Box or "
         "Discrete actions)"
     )
-
-
-# ---- the host side ------------------------------------------------------------------------------
-class _Episode:
-    """A host env running one episode, and the steps it has taken."""
-
-    __slots__ = ("env", "time")
-
-    def __init__(self, env: gymnasium.Env):
-        self.env, self.time = env, 0
-
-
-class HostPool:
-    """The gymnasium envs of one adapter: idle ones, and running episodes by serial.
-
-    Every method takes a whole batch (any leading shape, flattened into lanes) and holds the
-    lock, since XLA may run a reset and a step callback, or two devices' shards, at once.
-    """
-
-    def __init__(
-        self,
-        make_env: Callable[[], gymnasium.Env],
-        action_space: gymnasium.Space,
-        obs_shape: tuple[int, ...],
-        max_episode_steps: int,
-    ):
-        self.make_env = make_env
-        self.action_space = action_space
-        self.obs_shape = obs_shape
-        self.max_episode_steps = max_episode_steps
-        discrete = isinstance(action_space, gymnasium.spaces.Discrete)
-        self._action_dtype = np.int32 if discrete else np.float32  # as the JAX side packs it
-        self.pool_id = secrets.randbits(32) or 1  # handles of another process are not ours
-        self.idle: list[gymnasium.Env] = []
-        self.running: dict[int, _Episode] = {}
-        self.cut_episodes = 0  # episodes cut because the pool did not hold them (see Resume)
-        self._next_serial = 1
-        self._scratch: gymnasium.Env | None = None
-        self._lock = threading.Lock()
-        self._warned_reset = False
-
-    def _take_env(self) -> gymnasium.Env:
-        return self.idle.pop() if self.idle else self.make_env()
-
-    def _reset(self, env: gymnasium.Env, seed: Any) -> np.ndarray:
-        obs, _ = env.reset(seed=int(seed))
-        return np.asarray(obs, np.float32).reshape(self.obs_shape)
-
-    def start_observations(self, seeds: np.ndarray) -> np.ndarray:
-        """Each seed's start observation, from a scratch env (no episode is started)."""
-        with self._lock:
-            if self._scratch is None:
-                self._scratch = self._take_env()
-            starts = [self._reset(self._scratch, seed) for seed in np.asarray(seeds).reshape(-1)]
-        return np.stack(starts).reshape(np.shape(seeds) + self.obs_shape)
-
-    def step(self, rows: np.ndarray) -> np.ndarray:
-        """One step of every env: ``rows`` [..., IN_WIDTH] -> [..., OUT_WIDTH] (see _pack)."""
-        rows = np.asarray(rows)
-        batch_shape, width = rows.shape[:-1], rows.shape[-1]
-        obs_size = int(np.prod(self.obs_shape, dtype=np.int64))
-        outputs = np.zeros(
-            (int(np.prod(batch_shape, dtype=np.int64)), _OUT_OBS + obs_size), np.uint32
-        )
-        with self._lock:
-            for lane, row in enumerate(rows.reshape(-1, width)):
-                outputs[lane] = self._step_row(row, obs_size)
-        return outputs.reshape(batch_shape + outputs.shape[1:])
-
-    def _step_row(self, row: np.ndarray, obs_size: int) -> np.ndarray:
-        """One env's output row from its input row."""
-        output = np.zeros(_OUT_OBS + obs_size, np.uint32)
-        handle, obs_bits = row[_HANDLE].copy(), row[_OBS : _OBS + obs_size]
-        output[_OUT_TERMINATED], output[_OUT_TRUNCATED] = row[_TERMINATED], row[_TRUNCATED]
-        output[_OUT_OBS:] = obs_bits  # an ended or lost episode reports its last obs again
-        if row[_TERMINATED] or row[_TRUNCATED]:
-            output[_HANDLE] = handle  # an ended episode stays where it ended (reward 0)
-            return output
-        obs = obs_bits.view(np.float32).reshape(self.obs_shape)
-        episode = self._episode_of(handle, row[_SEED], int(row[_TIME]), obs)
-        output[_HANDLE] = handle
-        if episode is None:
-            output[_OUT_TRUNCATED] = output[_OUT_LOST] = 1  # cut: see "Resume" above
-            self.cut_episodes += 1
-            return output
-        action = row[_OBS + obs_size :].view(self._action_dtype)
-        obs, reward, terminated, truncated = self._step_episode(int(handle[1]), episode, action)
-        output[_OUT_TERMINATED], output[_OUT_TRUNCATED] = terminated, truncated
-        output[_OUT_REWARD] = np.asarray(reward, np.float32).reshape(()).view(np.uint32)
-        output[_OUT_OBS:] = obs.reshape(-1).view(np.uint32)
-        return output
-
-    def _episode_of(self, handle: np.ndarray, seed, time: int, obs: np.ndarray) -> _Episode | None:
-        """The episode ``handle`` names, running at step ``time`` (started now if it has not
-        been, and ``handle`` filled in); None when this pool does not hold it at that step."""
-        if handle[1] == _NOT_STARTED and time == 0:
-            handle[:] = self.pool_id, self._start(seed, obs)
-            return self.running[int(handle[1])]
-        episode = self.running.get(int(handle[1])) if handle[0] == self.pool_id else None
-        return episode if episode is not None and episode.time == time else None
-
-    def _start(self, seed: Any, reported_obs: np.ndarray) -> int:
-        """Start an episode on an idle env with the seed ``reset`` used; its serial."""
-        episode = _Episode(self._take_env())
-        start = self._reset(episode.env, seed)
-        if not self._warned_reset and not np.array_equal(start, reported_obs, equal_nan=True):
-            self._warned_reset = True
-            warnings.warn(
-                "this gymnasium env's reset(seed=s) does not always give the same start: runs "
-                "on it are not reproducible from their seed",
-                RuntimeWarning,
-                stacklevel=1,
-            )
-        serial = self._next_serial
-        self._next_serial = self._next_serial % (2**32 - 1) + 1  # never _NOT_STARTED
-        self.running[serial] = episode
-        return serial
-
-    def _action(self, action: np.ndarray) -> Any:
-        space = self.action_space
-        if isinstance(space, gymnasium.spaces.Discrete):
-            return int(action[0]) + int(space.start)
-        return np.asarray(action, space.dtype).reshape(space.shape)
-
-    def _step_episode(self, serial: int, episode: _Episode, action: np.ndarray) -> tuple:
-        obs, reward, terminated, truncated, _ = episode.env.step(self._action(action))
-        episode.time += 1
-        truncated = bool(truncated) or episode.time >= self.max_episode_steps
-        if terminated or truncated:  # the env is free for the next episode at once
-            del self.running[serial]
-            self.idle.append(episode.env)
-        return np.asarray(obs, np.float32), reward, terminated, truncated
 
 
 # ---- the JAX side -------------------------------------------------------------------------------
@@ -321,7 +188,7 @@ class HostGymnasiumEnv(Environment[HostEnvState, EnvParams]):
             self.pool.start_observations, shape, seed, vmap_method="broadcast_all"
         )
         false = jnp.zeros((), jnp.bool_)
-        handle = jnp.array([0, _NOT_STARTED], jnp.uint32)
+        handle = jnp.array([0, NOT_STARTED], jnp.uint32)
         state = HostEnvState(jnp.int32(0), handle, seed, obs, false, false)
         return state, obs
 
@@ -329,22 +196,22 @@ class HostGymnasiumEnv(Environment[HostEnvState, EnvParams]):
         space = self._action_space
         action = jnp.reshape(jnp.asarray(action, space.dtype), space.shape)
         obs_size = int(np.prod(self._observation_space.shape, dtype=np.int64))
-        result = jax.ShapeDtypeStruct((_OUT_OBS + obs_size,), jnp.uint32)
+        result = jax.ShapeDtypeStruct((OUT_OBS + obs_size,), jnp.uint32)
         row = jax.pure_callback(
             self.pool.step, result, _pack(state, action), vmap_method="broadcast_all"
         )
-        terminated, truncated = row[_OUT_TERMINATED] != 0, row[_OUT_TRUNCATED] != 0
-        reward = jax.lax.bitcast_convert_type(row[_OUT_REWARD], jnp.float32)
-        obs = jax.lax.bitcast_convert_type(row[_OUT_OBS:], jnp.float32)
+        terminated, truncated = row[OUT_TERMINATED] != 0, row[OUT_TRUNCATED] != 0
+        reward = jax.lax.bitcast_convert_type(row[OUT_REWARD], jnp.float32)
+        obs = jax.lax.bitcast_convert_type(row[OUT_OBS:], jnp.float32)
         obs = obs.reshape(self._observation_space.shape)
         new_state = state.replace(
             time=state.time + 1,
-            handle=row[_HANDLE],
+            handle=row[HANDLE],
             obs=obs,
             terminated=terminated,
             truncated=truncated,
         )
-        info = {LOST_KEY: row[_OUT_LOST] != 0}
+        info = {LOST_KEY: row[OUT_LOST] != 0}
         return new_state, TimeStep(obs, reward, terminated, truncated, info)
 
     def step_env(self, key: PRNGKey, state: HostEnvState, action: Array, params: EnvParams):
