@@ -1,6 +1,6 @@
 """Training-loop updates/s of DQN from pixels (``rl_jax/CartPolePixels-v1``) with its seeds
 vmapped against its seeds as an unrolled loop in the same compiled program
-(``parallel.Runner(loop_seeds=True)``, the pixel recipe's default).
+(``parallel.Program(loop_seeds=True)``, the pixel recipe's default).
 
 Vmapped over seeds, XLA turns each convolution with per-seed weights into one grouped
 convolution, which this CPU runs several times slower than the same convs one seed after
@@ -36,7 +36,7 @@ def program(frame_size: int, seeds: int, loop_seeds: bool):
         loop_seeds=loop_seeds,
     )
     hparams = params.stack([dqn.default_hyperparams(ENV_ID)])
-    runner = parallel.Runner(dqn, config, 1, seeds, pad=False, loop_seeds=loop_seeds)
+    runner = parallel.Program(dqn, config, 1, seeds, pad=False, loop_seeds=loop_seeds)
     state = runner.init(parallel.seed_keys(range(seeds)), hparams)
     box = {"state": state}
 

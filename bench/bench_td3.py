@@ -234,7 +234,7 @@ def scaling_section(result: dict[str, Any]) -> list[str]:
         "the updates, then a 1-episode evaluation), half cheetah on MuJoCo C, 100k buffer, "
         "updates from the first step. Seconds per run (seed x hyperparameter set) and speed-up "
         "per run over 1 seed. Runs are split over 2 CPU devices where they divide evenly "
-        "(`rl_jax.training.parallel.Runner`).\n",
+        "(`rl_jax.training.parallel.Program`).\n",
         "| runs | devices | s/chunk | s/chunk per run | per-run speed-up vs 1 seed | load |",
         "|---|---|---|---|---|---|",
     ]

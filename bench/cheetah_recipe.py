@@ -1,7 +1,7 @@
 """Train TD3 on half cheetah with S seeds in one program and log eval return vs steps and seconds.
 
 The evidence behind ``td3.RECIPES["rl_jax/HalfCheetah-v5"]``: a recipe (config overrides as
-JSON) runs with ``rl_jax.training.parallel.Runner`` on the MuJoCo C backend, one chunk at a time,
+JSON) runs with ``rl_jax.training.parallel.Program`` on the MuJoCo C backend, one chunk at a time,
 and every chunk appends one JSON line (env steps per seed, wall-clock seconds since start with and
 without the first call's compilation, each seed's eval return, their mean, the load average)::
 
@@ -47,11 +47,11 @@ def make_runner(recipe: dict[str, Any], seeds: int, hparam_sets: int = 1) -> tup
     recipe = {k: tuple(v) if isinstance(v, list) else v for k, v in recipe.items()}
     config = td3.default_config(ENV_ID, **recipe)
     # Build (and cache) the envs outside any trace: the MuJoCo env's constructor computes its
-    # initial observation with jnp, which fails when first called under Runner's eval_shape.
+    # initial observation with jnp, which fails when first called under Program's eval_shape.
     episodes.make_train_env(config)
     one = td3.default_hyperparams(ENV_ID)
     hparams = params.stack([one] * hparam_sets)
-    runner = parallel.Runner(td3, config, num_hparams=hparam_sets, num_seeds=seeds)
+    runner = parallel.Program(td3, config, num_hparams=hparam_sets, num_seeds=seeds)
     state = runner.init(parallel.seed_keys(list(range(seeds))), hparams)
     return runner, state, hparams, config
 

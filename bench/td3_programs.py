@@ -158,7 +158,7 @@ def update_program(
     if devices > 1:
         mesh = Mesh(np.array(jax.devices()[:devices]), ("seeds",))
         spec = PartitionSpec("seeds")
-        # check_vma=False: each device's seeds are an independent program (as in parallel.Runner)
+        # check_vma=False: each device's seeds are an independent program (as in parallel.Program)
         run = jax.shard_map(
             run,
             mesh=mesh,

@@ -244,14 +244,14 @@ def run_distributed(specs: list[Any], labels: list[str], out: Path, started: flo
         plan = make_plan(spec)
         check_memory(plan)
         hparams = params.stack(list(spec.hparams))
-        state = plan.parallel.init(parallel.seed_keys(spec.seed_numbers), hparams)
+        state = plan.program.init(parallel.seed_keys(spec.seed_numbers), hparams)
         if lead:
             spec.out.mkdir(parents=True, exist_ok=True)
         log = MetricsLog(spec.out, None, spec.grid_fields) if lead else None
         grid = runner.grid_values(spec)
         for chunk in range(plan.chunks):
-            state, metrics = plan.parallel.train_chunk(state, hparams)
-            metrics = plan.parallel.gather(metrics)  # all processes take part
+            state, metrics = plan.program.train_chunk(state, hparams)
+            metrics = plan.program.gather(metrics)  # all processes take part
             if lead:
                 elapsed = time.perf_counter() - started
                 log.write(runner.metric_rows(metrics, spec, chunk, elapsed, grid))

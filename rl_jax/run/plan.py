@@ -22,9 +22,9 @@ from rl_jax.training import parallel, params
 from rl_jax.training.algorithm import hooks
 
 
-def parallel_runner(spec: RunSpec) -> parallel.Runner:
+def program_for(spec: RunSpec) -> parallel.Program:
     """All configs x seeds of ``spec`` as one program over the most local devices that split the
-    runs evenly (``rl_jax.training.parallel.mesh_shape``): 5 seeds on 2 cores run on one device.
+    runs evenly (``training.device_layout.mesh_shape``): 5 seeds on 2 cores run on one device.
 
     Never padded: on CPU one device's matmuls and env steps already use every core's threads, so
     a padded run costs its full share. Measured (load 1-2): REINFORCE on the double pendulum, 5
@@ -35,7 +35,7 @@ def parallel_runner(spec: RunSpec) -> parallel.Runner:
     A config with ``loop_seeds`` set (DQN on frames) runs its seeds as an unrolled loop instead
     of a vmap (``rl_jax.training.parallel.seed_loop``): faster for conv nets on CPU."""
     loop_seeds = bool(getattr(spec.config, "loop_seeds", False))
-    return parallel.Runner(
+    return parallel.Program(
         spec.algorithm,
         spec.config,
         len(spec.hparams),
@@ -54,7 +54,7 @@ class Plan:
     breakdown: list[tuple[str, int]]  # (top-level field of the state, bytes), largest first
     available_bytes: int
     template: Any  # jax.ShapeDtypeStruct tree of the [configs, seeds] state (as checkpointed)
-    parallel: parallel.Runner  # the compiled init/chunk of all runs
+    program: parallel.Program  # the compiled init/chunk of all runs
     device_bytes: int = 0  # the state on the devices, padding copies included
     checkpoint_bytes: int = 0  # the host copy of the real runs a checkpoint write takes
 
@@ -99,10 +99,10 @@ def make_plan(spec: RunSpec) -> Plan:
     if steps_per_chunk <= 0:
         raise RunError(f"the config takes {steps_per_chunk} env steps per chunk; need >= 1")
     chunks = math.ceil(spec.total_steps / steps_per_chunk)
-    runner = parallel_runner(spec)
+    program = program_for(spec)
     hparams = params.stack(list(spec.hparams))
     template = runs_template(spec, hparams)
-    on_devices = memory_breakdown(runner.template(hparams))
+    on_devices = memory_breakdown(program.template(hparams))
     # Checkpoints go through a host copy of the real runs: count it too.
     checkpoint_copy = dict(memory_breakdown(template))
     breakdown = sorted(
@@ -120,7 +120,7 @@ def make_plan(spec: RunSpec) -> Plan:
         breakdown,
         available,
         template,
-        runner,
+        program,
         device_bytes,
         checkpoint_bytes,
     )
@@ -178,7 +178,7 @@ def format_plan(spec: RunSpec, plan: Plan) -> str:
         f"{plan.steps_per_chunk:,} (asked for {spec.total_steps:,})",
         f"  train state {format_bytes(plan.state_bytes)} ({largest}); "
         f"{format_bytes(plan.available_bytes)} of memory available",
-        f"  devices: {describe_layout(plan.parallel)}",
+        f"  devices: {describe_layout(plan.program)}",
         f"  run directory: {spec.out}",
     ]
     estimate = estimate_from_throughput(spec, plan)
@@ -186,10 +186,10 @@ def format_plan(spec: RunSpec, plan: Plan) -> str:
     return "\n".join(lines)
 
 
-def describe_layout(runner: parallel.Runner) -> str:
+def describe_layout(program: parallel.Program) -> str:
     """Which devices run how many runs, padding included."""
-    layout = runner.layout
-    names = ", ".join(str(device) for device in runner.mesh.devices.flat)
+    layout = program.layout
+    names = ", ".join(str(device) for device in program.mesh.devices.flat)
     text = f"{names} ({layout.runs_per_device} run{'s' * (layout.runs_per_device > 1)} each"
     if layout.padding:
         text += f"; {layout.padding} padding copy of a run computed and dropped"

@@ -109,7 +109,7 @@ class LoadedPolicy:
             self.note = "the run kept no best policy for this seed; using its latest checkpoint"
         with Checkpointer(self.run_dir / CHECKPOINT_DIR, read_only=True) as checkpointer:
             state, meta = checkpointer.restore(plan.template, expect=expect)
-        one = plan.parallel.select(state, *run)
+        one = plan.program.select(state, *run)
         self.eval_return = _final_eval(self.run_dir, self.config_index, self.seed, meta["step"])
         return algorithm, config, one, meta["step"]
 

@@ -168,7 +168,7 @@ class Session:
         # newer than the latest one, which a resume discards (never the other way round).
         if self.best_checkpointer is not None and self.best.changed:
             self.best.save(self.best_checkpointer, self.step, meta)
-        self.checkpointer.save(self.step, self.plan.parallel.unpad(state, hparams), meta)
+        self.checkpointer.save(self.step, self.plan.program.unpad(state, hparams), meta)
         self.saved_step, self.last_save = self.step, time.perf_counter()
 
     def close(self) -> None:
@@ -182,7 +182,7 @@ def compile_chunk(plan: Plan, state: Any, hparams: Any, notify: Callable) -> Cal
     """Compile ahead of the first chunk so compile time is reported as such."""
     notify("compiling the train chunk ...")
     started = time.perf_counter()
-    compiled = plan.parallel.compile(state, hparams)
+    compiled = plan.program.compile(state, hparams)
     notify(f"compiled in {time.perf_counter() - started:.1f} s")
     return compiled
 
@@ -203,17 +203,17 @@ def _train(session: Session, start: Start, stop: GracefulStop, progress: Progres
             break
         chunk_started = time.perf_counter()
         state, metrics = chunk_fn(state, hparams)
-        metrics = plan.parallel.gather(metrics)
+        metrics = plan.program.gather(metrics)
         chunk_seconds = time.perf_counter() - chunk_started
         prior_updates = session.updates
         session.step = int(np.max(metrics.env_steps))
         session.updates = int(np.max(metrics.updates))
         session.log.write(metric_rows(metrics, spec, chunk, session.wall_clock(), grid))
-        check_finite(session, metrics, plan.parallel.gather(finite_runs(state, spec)))
+        check_finite(session, metrics, plan.program.gather(finite_runs(state, spec)))
         session.best.observe(
             metrics.eval_return,
             metrics.env_steps,
-            lambda state=state: plan.parallel.gather(policy_part(state, session.best.fields)),
+            lambda state=state: plan.program.gather(policy_part(state, session.best.fields)),
         )
         progress.update(session.step, session.updates, metrics.eval_return)
         if not estimated and chunk + 1 < plan.chunks:
@@ -325,7 +325,7 @@ def run(spec: RunSpec, notify: Callable[[str], None] = print) -> RunResult:
     try:
         with GracefulStop(progress.write) as stop:
             state = _train(session, start, stop, progress)
-            state = plan.parallel.unpad(state, params.stack(list(spec.hparams)))
+            state = plan.program.unpad(state, params.stack(list(spec.hparams)))
     finally:
         progress.close()
         session.close()

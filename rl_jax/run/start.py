@@ -90,7 +90,7 @@ def restore_start(spec: RunSpec, plan: Plan) -> Start | None:
         expect=checkpoint_expectation(spec),
     )
     return Start(
-        plan.parallel.place(state, params.stack(list(spec.hparams))),
+        plan.program.place(state, params.stack(list(spec.hparams))),
         meta["chunk"] + 1,
         meta["step"],
         meta.get("updates", 0),
@@ -102,7 +102,7 @@ def restore_start(spec: RunSpec, plan: Plan) -> Start | None:
 
 def fresh_start(spec: RunSpec, plan: Plan) -> Start:
     keys = parallel.seed_keys(spec.seed_numbers)
-    state = plan.parallel.init(keys, params.stack(list(spec.hparams)))
+    state = plan.program.init(keys, params.stack(list(spec.hparams)))
     best = BestPolicies(policy_fields(spec.algorithm, state), (len(spec.hparams), spec.seeds))
     return Start(state, 0, 0, 0, 0.0, None, best)
 

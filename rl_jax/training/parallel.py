@@ -19,14 +19,13 @@ branches) and is replicated over devices. ``select`` extracts one run's state.
 
 Usage::
 
-    runner = parallel.Runner(td3, config, num_hparams=2, num_seeds=3)
-    state = runner.init(parallel.seed_keys([0, 1, 2]), params.stack([hp_a, hp_b]))
-    state, metrics = runner.train_chunk(state, hparams)   # metrics leaves [H, S]
+    program = parallel.Program(td3, config, num_hparams=2, num_seeds=3)
+    state = program.init(parallel.seed_keys([0, 1, 2]), params.stack([hp_a, hp_b]))
+    state, metrics = program.train_chunk(state, hparams)   # metrics leaves [H, S]
 """
 
 from __future__ import annotations
 
-import dataclasses
 from collections.abc import Sequence
 from typing import Any
 
@@ -36,10 +35,10 @@ import numpy as np
 from jax.sharding import Mesh, NamedSharding, PartitionSpec
 
 from rl_jax.training.algorithm import Algorithm
+from rl_jax.training.device_layout import AXES, plan_layout
 from rl_jax.training.params import stack as stack  # parallel.stack, as before
 
-AXES = ("hparams", "seeds")
-_PROGRAMS: dict[Any, tuple[Any, Any]] = {}  # see Runner._build
+_PROGRAMS: dict[Any, tuple[Any, Any]] = {}  # see Program._build
 _COMPILED: dict[Any, Any] = {}  # the chunk compiled ahead of time, per program
 SHARED_FIELD = "clock"  # the train-state field kept unbatched and replicated
 
@@ -66,85 +65,6 @@ def select(state: Any, hparam_index: int, seed_index: int) -> Any:
         state,
         is_leaf=lambda x: x is None,
     )
-
-
-def mesh_shape(num_hparams: int, num_seeds: int, num_devices: int) -> tuple[int, int]:
-    """``(hparam_split, seed_split)``: the most devices that split the ``[H, S]`` runs evenly,
-    splitting seeds first. (3 seeds x 1 set on 2 devices can only use 1 device.)"""
-    for used in range(num_devices, 0, -1):
-        for seed_split in range(used, 0, -1):
-            hparam_split = used // seed_split
-            if (
-                seed_split * hparam_split == used
-                and num_seeds % seed_split == 0
-                and num_hparams % hparam_split == 0
-            ):
-                return hparam_split, seed_split
-    raise AssertionError("unreachable: one device always splits the runs")
-
-
-@dataclasses.dataclass(frozen=True)
-class Layout:
-    """How ``[H, S]`` runs sit on a ``(hparam_split, seed_split)`` device mesh.
-
-    When the runs do not split evenly, an axis is padded to a multiple of its split with copies
-    of its first run (seed 0, hyperparameter set 0); the copies compute alongside and are dropped
-    from everything reported. 5 seeds on 2 devices run as 3 + 3 instead of 5 on one device.
-    """
-
-    num_hparams: int
-    num_seeds: int
-    hparam_split: int = 1
-    seed_split: int = 1
-
-    @property
-    def padded_hparams(self) -> int:
-        return -(-self.num_hparams // self.hparam_split) * self.hparam_split
-
-    @property
-    def padded_seeds(self) -> int:
-        return -(-self.num_seeds // self.seed_split) * self.seed_split
-
-    @property
-    def devices(self) -> int:
-        return self.hparam_split * self.seed_split
-
-    @property
-    def runs_per_device(self) -> int:
-        return self.padded_hparams * self.padded_seeds // self.devices
-
-    @property
-    def padding(self) -> int:
-        """Extra runs computed and dropped."""
-        return self.padded_hparams * self.padded_seeds - self.num_hparams * self.num_seeds
-
-
-def plan_layout(num_hparams: int, num_seeds: int, num_devices: int, pad: bool = True) -> Layout:
-    """The mesh for ``[H, S]`` runs on up to ``num_devices`` devices.
-
-    Without padding: ``mesh_shape``. With padding: the fewest runs per device (the wall-clock of
-    a chunk), then the fewest padded runs (memory), then the fewest devices, then seeds split
-    before hyperparameters. A single run stays on one device.
-    """
-    if not pad:
-        return Layout(num_hparams, num_seeds, *mesh_shape(num_hparams, num_seeds, num_devices))
-    candidates = []
-    for used in range(1, num_devices + 1):
-        for seed_split in range(1, used + 1):
-            if used % seed_split:
-                continue
-            layout = Layout(num_hparams, num_seeds, used // seed_split, seed_split)
-            total = layout.padded_hparams * layout.padded_seeds
-            candidates.append(((layout.runs_per_device, total, used, -seed_split), layout))
-    return min(candidates, key=lambda candidate: candidate[0])[1]
-
-
-def make_mesh(num_hparams: int, num_seeds: int, devices: Sequence[Any] | None = None) -> Mesh:
-    """A ``("hparams", "seeds")`` device mesh shaped by ``mesh_shape`` (no padding)."""
-    devices = list(jax.devices() if devices is None else devices)
-    hparam_split, seed_split = mesh_shape(num_hparams, num_seeds, len(devices))
-    used = np.array(devices[: hparam_split * seed_split]).reshape(hparam_split, seed_split)
-    return Mesh(used, AXES)
 
 
 def _specs(axes: Any) -> Any:
@@ -220,7 +140,7 @@ def _stack(*leaves: Any) -> Any:
     return jnp.stack(leaves)
 
 
-class Runner:
+class Program:
     """Compiled init and chunk for ``[H, S]`` runs of one algorithm and one static config.
 
     The state lives on the devices padded to ``layout.padded_hparams x layout.padded_seeds``
@@ -356,7 +276,7 @@ class Runner:
         )
 
     def _build(self, hparams: Any) -> None:
-        """The jitted init and chunk, shared by every ``Runner`` of the same algorithm, config
+        """The jitted init and chunk, shared by every ``Program`` of the same algorithm, config
         and layout in this process (a resumed or repeated run does not trace again)."""
         if self._key_impl is None:  # a restored state trains before any init: the default
             self._key_impl = jax.random.key_impl(jax.random.key(0))
@@ -465,3 +385,8 @@ class Runner:
                 f"expected {self.num_seeds} keys and hyperparameters stacked to "
                 f"{self.num_hparams}, got {num_keys} keys and leading sizes {sorted(sizes)}"
             )
+
+
+#: The old name: ``README``'s earlier library example and BENCHMARKS.md's notes call the program
+#: ``parallel.Runner``; ``rl_jax.run.runner`` is what drives a run.
+Runner = Program

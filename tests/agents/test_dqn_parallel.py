@@ -1,4 +1,4 @@
-"""DQN (with its options) and REINFORCE run through ``rl_jax.training.parallel.Runner``: a 2
+"""DQN (with its options) and REINFORCE run through ``rl_jax.training.parallel.Program``: a 2
 hyperparameter sets x 2 seeds program gives each run the same result as that run alone."""
 
 import jax
@@ -53,7 +53,7 @@ def test_grid_of_seeds_and_hyperparameters_equals_single_runs(name):
     algorithm, env_id, overrides, field, values = CASES[name]
     config = algorithm.default_config(env_id, **overrides)
     hparams = [algorithm.default_hyperparams(**{field: value}) for value in values]
-    runner = parallel.Runner(algorithm, config, num_hparams=2, num_seeds=2)
+    runner = parallel.Program(algorithm, config, num_hparams=2, num_seeds=2)
     state = runner.init(parallel.seed_keys([0, 1]), params.stack(hparams))
     state, metrics = runner.train_chunk(state, params.stack(hparams))
     # The last run alone (hyperparameter set 1, seed 1).

@@ -1,6 +1,6 @@
 """Slow learning tests (``pytest -m slow tests/agents/test_dqn_slow.py -s``): the documented recipes
 solve their envs in every seed, all seeds as one compiled program
-(``rl_jax.training.parallel.Runner``).
+(``rl_jax.training.parallel.Program``).
 
 * DQN, ``rl_jax/CartPole-v1``: the greedy policy's eval return (10 episodes) reaches 500.
 * REINFORCE, ``rl_jax/InvertedPendulum-v5``: the deterministic policy's eval return reaches 1,000
@@ -28,7 +28,7 @@ def first_reach(algorithm, env_id, target, budget, seeds, steps_of=None):
     per-seed env steps. Returns the env steps of each seed's first success (``None``: never)."""
     config = algorithm.default_config(env_id)
     hparams = params.stack([algorithm.default_hyperparams(env_id)])
-    runner = parallel.Runner(algorithm, config, 1, len(seeds))
+    runner = parallel.Program(algorithm, config, 1, len(seeds))
     started = time.perf_counter()
     state = runner.init(parallel.seed_keys(list(seeds)), hparams)
     reached = [None] * len(seeds)

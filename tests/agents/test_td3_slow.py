@@ -23,7 +23,7 @@ def _train(env_id: str, env_steps: int):
     config, hparams = td3.default_config(env_id), td3.default_hyperparams(env_id)
     chunks, rest = divmod(env_steps, config.env_steps_per_chunk)
     assert rest == 0 and chunks > 0, (env_steps, config.env_steps_per_chunk)
-    runner = parallel.Runner(td3, config, num_hparams=1, num_seeds=len(SEEDS))
+    runner = parallel.Program(td3, config, num_hparams=1, num_seeds=len(SEEDS))
     stacked = params.stack([hparams])
     start = time.perf_counter()
     state = runner.init(parallel.seed_keys(SEEDS), stacked)

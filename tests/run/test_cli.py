@@ -367,5 +367,5 @@ def test_sigterm_checkpoints_exits_zero_and_resume_is_bit_identical(workspace):
     assert leaves_bytes(final["stopped"]) == leaves_bytes(final["unstopped"])
     # Training happened between the stop and the end (the comparison is not of two copies).
     fresh = fresh_start(spec, plan).state
-    fresh = plan.parallel.unpad(fresh, params.stack([fake.default_hyperparams()]))
+    fresh = plan.program.unpad(fresh, params.stack([fake.default_hyperparams()]))
     assert leaves_bytes(fresh) != leaves_bytes(final["stopped"])

@@ -28,7 +28,7 @@ import pytest
 from probe_runs import probe_config, probe_hparams, train
 
 from rl_jax.agents.td3 import td3
-from rl_jax.training import parallel, params
+from rl_jax.training import device_layout, parallel, params
 
 ENV_ID = "rl_jax/ProbeActionReward-v0"
 CHUNKS = 1
@@ -59,7 +59,7 @@ def assert_same(got, expected, atol=1e-5):
 
 def _run_parallel(num_hparams, hparams, seeds, loop_seeds=False):
     config = probe_config(ENV_ID)
-    runner = parallel.Runner(
+    runner = parallel.Program(
         td3, config, num_hparams=num_hparams, num_seeds=len(seeds), loop_seeds=loop_seeds
     )
     keys = parallel.seed_keys(seeds)
@@ -136,7 +136,7 @@ SHARDED_SCRIPT = textwrap.dedent(
                .sharding.device_set}}
     np.savez({out!r}, *_leaves((state, history)))
     # 3 seeds on 2 devices: padded to 2 + 2 (a copy of seed 0 computed and dropped).
-    runner = parallel.Runner(td3, probe_config(ENV_ID), num_hparams=1, num_seeds=3)
+    runner = parallel.Program(td3, probe_config(ENV_ID), num_hparams=1, num_seeds=3)
     assert (runner.layout.seed_split, runner.layout.padded_seeds) == (2, 4)
     one = params.stack([probe_hparams()])
     padded = runner.init(parallel.seed_keys([0, 1, 2]), one)
@@ -198,11 +198,11 @@ def test_sharded_over_two_cpu_devices_equals_one_device(grid_run, three_seeds_ru
 
 
 def test_mesh_splits_runs_evenly_and_select_keeps_the_shared_clock():
-    assert parallel.mesh_shape(2, 3, num_devices=2) == (2, 1)
-    assert parallel.mesh_shape(1, 4, num_devices=2) == (1, 2)
-    assert parallel.mesh_shape(4, 4, num_devices=2) == (1, 2)  # seeds split first
-    assert parallel.mesh_shape(1, 3, num_devices=2) == (1, 1)  # 3 runs cannot split in two
-    assert parallel.mesh_shape(3, 2, num_devices=4) == (3, 1)  # 3 of 4 devices beat 2
+    assert device_layout.mesh_shape(2, 3, num_devices=2) == (2, 1)
+    assert device_layout.mesh_shape(1, 4, num_devices=2) == (1, 2)
+    assert device_layout.mesh_shape(4, 4, num_devices=2) == (1, 2)  # seeds split first
+    assert device_layout.mesh_shape(1, 3, num_devices=2) == (1, 1)  # 3 runs cannot split in two
+    assert device_layout.mesh_shape(3, 2, num_devices=4) == (3, 1)  # 3 of 4 devices beat 2
     state = td3.init(jax.random.key(0), probe_config(ENV_ID), probe_hparams())
     stacked = jax.tree.map(lambda x: x[None, None], state).replace(clock=state.clock)
     assert parallel.state_axes(state).clock is None
@@ -211,15 +211,15 @@ def test_mesh_splits_runs_evenly_and_select_keeps_the_shared_clock():
 
 
 def test_layout_pads_uneven_runs_to_use_every_device():
-    five = parallel.plan_layout(1, 5, num_devices=2)
+    five = device_layout.plan_layout(1, 5, num_devices=2)
     assert (five.seed_split, five.padded_seeds, five.runs_per_device, five.padding) == (2, 6, 3, 1)
-    assert parallel.plan_layout(1, 1, num_devices=2).devices == 1  # one run stays whole
-    assert parallel.plan_layout(1, 4, num_devices=2).padding == 0
-    grid = parallel.plan_layout(3, 1, num_devices=2)  # 3 configs x 1 seed: split configs
+    assert device_layout.plan_layout(1, 1, num_devices=2).devices == 1  # one run stays whole
+    assert device_layout.plan_layout(1, 4, num_devices=2).padding == 0
+    grid = device_layout.plan_layout(3, 1, num_devices=2)  # 3 configs x 1 seed: split configs
     assert (grid.hparam_split, grid.padded_hparams, grid.runs_per_device) == (2, 4, 2)
-    six = parallel.plan_layout(3, 2, num_devices=2)  # splits evenly: seeds first, no padding
+    six = device_layout.plan_layout(3, 2, num_devices=2)  # splits evenly: seeds first, no padding
     assert (six.hparam_split, six.seed_split, six.padding) == (1, 2, 0)
-    unpadded = parallel.plan_layout(1, 5, num_devices=2, pad=False)
+    unpadded = device_layout.plan_layout(1, 5, num_devices=2, pad=False)
     assert (unpadded.devices, unpadded.padding) == (1, 0)
     edge = parallel._pad_edge(np.arange(6).reshape(2, 3), (3, 4))
     np.testing.assert_array_equal(edge, [[0, 1, 2, 0], [3, 4, 5, 3], [0, 1, 2, 0]])

@@ -1,0 +1,94 @@
+"""How the ``[H, S]`` runs of a program (hyperparameter sets x seeds) are split over devices:
+the mesh's shape, the padding that makes the runs split evenly, and the mesh itself.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Sequence
+from typing import Any
+
+import jax
+import numpy as np
+from jax.sharding import Mesh
+
+AXES = ("hparams", "seeds")
+
+
+def mesh_shape(num_hparams: int, num_seeds: int, num_devices: int) -> tuple[int, int]:
+    """``(hparam_split, seed_split)``: the most devices that split the ``[H, S]`` runs evenly,
+    splitting seeds first. (3 seeds x 1 set on 2 devices can only use 1 device.)"""
+    for used in range(num_devices, 0, -1):
+        for seed_split in range(used, 0, -1):
+            hparam_split = used // seed_split
+            if (
+                seed_split * hparam_split == used
+                and num_seeds % seed_split == 0
+                and num_hparams % hparam_split == 0
+            ):
+                return hparam_split, seed_split
+    raise AssertionError("unreachable: one device always splits the runs")
+
+
+@dataclasses.dataclass(frozen=True)
+class Layout:
+    """How ``[H, S]`` runs sit on a ``(hparam_split, seed_split)`` device mesh.
+
+    When the runs do not split evenly, an axis is padded to a multiple of its split with copies
+    of its first run (seed 0, hyperparameter set 0); the copies compute alongside and are dropped
+    from everything reported. 5 seeds on 2 devices run as 3 + 3 instead of 5 on one device.
+    """
+
+    num_hparams: int
+    num_seeds: int
+    hparam_split: int = 1
+    seed_split: int = 1
+
+    @property
+    def padded_hparams(self) -> int:
+        return -(-self.num_hparams // self.hparam_split) * self.hparam_split
+
+    @property
+    def padded_seeds(self) -> int:
+        return -(-self.num_seeds // self.seed_split) * self.seed_split
+
+    @property
+    def devices(self) -> int:
+        return self.hparam_split * self.seed_split
+
+    @property
+    def runs_per_device(self) -> int:
+        return self.padded_hparams * self.padded_seeds // self.devices
+
+    @property
+    def padding(self) -> int:
+        """Extra runs computed and dropped."""
+        return self.padded_hparams * self.padded_seeds - self.num_hparams * self.num_seeds
+
+
+def plan_layout(num_hparams: int, num_seeds: int, num_devices: int, pad: bool = True) -> Layout:
+    """The mesh for ``[H, S]`` runs on up to ``num_devices`` devices.
+
+    Without padding: ``mesh_shape``. With padding: the fewest runs per device (the wall-clock of
+    a chunk), then the fewest padded runs (memory), then the fewest devices, then seeds split
+    before hyperparameters. A single run stays on one device.
+    """
+    if not pad:
+        return Layout(num_hparams, num_seeds, *mesh_shape(num_hparams, num_seeds, num_devices))
+    candidates = []
+    for used in range(1, num_devices + 1):
+        for seed_split in range(1, used + 1):
+            if used % seed_split:
+                continue
+            layout = Layout(num_hparams, num_seeds, used // seed_split, seed_split)
+            total = layout.padded_hparams * layout.padded_seeds
+            candidates.append(((layout.runs_per_device, total, used, -seed_split), layout))
+    return min(candidates, key=lambda candidate: candidate[0])[1]
+
+
+def make_mesh(num_hparams: int, num_seeds: int, devices: Sequence[Any] | None = None) -> Mesh:
+    """A ``("hparams", "seeds")`` device mesh shaped by ``mesh_shape`` (no padding)."""
+    devices = list(jax.devices() if devices is None else devices)
+    hparam_split, seed_split = mesh_shape(num_hparams, num_seeds, len(devices))
+    used = np.array(devices[: hparam_split * seed_split]).reshape(hparam_split, seed_split)
+    return Mesh(used, AXES)
