@@ -18,12 +18,8 @@ import numpy as np
 from flax import struct
 
 from envs.classic.drawing import Canvas
-from envs.core.core import Array, Environment, EnvParams, EnvState, PRNGKey
+from envs.core.core import Array, Environment, EnvParams, EnvState, PRNGKey, float32_field
 from envs.core.spaces import Box, Discrete
-
-
-def _f32(value: float):
-    return struct.field(default_factory=lambda: np.float32(value))
 
 
 @struct.dataclass
@@ -36,16 +32,16 @@ class CartPoleState(EnvState):
 
 @struct.dataclass
 class CartPoleParams(EnvParams):
-    gravity: Array = _f32(9.8)
-    masscart: Array = _f32(1.0)
-    masspole: Array = _f32(0.1)
-    length: Array = _f32(0.5)  # half the pole's length
-    force_mag: Array = _f32(10.0)
-    tau: Array = _f32(0.02)  # seconds per step
-    theta_threshold_radians: Array = _f32(12 * 2 * math.pi / 360)
-    x_threshold: Array = _f32(2.4)
-    reset_low: Array = _f32(-0.05)  # every state variable starts uniform in [low, high]
-    reset_high: Array = _f32(0.05)
+    gravity: Array = float32_field(9.8)
+    masscart: Array = float32_field(1.0)
+    masspole: Array = float32_field(0.1)
+    length: Array = float32_field(0.5)  # half the pole's length
+    force_mag: Array = float32_field(10.0)
+    tau: Array = float32_field(0.02)  # seconds per step
+    theta_threshold_radians: Array = float32_field(12 * 2 * math.pi / 360)
+    x_threshold: Array = float32_field(2.4)
+    reset_low: Array = float32_field(-0.05)  # every state variable starts uniform in [low, high]
+    reset_high: Array = float32_field(0.05)
 
 
 class CartPole(Environment[CartPoleState, CartPoleParams]):

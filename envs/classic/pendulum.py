@@ -17,12 +17,8 @@ import numpy as np
 from flax import struct
 
 from envs.classic.drawing import Canvas
-from envs.core.core import Array, Environment, EnvParams, EnvState, PRNGKey
+from envs.core.core import Array, Environment, EnvParams, EnvState, PRNGKey, float32_field
 from envs.core.spaces import Box
-
-
-def _f32(value: float):
-    return struct.field(default_factory=lambda: np.float32(value))
 
 
 @struct.dataclass
@@ -34,14 +30,14 @@ class PendulumState(EnvState):
 
 @struct.dataclass
 class PendulumParams(EnvParams):
-    max_speed: Array = _f32(8.0)
-    max_torque: Array = _f32(2.0)
-    dt: Array = _f32(0.05)
-    g: Array = _f32(10.0)
-    m: Array = _f32(1.0)
-    l: Array = _f32(1.0)  # noqa: E741 - gymnasium's name for the length
-    x_init: Array = _f32(math.pi)  # reset: theta uniform in [-x_init, x_init]
-    y_init: Array = _f32(1.0)  # reset: theta_dot uniform in [-y_init, y_init]
+    max_speed: Array = float32_field(8.0)
+    max_torque: Array = float32_field(2.0)
+    dt: Array = float32_field(0.05)
+    g: Array = float32_field(10.0)
+    m: Array = float32_field(1.0)
+    l: Array = float32_field(1.0)  # noqa: E741 - gymnasium's name for the length
+    x_init: Array = float32_field(math.pi)  # reset: theta uniform in [-x_init, x_init]
+    y_init: Array = float32_field(1.0)  # reset: theta_dot uniform in [-y_init, y_init]
 
 
 def angle_normalize(theta: Array) -> Array:

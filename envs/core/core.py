@@ -16,6 +16,7 @@ from typing import Any, Generic, NamedTuple, TypeVar
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 from flax import struct
 
 from envs.core.spaces import Space
@@ -48,6 +49,11 @@ class EnvParams:
 
 StateT = TypeVar("StateT", bound=EnvState)
 ParamsT = TypeVar("ParamsT", bound=EnvParams)
+
+
+def float32_field(value: float) -> Any:
+    """A params field holding ``value`` as a float32 scalar (a fresh one per instance)."""
+    return struct.field(default_factory=lambda: np.float32(value))
 
 
 def keep_active(active: Array, new: Any, old: Any) -> Any:

@@ -12,19 +12,18 @@ given (unclipped), as gymnasium does. Never terminates; start ``qpos ~ U(-0.1, 0
 from __future__ import annotations
 
 import jax.numpy as jnp
-import numpy as np
 from flax import struct
 
-from envs.core.core import Array
+from envs.core.core import Array, float32_field
 from envs.mujoco.mujoco_backend import Measurement
 from envs.mujoco.mujoco_env import MujocoEnv, MujocoParams
 
 
 @struct.dataclass
 class HalfCheetahParams(MujocoParams):
-    reset_noise_scale: Array = struct.field(default_factory=lambda: np.float32(0.1))
-    forward_reward_weight: Array = struct.field(default_factory=lambda: np.float32(1.0))
-    ctrl_cost_weight: Array = struct.field(default_factory=lambda: np.float32(0.1))
+    reset_noise_scale: Array = float32_field(0.1)
+    forward_reward_weight: Array = float32_field(1.0)
+    ctrl_cost_weight: Array = float32_field(0.1)
 
 
 class HalfCheetah(MujocoEnv):

@@ -13,10 +13,9 @@ with ``w`` the two hinge velocities; terminated when the tip height ``y_tip <= 1
 from __future__ import annotations
 
 import jax.numpy as jnp
-import numpy as np
 from flax import struct
 
-from envs.core.core import Array
+from envs.core.core import Array, float32_field
 from envs.mujoco.mujoco_backend import Measurement
 from envs.mujoco.mujoco_env import MujocoEnv, MujocoParams
 
@@ -25,17 +24,17 @@ _CLIP = 10.0  # gymnasium clips velocities and the constraint force in the obser
 
 @struct.dataclass
 class InvertedDoublePendulumParams(MujocoParams):
-    reset_noise_scale: Array = struct.field(default_factory=lambda: np.float32(0.1))
-    healthy_reward: Array = struct.field(default_factory=lambda: np.float32(10.0))
+    reset_noise_scale: Array = float32_field(0.1)
+    healthy_reward: Array = float32_field(10.0)
     #: the episode ends when the tip height drops to this or below
-    min_tip_height: Array = struct.field(default_factory=lambda: np.float32(1.0))
-    target_tip_height: Array = struct.field(default_factory=lambda: np.float32(2.0))
+    min_tip_height: Array = float32_field(1.0)
+    target_tip_height: Array = float32_field(2.0)
     #: distance penalty ``x_weight * x_tip^2 + y_weight * (y_tip - target)^2``
-    distance_x_weight: Array = struct.field(default_factory=lambda: np.float32(0.01))
-    distance_y_weight: Array = struct.field(default_factory=lambda: np.float32(1.0))
+    distance_x_weight: Array = float32_field(0.01)
+    distance_y_weight: Array = float32_field(1.0)
     #: velocity penalty weights of the first and second hinge
-    velocity_weight_1: Array = struct.field(default_factory=lambda: np.float32(1e-3))
-    velocity_weight_2: Array = struct.field(default_factory=lambda: np.float32(5e-3))
+    velocity_weight_1: Array = float32_field(1e-3)
+    velocity_weight_2: Array = float32_field(5e-3)
 
 
 class InvertedDoublePendulum(MujocoEnv):

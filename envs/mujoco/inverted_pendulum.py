@@ -10,21 +10,20 @@ that ends the episode, terminated when ``|angle| > 0.2`` (or the state is not fi
 from __future__ import annotations
 
 import jax.numpy as jnp
-import numpy as np
 from flax import struct
 
-from envs.core.core import Array
+from envs.core.core import Array, float32_field
 from envs.mujoco.mujoco_backend import Measurement
 from envs.mujoco.mujoco_env import MujocoEnv, MujocoParams
 
 
 @struct.dataclass
 class InvertedPendulumParams(MujocoParams):
-    reset_noise_scale: Array = struct.field(default_factory=lambda: np.float32(0.01))
+    reset_noise_scale: Array = float32_field(0.01)
     #: the pole is healthy while ``|angle| <= max_pole_angle`` (rad)
-    max_pole_angle: Array = struct.field(default_factory=lambda: np.float32(0.2))
+    max_pole_angle: Array = float32_field(0.2)
     #: reward per healthy step
-    healthy_reward: Array = struct.field(default_factory=lambda: np.float32(1.0))
+    healthy_reward: Array = float32_field(1.0)
 
 
 class InvertedPendulum(MujocoEnv):
