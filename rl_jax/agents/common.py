@@ -25,6 +25,13 @@ def optimizer_step(
     return optax.apply_updates(params, updates), opt_state
 
 
+def clip_by_global_norm(grads, max_norm) -> tuple[Any, jax.Array]:
+    """``(grads scaled to global norm <= max_norm, norm before)``; ``max_norm <= 0`` keeps them."""
+    norm = optax.global_norm(grads)
+    scale = jnp.where(max_norm > 0.0, jnp.minimum(1.0, max_norm / jnp.maximum(norm, 1e-12)), 1.0)
+    return jax.tree.map(lambda g: g * scale, grads), norm
+
+
 def linearly_decayed(rate, progress, decay_length) -> jax.Array:
     """``rate`` falling linearly to 0 over ``decay_length`` (env steps or updates, as
     ``progress``; constant if the length is <= 0). A rate that ends at 0 freezes the policy a run

@@ -8,7 +8,7 @@ import pytest
 from jax.test_util import check_grads
 
 import envs.core.probes  # noqa: F401  (registers the probe ids)
-from rl_jax.agents import dqn
+from rl_jax.agents import dqn, q_learning
 from rl_jax.training import networks, replay
 from rl_jax.training.replay import Transition
 
@@ -21,7 +21,7 @@ def test_plain_target_is_reward_plus_discounted_max(transform):
     q_t = jnp.array([[1.0, 3.0, -1.0], [0.5, -2.0, 0.0], [2.0, 2.5, 4.0]])
     r_t = jnp.array([[1.0], [-1.0], [0.5]])
     discount_t = jnp.array([[GAMMA], [0.0], [GAMMA]])  # the second transition terminated
-    got = transform(lambda r, d, q: dqn.n_step_target(r, d, dqn.greedy_values(q)))(
+    got = transform(lambda r, d, q: q_learning.n_step_target(r, d, q_learning.greedy_values(q)))(
         r_t, discount_t, q_t
     )
     np.testing.assert_allclose(got, [1.0 + 0.9 * 3.0, -1.0, 0.5 + 0.9 * 4.0], rtol=1e-6)
@@ -31,10 +31,10 @@ def test_plain_target_is_reward_plus_discounted_max(transform):
 def test_double_target_values_the_online_argmax_with_the_target_net(transform):
     q_t_target = jnp.array([[1.0, 3.0, -1.0], [0.5, -2.0, 0.0]])
     q_t_online = jnp.array([[5.0, 0.0, 1.0], [0.0, 1.0, 0.5]])  # argmax 0 and 1
-    got = transform(dqn.double_q_values)(q_t_target, q_t_online)
+    got = transform(q_learning.double_q_values)(q_t_target, q_t_online)
     np.testing.assert_allclose(got, [1.0, -2.0])
     r_t, discount_t = jnp.array([[1.0], [2.0]]), jnp.array([[GAMMA], [GAMMA]])
-    target = transform(dqn.n_step_target)(r_t, discount_t, got)
+    target = transform(q_learning.n_step_target)(r_t, discount_t, got)
     # Plain DQN would bootstrap from 3 and 0.5 here: the two targets really differ.
     np.testing.assert_allclose(target, [1.0 + 0.9 * 1.0, 2.0 - 0.9 * 2.0], rtol=1e-6)
 
@@ -46,7 +46,7 @@ def test_n_step_target_sums_discounted_rewards_then_bootstraps(transform):
     r_t = jnp.array([[1.0, 2.0, 3.0], [1.0, 2.0, 0.0], [1.0, 2.0, 0.0]])
     discount_t = jnp.array([[GAMMA] * 3, [GAMMA, GAMMA, 1.0], [GAMMA, 0.0, 1.0]])
     v_t = jnp.array([10.0, 10.0, 10.0])
-    got = transform(dqn.n_step_target)(r_t, discount_t, v_t)
+    got = transform(q_learning.n_step_target)(r_t, discount_t, v_t)
     expected = [
         1.0 + 0.9 * 2.0 + 0.81 * 3.0 + 0.729 * 10.0,
         1.0 + 0.9 * 2.0 + 0.81 * 10.0,
@@ -58,18 +58,18 @@ def test_n_step_target_sums_discounted_rewards_then_bootstraps(transform):
 @modes
 def test_huber_and_weighted_q_learning_loss_values(transform):
     x = jnp.array([0.5, -2.0, 3.0, 0.0])
-    np.testing.assert_allclose(transform(dqn.huber_loss)(x, 1.0), [0.125, 1.5, 2.5, 0.0])
+    np.testing.assert_allclose(transform(q_learning.huber_loss)(x, 1.0), [0.125, 1.5, 2.5, 0.0])
     q_tm1 = jnp.array([[1.0, 2.0], [0.0, -1.0], [4.0, 0.0]])
     a_tm1 = jnp.array([1, 0, 0])
     target = jnp.array([2.5, 3.0, 4.2])  # td errors 0.5, 3, 0.2
     weights = jnp.array([1.0, 0.5, 0.25])
-    loss, td_error = transform(dqn.q_learning_loss)(q_tm1, a_tm1, target, weights, 1.0)
+    loss, td_error = transform(q_learning.q_learning_loss)(q_tm1, a_tm1, target, weights, 1.0)
     np.testing.assert_allclose(td_error, [0.5, 3.0, 0.2], rtol=1e-6)
     np.testing.assert_allclose(loss, (0.125 + 0.5 * 2.5 + 0.25 * 0.02) / 3, rtol=1e-6)
 
 
 def test_linear_schedule_values():
-    got = [float(dqn.linear_schedule(1.0, 0.1, t, 100.0)) for t in (0, 50, 100, 500)]
+    got = [float(q_learning.linear_schedule(1.0, 0.1, t, 100.0)) for t in (0, 50, 100, 500)]
     np.testing.assert_allclose(got, [1.0, 0.55, 0.1, 0.1], rtol=1e-6)
 
 
@@ -86,13 +86,13 @@ def test_pure_losses_check_grads():
     a_tm1 = jnp.array([0, 1, 2, 0, 1, 2])
     target = jnp.array([0.3, -2.0, 0.1, 1.5, 0.0, 4.0])
     weights = jnp.linspace(0.2, 1.0, 6)
-    loss = jax.jit(lambda q: dqn.q_learning_loss(q, a_tm1, target, weights, 1.0)[0])
+    loss = jax.jit(lambda q: q_learning.q_learning_loss(q, a_tm1, target, weights, 1.0)[0])
     check_grads(loss, (q_tm1,), order=2, eps=1e-3)
-    check_grads(jax.jit(lambda x: dqn.huber_loss(x, 1.0)), (target * 0.9 + 0.05,), order=2)
+    check_grads(jax.jit(lambda x: q_learning.huber_loss(x, 1.0)), (target * 0.9 + 0.05,), order=2)
 
 
 def test_n_step_target_has_no_gradient():
-    grads = jax.grad(lambda r, d, v: jnp.sum(dqn.n_step_target(r, d, v)), argnums=(0, 1, 2))(
+    grads = jax.grad(lambda r, d, v: jnp.sum(q_learning.n_step_target(r, d, v)), argnums=(0, 1, 2))(
         jnp.ones((2, 3)), jnp.full((2, 3), GAMMA), jnp.ones(2)
     )
     for leaf in grads:
@@ -125,7 +125,7 @@ def window_buffer():
 def _windows(buffer, first_steps, n):
     rows = jnp.array([s % 8 for s in first_steps], jnp.int32)
     window, stored = replay.gather_windows(buffer, rows, jnp.zeros_like(rows), n)
-    return dqn.n_step_batch(window, stored, GAMMA)
+    return q_learning.n_step_batch(window, stored, GAMMA)
 
 
 def test_n_step_window_stops_at_termination_without_bootstrap(window_buffer):
@@ -141,7 +141,7 @@ def test_n_step_window_bootstraps_through_truncation_from_the_final_obs(window_b
     np.testing.assert_allclose(batch.r_t, [[5.0, 6.0, 0.0]])
     np.testing.assert_allclose(batch.discount_t, [[GAMMA, GAMMA, 1.0]])
     np.testing.assert_allclose(batch.next_obs, [[106.0]])  # the final obs, not the reset obs
-    target = dqn.n_step_target(batch.r_t, batch.discount_t, jnp.array([10.0]))
+    target = q_learning.n_step_target(batch.r_t, batch.discount_t, jnp.array([10.0]))
     np.testing.assert_allclose(target, [5.0 + 0.9 * 6.0 + 0.81 * 10.0], rtol=1e-6)
 
 
@@ -170,7 +170,7 @@ def setup():
     net = dqn.make_network(config)
     online = net.init(keys[0], jnp.zeros(1))
     target = net.init(keys[1], jnp.zeros(1))
-    batch = dqn.NStepBatch(
+    batch = q_learning.NStepBatch(
         obs=jax.random.normal(keys[2], (BATCH, 1)),
         action=jnp.array([0, 1, 2, 3, 4, 0], jnp.int32),
         r_t=jnp.array([[1.0, 0.5]] * 3 + [[-1.0, 0.0]] * 3),
@@ -233,9 +233,9 @@ def test_network_loss_check_grads(setup):
 
             def objective(params, net=net, target=target, batch=batch64):
                 q_tm1 = net.apply(params, batch.obs)
-                v_t = dqn.greedy_values(net.apply(target, batch.next_obs))
-                y = dqn.n_step_target(batch.r_t, batch.discount_t, v_t)
-                return dqn.q_learning_loss(q_tm1, batch.action, y, to64(weights), 1.0)[0]
+                v_t = q_learning.greedy_values(net.apply(target, batch.next_obs))
+                y = q_learning.n_step_target(batch.r_t, batch.discount_t, v_t)
+                return q_learning.q_learning_loss(q_tm1, batch.action, y, to64(weights), 1.0)[0]
 
             check_grads(jax.jit(objective), (online,), order=1, modes=("rev",), eps=1e-6)
 

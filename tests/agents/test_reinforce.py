@@ -11,7 +11,7 @@ from jax.test_util import check_grads
 from scipy import stats
 
 import envs.core.probes  # noqa: F401  (registers the probe ids)
-from rl_jax.agents import reinforce
+from rl_jax.agents import common, policy_gradient, reinforce
 from rl_jax.agents.reinforce import Trajectory
 from rl_jax.training import networks
 
@@ -28,18 +28,18 @@ def test_reward_to_go_with_masks_equals_a_python_loop():
     for i in range(count):
         for t in range(lengths[i]):
             expected[t, i] = sum(GAMMA ** (k - t) * rewards[k, i] for k in range(t, lengths[i]))
-    got = jax.jit(reinforce.reward_to_go)(jnp.asarray(rewards), jnp.asarray(mask), GAMMA)
+    got = jax.jit(policy_gradient.reward_to_go)(jnp.asarray(rewards), jnp.asarray(mask), GAMMA)
     np.testing.assert_allclose(got, expected, rtol=1e-5, atol=1e-6)
     # Garbage after an episode's end (a masked step) must not leak into earlier returns.
     noisy = jnp.asarray(rewards + (1.0 - mask) * 100.0)
-    got = reinforce.reward_to_go(noisy, jnp.asarray(mask), GAMMA)
+    got = policy_gradient.reward_to_go(noisy, jnp.asarray(mask), GAMMA)
     np.testing.assert_allclose(got, expected, rtol=1e-5, atol=1e-6)
 
 
 def test_normalize_over_valid_entries():
     x = jnp.array([[1.0, 2.0], [3.0, 50.0]])
     mask = jnp.array([[1.0, 1.0], [1.0, 0.0]])
-    got = np.asarray(reinforce.normalize(x, mask))
+    got = np.asarray(policy_gradient.normalize(x, mask))
     valid = np.array([1.0, 2.0, 3.0])
     np.testing.assert_allclose(got[[0, 0, 1], [0, 1, 0]], (valid - 2.0) / valid.std(), rtol=1e-5)
     assert got[1, 1] == 0.0
@@ -51,14 +51,18 @@ def test_gaussian_and_categorical_log_probs_equal_closed_forms():
     mean = jax.random.normal(key_m, (6, 3))
     std = jax.random.uniform(key_s, (6, 3), minval=0.1, maxval=2.0)
     expected = stats.norm.logpdf(action, mean, std).sum(axis=-1)
-    np.testing.assert_allclose(reinforce.gaussian_log_prob(action, mean, std), expected, rtol=1e-5)
+    np.testing.assert_allclose(
+        policy_gradient.gaussian_log_prob(action, mean, std), expected, rtol=1e-5
+    )
     logits = jax.random.normal(key_l, (6, 4))
     index = jnp.array([0, 1, 2, 3, 1, 0])
     probabilities = np.exp(logits) / np.exp(logits).sum(axis=-1, keepdims=True)
     expected = np.log(probabilities[np.arange(6), np.asarray(index)])
-    np.testing.assert_allclose(reinforce.categorical_log_prob(logits, index), expected, rtol=1e-5)
+    np.testing.assert_allclose(
+        policy_gradient.categorical_log_prob(logits, index), expected, rtol=1e-5
+    )
     check_grads(
-        lambda m, s: reinforce.gaussian_log_prob(action, m, s), (mean, std), order=1, eps=1e-3
+        lambda m, s: policy_gradient.gaussian_log_prob(action, m, s), (mean, std), order=1, eps=1e-3
     )
 
 
@@ -76,7 +80,7 @@ def test_std_floor_bounds_the_std_and_leaves_the_mean_alone():
     np.testing.assert_allclose(out_low["std"], 1e-6, rtol=1e-3)
     np.testing.assert_allclose(out_high["std"], 0.5, rtol=1e-6)
     np.testing.assert_array_equal(out_low["mean"], out_high["mean"])
-    assert np.all(np.isfinite(reinforce.gaussian_log_prob(out_low["mean"], **_ms(out_low))))
+    assert np.all(np.isfinite(policy_gradient.gaussian_log_prob(out_low["mean"], **_ms(out_low))))
 
 
 def _ms(out):
@@ -200,31 +204,31 @@ def test_mean_baseline_equals_centred_returns(cartpole_rollout):
     params = network.init(jax.random.key(7), jnp.zeros(4))
     hparams = reinforce.default_hyperparams(gamma=GAMMA)
     loss, _ = reinforce.loss_fn(params, trajectory, hparams, config_mean)
-    returns = np.asarray(reinforce.reward_to_go(trajectory.reward, trajectory.mask, GAMMA))
+    returns = np.asarray(policy_gradient.reward_to_go(trajectory.reward, trajectory.mask, GAMMA))
     mask = np.asarray(trajectory.mask)
     advantage = returns - (returns * mask).sum() / mask.sum()
     logits = network.apply(params, trajectory.obs)["logits"]
-    log_prob = np.asarray(reinforce.categorical_log_prob(logits, trajectory.action))
+    log_prob = np.asarray(policy_gradient.categorical_log_prob(logits, trajectory.action))
     np.testing.assert_allclose(loss, -(mask * log_prob * advantage).sum() / 6, rtol=1e-5)
 
 
 def test_gaussian_and_categorical_entropy_match_closed_forms():
     std = jnp.array([[0.5, 2.0]])
-    gaussian = reinforce.entropy({"mean": jnp.zeros_like(std), "std": std})
+    gaussian = policy_gradient.entropy({"mean": jnp.zeros_like(std), "std": std})
     expected = np.sum(0.5 * np.log(2 * np.pi * np.e * np.asarray(std) ** 2), axis=-1)
     np.testing.assert_allclose(gaussian, expected, rtol=1e-5)
     probs = np.array([0.2, 0.3, 0.5])
-    categorical = reinforce.entropy({"logits": jnp.log(jnp.asarray(probs))})
+    categorical = policy_gradient.entropy({"logits": jnp.log(jnp.asarray(probs))})
     np.testing.assert_allclose(categorical, -np.sum(probs * np.log(probs)), rtol=1e-5)
 
 
 def test_gradient_clipping_scales_to_the_bound_and_zero_turns_it_off():
     grads = {"a": jnp.array([3.0, 0.0]), "b": jnp.array([[4.0]])}  # global norm 5
-    clipped, norm = reinforce.clip_by_global_norm(grads, jnp.float32(1.0))
+    clipped, norm = common.clip_by_global_norm(grads, jnp.float32(1.0))
     np.testing.assert_allclose(norm, 5.0, rtol=1e-6)
     np.testing.assert_allclose(clipped["a"], [0.6, 0.0], rtol=1e-6)
     np.testing.assert_allclose(clipped["b"], [[0.8]], rtol=1e-6)
-    same, _ = reinforce.clip_by_global_norm(grads, jnp.float32(0.0))
+    same, _ = common.clip_by_global_norm(grads, jnp.float32(0.0))
     np.testing.assert_allclose(same["b"], [[4.0]])
 
 

@@ -1,0 +1,61 @@
+"""REINFORCE's maths, pure and network-free: the masked reward-to-go and its standardisation, the
+log-probabilities and entropy of the Gaussian and categorical policies, and the score-function
+loss. Arrays are ``[T, N]`` (time, envs) with a 0/1 ``mask`` of the steps inside episodes.
+"""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+
+
+def reward_to_go(r_t, mask, gamma) -> jax.Array:
+    """``G_t = mask_t (r_t + gamma G_{t+1})`` backwards over axis 0: ``[T, N] -> [T, N]``."""
+
+    def back(g_next, inputs):
+        r, m = inputs
+        g = m * (r + gamma * g_next)
+        return g, g
+
+    return jax.lax.scan(back, jnp.zeros_like(r_t[0]), (r_t, mask), reverse=True)[1]
+
+
+def normalize(x, mask, eps: float = 1e-8) -> jax.Array:
+    """``(x - mean) / (std + eps)`` over the entries where ``mask`` is 1 (others become 0)."""
+    count = jnp.maximum(jnp.sum(mask), 1.0)
+    mean = jnp.sum(x * mask) / count
+    std = jnp.sqrt(jnp.sum(((x - mean) * mask) ** 2) / count)
+    return mask * (x - mean) / (std + eps)
+
+
+def gaussian_log_prob(action, mean, std) -> jax.Array:
+    """Diagonal Gaussian log-density, summed over the last axis: ``[..., D] -> [...]``."""
+    z = (action - mean) / std
+    return jnp.sum(-0.5 * z**2 - jnp.log(std) - 0.5 * jnp.log(2.0 * jnp.pi), axis=-1)
+
+
+def categorical_log_prob(logits, action) -> jax.Array:
+    """``log softmax(logits)[action]``: ``[..., A], [...] -> [...]``."""
+    log_probs = jax.nn.log_softmax(logits, axis=-1)
+    return jnp.take_along_axis(log_probs, action[..., None].astype(jnp.int32), axis=-1)[..., 0]
+
+
+def policy_gradient_loss(log_prob, advantage, mask) -> jax.Array:
+    """``-1/N sum_{t,i} mask log_prob stop_gradient(advantage)`` for ``[T, N]`` inputs: the
+    negated score-function estimate of the gradient of the mean episode return."""
+    weighted = mask * log_prob * jax.lax.stop_gradient(advantage)
+    return -jnp.sum(weighted) / log_prob.shape[1]
+
+
+def entropy(policy: dict[str, jax.Array]) -> jax.Array:
+    """Entropy of each distribution: ``[...]`` (a diagonal Gaussian's sums over its dims)."""
+    if "logits" in policy:
+        log_probs = jax.nn.log_softmax(policy["logits"], axis=-1)
+        return -jnp.sum(jnp.exp(log_probs) * log_probs, axis=-1)
+    return jnp.sum(jnp.log(policy["std"]) + 0.5 * jnp.log(2.0 * jnp.pi * jnp.e), axis=-1)
+
+
+def log_prob(policy: dict[str, jax.Array], action) -> jax.Array:
+    if "logits" in policy:
+        return categorical_log_prob(policy["logits"], action)
+    return gaussian_log_prob(action, policy["mean"], policy["std"])
