@@ -123,6 +123,7 @@ def add_dataclass_flags(parser: argparse.ArgumentParser, instance: Any, title: s
 
 def add_run_flags(parser: argparse.ArgumentParser, seeds: int, total_steps: int) -> None:
     """The run contract: --seeds, --total-steps, --out, --resume, --gif, and run settings."""
+    # Long only because it is one flat list of flags, each a call read on its own.
     group = parser.add_argument_group("run")
     add = group.add_argument
     add(
