@@ -1,0 +1,266 @@
+"""Sweeps: a grid over hyperparameters (vmapped in one program) and config fields (one program
+per shape) x seeds, each shape a run directory of its own, ranked together at the end
+(``experiments/sweep.py`` is the script; its docstring is the user's guide).
+
+Grid names are hyperparameter or config fields, or the short names of ``ALIASES``. A sweep on
+one process runs every shape through ``rl_jax.run.runner.run``, with its checkpoints, progress
+and ``--resume``; on several processes (``jax.distributed``) ``run_distributed`` runs the chunks
+itself, without checkpoints, and process 0 writes the metrics.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+from rl_jax.errors import OneLineParser, UsageError, exit_now, guard, parse_int, positive_int
+from rl_jax.run import cli, flags
+from rl_jax.run.run_dir import RunError
+from rl_jax.training import parallel, params
+
+ALIASES = {
+    "lr": ("actor_lr", "critic_lr", "learning_rate"),
+    "width": ("actor_hidden", "critic_hidden", "hidden_sizes"),
+    "batch": ("batch_size",),
+    "buffer": ("buffer_size",),
+}
+SWEEP_FLAGS = ("--algo", "--env", "--grid", "--coordinator", "--num-processes", "--process-id")
+
+
+@dataclasses.dataclass(frozen=True)
+class Axis:
+    """One --grid: a name, the fields it sets together, and the values."""
+
+    name: str
+    fields: tuple[str, ...]
+    values: tuple[Any, ...]
+    static: bool  # a config field: one compiled program per value
+
+
+def parse_axis(spec: str, config: Any, hparams: Any) -> Axis:
+    name, text = flags.split_grid_spec(spec)
+    static = {f.name: getattr(config, f.name) for f in dataclasses.fields(config)}
+    dynamic = {f.name: getattr(hparams, f.name) for f in dataclasses.fields(hparams)}
+    known = {**static, **dynamic}
+    fields = tuple(f for f in ALIASES.get(name, (name,)) if f in known and f not in flags.NOT_FLAGS)
+    if not fields:
+        choices = ", ".join([*ALIASES, *dynamic, *static])
+        raise UsageError(f"--grid {name}: unknown field; known: {choices}")
+    values = flags.grid_values(name, text, known[fields[0]])
+    return Axis(name, fields, values, fields[0] in static)
+
+
+def combos(axes: list[Axis]) -> list[dict[str, Any]]:
+    """Field values of every point of the product grid (first axis slowest)."""
+    points = params.product({axis.name: axis.values for axis in axes})
+    return [{field: point[axis.name] for axis in axes for field in axis.fields} for point in points]
+
+
+def shape_label(point: dict[str, Any], axes: list[Axis]) -> str:
+    parts = []
+    for axis in axes:
+        value = point[axis.fields[0]]
+        text = "x".join(map(str, value)) if isinstance(value, tuple) else str(value)
+        parts.append(f"{axis.name}={text}")
+    return ",".join(parts) or "base"
+
+
+def parse_args(argv: list[str]) -> tuple[argparse.Namespace, list[str]]:
+    parser = OneLineParser(add_help=False)
+    parser.add_argument("--algo")
+    parser.add_argument("--env")
+    parser.add_argument("--grid", action="append", default=[])
+    parser.add_argument("--coordinator")
+    parser.add_argument("--num-processes", type=positive_int, default=1)
+    parser.add_argument("--process-id", type=parse_int, default=0)
+    return parser.parse_known_args(argv)
+
+
+def sweep_record(out: Path) -> dict[str, Any]:
+    import json
+
+    path = out / "sweep.json"
+    if not path.is_file():
+        raise RunError(f"no sweep at {out} (no sweep.json)")
+    return json.loads(path.read_text())
+
+
+def build_specs(
+    argv: list[str], description: str
+) -> tuple[list[Any], list[str], Path, argparse.Namespace]:
+    """One RunSpec per shape of the grid, with its hyperparameter grid inside."""
+    sweep_args, rest = parse_args(argv)
+    resume = "--resume" in rest
+    if resume:
+        out = Path(rest[rest.index("--resume") + 1])
+        saved = sweep_record(out)
+        sweep_args.algo, sweep_args.env = saved["algo"], saved["env"]
+        sweep_args.grid = saved["grid"]
+        rest = [*saved["argv"], *rest]
+    if not sweep_args.algo or not sweep_args.env:
+        raise UsageError("--algo and --env are required")
+    import envs
+
+    algorithm = cli.resolve_algorithm(sweep_args.algo)
+    env_id = envs.core.registry.resolve_id(sweep_args.env)
+    parser, config_names, hparam_names = cli.build_parser(
+        algorithm, env_id, description, cli.Defaults(), choose=False
+    )
+    args = parser.parse_args(rest)
+    out = args.resume or args.out or default_out(env_id, algorithm.name)
+    args.resume, args.out = None, None
+    base = cli.build_spec(args, algorithm, env_id, cli.Defaults(), (config_names, hparam_names), [])
+    axes = [parse_axis(spec, base.config, base.hparams[0]) for spec in sweep_args.grid]
+    static = [axis for axis in axes if axis.static]
+    dynamic = [axis for axis in axes if not axis.static]
+    specs, labels = [], []
+    for point in combos(static):
+        config = cli.replace_fields(base.config, point, "config")
+        hparams = [
+            cli.replace_fields(base.hparams[0], p, "hyperparameters") for p in combos(dynamic)
+        ]
+        cli.validate_settings(algorithm, config, hparams)
+        label = shape_label(point, static)
+        specs.append(
+            dataclasses.replace(
+                base,
+                config=config,
+                hparams=tuple(hparams),
+                out=Path(out) / label,
+                resume=resume and (Path(out) / label / "config.json").is_file(),
+                grid_fields=tuple(axis.fields[0] for axis in dynamic),
+                command=" ".join([Path(sys.executable).name, *sys.argv]),
+                resume_command=f"python experiments/sweep.py --resume {out}",
+                throughput=None,
+            )
+        )
+        labels.append(label)
+    return specs, labels, Path(out), sweep_args
+
+
+def default_out(env_id: str, algorithm_name: str) -> Path:
+    return cli.default_run_dir(env_id, f"{algorithm_name}-sweep")
+
+
+def write_record(out: Path, argv: list[str], sweep_args: argparse.Namespace) -> None:
+    import json
+
+    passed = [a for a in argv if a not in ("--resume",)]
+    record = {"algo": sweep_args.algo, "env": sweep_args.env, "grid": sweep_args.grid}
+    record["argv"] = [a for a in _without_sweep_flags(passed) if a != str(out)]
+    out.mkdir(parents=True, exist_ok=True)
+    if not (out / "sweep.json").exists():
+        (out / "sweep.json").write_text(json.dumps(record, indent=2) + "\n")
+
+
+def _without_sweep_flags(argv: list[str]) -> list[str]:
+    kept, skip = [], False
+    for arg in argv:
+        if skip:
+            skip = False
+            continue
+        if arg in (*SWEEP_FLAGS, "--out"):
+            skip = True
+            continue
+        if arg.split("=")[0] in (*SWEEP_FLAGS, "--out"):
+            continue
+        kept.append(arg)
+    return kept
+
+
+def summarize(out: Path, specs: list[Any], labels: list[str], wall_clock: float) -> str:
+    """curves.png (one curve per config of every shape) and the ranked results.txt."""
+    from rl_jax.run import plots
+    from rl_jax.run.metrics import METRICS_FILE, read_rows
+
+    curves = []
+    for spec, label in zip(specs, labels, strict=True):
+        for curve in plots.curves_from_rows(read_rows(spec.out / METRICS_FILE), spec.grid_fields):
+            prefix = "" if label == "base" else label
+            curve.label = ", ".join(part for part in (prefix, curve.label) if part) or "base"
+            curves.append(curve)
+    title = f"{specs[0].algorithm.name} on {specs[0].env_id}: sweep"
+    plots.plot_curves(curves, out / "curves.png", title=title, statistic="mean")
+    table = plots.sweep_table(plots.final_results(curves), wall_clock)
+    (out / "results.txt").write_text(table + "\n")
+    return table
+
+
+def run_sweep(argv: list[str], description: str = "") -> int:
+    """The sweep of ``argv`` (the script's flags), shape after shape, then its summary."""
+    started = time.perf_counter()
+    specs, labels, out, sweep_args = build_specs(argv, description)
+    if sweep_args.num_processes > 1:
+        return run_distributed(specs, labels, out, started)
+    from rl_jax.run import runner
+
+    write_record(out, argv, sweep_args)
+    for index, spec in enumerate(specs, 1):
+        print(f"== shape {index}/{len(specs)}: {labels[index - 1]}")
+        result = runner.run(spec)
+        if result.stopped:
+            return 0
+    print(summarize(out, specs, labels, time.perf_counter() - started))
+    print(f"sweep directory: {out}")
+    return 0
+
+
+def run_distributed(specs: list[Any], labels: list[str], out: Path, started: float) -> int:
+    """Every process runs the same chunks on its devices' share of the runs; metrics are
+    gathered to all, and process 0 writes metrics.jsonl, curves.png and results.txt."""
+    import jax
+
+    from rl_jax.run import runner
+    from rl_jax.run.metrics import MetricsLog
+    from rl_jax.run.plan import check_memory, make_plan
+    from rl_jax.run.run_dir import check_out_dir
+
+    lead = jax.process_index() == 0
+    if lead:
+        for spec in specs:
+            check_out_dir(spec.out, spec.identity)
+    for index, spec in enumerate(specs, 1):
+        plan = make_plan(spec)
+        check_memory(plan)
+        hparams = params.stack(list(spec.hparams))
+        state = plan.program.init(parallel.seed_keys(spec.seed_numbers), hparams)
+        if lead:
+            spec.out.mkdir(parents=True, exist_ok=True)
+        log = MetricsLog(spec.out, None, spec.grid_fields) if lead else None
+        grid = runner.grid_values(spec)
+        for chunk in range(plan.chunks):
+            state, metrics = plan.program.train_chunk(state, hparams)
+            metrics = plan.program.gather(metrics)  # all processes take part
+            if lead:
+                elapsed = time.perf_counter() - started
+                log.write(runner.metric_rows(metrics, spec, chunk, elapsed, grid))
+                print(f"shape {index}/{len(specs)}: chunk {chunk + 1}/{plan.chunks}", flush=True)
+        if lead:
+            log.close()
+    if lead:
+        print(summarize(out, specs, labels, time.perf_counter() - started))
+        print(f"sweep directory: {out}")
+    return 0
+
+
+def main(description: str, argv: list[str] | None = None) -> None:
+    """A sweep script's whole body: ``--help`` shows ``description`` and the flags; with
+    ``--num-processes`` > 1, ``jax.distributed`` starts first; user errors are one line."""
+    argv = sys.argv[1:] if argv is None else argv
+    if {"-h", "--help"} & set(argv):
+        exit_now(guard(lambda: cli.run_experiment(None, None, description, argv)))
+    sweep_args, _ = parse_args(argv)
+    cli.configure_jax()  # before JAX starts: device count and compilation cache
+    if sweep_args.num_processes > 1:
+        import jax
+
+        jax.distributed.initialize(
+            coordinator_address=sweep_args.coordinator,
+            num_processes=sweep_args.num_processes,
+            process_id=sweep_args.process_id,
+        )
+    exit_now(guard(lambda: run_sweep(argv, description)))
