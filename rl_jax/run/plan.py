@@ -134,7 +134,7 @@ def runs_template(spec: RunSpec, hparams: Any) -> Any:
         lambda key: spec.algorithm.init(key, spec.config, one), jax.random.key(0)
     )
     runs = (len(spec.hparams), spec.seeds)
-    return parallel._map_axes(
+    return parallel.map_axes(
         lambda axis, leaf: (
             leaf if axis is None else jax.ShapeDtypeStruct((*runs, *leaf.shape), leaf.dtype)
         ),

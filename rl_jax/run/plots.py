@@ -4,6 +4,10 @@ Across seeds we report the interquartile mean (IQM: the mean of the middle 50% o
 to one lucky or broken seed; equal to the mean below 4 seeds) with a 95% percentile-bootstrap
 confidence interval over seeds. The bootstrap uses a fixed RNG, so the same metrics always give
 the same plot and table.
+
+Why not rliable, which computes these intervals (and aggregates across tasks): a run here is
+one task, and ``bootstrap_ci`` is a few lines of numpy that also bootstraps every point of a
+curve at once, in blocks that bound its memory, without another dependency.
 """
 
 from __future__ import annotations

@@ -74,7 +74,7 @@ def _specs(axes: Any) -> Any:
     )
 
 
-def _map_axes(function: Any, axes: Any, tree: Any) -> Any:
+def map_axes(function: Any, axes: Any, tree: Any) -> Any:
     """``function(axis, leaf)`` on every leaf of ``tree``; a ``None`` axis (the shared clock)
     covers a whole subtree, so it is handed to each leaf under it."""
     return jax.tree.map(
@@ -117,7 +117,7 @@ def seed_loop(chunk_one: Any, axes: Any, num_seeds: int) -> Any:
 
     def looped(state: Any, hp: Any) -> tuple[Any, Any]:
         outputs = [
-            chunk_one(_map_axes(lambda axis, leaf, i=i: _take(axis, leaf, i), axes, state), hp)
+            chunk_one(map_axes(lambda axis, leaf, i=i: _take(axis, leaf, i), axes, state), hp)
             for i in range(num_seeds)
         ]
         states = [output[0] for output in outputs]
@@ -210,7 +210,7 @@ class Program:
     def place(self, state: Any, hparams: Any) -> Any:
         """An ``[H, S]`` state (host or device arrays) padded and put on the mesh."""
         axes = self.axes(hparams)
-        return _map_axes(self._place_leaf, axes, state)
+        return map_axes(self._place_leaf, axes, state)
 
     def unpad(self, state: Any, hparams: Any) -> Any:
         """The ``[H, S]`` runs of a device state, as host arrays (typed keys stay keys)."""
@@ -223,7 +223,7 @@ class Program:
             array = array if axis is None else array[real]
             return array if key_impl is None else jax.random.wrap_key_data(array, impl=key_impl)
 
-        return _map_axes(take, axes, state)
+        return map_axes(take, axes, state)
 
     def gather(self, metrics: Any) -> Any:
         """Host copies of ``[H_padded, S_padded]`` outputs (chunk metrics), cut to ``[H, S]``."""
@@ -255,7 +255,7 @@ class Program:
             shape = (*self.padded, *leaf.shape)
             return jax.ShapeDtypeStruct(shape, leaf.dtype, sharding=self.sharding())
 
-        return _map_axes(grow, axes, abstract)
+        return map_axes(grow, axes, abstract)
 
     def local_fraction(self) -> float:
         """Share of the state held by this process's devices (1 without ``jax.distributed``)."""
