@@ -18,7 +18,6 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-import os
 import shlex
 import sys
 import time
@@ -43,7 +42,7 @@ from rl_jax.run.flags import (
 from rl_jax.run.run_dir import load_algorithm, read_run_record
 from rl_jax.training import params
 from rl_jax.training.algorithm import hooks
-from rl_jax.training.jax_setup import configure
+from rl_jax.training.jax_setup import configure_jax
 from rl_jax.training.params import dataclass_from_dict
 from rl_jax.training.validation import out_of_range
 
@@ -311,21 +310,6 @@ def build_spec(
         if resume or args.grid or _explicit(args, names[0])
         else defaults.throughput,
     )
-
-
-def cpu_count() -> int:
-    """CPU cores this process may use."""
-    try:
-        return len(os.sched_getaffinity(0))
-    except AttributeError:
-        return os.cpu_count() or 1
-
-
-def configure_jax() -> None:
-    """Compilation cache on and one JAX device per CPU core (seeds and configs are sharded over
-    them), before anything starts JAX. ``RL_JAX_CPU_DEVICES`` overrides the device count."""
-
-    configure(cpu_devices=int(os.environ.get("RL_JAX_CPU_DEVICES", cpu_count())))
 
 
 def run_experiment(

@@ -21,6 +21,7 @@ from rl_jax.errors import OneLineParser, UsageError, exit_now, guard, parse_int,
 from rl_jax.run import cli, flags
 from rl_jax.run.run_dir import RunError
 from rl_jax.training import parallel, params
+from rl_jax.training.jax_setup import configure_jax
 
 ALIASES = {
     "lr": ("actor_lr", "critic_lr", "learning_rate"),
@@ -254,7 +255,7 @@ def main(description: str, argv: list[str] | None = None) -> None:
     if {"-h", "--help"} & set(argv):
         exit_now(guard(lambda: cli.run_experiment(None, None, description, argv)))
     sweep_args, _ = parse_args(argv)
-    cli.configure_jax()  # before JAX starts: device count and compilation cache
+    configure_jax()  # before JAX starts: device count and compilation cache
     if sweep_args.num_processes > 1:
         import jax
 

@@ -36,3 +36,17 @@ def configure(cpu_devices: int | None = None, cache_dir: str | os.PathLike | Non
         # Cache everything that took noticeable time to compile; tiny programs are not worth it.
         jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.5)
         jax.config.update("jax_persistent_cache_min_entry_size_bytes", 0)
+
+
+def cpu_count() -> int:
+    """CPU cores this process may use."""
+    try:
+        return len(os.sched_getaffinity(0))
+    except AttributeError:
+        return os.cpu_count() or 1
+
+
+def configure_jax() -> None:
+    """Compilation cache on and one JAX device per CPU core (seeds and configs are sharded over
+    them), before anything starts JAX. ``RL_JAX_CPU_DEVICES`` overrides the device count."""
+    configure(cpu_devices=int(os.environ.get("RL_JAX_CPU_DEVICES", cpu_count())))
