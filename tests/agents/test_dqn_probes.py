@@ -19,7 +19,7 @@ import pytest
 
 import envs.core.probes  # noqa: F401  (registers the probe ids)
 from envs.core.probes import Truncation
-from rl_jax.agents import dqn, reinforce
+from rl_jax.agents import dqn, reinforce, reinforce_policy
 
 GAMMA = 0.5
 TOL = 0.05
@@ -100,14 +100,16 @@ def train_reinforce(env_id: str):
 
 def test_reinforce_gaussian_policy_finds_the_best_action():
     config, state, metrics = train_reinforce("rl_jax/ProbeActionReward-v0")
-    policy = reinforce.make_network(config).apply(state.agent.params, jnp.zeros((1, 1)))
+    policy = reinforce_policy.make_network(config).apply(state.agent.params, jnp.zeros((1, 1)))
     assert abs(float(policy["mean"][0, 0]) - 0.5) < TOL
     assert float(metrics.eval_return) > 1.0 - TOL**2
 
 
 def test_reinforce_categorical_policy_finds_the_best_action():
     config, state, metrics = train_reinforce("rl_jax/ProbeActionRewardDiscrete-v0")
-    logits = reinforce.make_network(config).apply(state.agent.params, jnp.zeros((1, 1)))["logits"]
+    logits = reinforce_policy.make_network(config).apply(state.agent.params, jnp.zeros((1, 1)))[
+        "logits"
+    ]
     probabilities = np.asarray(jax.nn.softmax(logits[0]))
     assert probabilities.argmax() == 3 and probabilities[3] > 0.8, probabilities
     assert float(metrics.eval_return) == pytest.approx(1.0)
