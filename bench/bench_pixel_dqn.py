@@ -1,12 +1,13 @@
-"""Training-loop updates/s of DQN from pixels (``rl_jax/CartPolePixels-v1``) with its seeds
-vmapped against its seeds as an unrolled loop in the same compiled program
-(``parallel.Program(loop_seeds=True)``, the pixel recipe's default).
+"""Pixel DQN (``rl_jax/CartPolePixels-v1``): where its update time goes on this CPU.
 
-Vmapped over seeds, XLA turns each convolution with per-seed weights into one grouped
-convolution, which this CPU runs several times slower than the same convs one seed after
-another. Each program is the recipe's training chunk (4 envs, 2 updates per iteration, batch 64,
-the 2013 DQN torso, frames drawn in JAX), timed on chunks of 100 iterations (200 updates per
-seed) once learning has started, for 3 seeds (the pixel goal's) and 1 seed for reference.
+1. The conv torso's gradient step inside a ``lax.scan`` (where the training chunk runs it):
+   ``flax.linen.Conv`` against ``rl_jax.training.networks.MatmulConv`` (space-to-depth + one matmul,
+   the same parameters and results). XLA's CPU backend runs a convolution's gradient inside a
+   loop body far slower than outside one (jax-ml/jax#12868).
+2. The recipe's whole training chunk (4 envs, 2 updates per iteration, batch 64, the 2013 DQN
+   torso, frames drawn in JAX) with its seeds vmapped against its seeds as an unrolled loop in
+   the same program (``parallel.Program(loop_seeds=True)``, the pixel recipe's default), timed on
+   chunks of 100 iterations (200 updates per seed) once learning has started.
 """
 
 from __future__ import annotations
@@ -14,12 +15,14 @@ from __future__ import annotations
 import os
 import time
 
+import flax.linen as nn
 import jax
+import jax.numpy as jnp
 import numpy as np
 
 from bench.machine import describe
 from rl_jax.agents.dqn import dqn
-from rl_jax.training import parallel, params
+from rl_jax.training import networks, parallel, params
 
 ENV_ID = "rl_jax/CartPolePixels-v1"
 ITERATIONS = 100  # per timed chunk: 200 updates per seed
@@ -60,15 +63,69 @@ def measure(once, rounds: int, min_time: float) -> float:
     return float(np.median(rates))
 
 
+class _FlaxTorso(nn.Module):
+    """The 2013 DQN torso and head with ``nn.Conv`` (what ``networks.ConvTorso`` was)."""
+
+    matmul: bool
+
+    @nn.compact
+    def __call__(self, pixels):
+        x = pixels / 255.0
+        for index, (features, kernel, stride) in enumerate(((16, 8, 4), (32, 4, 2))):
+            if self.matmul:
+                conv = networks.MatmulConv(features, kernel, stride, name=f"Conv_{index}")
+            else:
+                conv = nn.Conv(features, (kernel, kernel), (stride, stride), "VALID")
+            x = nn.relu(conv(x))
+        return nn.Dense(2)(nn.relu(nn.Dense(256)(x.reshape(x.shape[:-3] + (-1,)))))
+
+
+def torso_steps(frame_size: int, matmul: bool, steps: int = 10):
+    """A function running ``steps`` SGD steps of the torso on a batch of 64 in one scan."""
+    frames = jax.random.uniform(jax.random.key(0), (64, frame_size, frame_size, 4)) * 255.0
+    net = _FlaxTorso(matmul)
+    params = net.init(jax.random.key(1), frames)
+
+    def loss(params):
+        return jnp.sum(net.apply(params, frames) ** 2)
+
+    def step(params, _):
+        grads = jax.grad(loss)(params)
+        return jax.tree.map(lambda p, g: p - 1e-6 * g, params, grads), None
+
+    scanned = jax.jit(lambda params: jax.lax.scan(step, params, None, length=steps)[0])
+
+    def once() -> int:
+        jax.block_until_ready(scanned(params))
+        return steps
+
+    return once
+
+
 def run(quick: bool = False) -> str:
     rounds, min_time = (1, 1.0) if quick else (3, 5.0)
     sizes = (42,) if quick else (42, 84)
     lines = [
-        "## Pixel DQN: seeds vmapped vs seeds as a loop in one program",
+        "## Pixel DQN: the conv torso in the training loop, seeds vmapped or looped",
         "",
         describe(),
         "",
         "`python -m bench pixel_dqn" + (" --quick`" if quick else "`"),
+        "",
+        "Gradient steps/s of the torso (2 conv layers, 256 units, batch 64) inside a "
+        f"`lax.scan` of 10 steps; median of {rounds} round(s) of >= {min_time} s.",
+        "",
+        "| frame | nn.Conv | MatmulConv | MatmulConv / nn.Conv |",
+        "|---:|---:|---:|---:|",
+    ]
+    for size in sizes:
+        flax_rate = measure(torso_steps(size, False), rounds, min_time)
+        matmul_rate = measure(torso_steps(size, True), rounds, min_time)
+        lines.append(
+            f"| {size}x{size} | {flax_rate:,.1f} | {matmul_rate:,.1f} | "
+            f"{matmul_rate / flax_rate:.2f}x |"
+        )
+    lines += [
         "",
         f"Updates/s per seed of the pixel recipe's training chunk ({ITERATIONS} iterations of 4 "
         "env steps and 2 updates, batch 64, frames drawn in JAX), learning on; median of "

@@ -113,7 +113,7 @@ class Hyperparams:
 class TrainState(NamedTuple):
     params: dict
     opt_state: Any
-    buffer: jax.Array  # [buffer_size, 3] obs and action
+    buffer: jax.Array  # [buffer_size, obs_size + 1] obs and action
     buffer_count: jax.Array  # [] int32
     env_state: PointState  # [num_envs]
     obs: jax.Array  # [num_envs, 2]
@@ -148,8 +148,12 @@ def _optimizer(hparams: Hyperparams) -> optax.GradientTransformation:
     return optax.inject_hyperparams(optax.adam)(learning_rate=hparams.learning_rate)
 
 
+def _obs_size(config: Config) -> int:
+    return make_env(config).observation_space().shape[0]
+
+
 def _init_params(key: jax.Array, config: Config) -> dict:
-    sizes = (2, *config.hidden_sizes, 1)
+    sizes = (_obs_size(config), *config.hidden_sizes, 1)
     keys = jax.random.split(key, len(sizes) - 1)
     return {
         f"layer{i}": jax.random.normal(k, (a, b), jnp.float32) / np.sqrt(a)
@@ -176,7 +180,7 @@ def init(key: jax.Array, config: Config, hparams: Hyperparams) -> TrainState:
     return TrainState(
         params=params,
         opt_state=_optimizer(hparams).init(params),
-        buffer=jnp.zeros((config.buffer_size, 3), jnp.float32),
+        buffer=jnp.zeros((config.buffer_size, _obs_size(config) + 1), jnp.float32),
         buffer_count=jnp.zeros((), jnp.int32),
         env_state=env_state,
         obs=timestep.obs,
@@ -190,7 +194,7 @@ def init(key: jax.Array, config: Config, hparams: Hyperparams) -> TrainState:
 
 def _loss(params: dict, batch: jax.Array) -> jax.Array:
     # Push the action towards the force that stops the point: a made-up but smooth objective.
-    obs, action = batch[:, :2], batch[:, 2:]
+    obs, action = batch[:, :-1], batch[:, -1:]
     target = -jnp.clip(obs[:, :1] + obs[:, 1:], -1.0, 1.0)
     return jnp.mean((_forward(params, obs) - target) ** 2) + 0.0 * jnp.mean(action)
 

@@ -26,7 +26,17 @@ away penalty and the crash, and changes these (all params):
     of a one-off +500, so holding the goal is worth as much as reaching it;
   * a sharp peak ``precision_weight * exp(-(|x| + |v|) / precision_scale)`` (0.5, 0.05) gives
     the critic a slope at the scale of the box, where ``x^2`` has none;
-  * reset draws ``x`` and ``v`` uniform in [-1, 1], which includes starts at rest such as (1, 0).
+  * reset draws ``x`` and ``v`` uniform in [-1, 1], which includes starts at rest such as (1, 0),
+    except that a fraction ``near_start_fraction`` (0.5) of resets start uniform in ``|x|, |v|
+    <= near_start_range`` (0.05): exploring starts at the goal, so the replay holds what staying
+    inside the box is worth (from far starts alone a learner rarely sees it);
+  * the observation is ``(x, v, tanh(x / 0.03), tanh(v / 0.03))`` (``zoom_scale``): the last two
+    resolve the centimetre scale of the box that a network reading ``x`` and ``v`` alone
+    blurs, and saturate beyond it.
+
+Measured with TD3 from (1, 0), 5 seeds (RESULTS.md): with the reward alone 1/5 settle at 100k
+env steps; with the zoomed observation 2/5; with the exploring starts as well 3/5 at 100k and
+5/5 at 200k.
 
 Scored the same way, the variant ranks bang-bang (294) above LQR (212) above hovering 0.05 away
 (153) above a crawl (114).
@@ -75,6 +85,8 @@ class RocketParams(EnvParams):
     settle_bonus: Array = _f32(0.0)  # paid on every step that ends inside the goal box
     precision_weight: Array = _f32(0.0)  # weight of exp(-(|x| + |v|) / precision_scale)
     precision_scale: Array = _f32(0.05)
+    near_start_fraction: Array = _f32(0.0)  # share of resets near the goal (RocketSettle only)
+    near_start_range: Array = _f32(0.05)  # those start uniform in |x|, |v| <= this
 
 
 def rk4_step(state: Array, thrust: Array, dt: Array) -> Array:
@@ -167,7 +179,10 @@ class Rocket(Environment[RocketState, RocketParams]):
 
 class RocketSettle(Rocket):
     """``rl_jax/RocketSettle-v0``: the rocket with a reward for coming to rest at the origin and
-    staying there (see the module docstring); same dynamics, spaces and episode limit."""
+    staying there, exploring starts at the goal and a zoomed observation (see the module
+    docstring); same dynamics, actions and episode limit."""
+
+    zoom_scale = 0.03  # obs (x, v, tanh(x / zoom_scale), tanh(v / zoom_scale))
 
     @property
     def default_params(self) -> RocketParams:
@@ -178,10 +193,29 @@ class RocketSettle(Rocket):
             approach_weight=np.float32(0.0),
             settle_bonus=np.float32(2.0),
             precision_weight=np.float32(0.5),
+            near_start_fraction=np.float32(0.5),
         )
 
     def reset_env(self, key: PRNGKey, params: RocketParams) -> tuple[RocketState, Array]:
-        return self._state_and_obs(jax.random.uniform(key, (2,), jnp.float32, -1.0, 1.0))
+        far_key, near_key, coin_key = jax.random.split(key, 3)
+        far = jax.random.uniform(far_key, (2,), jnp.float32, -1.0, 1.0)
+        near = params.near_start_range * jax.random.uniform(near_key, (2,), jnp.float32, -1.0, 1.0)
+        start_near = jax.random.uniform(coin_key) < params.near_start_fraction
+        return self._state_and_obs(jnp.where(start_near, near, far))
+
+    def _observe(self, xv: Array) -> Array:
+        return jnp.concatenate([xv, jnp.tanh(xv / self.zoom_scale)])
+
+    def _state_and_obs(self, xv: Array) -> tuple[RocketState, Array]:
+        state, xv = super()._state_and_obs(xv)
+        return state, self._observe(xv)
+
+    def step_env(self, key: PRNGKey, state: RocketState, action: Array, params: RocketParams):
+        new_state, xv, reward, terminated, info = super().step_env(key, state, action, params)
+        return new_state, self._observe(xv), reward, terminated, info
+
+    def observation_space(self, params: RocketParams | None = None) -> Box:
+        return Box(-3.0, 3.0, (4,))
 
 
 # ---- rendering (host side) ---------------------------------------------------------------------

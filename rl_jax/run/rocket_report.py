@@ -31,6 +31,8 @@ import os
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 import envs
 from envs.classic import rocket_control
 from envs.classic.rocket import Rocket
@@ -142,6 +144,13 @@ def run_entries(run_dir: Path, which: str, settings: Settings) -> list[Entry]:
     identity = read_run_record(run_dir)["identity"]
     seeds = [identity["base_seed"] + index for index in range(identity["seeds"])]
     configs = len(identity["hparams"])
+    # A policy reads the observation of the variant it trained on (RocketSettle's adds zoomed
+    # features), whichever variant's dynamics and reward it is rolled in.
+    own_env = envs.make(identity["env_id"])
+
+    def own_observation(obs: np.ndarray) -> np.ndarray:
+        return np.asarray(own_env.state_from_vector(np.asarray(obs[:2], np.float32))[1])
+
     entries = []
     for config in range(configs):
         name = f"{identity['algorithm']} ({Path(run_dir).name})"
@@ -149,7 +158,8 @@ def run_entries(run_dir: Path, which: str, settings: Settings) -> list[Entry]:
         for seed in seeds:
             policy = load_policy(run_dir, seed, which, config)
             described = f"{policy.loaded.which}, step {policy.loaded.step:,}"
-            entries.append(_entry(name, seed, described, policy, settings))
+            controller = lambda obs, policy=policy: policy(own_observation(obs))  # noqa: E731
+            entries.append(_entry(name, seed, described, controller, settings))
     return entries
 
 

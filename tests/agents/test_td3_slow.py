@@ -94,3 +94,26 @@ def test_td3_rocket_settles_at_origin_from_one_zero():
     assert not any(crashed)  # no crash (and the 1e-8 goal is never hit exactly)
     # It arrives, then stays: inside for (at least) the last second of the episode.
     assert max(settled) <= steps - 100, settled
+
+
+@pytest.mark.slow
+def test_td3_settle_variant_comes_to_rest_from_one_zero_in_every_seed(tmp_path):
+    """The RESULTS.md row of rl_jax/RocketSettle-v0: the script's defaults (5 seeds, 200k env
+    steps), then the latest policy of every seed rolled from (1, 0) by ``rocket_report``: each
+    enters |x|, |v| <= 0.01 and stays inside to step 500."""
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    from rl_jax.run import rocket_report
+
+    root = Path(__file__).resolve().parents[2]
+    out = tmp_path / "rocket_settle"
+    script = root / "experiments" / "td3_rocket_settle.py"
+    subprocess.run([sys.executable, str(script), "--out", str(out)], check=True, cwd=root)
+    entries, _ = rocket_report.compare([out], which="latest")
+    learned = [entry for entry in entries if entry.learned]
+    for entry in learned:
+        print(f"seed {entry.seed}: settled at step {entry.summary.settle_step}")
+    assert len(learned) == 5
+    assert all(entry.summary.kept for entry in learned)
