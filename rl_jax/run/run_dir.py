@@ -248,11 +248,28 @@ def _reason(error: OSError) -> str:
     return f"{reason} ({error.filename})" if error.filename else reason
 
 
+def with_newer_fields(saved: dict[str, Any], wanted: dict[str, Any]) -> dict[str, Any]:
+    """``saved`` with the config and hyperparameter fields it lacks taken from ``wanted``: a
+    field a run's record does not have was added to the code after the run was written, and
+    resuming fills it from the defaults the record is read with (e.g. TD3's ``lr_decay_steps``,
+    0: off, as the run trained)."""
+    upgraded = dict(saved)
+    if isinstance(saved.get("config"), dict) and isinstance(wanted.get("config"), dict):
+        upgraded["config"] = {**wanted["config"], **saved["config"]}
+    saved_hparams, wanted_hparams = saved.get("hparams"), wanted.get("hparams")
+    comparable = isinstance(saved_hparams, list) and isinstance(wanted_hparams, list)
+    if comparable and len(saved_hparams) == len(wanted_hparams):
+        upgraded["hparams"] = [
+            {**new, **old} for old, new in zip(saved_hparams, wanted_hparams, strict=True)
+        ]
+    return upgraded
+
+
 def check_resume_dir(run_dir: Path, run_identity: dict[str, Any]) -> dict[str, Any]:
     """The record of ``run_dir`` if it is the same run and can be written; ``RunError``
     otherwise."""
     record = read_run_record(run_dir)
-    saved = record["identity"]
+    saved = with_newer_fields(record["identity"], run_identity)
     if saved != run_identity:
         raise RunError(
             f"cannot resume {run_dir}: it is a different run "
