@@ -6,6 +6,7 @@
 (``envs.adapters.gymnasium_host``).
 """
 
+from envs.adapters import external_ids as _external_ids  # noqa: F401  (resolves MODULE:ID)
 from envs.adapters.gym_adapter import register_with_gymnasium
 from envs.adapters.gymnasium_host import from_gymnasium
 from envs.core.core import Environment, EnvParams, EnvState, TimeStep

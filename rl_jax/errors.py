@@ -87,8 +87,7 @@ class OneLineParser(argparse.ArgumentParser):
 
 def user_errors() -> tuple[type[BaseException], ...]:
     """Exception types that mean bad input, not a bug: reported in one line."""
-    from envs.adapters.external_ids import UnsupportedEnvError
-    from envs.core.registry import BackendError, UnknownEnvError
+    from envs.core.registry import BackendError, UnknownEnvError, UnsupportedEnvError
 
     errors = (UsageError, RunError, CheckpointError, UnknownEnvError, BackendError)
     return (*errors, UnsupportedEnvError, RenderError, PolicyError)

@@ -24,13 +24,9 @@ import sys
 from types import ModuleType
 
 from envs.core import registry
+from envs.core.registry import UnsupportedEnvError  # noqa: F401  (its earlier home)
 
 GYMNASIUM_PREFIX = "gymnasium:"
-
-
-class UnsupportedEnvError(ValueError):
-    """An env that exists but cannot be used as given (a gymnasium space the adapter does not
-    translate, no time limit, missing extras); the message says what to change."""
 
 
 def resolve_external_id(name: str) -> str:
@@ -90,3 +86,6 @@ def _import_failure(module_name: str, name: str, error: ModuleNotFoundError) -> 
         f"environment {name!r}: cannot import module {module_name!r} ({error}); give MODULE:ID "
         "with MODULE importable from the current directory or the Python path"
     )
+
+
+registry.set_external_resolver(resolve_external_id)

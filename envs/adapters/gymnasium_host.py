@@ -75,7 +75,6 @@ import jax.numpy as jnp
 import numpy as np
 from flax import struct
 
-from envs.adapters.external_ids import UnsupportedEnvError
 from envs.adapters.gymnasium_pool import (
     HANDLE,
     NOT_STARTED,
@@ -87,7 +86,7 @@ from envs.adapters.gymnasium_pool import (
     HostPool,
 )
 from envs.core.core import Array, Environment, EnvParams, EnvState, PRNGKey, TimeStep
-from envs.core.registry import UnknownEnvError
+from envs.core.registry import UnknownEnvError, UnsupportedEnvError
 from envs.core.spaces import Box, Discrete, Space
 
 ID_PREFIX = "gymnasium:"

@@ -43,6 +43,11 @@ class UnknownEnvError(ValueError):
     """Raised for a name that is not registered; the message lists the known ids."""
 
 
+class UnsupportedEnvError(ValueError):
+    """An env that exists but cannot be used as given (a gymnasium space the adapter does not
+    translate, no time limit, missing extras); the message says what to change."""
+
+
 class BackendError(ValueError):
     """Raised for an unknown MuJoCo backend name (``backend=`` or ``$RL_JAX_MUJOCO_BACKEND``);
     defined here, with the other user errors of env construction, so that reporting it does
@@ -69,6 +74,18 @@ def registered_ids() -> list[str]:
     return sorted(_ENTRY_POINTS)
 
 
+# Set by envs.adapters.external_ids when ``import envs`` runs: it registers ``gymnasium:ID`` and
+# ``MODULE:ID`` names on first use. A hook rather than an import, so that the core does not
+# import the adapters that build on it.
+_external_resolver: Callable[[str], str] | None = None
+
+
+def set_external_resolver(resolver: Callable[[str], str]) -> None:
+    """Let ``resolve_id`` hand names with a ``:`` to ``resolver`` (which registers them)."""
+    global _external_resolver
+    _external_resolver = resolver
+
+
 def resolve_id(name: str) -> str:
     """Accept the full id (``rl_jax/Rocket-v0``) or the id without namespace, any case."""
     if name in _ENTRY_POINTS:
@@ -77,10 +94,8 @@ def resolve_id(name: str) -> str:
     for env_id in _ENTRY_POINTS:
         if env_id.lower().removeprefix("rl_jax/") == wanted:
             return env_id
-    if ":" in name:  # "gymnasium:ID" or "MODULE:ID": registered on first use
-        from envs.adapters.external_ids import resolve_external_id
-
-        return resolve_external_id(name)
+    if ":" in name and _external_resolver is not None:  # "gymnasium:ID" or "MODULE:ID"
+        return _external_resolver(name)  # registered on first use
     known = ", ".join(registered_ids())
     raise UnknownEnvError(f"unknown environment {name!r}; known environments: {known}")
 

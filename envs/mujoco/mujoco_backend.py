@@ -302,27 +302,3 @@ class Physics:
             name: jnp.zeros(batch_shape + shape, jnp.float32)
             for name, shape in self._extra_shapes.items()
         }
-
-
-def make_physics(
-    backend: str,
-    model: mujoco.MjModel,
-    frame_skip: int,
-    extras: tuple[str, ...] = (),
-    nthread: int | None = None,
-    mjx_chunk: int | None = None,
-) -> Physics:
-    """The physics of ``backend`` (a name of ``BACKEND_NAMES``, or None: the default)."""
-    # Imported here: each backend's module builds on this one (Physics, Measurement).
-    backend = resolve_backend(backend)
-    if backend == "mjx":
-        from envs.mujoco.mjx_physics import MjxPhysics
-
-        return MjxPhysics(model, frame_skip, extras, mjx_chunk)
-    if backend == "mujoco_ffi":
-        from envs.mujoco.mujoco_ffi import MujocoFfiPhysics
-
-        return MujocoFfiPhysics(model, frame_skip, extras, nthread)
-    from envs.mujoco.mujoco_callback import MujocoCallbackPhysics
-
-    return MujocoCallbackPhysics(model, frame_skip, extras, nthread)

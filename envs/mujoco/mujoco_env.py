@@ -55,13 +55,36 @@ from envs.mujoco.mujoco_backend import (
     engine,
     extra_field,
     load_model,
-    make_physics,
     resolve_backend,
 )
 
 DIVERGED_KEY = "physics_diverged"
 GYMNASIUM_SOLVER = (100, 50)  # MuJoCo's defaults, which gymnasium's models keep
 FIDELITIES = ("parity", "gymnasium")
+
+
+def make_physics(
+    backend: str,
+    model: Any,
+    frame_skip: int,
+    extras: tuple[str, ...] = (),
+    nthread: int | None = None,
+    mjx_chunk: int | None = None,
+) -> Physics:
+    """The physics of ``backend`` (a name of ``BACKEND_NAMES``, or None: the default)."""
+    # Imported here, when chosen: MJX, the FFI op and the callback each cost time to load.
+    backend = resolve_backend(backend)
+    if backend == "mjx":
+        from envs.mujoco.mjx_physics import MjxPhysics
+
+        return MjxPhysics(model, frame_skip, extras, mjx_chunk)
+    if backend == "mujoco_ffi":
+        from envs.mujoco.mujoco_ffi import MujocoFfiPhysics
+
+        return MujocoFfiPhysics(model, frame_skip, extras, nthread)
+    from envs.mujoco.mujoco_callback import MujocoCallbackPhysics
+
+    return MujocoCallbackPhysics(model, frame_skip, extras, nthread)
 
 
 @struct.dataclass

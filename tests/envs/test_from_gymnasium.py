@@ -17,8 +17,8 @@ import pytest
 
 import envs
 import rl_jax
-from envs.adapters.external_ids import UnsupportedEnvError
 from envs.adapters.gymnasium_host import LOST_KEY, HostGymnasiumEnv
+from envs.core.registry import UnsupportedEnvError
 from rl_jax.agents.td3 import RECIPES, td3
 from rl_jax.run import cli
 from rl_jax.run.metrics import METRICS_FILE, read_rows
