@@ -343,8 +343,9 @@ HPARAM_RECIPES["rl_jax/RocketSettle-v0"] = HPARAM_RECIPES["rl_jax/Rocket-v0"]
 # ``Config(env_id=...)`` without this entry is the paper recipe (1 env, batch 256, 25k).
 # Measured (BENCHMARKS.md, "Half cheetah recipe"; python -m bench.cheetah_recipe): 1.6x
 # the paper recipe's updates/s in the training loop with 5 seeds; after 5k updates the mean return
-# matched the PyTorch paper-recipe baseline's. `make train` (5 seeds, 150k steps; BENCHMARKS.md
-# section 7): mean eval 3,015 at 65k steps, final mean 5,432 (95% CI 5,050-5,815), 61 minutes.
+# matched the PyTorch paper-recipe baseline's. `python -m bench.results td3-cheetah` (5 seeds,
+# 150k steps, one device, load 1.5-2.1): mean eval first >= 5,000 at 125k steps (21 min), final
+# mean 5,278 (95% CI 4,807-5,749) in 26 minutes (RESULTS.md).
 RECIPES["rl_jax/HalfCheetah-v5"] = {
     "num_envs": 4,
     "updates_per_iteration": 4,
