@@ -303,15 +303,12 @@ RECIPES: dict[str, dict[str, Any]] = {
         "actor_hidden": (64, 64),
         "critic_hidden": (64, 64),
     },
-    # The rocket: the Pendulum loop with 5,000-step chunks (10 episodes) and a short warm-up.
-    "rl_jax/Rocket-v0": {
-        "num_envs": 4,
-        "updates_per_iteration": 4,
-        "iterations_per_chunk": 1250,
-        "learning_starts": 2000,
-        "actor_hidden": (64, 64),
-        "critic_hidden": (64, 64),
-    },
+}
+# The rocket: the Pendulum loop with 5,000-step chunks (10 episodes) and a short warm-up.
+RECIPES["rl_jax/Rocket-v0"] = {
+    **RECIPES["rl_jax/Pendulum-v1"],
+    "iterations_per_chunk": 1250,
+    "learning_starts": 2000,
 }
 # The settle variant (same dynamics, reward for resting inside the 0.01 box) starts from the same
 # loop and exploration.

@@ -148,14 +148,19 @@ MUJOCO_RENDER = textwrap.dedent(
 )
 
 
-def test_mujoco_frames_through_the_episode_hook_with_egl():
-    done = subprocess.run(
+def _render_mujoco(gl: str) -> subprocess.CompletedProcess:
+    """MUJOCO_RENDER in a fresh process with MuJoCo's OpenGL backend ``gl``."""
+    return subprocess.run(
         [sys.executable, "-c", MUJOCO_RENDER],
         capture_output=True,
         text=True,
-        env={**ENV, "MUJOCO_GL": "egl"},
+        env={**ENV, "MUJOCO_GL": gl},
         timeout=300,
     )
+
+
+def test_mujoco_frames_through_the_episode_hook_with_egl():
+    done = _render_mujoco("egl")
     if "no OpenGL backend" in done.stderr:
         pytest.skip("EGL is not installed here")
     assert done.returncode == 0, done.stderr
@@ -165,13 +170,7 @@ def test_mujoco_frames_through_the_episode_hook_with_egl():
 
 @pytest.mark.skipif(bool(ctypes.util.find_library("OSMesa")), reason="OSMesa is installed")
 def test_missing_opengl_backend_is_one_line_saying_what_to_install():
-    done = subprocess.run(
-        [sys.executable, "-c", MUJOCO_RENDER],
-        capture_output=True,
-        text=True,
-        env={**ENV, "MUJOCO_GL": "osmesa"},
-        timeout=300,
-    )
+    done = _render_mujoco("osmesa")
     assert done.returncode == 2
     lines = done.stderr.strip().splitlines()
     assert len(lines) == 1 and "Traceback" not in done.stderr
