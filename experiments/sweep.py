@@ -18,8 +18,10 @@ config and results.txt ranking all configs by final eval return with 95% bootstr
 Several hosts (or processes) through jax.distributed: start the same command on every process,
 adding --coordinator HOST:PORT (process 0's address, any free port), --num-processes N and
 --process-id I (0 .. N-1). The grid x seeds is then sharded over the devices of all processes;
-each process computes its share and process 0 alone writes OUT (metrics, table, plot; there are
-no checkpoints in a multi-process sweep, so --resume does not apply). On one machine:
+each process computes its share and process 0 alone writes OUT and prints the progress. The
+checkpoints are the same as on one process: to resume, start the same processes again with
+--resume OUT in place of the grid flags (Ctrl-C or SIGTERM to any process stops them all after
+the chunk, with a checkpoint). On one machine:
 
   for i in 0 1; do
     RL_JAX_CPU_DEVICES=1 python experiments/sweep.py --algo td3 --env rl_jax/Pendulum-v1 \

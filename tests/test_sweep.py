@@ -1,5 +1,6 @@
 """sweep.py: a grid over a hyperparameter and a shape, ranked; and the same sweep run by two
-processes through jax.distributed equals the one-process run on as many devices."""
+processes through jax.distributed, stopped and resumed from its checkpoints, equals the
+one-process run on as many devices."""
 
 import json
 import os
@@ -23,6 +24,7 @@ TINY = [
     "--actor-hidden", "8,8", "--critic-hidden", "8,8", "--log-interval", "0",
 ]  # fmt: skip
 GRID = ["--grid", "lr=1e-4,1e-3"]
+LONGER = ["--total-steps", "150"]  # one chunk more than TINY's
 
 
 def sweep(args: list[str], cwd: Path, devices: int) -> subprocess.Popen:
@@ -57,33 +59,34 @@ def free_port() -> int:
         return probe.getsockname()[1]
 
 
-@pytest.fixture(scope="module")
-def sweeps(tmp_path_factory):
-    """One process on 2 devices, and 2 processes of 1 device each, concurrently."""
-    root = tmp_path_factory.mktemp("sweep")
-    single = sweep([*GRID, "--grid", "batch=8,16", "--out", "single"], root, devices=2)
+def distributed(args: list[str], root: Path) -> list[str]:
+    """The sweep on 2 processes of 1 device each, through jax.distributed."""
     port = free_port()
-    distributed = [
+    processes = [
         sweep(
-            [*GRID, "--grid", "batch=8,16", "--out", "distributed"]
-            + [
-                "--coordinator",
-                f"localhost:{port}",
-                "--num-processes",
-                "2",
-                "--process-id",
-                str(i),
-            ],
+            [*args, "--coordinator", f"localhost:{port}", "--num-processes", "2"]
+            + ["--process-id", str(i)],
             root,
             devices=1,
         )
         for i in range(2)
     ]
-    return root, finish(single), [finish(p) for p in distributed]
+    return [finish(p) for p in processes]
+
+
+@pytest.fixture(scope="module")
+def sweeps(tmp_path_factory):
+    """One process on 2 devices to 150 steps; 2 processes of 1 device each to 100 steps, then
+    resumed from their checkpoint to 150."""
+    root = tmp_path_factory.mktemp("sweep")
+    single = sweep([*GRID, "--grid", "batch=8,16", "--out", "single", *LONGER], root, devices=2)
+    first = distributed([*GRID, "--grid", "batch=8,16", "--out", "distributed"], root)
+    resumed = distributed(["--resume", "distributed", *LONGER], root)
+    return root, finish(single), first, resumed
 
 
 def test_sweep_ranks_every_config_of_every_shape(sweeps):
-    root, out, _ = sweeps
+    root, out, *_ = sweeps
     table = (root / "single" / "results.txt").read_text()
     ranked = [line.split()[1:3] for line in table.splitlines() if line.strip()[:1].isdigit()]
     assert len(ranked) == 4  # 2 batch sizes (one program each) x 2 learning rates (vmapped)
@@ -102,12 +105,18 @@ def test_sweep_ranks_every_config_of_every_shape(sweeps):
 
 
 def test_two_processes_equal_one_process_on_as_many_devices(sweeps):
-    root, _, (lead, other) = sweeps
+    """With a stop and resume in between: the distributed sweep checkpoints as any run."""
+    root, _, first, (lead, other) = sweeps
     for batch in (8, 16):
         single = rows(root / "single" / f"batch={batch}")
         assert rows(root / "distributed" / f"batch={batch}") == single
-        assert len(single) == 2 * 2 * 2  # chunks x configs x seeds
-    assert "sweep directory: distributed" in lead and "sweep directory" not in other
+        assert len(single) == 3 * 2 * 2  # chunks x configs x seeds
+        assert (root / "distributed" / f"batch={batch}" / "checkpoints").is_dir()
+    assert "sweep directory: distributed" in first[0] and "sweep directory" not in first[1]
+    assert "resuming from the checkpoint at step 100" in lead
+    # Only the lead prints (the other's stdout holds the collectives library's own lines).
+    assert "== shape" in lead and "plan:" in lead and "step 150" in lead
+    assert not any(text in other for text in ("== shape", "plan:", "step ", "sweep directory"))
     tables = [(root / name / "results.txt").read_text() for name in ("single", "distributed")]
     ranked = [[line for line in t.splitlines() if line.strip()[:1].isdigit()] for t in tables]
     assert ranked[0] == ranked[1] and len(ranked[0]) == 4

@@ -97,7 +97,9 @@ def _split_state(state: Any) -> tuple[dict[str, Any], list[dict[str, Any]]]:
                 message = f"state leaf {record['path']} cannot be saved: {error}"
                 raise CheckpointError(message) from None
         elif record["kind"] == "key":
-            arrays[_leaf_name(index)] = jax.random.key_data(leaf)
+            data = jax.random.key_data(leaf)
+            # Under jax.distributed orbax refuses a process-local jax.Array; host data it takes.
+            arrays[_leaf_name(index)] = np.asarray(data) if jax.process_count() > 1 else data
         elif record["kind"] == "array":
             arrays[_leaf_name(index)] = leaf
         records.append(record)
@@ -182,11 +184,22 @@ class Checkpointer:
         if not read_only:
             # orbax's own clean-up runs in a background thread and races with the next save.
             _remove_leftover_temporaries(self.directory)
+        multiprocess = {}
+        if jax.process_count() > 1:
+            # Each process reads and writes on its own: under jax.distributed only the lead
+            # writes (rl_jax.run.processes), so orbax must not wait for the others. (orbax then
+            # leaves creating the directory to us.)
+            multiprocess["multiprocessing_options"] = ocp.options.MultiprocessingOptions(
+                primary_host=jax.process_index(), active_processes={jax.process_index()}
+            )
+            if not read_only:
+                self.directory.mkdir(parents=True, exist_ok=True)
         options = ocp.CheckpointManagerOptions(
             preservation_policy=ocp.checkpoint_managers.LatestN(n=max(1, keep)),
             enable_async_checkpointing=False,
-            create=not read_only,
+            create=not read_only and not multiprocess,
             read_only=read_only,
+            **multiprocess,
         )
         self._manager = ocp.CheckpointManager(
             self.directory, options=options, item_names=("arrays", "meta")
@@ -276,7 +289,7 @@ class Checkpointer:
 
     def _restore_arrays(self, step: int, records: list[dict], sharding: Any) -> dict[str, Any]:
         if sharding is None:
-            sharding = jax.sharding.SingleDeviceSharding(jax.devices()[0])
+            sharding = jax.sharding.SingleDeviceSharding(jax.local_devices()[0])
         targets = {
             _leaf_name(index): jax.ShapeDtypeStruct(
                 tuple(record["shape"]), np.dtype(record["dtype"]), sharding=sharding

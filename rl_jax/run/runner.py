@@ -13,6 +13,10 @@ line and checkpoints. SIGINT/SIGTERM finish the current chunk, checkpoint and re
 ``stopped=True``; ``RunSpec(resume=True)`` continues from the latest checkpoint and reaches the
 same final parameters, bit for bit, as a run that never stopped.
 
+Under ``jax.distributed`` (a sweep on several processes) every process runs ``run`` with the same
+spec: all compute and gather, and the lead alone writes the directory and prints
+(``rl_jax.run.processes``).
+
 The order of work keeps existing runs safe: every check (directory identity, memory, checkpoint
 readability) happens before the first write.
 """
@@ -20,6 +24,7 @@ readability) happens before the first write.
 from __future__ import annotations
 
 import dataclasses
+import io
 import os
 import subprocess
 import sys
@@ -30,7 +35,7 @@ from typing import Any
 
 import numpy as np
 
-from rl_jax.run import plots
+from rl_jax.run import plots, processes
 from rl_jax.run.best import BEST_DIR, BestPolicies, policy_part
 from rl_jax.run.checkpoint import Checkpointer
 from rl_jax.run.divergence import DivergenceError, check_finite, finite_runs
@@ -101,12 +106,13 @@ def metric_rows(
 
 @dataclasses.dataclass
 class Session:
-    """One process's part of a run: the open log and checkpointer, and its counters."""
+    """One process's part of a run: the open log and checkpointer (the lead's only), and its
+    counters."""
 
     spec: RunSpec
     plan: Plan
-    log: MetricsLog
-    checkpointer: Checkpointer
+    log: MetricsLog | None
+    checkpointer: Checkpointer | None
     started: float  # perf_counter when this session started
     earlier_wall_clock: float  # seconds spent by earlier sessions
     step: int
@@ -118,7 +124,11 @@ class Session:
 
     @classmethod
     def open(cls, spec: RunSpec, plan: Plan, start: Start, started: float) -> Session:
-        """The first writes of the run: directory, config.json, metrics, checkpointer."""
+        """The first writes of the run: directory, config.json, metrics, checkpointer (by the
+        lead; the other processes of a distributed run keep counters only)."""
+        if not processes.is_lead():
+            counters = (start.step, start.updates, start.checkpoint_step, start.best, None)
+            return cls(spec, plan, None, None, started, start.wall_clock, *counters)
         try:
             spec.out.mkdir(parents=True, exist_ok=True)
             write_run_record(spec, plan, start)
@@ -157,6 +167,10 @@ class Session:
         any number of devices)."""
         if self.saved_step == self.step:
             return
+        runs = self.plan.program.unpad(state, hparams)  # every process takes part
+        if self.checkpointer is None:  # not the lead
+            self.saved_step, self.last_save = self.step, time.perf_counter()
+            return
         self.log.flush()  # rows up to this step are on disk before the checkpoint exists
         meta = {
             **checkpoint_expectation(self.spec),
@@ -168,12 +182,18 @@ class Session:
         # newer than the latest one, which a resume discards (never the other way round).
         if self.best_checkpointer is not None and self.best.changed:
             self.best.save(self.best_checkpointer, self.step, meta)
-        self.checkpointer.save(self.step, self.plan.program.unpad(state, hparams), meta)
+        self.checkpointer.save(self.step, runs, meta)
         self.saved_step, self.last_save = self.step, time.perf_counter()
 
+    def write(self, rows: list[dict[str, Any]]) -> None:
+        if self.log is not None:
+            self.log.write(rows)
+
     def close(self) -> None:
-        self.log.close()
-        self.checkpointer.close()
+        if self.log is not None:
+            self.log.close()
+        if self.checkpointer is not None:
+            self.checkpointer.close()
         if self.best_checkpointer is not None:
             self.best_checkpointer.close()
 
@@ -199,7 +219,7 @@ def _train(session: Session, start: Start, stop: GracefulStop, progress: Progres
     grid = grid_values(spec)
     estimated = False
     for chunk in range(start.chunk, plan.chunks):
-        if stop.requested:  # a signal during compilation: nothing new to save
+        if _stopping(stop):  # a signal during compilation: nothing new to save
             break
         chunk_started = time.perf_counter()
         state, metrics = chunk_fn(state, hparams)
@@ -208,7 +228,7 @@ def _train(session: Session, start: Start, stop: GracefulStop, progress: Progres
         prior_updates = session.updates
         session.step = int(np.max(metrics.env_steps))
         session.updates = int(np.max(metrics.updates))
-        session.log.write(metric_rows(metrics, spec, chunk, session.wall_clock(), grid))
+        session.write(metric_rows(metrics, spec, chunk, session.wall_clock(), grid))
         check_finite(session, metrics, plan.program.gather(finite_runs(state, spec)))
         session.best.observe(
             metrics.eval_return,
@@ -226,9 +246,18 @@ def _train(session: Session, start: Start, stop: GracefulStop, progress: Progres
                 session.updates,
             )
         due = time.perf_counter() - session.last_save >= spec.checkpoint_interval
-        if due or stop.requested or chunk + 1 == plan.chunks:
+        if _stopping(stop, due) or chunk + 1 == plan.chunks:
             session.save(state, hparams, chunk)
     return state
+
+
+def _stopping(stop: GracefulStop, due: bool = False) -> bool:
+    """Whether any process was asked to stop (or finds a checkpoint ``due``): the processes of a
+    distributed run stop and save together, since saving gathers the state from all of them."""
+    due, requested = processes.agree(due, stop.requested is not None)
+    if requested and stop.requested is None:
+        stop.requested = "another process"
+    return due or requested
 
 
 # ---- the end --------------------------------------------------------------------------------
@@ -268,7 +297,10 @@ def _render_gif(spec: RunSpec, notify: Callable[[str], None]) -> str | None:
 def _finish(
     spec: RunSpec, session: Session, state: Any, stopped: bool, notify: Callable[[str], None]
 ) -> RunResult:
-    """Plots and the results table (or the resume command when stopped), then the GIF."""
+    """Plots and the results table (or the resume command when stopped), then the GIF; the lead's
+    work alone in a distributed run."""
+    if not processes.is_lead():
+        return RunResult(spec.out, session.step, stopped, state, [], session.wall_clock(), None)
     results, table = summarize(spec, session.wall_clock())
     gif_error = None
     if stopped:
@@ -306,13 +338,18 @@ def prepare(spec: RunSpec) -> tuple[Plan, Start]:
     plan = make_plan(spec)
     check_memory(plan)
     start = restore_start(spec, plan) if spec.resume else None
-    return plan, start or fresh_start(spec, plan)
+    start = start or fresh_start(spec, plan)
+    # Every process has read what it needs before the lead writes (distributed runs).
+    processes.barrier(f"rl_jax prepared {spec.out}")
+    return plan, start
 
 
 def run(spec: RunSpec, notify: Callable[[str], None] = print) -> RunResult:
     """Train ``spec`` to ``total_steps`` (or until a signal), leaving a complete run directory."""
     started = time.perf_counter()
     spec = dataclasses.replace(spec, out=Path(spec.out))
+    if not processes.is_lead():
+        notify = _silent
     plan, start = prepare(spec)
     notify(format_plan(spec, plan))
     if start.checkpoint_step is not None:
@@ -320,7 +357,13 @@ def run(spec: RunSpec, notify: Callable[[str], None] = print) -> RunResult:
     session = Session.open(spec, plan, start, started)
     runs = spec.seeds * len(spec.hparams)
     progress = Progress(
-        spec.total_steps, start.step, start.updates, runs, log_interval=spec.log_interval
+        spec.total_steps,
+        start.step,
+        start.updates,
+        runs,
+        file=None if processes.is_lead() else io.StringIO(),
+        tty=None if processes.is_lead() else False,
+        log_interval=spec.log_interval,
     )
     try:
         with GracefulStop(progress.write) as stop:
@@ -331,3 +374,7 @@ def run(spec: RunSpec, notify: Callable[[str], None] = print) -> RunResult:
         session.close()
     stopped = stop.requested is not None and session.step < plan.final_steps
     return _finish(spec, session, state, stopped, notify)
+
+
+def _silent(message: str) -> None:
+    """The notify of the processes other than the lead."""

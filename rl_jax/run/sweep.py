@@ -2,10 +2,9 @@
 per shape) x seeds, each shape a run directory of its own, ranked together at the end
 (``experiments/sweep.py`` is the script; its docstring is the user's guide).
 
-Grid names are hyperparameter or config fields, or the short names of ``ALIASES``. A sweep on
-one process runs every shape through ``rl_jax.run.runner.run``, with its checkpoints, progress
-and ``--resume``; on several processes (``jax.distributed``) ``run_distributed`` runs the chunks
-itself, without checkpoints, and process 0 writes the metrics.
+Grid names are hyperparameter or config fields, or the short names of ``ALIASES``. Every shape
+runs through ``rl_jax.run.runner.run``, with its checkpoints, progress and ``--resume``, on one
+process or on several (``jax.distributed``: process 0 writes and prints, all compute).
 """
 
 from __future__ import annotations
@@ -20,7 +19,7 @@ from typing import Any
 from rl_jax.errors import OneLineParser, UsageError, exit_now, guard, parse_int, positive_int
 from rl_jax.run import cli, flags
 from rl_jax.run.run_dir import RunError
-from rl_jax.training import parallel, params
+from rl_jax.training import params
 from rl_jax.training.jax_setup import configure_jax
 
 ALIASES = {
@@ -192,60 +191,29 @@ def summarize(out: Path, specs: list[Any], labels: list[str], wall_clock: float)
 
 
 def run_sweep(argv: list[str], description: str = "") -> int:
-    """The sweep of ``argv`` (the script's flags), shape after shape, then its summary."""
+    """The sweep of ``argv`` (the script's flags), shape after shape, then its summary. Under
+    ``jax.distributed`` every process runs this with the same flags; the lead writes and prints."""
+    from rl_jax.run import processes, runner
+
     started = time.perf_counter()
     specs, labels, out, sweep_args = build_specs(argv, description)
-    if sweep_args.num_processes > 1:
-        return run_distributed(specs, labels, out, started)
-    from rl_jax.run import runner
-
-    write_record(out, argv, sweep_args)
+    lead = processes.is_lead()
+    notify = print if lead else _silent
+    if lead:
+        write_record(out, argv, sweep_args)
     for index, spec in enumerate(specs, 1):
-        print(f"== shape {index}/{len(specs)}: {labels[index - 1]}")
-        result = runner.run(spec)
+        notify(f"== shape {index}/{len(specs)}: {labels[index - 1]}")
+        result = runner.run(spec, notify)
         if result.stopped:
             return 0
-    print(summarize(out, specs, labels, time.perf_counter() - started))
-    print(f"sweep directory: {out}")
-    return 0
-
-
-def run_distributed(specs: list[Any], labels: list[str], out: Path, started: float) -> int:
-    """Every process runs the same chunks on its devices' share of the runs; metrics are
-    gathered to all, and process 0 writes metrics.jsonl, curves.png and results.txt."""
-    import jax
-
-    from rl_jax.run import runner
-    from rl_jax.run.metrics import MetricsLog
-    from rl_jax.run.plan import check_memory, make_plan
-    from rl_jax.run.run_dir import check_out_dir
-
-    lead = jax.process_index() == 0
-    if lead:
-        for spec in specs:
-            check_out_dir(spec.out, spec.identity)
-    for index, spec in enumerate(specs, 1):
-        plan = make_plan(spec)
-        check_memory(plan)
-        hparams = params.stack(list(spec.hparams))
-        state = plan.program.init(parallel.seed_keys(spec.seed_numbers), hparams)
-        if lead:
-            spec.out.mkdir(parents=True, exist_ok=True)
-        log = MetricsLog(spec.out, None, spec.grid_fields) if lead else None
-        grid = runner.grid_values(spec)
-        for chunk in range(plan.chunks):
-            state, metrics = plan.program.train_chunk(state, hparams)
-            metrics = plan.program.gather(metrics)  # all processes take part
-            if lead:
-                elapsed = time.perf_counter() - started
-                log.write(runner.metric_rows(metrics, spec, chunk, elapsed, grid))
-                print(f"shape {index}/{len(specs)}: chunk {chunk + 1}/{plan.chunks}", flush=True)
-        if lead:
-            log.close()
     if lead:
         print(summarize(out, specs, labels, time.perf_counter() - started))
         print(f"sweep directory: {out}")
     return 0
+
+
+def _silent(message: str) -> None:
+    """What the processes other than the lead print: nothing."""
 
 
 def main(description: str, argv: list[str] | None = None) -> None:
