@@ -5,8 +5,8 @@ twin critics, one gradient update per env step, policy delay 2, target smoothing
 exploration noise 0.1. The recipe (`td3.RECIPES`, measured in BENCHMARKS.md) is cut for a CPU,
 where updates cost far more than MuJoCo C env steps: batch 128 (the paper's own code used 100),
 4 envs per seed with 4 updates per iteration, 10,000 random warm-up steps. The default budget,
-150,000 env steps per seed, took 61 minutes for 5 seeds on a 2-core CPU and ended at a mean eval
-return of 5,432 (BENCHMARKS.md section 7). The paper trains for 1,000,000
+150,000 env steps per seed, took 26 minutes for 5 seeds on a quiet 2-core CPU and ended at a mean
+eval return of 5,278 (RESULTS.md, row td3-cheetah). The paper trains for 1,000,000
 steps with batch 256 (`--total-steps 1000000 --batch-size 256`, about 7 hours here).
 
 It prints its plan (envs, steps, memory, devices, estimated time) before it starts, then a
@@ -26,12 +26,12 @@ SCRIPT = cli.Script(
     td3,
     "rl_jax/HalfCheetah-v5",  # the recipe as it stands in td3.RECIPES
     seeds=5,  # `make train` passes --seeds 5 as well
-    total_steps=150_000,  # env steps per seed: about an hour for 5 seeds at the throughput below
-    # (env steps/s per seed, seeds) measured with this recipe on the 2-core machine at load ~2:
-    # `python -m bench.cheetah_recipe --seeds 5 --devices 2 --measure 2` gave 42 updates
-    # (= env steps) per second per seed over 2 devices (48 on 1 device). The plan's time estimate
-    # before the first chunk; after it, the measured rate takes over.
-    throughput=(42.0, 5),
+    total_steps=150_000,  # env steps per seed: ~26 minutes for 5 seeds on a quiet machine
+    # (env steps/s per seed, seeds) measured with this recipe on the 2-core machine: the
+    # td3-cheetah row of RESULTS.md (5 seeds, 150,000 steps in 25:59 with compilation and
+    # evaluations, load 1.5-2.1) is 96 per seed. The plan's time estimate before the first
+    # chunk; after it, the measured rate takes over.
+    throughput=(96.0, 5),
 )
 
 if __name__ == "__main__":

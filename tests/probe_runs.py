@@ -20,16 +20,19 @@ CHUNKS = 6
 PROBE_HPARAMS = {"gamma": 0.5, "tau": 0.05, "actor_lr": 1e-3, "critic_lr": 1e-3}
 
 
-def probe_config(env_id: str, algorithm: str = "td3"):
+def probe_config(env_id: str, algorithm: str = "td3", **overrides):
     return ALGORITHMS[algorithm].default_config(
         env_id,
-        num_envs=8,
-        learning_starts=256,
-        batch_size=64,
-        buffer_size=16_384,  # holds the whole run: the warm-up rows stay inspectable
-        iterations_per_chunk=250,
-        actor_hidden=(32, 32),
-        critic_hidden=(32, 32),
+        **{
+            "num_envs": 8,
+            "learning_starts": 256,
+            "batch_size": 64,
+            "buffer_size": 16_384,  # holds the whole run: the warm-up rows stay inspectable
+            "iterations_per_chunk": 250,
+            "actor_hidden": (32, 32),
+            "critic_hidden": (32, 32),
+            **overrides,
+        },
     )
 
 
@@ -49,9 +52,10 @@ def train(
     seed: int = 0,
     chunks: int = CHUNKS,
     hparam_overrides: tuple[tuple[str, float], ...] = (),
+    config_overrides: tuple[tuple[str, int], ...] = (),
 ):
     """``(state, [metrics per chunk])`` after ``chunks`` chunks of one seed (cached)."""
-    config = probe_config(env_id, algorithm)
+    config = probe_config(env_id, algorithm, **dict(config_overrides))
     hparams = probe_hparams(algorithm, **dict(hparam_overrides))
     state = ALGORITHMS[algorithm].init(jax.random.key(seed), config, hparams)
     history = []

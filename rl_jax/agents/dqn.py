@@ -36,11 +36,9 @@ from flax import struct
 import envs
 from rl_jax.agents.common import linearly_decayed, optimizer_step, polyak_update
 from rl_jax.agents.q_learning import (
-    NStepBatch,
     double_q_values,
     greedy_values,
     linear_schedule,
-    n_step_batch,
     n_step_target,
     q_learning_loss,
 )
@@ -56,7 +54,7 @@ from rl_jax.training import (
 )
 from rl_jax.training.algorithm import RecipeBook
 from rl_jax.training.offpolicy import OffPolicyConfig, TrainState
-from rl_jax.training.replay import Transition
+from rl_jax.training.replay import NStepBatch, Transition
 
 
 @dataclasses.dataclass(frozen=True, kw_only=True)
@@ -192,7 +190,7 @@ def sample(buffer, key, config: Config, hparams: Hyperparams, update_index):
     window, stored = replay.gather_windows(storage, rows, columns, config.n_step)
     if isinstance(config, PixelConfig):
         window = frame_replay.transitions(frames, window, rows, columns)
-    return n_step_batch(window, stored, hparams.gamma), weights, (rows, columns)
+    return replay.n_step_batch(window, stored, hparams.gamma), weights, (rows, columns)
 
 
 def _optimizer(learning_rate, max_grad_norm) -> optax.GradientTransformation:

@@ -1,16 +1,12 @@
-"""DQN's maths, pure and network-free: bootstrap values (plain and double), n-step targets and
-windows, the Huber TD loss, and the linear epsilon schedule. rlax naming: ``tm1`` is a
-transition's start, ``t`` its end.
+"""DQN's maths, pure and network-free: bootstrap values (plain and double), n-step targets, the
+Huber TD loss, and the linear epsilon schedule (the n-step windows they read are
+``rl_jax.training.replay``'s). rlax naming: ``tm1`` is a transition's start, ``t`` its end.
 """
 
 from __future__ import annotations
 
-from typing import NamedTuple
-
 import jax
 import jax.numpy as jnp
-
-from rl_jax.training.replay import Transition
 
 
 def linear_schedule(start, end, step, duration) -> jax.Array:
@@ -52,30 +48,3 @@ def q_learning_loss(q_tm1, a_tm1, target_tm1, weights, huber_delta):
     q_taken = jnp.take_along_axis(q_tm1, a_tm1[:, None].astype(jnp.int32), axis=-1)[:, 0]
     td_error = target_tm1 - q_taken
     return jnp.mean(weights * huber_loss(td_error, huber_delta)), td_error
-
-
-# ---- n-step windows ----------------------------------------------------------------------------
-class NStepBatch(NamedTuple):
-    obs: jax.Array  # [B, *obs_shape], where each window starts
-    action: jax.Array  # [B]
-    r_t: jax.Array  # [B, n], 0 after the window's end
-    discount_t: jax.Array  # [B, n], gamma (0 at termination), 1 after the window's end
-    next_obs: jax.Array  # [B, *obs_shape], the true next obs of the window's last step
-
-
-def n_step_batch(window: Transition, stored: jax.Array, gamma) -> NStepBatch:
-    """Cut each window (leaves [B, n, ...], ``stored`` [B, n]) after its first episode end."""
-    ended = jnp.logical_or(window.terminated, window.truncated)
-    ended_before = (jnp.cumsum(ended, axis=1) - ended) > 0
-    included = jnp.logical_and(stored, ~ended_before)
-    not_terminal = 1.0 - window.terminated.astype(jnp.float32)
-    last = jnp.sum(included, axis=1) - 1
-    return NStepBatch(
-        obs=window.obs[:, 0],
-        action=window.action[:, 0],
-        r_t=jnp.where(included, window.reward, 0.0),
-        discount_t=jnp.where(included, gamma * not_terminal, 1.0),
-        next_obs=jnp.take_along_axis(
-            window.next_obs, last.reshape((-1,) + (1,) * (window.next_obs.ndim - 1)), axis=1
-        )[:, 0],
-    )

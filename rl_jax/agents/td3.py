@@ -45,11 +45,14 @@ class Config(OffPolicyConfig):
     policy_delay: int = 2  # critic updates per actor + target update; DDPG 1
     network_init: str = "fan_in_uniform"  # see rl_jax.training.networks
     compute_dtype: str = "float32"  # matmul dtype ("bfloat16" trades precision for speed)
+    # Rewards summed before bootstrapping: the critics learn from windows of n_step consecutive
+    # steps of one env (cut at an episode's end), as DQN's n-step option. 1: the paper's TD3.
+    n_step: int = 1
 
     def __post_init__(self) -> None:
         super().__post_init__()
-        if self.num_critics < 1 or self.policy_delay < 1:
-            raise ValueError("num_critics and policy_delay must be >= 1")
+        if self.num_critics < 1 or self.policy_delay < 1 or self.n_step < 1:
+            raise ValueError("num_critics, policy_delay and n_step must be >= 1")
         if self.network_init not in networks.INITS:
             raise ValueError(f"network_init must be one of {networks.INITS}")
 
@@ -160,22 +163,45 @@ def target_action(target_actor_params, next_obs, noise, hparams: Hyperparams, ne
     )
 
 
+class CriticBatch(NamedTuple):
+    """What a critic update reads: the target is ``r_t + discount_t * min_i q_t[i]`` at
+    ``next_obs`` (one step: ``gamma`` or 0 at termination; n steps: the folded window)."""
+
+    obs: jax.Array
+    action: jax.Array
+    r_t: jax.Array  # [B]
+    discount_t: jax.Array  # [B]
+    next_obs: jax.Array
+
+    @classmethod
+    def one_step(cls, batch: Transition, gamma) -> CriticBatch:
+        discount_t = gamma * (1.0 - batch.terminated.astype(jnp.float32))
+        return cls(batch.obs, batch.action, batch.reward, discount_t, batch.next_obs)
+
+    @classmethod
+    def n_step(cls, batch: replay.NStepBatch) -> CriticBatch:
+        r_t, discount_t = replay.fold_n_step(batch.r_t, batch.discount_t)
+        return cls(batch.obs, batch.action, r_t, discount_t, batch.next_obs)
+
+
 def critic_loss_fn(
     critic_params,
     target_actor_params,
     target_critic_params,
-    batch: Transition,
+    batch: Transition | CriticBatch,
     noise: jax.Array,
     hparams: Hyperparams,
     nets: Networks,
 ):
-    """Critic loss on a batch; ``noise`` [B, action_dim] is standard normal. Returns
-    ``(loss, q_tm1 [C, B])``. Target networks enter only through the stopped-gradient target."""
+    """Critic loss on a batch (a ``Transition`` is a one-step ``CriticBatch``); ``noise``
+    [B, action_dim] is standard normal. Returns ``(loss, q_tm1 [C, B])``. Target networks enter
+    only through the stopped-gradient target."""
+    if isinstance(batch, Transition):
+        batch = CriticBatch.one_step(batch, hparams.gamma)
     a_t = target_action(target_actor_params, batch.next_obs, noise, hparams, nets)
     q_t = networks.apply_stacked(nets.critic, target_critic_params, batch.next_obs, a_t)
     q_tm1 = networks.apply_stacked(nets.critic, critic_params, batch.obs, batch.action)
-    discount_t = hparams.gamma * (1.0 - batch.terminated.astype(jnp.float32))
-    return critic_loss(q_tm1, batch.reward, discount_t, q_t), q_tm1
+    return critic_loss(q_tm1, batch.r_t, batch.discount_t, q_t), q_tm1
 
 
 def actor_loss_fn(actor_params, critic_params, obs: jax.Array, nets: Networks) -> jax.Array:
@@ -195,7 +221,9 @@ def _adam_step(grads, opt_state, params, learning_rate):
     return optimizer_step(_ADAM, grads, opt_state, params, learning_rate=learning_rate)
 
 
-def _critic_step(agent: Agent, batch: Transition, key, hparams: Hyperparams, nets: Networks, decay):
+def _critic_step(
+    agent: Agent, batch: CriticBatch, key, hparams: Hyperparams, nets: Networks, decay
+):
     noise = jax.random.normal(key, batch.action.shape, jnp.float32)
     (loss, q_tm1), grads = jax.value_and_grad(critic_loss_fn, has_aux=True)(
         agent.critics, agent.target_actor, agent.target_critics, batch, noise, hparams, nets
@@ -228,7 +256,15 @@ def update(
     """One critic update; every ``policy_delay``-th also an actor and target update."""
     nets = make_networks(config)
     sample_key, noise_key = jax.random.split(key)
-    batch = replay.sample(buffer, sample_key, config.batch_size)
+    if config.n_step == 1:
+        batch = CriticBatch.one_step(
+            replay.sample(buffer, sample_key, config.batch_size), hparams.gamma
+        )
+    else:
+        windows = replay.sample_n_step(
+            buffer, sample_key, config.batch_size, config.n_step, hparams.gamma
+        )
+        batch = CriticBatch.n_step(windows)
     env_steps = offpolicy.env_steps_at_update(update_index, config)
 
     def decay(rate):

@@ -127,3 +127,51 @@ def gather_windows(buffer: ReplayBuffer, rows: jax.Array, columns: jax.Array, le
     stored = offsets[None, :] <= to_newest[:, None]
     items = jax.tree.map(lambda leaf: leaf[window_rows, columns[:, None]], buffer.data)
     return items, stored
+
+
+# ---- n-step windows (DQN, TD3) -------------------------------------------------------------------
+class NStepBatch(NamedTuple):
+    """Windows of up to n consecutive steps of one env, cut at episode ends, as n-step targets
+    read them: ``r_t[0] + d[0] (r_t[1] + d[1] (... + d[n-1] v(next_obs)))``."""
+
+    obs: jax.Array  # [B, *obs_shape], where each window starts
+    action: jax.Array  # [B]
+    r_t: jax.Array  # [B, n], 0 after the window's end
+    discount_t: jax.Array  # [B, n], gamma (0 at termination), 1 after the window's end
+    next_obs: jax.Array  # [B, *obs_shape], the true next obs of the window's last step
+
+
+def n_step_batch(window: Transition, stored: jax.Array, gamma) -> NStepBatch:
+    """Cut each window (leaves [B, n, ...], ``stored`` [B, n]) after its first episode end."""
+    ended = jnp.logical_or(window.terminated, window.truncated)
+    ended_before = (jnp.cumsum(ended, axis=1) - ended) > 0
+    included = jnp.logical_and(stored, ~ended_before)
+    not_terminal = 1.0 - window.terminated.astype(jnp.float32)
+    last = jnp.sum(included, axis=1) - 1
+    return NStepBatch(
+        obs=window.obs[:, 0],
+        action=window.action[:, 0],
+        r_t=jnp.where(included, window.reward, 0.0),
+        discount_t=jnp.where(included, gamma * not_terminal, 1.0),
+        next_obs=jnp.take_along_axis(
+            window.next_obs, last.reshape((-1,) + (1,) * (window.next_obs.ndim - 1)), axis=1
+        )[:, 0],
+    )
+
+
+def sample_n_step(buffer: ReplayBuffer, key: jax.Array, batch_size: int, n: int, gamma):
+    """A uniform batch of ``n``-step windows (``NStepBatch``)."""
+    rows, columns = sample_indices(buffer, key, batch_size)
+    window, stored = gather_windows(buffer, rows, columns, n)
+    return n_step_batch(window, stored, gamma)
+
+
+def fold_n_step(r_t: jax.Array, discount_t: jax.Array) -> tuple[jax.Array, jax.Array]:
+    """The n-step target as an affine map of the bootstrap value ``v``: ``(reward, discount)``
+    [B] with ``r_t[0] + d[0] (r_t[1] + ... + d[n-1] v) = reward + discount * v``."""
+    reward = jnp.zeros_like(r_t[:, 0])
+    discount = jnp.ones_like(discount_t[:, 0])
+    for k in reversed(range(r_t.shape[1])):
+        reward = r_t[:, k] + discount_t[:, k] * reward
+        discount = discount_t[:, k] * discount
+    return reward, discount

@@ -99,6 +99,19 @@ def test_n_step_target_has_no_gradient():
         assert np.all(np.asarray(leaf) == 0.0)
 
 
+@pytest.mark.parametrize("n", [1, 3])
+def test_fold_n_step_gives_the_n_step_target_as_reward_plus_discount_times_value(n):
+    """TD3's n-step critic target is ``reward + discount * min q``: the fold must equal the
+    nested n-step target for any bootstrap value."""
+    keys = jax.random.split(jax.random.key(3), 3)
+    r_t = jax.random.normal(keys[0], (4, n))
+    discount_t = jax.random.choice(keys[1], jnp.array([0.0, GAMMA, 1.0]), (4, n))
+    v_t = jax.random.normal(keys[2], (4,))
+    reward, discount = replay.fold_n_step(r_t, discount_t)
+    expected = q_learning.n_step_target(r_t, discount_t, v_t)
+    np.testing.assert_allclose(reward + discount * v_t, expected, rtol=1e-6, atol=1e-6)
+
+
 # ---- n-step windows from the buffer, episode ends --------------------------------------------
 def _transition(step, terminated=False, truncated=False):
     """One env's step ``step``: obs = step, next_obs = step + 100 (marks the true next obs)."""
@@ -125,7 +138,7 @@ def window_buffer():
 def _windows(buffer, first_steps, n):
     rows = jnp.array([s % 8 for s in first_steps], jnp.int32)
     window, stored = replay.gather_windows(buffer, rows, jnp.zeros_like(rows), n)
-    return q_learning.n_step_batch(window, stored, GAMMA)
+    return replay.n_step_batch(window, stored, GAMMA)
 
 
 def test_n_step_window_stops_at_termination_without_bootstrap(window_buffer):
@@ -170,7 +183,7 @@ def setup():
     net = dqn.make_network(config)
     online = net.init(keys[0], jnp.zeros(1))
     target = net.init(keys[1], jnp.zeros(1))
-    batch = q_learning.NStepBatch(
+    batch = replay.NStepBatch(
         obs=jax.random.normal(keys[2], (BATCH, 1)),
         action=jnp.array([0, 1, 2, 3, 4, 0], jnp.int32),
         r_t=jnp.array([[1.0, 0.5]] * 3 + [[-1.0, 0.0]] * 3),

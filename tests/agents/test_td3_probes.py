@@ -149,6 +149,25 @@ def test_bootstraps_through_truncation_not_termination(env_id):
         assert np.max(np.abs(np.asarray(values) - np.asarray(expected))) > 3 * TOL
 
 
+@pytest.mark.parametrize(
+    "env_id", ["rl_jax/ProbeTwoStep-v0", "rl_jax/ProbeTruncation-v0", "rl_jax/ProbeTermination-v0"]
+)
+def test_n_step_returns_learn_the_same_values(env_id):
+    """3-step windows reach past each episode's end here: the window must stop there, bootstrap
+    from the true final obs at truncation and not at termination, or the values come out wrong
+    (the one-step tests above rule those answers out)."""
+    overrides = (("n_step", 3),)
+    state, _ = train(env_id, config_overrides=overrides)
+    config = probe_config(env_id, **dict(overrides))
+    q = q_values(state, config, [0.0, 1.0], policy_actions(state, config, [0.0, 1.0]))
+    if env_id == "rl_jax/ProbeTwoStep-v0":
+        expected = np.array([[GAMMA, 1.0]])
+    else:
+        terminal = env_id.endswith("Termination-v0")
+        expected = np.array([[Truncation.true_q(p, GAMMA, terminal) for p in (0.0, 1.0)]])
+    np.testing.assert_allclose(q, np.broadcast_to(expected, q.shape), atol=TOL)
+
+
 def test_ddpg_learns_action_dependent_reward_with_one_critic_and_no_delay():
     env_id = "rl_jax/ProbeActionReward-v0"
     config = probe_config(env_id, "ddpg")
