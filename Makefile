@@ -6,8 +6,9 @@ VENV   := .venv
 BIN    := $(VENV)/bin
 STAMP  := $(VENV)/.installed
 
-# The persistent XLA compilation cache is on by default (a second run of a config skips compiling).
-export JAX_COMPILATION_CACHE_DIR ?= $(HOME)/.cache/rl_jax/jax
+# The persistent XLA compilation cache is on by default (a second run of a config skips compiling):
+# rl_jax.training.jax_setup keeps it in ~/.cache/rl_jax/jax/<CPU tag>, unless
+# JAX_COMPILATION_CACHE_DIR names another directory.
 # Headless MuJoCo rendering through EGL (Mesa, software-rendered on a CPU-only machine).
 export MUJOCO_GL ?= egl
 

@@ -10,9 +10,28 @@ from __future__ import annotations
 import os
 from pathlib import Path
 
-DEFAULT_CACHE_DIR = (
-    Path(os.environ.get("XDG_CACHE_HOME", Path.home() / ".cache")) / "rl_jax" / "jax"
-)
+CACHE_ROOT = Path(os.environ.get("XDG_CACHE_HOME", Path.home() / ".cache")) / "rl_jax" / "jax"
+
+
+def cpu_tag() -> str:
+    """A short name of this CPU's model and instruction set. XLA compiles for the CPU it runs on
+    (AVX-512 where there is one) but does not key its cache by it: an entry written on one CPU
+    and loaded on a lesser one (a home directory shared between machines) may die of SIGILL, and
+    JAX warns on every load. One cache directory per tag keeps them apart."""
+    import hashlib
+    import platform
+
+    text = platform.machine() + platform.processor()
+    try:
+        with open("/proc/cpuinfo") as cpuinfo:
+            lines = [line for line in cpuinfo if line.startswith(("model name", "flags"))]
+        text += "".join(sorted(set(lines)))
+    except OSError:
+        pass
+    return hashlib.sha256(text.encode()).hexdigest()[:12]
+
+
+DEFAULT_CACHE_DIR = CACHE_ROOT / cpu_tag()
 
 
 def configure(cpu_devices: int | None = None, cache_dir: str | os.PathLike | None = None) -> None:
