@@ -139,6 +139,7 @@ ROWS: dict[str, Row] = {
         (),
         5,
         "TD3 paper, HalfCheetah-v1: 9,637 at 1M steps; ~5,000 near 150k in its curves",
+        Goal(5000.0, 5, "final", 10.0, mean=True),
     ),
     "ddpg-cheetah": Row(
         "DDPG, `rl_jax/HalfCheetah-v5`",

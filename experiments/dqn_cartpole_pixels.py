@@ -17,9 +17,9 @@ examples:
 """
 
 from rl_jax.agents.dqn import dqn
-from rl_jax.run import cli
+from rl_jax.run.script import Script
 
-SCRIPT = cli.Script(
+SCRIPT = Script(
     dqn,
     "rl_jax/CartPolePixels-v1",
     seeds=3,

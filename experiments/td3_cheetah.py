@@ -1,13 +1,15 @@
 """TD3 on rl_jax/HalfCheetah-v5 (MuJoCo half cheetah), all seeds as one compiled program.
 
-The `make train` job. The learner is the TD3 paper's (Fujimoto et al. 2018): 256x256 actor and
-twin critics, one gradient update per env step, policy delay 2, target smoothing 0.2 (clip 0.5),
-exploration noise 0.1. The recipe (`td3.RECIPES`, measured in BENCHMARKS.md) is cut for a CPU,
-where updates cost far more than MuJoCo C env steps: batch 128 (the paper's own code used 100),
-4 envs per seed with 4 updates per iteration, 10,000 random warm-up steps. The default budget,
-150,000 env steps per seed, took 26 minutes for 5 seeds on a quiet 2-core CPU and ended at a mean
-eval return of 5,278 (RESULTS.md, row td3-cheetah). The paper trains for 1,000,000
-steps with batch 256 (`--total-steps 1000000 --batch-size 256`, about 7 hours here).
+The `make train` job. The learner is the TD3 paper's (Fujimoto et al. 2018): twin critics, one
+gradient update per env step, policy delay 2, target smoothing 0.2 (clip 0.5), exploration noise
+0.1. The default recipe is cut for a CPU, where updates cost far more than MuJoCo C env steps, and
+chosen by return against wall-clock (`td3.FAST_CHEETAH_*`, BENCHMARKS.md "Half cheetah in
+minutes"): 128x128 actor and critics at learning rate 1e-3, batch 128, 4 envs per seed with 4
+updates per iteration, 10,000 random warm-up steps. With 5 seeds on a quiet 2-core CPU the mean
+eval return passed 5,000 at 90,000 env steps, 5 minutes in; the default budget of 150,000 steps
+takes about 9 minutes (RESULTS.md, row td3-cheetah).
+
+The paper's networks and its whole recipe are --recipe paper-width and --recipe paper (below).
 
 It prints its plan (envs, steps, memory, devices, estimated time) before it starts, then a
 progress bar (env steps/s, updates/s, ETA, latest eval return over seeds). Ctrl-C or SIGTERM
@@ -16,22 +18,38 @@ finishes the current chunk, writes a checkpoint and prints the command that resu
 examples:
   python experiments/td3_cheetah.py --seeds 5
   python experiments/td3_cheetah.py --seeds 2 --total-steps 50000 --out runs/cheetah --gif
-  python experiments/td3_cheetah.py --resume runs/cheetah --total-steps 100000
+  python experiments/td3_cheetah.py --recipe paper-width --seeds 5
+  python experiments/td3_cheetah.py --resume runs/cheetah --total-steps 300000
 """
 
+from rl_jax.agents import td3 as td3_module
 from rl_jax.agents.td3 import td3
-from rl_jax.run import cli
+from rl_jax.run.script import Recipe, Script
 
-SCRIPT = cli.Script(
+SCRIPT = Script(
     td3,
-    "rl_jax/HalfCheetah-v5",  # the recipe as it stands in td3.RECIPES
+    "rl_jax/HalfCheetah-v5",  # the loop as it stands in td3.RECIPES
     seeds=5,  # `make train` passes --seeds 5 as well
-    total_steps=150_000,  # env steps per seed: ~26 minutes for 5 seeds on a quiet machine
-    # (env steps/s per seed, seeds) measured with this recipe on the 2-core machine: the
-    # td3-cheetah row of RESULTS.md (5 seeds, 150,000 steps in 25:59 with compilation and
-    # evaluations, load 1.5-2.1) is 96 per seed. The plan's time estimate before the first
-    # chunk; after it, the measured rate takes over.
-    throughput=(96.0, 5),
+    total_steps=150_000,  # env steps per seed: ~9 minutes for 5 seeds on a quiet machine
+    config=td3_module.FAST_CHEETAH_CONFIG,
+    hparams=td3_module.FAST_CHEETAH_HPARAMS,
+    # (env steps/s per seed, seeds) with these defaults: 5 seeds, 150,000 steps in 8:56 with
+    # compilation and evaluations (2 cores, load ~1.9). The plan's time estimate before the
+    # first chunk; after it, the measured rate takes over.
+    throughput=(280.0, 5),
+    recipes={
+        "paper-width": Recipe(
+            "the paper's 256x256 networks at rate 3e-4 in the same CPU loop (mean 5,000 at "
+            "~125k steps, 21 minutes for 5 seeds)",
+            # RESULTS.md's earlier td3-cheetah row: 150,000 steps in 25:59 = 96 per seed.
+            throughput=(96.0, 5),
+        ),
+        "paper": Recipe(
+            "the TD3 paper's whole recipe: 256x256, one env, batch 256, 25,000 warm-up steps "
+            "(the paper trains 1,000,000 steps: several hours here)",
+            config=td3_module.PAPER_CONFIG,
+        ),
+    },
 )
 
 if __name__ == "__main__":

@@ -20,9 +20,9 @@ examples:
 """
 
 from rl_jax.agents.td3 import td3
-from rl_jax.run import cli
+from rl_jax.run.script import Script
 
-SCRIPT = cli.Script(
+SCRIPT = Script(
     td3,
     "rl_jax/Rocket-v0",
     seeds=5,

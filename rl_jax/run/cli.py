@@ -361,38 +361,3 @@ def main(
         seeds, total_steps, dict(config or {}), dict(hparams or {}), throughput=throughput
     )
     exit_now(guard(lambda: run_experiment(algorithm, env_id, description, argv, defaults)))
-
-
-@dataclasses.dataclass(frozen=True)
-class Script:
-    """An experiment script's defaults, declared once and run by ``main``::
-
-        SCRIPT = cli.Script(td3, "rl_jax/Pendulum-v1", seeds=5, total_steps=20_000)
-        if __name__ == "__main__":
-            SCRIPT.main(__doc__)
-
-    ``config``/``hparams`` override the algorithm's recipe for the env; ``throughput`` is
-    (env steps/s per seed, seeds) measured with these defaults, for the plan's time estimate.
-    Another script can derive its own with ``dataclasses.replace``.
-    """
-
-    algorithm: Any
-    env_id: str
-    seeds: int = 1
-    total_steps: int = 100_000
-    config: dict[str, Any] = dataclasses.field(default_factory=dict)
-    hparams: dict[str, Any] = dataclasses.field(default_factory=dict)
-    throughput: tuple[float, int] | None = None
-
-    def main(self, description: str | None, argv: list[str] | None = None) -> NoReturn:
-        main(
-            self.algorithm,
-            self.env_id,
-            description,
-            seeds=self.seeds,
-            total_steps=self.total_steps,
-            config=self.config,
-            hparams=self.hparams,
-            argv=argv,
-            throughput=self.throughput,
-        )

@@ -19,6 +19,7 @@ from rl_jax.run import cli, field_docs, flags
 from rl_jax.run.checkpoint import Checkpointer
 from rl_jax.run.plan import make_plan
 from rl_jax.run.run_dir import CHECKPOINT_DIR
+from rl_jax.run.script import Recipe, Script
 from rl_jax.run.spec import RunSpec
 from rl_jax.run.start import fresh_start
 from rl_jax.training import params
@@ -233,6 +234,26 @@ BAD_INPUTS = {
         "the train state needs 1.75 TB (buffer 1.75 TB",
     ),
 }
+
+
+def test_a_script_recipe_replaces_its_defaults_and_an_unknown_one_is_one_error():
+    script = Script(
+        fake,
+        fake.ENV_ID,
+        config={"iterations_per_chunk": 5},
+        throughput=(10.0, 1),
+        recipes={"long": Recipe("longer chunks", config={"iterations_per_chunk": 50})},
+    )
+    same, rest = script.with_recipe(["--seeds", "2"])
+    assert same is script and rest == ["--seeds", "2"]
+    chosen, rest = script.with_recipe(["--recipe", "long", "--seeds", "2"])
+    assert chosen.config == {"iterations_per_chunk": 50} and chosen.throughput is None
+    assert rest == ["--seeds", "2"] and chosen.env_id == script.env_id
+    assert script.with_recipe(["--recipe=default"])[0] is script
+    with pytest.raises(
+        cli.UsageError, match="--recipe short: unknown recipe; known: default, long"
+    ):
+        script.with_recipe(["--recipe", "short"])
 
 
 # Run as real processes: one line and no traceback from a fresh interpreter, including the
