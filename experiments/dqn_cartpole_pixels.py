@@ -7,8 +7,9 @@ stride per layer; default the 2013 DQN paper's 16 8x8/4, 32 4x4/2) then --hidden
 pixels are scaled to [0, 1] inside the network. The replay keeps each frame once per step and
 rebuilds the stacks when it samples (about 14 KB per transition at 84x84 instead of 56 KB for
 two uint8 stacks); the plan counts it before anything is allocated. The options of
-experiments/dqn_cartpole.py apply: --double, --dueling, --n-step 3, --prioritized. The recipe is
-a starting point, not yet tuned for pixels (rl_jax.agents.dqn.RECIPES).
+experiments/dqn_cartpole.py apply: --double, --dueling, --n-step 3, --prioritized. The recipe
+(rl_jax.agents.dqn.RECIPES) uses Double DQN with 3-step returns, a target update every 500
+updates, rate 2.5e-4 and one batch-32 update per 4 env steps; it learns, slowly (RESULTS.md).
 
 examples:
   python experiments/dqn_cartpole_pixels.py --seeds 3

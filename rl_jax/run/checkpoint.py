@@ -307,11 +307,14 @@ class Checkpointer:
             raise self._unreadable(step, error) from None
 
     def _check_expected(self, step: int, meta: dict, expect: dict[str, Any]) -> None:
+        """Each ``expect`` value must match; a ``frozenset`` value lists the accepted ones."""
         for key, value in expect.items():
-            if meta.get(key) != value:
+            accepted = value if isinstance(value, frozenset) else frozenset([value])
+            if meta.get(key) not in accepted:
+                wanted = " or ".join(repr(v) for v in sorted(accepted, key=str))
                 raise CheckpointError(
                     f"checkpoint step {step} in {self.directory} is from another run: "
-                    f"its {key} is {meta.get(key)!r}, this run's is {value!r}"
+                    f"its {key} is {meta.get(key)!r}, this run's is {wanted}"
                 )
 
     def _resolve_step(self, step: int | None) -> int:

@@ -75,7 +75,7 @@ class LoadedPolicy:
         from rl_jax.run.best import BEST_DIR, load_part, policy_fields, with_policy_part
         from rl_jax.run.checkpoint import Checkpointer
         from rl_jax.run.plan import make_plan
-        from rl_jax.run.run_dir import CHECKPOINT_DIR, load_algorithm
+        from rl_jax.run.run_dir import CHECKPOINT_DIR, identity_hash, load_algorithm
         from rl_jax.run.spec import RunSpec
         from rl_jax.training.params import dataclass_from_dict
 
@@ -94,7 +94,9 @@ class LoadedPolicy:
             base_seed=identity["base_seed"],
         )
         plan = make_plan(spec)
-        expect = {"identity_hash": self.record["identity_hash"]}
+        # Saved before or after a resume under newer code (see start.checkpoint_accepts).
+        hashes = {self.record["identity_hash"], identity_hash(spec.identity)}
+        expect = {"identity_hash": frozenset(hashes)}
         run = (self.config_index, self.seeds.index(self.seed))
         if self.which == "best":
             fields = policy_fields(algorithm, plan.template)

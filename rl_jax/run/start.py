@@ -19,6 +19,7 @@ from rl_jax.run.run_dir import (
     algorithm_reference,
     identity_hash,
     new_run_record,
+    read_run_record,
     write_json_atomic,
 )
 from rl_jax.run.spec import RunSpec
@@ -73,6 +74,18 @@ def checkpoint_expectation(spec: RunSpec) -> dict[str, Any]:
     }
 
 
+def checkpoint_accepts(spec: RunSpec) -> dict[str, Any]:
+    """What a checkpoint of this resumed run must carry: ``checkpoint_expectation``, except that
+    the identity hash may also be the one the run was created with (its record's
+    ``identity_hash``). A run written before a config field was added lacks that field
+    (``run_dir.with_newer_fields`` fills it with its default), and so do the hashes of the
+    checkpoints saved then."""
+    expect = checkpoint_expectation(spec)
+    created = read_run_record(spec.out).get("identity_hash", expect["identity_hash"])
+    expect["identity_hash"] = frozenset({expect["identity_hash"], created})
+    return expect
+
+
 def restore_start(spec: RunSpec, plan: Plan) -> Start | None:
     """The latest checkpoint of a resumed run (None if it has none yet). Writes nothing."""
     directory = spec.out / CHECKPOINT_DIR
@@ -81,13 +94,13 @@ def restore_start(spec: RunSpec, plan: Plan) -> Start | None:
     with Checkpointer(directory, read_only=True) as checkpointer:
         if checkpointer.latest_step() is None:
             return None
-        state, meta = checkpointer.restore(plan.template, expect=checkpoint_expectation(spec))
+        state, meta = checkpointer.restore(plan.template, expect=checkpoint_accepts(spec))
     best = BestPolicies.restore(
         spec.out / BEST_DIR,
         policy_fields(spec.algorithm, plan.template),
         plan.template,
         at_most=meta["step"],
-        expect=checkpoint_expectation(spec),
+        expect=checkpoint_accepts(spec),
     )
     return Start(
         plan.program.place(state, params.stack(list(spec.hparams))),
@@ -116,8 +129,6 @@ def write_run_record(spec: RunSpec, plan: Plan, start: Start) -> None:
         "from_step": start.step,
     }
     if spec.resume:
-        from rl_jax.run.run_dir import read_run_record
-
         record = read_run_record(spec.out)
         record["total_steps"] = spec.total_steps
         record["sessions"] = [*record.get("sessions", []), session]

@@ -103,6 +103,7 @@ TINY = {
     "conv_layers": (8, 8, 4, 8, 3, 1),
     "hidden": (16,),
     "num_envs": 2,
+    "updates_per_iteration": 2,
     "iterations_per_chunk": 100,
     "learning_starts": 60,
     "batch_size": 8,
@@ -113,7 +114,11 @@ TINY = {
 
 
 @pytest.mark.parametrize(
-    "options", [{}, {"double": True, "dueling": True, "n_step": 3, "prioritized": True}]
+    "options",
+    [
+        {"double": False, "n_step": 1},  # plain DQN (the pixel recipe is Double with 3 steps)
+        {"double": True, "dueling": True, "n_step": 3, "prioritized": True},
+    ],
 )
 def test_a_tiny_dqn_run_on_pixels_trains_and_evaluates(options):
     config = dqn.default_config(ENV_ID, **TINY, **options)
