@@ -34,6 +34,44 @@ def test_conv_output_sizes_follow_valid_padding():
         networks.check_conv_layers((32, 8), 84)
 
 
+@pytest.mark.parametrize(
+    ("layers", "band", "size", "expected"),
+    [
+        ((16, 8, 4, 32, 4, 2), (36, 67), 84, (34, 70)),  # CartPole's band at 84x84: 36 rows
+        ((16, 8, 4, 32, 4, 2), (0, 10), 84, (0, 20)),  # grown inside the frame, not above it
+        ((16, 8, 4, 32, 4, 2), (80, 84), 84, (64, 84)),
+        ((8, 3, 1), (2, 5), 9, (2, 5)),  # a band the stack reads whole as it is
+        ((8, 5, 5), (0, 9), 9, (0, 9)),  # no height fits: the whole frame
+    ],
+)
+def test_covering_rows_grow_the_band_to_a_height_the_conv_stack_reads_whole(
+    layers, band, size, expected
+):
+    first, stop = networks.covering_rows(layers, *band, size)
+    assert (first, stop) == expected
+    assert first <= band[0] and band[1] <= stop
+
+
+def test_a_torso_that_sees_some_rows_equals_the_torso_on_those_rows():
+    rows = (5, 29)
+    cropped = networks.QNetwork((8,), 2, conv_layers=(4, 8, 4, 6, 3, 1), conv_rows=rows)
+    whole = networks.QNetwork((8,), 2, conv_layers=(4, 8, 4, 6, 3, 1))
+    frames = jax.random.randint(jax.random.key(0), (3, 36, 40, 2), 0, 256).astype(jnp.uint8)
+    params = cropped.init(jax.random.key(1), frames)
+    assert params["params"]["Torso_0"]["Dense_0"]["kernel"].shape == (3 * 7 * 6, 8)
+    np.testing.assert_array_equal(
+        cropped.apply(params, frames), whole.apply(params, frames[:, rows[0] : rows[1]])
+    )
+
+
+def test_the_pixel_recipe_crops_to_the_rows_cartpole_draws_on():
+    config = dqn.default_config(ENV_ID)
+    assert config.crop_drawn_rows and config.conv_rows() == (34, 70)
+    assert dataclasses.replace(config, crop_drawn_rows=False).conv_rows() == ()
+    assert dataclasses.replace(config, frame_size=42).conv_rows() == (16, 36)
+    assert PixelConfig(env_id=ENV_ID).conv_rows() == ()  # off unless asked: runs saved before
+
+
 def test_q_network_on_frames_has_the_right_shapes_for_any_batch_dims():
     net = networks.QNetwork((32,), 2, dueling=True, conv_layers=(16, 8, 4, 32, 4, 2))
     frames = jax.random.randint(jax.random.key(0), (2, 3, 44, 44, 4), 0, 256).astype(jnp.uint8)
@@ -118,6 +156,7 @@ TINY = {
     [
         {"double": False, "n_step": 1},  # plain DQN (the pixel recipe is Double with 3 steps)
         {"double": True, "dueling": True, "n_step": 3, "prioritized": True},
+        {"crop_drawn_rows": False},  # the torso over the whole frame (the recipe crops)
     ],
 )
 def test_a_tiny_dqn_run_on_pixels_trains_and_evaluates(options):

@@ -19,6 +19,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from gym_frames import preprocess
 from gymnasium.utils.env_checker import check_env
 
 import envs
@@ -29,21 +30,6 @@ ENV_ID = "rl_jax/CartPolePixels-v1"
 MEAN_MAD, MAX_MAD = 0.15, 0.25
 ONE_PIXEL = 2 * 2.4 / 600  # metres per screen pixel at gymnasium's scale
 PIXELS, PHYSICS = CartPolePixels(), CartPole()
-
-
-# ---- gymnasium's frame, preprocessed in numpy ------------------------------------------------
-def area_weights(n_out: int, n_in: int) -> np.ndarray:
-    """``[n_out, n_in]``: the share of each input pixel in each output pixel (exact area
-    averaging, also for sizes that do not divide)."""
-    edges = np.arange(n_out + 1) * (n_in / n_out)
-    pixels = np.arange(n_in)[None, :]
-    overlap = np.minimum(edges[1:, None], pixels + 1) - np.maximum(edges[:-1, None], pixels)
-    return np.clip(overlap, 0.0, None) / (n_in / n_out)
-
-
-def preprocess(rgb: np.ndarray, size: int) -> np.ndarray:
-    gray = rgb.astype(np.float64) @ np.array([0.299, 0.587, 0.114])
-    return area_weights(size, rgb.shape[0]) @ gray @ area_weights(size, rgb.shape[1]).T
 
 
 @pytest.fixture(scope="module")
@@ -79,6 +65,42 @@ def test_frames_match_gymnasiums_rendering_after_the_same_preprocessing(gymnasiu
 def test_the_frame_bound_catches_a_one_pixel_error(gymnasium_frames):
     xs, thetas, reference = gymnasium_frames
     assert _mads(xs + np.float32(ONE_PIXEL), thetas, reference).mean() > MEAN_MAD
+
+
+def test_gymnasiums_frames_are_white_outside_the_drawn_rows():
+    """``drawn_rows`` bounds what gymnasium draws, on states up to 90 degrees from upright and
+    across the track (its own renderer, not ours), and is not loose: the cart's bottom edge and the
+    upright pole's tip lie in its first and last rows."""
+    os.environ.setdefault("SDL_VIDEODRIVER", "dummy")
+    pytest.importorskip("pygame", reason="gymnasium renders CartPole with pygame (pyproject)")
+    env = gymnasium.make("CartPole-v1", render_mode="rgb_array").unwrapped
+    env.reset(seed=0)
+    size, first_seen, last_seen = 84, 84, -1
+    first, stop = PIXELS.drawn_rows()
+    for x in (-2.4, -1.0, 0.0, 1.7, 2.4):
+        for theta in np.linspace(-np.pi / 2, np.pi / 2, 13):
+            env.state = np.array([x, 0.0, theta, 0.0], np.float64)
+            frame = preprocess(env.render(), size)
+            drawn = np.flatnonzero((frame < 255.0 - 1e-9).any(axis=1))
+            first_seen, last_seen = min(first_seen, drawn[0]), max(last_seen, drawn[-1])
+    env.close()
+    assert first <= first_seen and last_seen < stop, (first, stop, first_seen, last_seen)
+    assert first_seen - first <= 1 and stop - 1 - last_seen <= 1, (first, stop)
+    assert CartPolePixels(frame_size=42).drawn_rows() == (18, 34)
+
+
+def test_drawing_only_the_rows_a_state_can_reach_changes_no_pixel():
+    """With the params known while tracing (the env's defaults) only the rows any state can reach
+    are computed; with traced params every row is. The frames are equal at every angle, the
+    pole hanging below the track included."""
+    x, theta = (
+        v.ravel() for v in jnp.meshgrid(jnp.linspace(-2.4, 2.4, 7), jnp.linspace(-3.2, 3.2, 11))
+    )
+    params = CartPoleParams()
+    known = jax.jit(jax.vmap(lambda x, theta: draw_frame(x, theta, params)))(x, theta)
+    traced = jax.jit(jax.vmap(draw_frame, in_axes=(0, 0, None)))(x, theta, params)
+    np.testing.assert_array_equal(np.asarray(known), np.asarray(traced))
+    assert np.asarray(known)[:, 83].min() < 255  # a hanging pole reaches the bottom row
 
 
 # ---- dynamics, shapes, stacking --------------------------------------------------------------
