@@ -9,7 +9,11 @@ rebuilds the stacks when it samples (about 14 KB per transition at 84x84 instead
 two uint8 stacks); the plan counts it before anything is allocated. The options of
 experiments/dqn_cartpole.py apply: --double, --dueling, --n-step 3, --prioritized. The recipe
 (rl_jax.agents.dqn.RECIPES) uses Double DQN with 3-step returns, a target update every 500
-updates, rate 2.5e-4 and one batch-32 update per 4 env steps; it learns, slowly (RESULTS.md).
+updates, rate 5e-4 and one batch-32 update per 4 env steps, and its torso sees only the 36 rows
+of the frame that CartPole ever draws on (--no-crop-drawn-rows: all 84). Its default, 3 seeds x
+240k env steps, took 22 minutes on 2 cores; the seeds' best policies averaged 493 in training
+and 451 on 100 fresh episodes each (RESULTS.md). Check a run's policies on fresh episodes with
+python -m rl_jax.run.evaluate RUN_DIR.
 
 examples:
   python experiments/dqn_cartpole_pixels.py --seeds 3
@@ -24,8 +28,8 @@ SCRIPT = Script(
     dqn,
     "rl_jax/CartPolePixels-v1",
     seeds=3,
-    total_steps=100_000,  # env steps per seed
-    # No throughput measured for these defaults yet: the time is estimated after the first chunk.
+    total_steps=240_000,  # env steps per seed
+    throughput=(180.0, 3),  # env steps/s per seed with 3 seeds: 240k in 22 minutes (RESULTS.md)
 )
 
 if __name__ == "__main__":

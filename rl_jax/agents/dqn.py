@@ -112,8 +112,7 @@ class PixelConfig(Config):
     # The torso sees only the rows the env ever draws on (its ``drawn_rows``; CartPole: 31 of 84,
     # grown to 36 that the conv stack reads whole). The other rows are white in every frame, so
     # the network loses nothing, and an update takes a third of the time (batch 32: 21.9 -> 7.3
-    # ms, BENCHMARKS.md). Off by default: runs saved before it
-    # existed have networks over the whole frame.
+    # ms, BENCHMARKS.md). Off by default: runs saved before it existed see the whole frame.
     crop_drawn_rows: bool = False
 
     def __post_init__(self) -> None:
@@ -384,7 +383,7 @@ _FAST_DECAY = {"learning_rate": 1e-3, "epsilon_decay_steps": 8000.0, "epsilon_en
 _CARTPOLE = {**_FAST_DECAY, "lr_decay_steps": 40_000.0}
 HPARAM_RECIPES: dict[str, dict[str, float]] = {
     "rl_jax/CartPole-v1": _CARTPOLE,
-    "rl_jax/CartPolePixels-v1": {**_FAST_DECAY, "learning_rate": 2.5e-4},
+    "rl_jax/CartPolePixels-v1": {**_FAST_DECAY, "learning_rate": 5e-4},
     "rl_jax/InvertedPendulum-v5": _FAST_DECAY,
     "rl_jax/Rocket-v0": {"learning_rate": 1e-3, "epsilon_decay_steps": 50_000.0},
     # gamma 0.995 as TD3's rocket recipe: at 0.99 creeping in scores about as well as arriving.
