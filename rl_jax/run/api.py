@@ -197,35 +197,14 @@ def open_run(run_dir: str | Path) -> Run:
 
 
 def evaluate_policy(env: Any, act: Any, key: Any, episodes: int) -> np.ndarray:
-    """``[episodes]`` undiscounted returns of ``act`` in ``env``, all episodes vmapped in one
-    jitted while loop (each stops at termination or the env's step limit)."""
+    """``[episodes]`` undiscounted returns of ``act`` (one observation -> its action) in
+    ``env``, all episodes vmapped in one jitted while loop (each stops at termination or the
+    env's step limit): ``rl_jax.training.episodes.episode_returns``."""
     import jax
-    import jax.numpy as jnp
 
-    @jax.jit
-    def run_all(key):
-        reset_key, step_key = jax.random.split(key)
-        params = env.default_params
-        state, ts = jax.vmap(lambda k: env.reset(k, params))(jax.random.split(reset_key, episodes))
+    from rl_jax.training.episodes import episode_returns
 
-        def running(carry):
-            time, _, _, alive, _ = carry
-            return (time < env.max_episode_steps) & jnp.any(alive)
-
-        def step(carry):
-            time, state, obs, alive, total = carry
-            keys = jax.random.split(jax.random.fold_in(step_key, time), episodes)
-            state, ts = jax.vmap(lambda k, s, a: env.step(k, s, a, params))(
-                keys, state, jax.vmap(act)(obs)
-            )
-            total = total + jnp.where(alive, ts.reward, 0.0)
-            alive = alive & ~(ts.terminated | ts.truncated)
-            return time + 1, state, ts.obs, alive, total
-
-        alive = jnp.ones(episodes, jnp.bool_)
-        carry = (jnp.int32(0), state, ts.obs, alive, jnp.zeros(episodes, jnp.float32))
-        return jax.lax.while_loop(running, step, carry)[-1]
-
+    run_all = jax.jit(lambda key: episode_returns(jax.vmap(act), env, key, episodes))
     return np.asarray(run_all(key))
 
 

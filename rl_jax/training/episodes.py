@@ -55,10 +55,19 @@ def evaluate(act: Callable[..., jax.Array], agent: Any, config: Any, key: jax.Ar
     ``act(agent, obs [N, ...], config)`` on fresh env copies (no exploration noise, no
     autoreset); [] float32."""
     env = make_eval_env(config)
+    returns = episode_returns(lambda obs: act(agent, obs, config), env, key, config.num_eval_envs)
+    return jnp.mean(returns)
+
+
+def episode_returns(
+    policy: Callable[[jax.Array], jax.Array], env: envs.Environment, key: jax.Array, episodes: int
+) -> jax.Array:
+    """Undiscounted returns ``[episodes]`` of ``policy`` (``obs [N, ...] -> actions [N, ...]``)
+    in ``env``: one fresh copy per episode, all stepped together until the last one ends."""
     reset_key, step_key = jax.random.split(key)
-    env_state, ts = jax.vmap(env.reset)(jax.random.split(reset_key, config.num_eval_envs))
-    alive = jnp.ones(config.num_eval_envs, jnp.bool_)
-    total = jnp.zeros(config.num_eval_envs, jnp.float32)
+    env_state, ts = jax.vmap(env.reset)(jax.random.split(reset_key, episodes))
+    alive = jnp.ones(episodes, jnp.bool_)
+    total = jnp.zeros(episodes, jnp.float32)
 
     def running(carry):
         time, _, _, alive, _ = carry
@@ -66,12 +75,11 @@ def evaluate(act: Callable[..., jax.Array], agent: Any, config: Any, key: jax.Ar
 
     def step(carry):
         time, env_state, obs, alive, total = carry
-        keys = jax.random.split(jax.random.fold_in(step_key, time), config.num_eval_envs)
-        actions = act(agent, obs, config)
-        env_state, ts = jax.vmap(env.step)(keys, env_state, actions)
+        keys = jax.random.split(jax.random.fold_in(step_key, time), episodes)
+        env_state, ts = jax.vmap(env.step)(keys, env_state, policy(obs))
         total = total + jnp.where(alive, ts.reward, 0.0)
         alive = jnp.logical_and(alive, ~jnp.logical_or(ts.terminated, ts.truncated))
         return time + 1, env_state, ts.obs, alive, total
 
     carry = (jnp.int32(0), env_state, ts.obs, alive, total)
-    return jnp.mean(jax.lax.while_loop(running, step, carry)[-1])
+    return jax.lax.while_loop(running, step, carry)[-1]

@@ -1,0 +1,125 @@
+"""``python -m rl_jax.run.evaluate RUN_DIR``: each seed's policies on many fresh episodes.
+
+A run evaluates its policy on ``num_eval_envs`` episodes (10 by default) at every chunk, and
+keeps the policy of each seed's best evaluation in ``best/``: the best of many small samples, so
+its recorded return is optimistic. This evaluates the kept policies again, on ``--episodes`` new
+episodes each (100 by default, all stepped together in one compiled loop, with env keys no
+training evaluation used), and prints per seed the run's own figure beside the mean, spread and
+range of the new episodes. ``--latest`` adds each seed's latest checkpoint.
+
+    python -m rl_jax.run.evaluate runs/results/dqn-cartpole-pixels --episodes 100 --latest
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from pathlib import Path
+
+import numpy as np
+
+from rl_jax.errors import OneLineParser, exit_now, guard, parse_int, positive_int
+from rl_jax.run.policy import LoadedPolicy
+from rl_jax.training.jax_setup import configure
+
+KEY = 20_251_125  # evaluation episodes' key: none of a run's own evaluations draws it
+
+
+@dataclasses.dataclass(frozen=True)
+class Evaluation:
+    seed: int
+    which: str  # "best" or "latest" (what was loaded)
+    step: int  # env step of the policy
+    run_eval: float | None  # the run's own evaluation of it
+    returns: np.ndarray  # [episodes]
+
+
+def evaluate_policy(loaded: LoadedPolicy, episodes: int, key: int = KEY) -> np.ndarray:
+    """Returns ``[episodes]`` of ``loaded``'s deterministic policy in the run's env."""
+    import jax
+
+    from rl_jax.run.api import evaluate_policy as returns_of
+
+    return returns_of(loaded.env(), loaded.act(), jax.random.key(key), episodes)
+
+
+def evaluate_run(
+    run_dir: Path,
+    episodes: int = 100,
+    seeds: list[int] | None = None,
+    config_index: int | None = None,
+    latest: bool = False,
+) -> list[Evaluation]:
+    """Every seed's best policy (and its latest, with ``latest``) on ``episodes`` episodes."""
+    first = LoadedPolicy(run_dir, None, config_index, "latest")
+    evaluations = []
+    for seed in first.seeds if seeds is None else seeds:
+        for which in ("best", "latest") if latest else ("best",):
+            loaded = LoadedPolicy(run_dir, seed, first.config_index, which)
+            returns = evaluate_policy(loaded, episodes)
+            evaluations.append(
+                Evaluation(seed, loaded.which, loaded.step, loaded.eval_return, returns)
+            )
+    return evaluations
+
+
+def table(evaluations: list[Evaluation]) -> str:
+    episodes = len(evaluations[0].returns)
+    lines = [
+        f"each policy on {episodes} fresh episodes",
+        "",
+        "  seed  policy        step   run's eval      mean      std       min       max",
+        "  ----  ------  ----------   ----------  --------  -------  --------  --------",
+    ]
+    for e in evaluations:
+        run_eval = "-" if e.run_eval is None else f"{e.run_eval:.1f}"
+        r = e.returns
+        lines.append(
+            f"  {e.seed:4d}  {e.which:6s}  {e.step:10,d}   {run_eval:>10s}  {r.mean():8.1f}  "
+            f"{r.std():7.1f}  {r.min():8.1f}  {r.max():8.1f}"
+        )
+    lines.append("")
+    for which in dict.fromkeys(e.which for e in evaluations):
+        means = [e.returns.mean() for e in evaluations if e.which == which]
+        lines.append(f"  mean over seeds, {which}: {np.mean(means):.1f}")
+    return "\n".join(lines)
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = OneLineParser(prog="python -m rl_jax.run.evaluate", description=__doc__.split("\n")[0])
+    parser.add_argument("run_dir", type=Path, help="a run directory (holds config.json)")
+    parser.add_argument(
+        "--episodes", type=positive_int, default=100, help="episodes per policy (default: 100)"
+    )
+    parser.add_argument(
+        "--seed", type=parse_int, default=None, help="only this seed (default: every seed)"
+    )
+    parser.add_argument(
+        "--config",
+        type=parse_int,
+        default=None,
+        dest="config_index",
+        help="config index of a sweep (default: the best)",
+    )
+    parser.add_argument(
+        "--latest", action="store_true", help="also each seed's latest checkpoint's policy"
+    )
+    args = parser.parse_args(argv)
+
+    def run() -> int:
+        configure()
+        seeds = None if args.seed is None else [args.seed]
+        evaluations = evaluate_run(
+            args.run_dir, args.episodes, seeds, args.config_index, args.latest
+        )
+        print(table(evaluations))
+        return 0
+
+    return guard(run)
+
+
+if __name__ == "__main__":
+    # Run the imported module's main, not this __main__ copy, so that its exception classes are
+    # the ones the guard knows.
+    from rl_jax.run.evaluate import main as module_main
+
+    exit_now(module_main())

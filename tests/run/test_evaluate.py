@@ -1,0 +1,78 @@
+"""Re-evaluating a run's policies on fresh episodes (``python -m rl_jax.run.evaluate``): every
+seed's best (and latest) policy, its returns those of direct rollouts of the same policy, and the
+command line's table and one-line errors."""
+
+import subprocess
+import sys
+from pathlib import Path
+
+import jax
+import numpy as np
+import pytest
+from run_helpers import fake_run
+
+from rl_jax.run import evaluate
+from rl_jax.run.policy import LoadedPolicy
+from rl_jax.training.episodes import episode_returns
+
+ROOT = Path(__file__).resolve().parents[2]
+
+
+@pytest.fixture(scope="module")
+def run_dir(tmp_path_factory):
+    return fake_run(tmp_path_factory.mktemp("evaluate") / "run", total_steps=60)
+
+
+def test_every_seeds_best_and_latest_policy_is_evaluated(run_dir):
+    evaluations = evaluate.evaluate_run(run_dir, episodes=6, latest=True)
+    assert [(e.seed, e.which) for e in evaluations] == [
+        (0, "best"),
+        (0, "latest"),
+        (1, "best"),
+        (1, "latest"),
+    ]
+    for e in evaluations:
+        loaded = LoadedPolicy(run_dir, e.seed, which=e.which)
+        assert e.step == loaded.step and e.run_eval == pytest.approx(loaded.eval_return)
+        assert e.returns.shape == (6,) and np.all(e.returns <= 0.0)  # reward -x^2
+    table = evaluate.table(evaluations)
+    assert "each policy on 6 fresh episodes" in table and "mean over seeds, latest" in table
+
+
+def test_returns_are_those_of_stepping_the_env_one_episode_at_a_time(run_dir):
+    loaded = LoadedPolicy(run_dir, seed=1)
+    returns = evaluate.evaluate_policy(loaded, episodes=3, key=7)
+    env, act = loaded.env(), loaded.act()
+    reset_key, step_key = jax.random.split(jax.random.key(7))
+    for episode, reset in enumerate(jax.random.split(reset_key, 3)):
+        state, ts = env.reset(reset)
+        total, time = 0.0, 0
+        while True:
+            keys = jax.random.split(jax.random.fold_in(step_key, time), 3)
+            state, ts = env.step(keys[episode], state, act(ts.obs))
+            total, time = total + float(ts.reward), time + 1
+            if bool(ts.terminated) or bool(ts.truncated):
+                break
+        assert returns[episode] == pytest.approx(total, rel=1e-5)
+    assert np.asarray(
+        jax.jit(lambda k: episode_returns(jax.vmap(act), env, k, 3))(jax.random.key(7))
+    ) == pytest.approx(returns)
+
+
+def test_command_line_prints_the_table_or_one_error_line(run_dir):
+    def command(*args):
+        argv = [sys.executable, "-m", "rl_jax.run.evaluate", *map(str, args)]
+        env = {"PYTHONPATH": f"{ROOT}:{ROOT / 'tests'}", "PATH": "/usr/bin:/bin"}
+        return subprocess.run(argv, cwd=ROOT, capture_output=True, text=True, env=env)
+
+    done = command(run_dir, "--episodes", "4", "--seed", "1")
+    assert done.returncode == 0, done.stderr
+    assert "     1  best" in done.stdout and "     0  best" not in done.stdout
+    for args, expected in [
+        ((run_dir.parent / "missing",), "no run directory"),
+        ((run_dir, "--seed", "9"), "--seed 9 is not in this run"),
+        ((run_dir, "--episodes", "0"), "--episodes"),
+    ]:
+        done = command(*args)
+        lines = done.stderr.strip().splitlines()
+        assert done.returncode != 0 and len(lines) == 1 and expected in lines[0], done.stderr
