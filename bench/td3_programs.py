@@ -78,11 +78,15 @@ def update_flops(config: td3_module.Config) -> dict[str, float]:
     state = td3.init(jax.random.key(0), config, hparams)
     nets = td3_module.make_networks(config)
     batch = td3_module.replay.sample(state.buffer, jax.random.key(1), config.batch_size)
+
+    def constant(rate):  # the learning-rate schedule: no decay
+        return rate
+
     critic = jax.make_jaxpr(
-        lambda agent, key: td3_module._critic_step(agent, batch, key, hparams, nets)
+        lambda agent, key: td3_module._critic_step(agent, batch, key, hparams, nets, constant)
     )(state.agent, jax.random.key(2))
     actor = jax.make_jaxpr(
-        lambda agent: td3_module._actor_and_target_step(agent, batch.obs, hparams, nets)
+        lambda agent: td3_module._actor_and_target_step(agent, batch.obs, hparams, nets, constant)
     )(state.agent)
     critic_flops = jaxpr_matmul_flops(critic.jaxpr)
     actor_flops = jaxpr_matmul_flops(actor.jaxpr)
