@@ -1,5 +1,6 @@
-"""TD3 performance: update throughput against the CPU's matmul rate, scaling over seeds, compile
-time, and the PyTorch script our users ran, all measured in one run on the same cores.
+"""TD3 performance: update throughput against the CPU's matmul rate, scaling over seeds and
+compile time, all measured in one run on the same cores. (Our loop beside SBX and the PyTorch
+script our users ran, at equal work, is ``bench_peers``.)
 
 Every timed program runs in a child process (``python -m bench.bench_td3 --worker PART``): the
 CPU must be split into two JAX devices before JAX starts, and a compile-time measurement needs a
@@ -15,9 +16,6 @@ interleaved with the thing it is compared to).
    the default recipe) for 1, 5 and 20 seeds and a 4 x 5 grid of hyperparameter sets x seeds.
 3. ``compile``: time to the first chunk minus a steady chunk, for the half-cheetah TD3 program
    with an empty persistent compilation cache (cold) and again from a new process (warm).
-4. ``torch``: ``bench/torch_td3.py`` as a user would run it on 2 cores (two single-thread
-   processes at a time) next to ours; time to eval return 3,000 / 5,000 of the baseline is
-   projected from these rates and its logged steps-to-return.
 """
 
 from __future__ import annotations
@@ -34,11 +32,6 @@ from pathlib import Path
 from typing import Any
 
 ROOT = Path(__file__).resolve().parent.parent
-# Steps at which the baseline's eval return first reached 3,000 and 5,000, from full runs of
-# bench/torch_td3.py (seeds 1 and 2, eval every 10k env steps, 5 episodes; logs in
-# /work/baseline/torch_td3_s{1,2}.jsonl).
-TORCH_STEPS_TO_RETURN = {3000: (80_000, 60_000), 5000: (130_000, 120_000)}
-TORCH_LEARNING_STARTS = 25_000
 RAW = ROOT / "bench" / "results"  # the measured numbers behind each section, as JSON
 
 
@@ -98,34 +91,10 @@ def compile_time(quick: bool) -> dict[str, Any]:
     return result
 
 
-def ours_vs_torch(quick: bool) -> dict[str, Any]:
-    from bench.cheetah_recipe import measure
-
-    # 400 updates per seed per timed chunk for either recipe (the default does 4 per iteration);
-    # the chunk's evaluation (one episode) is included.
-    iterations = {"paper": 400, "default": 100}
-    return {
-        name: measure({"iterations_per_chunk": iterations[name] // (10 if quick else 1), **r}, 5, 1)
-        for name, r in [("paper", _paper_recipe()), ("default", {"num_eval_envs": 1})]
-    }
-
-
-def _paper_recipe() -> dict[str, Any]:
-    from bench.td3_programs import ENV_ID
-    from rl_jax.agents.td3 import Config
-
-    return {
-        k: v
-        for k, v in Config(env_id=ENV_ID).to_dict().items()
-        if k not in ("env_id", "iterations_per_chunk", "buffer_size", "learning_starts")
-    } | {"num_eval_envs": 1}
-
-
 WORKERS = {
     "throughput": throughput,
     "scaling": scaling,
     "compile": compile_time,
-    "ours": ours_vs_torch,
 }
 
 
@@ -148,26 +117,6 @@ def _child(part: str, quick: bool, devices: int = 2, env: dict | None = None) ->
     return json.loads(lines[-1].removeprefix("RESULT "))
 
 
-def _torch(quick: bool, processes: int = 2) -> list[dict[str, Any]]:
-    """``processes`` concurrent single-thread baseline processes (2 on 2 cores, as a user would)."""
-    steps = ["--learning-starts", "1000" if quick else "5000", "--time-only"]
-    steps += ["300" if quick else "2000"]
-    command = [sys.executable, "-m", "bench.torch_td3", *steps]
-    environment = {**os.environ, "PYTHONPATH": str(ROOT)}
-    children = [
-        subprocess.Popen(
-            [*command, "--seed", str(seed + 1)],
-            cwd=ROOT,
-            env=environment,
-            stdout=subprocess.PIPE,
-            text=True,
-        )
-        for seed in range(processes)
-    ]
-    runs = [json.loads(child.communicate()[0].strip().splitlines()[-1]) for child in children]
-    return [{**r, "load": round(os.getloadavg()[0], 2)} for r in runs]
-
-
 def run(quick: bool) -> str:
     from bench.machine import describe
 
@@ -176,7 +125,6 @@ def run(quick: bool) -> str:
     lines += _part(throughput_section, lambda: _child("throughput", quick))
     lines += _part(scaling_section, lambda: _child("scaling", quick))
     lines += _part(compile_section, lambda: _compile_cold_and_warm(quick))
-    lines += _part(torch_section, lambda: (_torch(quick), _child("ours", quick, devices=1)))
     lines.append(f"\nStarted {started}, finished {time.strftime('%H:%M')} (UTC).\n")
     return "\n".join(lines)
 
@@ -260,39 +208,6 @@ def compile_section(cold: dict[str, Any], warm: dict[str, Any]) -> list[str]:
         f"{warm['load']:.1f} |",
         "",
     ]
-
-
-def torch_section(torch_runs: list[dict[str, Any]], ours: dict[str, Any]) -> list[str]:
-    random_rate = statistics.mean(r["random_steps_per_s"] for r in torch_runs)
-    learning_rate = statistics.mean(r["learning_steps_per_s"] for r in torch_runs)
-    processes = len(torch_runs)
-    waves = -(-5 // processes)
-    lines = [
-        "### Against the PyTorch script (bench/torch_td3.py, HalfCheetah-v5)\n",
-        f"Baseline: {processes} single-thread processes at once (a user's best on 2 cores), "
-        f"measured side by side with ours; per-process rates averaged. 5 seeds take {waves} "
-        "waves of processes.\n",
-        "| | updates/s (all seeds) | env steps/s in learning (all seeds) | load |",
-        "|---|---|---|---|",
-        f"| torch, {processes} processes | {learning_rate * processes:.0f} | "
-        f"{learning_rate * processes:.0f} | {torch_runs[0].get('load', float('nan')):.1f} |",
-    ]
-    for name, result in ours.items():
-        lines.append(
-            f"| rl_jax, 5 seeds, {name} recipe | {result['updates_per_s_per_run'] * 5:.0f} | "
-            f"{result['env_steps_per_s_per_run'] * 5:.0f} | {result['load']:.1f} |"
-        )
-    lines += ["", "Baseline time to eval return (projected: measured rates x logged steps):\n"]
-    lines += ["| return | logged steps (seeds 1, 2) | per seed s | 5 seeds s (projected) |"]
-    lines += ["|---|---|---|---|"]
-    for target, steps in TORCH_STEPS_TO_RETURN.items():
-        mean_steps = statistics.mean(steps)
-        per_seed = TORCH_LEARNING_STARTS / random_rate
-        per_seed += (mean_steps - TORCH_LEARNING_STARTS) / learning_rate
-        lines.append(
-            f"| {target:,} | {steps[0]:,}, {steps[1]:,} | {per_seed:.0f} | {waves * per_seed:.0f} |"
-        )
-    return lines + [""]
 
 
 def main(argv: list[str] | None = None) -> None:

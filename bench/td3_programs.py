@@ -97,6 +97,90 @@ def update_flops(config: td3_module.Config) -> dict[str, float]:
     }
 
 
+def update_dots(config: td3_module.Config, seeds: int) -> list[tuple[Any, float]]:
+    """Every matrix product of one TD3 update of ``seeds`` seeds vmapped (as the training program
+    runs it): ``(dot_general equation, runs per update)``; the actor step's products run every
+    ``policy_delay`` updates."""
+    hparams = td3.default_hyperparams()
+    state = jax.vmap(lambda key: td3.init(key, config, hparams))(
+        jax.random.split(jax.random.key(0), seeds)
+    )
+    nets = td3_module.make_networks(config)
+    batch = jax.vmap(lambda b, k: td3_module.replay.sample(b, k, config.batch_size))(
+        state.buffer, jax.random.split(jax.random.key(1), seeds)
+    )
+
+    def constant(rate):
+        return rate
+
+    def critic(agent, batch, key):
+        return td3_module._critic_step(agent, batch, key, hparams, nets, constant)
+
+    def actor(agent, batch):
+        return td3_module._actor_and_target_step(agent, batch.obs, hparams, nets, constant)
+
+    keys = jax.random.split(jax.random.key(2), seeds)
+    traced = [
+        (jax.make_jaxpr(jax.vmap(critic))(state.agent, batch, keys), 1.0),
+        (jax.make_jaxpr(jax.vmap(actor))(state.agent, batch), 1.0 / config.policy_delay),
+    ]
+    return [(eqn, weight) for jaxpr, weight in traced for eqn in _dot_equations(jaxpr.jaxpr)]
+
+
+def _dot_equations(jaxpr: Any) -> list[Any]:
+    found = []
+    for equation in jaxpr.eqns:
+        if equation.primitive.name == "dot_general":
+            found.append(equation)
+        for value in equation.params.values():
+            for sub in value if isinstance(value, tuple | list) else (value,):
+                if isinstance(sub, jax_core.ClosedJaxpr):
+                    found += _dot_equations(sub.jaxpr)
+                elif isinstance(sub, jax_core.Jaxpr):
+                    found += _dot_equations(sub)
+    return found
+
+
+def dots_program(config: td3_module.Config, seeds: int, updates: int) -> tuple[Callable, float]:
+    """The update's matrix products alone, at their exact shapes and layouts, ``updates`` times
+    in one ``lax.scan``: the rate the training loop would reach if everything but its matmuls
+    were free (its roofline on this CPU). Returns the call and its FLOPs per call."""
+    dots = update_dots(config, seeds)
+    key = jax.random.key(3)
+    operands = []
+    for index, (equation, _) in enumerate(dots):
+        lhs, rhs = (v.aval for v in equation.invars)
+        pair = jax.random.split(jax.random.fold_in(key, index))
+        operands.append(
+            (
+                jax.random.normal(pair[0], lhs.shape, lhs.dtype),
+                jax.random.normal(pair[1], rhs.shape, rhs.dtype),
+            )
+        )
+    # An actor-step product counts 1 / policy_delay: run it in that share of the iterations.
+    period = config.policy_delay
+
+    def body(total, index):
+        for (equation, weight), (lhs, rhs) in zip(dots, operands, strict=True):
+            dimensions = equation.params["dimension_numbers"]
+
+            # The carry enters every product, so none is hoisted out of the loop.
+            def product(total, lhs=lhs, rhs=rhs, dimensions=dimensions):
+                out = jax.lax.dot_general(lhs + total, rhs, dimensions)
+                return jnp.ravel(out)[0] * 1e-30
+
+            if weight < 1.0:
+                due = index % period == 0
+                total = total + jax.lax.cond(due, product, lambda total: 0.0 * total, total)
+            else:
+                total = total + product(total)
+        return total, None
+
+    program = jax.jit(lambda: jax.lax.scan(body, jnp.float32(0.0), jnp.arange(updates))[0])
+    flops = updates * sum(weight * _dot_flops(eqn) for eqn, weight in dots)
+    return (lambda: program().block_until_ready()), flops
+
+
 # ---- programs -----------------------------------------------------------------------------------
 def matmul_program(devices: int) -> tuple[Callable[[], Any], float]:
     """A chain of float32 ``MATMUL_SIZE``-square matmuls on each of ``devices`` devices (one

@@ -33,6 +33,7 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     p.add_argument("--learning-starts", type=int, default=25_000, help="uniform random steps")
     p.add_argument("--buffer-size", type=int, default=1_000_000, help="replay capacity")
     p.add_argument("--batch-size", type=int, default=256, help="minibatch size")
+    p.add_argument("--hidden", type=int, default=256, help="width of both hidden layers")
     p.add_argument("--lr", type=float, default=3e-4, help="Adam learning rate (both nets)")
     p.add_argument("--gamma", type=float, default=0.99, help="discount")
     p.add_argument("--tau", type=float, default=0.005, help="Polyak averaging of targets")
@@ -61,9 +62,9 @@ def mlp(n_in: int, n_out: int, hidden: int = 256) -> nn.Sequential:
 
 
 class Actor(nn.Module):
-    def __init__(self, obs_dim: int, act_dim: int, low: np.ndarray, high: np.ndarray):
+    def __init__(self, obs_dim: int, act_dim: int, low: np.ndarray, high: np.ndarray, hidden: int):
         super().__init__()
-        self.net = mlp(obs_dim, act_dim)
+        self.net = mlp(obs_dim, act_dim, hidden)
         self.register_buffer("scale", torch.tensor((high - low) / 2.0, dtype=torch.float32))
         self.register_buffer("bias", torch.tensor((high + low) / 2.0, dtype=torch.float32))
 
@@ -72,9 +73,9 @@ class Actor(nn.Module):
 
 
 class Critic(nn.Module):
-    def __init__(self, obs_dim: int, act_dim: int):
+    def __init__(self, obs_dim: int, act_dim: int, hidden: int):
         super().__init__()
-        self.net = mlp(obs_dim + act_dim, 1)
+        self.net = mlp(obs_dim + act_dim, 1, hidden)
 
     def forward(self, obs: torch.Tensor, action: torch.Tensor) -> torch.Tensor:
         return self.net(torch.cat([obs, action], dim=-1)).squeeze(-1)
@@ -134,11 +135,13 @@ class TD3:
         low, high = env.action_space.low, env.action_space.high
         self.args, self.low, self.high = args, low, high
         self.scale = torch.tensor((high - low) / 2.0, dtype=torch.float32)
-        self.actor = Actor(obs_dim, act_dim, low, high)
-        self.actor_target = Actor(obs_dim, act_dim, low, high)
+        self.actor = Actor(obs_dim, act_dim, low, high, args.hidden)
+        self.actor_target = Actor(obs_dim, act_dim, low, high, args.hidden)
         self.actor_target.load_state_dict(self.actor.state_dict())
-        self.critics = nn.ModuleList([Critic(obs_dim, act_dim) for _ in range(2)])
-        self.critics_target = nn.ModuleList([Critic(obs_dim, act_dim) for _ in range(2)])
+        self.critics = nn.ModuleList([Critic(obs_dim, act_dim, args.hidden) for _ in range(2)])
+        self.critics_target = nn.ModuleList(
+            [Critic(obs_dim, act_dim, args.hidden) for _ in range(2)]
+        )
         self.critics_target.load_state_dict(self.critics.state_dict())
         self.actor_opt = torch.optim.Adam(self.actor.parameters(), lr=args.lr)
         self.critic_opt = torch.optim.Adam(self.critics.parameters(), lr=args.lr)
