@@ -423,6 +423,13 @@ class TD3Family(RecipeBook):
     def train_chunk(self, state: TrainState, config: Config, hparams: Hyperparams):
         return offpolicy.train_chunk(LEARNER, state, config, hparams)
 
+    def spread_runs(self, config: Config) -> bool:
+        """Networks of width <= 64 spread over every device, padded if need be. Measured with 64
+        x 64 networks (Pendulum, batch 256): 5 seeds did 4,244-4,279 updates/s as 3 + 3 on 2
+        devices against 3,253-3,358 on one; at 256 x 256 one device was as fast or faster
+        (BENCHMARKS.md, TD3 section 1)."""
+        return max((*config.actor_hidden, *config.critic_hidden)) <= 64
+
     def policy(self, state: TrainState, config: Config):
         """``obs -> action`` (env units) of the deterministic policy of one seed's state."""
         actor, params = make_networks(config).actor, state.agent.actor

@@ -26,21 +26,26 @@ def program_for(spec: RunSpec) -> parallel.Program:
     """All configs x seeds of ``spec`` as one program over the most local devices that split the
     runs evenly (``training.device_layout.mesh_shape``): 5 seeds on 2 cores run on one device.
 
-    Never padded: on CPU one device's matmuls and env steps already use every core's threads, so
-    a padded run costs its full share. Measured (load 1-2): REINFORCE on the double pendulum, 5
-    seeds, 20 updates took 119 s on 1 device against 142 s padded to 3 + 3 on 2 devices (the
-    6/5 of the padded seed); TD3 updates, 6 seeds: 0.92 of the matmul rate on one device against
-    0.58 sharded (BENCHMARKS.md, TD3 section 1).
+    Not padded by default: on CPU one device's matmuls and env steps already use every core's
+    threads, so a padded run costs its full share. Measured (load 1-2): REINFORCE on the double
+    pendulum, 5 seeds, 20 updates took 119 s on 1 device against 142 s padded to 3 + 3 on 2
+    devices (the 6/5 of the padded seed); TD3 at 256 x 256, 5 seeds: 519-530 updates/s on one
+    device, 498-513 as 3 + 3. An algorithm whose config runs small ops says so
+    (``spread_runs``: TD3 with networks of width <= 64, 1.3x faster as 3 + 3 than as 5 on one
+    device); its runs then spread over every device, padded, when there are at least as many
+    runs as devices.
 
     A config with ``loop_seeds`` set (DQN on frames) runs its seeds as an unrolled loop instead
     of a vmap (``rl_jax.training.parallel.seed_loop``): faster for conv nets on CPU."""
     loop_seeds = bool(getattr(spec.config, "loop_seeds", False))
+    runs = len(spec.hparams) * spec.seeds
+    spread = hooks(spec.algorithm).spread_runs(spec.config) and runs >= len(jax.devices())
     return parallel.Program(
         spec.algorithm,
         spec.config,
         len(spec.hparams),
         spec.seeds,
-        pad=False,
+        pad=spread,
         loop_seeds=loop_seeds,
     )
 

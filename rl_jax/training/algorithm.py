@@ -48,7 +48,8 @@ class Algorithm(Protocol):
     """A learner. Implementations are plain modules or small stateless objects.
 
     Beyond the methods below, an algorithm may define the hooks of ``OptionalHooks``
-    (``policy_fields``, ``ranges``, ``env_steps_per_chunk``, ``validate``, ``make_env``); callers
+    (``policy_fields``, ``ranges``, ``env_steps_per_chunk``, ``validate``, ``make_env``,
+    ``spread_runs``); callers
     reach them through ``hooks(algorithm)``, which supplies the defaults."""
 
     name: str  # "td3", "ddpg", "dqn", "reinforce"
@@ -95,8 +96,15 @@ class OptionalHooks:
         """The env the policy acts in (loaded policies, rendering): the registered ``env_id``."""
         return envs.make(config.env_id)
 
+    def spread_runs(self, config: Any) -> bool:
+        """Whether a run's seeds should spread over every CPU device even when they do not split
+        evenly (padded with copies that are computed and dropped). Default no: one device's
+        large matmuls already use every core. Programs of small ops run on one core per device,
+        so two devices can be worth a wasted run (``rl_jax.run.plan.program_for``)."""
+        return False
 
-HOOKS = ("policy_fields", "ranges", "env_steps_per_chunk", "validate", "make_env")
+
+HOOKS = ("policy_fields", "ranges", "env_steps_per_chunk", "validate", "make_env", "spread_runs")
 
 
 class _WithDefaults(OptionalHooks):
