@@ -60,13 +60,20 @@ def jaxpr_matmul_flops(jaxpr: Any) -> int:
         elif name == "scan":
             total += equation.params["length"] * jaxpr_matmul_flops(equation.params["jaxpr"].jaxpr)
         else:
-            for value in equation.params.values():
-                for sub in value if isinstance(value, tuple | list) else (value,):
-                    if isinstance(sub, jax_core.ClosedJaxpr):
-                        total += jaxpr_matmul_flops(sub.jaxpr)
-                    elif isinstance(sub, jax_core.Jaxpr):
-                        total += jaxpr_matmul_flops(sub)
+            total += sum(jaxpr_matmul_flops(sub) for sub in _inner_jaxprs(equation))
     return total
+
+
+def _inner_jaxprs(equation: Any) -> list[Any]:
+    """The jaxprs an equation holds in its parameters (pjit, custom_vjp, cond, scan bodies)."""
+    found = []
+    for value in equation.params.values():
+        for sub in value if isinstance(value, tuple | list) else (value,):
+            if isinstance(sub, jax_core.ClosedJaxpr):
+                found.append(sub.jaxpr)
+            elif isinstance(sub, jax_core.Jaxpr):
+                found.append(sub)
+    return found
 
 
 def update_flops(config: td3_module.Config) -> dict[str, float]:
@@ -128,16 +135,13 @@ def update_dots(config: td3_module.Config, seeds: int) -> list[tuple[Any, float]
 
 
 def _dot_equations(jaxpr: Any) -> list[Any]:
+    """Every ``dot_general`` equation of ``jaxpr``, nested ones included, once each."""
     found = []
     for equation in jaxpr.eqns:
         if equation.primitive.name == "dot_general":
             found.append(equation)
-        for value in equation.params.values():
-            for sub in value if isinstance(value, tuple | list) else (value,):
-                if isinstance(sub, jax_core.ClosedJaxpr):
-                    found += _dot_equations(sub.jaxpr)
-                elif isinstance(sub, jax_core.Jaxpr):
-                    found += _dot_equations(sub)
+        for sub in _inner_jaxprs(equation):
+            found += _dot_equations(sub)
     return found
 
 

@@ -17,8 +17,8 @@ from pathlib import Path
 
 import numpy as np
 
-from rl_jax.errors import OneLineParser, exit_now, guard, parse_int, positive_int
-from rl_jax.run.policy import LoadedPolicy
+from rl_jax.errors import OneLineParser, exit_now, guard, positive_int
+from rl_jax.run.policy import LoadedPolicy, add_run_choice
 from rl_jax.training.jax_setup import configure
 
 KEY = 20_251_125  # evaluation episodes' key: none of a run's own evaluations draws it
@@ -90,16 +90,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument(
         "--episodes", type=positive_int, default=100, help="episodes per policy (default: 100)"
     )
-    parser.add_argument(
-        "--seed", type=parse_int, default=None, help="only this seed (default: every seed)"
-    )
-    parser.add_argument(
-        "--config",
-        type=parse_int,
-        default=None,
-        dest="config_index",
-        help="config index of a sweep (default: the best)",
-    )
+    add_run_choice(parser, "only this seed (default: every seed)")
     parser.add_argument(
         "--latest", action="store_true", help="also each seed's latest checkpoint's policy"
     )

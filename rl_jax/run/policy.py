@@ -173,6 +173,20 @@ class Policy:
         return f"<Policy: {self.loaded.describe()} of {self.loaded.run_dir}>"
 
 
+def add_run_choice(parser: Any, seed_help: str) -> None:
+    """The ``--seed`` and ``--config`` options of the commands that load a run's policies."""
+    from rl_jax.errors import parse_int
+
+    parser.add_argument("--seed", type=parse_int, default=None, help=seed_help)
+    parser.add_argument(
+        "--config",
+        type=parse_int,
+        default=None,
+        dest="config_index",
+        help="config index of a sweep (default: the best)",
+    )
+
+
 def load_policy(
     run_dir: str | Path, seed: int | None = None, which: str = "best", config: int | None = None
 ) -> Policy:

@@ -32,8 +32,11 @@ from typing import Any
 
 import numpy as np
 
-from rl_jax.errors import OneLineParser, RenderError, exit_now, guard, parse_int, positive_int
-from rl_jax.run.policy import LoadedPolicy  # loading lives there; render.LoadedPolicy stays
+from rl_jax.errors import OneLineParser, RenderError, exit_now, guard, positive_int
+from rl_jax.run.policy import (  # loading lives there; render.LoadedPolicy stays
+    LoadedPolicy,
+    add_run_choice,
+)
 from rl_jax.training.jax_setup import configure
 
 NO_OPENGL = (
@@ -216,19 +219,7 @@ def _save_episode_plot(env: Any, states: list[Any], gif_path: Path) -> Path | No
 def main(argv: list[str] | None = None) -> int:
     parser = OneLineParser(prog="python -m rl_jax.run.render", description=__doc__.split("\n")[0])
     parser.add_argument("run_dir", type=Path, help="a run directory (holds config.json)")
-    parser.add_argument(
-        "--seed",
-        type=parse_int,
-        default=None,
-        help="seed to render (default: the one with the best eval return)",
-    )
-    parser.add_argument(
-        "--config",
-        type=parse_int,
-        default=None,
-        dest="config_index",
-        help="config index of a sweep (default: the best)",
-    )
+    add_run_choice(parser, "seed to render (default: the one with the best eval return)")
     parser.add_argument("--episodes", type=positive_int, default=1, help="episodes (default: 1)")
     parser.add_argument(
         "--out", type=Path, default=None, help="GIF path (default: RUN_DIR/policy.gif)"
