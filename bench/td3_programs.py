@@ -145,11 +145,16 @@ def _dot_equations(jaxpr: Any) -> list[Any]:
     return found
 
 
-def dots_program(config: td3_module.Config, seeds: int, updates: int) -> tuple[Callable, float]:
+def dots_program(
+    config: td3_module.Config, seeds: int, updates: int, devices: int = 1
+) -> tuple[Callable, float]:
     """The update's matrix products alone, at their exact shapes and layouts, ``updates`` times
     in one ``lax.scan``: the rate the training loop would reach if everything but its matmuls
-    were free (its roofline on this CPU). Returns the call and its FLOPs per call."""
-    dots = update_dots(config, seeds)
+    were free (its roofline on this CPU). On several devices each runs the products of its share
+    of the seeds (padded to equal shares, as the training program lays them out) independently.
+    Returns the call and the FLOPs per call of the ``seeds`` seeds (padding left out)."""
+    per_device = -(-seeds // devices)
+    dots = update_dots(config, per_device)
     key = jax.random.key(3)
     operands = []
     for index, (equation, _) in enumerate(dots):
@@ -180,9 +185,18 @@ def dots_program(config: td3_module.Config, seeds: int, updates: int) -> tuple[C
                 total = total + product(total)
         return total, None
 
-    program = jax.jit(lambda: jax.lax.scan(body, jnp.float32(0.0), jnp.arange(updates))[0])
-    flops = updates * sum(weight * _dot_flops(eqn) for eqn, weight in dots)
-    return (lambda: program().block_until_ready()), flops
+    def loop(start):  # start: [1] on each device
+        return jax.lax.scan(body, start[0], jnp.arange(updates))[0][None]
+
+    mesh = Mesh(np.array(jax.devices()[:devices]), ("d",))
+    program = jax.jit(
+        jax.shard_map(loop, mesh=mesh, in_specs=PartitionSpec("d"), out_specs=PartitionSpec("d"))
+    )
+    start = jax.device_put(
+        jnp.zeros((devices,), jnp.float32), jax.NamedSharding(mesh, PartitionSpec("d"))
+    )
+    per_seed = sum(weight * _dot_flops(eqn) for eqn, weight in dots) / per_device
+    return (lambda: program(start).block_until_ready()), updates * seeds * per_seed
 
 
 # ---- programs -----------------------------------------------------------------------------------
