@@ -27,7 +27,7 @@ def optimizer_step(
 
 def clip_by_global_norm(grads, max_norm) -> tuple[Any, jax.Array]:
     """``(grads scaled to global norm <= max_norm, norm before)``; ``max_norm <= 0`` keeps them."""
-    norm = optax.global_norm(grads)
+    norm = optax.tree.norm(grads)
     scale = jnp.where(max_norm > 0.0, jnp.minimum(1.0, max_norm / jnp.maximum(norm, 1e-12)), 1.0)
     return jax.tree.map(lambda g: g * scale, grads), norm
 
