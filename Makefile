@@ -9,8 +9,8 @@ STAMP  := $(VENV)/.installed
 # The persistent XLA compilation cache is on by default (a second run of a config skips compiling):
 # rl_jax.training.jax_setup keeps it in ~/.cache/rl_jax/jax/<CPU tag>, unless
 # JAX_COMPILATION_CACHE_DIR names another directory.
-# Headless MuJoCo rendering through EGL (Mesa, software-rendered on a CPU-only machine).
-export MUJOCO_GL ?= egl
+# Headless MuJoCo rendering picks EGL, else OSMesa, when a frame is first drawn
+# (envs/mujoco/opengl.py); nothing else needs OpenGL, so MUJOCO_GL is not set here.
 
 .PHONY: install test test-slow lint format bench results train lock system-deps clean help
 

@@ -62,9 +62,11 @@ import os
 from pathlib import Path
 from typing import Any, NamedTuple
 
-# Headless machines render through EGL (MuJoCo picks its GL backend when first imported).
-if "MUJOCO_GL" not in os.environ and not os.environ.get("DISPLAY"):
-    os.environ["MUJOCO_GL"] = "egl"
+from envs.mujoco import opengl
+
+# No OpenGL is chosen here: a MUJOCO_GL naming a library this machine cannot load would make
+# `import mujoco` itself fail, and only rendering needs OpenGL (envs.mujoco.opengl).
+opengl.guard_import()
 
 import jax  # noqa: E402
 import jax.numpy as jnp  # noqa: E402

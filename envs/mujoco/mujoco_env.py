@@ -48,6 +48,7 @@ from flax import struct
 
 from envs.core.core import Array, Environment, EnvParams, EnvState, PRNGKey, TimeStep, keep_active
 from envs.core.spaces import Box
+from envs.mujoco import opengl
 from envs.mujoco.mujoco_backend import (
     DIVERGENCE_LIMIT,
     Measurement,
@@ -312,7 +313,7 @@ class MujocoEnv(Environment[MujocoState, Any]):
         mujoco.mj_forward(self.model, data)
         renderer = self._renderer
         if renderer is None or (renderer.width, renderer.height) != (width, height):
-            _use_egl_if_headless()
+            opengl.prepare_rendering()
             self._renderer = renderer = mujoco.Renderer(self.model, height=height, width=width)
         renderer.update_scene(data, self._camera())
         return renderer.render()
@@ -362,26 +363,6 @@ class MujocoEnv(Environment[MujocoState, Any]):
     def reset_info(self, measurement: Measurement) -> dict[str, Array]:
         """Entries of ``info_keys`` that gymnasium reports at reset (the rest are 0)."""
         return {}
-
-
-def _use_egl_if_headless() -> None:
-    """Render through EGL on a machine without a display, even if MuJoCo was imported first.
-
-    MuJoCo picks its GL backend when imported; ``envs.mujoco.mujoco_backend`` asks for EGL when
-    headless, but if something imported MuJoCo before it, GLFW was picked and would abort without a
-    display. An explicit ``MUJOCO_GL`` other than egl is respected.
-    """
-    import os
-
-    from mujoco.rendering.classic import gl_context
-
-    if os.environ.get("DISPLAY") or os.environ.get("MUJOCO_GL", "egl") != "egl":
-        return
-    context = getattr(gl_context, "GLContext", None)
-    if context is None or context.__module__.startswith("mujoco.glfw"):
-        from mujoco.egl import GLContext
-
-        gl_context.GLContext = GLContext
 
 
 def _finite_or_zero(x: Array) -> Array:

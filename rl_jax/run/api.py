@@ -86,11 +86,8 @@ class Run:
         episodes: int = 1,
     ) -> Path:
         """A GIF of the policy (default: ``RUN_DIR/policy.gif`` of the best seed's best)."""
-        import os
-
         from rl_jax.run.render import write_gif
 
-        os.environ.setdefault("MUJOCO_GL", "egl")
         return write_gif(self.run_dir, seed, episodes, path, which=which)
 
     def plot(self) -> Any:

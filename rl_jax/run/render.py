@@ -15,15 +15,15 @@ Frames come from the environment, through one of two hooks (the first one the en
 ``EPISODE_PLOTS`` maps an env id to a function that writes a plot of the rendered episode next
 to the GIF as ``<name>_episode.png`` (the rocket's x(t), v(t) plot).
 
-MuJoCo renders headless through EGL (``MUJOCO_GL=egl``, set here unless the caller chose);
-without an OpenGL backend the command says in one line what to install.
+MuJoCo renders headless through EGL, else OSMesa (``envs.mujoco.opengl`` picks one when the
+first frame is drawn, unless ``MUJOCO_GL`` chose); without an OpenGL backend the command says in
+one line what to install.
 """
 
 from __future__ import annotations
 
 import contextlib
 import math
-import os
 import traceback
 import warnings
 from collections.abc import Iterator
@@ -98,6 +98,8 @@ def opengl_errors() -> Iterator[None]:
     except RenderError:
         raise
     except Exception as error:
+        if type(error).__name__ == "OpenGLUnavailableError":  # envs.mujoco.opengl's own line
+            raise RenderError(str(error)) from None
         if _is_gl_failure(error):
             reason = (str(error).splitlines() or [type(error).__name__])[0][:120]
             raise RenderError(f"{NO_OPENGL} ({type(error).__name__}: {reason})") from None
@@ -184,7 +186,6 @@ def write_gif(
     ``which``: the seed's best evaluated policy ("best") or its latest checkpoint ("latest")."""
     import jax
 
-    os.environ.setdefault("MUJOCO_GL", "egl")
     with opengl_errors():  # a MuJoCo env may import mujoco (and fail) while being built
         loaded = LoadedPolicy(Path(run_dir), seed, config_index, which)
         env = loaded.env()
@@ -254,7 +255,6 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    os.environ.setdefault("MUJOCO_GL", "egl")
     # Run the imported module's main, not this __main__ copy, so that its exception classes are
     # the ones the guard knows.
     from rl_jax.run.render import main as module_main

@@ -284,7 +284,6 @@ def _render_gif(spec: RunSpec, notify: Callable[[str], None]) -> str | None:
     OpenGL backend once per process, and the child can choose headless EGL whatever this
     process chose. Returns the error line if rendering failed."""
     env = {**os.environ, "PYTHONPATH": os.pathsep.join(path for path in sys.path if path)}
-    env.setdefault("MUJOCO_GL", "egl")
     command = [sys.executable, "-m", "rl_jax.run.render", str(spec.out)]
     done = subprocess.run(command, env=env, capture_output=True, text=True)
     if done.returncode != 0:

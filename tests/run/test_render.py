@@ -195,3 +195,44 @@ def test_episode_plot_hook_and_frame_rate(run_dir, tmp_path, monkeypatch):
     with imageio.get_reader(tmp_path / "fast.gif") as reader:
         assert reader.get_meta_data()["duration"] == 20
     assert path.exists()
+
+
+NO_OPENGL_SCRIPT = textwrap.dedent(
+    """
+    import jax, numpy as np
+    import envs, rl_jax
+    from envs.mujoco.opengl import OpenGLUnavailableError
+
+    env = envs.make("rl_jax/InvertedPendulum-v5")
+    state, step = env.reset(jax.random.key(0))
+    state, step = jax.jit(env.step)(jax.random.key(1), state, np.zeros(1, np.float32))
+    policy = rl_jax.load_policy(OLD_RUN)
+    action = policy(np.zeros(3, np.float32))
+    try:
+        env.render(state)
+    except OpenGLUnavailableError as error:
+        print("render:", error)
+    print("stepped", bool(np.isfinite(step.reward)), np.shape(action))
+    """
+)
+
+
+@pytest.mark.parametrize("gl", ["", "egl"])
+def test_no_opengl_library_only_rendering_needs_it(tmp_path, gl):
+    """A machine without libEGL/libOSMesa/libGL (a GPU server, a slim container): importing,
+    stepping and loading a policy work; rendering says in one line what to install. Empty files
+    named like the libraries make every dlopen of them fail, as on such a machine."""
+    for name in ("libEGL.so.1", "libEGL.so", "libGL.so.1", "libOSMesa.so.8", "libOSMesa.so"):
+        (tmp_path / name).write_bytes(b"")
+    env = {**ENV, "LD_LIBRARY_PATH": str(tmp_path), "MUJOCO_GL": gl}
+    env.pop("DISPLAY", None)
+    old_run = ROOT / "tests" / "data" / "old_run_td3"
+    script = f"OLD_RUN = {str(old_run)!r}\n" + NO_OPENGL_SCRIPT
+    done = subprocess.run(
+        [sys.executable, "-c", script], env=env, capture_output=True, text=True, timeout=300
+    )
+    assert done.returncode == 0, done.stderr
+    render_line, stepped = done.stdout.strip().splitlines()
+    assert stepped == "stepped True (1,)"
+    assert render_line.startswith("render: no OpenGL backend for headless rendering")
+    assert "apt-get install libegl1 libegl-mesa0 libgl1-mesa-dri" in render_line
