@@ -5,6 +5,9 @@ appear); an algorithm may refine it with a ``ranges`` attribute (``{name: Range}
 of range is refused with one line naming the flag and its range, e.g.
 ``--gamma must be in [0, 1], got 2``.
 
+Some limits depend on another field: the replay buffer must hold a batch and the random warm-up
+(``buffer_too_small``); ``out_of_range`` reports them after the fields' own ranges.
+
 ``check_ranges`` applies the table to a run's config and every hyperparameter config of a grid;
 ``runner.prepare`` calls it, so scripts, ``--grid`` sweeps and the Python API are all checked
 before anything is written or compiled.
@@ -92,7 +95,8 @@ def range_of(name: str, algorithm: Any = None) -> Range | None:
 
 def out_of_range(instance: Any, algorithm: Any = None) -> str | None:
     """The first field of a ``Config``/``Hyperparams`` dataclass outside its range, as the
-    one-line message (flag, range, value); None when all hold."""
+    one-line message (flag, range, value), then a buffer too small for the config's batch or
+    warm-up (``buffer_too_small``); None when all hold."""
     for field in dataclasses.fields(instance):
         rule = range_of(field.name, algorithm)
         value = getattr(instance, field.name)
@@ -111,7 +115,46 @@ def out_of_range(instance: Any, algorithm: Any = None) -> str | None:
         number = float(array)
         if not math.isfinite(number) or not rule.holds(number):
             return f"{flag} must be {rule}, got {_number(number)}"
-    return None
+    return buffer_too_small(instance)
+
+
+def buffer_too_small(config: Any) -> str | None:
+    """The one-line message when a config's replay buffer (``buffer_size``) is smaller than a
+    batch (``batch_size``) or than the random warm-up (``learning_starts``); None otherwise.
+
+    A buffer smaller than a batch makes every update draw repeats of the same few transitions;
+    one smaller than the warm-up overwrites the warm-up's random transitions before the first
+    update learns from them, so the warm-up was run for nothing. Neither trains as the user
+    meant. All three fields count transitions of one seed over all its ``num_envs`` envs together
+    (each env step of the batch adds ``num_envs``), so they compare directly, whatever
+    ``num_envs`` is; the size asked for is checked, not the multiple of ``num_envs`` the buffer
+    rounds it up to, so that the rule is the one the message states.
+    """
+    size = _count(config, "buffer_size")
+    if size is None:
+        return None
+    batch = _count(config, "batch_size") or 0
+    warm_up = _count(config, "learning_starts") or 0
+    if size >= max(batch, warm_up):
+        return None
+    if warm_up > batch:
+        envs = _count(config, "num_envs")
+        together = f", of all {envs} envs together," if envs and envs > 1 else ""
+        why = (
+            f"--learning-starts: the random warm-up's transitions{together} would be "
+            "overwritten before the first update"
+        )
+        return f"--buffer-size must be >= {warm_up} ({why}), got {size}"
+    why = "--batch-size: every update draws a batch from it"
+    return f"--buffer-size must be >= {batch} ({why}), got {size}"
+
+
+def _count(config: Any, name: str) -> int | None:
+    """An integer config field, or None where the config has no such field."""
+    value = getattr(config, name, None)
+    if isinstance(value, bool) or not isinstance(value, (int, np.integer)):
+        return None
+    return int(value)
 
 
 def check_ranges(algorithm: Any, config: Any, hparams_list: Any) -> None:

@@ -229,6 +229,10 @@ BAD_INPUTS = {
         "already holds a different run (noise 0.3 vs 0.1)",
     ),
     "out dir with the same run": (["--out", "{existing}"], "continue it with --resume"),
+    "replay buffer smaller than a batch": (
+        ["--buffer-size", "4"],  # the fake's batch is 8
+        "--buffer-size must be >= 8 (--batch-size: every update draws a batch from it), got 4",
+    ),
     "replay buffer too big": (
         ["--buffer-size", "2000000000", "--seeds", "40"],
         "the train state needs 1.75 TB (buffer 1.75 TB",

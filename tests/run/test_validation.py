@@ -3,6 +3,7 @@ flag and its range, a non-zero exit, nothing written; the edges of each range ar
 an --out that cannot be created or written, or a --resume of no writable run directory, is one
 line too (from the script itself as well)."""
 
+import dataclasses
 import errno
 import os
 import subprocess
@@ -77,6 +78,20 @@ def one_line(capsys, status: int) -> str:
         (dqn, "rl_jax/CartPole-v1", ["--priority-alpha", "2"], "--priority-alpha must be in"),
         (dqn, "rl_jax/CartPole-v1", ["--max-grad-norm", "0"], "--max-grad-norm must be > 0, got 0"),
         (dqn, "rl_jax/CartPole-v1", ["--batch-size", "0"], "batch_size must be >= 1, got 0"),
+        (
+            td3,
+            "rl_jax/Pendulum-v1",  # recipe: 4 envs, batch 256, 1,000 warm-up steps
+            ["--buffer-size", "10"],
+            "--buffer-size must be >= 1000 (--learning-starts: the random warm-up's transitions, "
+            "of all 4 envs together, would be overwritten before the first update), got 10",
+        ),
+        (
+            dqn,
+            "rl_jax/CartPole-v1",  # recipe: batch 64
+            ["--buffer-size", "32", "--learning-starts", "0"],
+            "--buffer-size must be >= 64 (--batch-size: every update draws a batch from it), "
+            "got 32",
+        ),
         (
             reinforce,
             "rl_jax/CartPole-v1",
@@ -201,6 +216,24 @@ def test_the_python_api_path_checks_ranges_before_writing(tmp_path):
         RunError, match=r"^--exploration-correlation must be in \[0, 1\), got 1.5 \(config 1"
     ):
         runner.prepare(_spec(bad_second, out))
+    assert not out.exists()
+
+
+def test_the_buffer_must_hold_a_batch_and_the_warm_up_and_may_equal_them(tmp_path):
+    config = td3.default_config("rl_jax/Pendulum-v1", learning_starts=1000, batch_size=256)
+    too_small = validation.buffer_too_small
+    assert too_small(dataclasses.replace(config, buffer_size=1000)) is None
+    assert "must be >= 1000 " in too_small(dataclasses.replace(config, buffer_size=999))
+    no_warm_up = dataclasses.replace(config, learning_starts=0)
+    assert too_small(dataclasses.replace(no_warm_up, buffer_size=256)) is None
+    assert "must be >= 256 " in too_small(dataclasses.replace(no_warm_up, buffer_size=255))
+    assert too_small(reinforce.default_config("rl_jax/CartPole-v1")) is None  # no buffer
+    # The Python API path (runner.prepare) refuses it too, before anything is written.
+    out = tmp_path / "run"
+    spec = _spec([td3.default_hyperparams("rl_jax/Pendulum-v1")], out)
+    spec = dataclasses.replace(spec, config=dataclasses.replace(config, buffer_size=10))
+    with pytest.raises(validation.RangeError, match=r"^--buffer-size must be >= 1000 \("):
+        runner.prepare(spec)
     assert not out.exists()
 
 
