@@ -12,6 +12,7 @@ from mujoco import mjx
 
 from envs.mujoco.mujoco_backend import (
     DIVERGENCE_LIMIT,
+    POST_CONSTRAINT_EXTRAS,
     Array,
     Measurement,
     Physics,
@@ -114,6 +115,8 @@ class MjxPhysics(Physics):
             data = jax.lax.fori_loop(
                 0, self.frame_skip, lambda _, d: mjx.step(self.mjx_model, d), data
             )
+            if any(name in POST_CONSTRAINT_EXTRAS for name in self.extras):
+                data = mjx.rne_postconstraint(self.mjx_model, data)
         new_state = (data.qpos, data.qvel, data.qacc_warmstart)
         measurement = Measurement(
             qpos=data.qpos,
@@ -131,7 +134,7 @@ class MjxPhysics(Physics):
             qpos=state[0],
             qvel=state[1],
             qpos_change=jnp.zeros_like(state[0]),
-            extras={name: extra_field(name, data, jnp) for name in self.extras},
+            extras={name: _forward_extra(name, data) for name in self.extras},
             diverged=_jax_diverged(state[0], state[1]),
         )
 
@@ -140,3 +143,9 @@ class MjxPhysics(Physics):
 
     def qpos_qvel(self, state: tuple) -> tuple[Array, Array]:
         return state[0], state[1]
+
+
+def _forward_extra(name: str, data: Any) -> Array:
+    """An extra after a forward pass; post-constraint fields are zero, as after a reset."""
+    value = extra_field(name, data, jnp)
+    return jnp.zeros_like(value) if name in POST_CONSTRAINT_EXTRAS else value

@@ -140,11 +140,17 @@ def gymnasium_asset(xml_file: str) -> Path:
     return path
 
 
-def load_model(xml_file: str, iterations: int, ls_iterations: int) -> mujoco.MjModel:
-    """gymnasium's model with the given constraint-solver iteration limits."""
+def load_model(
+    xml_file: str, iterations: int | None = None, ls_iterations: int | None = None
+) -> mujoco.MjModel:
+    """gymnasium's model, with other constraint-solver iteration limits where given (None: the
+    model's own, which is what gymnasium runs: MuJoCo's 100/50 unless the XML sets them, as
+    Humanoid's 50 iterations of PGS)."""
     model = mujoco.MjModel.from_xml_path(str(gymnasium_asset(xml_file)))
-    model.opt.iterations = iterations
-    model.opt.ls_iterations = ls_iterations
+    if iterations is not None:
+        model.opt.iterations = iterations
+    if ls_iterations is not None:
+        model.opt.ls_iterations = ls_iterations
     return model
 
 
@@ -152,6 +158,11 @@ def load_model(xml_file: str, iterations: int, ls_iterations: int) -> mujoco.MjM
 # before rounding: sin/cos of a float32-rounded angle of a pendulum that has spun many turns would
 # lose digits (|angle| = 100 rad has a float32 spacing of 8e-6).
 COMPUTED_EXTRAS = {"sin_qpos": "sin", "cos_qpos": "cos"}
+# Fields mj_step leaves stale (MuJoCo computes them only for sensors that need them). gymnasium
+# calls mj_rnePostConstraint after every step to get them (Ant's and Humanoid's contact forces
+# cfrc_ext), and never after a reset, where mj_resetData zeroed them: the backends do the same,
+# and report them as zero after a forward pass.
+POST_CONSTRAINT_EXTRAS = ("cacc", "cfrc_int", "cfrc_ext")
 
 
 def extra_field(name: str, data: Any, numpy_like: Any) -> Any:

@@ -16,6 +16,7 @@ from envs.mujoco.mujoco_backend import (
     _INSTABILITY_WARNINGS,
     COMPUTED_EXTRAS,
     DIVERGENCE_LIMIT,
+    POST_CONSTRAINT_EXTRAS,
     Array,
     extra_field,
 )
@@ -58,11 +59,32 @@ class _Workspace:
             name: self.batch.bind(name) for name in outputs if name not in COMPUTED_EXTRAS
         }
         self.warnings = self.batch.warning
+        self.model, self.state = model, state
+        # mujoco.batch has no hook for mj_rnePostConstraint after a step: a model whose extras
+        # need it is stepped env by env in Python instead (step_with_post_constraint)
+        self.post_constraint = any(name in POST_CONSTRAINT_EXTRAS for name in outputs)
+        if self.post_constraint:
+            self.data = mujoco.MjData(model)
+            self.own_outputs = {name: np.zeros_like(array) for name, array in self.outputs.items()}
 
     def load(self, qpos: np.ndarray, qvel: np.ndarray, warmstart: np.ndarray) -> None:
         self.qpos[:], self.qvel[:], self.warmstart[:] = qpos, qvel, warmstart
         self.time[:] = 0.0
         self.warnings[...] = 0
+
+    def step_with_post_constraint(self, frame_skip: int) -> None:
+        """gymnasium's do_simulation on each loaded row: frame_skip mj_steps, then
+        mj_rnePostConstraint; the field extras are copied out of each env's mjData."""
+        model, data, spec = self.model, self.data, mujoco.mjtState.mjSTATE_INTEGRATION
+        for i in range(self.state.shape[0]):
+            mujoco.mj_resetData(model, data)
+            mujoco.mj_setState(model, data, self.state[i], spec)
+            mujoco.mj_step(model, data, nstep=frame_skip)
+            mujoco.mj_rnePostConstraint(model, data)
+            mujoco.mj_getState(model, data, self.state[i], spec)
+            self.warnings[i, :, 1] = [w.number for w in data.warning]
+            for name, array in self.own_outputs.items():
+                array[i] = getattr(data, name).reshape(array.shape[1:])
 
     def unstable(self) -> np.ndarray:
         """Per simulation: MuJoCo met (and reset after) a NaN/inf/huge qpos, qvel or qacc."""
@@ -109,7 +131,9 @@ class MujocoCallbackPhysics(MujocoCPhysics):
         nq, nv = self.nq, self.nv
         return values[:, :nq], values[:, nq : nq + nv], values[:, nq + nv :]
 
-    def _host_outputs(self, work: _Workspace, qpos_before: np.ndarray, batch_shape: tuple) -> list:
+    def _host_outputs(
+        self, work: _Workspace, qpos_before: np.ndarray, batch_shape: tuple, stepped: bool
+    ) -> list:
         qpos, qvel = work.qpos, work.qvel
         magnitude = np.maximum(np.abs(qpos).max(axis=1), np.abs(qvel).max(axis=1))
         diverged = work.unstable() | ~(magnitude <= DIVERGENCE_LIMIT)  # NaN compares False
@@ -118,14 +142,18 @@ class MujocoCallbackPhysics(MujocoCPhysics):
             qvel.astype(np.float32),
             (qpos - qpos_before).astype(np.float32),
             diverged,
-            *(self._host_extra(name, work).astype(np.float32) for name in self.extras),
+            *(self._host_extra(name, work, stepped).astype(np.float32) for name in self.extras),
         ]
         return [o.reshape(batch_shape + o.shape[1:]) for o in outputs]
 
     @staticmethod
-    def _host_extra(name: str, work: _Workspace) -> np.ndarray:
+    def _host_extra(name: str, work: _Workspace, stepped: bool) -> np.ndarray:
         if name in COMPUTED_EXTRAS:
             return extra_field(name, work, np)
+        if work.post_constraint and stepped:
+            return work.own_outputs[name]
+        if name in POST_CONSTRAINT_EXTRAS:  # after a forward pass, as after gymnasium's reset
+            return np.zeros_like(work.outputs[name])
         return work.outputs[name]
 
     def _host_step(self, state: np.ndarray, ctrl: np.ndarray) -> tuple:
@@ -135,10 +163,13 @@ class MujocoCallbackPhysics(MujocoCPhysics):
         with work.lock:
             work.load(qpos, qvel, warmstart)
             work.ctrl[:] = ctrl.reshape(-1, self.nu)
-            work.batch.step(nstep=self.frame_skip)
+            if work.post_constraint:
+                work.step_with_post_constraint(self.frame_skip)
+            else:
+                work.batch.step(nstep=self.frame_skip)
             new_values = np.concatenate([work.qpos, work.qvel, work.warmstart], axis=1)
             new_state = float64_to_bits(new_values).reshape(batch_shape + (2 * self.state_size,))
-            return (new_state, *self._host_outputs(work, qpos, batch_shape))
+            return (new_state, *self._host_outputs(work, qpos, batch_shape, stepped=True))
 
     def _host_forward(self, state: np.ndarray) -> tuple:
         batch_shape = state.shape[:-1]
@@ -147,4 +178,4 @@ class MujocoCallbackPhysics(MujocoCPhysics):
         with work.lock:
             work.load(qpos, qvel, warmstart)
             work.batch.forward()
-            return tuple(self._host_outputs(work, qpos, batch_shape))
+            return tuple(self._host_outputs(work, qpos, batch_shape, stepped=False))

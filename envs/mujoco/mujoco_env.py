@@ -14,8 +14,8 @@ GPU/TPU; "mujoco_callback" forces MuJoCo C through ``jax.pure_callback`` instead
 (``reset_noise_scale``, ``ctrl_cost_weight``, ...) set the default params; the params pytree can
 also be passed to ``reset``/``step`` and vmapped.
 
-Solver fidelity (``fidelity=``). ``"gymnasium"``: gymnasium's constraint-solver limits (100
-iterations, 50 line-search iterations). ``"parity"`` (default): the cheapest limits that still match
+Solver fidelity (``fidelity=``). ``"gymnasium"``: gymnasium's constraint-solver limits, the
+model's own (100 iterations, 50 line-search iterations unless its XML sets others). ``"parity"`` (default): the cheapest limits that still match
 gymnasium — on the C backend these are gymnasium's own (MuJoCo C stops iterating at convergence, so
 tighter caps measured no faster, and the result is bit-identical to gymnasium); on MJX, where every
 env of a vmapped batch pays the full cap, each env's ``mjx_solver`` limits, the fewest that keep
@@ -60,7 +60,7 @@ from envs.mujoco.mujoco_backend import (
 )
 
 DIVERGED_KEY = "physics_diverged"
-GYMNASIUM_SOLVER = (100, 50)  # MuJoCo's defaults, which gymnasium's models keep
+GYMNASIUM_SOLVER = (100, 50)  # MuJoCo's defaults, which most of gymnasium's models keep
 FIDELITIES = ("parity", "gymnasium")
 
 
@@ -143,11 +143,11 @@ class MujocoEnv(Environment[MujocoState, Any]):
         self._initial_obs = self._compute_initial_obs()
         self._renderer = None
 
-    def solver_limits(self, backend: str, fidelity: str) -> tuple[int, int]:
-        """(iterations, line-search iterations) of the constraint solver."""
+    def solver_limits(self, backend: str, fidelity: str) -> tuple[int | None, int | None]:
+        """(iterations, line-search iterations) of the constraint solver; None: the model's."""
         if backend == "mjx" and fidelity == "parity":
             return self.mjx_solver
-        return GYMNASIUM_SOLVER
+        return None, None
 
     def _make_default_params(self, overrides: dict[str, float]):
         fields = {f.name for f in dataclasses.fields(self.params_type)}

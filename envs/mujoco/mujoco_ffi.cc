@@ -25,6 +25,7 @@
 #include <vector>
 
 #include <mujoco/mjbatch.h>
+#include <mujoco/mjxmacro.h>
 #include <mujoco/mujoco.h>
 
 #include "xla/ffi/api/ffi.h"
@@ -34,14 +35,36 @@ namespace ffi = xla::ffi;
 namespace {
 
 // A derived quantity the env reads after a call: an mjData field copied out by the batch, or
-// sin/cos of qpos, evaluated in float64 before rounding (see COMPUTED_EXTRAS in Python).
-enum class ExtraKind { kOutput, kSinQpos, kCosQpos };
+// sin/cos of qpos, evaluated in float64 before rounding (see COMPUTED_EXTRAS in Python), or a
+// field that only mj_rnePostConstraint computes (POST_CONSTRAINT_EXTRAS in Python).
+enum class ExtraKind { kOutput, kSinQpos, kCosQpos, kPostConstraint };
+
+// An mjData array field, by name, as float64 values.
+using DataGetter = const mjtNum* (*)(const mjData*);
 
 struct Extra {
   std::string name;
   ExtraKind kind;
-  int size;  // values per simulation
+  int size;                     // values per simulation
+  DataGetter get = nullptr;     // kOutput and kPostConstraint: the field in an mjData
 };
+
+// The mjData fields that mj_step leaves stale (MuJoCo computes them only for sensors that need
+// them): gymnasium calls mj_rnePostConstraint after every step to get them, and never after a
+// reset, where mj_resetData has zeroed them.
+bool IsPostConstraint(const std::string& name) {
+  return name == "cacc" || name == "cfrc_int" || name == "cfrc_ext";
+}
+
+DataGetter FindGetter(const std::string& name) {
+#define X(type, field, nr, nc)                                              \
+  if (name == #field) {                                                     \
+    return [](const mjData* d) { return reinterpret_cast<const mjtNum*>(d->field); }; \
+  }
+  MJDATA_POINTERS
+#undef X
+  return nullptr;
+}
 
 enum class Operation { kStep, kForward };
 
@@ -58,6 +81,9 @@ struct Workspace {
   mjtNum* ctrl = nullptr;
   mjWarningStat* warnings = nullptr;
   std::vector<const mjtNum*> outputs;  // per extra; nullptr for computed extras
+  // With post-constraint extras a step runs through mjb_apply (StepWithPostConstraint), which
+  // copies every field extra into these buffers itself (nsim x size each).
+  std::vector<std::vector<mjtNum>> own_outputs;
   std::mutex mutex;                    // XLA may run two calls of one shape at once
 
   ~Workspace() {
@@ -70,6 +96,7 @@ struct Context {
   int frame_skip = 1;
   int nthread = 1;
   std::vector<Extra> extras;
+  bool post_constraint = false;  // some extra needs mj_rnePostConstraint after a step
   std::mutex mutex;  // guards workspaces
   std::map<std::pair<Operation, int64_t>, std::unique_ptr<Workspace>> workspaces;
 
@@ -121,9 +148,13 @@ Workspace* GetWorkspace(Context* context, Operation operation, int64_t nsim, std
   work->warmstart = Component(batch, mjSTATE_WARMSTART);
   work->ctrl = Component(batch, mjSTATE_CTRL);
   work->warnings = mjb_warning(batch);
+  const bool own = operation == Operation::kStep && context->post_constraint;
   for (const Extra& extra : context->extras) {
     const void* output = nullptr;
-    if (extra.kind == ExtraKind::kOutput) {
+    work->own_outputs.emplace_back(own && extra.get ? static_cast<size_t>(nsim) * extra.size : 0);
+    if (own && extra.get != nullptr) {
+      output = work->own_outputs.back().data();
+    } else if (extra.kind == ExtraKind::kOutput) {
       output = mjb_output(batch, extra.name.c_str(), nullptr, nullptr);
     }
     work->outputs.push_back(static_cast<const mjtNum*>(output));
@@ -173,6 +204,26 @@ bool Beyond(const mjtNum* values, int n) {
   return false;
 }
 
+// mjb_apply's function for a step with post-constraint extras: gymnasium's do_simulation
+// (frame_skip mj_steps, then mj_rnePostConstraint) and the field extras copied out of the
+// simulation's mjData, since mjb_apply publishes no registered outputs.
+struct PostConstraintStep {
+  const Context* context;
+  Workspace* work;
+};
+
+void StepWithPostConstraint(const mjModel* m, mjData* d, int sim, void* arg) {
+  const auto* call = static_cast<const PostConstraintStep*>(arg);
+  for (int k = 0; k < call->context->frame_skip; ++k) mj_step(m, d);
+  mj_rnePostConstraint(m, d);
+  for (size_t k = 0; k < call->context->extras.size(); ++k) {
+    const Extra& extra = call->context->extras[k];
+    if (extra.get == nullptr) continue;
+    mjtNum* target = call->work->own_outputs[k].data() + static_cast<size_t>(sim) * extra.size;
+    std::memcpy(target, extra.get(d), sizeof(mjtNum) * extra.size);
+  }
+}
+
 struct Measured {  // the result buffers every call fills
   float* qpos;
   float* qvel;
@@ -182,7 +233,7 @@ struct Measured {  // the result buffers every call fills
 };
 
 // Results of a call, from the rows after it and the state before it.
-void Measure(const Context& context, const Workspace& work, int64_t nsim,
+void Measure(const Context& context, const Workspace& work, Operation operation, int64_t nsim,
              const uint32_t* state_before, uint32_t* state_after, const Measured& out) {
   const mjModel* m = context.model;
   const int nq = m->nq, nv = m->nv, size = nq + 2 * nv;
@@ -207,6 +258,8 @@ void Measure(const Context& context, const Workspace& work, int64_t nsim,
           value = std::sin(qpos[j]);
         } else if (extra.kind == ExtraKind::kCosQpos) {
           value = std::cos(qpos[j]);
+        } else if (extra.kind == ExtraKind::kPostConstraint && operation == Operation::kForward) {
+          value = 0.0;  // as after gymnasium's reset: mj_resetData zeroed it, mj_forward skips it
         } else {
           value = work.outputs[k][i * extra.size + j];
         }
@@ -307,12 +360,17 @@ ffi::Error Run(Operation operation, ffi::Buffer<ffi::U32> key, ffi::Buffer<ffi::
   }
   int nfail = 0;
   if (n > 0) {
-    nfail = operation == Operation::kStep
-                ? mjb_step(work->batch, ids, n, context->frame_skip, mjSTAGE_NONE)
-                : mjb_forward(work->batch, ids, n, mjSTAGE_ACC);
+    if (operation == Operation::kForward) {
+      nfail = mjb_forward(work->batch, ids, n, mjSTAGE_ACC);
+    } else if (context->post_constraint) {
+      PostConstraintStep call{context, work};
+      nfail = mjb_apply(work->batch, ids, n, StepWithPostConstraint, &call, /*save=*/1);
+    } else {
+      nfail = mjb_step(work->batch, ids, n, context->frame_skip, mjSTAGE_NONE);
+    }
   }
   if (nfail != 0) return Failures(work->batch, nsim, nfail);
-  Measure(*context, *work, nsim, state.typed_data(), state_after, out);
+  Measure(*context, *work, operation, nsim, state.typed_data(), state_after, out);
   return ffi::Error::Success();
 }
 
@@ -377,12 +435,14 @@ bool ParseExtras(const mjModel* m, const char* names, std::vector<Extra>* extras
       continue;
     }
     int size = 0, elemsize = 0;
+    const DataGetter get = FindGetter(name);
     if (mjb_output(probe, name.c_str(), &size, &elemsize) == nullptr ||
-        elemsize != sizeof(mjtNum)) {
+        elemsize != sizeof(mjtNum) || get == nullptr) {
       *error = "not a floating-point mjData field the batch can copy out: " + name;
       ok = false;
     }
-    extras->push_back({name, ExtraKind::kOutput, size});
+    const ExtraKind kind = IsPostConstraint(name) ? ExtraKind::kPostConstraint : ExtraKind::kOutput;
+    extras->push_back({name, kind, size, get});
   }
   mjb_deleteBatch(probe);
   return ok;
@@ -418,6 +478,9 @@ int rl_jax_mujoco_register(uint64_t key, const void* mjb, int64_t mjb_size, int 
   context->nthread = nthread;
   std::string message;
   if (!ParseExtras(m, extras, &context->extras, &message)) return fail(message);
+  for (const Extra& extra : context->extras) {
+    context->post_constraint |= extra.kind == ExtraKind::kPostConstraint;
+  }
   Registry()[key] = std::move(context);
   return 0;
 }

@@ -306,3 +306,41 @@ def test_an_unknown_backend_in_the_environment_is_one_user_error(monkeypatch):
     with pytest.raises(BackendError, match=r"unknown MuJoCo backend 'cuda'.*RL_JAX_MUJOCO_BACKEND"):
         envs.make("InvertedPendulum-v5")
     assert BackendError in cli.user_errors()
+
+
+@pytest.mark.parametrize("backend", ["mujoco_ffi", "mujoco_callback"])
+def test_post_constraint_fields_are_gymnasiums_after_a_step_and_zero_after_a_forward(backend):
+    """cfrc_ext (Ant's and Humanoid's contact forces) is stale after mj_step; gymnasium calls
+    mj_rnePostConstraint after every step for it, and after a reset it is zero. Both ways of
+    calling MuJoCo C must give exactly that, on humanoid states in floor contact (also the
+    other fields read with it, and the model's own 50 PGS iterations, not MuJoCo's default)."""
+    if backend == "mujoco_ffi" and not mujoco_ffi_build.available():
+        pytest.skip("the MuJoCo FFI op cannot be built here")
+    import gymnasium
+
+    from envs.mujoco.mujoco_env import make_physics
+
+    reference = gymnasium.make("Humanoid-v5").unwrapped
+    reference.reset(seed=3)
+    model, rng = reference.model, np.random.default_rng(3)
+    assert model.opt.iterations == 50  # the XML's, which load_model keeps
+    extras = ("cfrc_ext", "cinert", "qfrc_actuator")
+    physics = make_physics(backend, mujoco_backend.load_model("humanoid.xml"), 5, extras)
+    starts, actions, expected = [], [], []
+    for _ in range(40):  # the humanoid falls to the floor within these steps
+        starts.append(np.concatenate([reference.data.qpos, reference.data.qvel]))
+        starts[-1] = np.concatenate([starts[-1], reference.data.qacc_warmstart])
+        actions.append(rng.uniform(-0.4, 0.4, model.nu).astype(np.float32))
+        reference.step(actions[-1])
+        expected.append({name: getattr(reference.data, name).copy() for name in extras})
+    nq, nv = model.nq, model.nv
+    start = np.stack(starts)
+    state = physics.from_qpos_qvel(start[:, :nq], start[:, nq : nq + nv], start[:, nq + nv :])
+    _, measured = jax.jit(jax.vmap(physics.step))(state, jnp.asarray(np.stack(actions)))
+    for name in extras:
+        want = np.stack([e[name] for e in expected]).astype(np.float32)
+        np.testing.assert_array_equal(np.asarray(measured.extras[name]), want, err_msg=name)
+    assert np.abs(np.stack([e["cfrc_ext"] for e in expected])).max() > 10  # contacts happened
+    forward = jax.jit(jax.vmap(physics.forward))(state)
+    assert not np.any(np.asarray(forward.extras["cfrc_ext"]))
+    assert np.any(np.asarray(forward.extras["cinert"]))
