@@ -15,10 +15,11 @@ GPU/TPU; "mujoco_callback" forces MuJoCo C through ``jax.pure_callback`` instead
 also be passed to ``reset``/``step`` and vmapped.
 
 Solver fidelity (``fidelity=``). ``"gymnasium"``: gymnasium's constraint-solver limits, the
-model's own (100 iterations, 50 line-search iterations unless its XML sets others). ``"parity"`` (default): the cheapest limits that still match
-gymnasium — on the C backend these are gymnasium's own (MuJoCo C stops iterating at convergence, so
-tighter caps measured no faster, and the result is bit-identical to gymnasium); on MJX, where every
-env of a vmapped batch pays the full cap, each env's ``mjx_solver`` limits, the fewest that keep
+model's own (100 iterations, 50 line-search iterations unless its XML sets others).
+``"parity"`` (default): the cheapest limits that still match gymnasium — on the C backend these
+are gymnasium's own (MuJoCo C stops iterating at convergence, so tighter caps measured no faster,
+and the result is bit-identical to gymnasium); on MJX, where every env of a vmapped batch pays the
+full cap, each env's ``mjx_solver`` limits, the fewest that keep
 gymnasium parity including the states where gymnasium's solver works hardest
 (``tests/envs/test_mujoco_parity.py``).
 
@@ -96,6 +97,16 @@ class MujocoState(EnvState):
 
 
 @struct.dataclass
+class RememberingState(MujocoState):
+    """The state of an env that reads last step's derived quantities (``MujocoEnv.remember``)."""
+
+    memory: Array  # [remembers] float32
+
+
+REMEMBERED_KEY = "remembered"  # the extra under which evaluate() finds last step's memory
+
+
+@struct.dataclass
 class MujocoParams(EnvParams):
     reset_noise_scale: Array
 
@@ -116,6 +127,8 @@ class MujocoEnv(Environment[MujocoState, Any]):
     forward_at_reset: bool = False
     #: float32 scalar reward terms in ``info``, in addition to ``physics_diverged``
     info_keys: tuple[str, ...] = ()
+    #: size of what ``remember`` keeps from one step for the next (0: nothing)
+    remembers: int = 0
     #: gymnasium's free-camera settings for ``render``, or the name of a camera of the model
     camera: dict[str, Any] | str = {}
     params_type: type = MujocoParams
@@ -132,7 +145,7 @@ class MujocoEnv(Environment[MujocoState, Any]):
         physics_backend = resolve_backend(backend)  # e.g. "mujoco_ffi"
         self.backend = engine(physics_backend)  # "mujoco" or "mjx"
         self.fidelity = fidelity
-        self.model = load_model(self.xml_file, *self.solver_limits(self.backend, fidelity))
+        self.model = self.build_model(self.backend, fidelity)
         chunk = self.mjx_cpu_chunk if jax.default_backend() == "cpu" else None
         self.physics: Physics = make_physics(
             physics_backend, self.model, self.frame_skip, self.extras, nthread, chunk
@@ -142,6 +155,17 @@ class MujocoEnv(Environment[MujocoState, Any]):
         self._init_qpos = np.array(self.model.qpos0, np.float32)
         self._initial_obs = self._compute_initial_obs()
         self._renderer = None
+
+    def build_model(self, backend: str, fidelity: str) -> Any:
+        """gymnasium's MjModel with this backend's solver limits. MJX implements the CG and
+        Newton solvers, not PGS: a PGS model (Humanoid) solves the same constraint problem with
+        Newton there, matching gymnasium to the solvers' convergence rather than to rounding."""
+        import mujoco
+
+        model = load_model(self.xml_file, *self.solver_limits(backend, fidelity))
+        if backend == "mjx" and model.opt.solver == mujoco.mjtSolver.mjSOL_PGS:
+            model.opt.solver = mujoco.mjtSolver.mjSOL_NEWTON
+        return model
 
     def solver_limits(self, backend: str, fidelity: str) -> tuple[int | None, int | None]:
         """(iterations, line-search iterations) of the constraint solver; None: the model's."""
@@ -236,7 +260,7 @@ class MujocoEnv(Environment[MujocoState, Any]):
         info = {**self.empty_info(), **self.reset_info(measurement), DIVERGED_KEY: diverged}
         info = {k: jnp.where(diverged, jnp.zeros_like(v), v) for k, v in info.items()}
         info[DIVERGED_KEY] = diverged
-        state = MujocoState(time=jnp.zeros((), jnp.int32), physics=physics, obs=obs)
+        state = self._state(jnp.zeros((), jnp.int32), physics, obs, self.remember(measurement))
         timestep = TimeStep(
             obs=obs,
             reward=jnp.zeros((), jnp.float32),
@@ -262,6 +286,9 @@ class MujocoEnv(Environment[MujocoState, Any]):
     def _step_env(self, state: MujocoState, action: Array, params, active: Array | None = None):
         action = jnp.asarray(action, jnp.float32)
         physics, measurement = self.physics.step(state.physics, action, active)
+        if self.remembers:
+            extras = {**measurement.extras, REMEMBERED_KEY: state.memory}
+            measurement = measurement._replace(extras=extras)
         obs = self.observe(measurement)
         reward, terminated, info = self.evaluate(measurement, action, params)
         diverged = (
@@ -273,15 +300,19 @@ class MujocoEnv(Environment[MujocoState, Any]):
         initial = self._initial_physics()
         physics = jax.tree.map(lambda a, b: jnp.where(diverged, a, b), initial, physics)
         last_finite_obs = _finite_or_zero(state.obs)
-        state = MujocoState(
-            time=state.time + 1,
-            physics=physics,
-            obs=jnp.where(diverged, self._initial_obs, obs),
+        memory = jnp.where(diverged, self._initial_memory, self.remember(measurement))
+        state = self._state(
+            state.time + 1, physics, jnp.where(diverged, self._initial_obs, obs), memory
         )
         obs = jnp.where(diverged, last_finite_obs, obs)
         reward = jnp.where(diverged, 0.0, reward)
         info = {k: jnp.where(diverged, jnp.zeros_like(v), v) for k, v in info.items()}
         return state, obs, reward, terminated | diverged, {**info, DIVERGED_KEY: diverged}
+
+    def _state(self, time: Array, physics: Any, obs: Array, memory: Array) -> MujocoState:
+        if self.remembers:
+            return RememberingState(time=time, physics=physics, obs=obs, memory=memory)
+        return MujocoState(time=time, physics=physics, obs=obs)
 
     def _initial_physics(self) -> Any:
         zeros = np.zeros(self.physics.nv, np.float64)
@@ -300,6 +331,7 @@ class MujocoEnv(Environment[MujocoState, Any]):
         # Envs may be built while a learner's init is traced (jax.eval_shape of the state):
         # computed eagerly, this stays a constant instead of becoming a tracer.
         with jax.ensure_compile_time_eval():
+            self._initial_memory = np.asarray(self.remember(measurement), np.float32)
             return np.asarray(self.observe(measurement), np.float32)
 
     # ---- rendering ----------------------------------------------------------------------------
@@ -363,6 +395,13 @@ class MujocoEnv(Environment[MujocoState, Any]):
     def reset_info(self, measurement: Measurement) -> dict[str, Array]:
         """Entries of ``info_keys`` that gymnasium reports at reset (the rest are 0)."""
         return {}
+
+    def remember(self, measurement: Measurement) -> Array:
+        """What the next step's ``evaluate`` needs of this one (``remembers`` float32 values),
+        found there as ``measurement.extras["remembered"]``: gymnasium's Ant and Humanoid take
+        their velocity from a body position read before the step, i.e. the one MuJoCo left at
+        the previous step (computed at the start of its last substep) or at the reset."""
+        return jnp.zeros((self.remembers,), jnp.float32)
 
 
 def _finite_or_zero(x: Array) -> Array:

@@ -1,0 +1,150 @@
+"""rl_jax/Ant-v5: gymnasium's MuJoCo quadruped, on MJX or MuJoCo C.
+
+gymnasium 1.4.0 ``Ant-v5``: ``ant.xml`` (RK4, timestep 0.01), frame skip 5 (dt 0.05 s), eight hip
+and ankle torques in [-1, 1] (MuJoCo clamps them). Observation ``[qpos[2:], qvel, clip(cfrc_ext[1:],
+contact_force_range)]`` (105; 27 without ``include_cfrc_ext_in_observation``, +2 with
+``exclude_current_positions_from_observation=False``); ``cfrc_ext`` is what
+``mj_rnePostConstraint`` gives after the step (zero at a reset). Reward ``forward_reward_weight *
+x_velocity + healthy_reward * is_healthy - ctrl_cost_weight * sum(action^2) -
+contact_cost_weight * sum(clip(cfrc_ext, contact_force_range)^2)``, with ``x_velocity`` the main
+body's ``xpos`` displacement over the step divided by dt, where gymnasium reads ``xpos`` as MuJoCo
+left it: at the start of the last substep of this step and of the previous one (or at the reset),
+so this env remembers last step's position. Healthy: the state is finite and ``qpos[2]`` (torso
+height) lies in ``healthy_z_range`` (closed); terminated when unhealthy if
+``terminate_when_unhealthy``. Start ``qpos ~ U(-0.1, 0.1)``, ``qvel ~ 0.1 N(0, 1)`` around the
+default pose; 1,000-step limit.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import jax.numpy as jnp
+import mujoco
+from flax import struct
+
+from envs.core.core import Array, float32_field
+from envs.mujoco.hopper import split_ranges
+from envs.mujoco.mujoco_backend import Measurement
+from envs.mujoco.mujoco_env import REMEMBERED_KEY, MujocoEnv, MujocoParams
+
+
+@struct.dataclass
+class AntParams(MujocoParams):
+    reset_noise_scale: Array = float32_field(0.1)
+    forward_reward_weight: Array = float32_field(1.0)
+    ctrl_cost_weight: Array = float32_field(0.5)
+    contact_cost_weight: Array = float32_field(5e-4)
+    healthy_reward: Array = float32_field(1.0)
+    #: gymnasium's ``healthy_z_range`` (closed) and ``contact_force_range`` (the clip of cfrc_ext)
+    healthy_z_min: Array = float32_field(0.2)
+    healthy_z_max: Array = float32_field(1.0)
+    contact_force_min: Array = float32_field(-1.0)
+    contact_force_max: Array = float32_field(1.0)
+
+
+class Ant(MujocoEnv):
+    xml_file = "ant.xml"
+    frame_skip = 5
+    # Floor contacts of four feet; as half cheetah's (see tests/envs/test_mujoco_parity.py).
+    mjx_solver = (6, 4)
+    extras = ("xpos", "cfrc_ext")
+    forward_at_reset = True  # the first step's velocity starts from the reset's body position
+    remembers = 2  # the main body's x, y as MuJoCo left them
+    info_keys = (
+        "x_position",
+        "y_position",
+        "distance_from_origin",
+        "x_velocity",
+        "y_velocity",
+        "reward_forward",
+        "reward_ctrl",
+        "reward_contact",
+        "reward_survive",
+    )
+    camera = {"distance": 4.0}
+    params_type = AntParams
+    range_keywords = {
+        "healthy_z_range": ("healthy_z_min", "healthy_z_max"),
+        "contact_force_range": ("contact_force_min", "contact_force_max"),
+    }
+
+    def __init__(
+        self,
+        backend: str | None = None,
+        fidelity: str = "parity",
+        nthread: int | None = None,
+        main_body: int | str = 1,
+        terminate_when_unhealthy: bool = True,
+        exclude_current_positions_from_observation: bool = True,
+        include_cfrc_ext_in_observation: bool = True,
+        **keywords: Any,
+    ):
+        self.main_body_name = main_body
+        self.terminate_when_unhealthy = bool(terminate_when_unhealthy)
+        self.exclude_current_positions = bool(exclude_current_positions_from_observation)
+        self.include_cfrc_ext = bool(include_cfrc_ext_in_observation)
+        overrides = split_ranges(keywords, self.range_keywords)
+        super().__init__(backend, fidelity, nthread, **overrides)
+
+    @property
+    def main_body(self) -> int:
+        if isinstance(self.main_body_name, str):
+            body = mujoco.mj_name2id(self.model, mujoco.mjtObj.mjOBJ_BODY, self.main_body_name)
+            if body < 0:
+                raise ValueError(f"Ant: the model has no body named {self.main_body_name!r}")
+            return body
+        return int(self.main_body_name)
+
+    @property
+    def obs_size(self) -> int:
+        size = self.model.nq + self.model.nv - 2 * self.exclude_current_positions
+        return size + 6 * (self.model.nbody - 1) * self.include_cfrc_ext
+
+    def _contact_forces(self, measurement: Measurement, params) -> Array:
+        forces = measurement.extras["cfrc_ext"]
+        return jnp.clip(forces, params.contact_force_min, params.contact_force_max)
+
+    def observe(self, measurement: Measurement) -> Array:
+        qpos = measurement.qpos[2:] if self.exclude_current_positions else measurement.qpos
+        parts = [qpos, measurement.qvel]
+        if self.include_cfrc_ext:
+            # the observation's clip is the default params' (gymnasium fixes it at construction)
+            parts.append(self._contact_forces(measurement, self.default_params)[1:].reshape(-1))
+        return jnp.concatenate(parts)
+
+    def remember(self, measurement: Measurement) -> Array:
+        return measurement.extras["xpos"][self.main_body, :2]
+
+    def evaluate(self, measurement: Measurement, action: Array, params):
+        velocity = (self.remember(measurement) - measurement.extras[REMEMBERED_KEY]) / self.dt
+        state = jnp.concatenate([measurement.qpos, measurement.qvel])
+        z = measurement.qpos[2]
+        healthy = (
+            jnp.all(jnp.isfinite(state)) & (params.healthy_z_min <= z) & (z <= params.healthy_z_max)
+        )
+        forward_reward = params.forward_reward_weight * velocity[0]
+        healthy_reward = jnp.where(healthy, params.healthy_reward, 0.0)
+        ctrl_cost = params.ctrl_cost_weight * jnp.sum(jnp.square(action))
+        contact_cost = params.contact_cost_weight * jnp.sum(
+            jnp.square(self._contact_forces(measurement, params))
+        )
+        info = {
+            **self.reset_info(measurement),
+            "x_velocity": velocity[0],
+            "y_velocity": velocity[1],
+            "reward_forward": forward_reward,
+            "reward_ctrl": -ctrl_cost,
+            "reward_contact": -contact_cost,
+            "reward_survive": healthy_reward,
+        }
+        reward = forward_reward + healthy_reward - ctrl_cost - contact_cost
+        return reward, ~healthy & self.terminate_when_unhealthy, info
+
+    def reset_info(self, measurement: Measurement) -> dict[str, Array]:
+        qpos = measurement.qpos
+        return {
+            "x_position": qpos[0],
+            "y_position": qpos[1],
+            "distance_from_origin": jnp.sqrt(qpos[0] ** 2 + qpos[1] ** 2),
+        }

@@ -1,0 +1,158 @@
+"""rl_jax/Humanoid-v5: gymnasium's MuJoCo humanoid, on MJX or MuJoCo C.
+
+gymnasium 1.4.0 ``Humanoid-v5``: ``humanoid.xml`` (RK4, timestep 0.003, PGS solver with 50
+iterations), frame skip 5 (dt 0.015 s), 17 joint torques in [-0.4, 0.4] (MuJoCo clamps them).
+Observation ``[qpos[2:], qvel, cinert[1:], cvel[1:], qfrc_actuator[6:], cfrc_ext[1:]]`` (348;
+each of the last four can be left out with its ``include_*_in_observation`` keyword, +2 with
+``exclude_current_positions_from_observation=False``); ``cfrc_ext`` is what
+``mj_rnePostConstraint`` gives after the step (zero at a reset). Reward ``forward_reward_weight *
+x_velocity + healthy_reward * is_healthy - ctrl_cost_weight * sum(action^2) -
+clip(contact_cost_weight * sum(cfrc_ext^2), contact_cost_range)``, with ``x_velocity`` the
+displacement of the mass-weighted centre of the bodies' ``xipos`` over the step divided by dt,
+where gymnasium reads ``xipos`` as MuJoCo left it: at the start of the last substep of this step
+and of the previous one (or at the reset), so this env remembers last step's centre. Healthy:
+``qpos[2]`` strictly inside ``healthy_z_range``; terminated when unhealthy if
+``terminate_when_unhealthy``. Start ``qpos, qvel ~ U(-0.01, 0.01)`` around the default pose;
+1,000-step limit. gymnasium's info also carries the tendon lengths and velocities (arrays, not
+reward terms): left out here.
+
+MJX implements the CG and Newton solvers, not PGS: on MJX this env solves the same constraint
+problem with Newton (``MujocoEnv.build_model``), so it matches gymnasium to the solvers'
+convergence, not to float32 rounding as the other envs do.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import jax.numpy as jnp
+import numpy as np
+from flax import struct
+
+from envs.core.core import Array, float32_field
+from envs.mujoco.hopper import split_ranges
+from envs.mujoco.mujoco_backend import Measurement
+from envs.mujoco.mujoco_env import REMEMBERED_KEY, MujocoEnv, MujocoParams
+
+_INCLUDES = ("cinert", "cvel", "qfrc_actuator", "cfrc_ext")
+
+
+@struct.dataclass
+class HumanoidParams(MujocoParams):
+    reset_noise_scale: Array = float32_field(1e-2)
+    forward_reward_weight: Array = float32_field(1.25)
+    ctrl_cost_weight: Array = float32_field(0.1)
+    contact_cost_weight: Array = float32_field(5e-7)
+    healthy_reward: Array = float32_field(5.0)
+    #: gymnasium's ``contact_cost_range`` (the clip of the contact cost) and ``healthy_z_range``
+    contact_cost_min: Array = float32_field(-float("inf"))
+    contact_cost_max: Array = float32_field(10.0)
+    healthy_z_min: Array = float32_field(1.0)
+    healthy_z_max: Array = float32_field(2.0)
+
+
+class Humanoid(MujocoEnv):
+    xml_file = "humanoid.xml"
+    frame_skip = 5
+    mjx_solver = (6, 4)
+    mjx_cpu_chunk = 64
+    extras = ("xipos", *_INCLUDES)
+    forward_at_reset = True  # the reset observation holds cinert, cvel and qfrc_actuator
+    remembers = 2  # the bodies' mass centre x, y as MuJoCo left them
+    info_keys = (
+        "x_position",
+        "y_position",
+        "distance_from_origin",
+        "x_velocity",
+        "y_velocity",
+        "reward_survive",
+        "reward_forward",
+        "reward_ctrl",
+        "reward_contact",
+    )
+    camera = {"trackbodyid": 1, "distance": 4.0, "lookat": (0.0, 0.0, 2.0), "elevation": -20.0}
+    params_type = HumanoidParams
+    qvel_noise = "uniform"
+    range_keywords = {
+        "contact_cost_range": ("contact_cost_min", "contact_cost_max"),
+        "healthy_z_range": ("healthy_z_min", "healthy_z_max"),
+    }
+
+    def __init__(
+        self,
+        backend: str | None = None,
+        fidelity: str = "parity",
+        nthread: int | None = None,
+        terminate_when_unhealthy: bool = True,
+        exclude_current_positions_from_observation: bool = True,
+        include_cinert_in_observation: bool = True,
+        include_cvel_in_observation: bool = True,
+        include_qfrc_actuator_in_observation: bool = True,
+        include_cfrc_ext_in_observation: bool = True,
+        **keywords: Any,
+    ):
+        self.terminate_when_unhealthy = bool(terminate_when_unhealthy)
+        self.exclude_current_positions = bool(exclude_current_positions_from_observation)
+        flags = (
+            include_cinert_in_observation,
+            include_cvel_in_observation,
+            include_qfrc_actuator_in_observation,
+            include_cfrc_ext_in_observation,
+        )
+        self.observed = tuple(name for name, flag in zip(_INCLUDES, flags, strict=True) if flag)
+        overrides = split_ranges(keywords, self.range_keywords)
+        super().__init__(backend, fidelity, nthread, **overrides)
+
+    @property
+    def obs_size(self) -> int:
+        model = self.model
+        sizes = {"cinert": 10, "cvel": 6, "cfrc_ext": 6}
+        size = model.nq + model.nv - 2 * self.exclude_current_positions
+        for name in self.observed:
+            size += model.nv - 6 if name == "qfrc_actuator" else sizes[name] * (model.nbody - 1)
+        return size
+
+    def observe(self, measurement: Measurement) -> Array:
+        qpos = measurement.qpos[2:] if self.exclude_current_positions else measurement.qpos
+        parts = [qpos, measurement.qvel]
+        for name in self.observed:
+            value = measurement.extras[name]
+            parts.append(value[6:] if name == "qfrc_actuator" else value[1:].reshape(-1))
+        return jnp.concatenate(parts)
+
+    def remember(self, measurement: Measurement) -> Array:
+        mass = np.asarray(self.model.body_mass, np.float64)
+        weights = (mass / mass.sum()).astype(np.float32)
+        return jnp.sum(weights[:, None] * measurement.extras["xipos"], axis=0)[:2]
+
+    def evaluate(self, measurement: Measurement, action: Array, params):
+        velocity = (self.remember(measurement) - measurement.extras[REMEMBERED_KEY]) / self.dt
+        z = measurement.qpos[2]
+        healthy = (params.healthy_z_min < z) & (z < params.healthy_z_max)
+        forward_reward = params.forward_reward_weight * velocity[0]
+        healthy_reward = jnp.where(healthy, params.healthy_reward, 0.0)
+        ctrl_cost = params.ctrl_cost_weight * jnp.sum(jnp.square(action))
+        contact_cost = jnp.clip(
+            params.contact_cost_weight * jnp.sum(jnp.square(measurement.extras["cfrc_ext"])),
+            params.contact_cost_min,
+            params.contact_cost_max,
+        )
+        info = {
+            **self.reset_info(measurement),
+            "x_velocity": velocity[0],
+            "y_velocity": velocity[1],
+            "reward_survive": healthy_reward,
+            "reward_forward": forward_reward,
+            "reward_ctrl": -ctrl_cost,
+            "reward_contact": -contact_cost,
+        }
+        reward = forward_reward + healthy_reward - ctrl_cost - contact_cost
+        return reward, ~healthy & self.terminate_when_unhealthy, info
+
+    def reset_info(self, measurement: Measurement) -> dict[str, Array]:
+        qpos = measurement.qpos
+        return {
+            "x_position": qpos[0],
+            "y_position": qpos[1],
+            "distance_from_origin": jnp.sqrt(qpos[0] ** 2 + qpos[1] ** 2),
+        }
