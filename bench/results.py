@@ -67,6 +67,35 @@ class Row:
     goal: Goal | None = None
 
 
+# The TD3 paper's published learning curves (github.com/sfujim/TD3, learning_curves/: 10 seeds of
+# the v1 envs, evaluated every 5,000 steps): at each budget the mean over seeds and its 95%
+# confidence band (mean -+ 1.96 std / sqrt(10)). A row's goal: our mean within the band or above.
+TD3_PAPER_CURVES: dict[str, dict[int, tuple[float, float, float]]] = {
+    "HalfCheetah": {100_000: (5514, 5152, 5875), 300_000: (7697, 7222, 8172)},
+    "Hopper": {100_000: (659, 168, 1151), 300_000: (2410, 1822, 2999)},
+    "Walker2d": {100_000: (770, 387, 1153), 300_000: (3335, 2710, 3961)},
+    "Ant": {100_000: (586, 465, 706), 300_000: (1953, 1291, 2616)},
+    "Reacher": {100_000: (-4.63, -4.89, -4.37), 300_000: (-4.08, -4.35, -3.80)},
+}
+# Their table (max over the 1M steps, 10 seeds): the paper's Table 1.
+TD3_PAPER_TABLE = {
+    "Hopper": "3,564 ± 115",
+    "Walker2d": "4,683 ± 540",
+    "Ant": "4,372 ± 1,000",
+    "Reacher": "-3.6 ± 0.6",
+}
+
+
+def _paper_curve(name: str, algo: str) -> str:
+    curve = TD3_PAPER_CURVES[name]
+    at = lambda steps: "{:,.4g} [{:,.4g}, {:,.4g}]".format(*curve[steps])
+    text = (
+        f"TD3 paper's curves ({name}-v1, 10 seeds): {at(300_000)} at 300k, {at(100_000)} at "
+        f"100k; its table at 1M: {TD3_PAPER_TABLE[name]}"
+    )
+    return text if algo == "td3" else f"TD3 row above (same loop); {text}"
+
+
 ROWS: dict[str, Row] = {
     "reinforce-pendulum": Row(
         "REINFORCE, `rl_jax/InvertedPendulum-v5`",
@@ -148,6 +177,20 @@ ROWS: dict[str, Row] = {
         5,
         "TD3 paper's DDPG ('our DDPG'): 8,577 at 1M steps",
     ),
+    **{
+        f"{algo}-{name.lower()}": Row(
+            f"{algo.upper()}, `rl_jax/{name}-v5`",
+            "train.py",
+            ("--algo", algo, "--env", f"rl_jax/{name}-v5", "--total-steps", "300000"),
+            5,
+            _paper_curve(name, algo),
+            Goal(TD3_PAPER_CURVES[name][300_000][1], 5, "final", 20.0, mean=True)
+            if algo == "td3"
+            else None,
+        )
+        for algo in ("td3", "ddpg")
+        for name in ("Hopper", "Walker2d", "Ant", "Reacher")
+    },
     "td3-rocket": Row(
         "TD3, `rl_jax/Rocket-v0`",
         "td3_rocket.py",

@@ -393,6 +393,15 @@ RECIPES["rl_jax/HalfCheetah-v5"] = {
 # minutes"); the 256 x 256 recipe above takes 125k steps and 21 minutes.
 FAST_CHEETAH_CONFIG: dict[str, Any] = {"actor_hidden": (128, 128), "critic_hidden": (128, 128)}
 FAST_CHEETAH_HPARAMS: dict[str, Any] = {"actor_lr": 1e-3, "critic_lr": 1e-3}
+# The rest of the MuJoCo suite starts from the half-cheetah CPU loop with its 128 x 128 networks
+# at rate 1e-3, unchanged, so that each row of RESULTS.md says what that one recipe does on
+# another task (`experiments/train.py --algo td3 --env rl_jax/Hopper-v5`).
+MUJOCO_SUITE = tuple(
+    f"rl_jax/{name}-v5" for name in ("Hopper", "Walker2d", "Ant", "Reacher", "Swimmer", "Humanoid")
+)
+for _env_id in MUJOCO_SUITE:
+    RECIPES[_env_id] = {**RECIPES["rl_jax/HalfCheetah-v5"], **FAST_CHEETAH_CONFIG}
+    HPARAM_RECIPES[_env_id] = dict(FAST_CHEETAH_HPARAMS)
 # The TD3 paper's own loop: one env, one update per env step, batch 256, 25k warm-up steps.
 PAPER_CONFIG: dict[str, Any] = {
     "num_envs": 1,
