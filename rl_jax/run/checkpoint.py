@@ -16,16 +16,25 @@ leaf). The record is what lets us work around orbax's quirks:
 orbax writes each step into a temporary directory and renames it when complete, so a crash during
 a write leaves the previous checkpoints intact; leftover temporary directories are ignored when
 reading and removed (synchronously) when a writable ``Checkpointer`` opens the directory.
+
+A checkpoint damaged later (files overwritten, truncated or missing, a state that no longer fits)
+is a ``DamagedCheckpointError``. ``restore_newest_readable`` then falls back to the next older
+one, and ``set_aside`` renames a damaged step directory to ``damaged-<step>-<time>``, which orbax
+no longer lists, so nothing is deleted and the step can be saved again.
 """
 
 from __future__ import annotations
 
+import contextlib
 import json
 import logging
+import os
 import shutil
 import sys
+import time
+from collections.abc import Iterator
 from pathlib import Path
-from typing import Any
+from typing import Any, NamedTuple
 
 import jax
 import numpy as np
@@ -33,6 +42,27 @@ import numpy as np
 from rl_jax.errors import CheckpointError
 
 _TMP_MARKER = ".orbax-checkpoint-tmp"
+#: Name prefix of a damaged step directory set aside (``damaged-<step>-<time>``).
+DAMAGED_PREFIX = "damaged-"
+
+
+class DamagedCheckpointError(CheckpointError):
+    """A checkpoint that cannot be restored: unreadable or damaged files, or a state that does not
+    fit this run's. Unlike a checkpoint of another run, an older checkpoint may stand in for it.
+    ``problem`` says what is wrong (``is unreadable (...)``), after ``checkpoint step N in DIR``.
+    """
+
+    def __init__(self, message: str, step: int, problem: str):
+        super().__init__(message)
+        self.step = step
+        self.problem = problem
+
+
+class Skipped(NamedTuple):
+    """A damaged checkpoint that ``restore_newest_readable`` passed over."""
+
+    step: int
+    problem: str  # what ``DamagedCheckpointError.problem`` says
 
 
 def library_versions() -> dict[str, str]:
@@ -201,14 +231,16 @@ class Checkpointer:
             read_only=read_only,
             **multiprocess,
         )
-        self._manager = ocp.CheckpointManager(
-            self.directory, options=options, item_names=("arrays", "meta")
-        )
+        with _quiet_orbax():  # it lists the steps
+            self._manager = ocp.CheckpointManager(
+                self.directory, options=options, item_names=("arrays", "meta")
+            )
 
     def steps(self) -> list[int]:
         """Completed checkpoints, oldest first."""
-        self._manager.reload()
-        return sorted(self._manager.all_steps())
+        with _quiet_orbax():
+            self._manager.reload()
+            return sorted(self._manager.all_steps())
 
     def latest_step(self) -> int | None:
         steps = self.steps()
@@ -247,13 +279,14 @@ class Checkpointer:
         """The JSON metadata of ``step`` (default: the latest)."""
         step = self._resolve_step(step)
         try:
-            restored = self._manager.restore(
-                step, args=self._ocp.args.Composite(meta=self._ocp.args.JsonRestore())
-            )
+            with _quiet_orbax():
+                restored = self._manager.restore(
+                    step, args=self._ocp.args.Composite(meta=self._ocp.args.JsonRestore())
+                )
             meta = restored["meta"]
         except Exception as error:  # orbax raises many types for damaged files
             raise self._unreadable(step, error) from None
-        if not isinstance(meta, dict) or "leaves" not in meta:
+        if not isinstance(meta, dict) or not isinstance(meta.get("leaves"), list):
             raise self._unreadable(step, ValueError("metadata has no leaf records"))
         return meta
 
@@ -276,8 +309,9 @@ class Checkpointer:
         self._check_expected(step, meta, expect or {})
         mismatch = _first_mismatch(meta["leaves"], _template_records(template))
         if mismatch:
-            raise CheckpointError(
-                f"checkpoint step {step} in {self.directory} does not match this run: {mismatch}"
+            problem = f"does not match this run: {mismatch}"
+            raise DamagedCheckpointError(
+                f"checkpoint step {step} in {self.directory} {problem}", step, problem
             )
         arrays = self._restore_arrays(step, meta["leaves"], sharding)
         leaves = [
@@ -302,9 +336,37 @@ class Checkpointer:
         _ignore_closed_loop_reports()  # before: some reports come while the read fails
         try:
             args = self._ocp.args.Composite(arrays=self._ocp.args.StandardRestore(targets))
-            return dict(self._manager.restore(step, args=args)["arrays"])
+            with _quiet_orbax():
+                return dict(self._manager.restore(step, args=args)["arrays"])
         except Exception as error:
             raise self._unreadable(step, error) from None
+
+    def restore_newest_readable(
+        self, template: Any, expect: dict[str, Any] | None = None, sharding: Any = None
+    ) -> tuple[Any, dict[str, Any], list[Skipped]]:
+        """``restore`` of the newest checkpoint that can be restored, with the newer ones that
+        cannot (damaged: ``Skipped``, newest first). A checkpoint of another run (``expect``) is
+        refused at once, never passed over: it is no damage, and an older one would not be this
+        run's either. If none can be restored, a ``DamagedCheckpointError`` names the newest and
+        how many older ones failed too. Writes nothing: see ``set_aside``."""
+        skipped: list[Skipped] = []
+        for step in reversed(self.steps()):
+            try:
+                state, meta = self.restore(template, step, expect, sharding)
+            except DamagedCheckpointError as error:
+                skipped.append(Skipped(step, error.problem))
+                continue
+            return state, meta, skipped
+        if not skipped:
+            raise CheckpointError(f"no checkpoint in {self.directory}")
+        newest, older = skipped[0], [str(s.step) for s in skipped[1:]]
+        tail = (
+            f"; the older checkpoints ({', '.join(older)}) cannot be restored either"
+            if older
+            else "; there is no older checkpoint to resume from"
+        )
+        message = f"checkpoint step {newest.step} in {self.directory} {newest.problem}{tail}"
+        raise DamagedCheckpointError(message, newest.step, newest.problem)
 
     def _check_expected(self, step: int, meta: dict, expect: dict[str, Any]) -> None:
         """Each ``expect`` value must match; a ``frozenset`` value lists the accepted ones."""
@@ -327,18 +389,20 @@ class Checkpointer:
             raise CheckpointError(f"no checkpoint step {step} in {self.directory} (has {steps})")
         return step
 
-    def _unreadable(self, step: int, error: BaseException) -> CheckpointError:
+    def _unreadable(self, step: int, error: BaseException) -> DamagedCheckpointError:
         reason = (str(error).strip().splitlines() or [type(error).__name__])[0]
         reason = reason if len(reason) <= 160 else reason[:160] + "..."
+        problem = f"is unreadable ({reason})"
         older = [s for s in self.steps() if s < step]
+        # For the tools that read the latest checkpoint (render, evaluate, load_policy): a
+        # resume repairs the run without anyone deleting anything.
         hint = (
-            f"; older checkpoints: {older} (remove {self.directory / str(step)} to use them)"
+            f"; older checkpoints: {older} (--resume continues from the newest readable one)"
             if older
             else ""
         )
-        return CheckpointError(
-            f"checkpoint step {step} in {self.directory} is unreadable ({reason}){hint}"
-        )
+        message = f"checkpoint step {step} in {self.directory} {problem}{hint}"
+        return DamagedCheckpointError(message, step, problem)
 
     def close(self) -> None:
         self._manager.close()
@@ -348,6 +412,20 @@ class Checkpointer:
 
     def __exit__(self, *exc_info: Any) -> None:
         self.close()
+
+
+@contextlib.contextmanager
+def _quiet_orbax() -> Iterator[None]:
+    """orbax logs an absl ERROR for each damaged file it meets while listing or reading steps
+    ("Failed to read Metadata file ..."): lines on stderr beside the one we report, which says
+    the same. Silence them while it reads."""
+    logger = logging.getLogger("absl")
+    level = logger.level
+    logger.setLevel(logging.CRITICAL)
+    try:
+        yield
+    finally:
+        logger.setLevel(level)
 
 
 def _ignore_closed_loop_reports() -> None:
@@ -367,6 +445,24 @@ def _ignore_closed_loop_reports() -> None:
 
     hook.ignores_closed_loop = True
     sys.unraisablehook = hook
+
+
+def set_aside(directory: str | Path, step: int) -> Path:
+    """Rename checkpoint ``step`` of ``directory`` to ``damaged-<step>-<time>`` beside it and
+    return the new path. Kept, never deleted: a damaged checkpoint may still be worth a look.
+    orbax lists only directories named by a bare integer (or ending in ``_<integer>``, hence the
+    hyphens), so it neither restores nor prunes the renamed one, and the step number is free: a
+    resumed run saves that step again (orbax would skip a step that is not newer than the latest
+    one it lists)."""
+    directory = Path(directory)
+    stamp = time.strftime("%Y%m%d-%H%M%S")
+    target = directory / f"{DAMAGED_PREFIX}{step}-{stamp}"
+    suffix = 1
+    while target.exists():  # set aside twice within a second
+        suffix += 1
+        target = directory / f"{DAMAGED_PREFIX}{step}-{stamp}-{suffix}"
+    os.rename(directory / str(step), target)
+    return target
 
 
 def leftover_temporaries(directory: str | Path) -> list[Path]:

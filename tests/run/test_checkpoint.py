@@ -15,8 +15,14 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from run_helpers import snapshot
 
-from rl_jax.run.checkpoint import Checkpointer, CheckpointError
+from rl_jax.run.checkpoint import (
+    Checkpointer,
+    CheckpointError,
+    DamagedCheckpointError,
+    set_aside,
+)
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -165,9 +171,22 @@ def _corrupt_meta(step_dir: Path) -> None:
             path.write_text('{"leaves": [')
 
 
-@pytest.mark.parametrize(
-    "damage", [_corrupt_arrays, _corrupt_meta, lambda d: shutil.rmtree(d / "arrays")]
-)
+def overwrite_with_garbage(step_dir: Path) -> None:
+    """Every file of a checkpoint overwritten, as a bad disk or a stray copy would."""
+    for path in step_dir.rglob("*"):
+        if path.is_file():
+            path.write_bytes(b"\x93garbage\xff" * 3)
+
+
+DAMAGES = [
+    _corrupt_arrays,
+    _corrupt_meta,
+    lambda d: shutil.rmtree(d / "arrays"),
+    overwrite_with_garbage,
+]
+
+
+@pytest.mark.parametrize("damage", DAMAGES)
 def test_corrupt_checkpoint_raises_one_clear_line(tmp_path, damage):
     with Checkpointer(tmp_path) as checkpointer:
         checkpointer.save(1, make_state(1.0))
@@ -181,6 +200,81 @@ def test_corrupt_checkpoint_raises_one_clear_line(tmp_path, damage):
         assert "older checkpoints: [1]" in message  # says how to fall back
         older, _ = checkpointer.restore(template_of(make_state()), step=1)
     assert_bitwise_equal(older, make_state(1.0))
+
+
+def _three_steps(directory: Path) -> None:
+    with Checkpointer(directory) as checkpointer:
+        for step in (1, 2, 3):
+            checkpointer.save(step, make_state(float(step)), {"identity_hash": "run-a"})
+
+
+@pytest.mark.parametrize("damage", DAMAGES)
+def test_the_newest_readable_checkpoint_is_restored_past_damaged_ones(tmp_path, damage, caplog):
+    _three_steps(tmp_path)
+    damage(tmp_path / "3")
+    before = snapshot(tmp_path)
+    with Checkpointer(tmp_path, read_only=True) as checkpointer:
+        state, meta, skipped = checkpointer.restore_newest_readable(
+            template_of(make_state()), expect={"identity_hash": "run-a"}
+        )
+    assert meta["step"] == 2
+    assert_bitwise_equal(state, make_state(2.0))
+    assert [s.step for s in skipped] == [3]
+    assert skipped[0].problem.startswith("is unreadable (") and "\n" not in skipped[0].problem
+    assert snapshot(tmp_path) == before  # reading writes nothing
+    # orbax's own log lines about the damaged files would be noise beside our one line.
+    assert not [r for r in caplog.records if r.name == "absl" and r.levelno >= 30]
+
+
+def test_no_readable_checkpoint_is_one_line_naming_them_all(tmp_path):
+    _three_steps(tmp_path)
+    for step in (1, 2, 3):
+        overwrite_with_garbage(tmp_path / str(step))
+    before = snapshot(tmp_path)
+    with (
+        Checkpointer(tmp_path, read_only=True) as checkpointer,
+        pytest.raises(DamagedCheckpointError) as error,
+    ):
+        checkpointer.restore_newest_readable(template_of(make_state()))
+    message = str(error.value)
+    assert message.startswith(f"checkpoint step 3 in {tmp_path} is unreadable (")
+    assert message.endswith("; the older checkpoints (2, 1) cannot be restored either")
+    assert "\n" not in message
+    assert snapshot(tmp_path) == before
+
+
+def test_a_checkpoint_of_another_run_is_refused_not_passed_over(tmp_path):
+    _three_steps(tmp_path)
+    with Checkpointer(tmp_path) as checkpointer:
+        checkpointer.save(4, make_state(4.0), {"identity_hash": "run-b"})
+    with (
+        Checkpointer(tmp_path, read_only=True) as checkpointer,
+        pytest.raises(CheckpointError, match="step 4 .* is from another run") as error,
+    ):
+        checkpointer.restore_newest_readable(
+            template_of(make_state()), expect={"identity_hash": "run-a"}
+        )
+    assert not isinstance(error.value, DamagedCheckpointError)
+
+
+def test_a_damaged_checkpoint_set_aside_is_kept_and_its_step_saved_again(tmp_path):
+    _three_steps(tmp_path)
+    overwrite_with_garbage(tmp_path / "3")
+    damaged = snapshot(tmp_path / "3")
+    kept = set_aside(tmp_path, 3)
+    assert kept.parent == tmp_path and kept.name.startswith("damaged-3-")
+    assert snapshot(kept) == damaged  # moved whole, not deleted
+    with Checkpointer(tmp_path, keep=2) as checkpointer:
+        assert checkpointer.steps() == [1, 2]  # orbax no longer lists it
+        # Saving step 3 again is not skipped (orbax skips a step not newer than its latest),
+        # and pruning to the 2 latest leaves the damaged one alone.
+        for step in (3, 4):
+            checkpointer.save(step, make_state(float(step)))
+        assert checkpointer.steps() == [3, 4]
+        restored, _ = checkpointer.restore(template_of(make_state()), step=3)
+    assert_bitwise_equal(restored, make_state(3.0))
+    assert snapshot(kept) == damaged
+    assert set_aside(tmp_path, 3) != kept  # a second one in the same second gets its own name
 
 
 def test_leftover_partial_write_is_ignored_then_cleaned(tmp_path):
