@@ -187,7 +187,8 @@ def add_run_flags(parser: argparse.ArgumentParser, seeds: int, total_steps: int)
         type=positive_int,
         default=3,
         metavar="N",
-        help="checkpoints kept on disk, newest first (default: 3)",
+        help="checkpoints kept on disk, newest first; at least 2, so that a --resume has an older "
+        "one to fall back on if the latest is damaged (default: 3)",
     )
     add(
         "--log-interval",

@@ -11,7 +11,9 @@ All seeds (and all hyperparameter configs of a grid) are one compiled program: t
 leading ``[configs, seeds]`` axes. Between chunks the host writes metrics, updates the progress
 line and checkpoints. SIGINT/SIGTERM finish the current chunk, checkpoint and return with
 ``stopped=True``; ``RunSpec(resume=True)`` continues from the latest checkpoint and reaches the
-same final parameters, bit for bit, as a run that never stopped.
+same final parameters, bit for bit, as a run that never stopped. If the latest checkpoint is
+damaged it continues from the newest readable one (redoing the chunks after it, which give the
+same results again) and sets the damaged ones aside, one line on stderr each.
 
 Under ``jax.distributed`` (a sweep on several processes) every process runs ``run`` with the same
 spec: all compute and gather, and the lead alone writes the directory and prints
@@ -63,12 +65,17 @@ from rl_jax.run.start import (
     checkpoint_expectation,
     fresh_start,
     restore_start,
+    set_aside_damaged,
     write_run_record,
 )
 from rl_jax.training import params
 from rl_jax.training.validation import check_ranges
 
 __all__ = ["DivergenceError", "RunError", "RunResult", "RunSpec", "make_plan", "run"]
+
+#: Checkpoints a run keeps at the least, whatever ``keep_checkpoints`` asks: with one, a damaged
+#: latest checkpoint has nothing to fall back on and the whole run is lost.
+MIN_KEEP_CHECKPOINTS = 2
 
 
 # ---- the loop -------------------------------------------------------------------------------
@@ -129,19 +136,25 @@ class Session:
         if not processes.is_lead():
             counters = (start.step, start.updates, start.checkpoint_step, start.best, None)
             return cls(spec, plan, None, None, started, start.wall_clock, *counters)
+        # Damaged checkpoints move aside first: the checkpointer must not list them, and the
+        # session's record says where they went.
+        moved = set_aside_damaged(spec, start)
         try:
             spec.out.mkdir(parents=True, exist_ok=True)
-            write_run_record(spec, plan, start)
+            write_run_record(spec, plan, start, moved)
         except OSError as error:
             reason = error.strerror or type(error).__name__
             raise RunError(f"cannot write the run directory {spec.out}: {reason}") from None
         # On a resume, rows after the restored step (or all rows, if there was no checkpoint
         # yet) belong to the interrupted session and will be written again.
         log = MetricsLog(spec.out, start.step if spec.resume else None, spec.grid_fields)
-        checkpointer = Checkpointer(spec.out / CHECKPOINT_DIR, keep=spec.keep_checkpoints)
+        # best/ keeps as many as checkpoints/: its saves are a subset of the checkpoints' steps,
+        # so it then still holds the best policies as of any checkpoint a resume falls back to.
+        keep = max(MIN_KEEP_CHECKPOINTS, spec.keep_checkpoints)
+        checkpointer = Checkpointer(spec.out / CHECKPOINT_DIR, keep=keep)
         best_checkpointer = None
         if start.best.enabled:
-            best_checkpointer = Checkpointer(spec.out / BEST_DIR, keep=spec.keep_checkpoints)
+            best_checkpointer = Checkpointer(spec.out / BEST_DIR, keep=keep)
             # Best policies newer than the checkpoint resumed from belong to the interrupted
             # session (a crash between the two saves); they will be found again.
             best_checkpointer.discard_after(start.step)
@@ -351,9 +364,9 @@ def run(spec: RunSpec, notify: Callable[[str], None] = print) -> RunResult:
         notify = _silent
     plan, start = prepare(spec)
     notify(format_plan(spec, plan))
+    session = Session.open(spec, plan, start, started)  # after the lines on damaged checkpoints
     if start.checkpoint_step is not None:
         notify(f"resuming from the checkpoint at step {start.step:,} (chunk {start.chunk})")
-    session = Session.open(spec, plan, start, started)
     runs = spec.seeds * len(spec.hparams)
     progress = Progress(
         spec.total_steps,

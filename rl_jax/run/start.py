@@ -1,17 +1,20 @@
-"""Where a run starts: fresh, or from the latest checkpoint of a resumed run; the run record
-(``config.json``) each session writes; and stopping on signals after the current chunk."""
+"""Where a run starts: fresh, or from the newest readable checkpoint of a resumed run (damaged
+newer ones are set aside once the run is known to start); the run record (``config.json``) each
+session writes; and stopping on signals after the current chunk."""
 
 from __future__ import annotations
 
 import contextlib
 import dataclasses
 import signal
+import sys
 import time
 from collections.abc import Callable
 from typing import Any
 
+from rl_jax.errors import RunError
 from rl_jax.run.best import BEST_DIR, BestPolicies, policy_fields
-from rl_jax.run.checkpoint import Checkpointer
+from rl_jax.run.checkpoint import Checkpointer, Skipped, set_aside
 from rl_jax.run.plan import Plan
 from rl_jax.run.run_dir import (
     CHECKPOINT_DIR,
@@ -64,6 +67,9 @@ class Start:
     wall_clock: float  # seconds spent by earlier sessions
     checkpoint_step: int | None  # the checkpoint restored, if any
     best: BestPolicies  # the best evaluated policy of every run so far
+    # Newer checkpoints that could not be restored (newest first): set aside before the run
+    # writes anything else (``set_aside_damaged``).
+    skipped: tuple[Skipped, ...] = ()
 
 
 def checkpoint_expectation(spec: RunSpec) -> dict[str, Any]:
@@ -87,14 +93,17 @@ def checkpoint_accepts(spec: RunSpec) -> dict[str, Any]:
 
 
 def restore_start(spec: RunSpec, plan: Plan) -> Start | None:
-    """The latest checkpoint of a resumed run (None if it has none yet). Writes nothing."""
+    """The newest readable checkpoint of a resumed run (None if it has none yet), with the newer
+    damaged ones it passed over. Writes nothing."""
     directory = spec.out / CHECKPOINT_DIR
     if not directory.is_dir():
         return None
     with Checkpointer(directory, read_only=True) as checkpointer:
         if checkpointer.latest_step() is None:
             return None
-        state, meta = checkpointer.restore(plan.template, expect=checkpoint_accepts(spec))
+        state, meta, skipped = checkpointer.restore_newest_readable(
+            plan.template, expect=checkpoint_accepts(spec)
+        )
     best = BestPolicies.restore(
         spec.out / BEST_DIR,
         policy_fields(spec.algorithm, plan.template),
@@ -110,7 +119,34 @@ def restore_start(spec: RunSpec, plan: Plan) -> Start | None:
         meta.get("wall_clock", 0.0),
         meta["step"],
         best,
+        tuple(skipped),
     )
+
+
+def set_aside_damaged(spec: RunSpec, start: Start) -> list[dict[str, Any]]:
+    """Rename each checkpoint ``start`` passed over to ``damaged-<step>-<time>`` (kept, never
+    deleted) and say so in one line on stderr per checkpoint; returns what was moved where, for
+    the run record. Called once every check has passed, as the run's first write: a resume that
+    is refused moves nothing."""
+    directory = spec.out / CHECKPOINT_DIR
+    moved = []
+    for skipped in start.skipped:
+        try:
+            kept = set_aside(directory, skipped.step)
+        except OSError as error:
+            reason = error.strerror or type(error).__name__
+            raise RunError(
+                f"checkpoint step {skipped.step} in {directory} {skipped.problem}, and it cannot "
+                f"be set aside to resume from step {start.step:,}: {reason}"
+            ) from None
+        print(
+            f"warning: checkpoint step {skipped.step} {skipped.problem}; resuming from step "
+            f"{start.step:,} instead, the damaged one is kept as {kept}",
+            file=sys.stderr,
+            flush=True,
+        )
+        moved.append({"step": skipped.step, "problem": skipped.problem, "kept_as": kept.name})
+    return moved
 
 
 def fresh_start(spec: RunSpec, plan: Plan) -> Start:
@@ -120,14 +156,19 @@ def fresh_start(spec: RunSpec, plan: Plan) -> Start:
     return Start(state, 0, 0, 0, 0.0, None, best)
 
 
-def write_run_record(spec: RunSpec, plan: Plan, start: Start) -> None:
-    """config.json: created on a fresh run, updated (total steps, sessions) on a resume."""
+def write_run_record(
+    spec: RunSpec, plan: Plan, start: Start, damaged: list[dict[str, Any]] | None = None
+) -> None:
+    """config.json: created on a fresh run, updated (total steps, sessions) on a resume. A
+    session records the ``damaged`` checkpoints it set aside, if any."""
     path = spec.out / CONFIG_FILE
     session = {
         "started": time.strftime("%Y-%m-%dT%H:%M:%S%z"),
         "command": spec.command,
         "from_step": start.step,
     }
+    if damaged:
+        session["damaged_checkpoints"] = damaged
     if spec.resume:
         record = read_run_record(spec.out)
         record["total_steps"] = spec.total_steps

@@ -144,6 +144,12 @@ def test_default_run_dir_names_env_algorithm_and_time(tmp_path, monkeypatch):
 # ---- subprocesses: a real run, then every bad input ----------------------------------------
 
 
+def overwrite_with_garbage(step_dir: Path) -> None:
+    for path in step_dir.rglob("*"):
+        if path.is_file():
+            path.write_bytes(b"\x93garbage\xff" * 3)
+
+
 @pytest.fixture(scope="module")
 def workspace(tmp_path_factory):
     """A finished run made by the script, and damaged or foreign copies of it."""
@@ -163,10 +169,10 @@ def workspace(tmp_path_factory):
         (root / name / "config.json").write_text(json.dumps(record))
         copies[name] = root / name
     shutil.copytree(existing, root / "corrupt")
-    latest = max(int(p.name) for p in (root / "corrupt" / CHECKPOINT_DIR).iterdir())
-    for path in (root / "corrupt" / CHECKPOINT_DIR / str(latest) / "arrays").rglob("*"):
-        if path.is_file() and path.parent.name == "d":
-            path.write_bytes(b"\0" * 5)
+    # A run shorter than the checkpoint interval has its final checkpoint only: nothing older to
+    # fall back on once it is damaged.
+    [only] = list((root / "corrupt" / CHECKPOINT_DIR).iterdir())
+    overwrite_with_garbage(only)
     return {
         "root": root,
         "stdout": out,
@@ -223,7 +229,10 @@ BAD_INPUTS = {
         ["--resume", "{existing}", "--learning-rate", "0.5"],
         "it is a different run (learning_rate 0.01 vs 0.5)",
     ),
-    "resume of a corrupt checkpoint": (["--resume", "{corrupt}"], "is unreadable"),
+    "resume of a corrupt checkpoint": (
+        ["--resume", "{corrupt}"],
+        "; there is no older checkpoint to resume from",
+    ),
     "out dir with a different run": (
         ["--out", "{existing}", "--noise", "0.1"],
         "already holds a different run (noise 0.3 vs 0.1)",
@@ -394,3 +403,22 @@ def test_sigterm_checkpoints_exits_zero_and_resume_is_bit_identical(workspace):
     fresh = fresh_start(spec, plan).state
     fresh = plan.program.unpad(fresh, params.stack([fake.default_hyperparams()]))
     assert leaves_bytes(fresh) != leaves_bytes(final["stopped"])
+
+
+def test_a_resume_past_a_damaged_latest_checkpoint_says_one_line_and_keeps_it(tmp_path):
+    """From a fresh interpreter, as a user runs it: the one warning line is all of stderr (no
+    traceback, none of orbax's log lines about the damaged files), and the run carries on."""
+    args = ["--total-steps", "40", "--checkpoint-interval", "0", "--log-interval", "0"]
+    first = start(["--out", "run", *args], tmp_path)
+    _, err = first.communicate(timeout=600)
+    assert first.returncode == 0, err
+    overwrite_with_garbage(tmp_path / "run" / CHECKPOINT_DIR / "40")
+    resumed = start(["--resume", "run"], tmp_path)
+    out, err = resumed.communicate(timeout=600)
+    assert resumed.returncode == 0, err
+    lines = err.strip().splitlines()
+    assert len(lines) == 1, err
+    assert lines[0].startswith("warning: checkpoint step 40 is unreadable (")
+    assert "resuming from the checkpoint at step 20 (chunk 1)" in out
+    kept = [p.name for p in (tmp_path / "run" / CHECKPOINT_DIR).iterdir()]
+    assert sorted(name[:11] for name in kept) == ["20", "40", "damaged-40-"]

@@ -15,6 +15,7 @@ import pytest
 from run_helpers import leaves_bytes, snapshot
 
 from rl_jax.run import runner
+from rl_jax.run.best import load_part
 from rl_jax.run.checkpoint import Checkpointer, CheckpointError
 from rl_jax.run.metrics import read_rows
 from rl_jax.run.plan import make_plan
@@ -126,6 +127,74 @@ def test_sigint_mid_run_checkpoints_and_resume_is_bit_identical(full_run, tmp_pa
     resumed = run(spec_for(out, resume=True), notify=lambda message: None)
     assert leaves_bytes(resumed.state) == leaves_bytes(full_run.state)
     assert compared_rows(out) == compared_rows(full_run.run_dir)
+
+
+def overwrite_with_garbage(step_dir: Path) -> None:
+    for path in step_dir.rglob("*"):
+        if path.is_file():
+            path.write_bytes(b"\x93garbage\xff" * 3)
+
+
+def test_resume_falls_back_past_a_damaged_latest_checkpoint(full_run, tmp_path, capsys):
+    """The latest checkpoint's files overwritten: the resume starts from the one before, says so
+    in one stderr line, keeps the damaged one aside and ends as a run that never stopped. Asked to
+    keep 1 checkpoint, the run kept 2, or there would be nothing to fall back on."""
+    out = tmp_path / "run"
+    first = spec_for(out, total_steps=3 * STEPS_PER_CHUNK, keep_checkpoints=1)
+    run(first, notify=lambda message: None)
+    with Checkpointer(out / "checkpoints", read_only=True) as checkpointer:
+        assert checkpointer.steps() == [40, 60]
+    overwrite_with_garbage(out / "checkpoints" / "60")
+    damaged = snapshot(out / "checkpoints" / "60")
+    capsys.readouterr()
+    messages = []
+    resumed = run(spec_for(out, resume=True, keep_checkpoints=1), notify=messages.append)
+    lines = capsys.readouterr().err.strip().splitlines()
+    assert len(lines) == 1, lines
+    assert lines[0].startswith("warning: checkpoint step 60 is unreadable (")
+    assert "resuming from step 40 instead, the damaged one is kept as " in lines[0]
+    assert "resuming from the checkpoint at step 40 (chunk 2)" in messages
+    kept = [p for p in (out / "checkpoints").iterdir() if p.name.startswith("damaged-")]
+    assert [p.name[: len("damaged-60-")] for p in kept] == ["damaged-60-"]
+    assert lines[0].endswith(str(kept[0])) and snapshot(kept[0]) == damaged
+    # Resume equals never stopping: the same final state, and metrics.jsonl's rows of the
+    # damaged checkpoint's chunk replaced by the redone ones, not repeated.
+    assert resumed.step == TOTAL
+    assert leaves_bytes(resumed.state) == leaves_bytes(full_run.state)
+    assert compared_rows(out) == compared_rows(full_run.run_dir)
+    with Checkpointer(out / "checkpoints", read_only=True) as checkpointer:
+        assert checkpointer.steps() == [140, 160]  # 2 kept again; the damaged one not pruned
+    assert kept[0].is_dir()
+    session = json.loads((out / "config.json").read_text())["sessions"][-1]
+    assert session["from_step"] == 40
+    [record] = session["damaged_checkpoints"]
+    assert record["step"] == 60 and record["kept_as"] == kept[0].name
+    assert record["problem"].startswith("is unreadable (")
+    # The best policies too: best/ at step 60 belonged to the redone chunk and was found again.
+    template = make_plan(spec_for(out)).template
+    best = [
+        load_part(d / "best", fake.policy_fields, template, {}) for d in (out, full_run.run_dir)
+    ]
+    assert leaves_bytes(best[0][0]) == leaves_bytes(best[1][0])
+    assert [best[0][1][k] == best[1][1][k] for k in ("step", "best_returns", "best_steps")] == [
+        True
+    ] * 3
+
+
+def test_no_readable_checkpoint_is_one_error_and_changes_nothing(tmp_path, capsys):
+    out = tmp_path / "run"
+    run(spec_for(out, total_steps=3 * STEPS_PER_CHUNK), notify=lambda message: None)
+    for step in (20, 40, 60):
+        overwrite_with_garbage(out / "checkpoints" / str(step))
+    before = snapshot(out)
+    capsys.readouterr()
+    with pytest.raises(CheckpointError) as error:
+        run(spec_for(out, resume=True), notify=lambda message: None)
+    message = str(error.value)
+    assert "checkpoint step 60 in " in message and "is unreadable (" in message
+    assert message.endswith("the older checkpoints (40, 20) cannot be restored either")
+    assert snapshot(out) == before  # nothing moved, deleted or written
+    assert capsys.readouterr().err == ""
 
 
 def test_resuming_a_finished_run_trains_nothing(full_run, tmp_path):
