@@ -1,10 +1,18 @@
 # rl_jax — every set-up step lives here so that a fresh machine needs only Python 3.11 and pip.
 #   make train   install, then train TD3 on half cheetah with 5 seeds
 #   make test    install, then run the test suite (what CI runs)
+#   make install GPU=1        also the CUDA 12 build of the pinned jaxlib (requirements-gpu.lock)
+#   make test-latest          the default suite against the newest releases, in .venv-latest
 PYTHON ?= python3.11
 VENV   := .venv
 BIN    := $(VENV)/bin
 STAMP  := $(VENV)/.installed
+GPU    ?=
+GPU_STAMP := $(VENV)/.installed-gpu
+# `make test-latest`: a second venv with the newest releases of our direct dependencies (pip
+# resolves them afresh each time), on the newest Python that jax supports here.
+LATEST_PYTHON ?= $(shell command -v python3.12 || ls $$HOME/.pyenv/versions/3.12*/bin/python3.12 2>/dev/null | tail -1 || echo python3.11)
+LATEST_VENV := .venv-latest
 
 # The persistent XLA compilation cache is on by default (a second run of a config skips compiling):
 # rl_jax.training.jax_setup keeps it in ~/.cache/rl_jax/jax/<CPU tag>, unless
@@ -12,12 +20,13 @@ STAMP  := $(VENV)/.installed
 # Headless MuJoCo rendering picks EGL, else OSMesa, when a frame is first drawn
 # (envs/mujoco/opengl.py); nothing else needs OpenGL, so MUJOCO_GL is not set here.
 
-.PHONY: install test test-slow lint format bench results train lock system-deps clean help
+.PHONY: install test test-slow test-latest lint format bench results train lock lock-gpu \
+	system-deps clean help
 
 help:
 	@grep -E '^[a-z-]+:.*## ' $(MAKEFILE_LIST) | sed 's/:.*## /\t/' | sort
 
-install: $(STAMP) system-deps ## create .venv and install the locked dependencies (idempotent)
+install: $(STAMP) $(if $(GPU),$(GPU_STAMP)) system-deps ## create .venv and install the locked dependencies (GPU=1: with CUDA)
 
 # Re-installs only when the lock or pyproject changed; `pip install -r` of a hashed lock is exact.
 $(STAMP): requirements.lock pyproject.toml
@@ -28,11 +37,29 @@ $(STAMP): requirements.lock pyproject.toml
 	$(BIN)/python -m envs.mujoco.mujoco_ffi_build  # the MuJoCo C step op (g++); without it: a callback
 	@touch $@
 
+# The CUDA 12 plugin of the same jaxlib, with its NVIDIA libraries as wheels (no system CUDA
+# needed, only an NVIDIA driver): jax then runs on the GPU and MuJoCo envs default to MJX there.
+$(GPU_STAMP): $(STAMP) requirements-gpu.lock
+	$(BIN)/python -m pip install --quiet --disable-pip-version-check -r requirements-gpu.lock
+	@$(BIN)/python -c "import jax; print('jax devices:', jax.devices())"
+	@touch $@
+
 system-deps: ## install the system libraries for headless rendering (EGL), where possible
 	@bash scripts/system_deps.sh
 
 test: install ## run the default (fast) test suite
 	$(BIN)/python -m pytest -q
+
+test-latest: ## the default suite against the newest jax, flax, optax, orbax, mujoco, gymnasium (.venv-latest)
+	@test -x $(LATEST_VENV)/bin/python || $(LATEST_PYTHON) -m venv $(LATEST_VENV)
+	$(LATEST_VENV)/bin/python -m pip install --quiet --disable-pip-version-check --upgrade \
+		jax jaxlib flax optax orbax-checkpoint mujoco mujoco-mjx brax "gymnasium[mujoco]" numpy \
+		matplotlib tensorboardX tqdm imageio pillow pygame-ce pytest pytest-timeout scipy
+	$(LATEST_VENV)/bin/python -m pip install --quiet --disable-pip-version-check --no-deps \
+		--no-build-isolation -e .
+	@$(LATEST_VENV)/bin/python -m pip list 2>/dev/null | grep -iE '^(jax|jaxlib|flax|optax|orbax-checkpoint|mujoco|mujoco-mjx|brax|gymnasium|numpy) '
+	$(LATEST_VENV)/bin/python -m envs.mujoco.mujoco_ffi_build
+	$(LATEST_VENV)/bin/python -m pytest -q
 
 test-slow: install ## run the long learning tests only
 	$(BIN)/python -m pytest -q -m slow
@@ -59,5 +86,10 @@ lock: ## regenerate requirements.lock from pyproject.toml (needs network)
 	$(BIN)/pip-compile --quiet --extra dev --strip-extras --generate-hashes --allow-unsafe \
 		--no-emit-index-url --no-emit-find-links --upgrade -o requirements.lock pyproject.toml
 
-clean: ## remove the venv and caches (runs/ is kept)
-	rm -rf $(VENV) .pytest_cache .ruff_cache
+lock-gpu: ## regenerate requirements-gpu.lock (the CUDA plugin of the pinned jaxlib; needs network)
+	@test -x $(BIN)/pip-compile || $(MAKE) install
+	$(BIN)/pip-compile --quiet --generate-hashes --allow-unsafe --strip-extras --no-emit-index-url \
+		--no-emit-find-links -c requirements.lock -o requirements-gpu.lock requirements-gpu.in
+
+clean: ## remove the venvs and caches (runs/ is kept)
+	rm -rf $(VENV) $(LATEST_VENV) .pytest_cache .ruff_cache
