@@ -11,7 +11,9 @@ GPU    ?=
 GPU_STAMP := $(VENV)/.installed-gpu
 # `make test-latest`: a second venv with the newest releases of our direct dependencies (pip
 # resolves them afresh each time), on the newest Python that jax supports here.
-LATEST_PYTHON ?= $(shell command -v python3.12 || ls $$HOME/.pyenv/versions/3.12*/bin/python3.12 2>/dev/null | tail -1 || echo python3.11)
+# (a pyenv shim may exist without a version behind it: the first that runs wins)
+LATEST_PYTHON ?= $(shell for p in python3.12 $$HOME/.pyenv/versions/3.12*/bin/python3.12 python3.11; \
+	do $$p --version >/dev/null 2>&1 && { echo $$p; break; }; done)
 LATEST_VENV := .venv-latest
 
 # The persistent XLA compilation cache is on by default (a second run of a config skips compiling):
@@ -54,7 +56,7 @@ test-latest: ## the default suite against the newest jax, flax, optax, orbax, mu
 	@test -x $(LATEST_VENV)/bin/python || $(LATEST_PYTHON) -m venv $(LATEST_VENV)
 	$(LATEST_VENV)/bin/python -m pip install --quiet --disable-pip-version-check --upgrade \
 		jax jaxlib flax optax orbax-checkpoint mujoco mujoco-mjx brax "gymnasium[mujoco]" numpy \
-		matplotlib tensorboardX tqdm imageio pillow pygame-ce pytest pytest-timeout scipy
+		matplotlib tensorboardX tqdm imageio pillow pygame-ce pytest pytest-timeout scipy setuptools
 	$(LATEST_VENV)/bin/python -m pip install --quiet --disable-pip-version-check --no-deps \
 		--no-build-isolation -e .
 	@$(LATEST_VENV)/bin/python -m pip list 2>/dev/null | grep -iE '^(jax|jaxlib|flax|optax|orbax-checkpoint|mujoco|mujoco-mjx|brax|gymnasium|numpy) '
