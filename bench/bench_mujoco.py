@@ -43,23 +43,31 @@ def _cores() -> int:
     return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count()
 
 
-def gymnasium_single_call(env_id: str):
-    """One gymnasium env stepped in a Python loop; a call runs 200 steps."""
+def gymnasium_single_call(env_id: str, unwrapped: bool = False):
+    """One gymnasium env stepped in a Python loop; a call runs 200 steps. ``unwrapped``: the env
+    without ``gymnasium.make``'s wrappers (time limit, order and passive checks), which cost a
+    few microseconds a step: the MuJoCo env itself. Its episodes are cut at the same limit."""
     import gymnasium
 
     env = gymnasium.make(env_id)
+    limit = env.spec.max_episode_steps or np.inf
+    if unwrapped:
+        env = env.unwrapped
     env.reset(seed=0)
     rng = np.random.default_rng(0)
     actions = rng.uniform(
         env.action_space.low, env.action_space.high, (200, *env.action_space.shape)
     )
     actions = actions.astype(np.float32)
+    episode_steps = [0]
 
     def call() -> int:
         for action in actions:
             _, _, terminated, truncated, _ = env.step(action)
-            if terminated or truncated:
+            episode_steps[0] += 1
+            if terminated or truncated or episode_steps[0] >= limit:
                 env.reset()
+                episode_steps[0] = 0
         return len(actions)
 
     return call
@@ -121,6 +129,13 @@ def raw_rollout_call(env_id: str, n_envs: int):
 
 
 _KEEP_ALIVE: list = []  # rollout thread pools live until the benchmark ends
+
+
+def release() -> None:
+    """Close the rollout thread pools and gymnasium's worker processes made so far."""
+    for runner in _KEEP_ALIVE:
+        runner.close()
+    _KEEP_ALIVE.clear()
 
 
 _ENVS: dict = {}
@@ -235,9 +250,7 @@ def run(quick: bool = False) -> str:
                 f"{c_rate / single:.1f} | {result['compile']['mjx']:.0f} |"
             )
         lines.append("")
-    for runner in _KEEP_ALIVE:
-        runner.close()
-    _KEEP_ALIVE.clear()
+    release()
     lines.append(
         f"Load average (1 min): {load_start:.2f} at start, {os.getloadavg()[0]:.2f} at end."
     )
