@@ -1,0 +1,88 @@
+"""Plain TD3 and DDPG stay bit for bit what they were before the TD7/CrossQ/SimBa options existed.
+
+Every option of ``rl_jax.agents.td3`` is off by default, and with all of them off a short run must
+end with exactly the parameters and evaluation returns recorded at commit 0e5ccfd (before the
+options were added): 2 seeds vmapped in one program on ``rl_jax/Pendulum-v1``, 2 chunks of 200
+env steps each (100 random warm-up steps, then one update per env step).
+
+The fingerprint of a run is, per seed, the sum over a network's parameter leaves of each leaf's
+float32 sum, and the evaluation return after each chunk. XLA compiles for the CPU it runs on and
+the same program can round differently on another CPU model (DESIGN.md, "The machines vary"),
+so the values are kept per ``jax_setup.cpu_tag()``; on a CPU without a record the test skips
+and prints the values to add.
+"""
+
+import jax
+import numpy as np
+import pytest
+
+from rl_jax.agents.td3 import ddpg, td3
+from rl_jax.training import jax_setup, parallel, params
+
+GROUPS = ("actor", "critics", "target_actor", "target_critics")
+TINY = {
+    "num_envs": 2,
+    "learning_starts": 100,
+    "iterations_per_chunk": 100,
+    "batch_size": 32,
+    "buffer_size": 1000,
+    "actor_hidden": (16, 16),
+    "critic_hidden": (16, 16),
+}
+# cpu tag -> run name -> (eval returns [chunk][seed], {group: [sum of seed 0, sum of seed 1]})
+RECORDED = {
+    # AMD EPYC (AVX2), recorded at 0e5ccfd.
+    "f5c94f1c7303": {
+        "td3": (
+            [[-1553.412109375, -1470.27783203125], [-1474.2796630859375, -1596.7691650390625]],
+            {
+                "actor": [-4.640931472182274, 11.054214596748352],
+                "critics": [49.83023130893707, 35.87864822149277],
+                "target_actor": [-4.712959110736847, 5.541360467672348],
+                "target_critics": [27.1879942715168, 19.322303231805563],
+            },
+        ),
+        "ddpg_3_step": (
+            [[-1595.5263671875, -1507.7882080078125], [-1546.3040771484375, -1476.16259765625]],
+            {
+                "actor": [-5.155573718249798, 19.147892877459526],
+                "critics": [45.851603511720896, 14.97144003212452],
+                "target_actor": [-5.517106413841248, 11.38016191124916],
+                "target_critics": [30.79944349080324, 9.53616900742054],
+            },
+        ),
+    },
+}
+RUNS = {"td3": (td3, {}), "ddpg_3_step": (ddpg, {"n_step": 3})}
+
+
+def fingerprint(algorithm, **config_overrides):
+    """``(eval returns [chunk][seed], {group: [per-seed sums]})`` of the tiny 2-seed run."""
+    config = algorithm.default_config("rl_jax/Pendulum-v1", **{**TINY, **config_overrides})
+    hparams = params.stack([algorithm.default_hyperparams("rl_jax/Pendulum-v1")])
+    program = parallel.Program(algorithm, config, 1, 2, devices=jax.devices()[:1])
+    state = program.init(parallel.seed_keys([0, 1]), hparams)
+    returns = []
+    for _ in range(2):
+        state, metrics = program.train_chunk(state, hparams)
+        returns.append(np.asarray(program.gather(metrics).eval_return)[0].tolist())
+    agent = program.unpad(state, hparams).agent
+    sums = {
+        group: [
+            sum(float(np.sum(np.asarray(leaf)[0, seed])) for leaf in jax.tree.leaves(part))
+            for seed in range(2)
+        ]
+        for group, part in ((group, getattr(agent, group)) for group in GROUPS)
+    }
+    return returns, sums
+
+
+@pytest.mark.parametrize("name", list(RUNS))
+def test_options_off_is_bit_identical_to_plain_td3(name):
+    algorithm, overrides = RUNS[name]
+    got = fingerprint(algorithm, **overrides)
+    recorded = RECORDED.get(jax_setup.cpu_tag(), {}).get(name)
+    if recorded is None:
+        pytest.skip(f"no reference for CPU {jax_setup.cpu_tag()}; this one gives {got!r}")
+    assert got[0] == recorded[0]
+    assert got[1] == recorded[1]
