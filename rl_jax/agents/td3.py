@@ -48,6 +48,12 @@ class Config(OffPolicyConfig):
     # Rewards summed before bootstrapping: the critics learn from windows of n_step consecutive
     # steps of one env (cut at an episode's end), as DQN's n-step option. 1: the paper's TD3.
     n_step: int = 1
+    actor_activation: str = "relu"  # hidden nonlinearity of the actor: relu, tanh or elu
+    critic_activation: str = "relu"  # of the critics (TD7: elu)
+    # "layer": a LayerNorm between each hidden linear layer of the critics and its nonlinearity,
+    # which keeps Q-values bounded at high update rates (RLPD, BRO); "none": the paper's critics.
+    critic_norm: str = "none"
+    actor_norm: str = "none"  # the same for the actor: "none" or "layer"
 
     def __post_init__(self) -> None:
         super().__post_init__()
@@ -55,6 +61,12 @@ class Config(OffPolicyConfig):
             raise ValueError("num_critics, policy_delay and n_step must be >= 1")
         if self.network_init not in networks.INITS:
             raise ValueError(f"network_init must be one of {networks.INITS}")
+        for name in ("actor_activation", "critic_activation"):
+            if getattr(self, name) not in networks.ACTIVATIONS:
+                raise ValueError(f"{name} must be one of {tuple(networks.ACTIVATIONS)}")
+        for name in ("critic_norm", "actor_norm"):
+            if getattr(self, name) not in networks.NORMS:
+                raise ValueError(f"{name} must be one of {networks.NORMS}")
 
 
 @struct.dataclass
@@ -109,8 +121,22 @@ def build_networks(config: Config, action_space: Box) -> Networks:
     dtype = jnp.dtype(config.compute_dtype)
     low = tuple(float(x) for x in action_space.low)
     high = tuple(float(x) for x in action_space.high)
-    actor = networks.Actor(config.actor_hidden, low, high, config.network_init, dtype)
-    critic = networks.Critic(config.critic_hidden, config.network_init, dtype)
+    actor = networks.Actor(
+        config.actor_hidden,
+        low,
+        high,
+        config.network_init,
+        dtype,
+        config.actor_activation,
+        config.actor_norm,
+    )
+    critic = networks.Critic(
+        config.critic_hidden,
+        config.network_init,
+        dtype,
+        config.critic_activation,
+        config.critic_norm,
+    )
     return Networks(actor, critic, action_space.low.copy(), action_space.high.copy())
 
 

@@ -13,6 +13,10 @@ Initialisation, chosen on purpose:
   the published TD3/DDPG hyperparameters were tuned with it, so they carry over unchanged.
 * ``"orthogonal"``: orthogonal weights (gain sqrt(2) for ReLU layers, ``output_gain`` for the last
   layer) and zero biases, as on-policy recipes use; a setting for experiments.
+
+Normalisation inside the MLPs (``NORMS``), for critics that stay stable at high update rates:
+``"layer"`` puts a LayerNorm between each hidden linear layer and its nonlinearity (as RLPD and
+BRO place it: the nonlinearity sees normalised pre-activations; the output layer stays linear).
 """
 
 from __future__ import annotations
@@ -26,7 +30,9 @@ import jax.numpy as jnp
 
 INITS = ("fan_in_uniform", "orthogonal")
 #: hidden-layer nonlinearities, with the orthogonal gain that keeps activations' scale
-ACTIVATIONS = {"relu": (nn.relu, 2.0**0.5), "tanh": (nn.tanh, 5.0 / 3.0)}
+ACTIVATIONS = {"relu": (nn.relu, 2.0**0.5), "tanh": (nn.tanh, 5.0 / 3.0), "elu": (nn.elu, 2.0**0.5)}
+#: normalisation of an MLP's hidden layers (see the module docstring)
+NORMS = ("none", "layer")
 
 
 def _uniform(bound: float):
@@ -51,6 +57,11 @@ def dense(features: int, fan_in: int, initializer: str, gain: float, dtype: Any)
 def _float32(x: jax.Array) -> jax.Array:
     # Low-precision compute (bfloat16) still hands float32 to the losses.
     return x.astype(jnp.promote_types(x.dtype, jnp.float32))
+
+
+def _check_norm(norm: str) -> None:
+    if norm not in NORMS:
+        raise ValueError(f"unknown norm {norm!r}; choose one of {NORMS}")
 
 
 def _activation(name: str):
@@ -226,7 +237,7 @@ class ConvTorso(nn.Module):
 
 class MLP(nn.Module):
     """Hidden layers (ReLU by default), linear output. Parameters float32; ``dtype`` is the
-    compute dtype."""
+    compute dtype. ``norm="layer"``: dense -> LayerNorm -> nonlinearity in each hidden layer."""
 
     hidden: tuple[int, ...]
     outputs: int
@@ -234,14 +245,19 @@ class MLP(nn.Module):
     output_gain: float = 1.0
     dtype: Any = jnp.float32
     activation: str = "relu"
+    norm: str = "none"
 
     @nn.compact
     def __call__(self, x: jax.Array) -> jax.Array:
         # The layers sit directly in this module (not in a Torso): parameter names stay
-        # Dense_0 .. Dense_k, as saved checkpoints have them.
+        # Dense_0 .. Dense_k, as saved checkpoints have them (LayerNorms add LayerNorm_i).
+        _check_norm(self.norm)
         function, gain = _activation(self.activation)
         for width in self.hidden:
-            x = function(dense(width, x.shape[-1], self.initializer, gain, self.dtype)(x))
+            x = dense(width, x.shape[-1], self.initializer, gain, self.dtype)(x)
+            if self.norm == "layer":
+                x = nn.LayerNorm(dtype=self.dtype)(x)
+            x = function(x)
         x = dense(self.outputs, x.shape[-1], self.initializer, self.output_gain, self.dtype)(x)
         return _float32(x)
 
@@ -255,10 +271,15 @@ class Actor(nn.Module):
     action_high: tuple[float, ...]
     initializer: str = "fan_in_uniform"
     dtype: Any = jnp.float32
+    activation: str = "relu"
+    norm: str = "none"  # see MLP
 
     @nn.compact
     def __call__(self, obs: jax.Array) -> jax.Array:
-        raw = MLP(self.hidden, len(self.action_low), self.initializer, 0.01, self.dtype)(obs)
+        outputs = len(self.action_low)
+        raw = MLP(
+            self.hidden, outputs, self.initializer, 0.01, self.dtype, self.activation, self.norm
+        )(obs)
         # Bounds get explicit leading axes: no silent rank promotion against a batch.
         bounds_shape = (1,) * (raw.ndim - 1) + (len(self.action_low),)
         low = jnp.reshape(jnp.asarray(self.action_low, raw.dtype), bounds_shape)
@@ -274,11 +295,14 @@ class Critic(nn.Module):
     hidden: tuple[int, ...]
     initializer: str = "fan_in_uniform"
     dtype: Any = jnp.float32
+    activation: str = "relu"
+    norm: str = "none"  # see MLP
 
     @nn.compact
     def __call__(self, obs: jax.Array, action: jax.Array) -> jax.Array:
         x = jnp.concatenate([obs, action], axis=-1)
-        return MLP(self.hidden, 1, self.initializer, 1.0, self.dtype)(x)[..., 0]
+        mlp = MLP(self.hidden, 1, self.initializer, 1.0, self.dtype, self.activation, self.norm)
+        return mlp(x)[..., 0]
 
 
 class QNetwork(nn.Module):

@@ -79,3 +79,44 @@ def test_bfloat16_compute_keeps_float32_params_and_outputs():
     # bfloat16 keeps 8 mantissa bits: agreement to a few parts in a hundred.
     np.testing.assert_allclose(q_half, q_full, rtol=0.05, atol=0.02)
     assert isinstance(nn.Dense(1), nn.Module)
+
+
+def _layer_norm(x, eps=1e-6):
+    x = np.asarray(x, np.float64)
+    return (x - x.mean(-1, keepdims=True)) / np.sqrt(x.var(-1, keepdims=True) + eps)
+
+
+@pytest.mark.parametrize("activation", ["relu", "elu"])
+def test_layer_norm_sits_between_each_hidden_dense_and_its_nonlinearity(activation):
+    mlp = networks.MLP((8, 6), 2, activation=activation, norm="layer")
+    x = jax.random.normal(jax.random.key(0), (5, 3))
+    params = mlp.init(jax.random.key(1), x)
+    layers = params["params"]
+    assert sorted(layers) == ["Dense_0", "Dense_1", "Dense_2", "LayerNorm_0", "LayerNorm_1"]
+    # Non-trivial LayerNorm scale and bias, so that their place in the chain shows.
+    layers = jax.tree.map(lambda v: v + 0.1 * jnp.arange(v.size).reshape(v.shape), layers)
+    nonlinearity = {
+        "relu": lambda h: np.maximum(h, 0),
+        "elu": lambda h: np.where(h > 0, h, np.expm1(h)),
+    }
+    h = np.asarray(x, np.float64)
+    for index in range(2):
+        dense_params, norm = layers[f"Dense_{index}"], layers[f"LayerNorm_{index}"]
+        h = h @ np.asarray(dense_params["kernel"]) + np.asarray(dense_params["bias"])
+        h = _layer_norm(h) * np.asarray(norm["scale"]) + np.asarray(norm["bias"])
+        h = nonlinearity[activation](h)
+    out = h @ np.asarray(layers["Dense_2"]["kernel"]) + np.asarray(layers["Dense_2"]["bias"])
+    np.testing.assert_allclose(mlp.apply({"params": layers}, x), out, rtol=1e-5, atol=1e-5)
+
+
+def test_layer_norm_critic_and_actor_keep_the_plain_dense_parameters():
+    # The Dense layers keep their names and initial values: a LayerNorm adds parameters only.
+    obs, action = jnp.ones((4, 3)), jnp.zeros((4, 1))
+    plain = networks.Critic((16, 16)).init(jax.random.key(0), obs, action)
+    normed = networks.Critic((16, 16), norm="layer").init(jax.random.key(0), obs, action)
+    for name, layer in plain["params"]["MLP_0"].items():
+        jax.tree.map(np.testing.assert_array_equal, layer, normed["params"]["MLP_0"][name])
+    actor = networks.Actor((16,), (-1.0,), (1.0,), norm="layer")
+    assert "LayerNorm_0" in actor.init(jax.random.key(0), obs)["params"]["MLP_0"]
+    with pytest.raises(ValueError, match="unknown norm"):
+        networks.MLP((4,), 1, norm="group").init(jax.random.key(0), jnp.zeros(2))

@@ -1,0 +1,72 @@
+"""TD3's TD7/CrossQ/SimBa options end to end: each trains a few hundred steps under the seed vmap
+with finite results, alone and together (their maths is tested in test_td3_option_losses.py).
+
+Every run here is 2 seeds in one program on ``rl_jax/Pendulum-v1`` with tiny networks: 2 chunks
+of 200 env steps, updates from step 100. Compilation dominates each test.
+"""
+
+import jax
+import numpy as np
+import pytest
+
+from rl_jax.agents.td3 import td3
+from rl_jax.training import parallel, params
+
+TINY = {
+    "num_envs": 2,
+    "learning_starts": 100,
+    "iterations_per_chunk": 100,
+    "batch_size": 32,
+    "buffer_size": 1000,
+    "num_eval_envs": 2,
+    "actor_hidden": (16, 16),
+    "critic_hidden": (16, 16),
+}
+
+
+def train(chunks: int = 2, hparams: dict | None = None, **config_overrides):
+    """``(state [1, 2, ...] on the host, [chunk metrics [1, 2]])`` of a tiny 2-seed run."""
+    config = td3.default_config("rl_jax/Pendulum-v1", **{**TINY, **config_overrides})
+    stacked = params.stack([td3.default_hyperparams("rl_jax/Pendulum-v1", **(hparams or {}))])
+    program = parallel.Program(td3, config, 1, 2, devices=jax.devices()[:1])
+    state = program.init(parallel.seed_keys([0, 1]), stacked)
+    history = []
+    for _ in range(chunks):
+        state, metrics = program.train_chunk(state, stacked)
+        history.append(program.gather(metrics))
+    return program.unpad(state, stacked), history
+
+
+def assert_trained_and_finite(state, history):
+    """Updates ran, and every float of the state and of the metrics is finite."""
+    assert int(np.asarray(history[-1].updates).max()) > 0
+    for leaf in jax.tree.leaves(state.agent):
+        if np.issubdtype(np.asarray(leaf).dtype, np.floating):
+            assert np.all(np.isfinite(leaf))
+    for metrics in history:
+        assert np.all(np.isfinite(metrics.eval_return))
+        for name, value in metrics.extra.items():
+            assert not np.any(np.isinf(value)), name
+
+
+def test_layer_norm_critics_and_actor_train():
+    state, history = train(critic_norm="layer", actor_norm="layer", critic_activation="elu")
+    assert "LayerNorm_1" in state.agent.critics["params"]["MLP_0"]
+    assert "LayerNorm_0" in state.agent.actor["params"]["MLP_0"]
+    assert_trained_and_finite(state, history)
+
+
+@pytest.mark.parametrize(
+    "bad",
+    [{"critic_norm": "group"}, {"actor_norm": "weight"}, {"critic_activation": "gelu"}],
+)
+def test_unknown_option_values_are_refused(bad):
+    with pytest.raises(ValueError, match=next(iter(bad))):
+        td3.default_config("rl_jax/Pendulum-v1", **bad)
+
+
+def test_every_config_field_and_hyperparameter_has_help_text():
+    from rl_jax.run import field_docs
+
+    assert field_docs.undocumented_fields(td3.default_config("rl_jax/Pendulum-v1")) == []
+    assert field_docs.undocumented_fields(td3.default_hyperparams()) == []
