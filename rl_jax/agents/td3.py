@@ -39,8 +39,8 @@ from rl_jax.training.replay import ReplayBuffer, Transition
 class Config(OffPolicyConfig):
     """Static settings of TD3/DDPG (the loop's are in ``OffPolicyConfig``)."""
 
-    actor_hidden: tuple[int, ...] = (256, 256)
-    critic_hidden: tuple[int, ...] = (256, 256)
+    actor_hidden: tuple[int, ...] = (256, 256)  # hidden layer widths of the actor
+    critic_hidden: tuple[int, ...] = (256, 256)  # hidden layer widths of each critic
     num_critics: int = 2  # TD3 2 (min of twins in the target); DDPG 1
     policy_delay: int = 2  # critic updates per actor + target update; DDPG 1
     network_init: str = "fan_in_uniform"  # see rl_jax.training.networks
@@ -73,9 +73,9 @@ class Config(OffPolicyConfig):
 class Hyperparams(params.HyperparamsMethods):
     """What a sweep may vary without recompiling. Defaults: the TD3 paper's (code's) values."""
 
-    actor_lr: Any = 3e-4
-    critic_lr: Any = 3e-4
-    gamma: Any = 0.99
+    actor_lr: Any = 3e-4  # Adam step size of the actor
+    critic_lr: Any = 3e-4  # Adam step size of the critics
+    gamma: Any = 0.99  # discount
     tau: Any = 0.005  # Polyak step of the target networks
     exploration_noise: Any = 0.1  # std of the Gaussian added to actions, x half-range
     # Step-to-step correlation rho of that noise, n_t = rho n_{t-1} + sqrt(1 - rho^2) eps_t (an

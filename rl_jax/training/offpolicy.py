@@ -44,7 +44,7 @@ class OffPolicyConfig:
     num_envs: int = 1  # envs stepped together; each iteration adds num_envs transitions
     updates_per_iteration: int = 1  # gradient updates after each env step of all envs
     iterations_per_chunk: int = 5000  # per compiled call; eval after each (paper: every 5,000)
-    batch_size: int = 256
+    batch_size: int = 256  # transitions per gradient update
     buffer_size: int = 1_000_000  # transitions (rounded up to a multiple of num_envs)
     learning_starts: int = 25_000  # env steps (all envs) with random actions and no updates
     num_eval_envs: int = 10  # episodes of the deterministic policy per evaluation
