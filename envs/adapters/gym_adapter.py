@@ -46,6 +46,9 @@ _REWARD_THRESHOLDS = {
     "rl_jax/InvertedPendulum-v5": 950.0,
     "rl_jax/InvertedDoublePendulum-v5": 9100.0,
     "rl_jax/HalfCheetah-v5": 4800.0,
+    "rl_jax/Hopper-v5": 3800.0,
+    "rl_jax/Swimmer-v5": 360.0,
+    "rl_jax/Reacher-v5": -3.75,
 }
 _NO_LIMIT = np.iinfo(np.int32).max
 

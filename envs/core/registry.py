@@ -21,6 +21,10 @@ _ENTRY_POINTS: dict[str, str] = {
         "envs.mujoco.inverted_double_pendulum:InvertedDoublePendulum"
     ),
     "rl_jax/HalfCheetah-v5": "envs.mujoco.half_cheetah:HalfCheetah",
+    "rl_jax/Hopper-v5": "envs.mujoco.hopper:Hopper",
+    "rl_jax/Walker2d-v5": "envs.mujoco.walker2d:Walker2d",
+    "rl_jax/Swimmer-v5": "envs.mujoco.swimmer:Swimmer",
+    "rl_jax/Reacher-v5": "envs.mujoco.reacher:Reacher",
 }
 
 
@@ -36,6 +40,10 @@ _MAX_EPISODE_STEPS: dict[str, int] = {
     "rl_jax/InvertedPendulum-v5": 1000,
     "rl_jax/InvertedDoublePendulum-v5": 1000,
     "rl_jax/HalfCheetah-v5": 1000,
+    "rl_jax/Hopper-v5": 1000,
+    "rl_jax/Walker2d-v5": 1000,
+    "rl_jax/Swimmer-v5": 1000,
+    "rl_jax/Reacher-v5": 50,
 }
 
 
