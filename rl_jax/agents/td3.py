@@ -28,8 +28,17 @@ import optax
 from flax import struct
 
 from envs.core.spaces import Box
+from rl_jax.agents import td7_parts
 from rl_jax.agents.common import linearly_decayed, optimizer_step, polyak_update
-from rl_jax.training import episodes, networks, offpolicy, params, replay
+from rl_jax.training import (
+    episodes,
+    networks,
+    offpolicy,
+    params,
+    prioritized,
+    replay,
+    validation,
+)
 from rl_jax.training.algorithm import RecipeBook
 from rl_jax.training.offpolicy import OffPolicyConfig, TrainState
 from rl_jax.training.replay import ReplayBuffer, Transition
@@ -54,6 +63,10 @@ class Config(OffPolicyConfig):
     # which keeps Q-values bounded at high update rates (RLPD, BRO); "none": the paper's critics.
     critic_norm: str = "none"
     actor_norm: str = "none"  # the same for the actor: "none" or "layer"
+    # LAP (TD7): replay draws transitions with probability proportional to max(|TD error|, 1)^
+    # lap_alpha (the larger of the critics' errors), without importance weights, and the critics
+    # learn with LAP's Huber-like loss (quadratic below 1, linear above).
+    lap: bool = False
 
     def __post_init__(self) -> None:
         super().__post_init__()
@@ -87,6 +100,7 @@ class Hyperparams(params.HyperparamsMethods):
     target_noise_clip: Any = 0.5  # smoothing noise clipped to +-this, x half-range
     # Env steps (all envs) over which both learning rates fall linearly to 0 (0: constant).
     lr_decay_steps: Any = 0.0
+    lap_alpha: Any = 0.4  # lap: P(i) proportional to max(|TD error|, 1)^lap_alpha (TD7: 0.4)
 
 
 @struct.dataclass
@@ -104,6 +118,7 @@ class Networks(NamedTuple):
     critic: networks.Critic
     low: np.ndarray  # [action_dim] action bounds
     high: np.ndarray
+    config: Config  # the options the losses follow
 
     @property
     def half_range(self) -> np.ndarray:
@@ -137,7 +152,7 @@ def build_networks(config: Config, action_space: Box) -> Networks:
         config.critic_activation,
         config.critic_norm,
     )
-    return Networks(actor, critic, action_space.low.copy(), action_space.high.copy())
+    return Networks(actor, critic, action_space.low.copy(), action_space.high.copy(), config)
 
 
 @functools.lru_cache(maxsize=64)
@@ -210,6 +225,13 @@ class CriticBatch(NamedTuple):
         return cls(batch.obs, batch.action, r_t, discount_t, batch.next_obs)
 
 
+class CriticAux(NamedTuple):
+    """What a critic loss computes besides the loss."""
+
+    q_tm1: jax.Array  # [C, B] the online critics' values
+    td_tm1: jax.Array  # [C, B] their errors against the (stopped-gradient) target
+
+
 def critic_loss_fn(
     critic_params,
     target_actor_params,
@@ -220,14 +242,19 @@ def critic_loss_fn(
     nets: Networks,
 ):
     """Critic loss on a batch (a ``Transition`` is a one-step ``CriticBatch``); ``noise``
-    [B, action_dim] is standard normal. Returns ``(loss, q_tm1 [C, B])``. Target networks enter
-    only through the stopped-gradient target."""
+    [B, action_dim] is standard normal. Returns ``(loss, CriticAux)``: the mean squared TD error,
+    or with ``lap`` LAP's loss. Target networks enter only through the stopped-gradient target."""
     if isinstance(batch, Transition):
         batch = CriticBatch.one_step(batch, hparams.gamma)
     a_t = target_action(target_actor_params, batch.next_obs, noise, hparams, nets)
     q_t = networks.apply_stacked(nets.critic, target_critic_params, batch.next_obs, a_t)
     q_tm1 = networks.apply_stacked(nets.critic, critic_params, batch.obs, batch.action)
-    return critic_loss(q_tm1, batch.r_t, batch.discount_t, q_t), q_tm1
+    td_tm1 = q_tm1 - clipped_double_q_target(batch.r_t, batch.discount_t, q_t)[None, :]
+    if nets.config.lap:
+        loss = td7_parts.lap_loss(td_tm1)
+    else:
+        loss = critic_loss(q_tm1, batch.r_t, batch.discount_t, q_t)
+    return loss, CriticAux(q_tm1, td_tm1)
 
 
 def actor_loss_fn(actor_params, critic_params, obs: jax.Array, nets: Networks) -> jax.Array:
@@ -236,6 +263,37 @@ def actor_loss_fn(actor_params, critic_params, obs: jax.Array, nets: Networks) -
     return deterministic_policy_loss(
         nets.critic.apply(first_critic, obs, nets.actor.apply(actor_params, obs))
     )
+
+
+# ---- replay ------------------------------------------------------------------------------------
+def sample(buffer, key, config: Config, hparams: Hyperparams):
+    """``(CriticBatch, (rows, columns))``: a uniform batch, or with ``lap`` one drawn in
+    proportion to the priorities (LAP uses no importance weights)."""
+    if config.lap:
+        rows, columns, _ = prioritized.sample_indices(buffer, key, config.batch_size, 0.0)
+        storage = buffer.buffer
+    else:
+        rows, columns = replay.sample_indices(buffer, key, config.batch_size)
+        storage = buffer
+    if config.n_step == 1:
+        batch = CriticBatch.one_step(replay.gather(storage, rows, columns), hparams.gamma)
+    else:
+        window, stored = replay.gather_windows(storage, rows, columns, config.n_step)
+        batch = CriticBatch.n_step(replay.n_step_batch(window, stored, hparams.gamma))
+    return batch, (rows, columns)
+
+
+def init_buffer(example: Transition, config: Config):
+    if config.lap:
+        return prioritized.init(example, config.buffer_size, config.num_envs)
+    return offpolicy.uniform_buffer(example, config)
+
+
+def add_to_buffer(buffer, transitions: Transition, config: Config, hparams: Hyperparams):
+    """Store one row; with ``lap`` at the largest priority so far."""
+    if config.lap:
+        return prioritized.add(buffer, transitions, hparams.lap_alpha)
+    return replay.add(buffer, transitions)
 
 
 # ---- one update ---------------------------------------------------------------------------------
@@ -250,13 +308,14 @@ def _adam_step(grads, opt_state, params, learning_rate):
 def _critic_step(
     agent: Agent, batch: CriticBatch, key, hparams: Hyperparams, nets: Networks, decay
 ):
+    """``(agent, loss, CriticAux)`` after one critic step."""
     noise = jax.random.normal(key, batch.action.shape, jnp.float32)
-    (loss, q_tm1), grads = jax.value_and_grad(critic_loss_fn, has_aux=True)(
+    (loss, aux), grads = jax.value_and_grad(critic_loss_fn, has_aux=True)(
         agent.critics, agent.target_actor, agent.target_critics, batch, noise, hparams, nets
     )
     rate = decay(hparams.critic_lr)
     critics, critic_opt = _adam_step(grads, agent.critic_opt, agent.critics, rate)
-    return agent.replace(critics=critics, critic_opt=critic_opt), loss, jnp.mean(q_tm1)
+    return agent.replace(critics=critics, critic_opt=critic_opt), loss, aux
 
 
 def _actor_and_target_step(agent: Agent, obs, hparams: Hyperparams, nets: Networks, decay):
@@ -279,24 +338,21 @@ def update(
     hparams: Hyperparams,
     update_index: jax.Array,
 ):
-    """One critic update; every ``policy_delay``-th also an actor and target update."""
+    """One critic update (and, with ``lap``, new priorities for its batch); every
+    ``policy_delay``-th also an actor and target update."""
     nets = make_networks(config)
     sample_key, noise_key = jax.random.split(key)
-    if config.n_step == 1:
-        batch = CriticBatch.one_step(
-            replay.sample(buffer, sample_key, config.batch_size), hparams.gamma
-        )
-    else:
-        windows = replay.sample_n_step(
-            buffer, sample_key, config.batch_size, config.n_step, hparams.gamma
-        )
-        batch = CriticBatch.n_step(windows)
+    batch, (rows, columns) = sample(buffer, sample_key, config, hparams)
     env_steps = offpolicy.env_steps_at_update(update_index, config)
 
     def decay(rate):
         return linearly_decayed(rate, env_steps, hparams.lr_decay_steps)
 
-    agent, critic_loss_value, q = _critic_step(agent, batch, noise_key, hparams, nets, decay)
+    agent, critic_loss_value, aux = _critic_step(agent, batch, noise_key, hparams, nets, decay)
+    q = jnp.mean(aux.q_tm1)
+    if config.lap:
+        priorities = td7_parts.lap_priorities(aux.td_tm1)
+        buffer = prioritized.update_priorities(buffer, rows, columns, priorities, hparams.lap_alpha)
     delayed = (update_index + 1) % config.policy_delay == 0
     agent, actor_loss_value = jax.lax.cond(
         delayed,
@@ -349,6 +405,8 @@ LEARNER = offpolicy.Learner(
     act,
     update,
     ("critic_loss", "actor_loss", "q"),
+    init_buffer,
+    add_to_buffer,
 )
 
 
@@ -444,6 +502,7 @@ class TD3Family(RecipeBook):
 
     config_type, hparams_type = Config, Hyperparams
     recipes, hparam_recipes = RECIPES, HPARAM_RECIPES
+    ranges = {"lap_alpha": validation.UNIT}
 
     def __init__(
         self, name: str, config_overrides: dict[str, Any], hparam_overrides: dict[str, Any]

@@ -71,3 +71,13 @@ def test_every_config_field_and_hyperparameter_has_help_text():
     config = td3.default_config("rl_jax/Pendulum-v1")
     assert field_docs.undocumented_fields(config) == ["env_id"]  # not a flag: the script's env
     assert field_docs.undocumented_fields(td3.default_hyperparams()) == []
+
+
+def test_lap_trains_with_a_prioritized_buffer():
+    state, history = train(lap=True, hparams={"lap_alpha": 0.4})
+    tree = state.buffer
+    leaves = np.asarray(tree.sums)[..., tree.sums.shape[-1] // 2 :]
+    # Every stored transition has priority max(|td|, 1)^alpha >= 1 (400 of 1,000 slots filled).
+    assert np.all(np.sum(leaves >= 1.0 - 1e-6, axis=-1) == 400)
+    assert np.all(np.asarray(tree.max_priority) > 1.0)
+    assert_trained_and_finite(state, history)

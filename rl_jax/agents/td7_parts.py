@@ -1,0 +1,44 @@
+"""TD7's parts (Fujimoto et al. 2023, "For SALE: State-Action Learned Embeddings") as pure maths,
+for TD3's options (``rl_jax.agents.td3``): one code path, no separate TD7 agent.
+
+* LAP, loss-adjusted prioritized replay (Fujimoto, Meger and Precup 2020, "An Equivalence between
+  Loss Functions and Non-Uniform Sampling in Experience Replay"): transitions are drawn with
+  probability proportional to ``max(|td|, 1)^alpha`` (the sum tree of
+  ``rl_jax.training.prioritized``), without importance weights, and the critics learn with a
+  Huber-like loss whose quadratic part stops at the same threshold 1. Sampling by priority and
+  the loss's linear part together give an unbiased equivalent of the mean squared error on
+  uniform data; the floor of 1 keeps transitions with small errors from starving.
+
+Naming as rlax (and ``td3``): ``td_tm1`` is the TD error of the transition's start state,
+``[num_critics, B]``.
+"""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+
+#: LAP's floor on priorities, which is also where its loss turns from quadratic to linear.
+LAP_MIN_PRIORITY = 1.0
+
+
+def lap_huber(td_tm1: jax.Array, threshold: float = LAP_MIN_PRIORITY) -> jax.Array:
+    """Elementwise ``0.5 td^2`` where ``|td| < threshold``, else ``threshold |td|``.
+
+    The LAP paper's Huber loss, as TD7 computes it: the linear part is not shifted down by
+    ``threshold^2 / 2``, so the value jumps at the threshold while the gradient (``td`` inside,
+    ``threshold sign(td)`` outside) is the ordinary Huber gradient."""
+    magnitude = jnp.abs(td_tm1)
+    return jnp.where(magnitude < threshold, 0.5 * td_tm1**2, threshold * magnitude)
+
+
+def lap_loss(td_tm1: jax.Array) -> jax.Array:
+    """The critics' LAP loss: ``lap_huber`` summed over critics and averaged over the batch
+    (``td_tm1`` [num_critics, B]), as the mean squared error of plain TD3 is."""
+    return jnp.sum(jnp.mean(lap_huber(td_tm1), axis=-1))
+
+
+def lap_priorities(td_tm1: jax.Array) -> jax.Array:
+    """``[B]`` priorities ``max(max_i |td_i|, 1)``: the largest error over the critics, floored
+    at 1. The replay raises them to ``alpha`` (``prioritized.update_priorities``)."""
+    return jnp.maximum(jnp.max(jnp.abs(td_tm1), axis=0), LAP_MIN_PRIORITY)
