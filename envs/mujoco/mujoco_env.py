@@ -63,6 +63,9 @@ from envs.mujoco.mujoco_backend import (
 DIVERGED_KEY = "physics_diverged"
 GYMNASIUM_SOLVER = (100, 50)  # MuJoCo's defaults, which most of gymnasium's models keep
 FIDELITIES = ("parity", "gymnasium")
+# gymnasium constructor keywords that pick another model file, substep count or camera: an env
+# class fixes these (it is tested for parity with exactly them), so they are refused by name.
+FIXED_GYMNASIUM_KEYWORDS = ("xml_file", "frame_skip", "default_camera_config")
 
 
 def make_physics(
@@ -142,6 +145,13 @@ class MujocoEnv(Environment[MujocoState, Any]):
     ):
         if fidelity not in FIDELITIES:
             raise ValueError(f"unknown fidelity {fidelity!r}; choose from {FIDELITIES}")
+        for keyword in FIXED_GYMNASIUM_KEYWORDS:
+            if keyword in param_overrides:
+                raise TypeError(
+                    f"{type(self).__name__} does not take gymnasium's keyword {keyword!r}: the "
+                    f"model ({self.xml_file}), frame skip ({self.frame_skip}) and camera are "
+                    "fixed by the env class (subclass it to change them)"
+                )
         physics_backend = resolve_backend(backend)  # e.g. "mujoco_ffi"
         self.backend = engine(physics_backend)  # "mujoco" or "mjx"
         self.fidelity = fidelity
