@@ -1,10 +1,12 @@
 """Our MuJoCo envs against gymnasium's own MuJoCo envs, on every physics backend.
 
 From the same qpos/qvel/qacc_warmstart and action, one step of ours and one of gymnasium's
-(``*-v5``, its default solver settings) must give the same observation, reward and termination;
-for the two pendulums also over 50-step trajectories (open-loop random actions, and a balancing
-feedback policy); and the backends must agree: MJX with C to its tolerance, the two ways of
-calling MuJoCo C (``mujoco_ffi``, the XLA FFI op, and ``mujoco_callback``) bit for bit.
+(``*-v5``, its default solver settings) must give the same observation, reward and termination
+(on the C backends also every reward term gymnasium reports in ``info``, with gymnasium's default
+keywords and with non-default ones); for the two pendulums also over 50-step trajectories
+(open-loop random actions, and a balancing feedback policy); and the backends must agree: MJX
+with C to its tolerance, the two ways of calling MuJoCo C (``mujoco_ffi``, the XLA FFI op, and
+``mujoco_callback``) bit for bit.
 States: 200 drawn from random-policy rollouts of gymnasium's env (10,000 states with their solver
 warm starts, stepped past termination so fallen pendulums are included), the 24 of that pool where
 gymnasium's constraint solver needed the most iterations, and, for every limited joint, states at
@@ -18,8 +20,11 @@ Tolerances, and why:
   bit-identical to gymnasium's.
   Observations then differ from gymnasium's float64 ones only by our float32 output: <= 2 float32
   ulps. Rewards are evaluated in float32 from float32 quantities: a few float32 roundings of the
-  largest term, ``1e-6 * (1 + |r|)``. (Closed-loop trajectories feed each side's own float32
-  observation to the policy, so they get the float32 allowance of the next item on top.)
+  largest term, ``1e-6 * (1 + |r|)``; the same for each ``info`` term. Reacher's fingertip-target
+  vector is the difference of two body positions the backend hands over in float32: 2 float32
+  ulps of the positions' size, not of the difference (``POSITION_DIFFERENCES``). (Closed-loop
+  trajectories feed each side's own float32 observation to the policy, so they get the float32
+  allowance of the next item on top.)
 * ``mjx`` (float32) backend. Its error is float32 rounding propagated through ``frame_skip``
   substeps, whose size depends strongly on the state. We measure that conditioning per case with
   gymnasium itself: ``s`` is how much gymnasium's own float64 result changes when its state is
@@ -40,7 +45,11 @@ Tolerances, and why:
   at all: up to the first step where ``s`` exceeds ``PREDICTABLE`` (1e-5) — past it the double
   pendulum's chaos amplifies any rounding, float64 included — and most balanced trajectories must
   stay predictable for all 50 steps, so the check is not vacuous. Termination may differ only
-  where the terminating quantity is within the tolerance of its threshold.
+  where the terminating quantity is within the tolerance of its threshold. Two exceptions, each
+  measured and explained where it is defined: Reacher's floor is relative to the case's largest
+  observed value (``MJX_FLOOR_PER_CASE``: a fast elbow hitting its limit), and MJX is not
+  compared on the constructed hopper state whose leg crosses the torso, where the contact normal
+  is undefined and MJX picks another (``_has_contact_without_normal``).
 """
 
 from __future__ import annotations
@@ -58,8 +67,25 @@ from scipy import linalg
 import envs
 from envs.mujoco import mujoco_ffi_build
 
-ENV_IDS = ["InvertedPendulum-v5", "InvertedDoublePendulum-v5", "HalfCheetah-v5"]
+ENV_IDS = [
+    "InvertedPendulum-v5",
+    "InvertedDoublePendulum-v5",
+    "HalfCheetah-v5",
+    "Hopper-v5",
+    "Walker2d-v5",
+    "Swimmer-v5",
+    "Reacher-v5",
+]
 PENDULUMS = ENV_IDS[:2]
+WALKERS = ["Hopper-v5", "Walker2d-v5"]  # terminated by gymnasium's health ranges
+# Seconds to compile and run the 256-env MJX step of these envs on this 2-core CPU with a cold
+# compilation cache, measured while other jobs kept the load at 3-4 (30-50 s of CPU time each):
+# their MJX tests are marked slow.
+SLOW_MJX = {"Hopper-v5": 61, "Walker2d-v5": 106, "Swimmer-v5": 81, "Reacher-v5": 80}
+MJX_ENV_IDS = [
+    pytest.param(env_id, marks=pytest.mark.slow) if env_id in SLOW_MJX else env_id
+    for env_id in ENV_IDS
+]
 C_BACKENDS = ["mujoco_ffi", "mujoco_callback"]
 BATCH = 256  # every check of one env/backend runs through one compiled program of this size
 N_RANDOM = 200
@@ -89,11 +115,14 @@ def _set(env, vector: np.ndarray) -> None:
 
 def _gym_step(env, vector: np.ndarray, action: np.ndarray) -> dict:
     _set(env, vector)
-    return _gym_step_on(env, action)
+    before = _has_contact_without_normal(env)
+    step = _gym_step_on(env, action)
+    step["contact_without_normal"] |= before
+    return step
 
 
 def _gym_step_on(env, action: np.ndarray) -> dict:
-    obs, reward, terminated, _, _ = env.step(action)
+    obs, reward, terminated, _, info = env.step(action)
     data = env.data
     return {
         "obs": obs,
@@ -101,7 +130,27 @@ def _gym_step_on(env, action: np.ndarray) -> dict:
         "terminated": bool(terminated),
         "state": np.concatenate([data.qpos, data.qvel, data.qacc_warmstart]),
         "tip_height": float(data.site_xpos[0, 2]) if env.model.nsite else np.nan,
+        "info": {key: float(value) for key, value in info.items()},
+        "contact_without_normal": _has_contact_without_normal(env),
     }
+
+
+def _has_contact_without_normal(env) -> bool:
+    """Whether a contact of the current data has a normal that no joint can move along.
+
+    Two capsules whose axes cross have no defined contact normal. The hopper is planar: MuJoCo C
+    picks one out of its plane, where the contact exerts no force, and MJX one in the plane, where
+    it pushes. Only the constructed joint-limit states reach this (a leg forced through the torso;
+    none of 10,000 random-policy states), so MJX is not compared on such cases.
+    """
+    model, data = env.model, env.data
+    body_jacobians = [np.zeros((3, model.nv)), np.zeros((3, model.nv))]
+    for contact in data.contact[: data.ncon]:
+        for jacobian, geom in zip(body_jacobians, (contact.geom1, contact.geom2), strict=True):
+            mujoco.mj_jac(model, data, jacobian, None, contact.pos, model.geom_bodyid[geom])
+        if not np.any(contact.frame[:3] @ (body_jacobians[1] - body_jacobians[0])):
+            return True
+    return False
 
 
 def _step_counting_solver_iterations(env, action: np.ndarray) -> int:
@@ -170,20 +219,21 @@ def one_step_cases(env_id: str) -> dict:
     reference = [_gym_step(env, s, a) for s, a in pairs]
     # What float32 storage of the start state alone costs, in exact float64 physics.
     rounded = [_gym_step(env, s.astype(np.float32).astype(np.float64), a) for s, a in pairs]
-    stack = lambda key: np.stack([r[key] for r in reference])
     return {
         "n": len(states),
         "start": np.stack(states),
         "actions": np.stack(actions),
         "hardest_effort": effort[hardest_rows],
-        "obs": stack("obs"),
-        "reward": stack("reward"),
-        "terminated": stack("terminated"),
-        "state": stack("state"),
-        "tip_height": stack("tip_height"),
+        **_stack_steps(reference),
         "obs_sensitivity": _sensitivity(reference, rounded, "obs"),
         "reward_sensitivity": _sensitivity(reference, rounded, "reward"),
     }
+
+
+def _stack_steps(steps: list[dict]) -> dict:
+    stacked = {key: np.stack([s[key] for s in steps]) for key in steps[0] if key != "info"}
+    info = {key: np.array([s["info"][key] for s in steps]) for key in steps[0]["info"]}
+    return {**stacked, "info": info}
 
 
 def _balancing_gain(env) -> np.ndarray:
@@ -309,6 +359,10 @@ def _pad(x: np.ndarray) -> np.ndarray:
 
 def _start_batch(env_id: str, backend: str, vectors: np.ndarray):
     env, start, _ = engine(env_id, backend)
+    return _start_on(env, start, vectors)
+
+
+def _start_on(env, start, vectors: np.ndarray):
     nq, nv = env.physics.nq, env.physics.nv
     vectors = _pad(vectors)
     physics = env.physics.from_qpos_qvel(
@@ -319,9 +373,12 @@ def _start_batch(env_id: str, backend: str, vectors: np.ndarray):
 
 @functools.cache
 def one_step_outputs(env_id: str, backend: str) -> dict:
-    env, _, step = engine(env_id, backend)
-    cases = one_step_cases(env_id)
-    state, _ = _start_batch(env_id, backend, cases["start"])
+    return _one_step_on(*engine(env_id, backend), one_step_cases(env_id))
+
+
+def _one_step_on(env, start, step, cases: dict) -> dict:
+    """One step of ours from each case's start state: outputs, reward terms and next state."""
+    state, _ = _start_on(env, start, cases["start"])
     keys = jax.random.split(jax.random.PRNGKey(0), BATCH)
     next_state, ts = step(keys, state, jnp.asarray(_pad(cases["actions"])))
     n = cases["n"]
@@ -330,6 +387,7 @@ def one_step_outputs(env_id: str, backend: str) -> dict:
         "reward": np.asarray(ts.reward)[:n],
         "terminated": np.asarray(ts.terminated)[:n],
         "diverged": np.asarray(ts.info["physics_diverged"])[:n],
+        "info": {key: np.asarray(value)[:n] for key, value in ts.info.items()},
     }
     qpos, qvel, warm = env.physics.to_numpy(jax.device_get(next_state.physics))
     out["state"] = np.concatenate([qpos, qvel, warm], axis=-1)[:n]
@@ -364,6 +422,45 @@ def _float32_ulps(reference: np.ndarray, ulps: float) -> np.ndarray:
     return ulps * np.spacing(np.abs(np.asarray(reference, np.float32)))
 
 
+# Observation entries that are differences of two body positions, which the C backend hands to the
+# env in float32: exact to 2 float32 ulps of the positions' size, not of the (smaller) difference.
+# Reacher: fingertip - target; every coordinate of either is below 0.3 (the arm reaches 0.21, the
+# target's slides end at 0.27).
+POSITION_DIFFERENCES = {"Reacher-v5": (slice(8, 10), 0.3)}
+
+
+def _c_obs_allowed(env_id: str, reference: np.ndarray) -> np.ndarray:
+    allowed = _float32_ulps(reference, 2)
+    if env_id in POSITION_DIFFERENCES:
+        columns, size = POSITION_DIFFERENCES[env_id]
+        allowed[..., columns] += 2 * np.spacing(np.float32(size))
+    return allowed
+
+
+# Envs whose MJX floor is relative to the case's largest observed value instead of each value's
+# own. Reacher: when the elbow hits its limit at up to ~30 rad/s, the constraint impulse moves
+# momentum into the shoulder, whose velocity then carries float32 error of the impulse's size
+# (worst measured: 9.8e-4 on a shoulder velocity of 0.69 after a 29 rad/s impact, 1.5x the
+# per-value floor; MJX run in float64 reproduces gymnasium there to 1e-8).
+MJX_FLOOR_PER_CASE = {"Reacher-v5"}
+
+
+def _mjx_obs_allowed(env_id: str, cases: dict, obs: np.ndarray) -> np.ndarray:
+    """MJX's allowance on the observations ``obs`` of one-step ``cases`` (see the module
+    docstring), NaN (not compared) on the cases with a contact without a normal."""
+    allowed = _allowed("mjx", obs, cases["obs_sensitivity"])
+    if env_id in MJX_FLOOR_PER_CASE:
+        case_size = np.max(np.abs(obs), axis=-1, keepdims=True)
+        allowed = np.maximum(allowed, MJX_FLOOR * (1.0 + case_size))
+    return _hide_contacts_without_normal(cases, allowed)
+
+
+def _hide_contacts_without_normal(cases: dict, allowed: np.ndarray) -> np.ndarray:
+    hidden = cases["contact_without_normal"]
+    assert hidden.mean() < 0.02  # a few constructed states, not a way around the comparison
+    return np.where(_per_case(hidden, allowed), np.nan, allowed)
+
+
 def _allowed(backend: str, reference: np.ndarray, sensitivity: np.ndarray) -> np.ndarray:
     rounding = SENSITIVITY_FACTOR * _per_case(sensitivity, reference)
     if backend in C_BACKENDS:
@@ -380,8 +477,8 @@ def _assert_close(label: str, ours, reference, allowed) -> None:
     )
 
 
-def _assert_typically_close(label: str, ours, reference) -> None:
-    relative = np.abs(ours - reference) / (1.0 + np.abs(reference))
+def _assert_typically_close(label: str, ours, reference, compared: np.ndarray) -> None:
+    relative = np.abs(ours - reference)[compared] / (1.0 + np.abs(reference[compared]))
     per_case = relative.reshape(-1, relative.shape[-1]).max(axis=-1)
     assert np.median(per_case) <= MJX_MEDIAN, f"{label}: median error {np.median(per_case):.3g}"
 
@@ -392,7 +489,25 @@ def _borderline(env_id: str, cases: dict, allowed_obs: np.ndarray) -> np.ndarray
         return np.abs(np.abs(cases["obs"][..., 1]) - 0.2) <= allowed_obs[..., 1]
     if env_id == "InvertedDoublePendulum-v5":
         return np.abs(cases["tip_height"] - 1.0) <= np.max(allowed_obs, axis=-1)
+    if env_id in WALKERS:
+        return _near_health_bounds(_gym_env(env_id), cases["state"], np.max(allowed_obs, axis=-1))
     return np.zeros(cases["terminated"].shape, bool)
+
+
+def _near_health_bounds(env, state: np.ndarray, tolerance: np.ndarray) -> np.ndarray:
+    """Hopper/walker states whose height, angle or (hopper) any other state component is within
+    ``tolerance`` (relative to the bound's size) of gymnasium's health range."""
+    nq, nv = env.model.nq, env.model.nv
+
+    def near(values: np.ndarray, bounds: tuple[float, float]) -> np.ndarray:
+        finite = [b for b in bounds if np.isfinite(b)]
+        scale = _per_case(tolerance, values)
+        return np.any([np.abs(values - b) <= scale * (1 + abs(b)) for b in finite], axis=0)
+
+    border = near(state[:, 1], env._healthy_z_range) | near(state[:, 2], env._healthy_angle_range)
+    if hasattr(env, "_healthy_state_range"):
+        border |= near(state[:, 2 : nq + nv], env._healthy_state_range).any(axis=-1)
+    return border
 
 
 def _assert_same_episode_ends(env_id, ours, cases, allowed_obs) -> None:
@@ -425,33 +540,103 @@ def test_c_backend_state_is_bit_identical_to_gymnasium(env_id, backend):
 @pytest.mark.parametrize("env_id", ENV_IDS)
 def test_c_backend_one_step_matches_gymnasium(env_id, backend):
     cases, ours = one_step_cases(env_id), one_step_outputs(env_id, backend)
-    _assert_close("obs", ours["obs"], cases["obs"], _float32_ulps(cases["obs"], 2))
+    _assert_c_step_matches(env_id, ours, cases)
+
+
+def _assert_c_step_matches(env_id: str, ours: dict, cases: dict) -> None:
+    """Exact physics; float32 outputs; every reward term gymnasium reports in ``info``."""
+    np.testing.assert_array_equal(ours["state"], cases["state"])
+    _assert_close("obs", ours["obs"], cases["obs"], _c_obs_allowed(env_id, cases["obs"]))
     reward_allowed = C_REWARD_RTOL * (1.0 + np.abs(cases["reward"]))
     _assert_close("reward", ours["reward"], cases["reward"], reward_allowed)
     np.testing.assert_array_equal(ours["terminated"], cases["terminated"])
     assert not ours["diverged"].any()
+    assert set(cases["info"]) <= set(ours["info"]), set(cases["info"]) - set(ours["info"])
+    for key, reference in cases["info"].items():
+        allowed = C_REWARD_RTOL * (1.0 + np.abs(reference))
+        _assert_close(f"info[{key!r}]", ours["info"][key], reference, allowed)
 
 
-@pytest.mark.parametrize("env_id", ENV_IDS)
+# Non-default gymnasium keywords: structural ones (constructor arguments) and numeric ones (params),
+# ranges given as gymnasium's (low, high) tuples.
+KEYWORD_CASES = {
+    "Hopper-no-termination": (
+        "Hopper-v5",
+        {
+            "terminate_when_unhealthy": False,
+            "healthy_z_range": (1.0, 1.35),
+            "healthy_angle_range": (-0.1, 0.3),
+            "healthy_state_range": (-20.0, 20.0),
+            "healthy_reward": 2.0,
+            "ctrl_cost_weight": 0.01,
+            "forward_reward_weight": 0.5,
+        },
+    ),
+    "Hopper-ranges": (
+        "Hopper-v5",
+        {"healthy_z_range": (1.0, 1.35), "exclude_current_positions_from_observation": False},
+    ),
+    "Walker2d": (
+        "Walker2d-v5",
+        {
+            "exclude_current_positions_from_observation": False,
+            "healthy_z_range": (1.0, 1.5),
+            "healthy_angle_range": (-0.5, 0.5),
+            "forward_reward_weight": 2.0,
+        },
+    ),
+    "Swimmer": (
+        "Swimmer-v5",
+        {
+            "exclude_current_positions_from_observation": False,
+            "forward_reward_weight": 3.0,
+            "ctrl_cost_weight": 0.01,
+        },
+    ),
+    "Reacher": ("Reacher-v5", {"reward_dist_weight": 2.5, "reward_control_weight": 0.3}),
+}
+
+
+@pytest.mark.parametrize("case", KEYWORD_CASES)
+def test_c_backend_with_gymnasium_keywords_matches_gymnasium(case):
+    env_id, keywords = KEYWORD_CASES[case]
+    gym_env = gymnasium.make(env_id, **keywords).unwrapped
+    gym_env.reset(seed=0)
+    cases = dict(one_step_cases(env_id))
+    pairs = zip(cases["start"], cases["actions"], strict=True)
+    cases.update(_stack_steps([_gym_step(gym_env, s, a) for s, a in pairs]))
+    ours = envs.make("rl_jax/" + env_id, backend="mujoco", **keywords)
+    start, step = jax.jit(jax.vmap(ours.start_from_physics)), jax.jit(jax.vmap(ours.step))
+    _assert_c_step_matches(env_id, _one_step_on(ours, start, step, cases), cases)
+    if env_id == "Hopper-v5":  # the changed health ranges decide some of these cases
+        healthy = cases["info"]["reward_survive"] > 0
+        assert healthy.any() and not healthy.all()
+        terminates = keywords.get("terminate_when_unhealthy", True)
+        np.testing.assert_array_equal(cases["terminated"], ~healthy & terminates)
+
+
+@pytest.mark.parametrize("env_id", MJX_ENV_IDS)
 def test_mjx_backend_one_step_matches_gymnasium(env_id):
     cases, ours = one_step_cases(env_id), one_step_outputs(env_id, "mjx")
-    allowed_obs = _allowed("mjx", cases["obs"], cases["obs_sensitivity"])
+    allowed_obs = _mjx_obs_allowed(env_id, cases, cases["obs"])
     _assert_close("obs", ours["obs"], cases["obs"], allowed_obs)
-    _assert_typically_close("obs", ours["obs"], cases["obs"])
+    _assert_typically_close("obs", ours["obs"], cases["obs"], ~cases["contact_without_normal"])
     allowed = _allowed("mjx", cases["reward"], cases["reward_sensitivity"])
+    allowed = _hide_contacts_without_normal(cases, allowed)
     _assert_close("reward", ours["reward"], cases["reward"], allowed)
-    _assert_same_episode_ends(env_id, ours, cases, allowed_obs)
+    _assert_same_episode_ends(env_id, ours, cases, np.nan_to_num(allowed_obs, nan=np.inf))
     assert not ours["diverged"].any()
 
 
-@pytest.mark.parametrize("env_id", ENV_IDS)
+@pytest.mark.parametrize("env_id", MJX_ENV_IDS)
 def test_backends_agree(env_id):
     """MJX against our C backend directly (which equals gymnasium to float32 output rounding)."""
     cases = one_step_cases(env_id)
     c, mjx = one_step_outputs(env_id, "mujoco_callback"), one_step_outputs(env_id, "mjx")
-    allowed = _allowed("mjx", c["obs"], cases["obs_sensitivity"]) + _float32_ulps(c["obs"], 2)
+    allowed = _mjx_obs_allowed(env_id, cases, c["obs"]) + _c_obs_allowed(env_id, c["obs"])
     _assert_close("obs", mjx["obs"], c["obs"], allowed)
     allowed = _allowed("mjx", c["reward"], cases["reward_sensitivity"])
+    allowed = _hide_contacts_without_normal(cases, allowed)
     _assert_close("reward", mjx["reward"], c["reward"], allowed + C_REWARD_RTOL)
 
 
@@ -494,7 +679,11 @@ def test_ffi_and_callback_backends_are_bit_identical(env_id):
         one_step_outputs(env_id, "mujoco_callback"),
     )
     for key in callback:
-        np.testing.assert_array_equal(ffi[key], callback[key], err_msg=key)
+        if key == "info":
+            for name in callback["info"]:
+                np.testing.assert_array_equal(ffi[key][name], callback[key][name], err_msg=name)
+        else:
+            np.testing.assert_array_equal(ffi[key], callback[key], err_msg=key)
     if env_id in PENDULUMS:
         ffi, callback = (trajectory_outputs(env_id, b) for b in C_BACKENDS)
         for key in callback:
