@@ -24,6 +24,10 @@ MUJOCO_IDS = [
     "rl_jax/InvertedPendulum-v5",
     "rl_jax/InvertedDoublePendulum-v5",
     "rl_jax/HalfCheetah-v5",
+    "rl_jax/Hopper-v5",
+    "rl_jax/Walker2d-v5",
+    "rl_jax/Swimmer-v5",
+    "rl_jax/Reacher-v5",
 ]
 ALL_IDS = CLASSIC_IDS + MUJOCO_IDS
 # The gymnasium env each of our ids mirrors (the rocket is our own spec).

@@ -10,7 +10,15 @@ from gymnasium.utils.env_checker import check_env
 
 import envs  # noqa: F401  (registers the rl_jax ids with gymnasium)
 
-ENV_IDS = ["InvertedPendulum-v5", "InvertedDoublePendulum-v5", "HalfCheetah-v5"]
+ENV_IDS = [
+    "InvertedPendulum-v5",
+    "InvertedDoublePendulum-v5",
+    "HalfCheetah-v5",
+    "Hopper-v5",
+    "Walker2d-v5",
+    "Swimmer-v5",
+    "Reacher-v5",
+]
 
 
 @pytest.mark.parametrize("env_id", ENV_IDS)
