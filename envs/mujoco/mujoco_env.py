@@ -1,8 +1,9 @@
-"""Shared base of the MuJoCo envs (inverted pendulum, inverted double pendulum, half cheetah).
+"""Shared base of the MuJoCo envs (one file each in ``envs/mujoco``).
 
 Each env reproduces one gymnasium 1.4.0 ``*-v5`` env — same MJCF file (loaded from the installed
 gymnasium package), frame skip, observation layout, reward terms, termination rule, reset noise and
-1,000-step limit — on either physics backend of ``envs.mujoco.mujoco_backend``::
+episode limit (1,000 steps; Reacher 50) — on either physics backend of
+``envs.mujoco.mujoco_backend``::
 
     env = envs.make("rl_jax/HalfCheetah-v5")                  # default backend for the platform
     env = envs.make("rl_jax/HalfCheetah-v5", backend="mjx")   # pure JAX
@@ -12,7 +13,9 @@ The backend defaults to ``$RL_JAX_MUJOCO_BACKEND``, else MuJoCo C ("mujoco") on 
 GPU/TPU; "mujoco_callback" forces MuJoCo C through ``jax.pure_callback`` instead of the FFI op
 (see ``envs.mujoco.mujoco_backend``). Keyword arguments named like gymnasium's constructor arguments
 (``reset_noise_scale``, ``ctrl_cost_weight``, ...) set the default params; the params pytree can
-also be passed to ``reset``/``step`` and vmapped.
+also be passed to ``reset``/``step`` and vmapped. Structural ones
+(``exclude_current_positions_from_observation``, ``terminate_when_unhealthy``) are constructor
+arguments; gymnasium's ``xml_file``, ``frame_skip`` and ``default_camera_config`` are refused.
 
 Solver fidelity (``fidelity=``). ``"gymnasium"``: gymnasium's constraint-solver limits, the
 model's own (100 iterations, 50 line-search iterations unless its XML sets others).
