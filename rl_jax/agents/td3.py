@@ -30,7 +30,11 @@ from rl_jax.agents.common import linearly_decayed, optimizer_step, polyak_update
 from rl_jax.agents.td3_networks import (  # noqa: F401  (build_networks re-exported)
     Networks,
     build_networks,
+    critic_values,
+    embed_state,
+    first_critic_value,
     make_networks,
+    policy_action,
     row,
 )
 from rl_jax.agents.td3_recipes import (  # noqa: F401  (re-exported: scripts read them here)
@@ -77,6 +81,13 @@ class Config(OffPolicyConfig):
     # lap_alpha (the larger of the critics' errors), without importance weights, and the critics
     # learn with LAP's Huber-like loss (quadratic below 1, linear above).
     lap: bool = False
+    # SALE (TD7): an encoder learns embeddings z_s = f(s) and z_sa = g(z_s, a), g(f(s), a)
+    # predicting f(s'); the actor reads [AvgL1Norm(linear(s)), z_s], the critics
+    # [AvgL1Norm(linear(s, a)), z_sa, z_s], from a fixed copy of the encoder that is renewed with
+    # the target networks (the targets read the copy before it). Needs n_step 1.
+    sale: bool = False
+    embedding_dim: int = 256  # sale: size of z_s and z_sa (TD7: 256)
+    embedding_hidden: tuple[int, ...] = (256, 256)  # sale: hidden widths of f and of g
 
     def __post_init__(self) -> None:
         super().__post_init__()
@@ -90,6 +101,13 @@ class Config(OffPolicyConfig):
         for name in ("critic_norm", "actor_norm"):
             if getattr(self, name) not in networks.NORMS:
                 raise ValueError(f"{name} must be one of {networks.NORMS}")
+        if self.sale and self.n_step != 1:
+            raise ValueError("sale needs n_step 1: its encoder learns one-step dynamics")
+
+    @property
+    def keeps_option_state(self) -> bool:
+        """Whether an option keeps state beside the networks (an ``AgentWithOptions``)."""
+        return self.sale
 
 
 @struct.dataclass
@@ -111,6 +129,7 @@ class Hyperparams(params.HyperparamsMethods):
     # Env steps (all envs) over which both learning rates fall linearly to 0 (0: constant).
     lr_decay_steps: Any = 0.0
     lap_alpha: Any = 0.4  # lap: P(i) proportional to max(|TD error|, 1)^lap_alpha (TD7: 0.4)
+    encoder_lr: Any = 3e-4  # sale: Adam step size of the encoder
 
 
 @struct.dataclass
@@ -121,6 +140,31 @@ class Agent:
     target_critics: Any
     actor_opt: Any  # optax inject_hyperparams(adam) state: holds the learning rate
     critic_opt: Any
+
+
+@struct.dataclass
+class Encoders:
+    """SALE's encoder (``networks.StateActionEncoder`` parameters) and its fixed copies."""
+
+    online: Any  # learns every update
+    fixed: Any  # what the actor and critics read: the online one at the last target update
+    fixed_target: Any  # what the targets read: the fixed one before that
+    opt: Any  # Adam state of ``online``
+
+
+@struct.dataclass
+class AgentWithOptions(Agent):
+    """The agent when an option keeps state (``Config.keeps_option_state``); None where an
+    option is off. Plain TD3 keeps ``Agent``, so its train state and checkpoints stay as they
+    were."""
+
+    encoders: Any = None  # sale: Encoders
+
+
+def fixed_encoders(agent: Agent) -> tuple[Any, Any]:
+    """``(fixed, fixed_target)`` SALE encoder parameters, ``(None, None)`` without SALE."""
+    encoders = getattr(agent, "encoders", None)
+    return (None, None) if encoders is None else (encoders.fixed, encoders.fixed_target)
 
 
 # ---- loss maths (pure; rlax naming: tm1 = the transition's start, t = its end) -----------------
@@ -147,10 +191,13 @@ def deterministic_policy_loss(q_tm1) -> jax.Array:
 
 
 # ---- losses on networks ----------------------------------------------------------------------
-def target_action(target_actor_params, next_obs, noise, hparams: Hyperparams, nets: Networks):
+def target_action(
+    target_actor_params, next_obs, noise, hparams: Hyperparams, nets: Networks, encoder=None
+):
     """The target actor's action plus smoothing noise ``target_noise * noise`` clipped to
-    ``+-target_noise_clip`` (both x the action half-range); ``noise`` is standard normal."""
-    a_t = nets.actor.apply(target_actor_params, next_obs)
+    ``+-target_noise_clip`` (both x the action half-range); ``noise`` is standard normal.
+    ``encoder``: SALE's fixed target encoder."""
+    a_t = policy_action(nets, target_actor_params, next_obs, encoder)
     scale = row(nets.half_range, a_t)
     return smoothed_target_action(
         a_t,
@@ -197,15 +244,18 @@ def critic_loss_fn(
     noise: jax.Array,
     hparams: Hyperparams,
     nets: Networks,
+    encoders: tuple[Any, Any] = (None, None),
 ):
     """Critic loss on a batch (a ``Transition`` is a one-step ``CriticBatch``); ``noise``
-    [B, action_dim] is standard normal. Returns ``(loss, CriticAux)``: the mean squared TD error,
-    or with ``lap`` LAP's loss. Target networks enter only through the stopped-gradient target."""
+    [B, action_dim] is standard normal; ``encoders``: SALE's ``(fixed, fixed_target)``. Returns
+    ``(loss, CriticAux)``: the mean squared TD error, or with ``lap`` LAP's loss. Target networks
+    (and encoders) enter only through the stopped-gradient target."""
     if isinstance(batch, Transition):
         batch = CriticBatch.one_step(batch, hparams.gamma)
-    a_t = target_action(target_actor_params, batch.next_obs, noise, hparams, nets)
-    q_t = networks.apply_stacked(nets.critic, target_critic_params, batch.next_obs, a_t)
-    q_tm1 = networks.apply_stacked(nets.critic, critic_params, batch.obs, batch.action)
+    fixed, fixed_target = encoders
+    a_t = target_action(target_actor_params, batch.next_obs, noise, hparams, nets, fixed_target)
+    q_t = critic_values(nets, target_critic_params, batch.next_obs, a_t, fixed_target)
+    q_tm1 = critic_values(nets, critic_params, batch.obs, batch.action, fixed)
     td_tm1 = q_tm1 - clipped_double_q_target(batch.r_t, batch.discount_t, q_t)[None, :]
     if nets.config.lap:
         loss = td7_parts.lap_loss(td_tm1)
@@ -214,12 +264,20 @@ def critic_loss_fn(
     return loss, CriticAux(q_tm1, td_tm1)
 
 
-def actor_loss_fn(actor_params, critic_params, obs: jax.Array, nets: Networks) -> jax.Array:
-    """Deterministic policy gradient through the *first* critic only (as TD3 prescribes)."""
-    first_critic = jax.tree.map(lambda x: x[0], critic_params)
-    return deterministic_policy_loss(
-        nets.critic.apply(first_critic, obs, nets.actor.apply(actor_params, obs))
-    )
+def actor_loss_fn(
+    actor_params, critic_params, obs: jax.Array, nets: Networks, encoder=None
+) -> jax.Array:
+    """Deterministic policy gradient through the *first* critic only (as TD3 prescribes);
+    ``encoder``: SALE's fixed encoder, which the gradient passes through but never changes."""
+    action = policy_action(nets, actor_params, obs, encoder)
+    return deterministic_policy_loss(first_critic_value(nets, critic_params, obs, action, encoder))
+
+
+def encoder_loss_fn(encoder_params, batch: CriticBatch, nets: Networks) -> jax.Array:
+    """SALE's loss: ``g(f(s), a)`` against ``f(s')`` of the same (online) encoder, stopped."""
+    zs_t = nets.encoder.apply(encoder_params, batch.next_obs, method="embed_state")
+    zsa_tm1 = nets.encoder.apply(encoder_params, batch.obs, batch.action)[1]
+    return td7_parts.sale_loss(zsa_tm1, zs_t)
 
 
 # ---- replay ------------------------------------------------------------------------------------
@@ -268,7 +326,14 @@ def _critic_step(
     """``(agent, loss, CriticAux)`` after one critic step."""
     noise = jax.random.normal(key, batch.action.shape, jnp.float32)
     (loss, aux), grads = jax.value_and_grad(critic_loss_fn, has_aux=True)(
-        agent.critics, agent.target_actor, agent.target_critics, batch, noise, hparams, nets
+        agent.critics,
+        agent.target_actor,
+        agent.target_critics,
+        batch,
+        noise,
+        hparams,
+        nets,
+        fixed_encoders(agent),
     )
     rate = decay(hparams.critic_lr)
     critics, critic_opt = _adam_step(grads, agent.critic_opt, agent.critics, rate)
@@ -276,7 +341,9 @@ def _critic_step(
 
 
 def _actor_and_target_step(agent: Agent, obs, hparams: Hyperparams, nets: Networks, decay):
-    loss, grads = jax.value_and_grad(actor_loss_fn)(agent.actor, agent.critics, obs, nets)
+    loss, grads = jax.value_and_grad(actor_loss_fn)(
+        agent.actor, agent.critics, obs, nets, fixed_encoders(agent)[0]
+    )
     actor, actor_opt = _adam_step(grads, agent.actor_opt, agent.actor, decay(hparams.actor_lr))
     agent = agent.replace(
         actor=actor,
@@ -284,7 +351,24 @@ def _actor_and_target_step(agent: Agent, obs, hparams: Hyperparams, nets: Networ
         target_actor=polyak_update(agent.target_actor, actor, hparams.tau),
         target_critics=polyak_update(agent.target_critics, agent.critics, hparams.tau),
     )
+    if nets.config.sale:  # the fixed copies follow at the targets' pace
+        encoders = agent.encoders
+        agent = agent.replace(
+            encoders=encoders.replace(
+                fixed=polyak_update(encoders.fixed, encoders.online, hparams.tau),
+                fixed_target=polyak_update(encoders.fixed_target, encoders.fixed, hparams.tau),
+            )
+        )
     return agent, loss
+
+
+def _encoder_step(agent: AgentWithOptions, batch: CriticBatch, hparams, nets: Networks, decay):
+    """One Adam step of SALE's online encoder: ``(agent, loss)``."""
+    encoders = agent.encoders
+    loss, grads = jax.value_and_grad(encoder_loss_fn)(encoders.online, batch, nets)
+    rate = decay(hparams.encoder_lr)
+    online, opt = _adam_step(grads, encoders.opt, encoders.online, rate)
+    return agent.replace(encoders=encoders.replace(online=online, opt=opt)), loss
 
 
 def update(
@@ -295,8 +379,8 @@ def update(
     hparams: Hyperparams,
     update_index: jax.Array,
 ):
-    """One critic update (and, with ``lap``, new priorities for its batch); every
-    ``policy_delay``-th also an actor and target update."""
+    """One critic update (after, with ``sale``, an encoder update; then, with ``lap``, new
+    priorities for its batch); every ``policy_delay``-th also an actor and target update."""
     nets = make_networks(config)
     sample_key, noise_key = jax.random.split(key)
     batch, (rows, columns) = sample(buffer, sample_key, config, hparams)
@@ -305,6 +389,9 @@ def update(
     def decay(rate):
         return linearly_decayed(rate, env_steps, hparams.lr_decay_steps)
 
+    metrics = {}
+    if config.sale:
+        agent, metrics["encoder_loss"] = _encoder_step(agent, batch, hparams, nets, decay)
     agent, critic_loss_value, aux = _critic_step(agent, batch, noise_key, hparams, nets, decay)
     q = jnp.mean(aux.q_tm1)
     if config.lap:
@@ -317,21 +404,26 @@ def update(
         lambda agent: (agent, jnp.full((), jnp.nan, jnp.float32)),
         agent,
     )
-    metrics = {"critic_loss": critic_loss_value, "actor_loss": actor_loss_value, "q": q}
+    metrics.update(critic_loss=critic_loss_value, actor_loss=actor_loss_value, q=q)
     return agent, buffer, metrics
+
+
+def metric_names(config: Config) -> tuple[str, ...]:
+    """The keys of ``update``'s metrics under ``config``."""
+    return ("encoder_loss",) * config.sale + ("critic_loss", "actor_loss", "q")
 
 
 # ---- acting and init ----------------------------------------------------------------------------
 def act(agent: Agent, obs: jax.Array, config: Config) -> jax.Array:
     """The deterministic policy, in the env's own action units."""
-    return make_networks(config).actor.apply(agent.actor, obs)
+    return policy_action(make_networks(config), agent.actor, obs, fixed_encoders(agent)[0])
 
 
 def explore(agent: Agent, obs, noise, key, config: Config, hparams: Hyperparams, clock=None):
     """``(actions, noise)``: the policy plus ``exploration_noise`` x half-range x an AR(1)
     noise of unit std (independent when ``exploration_correlation`` is 0), clipped to bounds."""
     nets = make_networks(config)
-    action = nets.actor.apply(agent.actor, obs)
+    action = policy_action(nets, agent.actor, obs, fixed_encoders(agent)[0])
     rho = hparams.exploration_correlation
     noise = rho * noise + jnp.sqrt(1.0 - rho**2) * jax.random.normal(key, action.shape)
     scaled = hparams.exploration_noise * row(nets.half_range, action) * noise
@@ -343,10 +435,15 @@ def init_agent(key, config: Config, hparams: Hyperparams, obs_space, action_spac
     actor_key, critic_key = jax.random.split(key)
     obs = jnp.zeros(obs_space.shape, jnp.float32)
     action = jnp.zeros(action_space.shape, jnp.float32)
-    actor = nets.actor.init(actor_key, obs)
-    critics = networks.init_stacked(nets.critic, critic_key, config.num_critics, obs, action)
+    # SALE's embeddings are inputs too (zeros shaped like them); without it, none.
+    zs = (jnp.zeros(config.embedding_dim),) if config.sale else ()
+    actor = nets.actor.init(actor_key, obs, *zs)
+    extra = (jnp.zeros(2 * config.embedding_dim),) if config.sale else ()
+    critics = networks.init_stacked(
+        nets.critic, critic_key, config.num_critics, obs, action, *extra
+    )
     adam = optax.inject_hyperparams(optax.adam)
-    return Agent(
+    agent = Agent(
         actor=actor,
         critics=critics,
         target_actor=actor,
@@ -354,6 +451,20 @@ def init_agent(key, config: Config, hparams: Hyperparams, obs_space, action_spac
         actor_opt=adam(learning_rate=hparams.actor_lr).init(actor),
         critic_opt=adam(learning_rate=hparams.critic_lr).init(critics),
     )
+    if not config.keeps_option_state:
+        return agent
+    # Keys derived apart from the split above, so the networks start as without the options.
+    option_key = jax.random.fold_in(key, 1)
+    return AgentWithOptions(
+        **{field.name: getattr(agent, field.name) for field in dataclasses.fields(agent)},
+        encoders=_init_encoders(option_key, nets, obs, action, hparams) if config.sale else None,
+    )
+
+
+def _init_encoders(key, nets: Networks, obs, action, hparams: Hyperparams) -> Encoders:
+    online = nets.encoder.init(key, obs, action)
+    opt = optax.inject_hyperparams(optax.adam)(learning_rate=hparams.encoder_lr).init(online)
+    return Encoders(online=online, fixed=online, fixed_target=online, opt=opt)
 
 
 LEARNER = offpolicy.Learner(
@@ -361,7 +472,7 @@ LEARNER = offpolicy.Learner(
     explore,
     act,
     update,
-    ("critic_loss", "actor_loss", "q"),
+    metric_names,
     init_buffer,
     add_to_buffer,
 )
@@ -398,8 +509,8 @@ class TD3Family(RecipeBook):
 
     def policy(self, state: TrainState, config: Config):
         """``obs -> action`` (env units) of the deterministic policy of one seed's state."""
-        actor, params = make_networks(config).actor, state.agent.actor
-        return lambda obs: actor.apply(params, obs)
+        nets, agent = make_networks(config), state.agent
+        return lambda obs: policy_action(nets, agent.actor, obs, fixed_encoders(agent)[0])
 
 
 td3 = TD3Family("td3", {}, {})

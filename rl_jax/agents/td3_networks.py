@@ -1,5 +1,11 @@
 """TD3's networks as its losses use them: the actor and twin critics built from a ``td3.Config``
-(with the options' architecture choices), and the bounds the actions live in.
+(with the options' architecture choices), the bounds the actions live in, and the functions that
+apply them with or without SALE's embeddings.
+
+With ``sale`` the actor and critics read embeddings of a *fixed* copy of the encoder, whose
+parameters are passed as ``encoder`` (None: no SALE). Its parameters enter under
+``stop_gradient``: gradients reach the actor through the action fed to ``embed_pair``, never the
+fixed encoder itself.
 """
 
 from __future__ import annotations
@@ -21,6 +27,7 @@ class Networks(NamedTuple):
     low: np.ndarray  # [action_dim] action bounds
     high: np.ndarray
     config: Any  # the td3.Config whose options the losses follow
+    encoder: networks.StateActionEncoder | None = None  # sale: f(s) and g(z_s, a)
 
     @property
     def half_range(self) -> np.ndarray:
@@ -54,7 +61,17 @@ def build_networks(config: Any, action_space: Box) -> Networks:
         config.critic_activation,
         config.critic_norm,
     )
-    return Networks(actor, critic, action_space.low.copy(), action_space.high.copy(), config)
+    encoder = None
+    if config.sale:
+        encoder = networks.StateActionEncoder(
+            config.embedding_hidden,
+            config.embedding_dim,
+            config.network_init,
+            dtype,
+            config.critic_activation,
+        )
+    bounds = action_space.low.copy(), action_space.high.copy()
+    return Networks(actor, critic, *bounds, config, encoder)
 
 
 @functools.lru_cache(maxsize=64)
@@ -66,3 +83,41 @@ def make_networks(config: Any) -> Networks:
 def row(x: np.ndarray, like: jax.Array) -> jax.Array:
     """Bounds shaped to broadcast against ``like`` [..., action_dim] without rank promotion."""
     return jnp.reshape(jnp.asarray(x, jnp.float32), (1,) * (like.ndim - 1) + (-1,))
+
+
+# ---- applying them (with SALE's embeddings when an encoder is given) ---------------------------
+def embed_state(nets: Networks, encoder: Any, obs: jax.Array) -> jax.Array:
+    """``z_s = f(obs)`` of a fixed encoder (no gradient into its parameters)."""
+    params = jax.lax.stop_gradient(encoder)
+    return nets.encoder.apply(params, obs, method="embed_state")
+
+
+def embeddings(nets: Networks, encoder: Any, obs, action, zs=None) -> jax.Array | None:
+    """The critics' extra input ``[z_sa, z_s]`` (None without an encoder)."""
+    if encoder is None:
+        return None
+    zs = embed_state(nets, encoder, obs) if zs is None else zs
+    zsa = nets.encoder.apply(jax.lax.stop_gradient(encoder), zs, action, method="embed_pair")
+    return jnp.concatenate([zsa, zs], axis=-1)
+
+
+def policy_action(nets: Networks, actor: Any, obs: jax.Array, encoder: Any = None) -> jax.Array:
+    """The deterministic action of actor parameters ``actor`` (with ``z_s`` under SALE)."""
+    if encoder is None:
+        return nets.actor.apply(actor, obs)
+    return nets.actor.apply(actor, obs, embed_state(nets, encoder, obs))
+
+
+def critic_values(nets: Networks, critics: Any, obs, action, encoder: Any = None) -> jax.Array:
+    """``[num_critics, B]``: every stacked critic at ``(obs, action)``."""
+    extra = embeddings(nets, encoder, obs, action)
+    inputs = (obs, action) if extra is None else (obs, action, extra)
+    return networks.apply_stacked(nets.critic, critics, *inputs)
+
+
+def first_critic_value(nets: Networks, critics: Any, obs, action, encoder: Any = None):
+    """``[B]``: the first critic alone (the one the actor ascends)."""
+    first = jax.tree.map(lambda x: x[0], critics)
+    extra = embeddings(nets, encoder, obs, action)
+    inputs = (obs, action) if extra is None else (obs, action, extra)
+    return nets.critic.apply(first, *inputs)

@@ -9,6 +9,11 @@ for TD3's options (``rl_jax.agents.td3``): one code path, no separate TD7 agent.
   the loss's linear part together give an unbiased equivalent of the mean squared error on
   uniform data; the floor of 1 keeps transitions with small errors from starving.
 
+* SALE, state-action learned embeddings: an encoder learns ``z_s = f(s)`` and
+  ``z_sa = g(z_s, a)`` by regressing ``g(f(s), a)`` on ``f(s')`` (a stopped target, so the
+  embedding cannot collapse the loss by moving its own target); actor and critics read the
+  embeddings beside their raw inputs (``rl_jax.training.networks.StateActionEncoder``).
+
 Naming as rlax (and ``td3``): ``td_tm1`` is the TD error of the transition's start state,
 ``[num_critics, B]``.
 """
@@ -42,3 +47,9 @@ def lap_priorities(td_tm1: jax.Array) -> jax.Array:
     """``[B]`` priorities ``max(max_i |td_i|, 1)``: the largest error over the critics, floored
     at 1. The replay raises them to ``alpha`` (``prioritized.update_priorities``)."""
     return jnp.maximum(jnp.max(jnp.abs(td_tm1), axis=0), LAP_MIN_PRIORITY)
+
+
+def sale_loss(zsa_tm1: jax.Array, zs_t: jax.Array) -> jax.Array:
+    """SALE's encoder loss: the mean squared error of ``z_sa`` [B, D] predicting the next state's
+    embedding ``z_s'`` [B, D], which is a target (no gradient)."""
+    return jnp.mean((zsa_tm1 - jax.lax.stop_gradient(zs_t)) ** 2)

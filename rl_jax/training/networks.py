@@ -17,6 +17,11 @@ Initialisation, chosen on purpose:
 Normalisation inside the MLPs (``NORMS``), for critics that stay stable at high update rates:
 ``"layer"`` puts a LayerNorm between each hidden linear layer and its nonlinearity (as RLPD and
 BRO place it: the nonlinearity sees normalised pre-activations; the output layer stays linear).
+
+State-action embeddings (TD7's SALE, ``StateActionEncoder``): actor and critic take learned
+embeddings beside their raw inputs. The raw input first goes through one linear layer scaled by
+``avg_l1_norm`` (so neither part dominates the concatenation by scale), then the embeddings are
+appended and the usual MLP follows.
 """
 
 from __future__ import annotations
@@ -262,6 +267,48 @@ class MLP(nn.Module):
         return _float32(x)
 
 
+def avg_l1_norm(x: jax.Array, eps: float = 1e-8) -> jax.Array:
+    """``x / mean(|x|)`` over the last axis (TD7's AvgL1Norm): features of mean magnitude 1."""
+    return x / jnp.maximum(jnp.mean(jnp.abs(x), axis=-1, keepdims=True), eps)
+
+
+class StateActionEncoder(nn.Module):
+    """TD7's SALE encoders: ``embed_state`` ``f(s) = avg_l1_norm(MLP(s))`` and ``embed_pair``
+    ``g(z_s, a) = MLP([z_s, a])``, both of ``embedding_dim`` outputs; ``g(f(s), a)`` learns to
+    predict ``f(s')``. ``__call__`` gives ``(z_s, z_sa)``."""
+
+    hidden: tuple[int, ...]
+    embedding_dim: int
+    initializer: str = "fan_in_uniform"
+    dtype: Any = jnp.float32
+    activation: str = "elu"
+
+    def setup(self) -> None:
+        args = (self.embedding_dim, self.initializer, 1.0, self.dtype, self.activation)
+        self.state_mlp = MLP(self.hidden, *args)
+        self.pair_mlp = MLP(self.hidden, *args)
+
+    def embed_state(self, obs: jax.Array) -> jax.Array:
+        return avg_l1_norm(self.state_mlp(obs))
+
+    def embed_pair(self, zs: jax.Array, action: jax.Array) -> jax.Array:
+        return self.pair_mlp(jnp.concatenate([zs, action], axis=-1))
+
+    def __call__(self, obs: jax.Array, action: jax.Array) -> tuple[jax.Array, jax.Array]:
+        zs = self.embed_state(obs)
+        return zs, self.embed_pair(zs, action)
+
+
+def _with_embeddings(module: nn.Module, x: jax.Array, embeddings: jax.Array | None) -> jax.Array:
+    """``[avg_l1_norm(dense(x)), embeddings]`` (a ``Dense_0`` of the first hidden width in
+    ``module``), or ``x`` unchanged without embeddings."""
+    if embeddings is None:
+        return x
+    width = module.hidden[0] if module.hidden else x.shape[-1]
+    layer = dense(width, x.shape[-1], module.initializer, 1.0, module.dtype)
+    return jnp.concatenate([avg_l1_norm(layer(x)), embeddings.astype(module.dtype)], axis=-1)
+
+
 class Actor(nn.Module):
     """Deterministic policy ``obs [..., obs_dim] -> action [..., action_dim]`` inside the bounds:
     a tanh squashes the MLP output and an affine map stretches [-1, 1] onto [low, high]."""
@@ -275,11 +322,13 @@ class Actor(nn.Module):
     norm: str = "none"  # see MLP
 
     @nn.compact
-    def __call__(self, obs: jax.Array) -> jax.Array:
+    def __call__(self, obs: jax.Array, zs: jax.Array | None = None) -> jax.Array:
+        """``zs``: the SALE state embedding, which joins the observation's features."""
+        x = _with_embeddings(self, obs, zs)
         outputs = len(self.action_low)
         raw = MLP(
             self.hidden, outputs, self.initializer, 0.01, self.dtype, self.activation, self.norm
-        )(obs)
+        )(x)
         # Bounds get explicit leading axes: no silent rank promotion against a batch.
         bounds_shape = (1,) * (raw.ndim - 1) + (len(self.action_low),)
         low = jnp.reshape(jnp.asarray(self.action_low, raw.dtype), bounds_shape)
@@ -299,8 +348,11 @@ class Critic(nn.Module):
     norm: str = "none"  # see MLP
 
     @nn.compact
-    def __call__(self, obs: jax.Array, action: jax.Array) -> jax.Array:
-        x = jnp.concatenate([obs, action], axis=-1)
+    def __call__(
+        self, obs: jax.Array, action: jax.Array, embeddings: jax.Array | None = None
+    ) -> jax.Array:
+        """``embeddings``: SALE's ``[z_sa, z_s]``, which join the state-action features."""
+        x = _with_embeddings(self, jnp.concatenate([obs, action], axis=-1), embeddings)
         mlp = MLP(self.hidden, 1, self.initializer, 1.0, self.dtype, self.activation, self.norm)
         return mlp(x)[..., 0]
 

@@ -132,7 +132,8 @@ class Learner(NamedTuple):
         one gradient update (it samples the buffer itself, so prioritised replay can write
         priorities back); ``update_index`` counts updates before this one (unbatched);
         ``metrics`` is a dict of [] float32, NaN where a quantity was not computed this update.
-    metric_names: the keys of ``metrics``.
+    metric_names: the keys of ``metrics``, or a function of the config giving them (when an
+        option adds some).
     init_buffer(example_transition, config) -> buffer, and
     add_to_buffer(buffer, transitions [N, ...], config, hparams) -> buffer
         (optional) the replay memory; default: ``rl_jax.training.replay``'s uniform circular buffer.
@@ -142,7 +143,7 @@ class Learner(NamedTuple):
     explore: Callable[..., tuple[jax.Array, jax.Array]]
     act: Callable[..., jax.Array]
     update: Callable[..., tuple[Any, ReplayBuffer, dict[str, jax.Array]]]
-    metric_names: tuple[str, ...]
+    metric_names: tuple[str, ...] | Callable[[Any], tuple[str, ...]]
     init_buffer: Callable[..., Any] = uniform_buffer
     add_to_buffer: Callable[..., Any] = add_uniform
 
@@ -209,7 +210,9 @@ def _updates(learner, config, hparams, state: TrainState, key: PRNGKey, buffer: 
 
     def skip(agent, buffer):
         nan = jnp.full((), jnp.nan, jnp.float32)
-        return agent, buffer, {name: nan for name in learner.metric_names}
+        names = learner.metric_names
+        names = names(config) if callable(names) else names
+        return agent, buffer, {name: nan for name in names}
 
     learning = state.clock.env_steps >= config.learning_starts
     agent, buffer, metrics = jax.lax.cond(learning, run, skip, state.agent, buffer)

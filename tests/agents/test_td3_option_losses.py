@@ -7,7 +7,9 @@ import numpy as np
 import pytest
 
 import envs.core.probes  # noqa: F401  (registers the probe ids)
-from rl_jax.agents import td3, td7_parts
+from envs.core.spaces import Box
+from rl_jax.agents import td3, td3_networks, td7_parts
+from rl_jax.training import networks
 from rl_jax.training.replay import Transition
 
 modes = pytest.mark.parametrize("transform", [lambda f: f, jax.jit], ids=["nojit", "jit"])
@@ -96,3 +98,103 @@ def _transitions(reward):
         terminated=jnp.array([True, False]),
         truncated=jnp.zeros(2, bool),
     )
+
+
+# ---- SALE --------------------------------------------------------------------------------------
+@modes
+def test_avg_l1_norm_scales_features_to_mean_magnitude_one(transform):
+    x = jnp.array([[1.0, -3.0, 2.0, -2.0], [0.0, 0.0, 0.0, 0.0]])
+    got = transform(networks.avg_l1_norm)(x)
+    # Row 1: mean |x| = 2. Row 2: all zero, the floor (1e-8) keeps it finite and zero.
+    np.testing.assert_allclose(got, [[0.5, -1.5, 1.0, -1.0], [0.0, 0.0, 0.0, 0.0]], rtol=1e-7)
+
+
+@modes
+def test_sale_loss_value_and_its_target_gets_no_gradient(transform):
+    zsa = jnp.array([[1.0, 2.0], [3.0, 4.0]])
+    zs_next = jnp.array([[0.0, 2.0], [1.0, 1.0]])
+    # Differences 1, 0, 2, 3: mean of squares (1 + 0 + 4 + 9) / 4.
+    np.testing.assert_allclose(transform(td7_parts.sale_loss)(zsa, zs_next), 3.5, rtol=1e-7)
+    grad_zsa, grad_target = transform(jax.grad(td7_parts.sale_loss, argnums=(0, 1)))(zsa, zs_next)
+    np.testing.assert_allclose(grad_zsa, (zsa - zs_next) / 2.0, rtol=1e-7)
+    assert np.all(np.asarray(grad_target) == 0.0)
+
+
+@pytest.fixture(scope="module")
+def sale_setup():
+    config = td3.Config(
+        env_id="unused",
+        actor_hidden=(8, 8),
+        critic_hidden=(8, 8),
+        sale=True,
+        embedding_dim=4,
+        embedding_hidden=(6,),
+    )
+    nets = td3.build_networks(config, Box(-np.ones(2), np.ones(2), (2,)))
+    keys = jax.random.split(jax.random.key(5), 8)
+    obs, action, z, z2 = jnp.zeros(3), jnp.zeros(2), jnp.zeros(4), jnp.zeros(8)
+    encoder = [nets.encoder.init(k, obs, action) for k in keys[:3]]  # online, fixed, target
+    actor = nets.actor.init(keys[3], obs, z)
+    critics = networks.init_stacked(nets.critic, keys[4], 2, obs, action, z2)
+    batch = td3.CriticBatch(
+        obs=jax.random.normal(keys[5], (5, 3)),
+        action=jax.random.uniform(keys[6], (5, 2), minval=-1.0, maxval=1.0),
+        r_t=jnp.linspace(-1.0, 1.0, 5),
+        discount_t=jnp.full(5, 0.99),
+        next_obs=jax.random.normal(keys[7], (5, 3)),
+    )
+    return nets, encoder, actor, critics, batch
+
+
+def test_sale_networks_read_normalised_features_and_the_embeddings(sale_setup):
+    nets, encoder, actor, critics, batch = sale_setup
+    first = actor["params"]["Dense_0"]
+    assert first["kernel"].shape == (3, 8)  # obs -> the first hidden width, then AvgL1Norm
+    assert actor["params"]["MLP_0"]["Dense_0"]["kernel"].shape == (8 + 4, 8)  # [features, z_s]
+    critic_mlp = critics["params"]["MLP_0"]["Dense_0"]["kernel"]
+    assert critic_mlp.shape == (2, 8 + 2 * 4, 8)  # per critic: [features, z_sa, z_s]
+    zs = nets.encoder.apply(encoder[1], batch.obs, method="embed_state")
+    np.testing.assert_allclose(np.mean(np.abs(zs), axis=-1), 1.0, rtol=1e-5)  # AvgL1Norm'd
+    features = networks.avg_l1_norm(batch.obs @ first["kernel"] + first["bias"][None])
+    mlp = {"params": actor["params"]["MLP_0"]}
+    raw = networks.MLP((8, 8), 2, output_gain=0.01).apply(mlp, jnp.concatenate([features, zs], -1))
+    got = td3_networks.policy_action(nets, actor, batch.obs, encoder[1])
+    np.testing.assert_allclose(got, jnp.tanh(raw), rtol=1e-5, atol=1e-6)
+
+
+def test_sale_losses_send_no_gradient_into_fixed_or_target_encoders(sale_setup):
+    nets, encoder, actor, critics, batch = sale_setup
+    hparams = td3.Hyperparams().as_arrays()
+    noise = jnp.ones((5, 2))
+
+    def critic_objective(critics, fixed, fixed_target):
+        return td3.critic_loss_fn(
+            critics, actor, critics, batch, noise, hparams, nets, (fixed, fixed_target)
+        )[0]
+
+    grads = jax.jit(jax.grad(critic_objective, argnums=(0, 1, 2)))(critics, *encoder[1:])
+    assert all(np.any(np.asarray(g) != 0.0) for g in jax.tree.leaves(grads[0]))
+    for leaf in jax.tree.leaves(grads[1:]):
+        assert np.all(np.asarray(leaf) == 0.0)
+    actor_grads = jax.jit(
+        jax.grad(lambda a, e: td3.actor_loss_fn(a, critics, batch.obs, nets, e), argnums=(0, 1))
+    )(actor, encoder[1])
+    assert all(np.any(np.asarray(g) != 0.0) for g in jax.tree.leaves(actor_grads[0]))
+    assert all(np.all(np.asarray(g) == 0.0) for g in jax.tree.leaves(actor_grads[1]))
+
+
+def test_sale_encoder_loss_regresses_on_a_stopped_next_state_embedding(sale_setup):
+    nets, encoder, _, _, batch = sale_setup
+    online = encoder[0]
+    zs_next = nets.encoder.apply(online, batch.next_obs, method="embed_state")
+    zsa = nets.encoder.apply(online, batch.obs, batch.action)[1]
+    loss = td3.encoder_loss_fn(online, batch, nets)
+    np.testing.assert_allclose(loss, np.mean((np.asarray(zsa) - np.asarray(zs_next)) ** 2), 1e-6)
+
+    def with_constant_target(params):  # the same loss with f(s') a constant from outside
+        zsa = nets.encoder.apply(params, batch.obs, batch.action)[1]
+        return jnp.mean((zsa - zs_next) ** 2)
+
+    grads = jax.jit(jax.grad(lambda p: td3.encoder_loss_fn(p, batch, nets)))(online)
+    expected = jax.jit(jax.grad(with_constant_target))(online)
+    jax.tree.map(np.testing.assert_array_equal, grads, expected)

@@ -81,3 +81,21 @@ def test_lap_trains_with_a_prioritized_buffer():
     assert np.all(np.sum(leaves >= 1.0 - 1e-6, axis=-1) == 400)
     assert np.all(np.asarray(tree.max_priority) > 1.0)
     assert_trained_and_finite(state, history)
+
+
+SALE = {"sale": True, "embedding_dim": 8, "embedding_hidden": (16,)}
+
+
+def test_sale_trains_its_encoder_and_moves_the_fixed_copies():
+    state, history = train(**SALE)
+    encoders = state.agent.encoders
+    assert np.all(np.isfinite(history[-1].extra["encoder_loss"]))
+    parts = (encoders.online, encoders.fixed, encoders.fixed_target)
+    online, fixed, target = (jax.tree.leaves(part)[0] for part in parts)
+    assert not np.allclose(online, fixed) and not np.allclose(fixed, target)
+    assert_trained_and_finite(state, history)
+
+
+def test_sale_refuses_n_step_returns():
+    with pytest.raises(ValueError, match="n_step 1"):
+        td3.default_config("rl_jax/Pendulum-v1", sale=True, n_step=3)

@@ -44,6 +44,7 @@ def test_td3_and_ddpg_defaults_are_the_papers():
             "target_noise_clip": 0.5,
             "lr_decay_steps": 0.0,
             "lap_alpha": 0.4,  # used only with lap=True (TD7's value)
+            "encoder_lr": 3e-4,  # used only with sale=True (TD7's value)
         }
     )
     # An env without a recipe gets the paper's settings (half cheetah has a faster recipe).
