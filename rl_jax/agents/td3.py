@@ -18,6 +18,7 @@ Usage (one seed; ``rl_jax.training.parallel`` runs seeds x hyperparameters as on
 from __future__ import annotations
 
 import dataclasses
+import functools
 from typing import Any, NamedTuple
 
 import jax
@@ -88,6 +89,11 @@ class Config(OffPolicyConfig):
     sale: bool = False
     embedding_dim: int = 256  # sale: size of z_s and z_sa (TD7: 256)
     embedding_hidden: tuple[int, ...] = (256, 256)  # sale: hidden widths of f and of g
+    # 0: the targets take a Polyak step of size tau after every actor update (TD3). N > 0: hard
+    # copies every N updates instead (TD7: 250): target actor and critics <- online, SALE's
+    # fixed target encoder <- fixed <- online, and LAP's new-transition priority resets to the
+    # largest one stored.
+    target_update_period: int = 0
 
     def __post_init__(self) -> None:
         super().__post_init__()
@@ -101,6 +107,8 @@ class Config(OffPolicyConfig):
         for name in ("critic_norm", "actor_norm"):
             if getattr(self, name) not in networks.NORMS:
                 raise ValueError(f"{name} must be one of {networks.NORMS}")
+        if self.target_update_period < 0:
+            raise ValueError("target_update_period must be >= 0 (0: Polyak steps)")
         if self.sale and self.n_step != 1:
             raise ValueError("sale needs n_step 1: its encoder learns one-step dynamics")
 
@@ -341,10 +349,14 @@ def _critic_step(
 
 
 def _actor_and_target_step(agent: Agent, obs, hparams: Hyperparams, nets: Networks, decay):
+    """An actor step, then (unless targets are copied every ``target_update_period``) a Polyak
+    step of the targets."""
     loss, grads = jax.value_and_grad(actor_loss_fn)(
         agent.actor, agent.critics, obs, nets, fixed_encoders(agent)[0]
     )
     actor, actor_opt = _adam_step(grads, agent.actor_opt, agent.actor, decay(hparams.actor_lr))
+    if nets.config.target_update_period:
+        return agent.replace(actor=actor, actor_opt=actor_opt), loss
     agent = agent.replace(
         actor=actor,
         actor_opt=actor_opt,
@@ -360,6 +372,16 @@ def _actor_and_target_step(agent: Agent, obs, hparams: Hyperparams, nets: Networ
             )
         )
     return agent, loss
+
+
+def hard_target_update(agent: Agent) -> Agent:
+    """TD7's periodic copies: targets <- online; SALE's fixed target <- fixed <- online."""
+    agent = agent.replace(target_actor=agent.actor, target_critics=agent.critics)
+    encoders = getattr(agent, "encoders", None)
+    if encoders is None:
+        return agent
+    encoders = encoders.replace(fixed_target=encoders.fixed, fixed=encoders.online)
+    return agent.replace(encoders=encoders)
 
 
 def _encoder_step(agent: AgentWithOptions, batch: CriticBatch, hparams, nets: Networks, decay):
@@ -404,8 +426,21 @@ def update(
         lambda agent: (agent, jnp.full((), jnp.nan, jnp.float32)),
         agent,
     )
+    if config.target_update_period:
+        agent, buffer = _maybe_copy_targets(agent, buffer, config, hparams, update_index)
     metrics.update(critic_loss=critic_loss_value, actor_loss=actor_loss_value, q=q)
     return agent, buffer, metrics
+
+
+def _maybe_copy_targets(agent, buffer, config: Config, hparams: Hyperparams, update_index):
+    """At every ``target_update_period``-th update: the hard target copies and, with LAP, the
+    priority of new transitions reset to the largest stored (TD7)."""
+    due = (update_index + 1) % config.target_update_period == 0
+    agent = jax.lax.cond(due, hard_target_update, lambda agent: agent, agent)
+    if config.lap:
+        reset = functools.partial(prioritized.reset_max_priority, alpha=hparams.lap_alpha)
+        buffer = jax.lax.cond(due, reset, lambda buffer: buffer, buffer)
+    return agent, buffer
 
 
 def metric_names(config: Config) -> tuple[str, ...]:
@@ -485,7 +520,7 @@ class TD3Family(RecipeBook):
 
     config_type, hparams_type = Config, Hyperparams
     recipes, hparam_recipes = RECIPES, HPARAM_RECIPES
-    ranges = {"lap_alpha": validation.UNIT}
+    ranges = {"lap_alpha": validation.UNIT, "target_update_period": validation.NON_NEGATIVE}
 
     def __init__(
         self, name: str, config_overrides: dict[str, Any], hparam_overrides: dict[str, Any]

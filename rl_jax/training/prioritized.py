@@ -170,6 +170,14 @@ def update_priorities(
     )
 
 
+def reset_max_priority(prioritized: PrioritizedBuffer, alpha) -> PrioritizedBuffer:
+    """The priority new transitions get becomes the largest one stored now (instead of the
+    largest ever given), as TD7 does at each target update: early large errors, long since
+    corrected, no longer make every new transition a favourite. Read from the leaves' p^alpha."""
+    powered = jnp.max(prioritized.sums[prioritized.leaves :])
+    return prioritized.replace(max_priority=powered ** (1.0 / alpha))
+
+
 def nbytes(example: Any, capacity: int, width: int) -> int:
     """Memory of the transitions and both trees, computed without allocating them."""
     leaves = tree_leaves(replay.rows_for(capacity, width) * width)

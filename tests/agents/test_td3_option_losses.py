@@ -9,7 +9,7 @@ import pytest
 import envs.core.probes  # noqa: F401  (registers the probe ids)
 from envs.core.spaces import Box
 from rl_jax.agents import td3, td3_networks, td7_parts
-from rl_jax.training import networks
+from rl_jax.training import networks, prioritized
 from rl_jax.training.replay import Transition
 
 modes = pytest.mark.parametrize("transform", [lambda f: f, jax.jit], ids=["nojit", "jit"])
@@ -198,3 +198,72 @@ def test_sale_encoder_loss_regresses_on_a_stopped_next_state_embedding(sale_setu
     grads = jax.jit(jax.grad(lambda p: td3.encoder_loss_fn(p, batch, nets)))(online)
     expected = jax.jit(jax.grad(with_constant_target))(online)
     jax.tree.map(np.testing.assert_array_equal, grads, expected)
+
+
+# ---- hard target updates (TD7) ------------------------------------------------------------------
+def test_hard_target_update_copies_targets_and_rotates_the_fixed_encoders():
+    leaf = lambda value: {"w": jnp.full(2, value)}  # noqa: E731
+    agent = td3.AgentWithOptions(
+        actor=leaf(1.0),
+        critics=leaf(2.0),
+        target_actor=leaf(-1.0),
+        target_critics=leaf(-2.0),
+        actor_opt=(),
+        critic_opt=(),
+        encoders=td3.Encoders(online=leaf(3.0), fixed=leaf(4.0), fixed_target=leaf(5.0), opt=()),
+    )
+    got = jax.jit(td3.hard_target_update)(agent)
+    assert float(got.target_actor["w"][0]) == 1.0 and float(got.target_critics["w"][0]) == 2.0
+    encoders = got.encoders
+    assert [float(e["w"][0]) for e in (encoders.online, encoders.fixed, encoders.fixed_target)] == [
+        3.0,
+        3.0,
+        4.0,
+    ]
+
+
+def test_reset_max_priority_takes_the_largest_stored_priority():
+    buffer = prioritized.init(jnp.zeros(()), 8, 1)
+    for _ in range(4):
+        buffer = prioritized.add(buffer, jnp.zeros(1), 0.5)
+    buffer = prioritized.update_priorities(
+        buffer, jnp.arange(4), jnp.zeros(4, jnp.int32), jnp.array([9.0, 1.0, 4.0, 2.25]), 0.5
+    )
+    buffer = prioritized.update_priorities(
+        buffer, jnp.array([0]), jnp.array([0]), jnp.array([1.0]), 0.5
+    )
+    assert float(buffer.max_priority) == 9.0  # the largest ever given, since corrected
+    reset = jax.jit(prioritized.reset_max_priority)(buffer, 0.5)
+    np.testing.assert_allclose(reset.max_priority, 4.0, rtol=1e-6)
+
+
+def test_targets_are_copied_every_period_and_never_polyak_stepped():
+    config = td3.td3.default_config(
+        "rl_jax/ProbeActionReward-v0",
+        actor_hidden=(8,),
+        critic_hidden=(8,),
+        batch_size=4,
+        buffer_size=16,
+        num_envs=2,
+        learning_starts=0,
+        target_update_period=3,
+        lap=True,
+    )
+    hparams = td3.td3.default_hyperparams(tau=0.5)
+    state = td3.td3.init(jax.random.key(3), config, hparams)
+    add = jax.jit(td3.add_to_buffer, static_argnums=2)
+    buffer = state.buffer
+    for row in range(5):
+        buffer = add(buffer, _transitions(jnp.array([4.0 * row, -3.0])), config, hparams)
+    update = jax.jit(td3.update, static_argnums=3)
+    agent, initial = state.agent, state.agent.target_critics
+    for index in range(6):
+        agent, buffer, _ = update(agent, buffer, jax.random.key(index), config, hparams, index)
+        copied = index in (2, 5)  # after the 3rd and the 6th update
+        same = jax.tree.map(np.array_equal, agent.target_critics, agent.critics)
+        assert all(jax.tree.leaves(same)) == copied
+        if index < 2:  # before the first copy the targets never move, whatever tau
+            jax.tree.map(np.testing.assert_array_equal, agent.target_critics, initial)
+        if index == 5:
+            stored = np.max(np.asarray(buffer.sums[buffer.leaves :]))
+            np.testing.assert_allclose(buffer.max_priority, stored ** (1 / 0.4), rtol=1e-5)
