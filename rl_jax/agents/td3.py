@@ -48,6 +48,7 @@ from rl_jax.agents.td3_recipes import (  # noqa: F401  (re-exported: scripts rea
 )
 from rl_jax.training import (
     networks,
+    normalization,
     offpolicy,
     params,
     prioritized,
@@ -78,6 +79,11 @@ class Config(OffPolicyConfig):
     # which keeps Q-values bounded at high update rates (RLPD, BRO); "none": the paper's critics.
     critic_norm: str = "none"
     actor_norm: str = "none"  # the same for the actor: "none" or "layer"
+    # "simba" (SimBa): observations standardised by running statistics, then for actor and
+    # critics a linear layer, one pre-LayerNorm residual block per entry of actor_hidden /
+    # critic_hidden (LN -> dense(4w) -> relu -> dense(w), plus the skip; the entries are the
+    # width w, all equal), a LayerNorm and the output layer. "mlp": the paper's MLPs.
+    network: str = "mlp"
     # LAP (TD7): replay draws transitions with probability proportional to max(|TD error|, 1)^
     # lap_alpha (the larger of the critics' errors), without importance weights, and the critics
     # learn with LAP's Huber-like loss (quadratic below 1, linear above).
@@ -107,15 +113,27 @@ class Config(OffPolicyConfig):
         for name in ("critic_norm", "actor_norm"):
             if getattr(self, name) not in networks.NORMS:
                 raise ValueError(f"{name} must be one of {networks.NORMS}")
+        if self.network not in networks.ARCHITECTURES:
+            raise ValueError(f"network must be one of {networks.ARCHITECTURES}")
+        if self.network == "simba":
+            self._check_simba()
         if self.target_update_period < 0:
             raise ValueError("target_update_period must be >= 0 (0: Polyak steps)")
         if self.sale and self.n_step != 1:
             raise ValueError("sale needs n_step 1: its encoder learns one-step dynamics")
 
+    def _check_simba(self) -> None:
+        for name in ("actor_hidden", "critic_hidden"):
+            widths = getattr(self, name)
+            if not widths or len(set(widths)) != 1:
+                raise ValueError(f"network='simba' needs {name} of one width (w, w, ...)")
+        if self.critic_norm != "none" or self.actor_norm != "none":
+            raise ValueError("network='simba' has its own LayerNorms: leave the norms 'none'")
+
     @property
     def keeps_option_state(self) -> bool:
         """Whether an option keeps state beside the networks (an ``AgentWithOptions``)."""
-        return self.sale
+        return self.sale or self.network == "simba"
 
 
 @struct.dataclass
@@ -167,6 +185,7 @@ class AgentWithOptions(Agent):
     were."""
 
     encoders: Any = None  # sale: Encoders
+    obs_stats: Any = None  # simba: normalization.RunningStats of the observations acted on
 
 
 def fixed_encoders(agent: Agent) -> tuple[Any, Any]:
@@ -406,6 +425,7 @@ def update(
     nets = make_networks(config)
     sample_key, noise_key = jax.random.split(key)
     batch, (rows, columns) = sample(buffer, sample_key, config, hparams)
+    batch = normalized_batch(agent, batch)
     env_steps = offpolicy.env_steps_at_update(update_index, config)
 
     def decay(rate):
@@ -448,17 +468,43 @@ def metric_names(config: Config) -> tuple[str, ...]:
     return ("encoder_loss",) * config.sale + ("critic_loss", "actor_loss", "q")
 
 
+# ---- observations --------------------------------------------------------------------------------
+def normalized(agent: Agent, obs: jax.Array) -> jax.Array:
+    """What the networks see of ``obs``: standardised under SimBa, else ``obs`` itself."""
+    return normalization.normalize(getattr(agent, "obs_stats", None), obs)
+
+
+def normalized_batch(agent: Agent, batch: CriticBatch) -> CriticBatch:
+    """A sampled batch as the networks see it: SimBa standardises with today's statistics."""
+    if getattr(agent, "obs_stats", None) is None:
+        return batch
+    return batch._replace(
+        obs=normalized(agent, batch.obs), next_obs=normalized(agent, batch.next_obs)
+    )
+
+
+def observe(agent: Agent, transitions: Transition, episode_return, done, clock, config, hparams):
+    """Every env step: SimBa's statistics take in the observations acted on."""
+    if config.network == "simba":
+        mask = jnp.ones(transitions.obs.shape[:1], jnp.float32)
+        agent = agent.replace(
+            obs_stats=normalization.update(agent.obs_stats, transitions.obs, mask)
+        )
+    return agent
+
+
 # ---- acting and init ----------------------------------------------------------------------------
 def act(agent: Agent, obs: jax.Array, config: Config) -> jax.Array:
     """The deterministic policy, in the env's own action units."""
-    return policy_action(make_networks(config), agent.actor, obs, fixed_encoders(agent)[0])
+    nets = make_networks(config)
+    return policy_action(nets, agent.actor, normalized(agent, obs), fixed_encoders(agent)[0])
 
 
 def explore(agent: Agent, obs, noise, key, config: Config, hparams: Hyperparams, clock=None):
     """``(actions, noise)``: the policy plus ``exploration_noise`` x half-range x an AR(1)
     noise of unit std (independent when ``exploration_correlation`` is 0), clipped to bounds."""
+    action = act(agent, obs, config)
     nets = make_networks(config)
-    action = policy_action(nets, agent.actor, obs, fixed_encoders(agent)[0])
     rho = hparams.exploration_correlation
     noise = rho * noise + jnp.sqrt(1.0 - rho**2) * jax.random.normal(key, action.shape)
     scaled = hparams.exploration_noise * row(nets.half_range, action) * noise
@@ -493,6 +539,7 @@ def init_agent(key, config: Config, hparams: Hyperparams, obs_space, action_spac
     return AgentWithOptions(
         **{field.name: getattr(agent, field.name) for field in dataclasses.fields(agent)},
         encoders=_init_encoders(option_key, nets, obs, action, hparams) if config.sale else None,
+        obs_stats=normalization.init(obs.shape[-1]) if config.network == "simba" else None,
     )
 
 
@@ -510,6 +557,7 @@ LEARNER = offpolicy.Learner(
     metric_names,
     init_buffer,
     add_to_buffer,
+    observe,
 )
 
 
@@ -544,8 +592,8 @@ class TD3Family(RecipeBook):
 
     def policy(self, state: TrainState, config: Config):
         """``obs -> action`` (env units) of the deterministic policy of one seed's state."""
-        nets, agent = make_networks(config), state.agent
-        return lambda obs: policy_action(nets, agent.actor, obs, fixed_encoders(agent)[0])
+        agent = state.agent
+        return lambda obs: act(agent, obs, config)
 
 
 td3 = TD3Family("td3", {}, {})

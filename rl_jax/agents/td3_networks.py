@@ -53,6 +53,7 @@ def build_networks(config: Any, action_space: Box) -> Networks:
         dtype,
         config.actor_activation,
         config.actor_norm,
+        config.network,
     )
     critic = networks.Critic(
         config.critic_hidden,
@@ -60,6 +61,7 @@ def build_networks(config: Any, action_space: Box) -> Networks:
         dtype,
         config.critic_activation,
         config.critic_norm,
+        config.network,
     )
     encoder = None
     if config.sale:

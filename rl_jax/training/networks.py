@@ -18,6 +18,12 @@ Normalisation inside the MLPs (``NORMS``), for critics that stay stable at high 
 ``"layer"`` puts a LayerNorm between each hidden linear layer and its nonlinearity (as RLPD and
 BRO place it: the nonlinearity sees normalised pre-activations; the output layer stays linear).
 
+SimBa (Lee et al. 2025, ``Simba``): a linear layer to width ``w``, then residual blocks that each
+add ``dense(w) . relu . dense(4w) . LayerNorm`` of their input to it (pre-LN: the skip path is the
+identity, so depth does not bend the network away from a simple function), a final LayerNorm and
+the output layer. SimBa also standardises the observations by running statistics
+(``rl_jax.training.normalization``); the learner does that before the network.
+
 State-action embeddings (TD7's SALE, ``StateActionEncoder``): actor and critic take learned
 embeddings beside their raw inputs. The raw input first goes through one linear layer scaled by
 ``avg_l1_norm`` (so neither part dominates the concatenation by scale), then the embeddings are
@@ -38,6 +44,8 @@ INITS = ("fan_in_uniform", "orthogonal")
 ACTIVATIONS = {"relu": (nn.relu, 2.0**0.5), "tanh": (nn.tanh, 5.0 / 3.0), "elu": (nn.elu, 2.0**0.5)}
 #: normalisation of an MLP's hidden layers (see the module docstring)
 NORMS = ("none", "layer")
+#: the torso of actor and critic: plain MLP or SimBa's residual blocks
+ARCHITECTURES = ("mlp", "simba")
 
 
 def _uniform(bound: float):
@@ -267,6 +275,64 @@ class MLP(nn.Module):
         return _float32(x)
 
 
+class SimbaBlock(nn.Module):
+    """SimBa's pre-LayerNorm residual block: ``x + dense(w)(act(dense(4w)(LN(x))))``."""
+
+    width: int
+    initializer: str = "fan_in_uniform"
+    dtype: Any = jnp.float32
+    activation: str = "relu"
+
+    @nn.compact
+    def __call__(self, x: jax.Array) -> jax.Array:
+        function, gain = _activation(self.activation)
+        h = nn.LayerNorm(dtype=self.dtype)(x)
+        h = function(dense(4 * self.width, self.width, self.initializer, gain, self.dtype)(h))
+        return x + dense(self.width, 4 * self.width, self.initializer, 1.0, self.dtype)(h)
+
+
+class Simba(nn.Module):
+    """SimBa's network in ``MLP``'s place: ``dense(w)``, one ``SimbaBlock`` per entry of
+    ``hidden`` (all entries equal ``w``), LayerNorm, linear output."""
+
+    hidden: tuple[int, ...]
+    outputs: int
+    initializer: str = "fan_in_uniform"
+    output_gain: float = 1.0
+    dtype: Any = jnp.float32
+    activation: str = "relu"
+
+    @nn.compact
+    def __call__(self, x: jax.Array) -> jax.Array:
+        if not self.hidden or len(set(self.hidden)) != 1:
+            raise ValueError(f"SimBa blocks share one width, got hidden {self.hidden}")
+        width = self.hidden[0]
+        x = dense(width, x.shape[-1], self.initializer, 1.0, self.dtype)(x)
+        for _ in self.hidden:
+            x = SimbaBlock(width, self.initializer, self.dtype, self.activation)(x)
+        x = nn.LayerNorm(dtype=self.dtype)(x)
+        return _float32(
+            dense(self.outputs, width, self.initializer, self.output_gain, self.dtype)(x)
+        )
+
+
+def _torso_and_head(module: nn.Module, outputs: int, output_gain: float) -> nn.Module:
+    """``module``'s MLP, or its ``Simba`` when ``module.architecture`` says so."""
+    args = (
+        module.hidden,
+        outputs,
+        module.initializer,
+        output_gain,
+        module.dtype,
+        module.activation,
+    )
+    if module.architecture == "simba":
+        return Simba(*args)
+    if module.architecture != "mlp":
+        raise ValueError(f"unknown architecture {module.architecture!r}; one of {ARCHITECTURES}")
+    return MLP(*args, module.norm)
+
+
 def avg_l1_norm(x: jax.Array, eps: float = 1e-8) -> jax.Array:
     """``x / mean(|x|)`` over the last axis (TD7's AvgL1Norm): features of mean magnitude 1."""
     return x / jnp.maximum(jnp.mean(jnp.abs(x), axis=-1, keepdims=True), eps)
@@ -320,15 +386,13 @@ class Actor(nn.Module):
     dtype: Any = jnp.float32
     activation: str = "relu"
     norm: str = "none"  # see MLP
+    architecture: str = "mlp"  # or "simba"
 
     @nn.compact
     def __call__(self, obs: jax.Array, zs: jax.Array | None = None) -> jax.Array:
         """``zs``: the SALE state embedding, which joins the observation's features."""
         x = _with_embeddings(self, obs, zs)
-        outputs = len(self.action_low)
-        raw = MLP(
-            self.hidden, outputs, self.initializer, 0.01, self.dtype, self.activation, self.norm
-        )(x)
+        raw = _torso_and_head(self, len(self.action_low), 0.01)(x)
         # Bounds get explicit leading axes: no silent rank promotion against a batch.
         bounds_shape = (1,) * (raw.ndim - 1) + (len(self.action_low),)
         low = jnp.reshape(jnp.asarray(self.action_low, raw.dtype), bounds_shape)
@@ -346,6 +410,7 @@ class Critic(nn.Module):
     dtype: Any = jnp.float32
     activation: str = "relu"
     norm: str = "none"  # see MLP
+    architecture: str = "mlp"  # or "simba"
 
     @nn.compact
     def __call__(
@@ -353,8 +418,7 @@ class Critic(nn.Module):
     ) -> jax.Array:
         """``embeddings``: SALE's ``[z_sa, z_s]``, which join the state-action features."""
         x = _with_embeddings(self, jnp.concatenate([obs, action], axis=-1), embeddings)
-        mlp = MLP(self.hidden, 1, self.initializer, 1.0, self.dtype, self.activation, self.norm)
-        return mlp(x)[..., 0]
+        return _torso_and_head(self, 1, 1.0)(x)[..., 0]
 
 
 class QNetwork(nn.Module):

@@ -137,6 +137,10 @@ class Learner(NamedTuple):
     init_buffer(example_transition, config) -> buffer, and
     add_to_buffer(buffer, transitions [N, ...], config, hparams) -> buffer
         (optional) the replay memory; default: ``rl_jax.training.replay``'s uniform circular buffer.
+    observe(agent, transitions [N, ...], episode_return [N], done [N], clock, config, hparams)
+        -> agent (optional): what the learner keeps of every env step besides the replay, before
+        this iteration's updates (running observation statistics, returns of ended episodes:
+        ``episode_return`` counts where ``done``); ``clock`` is before the step. None: nothing.
     """
 
     init_agent: Callable[..., Any]
@@ -146,6 +150,7 @@ class Learner(NamedTuple):
     metric_names: tuple[str, ...] | Callable[[Any], tuple[str, ...]]
     init_buffer: Callable[..., Any] = uniform_buffer
     add_to_buffer: Callable[..., Any] = add_uniform
+    observe: Callable[..., Any] | None = None
 
 
 def buffer_nbytes(config: OffPolicyConfig) -> int:
@@ -230,8 +235,13 @@ def train_iteration(learner, config, hparams, state: TrainState):
         state.obs, actions, ts.reward, ts.info["final_obs"], ts.terminated, ts.truncated
     )
     buffer = learner.add_to_buffer(state.buffer, transition, config, hparams)
-    agent, buffer, metrics, updates = _updates(learner, config, hparams, state, update_key, buffer)
     done = jnp.logical_or(ts.terminated, ts.truncated)
+    if learner.observe is not None:
+        agent = learner.observe(
+            state.agent, transition, ts.info["episode_return"], done, state.clock, config, hparams
+        )
+        state = state.replace(agent=agent)
+    agent, buffer, metrics, updates = _updates(learner, config, hparams, state, update_key, buffer)
     noise = jnp.where(jnp.reshape(done, done.shape + (1,) * (noise.ndim - 1)), 0.0, noise)
     clock = Clock(
         env_steps=state.clock.env_steps + config.num_envs,

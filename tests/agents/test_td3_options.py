@@ -99,3 +99,52 @@ def test_sale_trains_its_encoder_and_moves_the_fixed_copies():
 def test_sale_refuses_n_step_returns():
     with pytest.raises(ValueError, match="n_step 1"):
         td3.default_config("rl_jax/Pendulum-v1", sale=True, n_step=3)
+
+
+SIMBA = {"network": "simba", "actor_hidden": (16,), "critic_hidden": (16, 16)}
+
+
+def test_simba_trains_on_observations_standardised_by_running_statistics():
+    state, history = train(**SIMBA)
+    stats = state.agent.obs_stats
+    # Every observation acted on (400 env steps per seed) is in the statistics.
+    np.testing.assert_allclose(stats.count, 1e-4 + 400, rtol=1e-6)
+    # Pendulum's obs (cos, sin, angular velocity): the mean of cos/sin stays within [-1, 1].
+    assert np.all(np.abs(stats.mean[..., :2]) <= 1.0) and np.all(stats.var > 0.0)
+    assert "Simba_0" in state.agent.actor["params"]
+    assert_trained_and_finite(state, history)
+
+
+def test_simba_policy_reads_standardised_observations():
+    from rl_jax.agents.td3 import make_networks
+    from rl_jax.training import normalization
+
+    config = td3.default_config("rl_jax/Pendulum-v1", **{**TINY, **SIMBA})
+    state = td3.init(jax.random.key(0), config, td3.default_hyperparams())
+    stats = normalization.RunningStats(
+        count=np.float32(10.0), mean=np.array([1.0, -1.0, 2.0], np.float32), var=np.full(3, 4.0)
+    )
+    agent = state.agent.replace(obs_stats=stats)
+    obs = np.array([[3.0, 1.0, 2.0]], np.float32)
+    got = td3.policy(state.replace(agent=agent), config)(obs)
+    standardised = (obs - stats.mean[None]) / np.sqrt(stats.var[None] + 1e-8)
+    expected = make_networks(config).actor.apply(agent.actor, standardised)
+    np.testing.assert_allclose(got, expected, rtol=1e-6)
+
+
+def test_simba_refuses_unequal_widths_and_extra_norms():
+    with pytest.raises(ValueError, match="one width"):
+        td3.default_config("rl_jax/Pendulum-v1", network="simba", critic_hidden=(16, 8))
+    with pytest.raises(ValueError, match="own LayerNorms"):
+        td3.default_config("rl_jax/Pendulum-v1", network="simba", critic_norm="layer")
+
+
+def test_sale_lap_simba_and_hard_targets_compose():
+    state, history = train(lap=True, target_update_period=50, **SALE, **SIMBA)
+    agent = state.agent
+    assert agent.obs_stats is not None and agent.encoders is not None
+    assert "Simba_0" in agent.critics["params"] and "Dense_0" in agent.critics["params"]
+    # 150 updates per seed (one per iteration after 50 warm-up iterations), a copy at every
+    # 50th: the last update was a copy.
+    jax.tree.map(np.testing.assert_array_equal, agent.target_critics, agent.critics)
+    assert_trained_and_finite(state, history)

@@ -120,3 +120,54 @@ def test_layer_norm_critic_and_actor_keep_the_plain_dense_parameters():
     assert "LayerNorm_0" in actor.init(jax.random.key(0), obs)["params"]["MLP_0"]
     with pytest.raises(ValueError, match="unknown norm"):
         networks.MLP((4,), 1, norm="group").init(jax.random.key(0), jnp.zeros(2))
+
+
+def _relu_block(x, block):
+    """SimBa's block by hand (float64): x + W2 relu(W1 LN(x) + b1) + b2."""
+    norm, first, second = block["LayerNorm_0"], block["Dense_0"], block["Dense_1"]
+    x = np.asarray(x, np.float64)
+    h = _layer_norm(x) * np.asarray(norm["scale"]) + np.asarray(norm["bias"])
+    h = np.maximum(h @ np.asarray(first["kernel"]) + np.asarray(first["bias"]), 0.0)
+    return x + h @ np.asarray(second["kernel"]) + np.asarray(second["bias"])
+
+
+def test_simba_block_shapes_and_its_skip_path():
+    block = networks.SimbaBlock(6)
+    x = jax.random.normal(jax.random.key(0), (5, 6))
+    params = block.init(jax.random.key(1), x)["params"]
+    assert params["Dense_0"]["kernel"].shape == (6, 24)
+    assert params["Dense_1"]["kernel"].shape == (24, 6)
+    np.testing.assert_allclose(block.apply({"params": params}, x), _relu_block(x, params), 1e-5)
+    # With the block's last layer at zero the block is the identity: the skip carries x as is.
+    silent = jax.tree.map(jnp.zeros_like, params["Dense_1"])
+    out = block.apply({"params": {**params, "Dense_1": silent}}, x)
+    np.testing.assert_array_equal(out, x)
+
+
+def test_simba_is_linear_then_blocks_then_layer_norm_then_head():
+    net = networks.Simba((8, 8), 3)
+    x = jax.random.normal(jax.random.key(2), (4, 5))
+    params = net.init(jax.random.key(3), x)["params"]
+    assert sorted(params) == ["Dense_0", "Dense_1", "LayerNorm_0", "SimbaBlock_0", "SimbaBlock_1"]
+    assert params["Dense_0"]["kernel"].shape == (5, 8)  # input -> the blocks' width
+    assert params["Dense_1"]["kernel"].shape == (8, 3)  # the head
+    h = np.asarray(x, np.float64) @ np.asarray(params["Dense_0"]["kernel"])
+    h = h + np.asarray(params["Dense_0"]["bias"])
+    for index in range(2):
+        h = _relu_block(h, params[f"SimbaBlock_{index}"])
+    norm = params["LayerNorm_0"]
+    h = _layer_norm(h) * np.asarray(norm["scale"]) + np.asarray(norm["bias"])
+    out = h @ np.asarray(params["Dense_1"]["kernel"]) + np.asarray(params["Dense_1"]["bias"])
+    np.testing.assert_allclose(net.apply({"params": params}, x), out, rtol=1e-5, atol=1e-5)
+    with pytest.raises(ValueError, match="one width"):
+        networks.Simba((8, 4), 1).init(jax.random.key(0), x)
+
+
+def test_actor_and_critic_take_simba_in_place_of_the_mlp():
+    obs, action = jnp.ones((4, 3)), jnp.zeros((4, 1))
+    critic = networks.Critic((8, 8), architecture="simba").init(jax.random.key(0), obs, action)
+    assert list(critic["params"]) == ["Simba_0"]
+    actor = networks.Actor((8,), (-1.0,), (1.0,), architecture="simba")
+    params = actor.init(jax.random.key(0), obs)
+    assert list(params["params"]) == ["Simba_0"]
+    assert np.all(np.abs(actor.apply(params, obs)) <= 1.0)
