@@ -19,7 +19,7 @@ from __future__ import annotations
 
 import dataclasses
 import functools
-from typing import Any, NamedTuple
+from typing import Any
 
 import jax
 import jax.numpy as jnp
@@ -28,12 +28,31 @@ from flax import struct
 
 from rl_jax.agents import td7_parts
 from rl_jax.agents.common import linearly_decayed, optimizer_step, polyak_update
+from rl_jax.agents.td3_agent import (  # noqa: F401  (re-exported)
+    Agent,
+    AgentWithOptions,
+    Encoders,
+    fixed_encoders,
+    hard_target_update,
+    normalized,
+    normalized_batch,
+    observe,
+)
+from rl_jax.agents.td3_losses import (  # noqa: F401  (re-exported: the tests read them here)
+    CriticAux,
+    CriticBatch,
+    actor_loss_fn,
+    clipped_double_q_target,
+    critic_loss,
+    critic_loss_fn,
+    deterministic_policy_loss,
+    encoder_loss_fn,
+    smoothed_target_action,
+    target_action,
+)
 from rl_jax.agents.td3_networks import (  # noqa: F401  (build_networks re-exported)
     Networks,
     build_networks,
-    critic_values,
-    embed_state,
-    first_critic_value,
     make_networks,
     policy_action,
     row,
@@ -158,155 +177,6 @@ class Hyperparams(params.HyperparamsMethods):
     encoder_lr: Any = 3e-4  # sale: Adam step size of the encoder
 
 
-@struct.dataclass
-class Agent:
-    actor: Any  # actor parameters
-    critics: Any  # critic parameters, leaves [num_critics, ...]
-    target_actor: Any
-    target_critics: Any
-    actor_opt: Any  # optax inject_hyperparams(adam) state: holds the learning rate
-    critic_opt: Any
-
-
-@struct.dataclass
-class Encoders:
-    """SALE's encoder (``networks.StateActionEncoder`` parameters) and its fixed copies."""
-
-    online: Any  # learns every update
-    fixed: Any  # what the actor and critics read: the online one at the last target update
-    fixed_target: Any  # what the targets read: the fixed one before that
-    opt: Any  # Adam state of ``online``
-
-
-@struct.dataclass
-class AgentWithOptions(Agent):
-    """The agent when an option keeps state (``Config.keeps_option_state``); None where an
-    option is off. Plain TD3 keeps ``Agent``, so its train state and checkpoints stay as they
-    were."""
-
-    encoders: Any = None  # sale: Encoders
-    obs_stats: Any = None  # simba: normalization.RunningStats of the observations acted on
-
-
-def fixed_encoders(agent: Agent) -> tuple[Any, Any]:
-    """``(fixed, fixed_target)`` SALE encoder parameters, ``(None, None)`` without SALE."""
-    encoders = getattr(agent, "encoders", None)
-    return (None, None) if encoders is None else (encoders.fixed, encoders.fixed_target)
-
-
-# ---- loss maths (pure; rlax naming: tm1 = the transition's start, t = its end) -----------------
-def smoothed_target_action(a_t, noise, noise_clip, low, high) -> jax.Array:
-    """Target policy smoothing: ``clip(a_t + clip(noise, -noise_clip, noise_clip), low, high)``."""
-    return jnp.clip(a_t + jnp.clip(noise, -noise_clip, noise_clip), low, high)
-
-
-def clipped_double_q_target(r_t, discount_t, q_t) -> jax.Array:
-    """``r_t + discount_t * min_i q_t[i]`` with no gradient; ``q_t`` [num_critics, B] -> [B].
-    With one critic this is the plain DDPG target. ``discount_t`` is 0 at termination."""
-    return jax.lax.stop_gradient(r_t + discount_t * jnp.min(q_t, axis=0))
-
-
-def critic_loss(q_tm1, r_t, discount_t, q_t) -> jax.Array:
-    """Sum over critics of the mean squared error to the shared target; ``q_tm1`` [C, B]."""
-    target = clipped_double_q_target(r_t, discount_t, q_t)
-    return jnp.sum(jnp.mean((q_tm1 - target[None, :]) ** 2, axis=-1))
-
-
-def deterministic_policy_loss(q_tm1) -> jax.Array:
-    """The actor ascends Q at its own action: loss ``-mean(q_tm1)``."""
-    return -jnp.mean(q_tm1)
-
-
-# ---- losses on networks ----------------------------------------------------------------------
-def target_action(
-    target_actor_params, next_obs, noise, hparams: Hyperparams, nets: Networks, encoder=None
-):
-    """The target actor's action plus smoothing noise ``target_noise * noise`` clipped to
-    ``+-target_noise_clip`` (both x the action half-range); ``noise`` is standard normal.
-    ``encoder``: SALE's fixed target encoder."""
-    a_t = policy_action(nets, target_actor_params, next_obs, encoder)
-    scale = row(nets.half_range, a_t)
-    return smoothed_target_action(
-        a_t,
-        hparams.target_noise * scale * noise,
-        hparams.target_noise_clip * scale,
-        row(nets.low, a_t),
-        row(nets.high, a_t),
-    )
-
-
-class CriticBatch(NamedTuple):
-    """What a critic update reads: the target is ``r_t + discount_t * min_i q_t[i]`` at
-    ``next_obs`` (one step: ``gamma`` or 0 at termination; n steps: the folded window)."""
-
-    obs: jax.Array
-    action: jax.Array
-    r_t: jax.Array  # [B]
-    discount_t: jax.Array  # [B]
-    next_obs: jax.Array
-
-    @classmethod
-    def one_step(cls, batch: Transition, gamma) -> CriticBatch:
-        discount_t = gamma * (1.0 - batch.terminated.astype(jnp.float32))
-        return cls(batch.obs, batch.action, batch.reward, discount_t, batch.next_obs)
-
-    @classmethod
-    def n_step(cls, batch: replay.NStepBatch) -> CriticBatch:
-        r_t, discount_t = replay.fold_n_step(batch.r_t, batch.discount_t)
-        return cls(batch.obs, batch.action, r_t, discount_t, batch.next_obs)
-
-
-class CriticAux(NamedTuple):
-    """What a critic loss computes besides the loss."""
-
-    q_tm1: jax.Array  # [C, B] the online critics' values
-    td_tm1: jax.Array  # [C, B] their errors against the (stopped-gradient) target
-
-
-def critic_loss_fn(
-    critic_params,
-    target_actor_params,
-    target_critic_params,
-    batch: Transition | CriticBatch,
-    noise: jax.Array,
-    hparams: Hyperparams,
-    nets: Networks,
-    encoders: tuple[Any, Any] = (None, None),
-):
-    """Critic loss on a batch (a ``Transition`` is a one-step ``CriticBatch``); ``noise``
-    [B, action_dim] is standard normal; ``encoders``: SALE's ``(fixed, fixed_target)``. Returns
-    ``(loss, CriticAux)``: the mean squared TD error, or with ``lap`` LAP's loss. Target networks
-    (and encoders) enter only through the stopped-gradient target."""
-    if isinstance(batch, Transition):
-        batch = CriticBatch.one_step(batch, hparams.gamma)
-    fixed, fixed_target = encoders
-    a_t = target_action(target_actor_params, batch.next_obs, noise, hparams, nets, fixed_target)
-    q_t = critic_values(nets, target_critic_params, batch.next_obs, a_t, fixed_target)
-    q_tm1 = critic_values(nets, critic_params, batch.obs, batch.action, fixed)
-    td_tm1 = q_tm1 - clipped_double_q_target(batch.r_t, batch.discount_t, q_t)[None, :]
-    if nets.config.lap:
-        loss = td7_parts.lap_loss(td_tm1)
-    else:
-        loss = critic_loss(q_tm1, batch.r_t, batch.discount_t, q_t)
-    return loss, CriticAux(q_tm1, td_tm1)
-
-
-def actor_loss_fn(
-    actor_params, critic_params, obs: jax.Array, nets: Networks, encoder=None
-) -> jax.Array:
-    """Deterministic policy gradient through the *first* critic only (as TD3 prescribes);
-    ``encoder``: SALE's fixed encoder, which the gradient passes through but never changes."""
-    action = policy_action(nets, actor_params, obs, encoder)
-    return deterministic_policy_loss(first_critic_value(nets, critic_params, obs, action, encoder))
-
-
-def encoder_loss_fn(encoder_params, batch: CriticBatch, nets: Networks) -> jax.Array:
-    """SALE's loss: ``g(f(s), a)`` against ``f(s')`` of the same (online) encoder, stopped."""
-    zs_t = nets.encoder.apply(encoder_params, batch.next_obs, method="embed_state")
-    zsa_tm1 = nets.encoder.apply(encoder_params, batch.obs, batch.action)[1]
-    return td7_parts.sale_loss(zsa_tm1, zs_t)
-
-
 # ---- replay ------------------------------------------------------------------------------------
 def sample(buffer, key, config: Config, hparams: Hyperparams):
     """``(CriticBatch, (rows, columns))``: a uniform batch, or with ``lap`` one drawn in
@@ -393,16 +263,6 @@ def _actor_and_target_step(agent: Agent, obs, hparams: Hyperparams, nets: Networ
     return agent, loss
 
 
-def hard_target_update(agent: Agent) -> Agent:
-    """TD7's periodic copies: targets <- online; SALE's fixed target <- fixed <- online."""
-    agent = agent.replace(target_actor=agent.actor, target_critics=agent.critics)
-    encoders = getattr(agent, "encoders", None)
-    if encoders is None:
-        return agent
-    encoders = encoders.replace(fixed_target=encoders.fixed, fixed=encoders.online)
-    return agent.replace(encoders=encoders)
-
-
 def _encoder_step(agent: AgentWithOptions, batch: CriticBatch, hparams, nets: Networks, decay):
     """One Adam step of SALE's online encoder: ``(agent, loss)``."""
     encoders = agent.encoders
@@ -466,31 +326,6 @@ def _maybe_copy_targets(agent, buffer, config: Config, hparams: Hyperparams, upd
 def metric_names(config: Config) -> tuple[str, ...]:
     """The keys of ``update``'s metrics under ``config``."""
     return ("encoder_loss",) * config.sale + ("critic_loss", "actor_loss", "q")
-
-
-# ---- observations --------------------------------------------------------------------------------
-def normalized(agent: Agent, obs: jax.Array) -> jax.Array:
-    """What the networks see of ``obs``: standardised under SimBa, else ``obs`` itself."""
-    return normalization.normalize(getattr(agent, "obs_stats", None), obs)
-
-
-def normalized_batch(agent: Agent, batch: CriticBatch) -> CriticBatch:
-    """A sampled batch as the networks see it: SimBa standardises with today's statistics."""
-    if getattr(agent, "obs_stats", None) is None:
-        return batch
-    return batch._replace(
-        obs=normalized(agent, batch.obs), next_obs=normalized(agent, batch.next_obs)
-    )
-
-
-def observe(agent: Agent, transitions: Transition, episode_return, done, clock, config, hparams):
-    """Every env step: SimBa's statistics take in the observations acted on."""
-    if config.network == "simba":
-        mask = jnp.ones(transitions.obs.shape[:1], jnp.float32)
-        agent = agent.replace(
-            obs_stats=normalization.update(agent.obs_stats, transitions.obs, mask)
-        )
-    return agent
 
 
 # ---- acting and init ----------------------------------------------------------------------------
