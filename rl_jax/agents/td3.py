@@ -32,8 +32,13 @@ from rl_jax.agents.td3_agent import (  # noqa: F401  (re-exported)
     Agent,
     AgentWithOptions,
     Encoders,
+    Policy,
+    PolicyCheckpoint,
+    act_with,
+    current_policy,
     fixed_encoders,
     hard_target_update,
+    init_checkpoint,
     normalized,
     normalized_batch,
     observe,
@@ -98,6 +103,16 @@ class Config(OffPolicyConfig):
     # which keeps Q-values bounded at high update rates (RLPD, BRO); "none": the paper's critics.
     critic_norm: str = "none"
     actor_norm: str = "none"  # the same for the actor: "none" or "layer"
+    # TD7's policy checkpoints: the training envs act with a frozen copy of the actor for an
+    # assessment of checkpoint_episodes episodes (1 before env step checkpoint_episodes_from);
+    # if none returned less than the checkpoint's score, the copy becomes the checkpoint, which
+    # evaluation, best/ and loaded policies use; one episode below the score ends the assessment
+    # early. Updates go on meanwhile (TD7 defers them: see rl_jax.agents.td3_agent).
+    policy_checkpoints: bool = False
+    checkpoint_episodes: int = 20  # policy_checkpoints: episodes per assessment (TD7: 20)
+    # policy_checkpoints: env step from which assessments take checkpoint_episodes episodes
+    # instead of 1 (TD7: 750,000 training steps)
+    checkpoint_episodes_from: int = 750_000
     # "simba" (SimBa): observations standardised by running statistics, then for actor and
     # critics a linear layer, one pre-LayerNorm residual block per entry of actor_hidden /
     # critic_hidden (LN -> dense(4w) -> relu -> dense(w), plus the skip; the entries are the
@@ -136,6 +151,8 @@ class Config(OffPolicyConfig):
             raise ValueError(f"network must be one of {networks.ARCHITECTURES}")
         if self.network == "simba":
             self._check_simba()
+        if self.checkpoint_episodes < 1 or self.checkpoint_episodes_from < 0:
+            raise ValueError("checkpoint_episodes must be >= 1, checkpoint_episodes_from >= 0")
         if self.target_update_period < 0:
             raise ValueError("target_update_period must be >= 0 (0: Polyak steps)")
         if self.sale and self.n_step != 1:
@@ -152,7 +169,7 @@ class Config(OffPolicyConfig):
     @property
     def keeps_option_state(self) -> bool:
         """Whether an option keeps state beside the networks (an ``AgentWithOptions``)."""
-        return self.sale or self.network == "simba"
+        return self.sale or self.network == "simba" or self.policy_checkpoints
 
 
 @struct.dataclass
@@ -175,6 +192,9 @@ class Hyperparams(params.HyperparamsMethods):
     lr_decay_steps: Any = 0.0
     lap_alpha: Any = 0.4  # lap: P(i) proportional to max(|TD error|, 1)^lap_alpha (TD7: 0.4)
     encoder_lr: Any = 3e-4  # sale: Adam step size of the encoder
+    # policy_checkpoints: the checkpoint's score is multiplied by this when assessments lengthen
+    # to checkpoint_episodes (TD7: 0.9)
+    checkpoint_reset_weight: Any = 0.9
 
 
 # ---- replay ------------------------------------------------------------------------------------
@@ -330,16 +350,19 @@ def metric_names(config: Config) -> tuple[str, ...]:
 
 # ---- acting and init ----------------------------------------------------------------------------
 def act(agent: Agent, obs: jax.Array, config: Config) -> jax.Array:
-    """The deterministic policy, in the env's own action units."""
-    nets = make_networks(config)
-    return policy_action(nets, agent.actor, normalized(agent, obs), fixed_encoders(agent)[0])
+    """The deterministic policy, in the env's own action units: the online actor, or with
+    ``policy_checkpoints`` the checkpoint."""
+    policy = agent.checkpoint.best if config.policy_checkpoints else current_policy(agent)
+    return act_with(make_networks(config), policy, obs)
 
 
 def explore(agent: Agent, obs, noise, key, config: Config, hparams: Hyperparams, clock=None):
     """``(actions, noise)``: the policy plus ``exploration_noise`` x half-range x an AR(1)
-    noise of unit std (independent when ``exploration_correlation`` is 0), clipped to bounds."""
-    action = act(agent, obs, config)
+    noise of unit std (independent when ``exploration_correlation`` is 0), clipped to bounds.
+    With ``policy_checkpoints`` the policy is the copy under assessment."""
     nets = make_networks(config)
+    policy = agent.checkpoint.assessed if config.policy_checkpoints else current_policy(agent)
+    action = act_with(nets, policy, obs)
     rho = hparams.exploration_correlation
     noise = rho * noise + jnp.sqrt(1.0 - rho**2) * jax.random.normal(key, action.shape)
     scaled = hparams.exploration_noise * row(nets.half_range, action) * noise
@@ -371,11 +394,15 @@ def init_agent(key, config: Config, hparams: Hyperparams, obs_space, action_spac
         return agent
     # Keys derived apart from the split above, so the networks start as without the options.
     option_key = jax.random.fold_in(key, 1)
-    return AgentWithOptions(
+    agent = AgentWithOptions(
         **{field.name: getattr(agent, field.name) for field in dataclasses.fields(agent)},
         encoders=_init_encoders(option_key, nets, obs, action, hparams) if config.sale else None,
         obs_stats=normalization.init(obs.shape[-1]) if config.network == "simba" else None,
     )
+    if config.policy_checkpoints:
+        checkpoint = init_checkpoint(agent, config.num_envs, config.learning_starts)
+        agent = agent.replace(checkpoint=checkpoint)
+    return agent
 
 
 def _init_encoders(key, nets: Networks, obs, action, hparams: Hyperparams) -> Encoders:
@@ -403,7 +430,14 @@ class TD3Family(RecipeBook):
 
     config_type, hparams_type = Config, Hyperparams
     recipes, hparam_recipes = RECIPES, HPARAM_RECIPES
-    ranges = {"lap_alpha": validation.UNIT, "target_update_period": validation.NON_NEGATIVE}
+    ranges = {
+        "lap_alpha": validation.UNIT,
+        "target_update_period": validation.NON_NEGATIVE,
+        "embedding_dim": validation.AT_LEAST_ONE,
+        "checkpoint_episodes": validation.AT_LEAST_ONE,
+        "checkpoint_episodes_from": validation.NON_NEGATIVE,
+        "checkpoint_reset_weight": validation.NON_NEGATIVE,
+    }
 
     def __init__(
         self, name: str, config_overrides: dict[str, Any], hparam_overrides: dict[str, Any]

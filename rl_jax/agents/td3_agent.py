@@ -1,7 +1,25 @@
 """TD3's agent state: parameters, targets and optimizer states (``Agent``), and what the options
-keep beside them (``AgentWithOptions``): SALE's encoders and SimBa's observation statistics.
-Plain TD3 keeps ``Agent``, so its train state and checkpoints stay as they were before the
-options existed.
+keep beside them (``AgentWithOptions``): SALE's encoders, SimBa's observation statistics and
+TD7's policy checkpoints. Plain TD3 keeps ``Agent``, so its train state and checkpoints stay as
+they were before the options existed.
+
+Policy checkpoints, and how they differ from TD7. TD7 (one env) stops training while it assesses
+its actor over whole episodes, then runs all the training steps it owes at once. Here the loop
+keeps its fixed number of updates per env step (a fixed-size scan, and a clock shared by every
+seed under the vmap, leave no room for bursts of deferred updates). The training envs act with a
+frozen copy of the actor taken when the assessment began (``PolicyCheckpoint.assessed``) while
+the online actor goes on learning, and each assessment starts from the online actor of that
+moment. So the acting policies, the data they collect and the number of updates follow TD7; what
+differs is that each update sees the replay as it was at its env step, not after the whole
+assessment. With several envs, episodes end out of step: an episode counts only if it began
+under the assessed copy (envs in mid-episode when an assessment starts sit that episode out,
+and the copy is retaken until an env starts an episode that counts),
+episodes ending in the same env step are counted together (an assessment may run up to
+``num_envs - 1`` episodes over ``checkpoint_episodes``), and the switch from 1 to
+``checkpoint_episodes`` episodes (with the score scaled by ``checkpoint_reset_weight``) happens at
+env step ``checkpoint_episodes_from`` (TD7 counts training steps, i.e. env steps after its
+warm-up). Episodes played during the random warm-up never count (TD7 counts the one that
+straddles the end of its warm-up).
 """
 
 from __future__ import annotations
@@ -12,7 +30,9 @@ import jax
 import jax.numpy as jnp
 from flax import struct
 
+from rl_jax.agents import td7_parts
 from rl_jax.agents.td3_losses import CriticBatch
+from rl_jax.agents.td3_networks import Networks, policy_action
 from rl_jax.training import normalization
 from rl_jax.training.replay import Transition
 
@@ -45,6 +65,29 @@ class AgentWithOptions(Agent):
 
     encoders: Any = None  # sale: Encoders
     obs_stats: Any = None  # simba: normalization.RunningStats of the observations acted on
+    checkpoint: Any = None  # policy_checkpoints: PolicyCheckpoint
+
+
+@struct.dataclass
+class Policy:
+    """What acting needs: actor parameters, SALE's fixed encoder and SimBa's statistics (None
+    where off), so that a copy of the policy stays whole while the agent goes on learning."""
+
+    actor: Any
+    encoder: Any = None
+    obs_stats: Any = None
+
+
+@struct.dataclass
+class PolicyCheckpoint:
+    """TD7's policy checkpoints (see the module docstring)."""
+
+    best: Policy  # the checkpoint: what evaluation, best/ and loaded policies use
+    assessed: Policy  # the frozen copy acting in the training envs during an assessment
+    score: jax.Array  # [] float32, the lowest return of the checkpoint's assessment
+    lowest: jax.Array  # [] float32, the lowest return so far in this assessment
+    episodes: jax.Array  # [] int32, episodes counted so far in this assessment
+    counting: jax.Array  # [num_envs] bool, whether each env's episode began under ``assessed``
 
 
 def fixed_encoders(agent: Agent) -> tuple[Any, Any]:
@@ -63,6 +106,64 @@ def hard_target_update(agent: Agent) -> Agent:
     return agent.replace(encoders=encoders)
 
 
+def current_policy(agent: Any) -> Policy:
+    """The online actor with what it reads."""
+    obs_stats = getattr(agent, "obs_stats", None)
+    return Policy(actor=agent.actor, encoder=fixed_encoders(agent)[0], obs_stats=obs_stats)
+
+
+def act_with(nets: Networks, policy: Policy, obs: jax.Array) -> jax.Array:
+    """``policy``'s deterministic action."""
+    obs = normalization.normalize(policy.obs_stats, obs)
+    return policy_action(nets, policy.actor, obs, policy.encoder)
+
+
+def init_checkpoint(agent: Any, num_envs: int, learning_starts: int) -> PolicyCheckpoint:
+    """The initial actor as checkpoint and as assessed copy; envs count from their first
+    episode that starts after the random warm-up."""
+    policy = current_policy(agent)
+    return PolicyCheckpoint(
+        best=policy,
+        assessed=policy,
+        score=jnp.float32(td7_parts.NO_SCORE),
+        lowest=jnp.float32(td7_parts.NO_EPISODE),
+        episodes=jnp.int32(0),
+        counting=jnp.full(num_envs, learning_starts == 0),
+    )
+
+
+def _where(flag: jax.Array, a: Any, b: Any) -> Any:
+    return jax.tree.map(lambda x, y: jnp.where(flag, x, y), a, b)
+
+
+def assess(agent: Any, episode_return, done, clock, config, hparams) -> PolicyCheckpoint:
+    """One env step of TD7's checkpoint schedule: count the episodes that ended, and when an
+    assessment ends, keep its copy if it passed and take a new copy of the online actor. Until
+    an assessment's first episode begins (no env counting: after the warm-up, or while every
+    env finishes an episode begun before), the copy keeps following the online actor."""
+    ckpt, after = agent.checkpoint, clock.env_steps + config.num_envs
+    start = config.checkpoint_episodes_from
+    lengthen = jnp.logical_and(clock.env_steps < start, after >= start)
+    score = jnp.where(lengthen, ckpt.score * hparams.checkpoint_reset_weight, ckpt.score)
+    required = jnp.where(after >= start, config.checkpoint_episodes, 1)
+    counted = jnp.logical_and(done, ckpt.counting)
+    lowest, episodes, passed, ended = td7_parts.assess_episodes(
+        ckpt.lowest, ckpt.episodes, score, episode_return, counted, required
+    )
+    renew = jnp.logical_or(ended, ~jnp.any(ckpt.counting))
+    # After an assessment only fresh episodes count; none while actions are still random.
+    counting = jnp.where(ended, done, jnp.logical_or(ckpt.counting, done))
+    counting = jnp.logical_and(counting, after >= config.learning_starts)
+    return PolicyCheckpoint(
+        best=_where(passed, ckpt.assessed, ckpt.best),
+        assessed=_where(renew, current_policy(agent), ckpt.assessed),
+        score=jnp.where(passed, lowest, score),
+        lowest=jnp.where(ended, jnp.float32(td7_parts.NO_EPISODE), lowest),
+        episodes=jnp.where(ended, 0, episodes),
+        counting=counting,
+    )
+
+
 # ---- observations -------------------------------------------------------------------------------
 def normalized(agent: Agent, obs: jax.Array) -> jax.Array:
     """What the networks see of ``obs``: standardised under SimBa, else ``obs`` itself."""
@@ -79,10 +180,15 @@ def normalized_batch(agent: Agent, batch: CriticBatch) -> CriticBatch:
 
 
 def observe(agent: Agent, transitions: Transition, episode_return, done, clock, config, hparams):
-    """Every env step: SimBa's statistics take in the observations acted on."""
+    """Every env step: SimBa's statistics take in the observations acted on; policy checkpoints
+    count the episodes that ended."""
     if config.network == "simba":
         mask = jnp.ones(transitions.obs.shape[:1], jnp.float32)
         agent = agent.replace(
             obs_stats=normalization.update(agent.obs_stats, transitions.obs, mask)
+        )
+    if config.policy_checkpoints:
+        agent = agent.replace(
+            checkpoint=assess(agent, episode_return, done, clock, config, hparams)
         )
     return agent

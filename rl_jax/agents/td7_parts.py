@@ -14,6 +14,11 @@ for TD3's options (``rl_jax.agents.td3``): one code path, no separate TD7 agent.
   embedding cannot collapse the loss by moving its own target); actor and critics read the
   embeddings beside their raw inputs (``rl_jax.training.networks.StateActionEncoder``).
 
+* Policy checkpoints: the policy used for evaluation is not the latest actor but a checkpoint,
+  replaced only when an *assessment* of the acting actor (held fixed for it) over a number of
+  training episodes has a lowest return at least the checkpoint's score; one episode below the
+  score ends an assessment early. ``assess_episodes`` is one env step of that bookkeeping.
+
 Naming as rlax (and ``td3``): ``td_tm1`` is the TD error of the transition's start state,
 ``[num_critics, B]``.
 """
@@ -53,3 +58,19 @@ def sale_loss(zsa_tm1: jax.Array, zs_t: jax.Array) -> jax.Array:
     """SALE's encoder loss: the mean squared error of ``z_sa`` [B, D] predicting the next state's
     embedding ``z_s'`` [B, D], which is a target (no gradient)."""
     return jnp.mean((zsa_tm1 - jax.lax.stop_gradient(zs_t)) ** 2)
+
+
+#: TD7's start values: a checkpoint score below any return, an assessment minimum above any.
+NO_SCORE, NO_EPISODE = -1e8, 1e8
+
+
+def assess_episodes(lowest, episodes, score, returns, counted, required):
+    """One env step of an assessment: ``returns`` [N] of the episodes that ended, ``counted``
+    [N] those that count. Returns ``(lowest, episodes, passed, ended)``: the lowest return and the
+    number of episodes so far; ``passed`` when ``required`` episodes have all stayed at or above
+    ``score`` (the assessed policy becomes the checkpoint), ``ended`` also when one fell below."""
+    lowest = jnp.minimum(lowest, jnp.min(jnp.where(counted, returns, NO_EPISODE)))
+    episodes = episodes + jnp.sum(counted, dtype=jnp.int32)
+    failed = lowest < score
+    passed = jnp.logical_and(~failed, episodes >= required)
+    return lowest, episodes, passed, jnp.logical_or(failed, passed)

@@ -8,8 +8,8 @@ import pytest
 
 import envs.core.probes  # noqa: F401  (registers the probe ids)
 from envs.core.spaces import Box
-from rl_jax.agents import td3, td3_networks, td7_parts
-from rl_jax.training import networks, prioritized
+from rl_jax.agents import td3, td3_agent, td3_networks, td7_parts
+from rl_jax.training import networks, offpolicy, prioritized
 from rl_jax.training.replay import Transition
 
 modes = pytest.mark.parametrize("transform", [lambda f: f, jax.jit], ids=["nojit", "jit"])
@@ -267,3 +267,98 @@ def test_targets_are_copied_every_period_and_never_polyak_stepped():
         if index == 5:
             stored = np.max(np.asarray(buffer.sums[buffer.leaves :]))
             np.testing.assert_allclose(buffer.max_priority, stored ** (1 / 0.4), rtol=1e-5)
+
+
+# ---- policy checkpoints (TD7) -------------------------------------------------------------------
+@modes
+def test_assess_episodes_counts_passes_and_fails(transform):
+    assess = transform(td7_parts.assess_episodes)
+    no = td7_parts.NO_EPISODE
+    counted, returns = jnp.array([True, False, True]), jnp.array([4.0, -50.0, 6.0])
+    # Two counted episodes (the uncounted -50 is ignored), 3 required: going on.
+    lowest, episodes, passed, ended = assess(no, 0, 1.0, returns, counted, 3)
+    assert (float(lowest), int(episodes), bool(passed), bool(ended)) == (4.0, 2, False, False)
+    # A third at 5: all three >= the score 1 -> passed.
+    got = assess(lowest, episodes, 1.0, jnp.array([5.0]), jnp.array([True]), 3)
+    assert [float(v) for v in got] == [4.0, 3.0, 1.0, 1.0]
+    # One below the score ends the assessment at once, without passing.
+    got = assess(lowest, episodes, 4.5, jnp.array([9.0]), jnp.array([True]), 3)
+    assert [float(v) for v in got] == [4.0, 3.0, 0.0, 1.0]
+    # Nothing ended: nothing changes, even below the score (no episode is below it yet).
+    got = assess(no, 0, 1.0, jnp.array([-9.0]), jnp.array([False]), 1)
+    assert [float(v) for v in got] == [no, 0.0, 0.0, 0.0]
+
+
+def _checkpoint_agent(actor_value: float, num_envs: int = 2, learning_starts: int = 0):
+    config = td3.Config(
+        env_id="unused",
+        num_envs=num_envs,
+        learning_starts=learning_starts,
+        policy_checkpoints=True,
+        checkpoint_episodes=2,
+        checkpoint_episodes_from=100,
+    )
+    agent = td3.AgentWithOptions(
+        actor={"w": jnp.float32(actor_value)},
+        critics=(),
+        target_actor=(),
+        target_critics=(),
+        actor_opt=(),
+        critic_opt=(),
+    )
+    checkpoint = td3.init_checkpoint(agent, num_envs, learning_starts)
+    return config, agent.replace(checkpoint=checkpoint)
+
+
+def _observe(agent, config, returns, done, env_steps, actor):
+    """One env step of the schedule at ``env_steps``, the online actor now ``actor``."""
+    clock = offpolicy.Clock(jnp.int32(env_steps), jnp.int32(0), jnp.int32(0))
+    agent = agent.replace(actor={"w": jnp.float32(actor)})
+    hparams = td3.Hyperparams().as_arrays()
+    step = jax.jit(td3_agent.assess, static_argnums=4)
+    checkpoint = step(agent, jnp.array(returns), jnp.array(done), clock, config, hparams)
+    return agent.replace(checkpoint=checkpoint)
+
+
+def _weights(agent):
+    """(checkpoint's actor, assessed copy's actor)."""
+    return float(agent.checkpoint.best.actor["w"]), float(agent.checkpoint.assessed.actor["w"])
+
+
+def test_the_copy_follows_the_actor_until_a_counted_episode_begins():
+    config, agent = _checkpoint_agent(0.0, learning_starts=4)
+    # Warm-up (random actions): nothing counts, even an episode that ends.
+    agent = _observe(agent, config, [1.0, 1.0], [True, False], 0, 1.0)
+    assert _weights(agent) == (0.0, 1.0) and not np.any(agent.checkpoint.counting)
+    # Env 0's episode ends as the warm-up ends: its next one counts, under the actor of now.
+    agent = _observe(agent, config, [1.0, 1.0], [True, False], 2, 2.0)
+    assert _weights(agent) == (0.0, 2.0) and agent.checkpoint.counting.tolist() == [True, False]
+    agent = _observe(agent, config, [1.0, 1.0], [False, False], 4, 3.0)
+    assert _weights(agent) == (0.0, 2.0)  # frozen from here on
+
+
+def test_assessments_freeze_the_acting_copy_and_checkpoint_only_passed_ones():
+    config, agent = _checkpoint_agent(0.0)
+
+    def observe(agent, returns, done, env_steps, actor):
+        return _observe(agent, config, returns, done, env_steps, actor)
+
+    weights = _weights
+
+    # Before env step 100 one episode is an assessment: env 0 ends at 5 -> the copy (actor 0)
+    # passes and becomes the checkpoint; the next copy is the online actor (1).
+    agent = observe(agent, [5.0, 0.0], [True, False], 0, 1.0)
+    assert weights(agent) == (0.0, 1.0) and float(agent.checkpoint.score) == 5.0
+    # Env 1's episode began under the old copy: it does not count.
+    agent = observe(agent, [-9.0, -9.0], [False, True], 2, 2.0)
+    assert weights(agent) == (0.0, 1.0) and int(agent.checkpoint.episodes) == 0
+    # Crossing env step 100: the score is scaled by 0.9 and two episodes are required.
+    agent = observe(agent, [7.0, 0.0], [True, False], 98, 3.0)
+    assert float(agent.checkpoint.score) == pytest.approx(4.5)
+    assert weights(agent) == (0.0, 1.0) and int(agent.checkpoint.episodes) == 1
+    agent = observe(agent, [0.0, 4.6], [False, True], 102, 4.0)
+    assert weights(agent) == (1.0, 4.0) and float(agent.checkpoint.score) == pytest.approx(4.6)
+    # Env 0 was in mid-episode at the copy (its 9 does not count); env 1's 4 is below 4.6 and
+    # fails the assessment: no new checkpoint, a new copy.
+    agent = observe(agent, [9.0, 4.0], [True, True], 104, 5.0)
+    assert weights(agent) == (1.0, 5.0) and float(agent.checkpoint.score) == pytest.approx(4.6)

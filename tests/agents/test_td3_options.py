@@ -148,3 +148,28 @@ def test_sale_lap_simba_and_hard_targets_compose():
     # 50th: the last update was a copy.
     jax.tree.map(np.testing.assert_array_equal, agent.target_critics, agent.critics)
     assert_trained_and_finite(state, history)
+
+
+def test_policy_checkpoints_evaluate_the_checkpoint_not_the_online_actor():
+    from rl_jax.agents import td3 as td3_module
+
+    # Hard target copies every 1,000 updates, never reached: the target actor stays the initial.
+    state, history = train(4, policy_checkpoints=True, target_update_period=1000)
+    checkpoint = state.agent.checkpoint
+    # Pendulum's 200-step episodes end together in both envs at env steps 400 and 800 (2 envs);
+    # updates start at 100, so the first counted episodes are those from 400 to 800: they pass
+    # (nothing to beat yet) and the copy taken at 400, after 150 updates, is the checkpoint.
+    np.testing.assert_array_equal(checkpoint.episodes, 0)
+    assert np.all(checkpoint.score > -1e8) and np.all(checkpoint.score < 0.0)
+    leaf = lambda tree: np.asarray(jax.tree.leaves(tree)[0])  # noqa: E731
+    initial = leaf(state.agent.target_actor)
+    assert not np.allclose(leaf(checkpoint.best.actor), initial)
+    assert not np.allclose(leaf(checkpoint.best.actor), leaf(state.agent.actor))
+    # A new copy was taken at 400, before that iteration's update moved the online actor.
+    assert not np.allclose(leaf(checkpoint.assessed.actor), leaf(checkpoint.best.actor))
+    config = td3.default_config("rl_jax/Pendulum-v1", **TINY, policy_checkpoints=True)
+    one = jax.tree.map(lambda x: x[0, 0], state.agent)
+    obs = np.zeros((1, 3), np.float32)
+    expected = td3_module.act_with(td3_module.make_networks(config), one.checkpoint.best, obs)
+    np.testing.assert_array_equal(td3.policy(state.replace(agent=one), config)(obs), expected)
+    assert_trained_and_finite(state, history)

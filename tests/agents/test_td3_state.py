@@ -45,6 +45,7 @@ def test_td3_and_ddpg_defaults_are_the_papers():
             "lr_decay_steps": 0.0,
             "lap_alpha": 0.4,  # used only with lap=True (TD7's value)
             "encoder_lr": 3e-4,  # used only with sale=True (TD7's value)
+            "checkpoint_reset_weight": 0.9,  # used only with policy_checkpoints=True (TD7's)
         }
     )
     # An env without a recipe gets the paper's settings (half cheetah has a faster recipe).
