@@ -100,9 +100,20 @@ class Config(OffPolicyConfig):
     actor_activation: str = "relu"  # hidden nonlinearity of the actor: relu, tanh or elu
     critic_activation: str = "relu"  # of the critics (TD7: elu)
     # "layer": a LayerNorm between each hidden linear layer of the critics and its nonlinearity,
-    # which keeps Q-values bounded at high update rates (RLPD, BRO); "none": the paper's critics.
+    # which keeps Q-values bounded at high update rates (RLPD, BRO). "batch_renorm" (CrossQ):
+    # batch renormalisation on the critics' input and after each hidden nonlinearity, training
+    # mode in the critic update, evaluation mode (running statistics) for the actor's gradient
+    # and the targets. "none": the paper's critics.
     critic_norm: str = "none"
-    actor_norm: str = "none"  # the same for the actor: "none" or "layer"
+    actor_norm: str = "none"  # the actor's: "none" or "layer"
+    # critic_norm "batch_renorm": critic updates of plain batch norm (no r/d corrections) while
+    # the running statistics settle (CrossQ's implementation: 100,000)
+    renorm_warmup: int = 100_000
+    # False (CrossQ): no target networks: the bootstrap uses the online actor (with target
+    # smoothing) and critics, which see the batch's (s, a) and (s', a') in one forward pass, so
+    # that batch renormalisation's statistics cover both. The target fields of the state are
+    # then left at their initial values.
+    target_networks: bool = True
     # TD7's policy checkpoints: the training envs act with a frozen copy of the actor for an
     # assessment of checkpoint_episodes episodes (1 before env step checkpoint_episodes_from);
     # if none returned less than the checkpoint's score, the copy becomes the checkpoint, which
@@ -144,9 +155,10 @@ class Config(OffPolicyConfig):
         for name in ("actor_activation", "critic_activation"):
             if getattr(self, name) not in networks.ACTIVATIONS:
                 raise ValueError(f"{name} must be one of {tuple(networks.ACTIVATIONS)}")
-        for name in ("critic_norm", "actor_norm"):
-            if getattr(self, name) not in networks.NORMS:
-                raise ValueError(f"{name} must be one of {networks.NORMS}")
+        if self.critic_norm not in networks.NORMS:
+            raise ValueError(f"critic_norm must be one of {networks.NORMS}")
+        if self.actor_norm not in ("none", "layer"):
+            raise ValueError("actor_norm must be one of ('none', 'layer')")
         if self.network not in networks.ARCHITECTURES:
             raise ValueError(f"network must be one of {networks.ARCHITECTURES}")
         if self.network == "simba":
@@ -169,7 +181,8 @@ class Config(OffPolicyConfig):
     @property
     def keeps_option_state(self) -> bool:
         """Whether an option keeps state beside the networks (an ``AgentWithOptions``)."""
-        return self.sale or self.network == "simba" or self.policy_checkpoints
+        renorm = self.critic_norm == "batch_renorm"
+        return self.sale or self.network == "simba" or self.policy_checkpoints or renorm
 
 
 @struct.dataclass
@@ -240,38 +253,45 @@ def _adam_step(grads, opt_state, params, learning_rate):
 def _critic_step(
     agent: Agent, batch: CriticBatch, key, hparams: Hyperparams, nets: Networks, decay
 ):
-    """``(agent, loss, CriticAux)`` after one critic step."""
+    """``(agent, loss, CriticAux)`` after one critic step (and, under batch renormalisation,
+    the statistics of its batch folded in)."""
     noise = jax.random.normal(key, batch.action.shape, jnp.float32)
+    targets = nets.config.target_networks
     (loss, aux), grads = jax.value_and_grad(critic_loss_fn, has_aux=True)(
         agent.critics,
-        agent.target_actor,
-        agent.target_critics,
+        agent.target_actor if targets else agent.actor,
+        agent.target_critics if targets else agent.critics,
         batch,
         noise,
         hparams,
         nets,
         fixed_encoders(agent),
+        getattr(agent, "critic_stats", None),
     )
     rate = decay(hparams.critic_lr)
     critics, critic_opt = _adam_step(grads, agent.critic_opt, agent.critics, rate)
-    return agent.replace(critics=critics, critic_opt=critic_opt), loss, aux
+    agent = agent.replace(critics=critics, critic_opt=critic_opt)
+    if aux.batch_stats is not None:
+        agent = agent.replace(critic_stats=aux.batch_stats)
+    return agent, loss, aux
 
 
 def _actor_and_target_step(agent: Agent, obs, hparams: Hyperparams, nets: Networks, decay):
     """An actor step, then (unless targets are copied every ``target_update_period``) a Polyak
     step of the targets."""
+    stats = getattr(agent, "critic_stats", None)
     loss, grads = jax.value_and_grad(actor_loss_fn)(
-        agent.actor, agent.critics, obs, nets, fixed_encoders(agent)[0]
+        agent.actor, agent.critics, obs, nets, fixed_encoders(agent)[0], stats
     )
     actor, actor_opt = _adam_step(grads, agent.actor_opt, agent.actor, decay(hparams.actor_lr))
+    agent = agent.replace(actor=actor, actor_opt=actor_opt)
     if nets.config.target_update_period:
-        return agent.replace(actor=actor, actor_opt=actor_opt), loss
-    agent = agent.replace(
-        actor=actor,
-        actor_opt=actor_opt,
-        target_actor=polyak_update(agent.target_actor, actor, hparams.tau),
-        target_critics=polyak_update(agent.target_critics, agent.critics, hparams.tau),
-    )
+        return agent, loss
+    if nets.config.target_networks:
+        agent = agent.replace(
+            target_actor=polyak_update(agent.target_actor, actor, hparams.tau),
+            target_critics=polyak_update(agent.target_critics, agent.critics, hparams.tau),
+        )
     if nets.config.sale:  # the fixed copies follow at the targets' pace
         encoders = agent.encoders
         agent = agent.replace(
@@ -336,7 +356,8 @@ def _maybe_copy_targets(agent, buffer, config: Config, hparams: Hyperparams, upd
     """At every ``target_update_period``-th update: the hard target copies and, with LAP, the
     priority of new transitions reset to the largest stored (TD7)."""
     due = (update_index + 1) % config.target_update_period == 0
-    agent = jax.lax.cond(due, hard_target_update, lambda agent: agent, agent)
+    copy = functools.partial(hard_target_update, networks=config.target_networks)
+    agent = jax.lax.cond(due, copy, lambda agent: agent, agent)
     if config.lap:
         reset = functools.partial(prioritized.reset_max_priority, alpha=hparams.lap_alpha)
         buffer = jax.lax.cond(due, reset, lambda buffer: buffer, buffer)
@@ -381,6 +402,9 @@ def init_agent(key, config: Config, hparams: Hyperparams, obs_space, action_spac
     critics = networks.init_stacked(
         nets.critic, critic_key, config.num_critics, obs, action, *extra
     )
+    # Batch renormalisation's statistics are state, not parameters: the optimizer never sees them.
+    critics = dict(critics)
+    critic_stats = critics.pop("batch_stats", None)
     adam = optax.inject_hyperparams(optax.adam)
     agent = Agent(
         actor=actor,
@@ -398,6 +422,7 @@ def init_agent(key, config: Config, hparams: Hyperparams, obs_space, action_spac
         **{field.name: getattr(agent, field.name) for field in dataclasses.fields(agent)},
         encoders=_init_encoders(option_key, nets, obs, action, hparams) if config.sale else None,
         obs_stats=normalization.init(obs.shape[-1]) if config.network == "simba" else None,
+        critic_stats=critic_stats,
     )
     if config.policy_checkpoints:
         checkpoint = init_checkpoint(agent, config.num_envs, config.learning_starts)
@@ -431,6 +456,7 @@ class TD3Family(RecipeBook):
     config_type, hparams_type = Config, Hyperparams
     recipes, hparam_recipes = RECIPES, HPARAM_RECIPES
     ranges = {
+        "renorm_warmup": validation.NON_NEGATIVE,
         "lap_alpha": validation.UNIT,
         "target_update_period": validation.NON_NEGATIVE,
         "embedding_dim": validation.AT_LEAST_ONE,

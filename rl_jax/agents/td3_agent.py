@@ -1,7 +1,7 @@
 """TD3's agent state: parameters, targets and optimizer states (``Agent``), and what the options
-keep beside them (``AgentWithOptions``): SALE's encoders, SimBa's observation statistics and
-TD7's policy checkpoints. Plain TD3 keeps ``Agent``, so its train state and checkpoints stay as
-they were before the options existed.
+keep beside them (``AgentWithOptions``): SALE's encoders, SimBa's observation statistics,
+TD7's policy checkpoints and the critics' batch renormalisation statistics. Plain TD3 keeps
+``Agent``, so its train state and checkpoints stay as they were before the options existed.
 
 Policy checkpoints, and how they differ from TD7. TD7 (one env) stops training while it assesses
 its actor over whole episodes, then runs all the training steps it owes at once. Here the loop
@@ -66,6 +66,7 @@ class AgentWithOptions(Agent):
     encoders: Any = None  # sale: Encoders
     obs_stats: Any = None  # simba: normalization.RunningStats of the observations acted on
     checkpoint: Any = None  # policy_checkpoints: PolicyCheckpoint
+    critic_stats: Any = None  # critic_norm "batch_renorm": the critics' batch_stats [C, ...]
 
 
 @struct.dataclass
@@ -96,9 +97,11 @@ def fixed_encoders(agent: Agent) -> tuple[Any, Any]:
     return (None, None) if encoders is None else (encoders.fixed, encoders.fixed_target)
 
 
-def hard_target_update(agent: Agent) -> Agent:
-    """TD7's periodic copies: targets <- online; SALE's fixed target <- fixed <- online."""
-    agent = agent.replace(target_actor=agent.actor, target_critics=agent.critics)
+def hard_target_update(agent: Agent, networks: bool = True) -> Agent:
+    """TD7's periodic copies: targets <- online (if there are target ``networks``); SALE's
+    fixed target <- fixed <- online."""
+    if networks:
+        agent = agent.replace(target_actor=agent.actor, target_critics=agent.critics)
     encoders = getattr(agent, "encoders", None)
     if encoders is None:
         return agent

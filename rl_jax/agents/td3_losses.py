@@ -14,6 +14,8 @@ from rl_jax.agents import td7_parts
 from rl_jax.agents.td3_networks import (
     Networks,
     critic_values,
+    critic_values_train,
+    embeddings,
     first_critic_value,
     policy_action,
     row,
@@ -91,6 +93,7 @@ class CriticAux(NamedTuple):
 
     q_tm1: jax.Array  # [C, B] the online critics' values
     td_tm1: jax.Array  # [C, B] their errors against the (stopped-gradient) target
+    batch_stats: Any = None  # batch_renorm: the statistics after this batch
 
 
 def critic_loss_fn(
@@ -102,32 +105,66 @@ def critic_loss_fn(
     hparams: Hyperparams,
     nets: Networks,
     encoders: tuple[Any, Any] = (None, None),
+    stats: Any = None,
 ):
     """Critic loss on a batch (a ``Transition`` is a one-step ``CriticBatch``); ``noise``
-    [B, action_dim] is standard normal; ``encoders``: SALE's ``(fixed, fixed_target)``. Returns
-    ``(loss, CriticAux)``: the mean squared TD error, or with ``lap`` LAP's loss. Target networks
-    (and encoders) enter only through the stopped-gradient target."""
+    [B, action_dim] is standard normal; ``encoders``: SALE's ``(fixed, fixed_target)``;
+    ``stats``: batch renormalisation's statistics. Returns ``(loss, CriticAux)``: the mean
+    squared TD error, or with ``lap`` LAP's loss. Target networks (and encoders) enter only
+    through the stopped-gradient target. Without target networks (CrossQ) the "target"
+    parameters are the online actor's and critics'."""
     if isinstance(batch, Transition):
         batch = CriticBatch.one_step(batch, hparams.gamma)
     fixed, fixed_target = encoders
     a_t = target_action(target_actor_params, batch.next_obs, noise, hparams, nets, fixed_target)
-    q_t = critic_values(nets, target_critic_params, batch.next_obs, a_t, fixed_target)
-    q_tm1 = critic_values(nets, critic_params, batch.obs, batch.action, fixed)
+    extra_t = embeddings(nets, fixed_target, batch.next_obs, a_t)
+    extra_tm1 = embeddings(nets, fixed, batch.obs, batch.action)
+    if nets.config.target_networks:
+        q_t = critic_values(nets, target_critic_params, batch.next_obs, a_t, extra_t, stats)
+        q_tm1, stats = _online_values(nets, critic_params, stats, batch, extra_tm1)
+    else:  # a' joins the batch statistics, but as data: no gradient reaches the actor
+        a_t, extra_t = jax.lax.stop_gradient((a_t, extra_t))
+        q_tm1, q_t, stats = _joint_values(
+            nets, critic_params, stats, batch, a_t, extra_tm1, extra_t
+        )
     td_tm1 = q_tm1 - clipped_double_q_target(batch.r_t, batch.discount_t, q_t)[None, :]
     if nets.config.lap:
         loss = td7_parts.lap_loss(td_tm1)
     else:
         loss = critic_loss(q_tm1, batch.r_t, batch.discount_t, q_t)
-    return loss, CriticAux(q_tm1, td_tm1)
+    return loss, CriticAux(q_tm1, td_tm1, stats)
+
+
+def _online_values(nets: Networks, critics, stats, batch: CriticBatch, extra):
+    """``(q_tm1, new stats)``: training mode under batch renormalisation."""
+    if stats is None:
+        return critic_values(nets, critics, batch.obs, batch.action, extra), None
+    return critic_values_train(nets, critics, stats, batch.obs, batch.action, extra)
+
+
+def _joint_values(nets: Networks, critics, stats, batch: CriticBatch, a_t, extra_tm1, extra_t):
+    """CrossQ: ``(q_tm1, q_t, new stats)`` from one forward pass over the batch's ``(s, a)``
+    and ``(s', a')`` together, so batch renormalisation's statistics cover both."""
+    join = lambda a, b: None if a is None else jnp.concatenate([a, b], axis=0)  # noqa: E731
+    joined = CriticBatch(
+        join(batch.obs, batch.next_obs), join(batch.action, a_t), batch.r_t, batch.discount_t, None
+    )
+    q, stats = _online_values(nets, critics, stats, joined, join(extra_tm1, extra_t))
+    size = batch.obs.shape[0]
+    return q[:, :size], q[:, size:], stats
 
 
 def actor_loss_fn(
-    actor_params, critic_params, obs: jax.Array, nets: Networks, encoder=None
+    actor_params, critic_params, obs: jax.Array, nets: Networks, encoder=None, stats=None
 ) -> jax.Array:
     """Deterministic policy gradient through the *first* critic only (as TD3 prescribes);
-    ``encoder``: SALE's fixed encoder, which the gradient passes through but never changes."""
+    ``encoder``: SALE's fixed encoder, which the gradient passes through but never changes;
+    ``stats``: batch renormalisation's statistics (evaluation mode, as CrossQ)."""
     action = policy_action(nets, actor_params, obs, encoder)
-    return deterministic_policy_loss(first_critic_value(nets, critic_params, obs, action, encoder))
+    extra = embeddings(nets, encoder, obs, action)
+    return deterministic_policy_loss(
+        first_critic_value(nets, critic_params, obs, action, extra, stats)
+    )
 
 
 def encoder_loss_fn(encoder_params, batch: CriticBatch, nets: Networks) -> jax.Array:

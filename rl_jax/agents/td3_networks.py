@@ -62,6 +62,7 @@ def build_networks(config: Any, action_space: Box) -> Networks:
         config.critic_activation,
         config.critic_norm,
         config.network,
+        config.renorm_warmup,
     )
     encoder = None
     if config.sale:
@@ -110,16 +111,33 @@ def policy_action(nets: Networks, actor: Any, obs: jax.Array, encoder: Any = Non
     return nets.actor.apply(actor, obs, embed_state(nets, encoder, obs))
 
 
-def critic_values(nets: Networks, critics: Any, obs, action, encoder: Any = None) -> jax.Array:
-    """``[num_critics, B]``: every stacked critic at ``(obs, action)``."""
-    extra = embeddings(nets, encoder, obs, action)
+def _variables(critics: Any, stats: Any) -> Any:
+    """Critic parameters with batch renormalisation's statistics beside them (if any)."""
+    return critics if stats is None else {**critics, "batch_stats": stats}
+
+
+def critic_values(nets: Networks, critics: Any, obs, action, extra=None, stats=None) -> jax.Array:
+    """``[num_critics, B]``: every stacked critic at ``(obs, action)``; ``extra``: SALE's
+    ``embeddings``; ``stats``: batch renormalisation's statistics, used in evaluation mode."""
     inputs = (obs, action) if extra is None else (obs, action, extra)
-    return networks.apply_stacked(nets.critic, critics, *inputs)
+    return networks.apply_stacked(nets.critic, _variables(critics, stats), *inputs)
 
 
-def first_critic_value(nets: Networks, critics: Any, obs, action, encoder: Any = None):
-    """``[B]``: the first critic alone (the one the actor ascends)."""
-    first = jax.tree.map(lambda x: x[0], critics)
-    extra = embeddings(nets, encoder, obs, action)
+def critic_values_train(nets: Networks, critics: Any, stats: Any, obs, action, extra=None):
+    """``(q [num_critics, B], new stats)``: batch renormalisation in training mode, its
+    statistics of this batch folded into ``stats``."""
+
+    def one(variables):
+        out, updated = nets.critic.apply(
+            variables, obs, action, extra, train=True, mutable=["batch_stats"]
+        )
+        return out, updated["batch_stats"]
+
+    return jax.vmap(one)(_variables(critics, stats))
+
+
+def first_critic_value(nets: Networks, critics: Any, obs, action, extra=None, stats=None):
+    """``[B]``: the first critic alone (the one the actor ascends), evaluation mode."""
+    first = jax.tree.map(lambda x: x[0], _variables(critics, stats))
     inputs = (obs, action) if extra is None else (obs, action, extra)
     return nets.critic.apply(first, *inputs)

@@ -17,6 +17,8 @@ Initialisation, chosen on purpose:
 Normalisation inside the MLPs (``NORMS``), for critics that stay stable at high update rates:
 ``"layer"`` puts a LayerNorm between each hidden linear layer and its nonlinearity (as RLPD and
 BRO place it: the nonlinearity sees normalised pre-activations; the output layer stays linear).
+``"batch_renorm"`` places ``batch_renorm.BatchRenorm`` as CrossQ does: on the input and after each
+hidden nonlinearity; such a network takes ``train`` and keeps statistics in ``batch_stats``.
 
 SimBa (Lee et al. 2025, ``Simba``): a linear layer to width ``w``, then residual blocks that each
 add ``dense(w) . relu . dense(4w) . LayerNorm`` of their input to it (pre-LN: the skip path is the
@@ -39,11 +41,13 @@ import flax.linen as nn
 import jax
 import jax.numpy as jnp
 
+from rl_jax.training.batch_renorm import BatchRenorm
+
 INITS = ("fan_in_uniform", "orthogonal")
 #: hidden-layer nonlinearities, with the orthogonal gain that keeps activations' scale
 ACTIVATIONS = {"relu": (nn.relu, 2.0**0.5), "tanh": (nn.tanh, 5.0 / 3.0), "elu": (nn.elu, 2.0**0.5)}
 #: normalisation of an MLP's hidden layers (see the module docstring)
-NORMS = ("none", "layer")
+NORMS = ("none", "layer", "batch_renorm")
 #: the torso of actor and critic: plain MLP or SimBa's residual blocks
 ARCHITECTURES = ("mlp", "simba")
 
@@ -250,7 +254,9 @@ class ConvTorso(nn.Module):
 
 class MLP(nn.Module):
     """Hidden layers (ReLU by default), linear output. Parameters float32; ``dtype`` is the
-    compute dtype. ``norm="layer"``: dense -> LayerNorm -> nonlinearity in each hidden layer."""
+    compute dtype. ``norm="layer"``: dense -> LayerNorm -> nonlinearity in each hidden layer;
+    ``"batch_renorm"``: BatchRenorm on the input and after each nonlinearity (``train`` picks its
+    mode, ``renorm_warmup`` its warm-up)."""
 
     hidden: tuple[int, ...]
     outputs: int
@@ -259,18 +265,24 @@ class MLP(nn.Module):
     dtype: Any = jnp.float32
     activation: str = "relu"
     norm: str = "none"
+    renorm_warmup: int = 100_000
 
     @nn.compact
-    def __call__(self, x: jax.Array) -> jax.Array:
+    def __call__(self, x: jax.Array, train: bool = False) -> jax.Array:
         # The layers sit directly in this module (not in a Torso): parameter names stay
-        # Dense_0 .. Dense_k, as saved checkpoints have them (LayerNorms add LayerNorm_i).
+        # Dense_0 .. Dense_k, as saved checkpoints have them (norm layers add their own).
         _check_norm(self.norm)
         function, gain = _activation(self.activation)
+        renorm = self.norm == "batch_renorm"
+        if renorm:
+            x = BatchRenorm(self.renorm_warmup, self.dtype)(x, train)
         for width in self.hidden:
             x = dense(width, x.shape[-1], self.initializer, gain, self.dtype)(x)
             if self.norm == "layer":
                 x = nn.LayerNorm(dtype=self.dtype)(x)
             x = function(x)
+            if renorm:
+                x = BatchRenorm(self.renorm_warmup, self.dtype)(x, train)
         x = dense(self.outputs, x.shape[-1], self.initializer, self.output_gain, self.dtype)(x)
         return _float32(x)
 
@@ -330,7 +342,7 @@ def _torso_and_head(module: nn.Module, outputs: int, output_gain: float) -> nn.M
         return Simba(*args)
     if module.architecture != "mlp":
         raise ValueError(f"unknown architecture {module.architecture!r}; one of {ARCHITECTURES}")
-    return MLP(*args, module.norm)
+    return MLP(*args, module.norm, getattr(module, "renorm_warmup", 100_000))
 
 
 def avg_l1_norm(x: jax.Array, eps: float = 1e-8) -> jax.Array:
@@ -411,14 +423,21 @@ class Critic(nn.Module):
     activation: str = "relu"
     norm: str = "none"  # see MLP
     architecture: str = "mlp"  # or "simba"
+    renorm_warmup: int = 100_000  # norm "batch_renorm": see MLP
 
     @nn.compact
     def __call__(
-        self, obs: jax.Array, action: jax.Array, embeddings: jax.Array | None = None
+        self,
+        obs: jax.Array,
+        action: jax.Array,
+        embeddings: jax.Array | None = None,
+        train: bool = False,
     ) -> jax.Array:
-        """``embeddings``: SALE's ``[z_sa, z_s]``, which join the state-action features."""
+        """``embeddings``: SALE's ``[z_sa, z_s]``, which join the state-action features;
+        ``train``: batch renormalisation's mode."""
         x = _with_embeddings(self, jnp.concatenate([obs, action], axis=-1), embeddings)
-        return _torso_and_head(self, 1, 1.0)(x)[..., 0]
+        body = _torso_and_head(self, 1, 1.0)
+        return (body(x, train) if self.norm == "batch_renorm" else body(x))[..., 0]
 
 
 class QNetwork(nn.Module):

@@ -362,3 +362,80 @@ def test_assessments_freeze_the_acting_copy_and_checkpoint_only_passed_ones():
     # fails the assessment: no new checkpoint, a new copy.
     agent = observe(agent, [9.0, 4.0], [True, True], 104, 5.0)
     assert weights(agent) == (1.0, 5.0) and float(agent.checkpoint.score) == pytest.approx(4.6)
+
+
+# ---- CrossQ: batch renormalisation without target networks -------------------------------------
+def test_crossq_critic_loss_is_one_forward_pass_over_both_halves_of_the_batch(setup_crossq):
+    nets, actor, critics, stats, batch, noise, hparams = setup_crossq
+
+    def loss(critics, actor):
+        return td3.critic_loss_fn(critics, actor, critics, batch, noise, hparams, nets, stats=stats)
+
+    (value, aux), grads = jax.jit(jax.value_and_grad(loss, argnums=(0, 1), has_aux=True))(
+        critics, actor
+    )
+    a_t = td3.target_action(actor, batch.next_obs, noise, hparams, nets)
+    inputs = np.concatenate(
+        [np.concatenate([batch.obs, batch.action], -1), np.concatenate([batch.next_obs, a_t], -1)]
+    )
+    first = aux.batch_stats["MLP_0"]["BatchRenorm_0"]
+    np.testing.assert_array_equal(first["steps"], [1, 1])  # one training call per critic
+    expected_mean = 0.01 * inputs.mean(axis=0)  # from mean 0: one step towards both halves
+    np.testing.assert_allclose(first["mean"], np.stack([expected_mean] * 2), rtol=1e-5)
+    # The same numbers by hand: both halves through each critic in training mode at once.
+    q = [
+        np.asarray(
+            nets.critic.apply(
+                {
+                    "params": jax.tree.map(lambda x, i=i: x[i], critics)["params"],
+                    "batch_stats": jax.tree.map(lambda x, i=i: x[i], stats),
+                },
+                jnp.asarray(inputs[:, :3]),
+                jnp.asarray(inputs[:, 3:]),
+                train=True,
+                mutable=["batch_stats"],
+            )[0]
+        )
+        for i in range(2)
+    ]
+    target = np.asarray(batch.r_t) + 0.99 * np.minimum(q[0][5:], q[1][5:])
+    np.testing.assert_allclose(value, sum(np.mean((qi[:5] - target) ** 2) for qi in q), 1e-5)
+    assert all(np.any(np.asarray(g) != 0.0) for g in jax.tree.leaves(grads[0]))
+    assert all(np.all(np.asarray(g) == 0.0) for g in jax.tree.leaves(grads[1]))  # a' is data
+
+
+def test_the_actor_gradient_reads_the_critic_in_evaluation_mode(setup_crossq):
+    nets, actor, critics, stats, batch, _, _ = setup_crossq
+    moved = jax.tree.map(lambda x: x + 0.5 if x.dtype == jnp.float32 else x, stats)
+    with_stats = jax.jit(lambda a, s: td3.actor_loss_fn(a, critics, batch.obs, nets, None, s))
+    first = jax.tree.map(lambda x: x[0], {**critics, "batch_stats": moved})
+    action = nets.actor.apply(actor, batch.obs)
+    expected = -np.mean(np.asarray(nets.critic.apply(first, batch.obs, action)))
+    np.testing.assert_allclose(with_stats(actor, moved), expected, rtol=1e-5)
+
+
+@pytest.fixture(scope="module")
+def setup_crossq():
+    config = td3.Config(
+        env_id="unused",
+        actor_hidden=(8,),
+        critic_hidden=(8, 8),
+        critic_norm="batch_renorm",
+        target_networks=False,
+        renorm_warmup=0,
+    )
+    nets = td3.build_networks(config, Box(-np.ones(2), np.ones(2), (2,)))
+    keys = jax.random.split(jax.random.key(7), 6)
+    obs, action = jnp.zeros(3), jnp.zeros(2)
+    actor = nets.actor.init(keys[0], obs)
+    variables = dict(networks.init_stacked(nets.critic, keys[1], 2, obs, action))
+    stats = variables.pop("batch_stats")
+    batch = td3.CriticBatch(
+        obs=jax.random.normal(keys[2], (5, 3)),
+        action=jax.random.uniform(keys[3], (5, 2), minval=-1.0, maxval=1.0),
+        r_t=jnp.linspace(-1.0, 1.0, 5),
+        discount_t=jnp.full(5, 0.99),
+        next_obs=jax.random.normal(keys[4], (5, 3)),
+    )
+    noise = jax.random.normal(keys[5], (5, 2))
+    return nets, actor, variables, stats, batch, noise, td3.Hyperparams().as_arrays()

@@ -2,7 +2,8 @@
 with finite results, alone and together (their maths is tested in test_td3_option_losses.py).
 
 Every run here is 2 seeds in one program on ``rl_jax/Pendulum-v1`` with tiny networks: 2 chunks
-of 200 env steps, updates from step 100. Compilation dominates each test.
+of 200 env steps (2 envs), updates from step 100, 4 per iteration (Pendulum's recipe): 600
+updates per seed. Compilation dominates each test.
 """
 
 import jax
@@ -144,8 +145,7 @@ def test_sale_lap_simba_and_hard_targets_compose():
     agent = state.agent
     assert agent.obs_stats is not None and agent.encoders is not None
     assert "Simba_0" in agent.critics["params"] and "Dense_0" in agent.critics["params"]
-    # 150 updates per seed (one per iteration after 50 warm-up iterations), a copy at every
-    # 50th: the last update was a copy.
+    # 600 updates per seed, a copy at every 50th: the last update was a copy.
     jax.tree.map(np.testing.assert_array_equal, agent.target_critics, agent.critics)
     assert_trained_and_finite(state, history)
 
@@ -158,7 +158,7 @@ def test_policy_checkpoints_evaluate_the_checkpoint_not_the_online_actor():
     checkpoint = state.agent.checkpoint
     # Pendulum's 200-step episodes end together in both envs at env steps 400 and 800 (2 envs);
     # updates start at 100, so the first counted episodes are those from 400 to 800: they pass
-    # (nothing to beat yet) and the copy taken at 400, after 150 updates, is the checkpoint.
+    # (nothing to beat yet) and the copy taken at 400, after 600 updates, is the checkpoint.
     np.testing.assert_array_equal(checkpoint.episodes, 0)
     assert np.all(checkpoint.score > -1e8) and np.all(checkpoint.score < 0.0)
     leaf = lambda tree: np.asarray(jax.tree.leaves(tree)[0])  # noqa: E731
@@ -173,3 +173,33 @@ def test_policy_checkpoints_evaluate_the_checkpoint_not_the_online_actor():
     expected = td3_module.act_with(td3_module.make_networks(config), one.checkpoint.best, obs)
     np.testing.assert_array_equal(td3.policy(state.replace(agent=one), config)(obs), expected)
     assert_trained_and_finite(state, history)
+
+
+CROSSQ = {"critic_norm": "batch_renorm", "target_networks": False, "renorm_warmup": 50}
+
+
+def test_crossq_trains_without_target_networks_and_keeps_its_statistics():
+    state, history = train(**CROSSQ)
+    agent = state.agent
+    first = agent.critic_stats["MLP_0"]["BatchRenorm_0"]
+    np.testing.assert_array_equal(first["steps"], 600)  # one training pass per critic update
+    assert np.all(first["var"] > 0.0)
+    # No target networks: the target fields never moved from the initial parameters.
+    initial = jax.tree.leaves(agent.target_critics)[0]
+    assert not np.allclose(initial, jax.tree.leaves(agent.critics)[0])
+    assert_trained_and_finite(state, history)
+
+
+def test_crossq_sale_lap_and_policy_checkpoints_compose():
+    state, history = train(
+        4, lap=True, policy_checkpoints=True, target_update_period=50, **SALE, **CROSSQ
+    )
+    agent = state.agent
+    assert agent.critic_stats is not None and agent.encoders is not None
+    assert np.all(agent.checkpoint.score > -1e8)  # a checkpoint passed (see the test above)
+    assert_trained_and_finite(state, history)
+
+
+def test_batch_renorm_is_for_the_critics_only():
+    with pytest.raises(ValueError, match="actor_norm"):
+        td3.default_config("rl_jax/Pendulum-v1", actor_norm="batch_renorm")
