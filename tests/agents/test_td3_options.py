@@ -203,3 +203,39 @@ def test_crossq_sale_lap_and_policy_checkpoints_compose():
 def test_batch_renorm_is_for_the_critics_only():
     with pytest.raises(ValueError, match="actor_norm"):
         td3.default_config("rl_jax/Pendulum-v1", actor_norm="batch_renorm")
+
+
+def test_the_options_state_checkpoints_and_a_resumed_run_ends_bit_identical(tmp_path):
+    """SALE's encoders, the prioritized replay, the policy checkpoint and the batch statistics
+    all go through orbax: a run stopped after 2 chunks and resumed ends as one never stopped,
+    and its kept best policy loads."""
+    import dataclasses
+
+    from run_helpers import leaves_bytes
+
+    import rl_jax
+    from rl_jax.run.runner import run
+    from rl_jax.run.spec import RunSpec
+
+    options = {**SALE, **CROSSQ, "lap": True, "policy_checkpoints": True}
+    config = td3.default_config("rl_jax/Pendulum-v1", **TINY, **options, target_update_period=50)
+    spec = RunSpec(
+        algorithm=td3,
+        env_id="rl_jax/Pendulum-v1",
+        config=config,
+        hparams=(td3.default_hyperparams("rl_jax/Pendulum-v1"),),
+        out=tmp_path / "full",
+        seeds=2,
+        total_steps=600,
+        checkpoint_interval=0.0,
+        log_interval=1e9,
+    )
+    quiet = lambda message: None  # noqa: E731
+    full = run(spec, notify=quiet)
+    stopped = dataclasses.replace(spec, out=tmp_path / "stopped", total_steps=400)
+    assert run(stopped, notify=quiet).step == 400
+    resumed = run(dataclasses.replace(stopped, total_steps=600, resume=True), notify=quiet)
+    assert resumed.step == 600
+    assert leaves_bytes(resumed.state) == leaves_bytes(full.state)
+    policy = rl_jax.load_policy(tmp_path / "stopped", seed=1)
+    assert np.all(np.isfinite(policy(np.zeros(3, np.float32))))
