@@ -34,6 +34,7 @@ from rl_jax.agents.td3_agent import (  # noqa: F401  (re-exported)
     Encoders,
     Policy,
     PolicyCheckpoint,
+    ValueRange,
     act_with,
     current_policy,
     fixed_encoders,
@@ -145,6 +146,9 @@ class Config(OffPolicyConfig):
     # fixed target encoder <- fixed <- online, and LAP's new-transition priority resets to the
     # largest one stored.
     target_update_period: int = 0
+    # TD7's value clipping: the bootstrap value min_i Q'(s', a') is clipped to the range of
+    # targets seen up to the last target update (which renews it). Needs target_update_period.
+    value_clipping: bool = False
 
     def __post_init__(self) -> None:
         super().__post_init__()
@@ -167,6 +171,8 @@ class Config(OffPolicyConfig):
             raise ValueError("checkpoint_episodes must be >= 1, checkpoint_episodes_from >= 0")
         if self.target_update_period < 0:
             raise ValueError("target_update_period must be >= 0 (0: Polyak steps)")
+        if self.value_clipping and not self.target_update_period:
+            raise ValueError("value_clipping needs target_update_period > 0 (it renews the range)")
         if self.sale and self.n_step != 1:
             raise ValueError("sale needs n_step 1: its encoder learns one-step dynamics")
 
@@ -182,7 +188,13 @@ class Config(OffPolicyConfig):
     def keeps_option_state(self) -> bool:
         """Whether an option keeps state beside the networks (an ``AgentWithOptions``)."""
         renorm = self.critic_norm == "batch_renorm"
-        return self.sale or self.network == "simba" or self.policy_checkpoints or renorm
+        stateful = (
+            self.sale,
+            self.network == "simba",
+            self.policy_checkpoints,
+            self.value_clipping,
+        )
+        return any(stateful) or renorm
 
 
 @struct.dataclass
@@ -267,13 +279,22 @@ def _critic_step(
         nets,
         fixed_encoders(agent),
         getattr(agent, "critic_stats", None),
+        _value_bounds(agent),
     )
     rate = decay(hparams.critic_lr)
     critics, critic_opt = _adam_step(grads, agent.critic_opt, agent.critics, rate)
     agent = agent.replace(critics=critics, critic_opt=critic_opt)
     if aux.batch_stats is not None:
         agent = agent.replace(critic_stats=aux.batch_stats)
+    if aux.target_range is not None:
+        agent = agent.replace(value_range=agent.value_range.seeing(aux.target_range))
     return agent, loss, aux
+
+
+def _value_bounds(agent: Agent):
+    """TD7's ``(low, high)`` on bootstrap values, or None without value clipping."""
+    values = getattr(agent, "value_range", None)
+    return None if values is None else (values.low, values.high)
 
 
 def _actor_and_target_step(agent: Agent, obs, hparams: Hyperparams, nets: Networks, decay):
@@ -423,6 +444,7 @@ def init_agent(key, config: Config, hparams: Hyperparams, obs_space, action_spac
         encoders=_init_encoders(option_key, nets, obs, action, hparams) if config.sale else None,
         obs_stats=normalization.init(obs.shape[-1]) if config.network == "simba" else None,
         critic_stats=critic_stats,
+        value_range=ValueRange.initial() if config.value_clipping else None,
     )
     if config.policy_checkpoints:
         checkpoint = init_checkpoint(agent, config.num_envs, config.learning_starts)

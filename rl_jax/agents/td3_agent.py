@@ -67,6 +67,30 @@ class AgentWithOptions(Agent):
     obs_stats: Any = None  # simba: normalization.RunningStats of the observations acted on
     checkpoint: Any = None  # policy_checkpoints: PolicyCheckpoint
     critic_stats: Any = None  # critic_norm "batch_renorm": the critics' batch_stats [C, ...]
+    value_range: Any = None  # value_clipping: ValueRange
+
+
+@struct.dataclass
+class ValueRange:
+    """TD7's value clipping: bootstrap values are clipped to ``[low, high]``, the extremes of
+    the targets seen up to the last target update (``[0, 0]`` before the first, as TD7)."""
+
+    low: jax.Array  # [] float32
+    high: jax.Array
+    seen_min: jax.Array  # [] float32, the extremes of all targets so far
+    seen_max: jax.Array
+
+    @classmethod
+    def initial(cls) -> ValueRange:
+        zero = jnp.float32(0.0)
+        no_min, no_max = jnp.float32(td7_parts.NO_EPISODE), jnp.float32(td7_parts.NO_SCORE)
+        return cls(low=zero, high=zero, seen_min=no_min, seen_max=no_max)
+
+    def seeing(self, target_range) -> ValueRange:
+        low, high = target_range
+        return self.replace(
+            seen_min=jnp.minimum(self.seen_min, low), seen_max=jnp.maximum(self.seen_max, high)
+        )
 
 
 @struct.dataclass
@@ -102,6 +126,9 @@ def hard_target_update(agent: Agent, networks: bool = True) -> Agent:
     fixed target <- fixed <- online."""
     if networks:
         agent = agent.replace(target_actor=agent.actor, target_critics=agent.critics)
+    values = getattr(agent, "value_range", None)
+    if values is not None:  # the clipping range renews with the targets
+        agent = agent.replace(value_range=values.replace(low=values.seen_min, high=values.seen_max))
     encoders = getattr(agent, "encoders", None)
     if encoders is None:
         return agent

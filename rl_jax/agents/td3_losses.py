@@ -94,6 +94,7 @@ class CriticAux(NamedTuple):
     q_tm1: jax.Array  # [C, B] the online critics' values
     td_tm1: jax.Array  # [C, B] their errors against the (stopped-gradient) target
     batch_stats: Any = None  # batch_renorm: the statistics after this batch
+    target_range: Any = None  # value_clipping: (min, max) of this batch's targets
 
 
 def critic_loss_fn(
@@ -106,10 +107,12 @@ def critic_loss_fn(
     nets: Networks,
     encoders: tuple[Any, Any] = (None, None),
     stats: Any = None,
+    value_range: tuple[Any, Any] | None = None,
 ):
     """Critic loss on a batch (a ``Transition`` is a one-step ``CriticBatch``); ``noise``
     [B, action_dim] is standard normal; ``encoders``: SALE's ``(fixed, fixed_target)``;
-    ``stats``: batch renormalisation's statistics. Returns ``(loss, CriticAux)``: the mean
+    ``stats``: batch renormalisation's statistics; ``value_range``: TD7's ``(low, high)`` bounds
+    on the bootstrap value. Returns ``(loss, CriticAux)``: the mean
     squared TD error, or with ``lap`` LAP's loss. Target networks (and encoders) enter only
     through the stopped-gradient target. Without target networks (CrossQ) the "target"
     parameters are the online actor's and critics'."""
@@ -127,12 +130,19 @@ def critic_loss_fn(
         q_tm1, q_t, stats = _joint_values(
             nets, critic_params, stats, batch, a_t, extra_tm1, extra_t
         )
-    td_tm1 = q_tm1 - clipped_double_q_target(batch.r_t, batch.discount_t, q_t)[None, :]
+    if value_range is None:
+        target = clipped_double_q_target(batch.r_t, batch.discount_t, q_t)
+    else:
+        target = td7_parts.value_clipped_target(batch.r_t, batch.discount_t, q_t, *value_range)
+    td_tm1 = q_tm1 - target[None, :]
     if nets.config.lap:
         loss = td7_parts.lap_loss(td_tm1)
-    else:
+    elif value_range is None:
         loss = critic_loss(q_tm1, batch.r_t, batch.discount_t, q_t)
-    return loss, CriticAux(q_tm1, td_tm1, stats)
+    else:
+        loss = jnp.sum(jnp.mean(td_tm1**2, axis=-1))
+    target_range = None if value_range is None else (jnp.min(target), jnp.max(target))
+    return loss, CriticAux(q_tm1, td_tm1, stats, target_range)
 
 
 def _online_values(nets: Networks, critics, stats, batch: CriticBatch, extra):

@@ -14,6 +14,9 @@ for TD3's options (``rl_jax.agents.td3``): one code path, no separate TD7 agent.
   embedding cannot collapse the loss by moving its own target); actor and critics read the
   embeddings beside their raw inputs (``rl_jax.training.networks.StateActionEncoder``).
 
+* Value clipping: the bootstrap value ``min_i q_t[i]`` is clipped to the range of targets seen
+  up to the last target update, which stops a critic's extrapolation to unseen actions from
+  feeding on itself (TD7 clips this way alongside LAP, whose linear loss tolerates outliers).
 * Policy checkpoints: the policy used for evaluation is not the latest actor but a checkpoint,
   replaced only when an *assessment* of the acting actor (held fixed for it) over a number of
   training episodes has a lowest return at least the checkpoint's score; one episode below the
@@ -58,6 +61,11 @@ def sale_loss(zsa_tm1: jax.Array, zs_t: jax.Array) -> jax.Array:
     """SALE's encoder loss: the mean squared error of ``z_sa`` [B, D] predicting the next state's
     embedding ``z_s'`` [B, D], which is a target (no gradient)."""
     return jnp.mean((zsa_tm1 - jax.lax.stop_gradient(zs_t)) ** 2)
+
+
+def value_clipped_target(r_t, discount_t, q_t, low, high) -> jax.Array:
+    """``r_t + discount_t * clip(min_i q_t[i], low, high)`` with no gradient; ``q_t`` [C, B]."""
+    return jax.lax.stop_gradient(r_t + discount_t * jnp.clip(jnp.min(q_t, axis=0), low, high))
 
 
 #: TD7's start values: a checkpoint score below any return, an assessment minimum above any.

@@ -1,6 +1,8 @@
 """The maths of TD3's TD7/CrossQ/SimBa options alone: hand-computed values (plain and jitted, as
 rlax tests its losses), and exactly zero gradient into what must stay fixed."""
 
+import dataclasses
+
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -439,3 +441,42 @@ def setup_crossq():
     )
     noise = jax.random.normal(keys[5], (5, 2))
     return nets, actor, variables, stats, batch, noise, td3.Hyperparams().as_arrays()
+
+
+# ---- TD7's value clipping -----------------------------------------------------------------------
+@modes
+def test_value_clipped_target_clips_the_bootstrap_value_not_the_reward(transform):
+    q_t = jnp.array([[5.0, -4.0, 1.0], [6.0, -3.0, 2.0]])  # min over critics: 5, -4, 1
+    r_t, discount_t = jnp.array([10.0, 0.0, -1.0]), jnp.array([0.5, 0.5, 0.0])
+    got = transform(td7_parts.value_clipped_target)(r_t, discount_t, q_t, -2.0, 3.0)
+    np.testing.assert_allclose(got, [10.0 + 0.5 * 3.0, 0.5 * -2.0, -1.0], rtol=1e-7)
+    grad = jax.grad(lambda q: jnp.sum(td7_parts.value_clipped_target(r_t, discount_t, q, -9, 9)))
+    assert np.all(np.asarray(grad(q_t)) == 0.0)
+
+
+def test_the_value_range_widens_with_targets_and_renews_at_target_copies():
+    values = td3.ValueRange.initial()
+    assert (float(values.low), float(values.high)) == (0.0, 0.0)  # TD7 starts at [0, 0]
+    values = values.seeing((jnp.float32(-2.0), jnp.float32(1.0)))
+    values = values.seeing((jnp.float32(-1.0), jnp.float32(4.0)))
+    assert (float(values.seen_min), float(values.seen_max)) == (-2.0, 4.0)
+    assert (float(values.low), float(values.high)) == (0.0, 0.0)  # until a target copy
+    agent = td3.AgentWithOptions(
+        actor=(), critics=(), target_actor=(), target_critics=(), actor_opt=(), critic_opt=()
+    )
+    copied = td3.hard_target_update(agent.replace(value_range=values))
+    assert (float(copied.value_range.low), float(copied.value_range.high)) == (-2.0, 4.0)
+
+
+def test_critic_loss_with_value_clipping_uses_and_reports_the_clipped_targets(setup_crossq):
+    nets, actor, critics, stats, batch, noise, hparams = setup_crossq
+    nets = nets._replace(config=dataclasses.replace(nets.config, target_networks=True))
+    bounds = (jnp.float32(-0.01), jnp.float32(0.01))
+    loss, aux = td3.critic_loss_fn(
+        critics, actor, critics, batch, noise, hparams, nets, stats=stats, value_range=bounds
+    )
+    target = np.asarray(aux.q_tm1 - aux.td_tm1)[0]
+    bootstrap = (target - np.asarray(batch.r_t)) / 0.99
+    assert np.all(np.abs(bootstrap) <= 0.01 + 1e-6)
+    np.testing.assert_allclose(aux.target_range, (target.min(), target.max()), rtol=1e-6)
+    np.testing.assert_allclose(loss, np.sum(np.mean(np.asarray(aux.td_tm1) ** 2, -1)), 1e-6)

@@ -141,9 +141,10 @@ def test_simba_refuses_unequal_widths_and_extra_norms():
 
 
 def test_sale_lap_simba_and_hard_targets_compose():
-    state, history = train(lap=True, target_update_period=50, **SALE, **SIMBA)
+    state, history = train(lap=True, target_update_period=50, value_clipping=True, **SALE, **SIMBA)
     agent = state.agent
     assert agent.obs_stats is not None and agent.encoders is not None
+    assert np.all(agent.value_range.low < agent.value_range.high)  # renewed from [0, 0]
     assert "Simba_0" in agent.critics["params"] and "Dense_0" in agent.critics["params"]
     # 600 updates per seed, a copy at every 50th: the last update was a copy.
     jax.tree.map(np.testing.assert_array_equal, agent.target_critics, agent.critics)
