@@ -68,8 +68,11 @@ from rl_jax.agents.td3_recipes import (  # noqa: F401  (re-exported: scripts rea
     FAST_CHEETAH_HPARAMS,
     HPARAM_RECIPES,
     MUJOCO_SUITE,
+    NAMED_RECIPES,
     PAPER_CONFIG,
     RECIPES,
+    TD7_CONFIG,
+    TD7_HPARAMS,
 )
 from rl_jax.training import (
     networks,

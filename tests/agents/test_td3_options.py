@@ -240,3 +240,30 @@ def test_the_options_state_checkpoints_and_a_resumed_run_ends_bit_identical(tmp_
     assert leaves_bytes(resumed.state) == leaves_bytes(full.state)
     policy = rl_jax.load_policy(tmp_path / "stopped", seed=1)
     assert np.all(np.isfinite(policy(np.zeros(3, np.float32))))
+
+
+def test_the_td7_recipe_is_td7s_published_settings_and_trains():
+    from experiments.td3_cheetah import SCRIPT
+    from rl_jax.agents.td3 import TD7_CONFIG, TD7_HPARAMS
+
+    config = td3.default_config("rl_jax/HalfCheetah-v5", **TD7_CONFIG)
+    assert config.sale and config.lap and config.policy_checkpoints and config.value_clipping
+    assert (config.target_update_period, config.embedding_dim, config.embedding_hidden) == (
+        250,
+        256,
+        (256, 256),
+    )
+    assert (config.num_envs, config.updates_per_iteration, config.batch_size) == (1, 1, 256)
+    assert (config.actor_hidden, config.critic_hidden) == ((256, 256), (256, 256))
+    assert (config.actor_activation, config.critic_activation) == ("relu", "elu")
+    assert (config.checkpoint_episodes, config.checkpoint_episodes_from) == (20, 750_000)
+    hparams = td3.default_hyperparams(**TD7_HPARAMS).to_dict()
+    rates = [hparams[name] for name in ("actor_lr", "critic_lr", "encoder_lr")]
+    assert rates == pytest.approx([3e-4] * 3)
+    assert hparams["lap_alpha"] == pytest.approx(0.4)
+    assert SCRIPT.recipes["td7"].config == TD7_CONFIG
+    # The same options on tiny networks train (the TD7 loop itself is too slow for a test).
+    tiny = {**TD7_CONFIG, **TINY, **SALE, "target_update_period": 50}
+    state, history = train(4, hparams=TD7_HPARAMS, **tiny)
+    assert np.all(state.agent.checkpoint.score > -1e8)
+    assert_trained_and_finite(state, history)
