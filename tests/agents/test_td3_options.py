@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from rl_jax.agents.td3 import td3
-from rl_jax.training import parallel, params
+from rl_jax.training import parallel, params, validation
 
 TINY = {
     "num_envs": 2,
@@ -262,6 +262,10 @@ def test_the_td7_recipe_is_td7s_published_settings_and_trains():
     assert rates == pytest.approx([3e-4] * 3)
     assert hparams["lap_alpha"] == pytest.approx(0.4)
     assert SCRIPT.recipes["td7"].config == TD7_CONFIG
+    assert validation.out_of_range(config, td3) is None
+    assert validation.out_of_range(td3.default_hyperparams(**TD7_HPARAMS), td3) is None
+    refused = validation.out_of_range(td3.default_hyperparams(lap_alpha=1.5), td3)
+    assert refused == "--lap-alpha must be in [0, 1], got 1.5"
     # The same options on tiny networks train (the TD7 loop itself is too slow for a test).
     tiny = {**TD7_CONFIG, **TINY, **SALE, "target_update_period": 50}
     state, history = train(4, hparams=TD7_HPARAMS, **tiny)
