@@ -133,9 +133,9 @@ class Config(OffPolicyConfig):
     # critic_hidden (LN -> dense(4w) -> relu -> dense(w), plus the skip; the entries are the
     # width w, all equal), a LayerNorm and the output layer. "mlp": the paper's MLPs.
     network: str = "mlp"
-    # LAP (TD7): replay draws transitions with probability proportional to max(|TD error|, 1)^
-    # lap_alpha (the larger of the critics' errors), without importance weights, and the critics
-    # learn with LAP's Huber-like loss (quadratic below 1, linear above).
+    # LAP (TD7): replay draws transitions with probability proportional to
+    # max(|TD error|, 1)^lap_alpha (the larger of the critics' errors), without importance
+    # weights, and the critics learn with LAP's Huber-like loss (quadratic below 1, linear above).
     lap: bool = False
     # SALE (TD7): an encoder learns embeddings z_s = f(s) and z_sa = g(z_s, a), g(f(s), a)
     # predicting f(s'); the actor reads [AvgL1Norm(linear(s)), z_s], the critics
