@@ -130,19 +130,26 @@ def critic_loss_fn(
         q_tm1, q_t, stats = _joint_values(
             nets, critic_params, stats, batch, a_t, extra_tm1, extra_t
         )
+    loss, td_tm1, target_range = _loss_and_errors(q_tm1, q_t, batch, value_range, nets.config.lap)
+    return loss, CriticAux(q_tm1, td_tm1, stats, target_range)
+
+
+def _loss_and_errors(q_tm1, q_t, batch: CriticBatch, value_range, lap: bool):
+    """``(loss, td_tm1, (min, max) of the targets or None)``: TD3's target (TD7's clipped one
+    with a ``value_range``), then the squared error or LAP's loss."""
     if value_range is None:
         target = clipped_double_q_target(batch.r_t, batch.discount_t, q_t)
     else:
         target = td7_parts.value_clipped_target(batch.r_t, batch.discount_t, q_t, *value_range)
     td_tm1 = q_tm1 - target[None, :]
-    if nets.config.lap:
+    if lap:
         loss = td7_parts.lap_loss(td_tm1)
-    elif value_range is None:
+    elif value_range is None:  # as it always was: plain TD3 stays bit-identical
         loss = critic_loss(q_tm1, batch.r_t, batch.discount_t, q_t)
     else:
         loss = jnp.sum(jnp.mean(td_tm1**2, axis=-1))
     target_range = None if value_range is None else (jnp.min(target), jnp.max(target))
-    return loss, CriticAux(q_tm1, td_tm1, stats, target_range)
+    return loss, td_tm1, target_range
 
 
 def _online_values(nets: Networks, critics, stats, batch: CriticBatch, extra):
