@@ -49,6 +49,7 @@ _REWARD_THRESHOLDS = {
     "rl_jax/Hopper-v5": 3800.0,
     "rl_jax/Swimmer-v5": 360.0,
     "rl_jax/Reacher-v5": -3.75,
+    "rl_jax/Ant-v5": 6000.0,  # gymnasium registers none for Walker2d-v5 and Humanoid-v5
 }
 _NO_LIMIT = np.iinfo(np.int32).max
 

@@ -28,6 +28,8 @@ MUJOCO_IDS = [
     "rl_jax/Walker2d-v5",
     "rl_jax/Swimmer-v5",
     "rl_jax/Reacher-v5",
+    "rl_jax/Ant-v5",
+    "rl_jax/Humanoid-v5",
 ]
 ALL_IDS = CLASSIC_IDS + MUJOCO_IDS
 # The gymnasium env each of our ids mirrors (the rocket is our own spec).

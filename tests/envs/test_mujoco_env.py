@@ -25,7 +25,7 @@ from envs.mujoco.float64_bits import float32_to_float64_bits, float64_bits_to_fl
 
 ENV_IDS = ["InvertedPendulum-v5", "InvertedDoublePendulum-v5", "HalfCheetah-v5"]
 # Checked here on the C backend only (their MJX steps are compiled in test_mujoco_parity.py).
-NEW_ENV_IDS = ["Hopper-v5", "Walker2d-v5", "Swimmer-v5", "Reacher-v5"]
+NEW_ENV_IDS = ["Hopper-v5", "Walker2d-v5", "Swimmer-v5", "Reacher-v5", "Ant-v5", "Humanoid-v5"]
 
 
 @functools.cache
