@@ -29,9 +29,13 @@ import mujoco
 from flax import struct
 
 from envs.core.core import Array, float32_field
-from envs.mujoco.hopper import split_ranges
 from envs.mujoco.mujoco_backend import Measurement
-from envs.mujoco.mujoco_env import REMEMBERED_KEY, MujocoEnv, MujocoParams
+from envs.mujoco.mujoco_env import (
+    REMEMBERED_KEY,
+    MujocoEnv,
+    MujocoParams,
+    planar_position_info,
+)
 
 
 @struct.dataclass
@@ -91,8 +95,7 @@ class Ant(MujocoEnv):
         self.terminate_when_unhealthy = bool(terminate_when_unhealthy)
         self.exclude_current_positions = bool(exclude_current_positions_from_observation)
         self.include_cfrc_ext = bool(include_cfrc_ext_in_observation)
-        overrides = split_ranges(keywords, self.range_keywords)
-        super().__init__(backend, fidelity, nthread, **overrides)
+        super().__init__(backend, fidelity, nthread, **keywords)
 
     @property
     def main_body(self) -> int:
@@ -149,9 +152,4 @@ class Ant(MujocoEnv):
         return reward, ~healthy & self.terminate_when_unhealthy, info
 
     def reset_info(self, measurement: Measurement) -> dict[str, Array]:
-        qpos = measurement.qpos
-        return {
-            "x_position": qpos[0],
-            "y_position": qpos[1],
-            "distance_from_origin": jnp.sqrt(qpos[0] ** 2 + qpos[1] ** 2),
-        }
+        return planar_position_info(measurement.qpos)

@@ -43,21 +43,6 @@ class HopperParams(MujocoParams):
     healthy_state_max: Array = float32_field(100.0)
 
 
-def split_ranges(keywords: dict[str, Any], ranges: dict[str, tuple[str, str]]) -> dict[str, Any]:
-    """gymnasium's ``(low, high)`` range keywords (``healthy_z_range=(0.8, 2.0)``) as the two
-    params fields that hold them; every other keyword is passed through."""
-    fields = {k: v for k, v in keywords.items() if k not in ranges}
-    for keyword, names in ranges.items():
-        if keyword not in keywords:
-            continue
-        given = sorted(set(names) & set(fields))
-        if given:
-            raise TypeError(f"give either {keyword} or {given}, not both")
-        low, high = keywords[keyword]
-        fields.update(zip(names, (low, high), strict=True))
-    return fields
-
-
 class Hopper(MujocoEnv):
     xml_file = "hopper.xml"
     frame_skip = 4
@@ -94,8 +79,7 @@ class Hopper(MujocoEnv):
     ):
         self.exclude_current_positions = bool(exclude_current_positions_from_observation)
         self.terminate_when_unhealthy = bool(terminate_when_unhealthy)
-        overrides = split_ranges(keywords, self.range_keywords)
-        super().__init__(backend, fidelity, nthread, **overrides)
+        super().__init__(backend, fidelity, nthread, **keywords)
 
     @property
     def obs_size(self) -> int:

@@ -33,9 +33,13 @@ import numpy as np
 from flax import struct
 
 from envs.core.core import Array, float32_field
-from envs.mujoco.hopper import split_ranges
 from envs.mujoco.mujoco_backend import Measurement
-from envs.mujoco.mujoco_env import REMEMBERED_KEY, MujocoEnv, MujocoParams
+from envs.mujoco.mujoco_env import (
+    REMEMBERED_KEY,
+    MujocoEnv,
+    MujocoParams,
+    planar_position_info,
+)
 
 _INCLUDES = ("cinert", "cvel", "qfrc_actuator", "cfrc_ext")
 
@@ -109,8 +113,7 @@ class Humanoid(MujocoEnv):
             include_cfrc_ext_in_observation,
         )
         self.observed = tuple(name for name, flag in zip(_INCLUDES, flags, strict=True) if flag)
-        overrides = split_ranges(keywords, self.range_keywords)
-        super().__init__(backend, fidelity, nthread, **overrides)
+        super().__init__(backend, fidelity, nthread, **keywords)
 
     @property
     def obs_size(self) -> int:
@@ -159,9 +162,4 @@ class Humanoid(MujocoEnv):
         return reward, ~healthy & self.terminate_when_unhealthy, info
 
     def reset_info(self, measurement: Measurement) -> dict[str, Array]:
-        qpos = measurement.qpos
-        return {
-            "x_position": qpos[0],
-            "y_position": qpos[1],
-            "distance_from_origin": jnp.sqrt(qpos[0] ** 2 + qpos[1] ** 2),
-        }
+        return planar_position_info(measurement.qpos)

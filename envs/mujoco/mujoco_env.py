@@ -138,6 +138,9 @@ class MujocoEnv(Environment[MujocoState, Any]):
     #: gymnasium's free-camera settings for ``render``, or the name of a camera of the model
     camera: dict[str, Any] | str = {}
     params_type: type = MujocoParams
+    #: gymnasium's ``(low, high)`` range keywords (``healthy_z_range``) -> the two params fields
+    #: that hold them, so either spelling may be given
+    range_keywords: dict[str, tuple[str, str]] = {}
 
     def __init__(
         self,
@@ -155,6 +158,7 @@ class MujocoEnv(Environment[MujocoState, Any]):
                     f"model ({self.xml_file}), frame skip ({self.frame_skip}) and camera are "
                     "fixed by the env class (subclass it to change them)"
                 )
+        param_overrides = split_ranges(param_overrides, self.range_keywords)
         physics_backend = resolve_backend(backend)  # e.g. "mujoco_ffi"
         self.backend = engine(physics_backend)  # "mujoco" or "mjx"
         self.fidelity = fidelity
@@ -415,6 +419,31 @@ class MujocoEnv(Environment[MujocoState, Any]):
         their velocity from a body position read before the step, i.e. the one MuJoCo left at
         the previous step (computed at the start of its last substep) or at the reset."""
         return jnp.zeros((self.remembers,), jnp.float32)
+
+
+def split_ranges(keywords: dict[str, Any], ranges: dict[str, tuple[str, str]]) -> dict[str, Any]:
+    """gymnasium's ``(low, high)`` range keywords (``healthy_z_range=(0.8, 2.0)``) as the two
+    params fields that hold them; every other keyword is passed through."""
+    fields = {k: v for k, v in keywords.items() if k not in ranges}
+    for keyword, names in ranges.items():
+        if keyword not in keywords:
+            continue
+        given = sorted(set(names) & set(fields))
+        if given:
+            raise TypeError(f"give either {keyword} or {given}, not both")
+        low, high = keywords[keyword]
+        fields.update(zip(names, (low, high), strict=True))
+    return fields
+
+
+def planar_position_info(qpos: Array) -> dict[str, Array]:
+    """gymnasium's ``x_position``, ``y_position`` and ``distance_from_origin`` of a body moving in
+    the plane (its first two qpos), as Ant, Humanoid and Swimmer report them."""
+    return {
+        "x_position": qpos[0],
+        "y_position": qpos[1],
+        "distance_from_origin": jnp.hypot(qpos[0], qpos[1]),
+    }
 
 
 def _finite_or_zero(x: Array) -> Array:

@@ -15,7 +15,7 @@ from flax import struct
 
 from envs.core.core import Array, float32_field
 from envs.mujoco.mujoco_backend import Measurement
-from envs.mujoco.mujoco_env import MujocoEnv, MujocoParams
+from envs.mujoco.mujoco_env import MujocoEnv, MujocoParams, planar_position_info
 
 
 @struct.dataclass
@@ -79,5 +79,4 @@ class Swimmer(MujocoEnv):
         return forward_reward - ctrl_cost, jnp.zeros((), jnp.bool_), info
 
     def reset_info(self, measurement: Measurement) -> dict[str, Array]:
-        x, y = measurement.qpos[0], measurement.qpos[1]
-        return {"x_position": x, "y_position": y, "distance_from_origin": jnp.hypot(x, y)}
+        return planar_position_info(measurement.qpos)
