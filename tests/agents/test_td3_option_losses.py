@@ -48,8 +48,9 @@ def test_lap_priorities_take_the_largest_critic_error_floored_at_one(transform):
     np.testing.assert_allclose(got, [1.0, 3.0, 1.0, 4.0], rtol=0)
 
 
-def test_a_lap_update_writes_floored_priorities_and_samples_without_weights():
-    config = td3.td3.default_config(
+def _probe_config(**options):
+    """A tiny TD3 on the one-step probe env, updating from the first step."""
+    return td3.td3.default_config(
         "rl_jax/ProbeActionReward-v0",
         actor_hidden=(8,),
         critic_hidden=(8,),
@@ -57,8 +58,12 @@ def test_a_lap_update_writes_floored_priorities_and_samples_without_weights():
         buffer_size=16,
         num_envs=2,
         learning_starts=0,
-        lap=True,
+        **options,
     )
+
+
+def test_a_lap_update_writes_floored_priorities_and_samples_without_weights():
+    config = _probe_config(lap=True)
     hparams = td3.td3.default_hyperparams(lap_alpha=0.5)
     state = td3.td3.init(jax.random.key(3), config, hparams)
     buffer = state.buffer
@@ -240,17 +245,7 @@ def test_reset_max_priority_takes_the_largest_stored_priority():
 
 
 def test_targets_are_copied_every_period_and_never_polyak_stepped():
-    config = td3.td3.default_config(
-        "rl_jax/ProbeActionReward-v0",
-        actor_hidden=(8,),
-        critic_hidden=(8,),
-        batch_size=4,
-        buffer_size=16,
-        num_envs=2,
-        learning_starts=0,
-        target_update_period=3,
-        lap=True,
-    )
+    config = _probe_config(target_update_period=3, lap=True)
     hparams = td3.td3.default_hyperparams(tau=0.5)
     state = td3.td3.init(jax.random.key(3), config, hparams)
     add = jax.jit(td3.add_to_buffer, static_argnums=2)

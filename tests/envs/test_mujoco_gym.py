@@ -7,21 +7,9 @@ import gymnasium
 import numpy as np
 import pytest
 from gymnasium.utils.env_checker import check_env
-from test_mujoco_parity import POSITION_ULPS, _tracked_position
+from test_mujoco_parity import ENV_IDS, POSITION_ULPS, _tracked_position
 
 import envs  # noqa: F401  (registers the rl_jax ids with gymnasium)
-
-ENV_IDS = [
-    "InvertedPendulum-v5",
-    "InvertedDoublePendulum-v5",
-    "HalfCheetah-v5",
-    "Hopper-v5",
-    "Walker2d-v5",
-    "Swimmer-v5",
-    "Reacher-v5",
-    "Ant-v5",
-    "Humanoid-v5",
-]
 
 
 @pytest.mark.parametrize("env_id", ENV_IDS)
