@@ -108,6 +108,9 @@ def test_sigint_mid_run_checkpoints_and_resume_is_bit_identical(full_run, tmp_pa
     could finish all 8 chunks before the signal landed.)"""
     out = tmp_path / "run"
     rows_of = runner.metric_rows
+    # what the run must restore: Python's default, or SIG_IGN where a shell started the tests as
+    # a background job (bash ignores SIGINT in those)
+    handler_before = signal.getsignal(signal.SIGINT)
 
     def rows_then_interrupt(*args, **kwargs):
         rows = rows_of(*args, **kwargs)
@@ -123,7 +126,7 @@ def test_sigint_mid_run_checkpoints_and_resume_is_bit_identical(full_run, tmp_pa
         assert checkpointer.latest_step() == stopped.step
     assert max(row["step"] for row in read_rows(out / "metrics.jsonl")) == stopped.step
     assert any(f"stopped at step {stopped.step}" in message for message in messages)
-    assert signal.getsignal(signal.SIGINT) is signal.default_int_handler  # handler restored
+    assert signal.getsignal(signal.SIGINT) is handler_before  # handler restored
     resumed = run(spec_for(out, resume=True), notify=lambda message: None)
     assert leaves_bytes(resumed.state) == leaves_bytes(full_run.state)
     assert compared_rows(out) == compared_rows(full_run.run_dir)
