@@ -61,6 +61,7 @@ class Ant(MujocoEnv):
     mjx_solver = (8, 4)
     extras = ("xpos", "cfrc_ext")
     forward_at_reset = True  # the first step's velocity starts from the reset's body position
+    current_positions = 2  # x, y
     remembers = 2  # the main body's x, y as MuJoCo left them
     info_keys = (
         "x_position",
@@ -87,13 +88,11 @@ class Ant(MujocoEnv):
         nthread: int | None = None,
         main_body: int | str = 1,
         terminate_when_unhealthy: bool = True,
-        exclude_current_positions_from_observation: bool = True,
         include_cfrc_ext_in_observation: bool = True,
         **keywords: Any,
     ):
         self.main_body_name = main_body
         self.terminate_when_unhealthy = bool(terminate_when_unhealthy)
-        self.exclude_current_positions = bool(exclude_current_positions_from_observation)
         self.include_cfrc_ext = bool(include_cfrc_ext_in_observation)
         super().__init__(backend, fidelity, nthread, **keywords)
 
@@ -108,7 +107,7 @@ class Ant(MujocoEnv):
 
     @property
     def obs_size(self) -> int:
-        size = self.model.nq + self.model.nv - 2 * self.exclude_current_positions
+        size = self.observed_qpos_size + self.model.nv
         return size + 6 * (self.model.nbody - 1) * self.include_cfrc_ext
 
     def _contact_forces(self, measurement: Measurement, params) -> Array:
@@ -116,7 +115,7 @@ class Ant(MujocoEnv):
         return jnp.clip(forces, params.contact_force_min, params.contact_force_max)
 
     def observe(self, measurement: Measurement) -> Array:
-        qpos = measurement.qpos[2:] if self.exclude_current_positions else measurement.qpos
+        qpos = self.observed_qpos(measurement)
         parts = [qpos, measurement.qvel]
         if self.include_cfrc_ext:
             # the observation's clip is the default params' (gymnasium fixes it at construction)

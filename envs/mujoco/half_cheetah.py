@@ -39,24 +39,14 @@ class HalfCheetah(MujocoEnv):
     camera = "track"  # the model's own camera, which follows the torso (gymnasium's stays put)
     params_type = HalfCheetahParams
 
-    def __init__(
-        self,
-        backend: str | None = None,
-        fidelity: str = "parity",
-        nthread: int | None = None,
-        exclude_current_positions_from_observation: bool = True,
-        **param_overrides: float,
-    ):
-        self.exclude_current_positions = bool(exclude_current_positions_from_observation)
-        super().__init__(backend, fidelity, nthread, **param_overrides)
+    current_positions = 1  # x
 
     @property
     def obs_size(self) -> int:
-        return 17 if self.exclude_current_positions else 18
+        return self.observed_qpos_size + self.model.nv
 
     def observe(self, measurement: Measurement) -> Array:
-        qpos = measurement.qpos[1:] if self.exclude_current_positions else measurement.qpos
-        return jnp.concatenate([qpos, measurement.qvel])
+        return jnp.concatenate([self.observed_qpos(measurement), measurement.qvel])
 
     def evaluate(self, measurement: Measurement, action: Array, params):
         x_velocity = measurement.qpos_change[0] / self.dt

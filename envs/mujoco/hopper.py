@@ -62,6 +62,7 @@ class Hopper(MujocoEnv):
     camera = {"trackbodyid": 2, "distance": 3.0, "lookat": (0.0, 0.0, 1.15), "elevation": -20.0}
     params_type = HopperParams
     qvel_noise = "uniform"
+    current_positions = 1  # x
     range_keywords = {
         "healthy_z_range": ("healthy_z_min", "healthy_z_max"),
         "healthy_angle_range": ("healthy_angle_min", "healthy_angle_max"),
@@ -73,20 +74,18 @@ class Hopper(MujocoEnv):
         backend: str | None = None,
         fidelity: str = "parity",
         nthread: int | None = None,
-        exclude_current_positions_from_observation: bool = True,
         terminate_when_unhealthy: bool = True,
         **keywords: Any,
     ):
-        self.exclude_current_positions = bool(exclude_current_positions_from_observation)
         self.terminate_when_unhealthy = bool(terminate_when_unhealthy)
         super().__init__(backend, fidelity, nthread, **keywords)
 
     @property
     def obs_size(self) -> int:
-        return self.model.nq + self.model.nv - self.exclude_current_positions
+        return self.observed_qpos_size + self.model.nv
 
     def observe(self, measurement: Measurement) -> Array:
-        qpos = measurement.qpos[1:] if self.exclude_current_positions else measurement.qpos
+        qpos = self.observed_qpos(measurement)
         return jnp.concatenate([qpos, jnp.clip(measurement.qvel, -_VELOCITY_CLIP, _VELOCITY_CLIP)])
 
     def is_healthy(self, measurement: Measurement, params) -> Array:

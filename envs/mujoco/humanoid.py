@@ -71,6 +71,7 @@ class Humanoid(MujocoEnv):
     mjx_cpu_chunk = 64
     extras = ("xipos", *_INCLUDES)
     forward_at_reset = True  # the reset observation holds cinert, cvel and qfrc_actuator
+    current_positions = 2  # x, y
     remembers = 2  # the bodies' mass centre x, y as MuJoCo left them
     info_keys = (
         "x_position",
@@ -97,7 +98,6 @@ class Humanoid(MujocoEnv):
         fidelity: str = "parity",
         nthread: int | None = None,
         terminate_when_unhealthy: bool = True,
-        exclude_current_positions_from_observation: bool = True,
         include_cinert_in_observation: bool = True,
         include_cvel_in_observation: bool = True,
         include_qfrc_actuator_in_observation: bool = True,
@@ -105,7 +105,6 @@ class Humanoid(MujocoEnv):
         **keywords: Any,
     ):
         self.terminate_when_unhealthy = bool(terminate_when_unhealthy)
-        self.exclude_current_positions = bool(exclude_current_positions_from_observation)
         flags = (
             include_cinert_in_observation,
             include_cvel_in_observation,
@@ -119,13 +118,13 @@ class Humanoid(MujocoEnv):
     def obs_size(self) -> int:
         model = self.model
         sizes = {"cinert": 10, "cvel": 6, "cfrc_ext": 6}
-        size = model.nq + model.nv - 2 * self.exclude_current_positions
+        size = self.observed_qpos_size + model.nv
         for name in self.observed:
             size += model.nv - 6 if name == "qfrc_actuator" else sizes[name] * (model.nbody - 1)
         return size
 
     def observe(self, measurement: Measurement) -> Array:
-        qpos = measurement.qpos[2:] if self.exclude_current_positions else measurement.qpos
+        qpos = self.observed_qpos(measurement)
         parts = [qpos, measurement.qvel]
         for name in self.observed:
             value = measurement.extras[name]

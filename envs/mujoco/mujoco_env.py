@@ -141,6 +141,10 @@ class MujocoEnv(Environment[MujocoState, Any]):
     #: gymnasium's ``(low, high)`` range keywords (``healthy_z_range``) -> the two params fields
     #: that hold them, so either spelling may be given
     range_keywords: dict[str, tuple[str, str]] = {}
+    #: leading qpos entries (the free position along x, or x and y) that gymnasium leaves out of
+    #: the observation unless ``exclude_current_positions_from_observation=False``; 0: the env
+    #: has no such keyword
+    current_positions: int = 0
 
     def __init__(
         self,
@@ -159,6 +163,9 @@ class MujocoEnv(Environment[MujocoState, Any]):
                     "fixed by the env class (subclass it to change them)"
                 )
         param_overrides = split_ranges(param_overrides, self.range_keywords)
+        keyword = "exclude_current_positions_from_observation"
+        excluded = bool(param_overrides.pop(keyword, True)) if self.current_positions else False
+        self.exclude_current_positions = excluded
         physics_backend = resolve_backend(backend)  # e.g. "mujoco_ffi"
         self.backend = engine(physics_backend)  # "mujoco" or "mjx"
         self.fidelity = fidelity
@@ -399,6 +406,15 @@ class MujocoEnv(Environment[MujocoState, Any]):
         else:
             qvel = scale * jax.random.normal(key_qvel, (nv,), jnp.float32)
         return qpos, qvel
+
+    def observed_qpos(self, measurement: Measurement) -> Array:
+        """qpos as the observation starts with it: without the current positions unless asked."""
+        skipped = self.current_positions if self.exclude_current_positions else 0
+        return measurement.qpos[skipped:]
+
+    @property
+    def observed_qpos_size(self) -> int:
+        return self.model.nq - (self.current_positions if self.exclude_current_positions else 0)
 
     def observe(self, measurement: Measurement) -> Array:
         raise NotImplementedError

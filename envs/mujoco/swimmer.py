@@ -46,24 +46,14 @@ class Swimmer(MujocoEnv):
     params_type = SwimmerParams
     qvel_noise = "uniform"
 
-    def __init__(
-        self,
-        backend: str | None = None,
-        fidelity: str = "parity",
-        nthread: int | None = None,
-        exclude_current_positions_from_observation: bool = True,
-        **param_overrides: float,
-    ):
-        self.exclude_current_positions = bool(exclude_current_positions_from_observation)
-        super().__init__(backend, fidelity, nthread, **param_overrides)
+    current_positions = 2  # x, y
 
     @property
     def obs_size(self) -> int:
-        return self.model.nq + self.model.nv - 2 * self.exclude_current_positions
+        return self.observed_qpos_size + self.model.nv
 
     def observe(self, measurement: Measurement) -> Array:
-        qpos = measurement.qpos[2:] if self.exclude_current_positions else measurement.qpos
-        return jnp.concatenate([qpos, measurement.qvel])
+        return jnp.concatenate([self.observed_qpos(measurement), measurement.qvel])
 
     def evaluate(self, measurement: Measurement, action: Array, params):
         x_velocity, y_velocity = measurement.qpos_change[:2] / self.dt
