@@ -48,6 +48,7 @@ from rl_jax.training import (
     networks,
     offpolicy,
     params,
+    policy_checkpoints,
     prioritized,
     replay,
     validation,
@@ -69,11 +70,24 @@ class Config(OffPolicyConfig):
     target_update_period: int = 500  # gradient updates between target steps of size tau
     action_bins: int = 3  # values per action dim when the env's actions are continuous
     network_init: str = "fan_in_uniform"  # see rl_jax.training.networks
+    norm: str = "none"  # "layer": LayerNorm before each hidden ReLU of the Q-network
+    # TD7's policy checkpoints (rl_jax.training.policy_checkpoints): the training envs act
+    # (epsilon-greedily) with a frozen copy of the Q-network for an assessment of
+    # checkpoint_episodes episodes (1 before env step checkpoint_episodes_from); if none returned
+    # less than the checkpoint's score, the copy becomes the checkpoint, whose greedy policy is
+    # what evaluation, best/ and loaded policies use. Updates go on meanwhile.
+    policy_checkpoints: bool = False
+    checkpoint_episodes: int = 20  # policy_checkpoints: episodes per assessment (TD7: 20)
+    checkpoint_episodes_from: int = 750_000  # policy_checkpoints: env step of the switch
 
     def __post_init__(self) -> None:
         super().__post_init__()
+        if self.norm not in ("none", "layer"):
+            raise ValueError(f"norm must be 'none' or 'layer', got {self.norm!r}")
         if self.n_step < 1 or self.target_update_period < 1:
             raise ValueError("n_step and target_update_period must be >= 1")
+        if self.checkpoint_episodes < 1 or self.checkpoint_episodes_from < 0:
+            raise ValueError("checkpoint_episodes must be >= 1, checkpoint_episodes_from >= 0")
         if self.action_bins < 2:
             raise ValueError(f"action_bins must be >= 2, got {self.action_bins}")
         if self.network_init not in networks.INITS:
@@ -151,6 +165,9 @@ class Hyperparams(params.HyperparamsMethods):
     priority_beta_start: Any = 0.4  # prioritized: importance-weight exponent at the start
     priority_beta_steps: Any = 500_000.0  # prioritized: env steps for beta to rise to 1
     priority_eps: Any = 1e-6  # prioritized: priority = |TD error| + eps
+    # policy_checkpoints: the checkpoint's score is multiplied by this when assessments lengthen
+    # to checkpoint_episodes (TD7: 0.9)
+    checkpoint_reset_weight: Any = 0.9
 
 
 @struct.dataclass
@@ -158,6 +175,9 @@ class Agent:
     online: Any  # Q-network parameters
     target: Any  # target Q-network parameters
     opt_state: Any  # optax inject_hyperparams state: holds learning rate and clip norm
+    # policy_checkpoints: a PolicyCheckpoint of Q-network parameters (None without: the state
+    # and checkpoints of runs without it stay as they were)
+    checkpoint: Any = None
 
 
 @functools.lru_cache(maxsize=64)
@@ -174,6 +194,7 @@ def make_network(config: Config) -> networks.QNetwork:
         config.network_init,
         conv_layers=config.conv_layers if pixels else (),
         conv_rows=config.conv_rows() if pixels else (),
+        norm=config.norm,
     )
 
 
@@ -269,20 +290,49 @@ def epsilon_at(env_steps, hparams: Hyperparams) -> jax.Array:
     )
 
 
+def greedy(params, obs: jax.Array, config: Config) -> jax.Array:
+    """Greedy actions ``[N]`` int32 of the Q-network ``params``."""
+    return jnp.argmax(make_network(config).apply(params, obs), axis=-1).astype(jnp.int32)
+
+
 def act(agent: Agent, obs: jax.Array, config: Config) -> jax.Array:
-    """Greedy actions ``[N]`` int32."""
-    return jnp.argmax(make_network(config).apply(agent.online, obs), axis=-1).astype(jnp.int32)
+    """Greedy actions ``[N]`` int32: of the online network, or the checkpoint's."""
+    return greedy(policy_params(agent, config), obs, config)
+
+
+def policy_params(agent: Agent, config: Config):
+    """The Q-network whose greedy policy is evaluated, saved as best/ and loaded."""
+    return agent.checkpoint.best if config.policy_checkpoints else agent.online
 
 
 def explore(agent: Agent, obs, noise, key, config: Config, hparams: Hyperparams, clock):
     """``(actions, noise)``. Epsilon-greedy: a uniform action with probability epsilon(env steps),
-    else greedy. Independent from step to step, so the carried ``noise`` state is passed through."""
-    greedy = act(agent, obs, config)
+    else greedy (with ``policy_checkpoints``, the assessed copy's). Independent from step to step,
+    so the carried ``noise`` state is passed through."""
+    acting = agent.checkpoint.assessed if config.policy_checkpoints else agent.online
+    greedy_actions = greedy(acting, obs, config)
     coin_key, action_key = jax.random.split(key)
     num_actions = make_network(config).num_actions
-    uniform = jax.random.randint(action_key, greedy.shape, 0, num_actions, jnp.int32)
-    explore_now = jax.random.uniform(coin_key, greedy.shape) < epsilon_at(clock.env_steps, hparams)
-    return jnp.where(explore_now, uniform, greedy), noise
+    shape = greedy_actions.shape
+    uniform = jax.random.randint(action_key, shape, 0, num_actions, jnp.int32)
+    explore_now = jax.random.uniform(coin_key, shape) < epsilon_at(clock.env_steps, hparams)
+    return jnp.where(explore_now, uniform, greedy_actions), noise
+
+
+def observe(agent: Agent, transitions, episode_return, done, clock, config, hparams):
+    """Every env step: policy checkpoints count the episodes that ended."""
+    if not config.policy_checkpoints:
+        return agent
+    checkpoint = policy_checkpoints.assess(
+        agent.checkpoint,
+        agent.online,
+        episode_return,
+        done,
+        clock,
+        config,
+        hparams.checkpoint_reset_weight,
+    )
+    return agent.replace(checkpoint=checkpoint)
 
 
 def init_buffer(example: Transition, config: Config):
@@ -323,7 +373,11 @@ def init_agent(key, config: Config, hparams: Hyperparams, obs_space, action_spac
     online = make_network(config).init(key, jnp.zeros(obs_space.shape, jnp.float32))
     optimizer = optax.inject_hyperparams(_optimizer)(hparams.learning_rate, hparams.max_grad_norm)
     opt_state = optimizer.init(online)
-    return Agent(online=online, target=online, opt_state=opt_state)
+    agent = Agent(online=online, target=online, opt_state=opt_state)
+    if config.policy_checkpoints:
+        checkpoint = policy_checkpoints.init(online, config.num_envs, config.learning_starts)
+        agent = agent.replace(checkpoint=checkpoint)
+    return agent
 
 
 LEARNER = offpolicy.Learner(
@@ -334,6 +388,7 @@ LEARNER = offpolicy.Learner(
     ("loss", "q", "epsilon"),
     init_buffer,
     add_to_buffer,
+    observe,
 )
 
 
@@ -420,9 +475,10 @@ class DQN(RecipeBook):
         return offpolicy.train_chunk(LEARNER, state, config, hparams)
 
     def policy(self, state: TrainState, config: Config):
-        """``obs -> action index`` of the greedy policy of one seed's state."""
-        network, params = make_network(config), state.agent.online
-        return lambda obs: jnp.argmax(network.apply(params, obs), axis=-1).astype(jnp.int32)
+        """``obs -> action index`` of the greedy policy of one seed's state (with
+        ``policy_checkpoints``, the checkpoint's)."""
+        params = policy_params(state.agent, config)
+        return lambda obs: greedy(params, obs, config)
 
     def make_env(self, config: Config) -> envs.Environment:
         """The env the policy acts in (discretised actions), for rendering."""

@@ -30,10 +30,9 @@ import jax
 import jax.numpy as jnp
 from flax import struct
 
-from rl_jax.agents import td7_parts
 from rl_jax.agents.td3_losses import CriticBatch
 from rl_jax.agents.td3_networks import Networks, policy_action
-from rl_jax.training import normalization
+from rl_jax.training import normalization, policy_checkpoints
 from rl_jax.training.replay import Transition
 
 
@@ -83,7 +82,8 @@ class ValueRange:
     @classmethod
     def initial(cls) -> ValueRange:
         zero = jnp.float32(0.0)
-        no_min, no_max = jnp.float32(td7_parts.NO_EPISODE), jnp.float32(td7_parts.NO_SCORE)
+        no_min = jnp.float32(policy_checkpoints.NO_EPISODE)
+        no_max = jnp.float32(policy_checkpoints.NO_SCORE)
         return cls(low=zero, high=zero, seen_min=no_min, seen_max=no_max)
 
     def seeing(self, target_range) -> ValueRange:
@@ -103,16 +103,7 @@ class Policy:
     obs_stats: Any = None
 
 
-@struct.dataclass
-class PolicyCheckpoint:
-    """TD7's policy checkpoints (see the module docstring)."""
-
-    best: Policy  # the checkpoint: what evaluation, best/ and loaded policies use
-    assessed: Policy  # the frozen copy acting in the training envs during an assessment
-    score: jax.Array  # [] float32, the lowest return of the checkpoint's assessment
-    lowest: jax.Array  # [] float32, the lowest return so far in this assessment
-    episodes: jax.Array  # [] int32, episodes counted so far in this assessment
-    counting: jax.Array  # [num_envs] bool, whether each env's episode began under ``assessed``
+PolicyCheckpoint = policy_checkpoints.PolicyCheckpoint  # its policies are ``Policy``
 
 
 def fixed_encoders(agent: Agent) -> tuple[Any, Any]:
@@ -149,48 +140,21 @@ def act_with(nets: Networks, policy: Policy, obs: jax.Array) -> jax.Array:
 
 
 def init_checkpoint(agent: Any, num_envs: int, learning_starts: int) -> PolicyCheckpoint:
-    """The initial actor as checkpoint and as assessed copy; envs count from their first
-    episode that starts after the random warm-up."""
-    policy = current_policy(agent)
-    return PolicyCheckpoint(
-        best=policy,
-        assessed=policy,
-        score=jnp.float32(td7_parts.NO_SCORE),
-        lowest=jnp.float32(td7_parts.NO_EPISODE),
-        episodes=jnp.int32(0),
-        counting=jnp.full(num_envs, learning_starts == 0),
-    )
-
-
-def _where(flag: jax.Array, a: Any, b: Any) -> Any:
-    return jax.tree.map(lambda x, y: jnp.where(flag, x, y), a, b)
+    """The initial actor as checkpoint and as assessed copy (``policy_checkpoints.init``)."""
+    return policy_checkpoints.init(current_policy(agent), num_envs, learning_starts)
 
 
 def assess(agent: Any, episode_return, done, clock, config, hparams) -> PolicyCheckpoint:
-    """One env step of TD7's checkpoint schedule: count the episodes that ended, and when an
-    assessment ends, keep its copy if it passed and take a new copy of the online actor. Until
-    an assessment's first episode begins (no env counting: after the warm-up, or while every
-    env finishes an episode begun before), the copy keeps following the online actor."""
-    ckpt, after = agent.checkpoint, clock.env_steps + config.num_envs
-    start = config.checkpoint_episodes_from
-    lengthen = jnp.logical_and(clock.env_steps < start, after >= start)
-    score = jnp.where(lengthen, ckpt.score * hparams.checkpoint_reset_weight, ckpt.score)
-    required = jnp.where(after >= start, config.checkpoint_episodes, 1)
-    counted = jnp.logical_and(done, ckpt.counting)
-    lowest, episodes, passed, ended = td7_parts.assess_episodes(
-        ckpt.lowest, ckpt.episodes, score, episode_return, counted, required
-    )
-    renew = jnp.logical_or(ended, ~jnp.any(ckpt.counting))
-    # After an assessment only fresh episodes count; none while actions are still random.
-    counting = jnp.where(ended, done, jnp.logical_or(ckpt.counting, done))
-    counting = jnp.logical_and(counting, after >= config.learning_starts)
-    return PolicyCheckpoint(
-        best=_where(passed, ckpt.assessed, ckpt.best),
-        assessed=_where(renew, current_policy(agent), ckpt.assessed),
-        score=jnp.where(passed, lowest, score),
-        lowest=jnp.where(ended, jnp.float32(td7_parts.NO_EPISODE), lowest),
-        episodes=jnp.where(ended, 0, episodes),
-        counting=counting,
+    """One env step of TD7's checkpoint schedule, the online actor being the next copy to assess
+    (``policy_checkpoints.assess``)."""
+    return policy_checkpoints.assess(
+        agent.checkpoint,
+        current_policy(agent),
+        episode_return,
+        done,
+        clock,
+        config,
+        hparams.checkpoint_reset_weight,
     )
 
 

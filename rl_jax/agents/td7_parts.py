@@ -20,7 +20,7 @@ for TD3's options (``rl_jax.agents.td3``): one code path, no separate TD7 agent.
 * Policy checkpoints: the policy used for evaluation is not the latest actor but a checkpoint,
   replaced only when an *assessment* of the acting actor (held fixed for it) over a number of
   training episodes has a lowest return at least the checkpoint's score; one episode below the
-  score ends an assessment early. ``assess_episodes`` is one env step of that bookkeeping.
+  score ends an assessment early (``rl_jax.training.policy_checkpoints``, shared with DQN).
 
 Naming as rlax (and ``td3``): ``td_tm1`` is the TD error of the transition's start state,
 ``[num_critics, B]``.
@@ -66,19 +66,3 @@ def sale_loss(zsa_tm1: jax.Array, zs_t: jax.Array) -> jax.Array:
 def value_clipped_target(r_t, discount_t, q_t, low, high) -> jax.Array:
     """``r_t + discount_t * clip(min_i q_t[i], low, high)`` with no gradient; ``q_t`` [C, B]."""
     return jax.lax.stop_gradient(r_t + discount_t * jnp.clip(jnp.min(q_t, axis=0), low, high))
-
-
-#: TD7's start values: a checkpoint score below any return, an assessment minimum above any.
-NO_SCORE, NO_EPISODE = -1e8, 1e8
-
-
-def assess_episodes(lowest, episodes, score, returns, counted, required):
-    """One env step of an assessment: ``returns`` [N] of the episodes that ended, ``counted``
-    [N] those that count. Returns ``(lowest, episodes, passed, ended)``: the lowest return and the
-    number of episodes so far; ``passed`` when ``required`` episodes have all stayed at or above
-    ``score`` (the assessed policy becomes the checkpoint), ``ended`` also when one fell below."""
-    lowest = jnp.minimum(lowest, jnp.min(jnp.where(counted, returns, NO_EPISODE)))
-    episodes = episodes + jnp.sum(counted, dtype=jnp.int32)
-    failed = lowest < score
-    passed = jnp.logical_and(~failed, episodes >= required)
-    return lowest, episodes, passed, jnp.logical_or(failed, passed)

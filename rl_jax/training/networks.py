@@ -88,18 +88,25 @@ def _activation(name: str):
 
 
 class Torso(nn.Module):
-    """Hidden layers only: ``[..., in] -> [..., hidden[-1]]`` (the input itself if none)."""
+    """Hidden layers only: ``[..., in] -> [..., hidden[-1]]`` (the input itself if none).
+    ``norm="layer"``: dense -> LayerNorm -> nonlinearity in each layer, as ``MLP``'s."""
 
     hidden: tuple[int, ...]
     initializer: str = "fan_in_uniform"
     activation: str = "relu"
     dtype: Any = jnp.float32
+    norm: str = "none"  # "none" or "layer"
 
     @nn.compact
     def __call__(self, x: jax.Array) -> jax.Array:
+        if self.norm not in ("none", "layer"):
+            raise ValueError(f"a Torso's norm is 'none' or 'layer', got {self.norm!r}")
         function, gain = _activation(self.activation)
         for width in self.hidden:
-            x = function(dense(width, x.shape[-1], self.initializer, gain, self.dtype)(x))
+            x = dense(width, x.shape[-1], self.initializer, gain, self.dtype)(x)
+            if self.norm == "layer":
+                x = nn.LayerNorm(dtype=self.dtype)(x)
+            x = function(x)
         return x
 
 
@@ -445,7 +452,8 @@ class QNetwork(nn.Module):
     (or ``obs [..., H, W, C]`` through a ``ConvTorso`` when ``conv_layers`` is set).
 
     ``dueling`` (Wang et al. 2016): the torso feeds a state-value head ``v`` and an advantage head
-    ``a``, combined as ``q = v + a - mean(a)`` (the mean makes the split identifiable)."""
+    ``a``, combined as ``q = v + a - mean(a)`` (the mean makes the split identifiable).
+    ``norm="layer"``: LayerNorm before each hidden ReLU (as PQN's Q-network)."""
 
     hidden: tuple[int, ...]
     num_actions: int
@@ -454,13 +462,14 @@ class QNetwork(nn.Module):
     dtype: Any = jnp.float32
     conv_layers: tuple[int, ...] = ()  # set: obs are images [..., H, W, C], see ConvTorso
     conv_rows: tuple[int, ...] = ()  # (first, stop): the image rows the ConvTorso sees
+    norm: str = "none"  # "layer": LayerNorm in each hidden layer after the conv torso
 
     @nn.compact
     def __call__(self, obs: jax.Array) -> jax.Array:
         if self.conv_layers:
             torso = ConvTorso(self.conv_layers, self.initializer, self.dtype, self.conv_rows)
             obs = torso(obs)
-        x = Torso(self.hidden, self.initializer, "relu", self.dtype)(obs)
+        x = Torso(self.hidden, self.initializer, "relu", self.dtype, self.norm)(obs)
         head = lambda outputs: dense(outputs, x.shape[-1], self.initializer, 1.0, self.dtype)  # noqa: E731
         if not self.dueling:
             return _float32(head(self.num_actions)(x))

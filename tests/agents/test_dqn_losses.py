@@ -268,6 +268,28 @@ def test_dueling_head_is_value_plus_centred_advantage():
     np.testing.assert_allclose(q.mean(axis=1), value[:, 0], rtol=1e-5, atol=1e-6)
 
 
+def test_layer_norm_q_network_normalises_each_hidden_layer_before_its_relu():
+    net = networks.QNetwork((8, 6), 3, norm="layer")
+    params = net.init(jax.random.key(3), jnp.zeros(2))["params"]
+    torso = params["Torso_0"]
+    assert set(torso) == {"Dense_0", "LayerNorm_0", "Dense_1", "LayerNorm_1"}
+    obs = jax.random.normal(jax.random.key(4), (5, 2))
+    x = np.asarray(obs, np.float64)
+    for layer in range(2):
+        dense, norm = torso[f"Dense_{layer}"], torso[f"LayerNorm_{layer}"]
+        x = x @ np.asarray(dense["kernel"], np.float64) + np.asarray(dense["bias"], np.float64)
+        x = (x - x.mean(-1, keepdims=True)) / np.sqrt(x.var(-1, keepdims=True) + 1e-6)
+        x = np.maximum(x * np.asarray(norm["scale"]) + np.asarray(norm["bias"]), 0.0)
+    head = params["Dense_0"]
+    expected = x @ np.asarray(head["kernel"], np.float64) + np.asarray(head["bias"], np.float64)
+    np.testing.assert_allclose(net.apply({"params": params}, obs), expected, rtol=1e-4, atol=1e-5)
+    # Off, the parameters are the ones saved runs have.
+    plain = networks.QNetwork((8, 6), 3).init(jax.random.key(3), jnp.zeros(2))["params"]
+    assert set(plain["Torso_0"]) == {"Dense_0", "Dense_1"}
+    with pytest.raises(ValueError, match="norm must be"):
+        dqn.default_config("rl_jax/CartPole-v1", norm="batch")
+
+
 # ---- target network steps, epsilon-greedy -----------------------------------------------------
 @pytest.fixture(scope="module")
 def updater():
@@ -337,3 +359,48 @@ def test_epsilon_greedy_frequencies_follow_the_schedule():
         frequency = float(jnp.mean(actions == greedy))
         assert abs(frequency - p_greedy) < 4 * np.sqrt(p_greedy * (1 - p_greedy) / 4000) + 1e-3
         np.testing.assert_array_equal(noise_out, noise)
+
+
+# ---- policy checkpoints (TD7's, rl_jax.training.policy_checkpoints) ----------------------------
+def _always(params, action: int):
+    """``params`` changed so that the greedy action is ``action`` whatever the observation."""
+    head = params["params"]["Dense_0"]
+    head = {"kernel": jnp.zeros_like(head["kernel"]), "bias": jax.nn.one_hot(action, 5)}
+    return {"params": {**params["params"], "Dense_0": head}}
+
+
+def test_policy_checkpoints_evaluate_the_checkpoint_and_explore_with_the_assessed_copy():
+    config = dqn.default_config(
+        ENV_ID, hidden=(8,), buffer_size=16, policy_checkpoints=True, checkpoint_episodes_from=10
+    )
+    hparams = dqn.default_hyperparams(epsilon_start=0.0, epsilon_end=0.0).as_arrays()
+    state = dqn.init(jax.random.key(6), config, hparams)
+    online = state.agent.online
+    # At init the checkpoint and the copy are the initial network.
+    jax.tree.map(np.testing.assert_array_equal, state.agent.checkpoint.best, online)
+    checkpoint = state.agent.checkpoint.replace(
+        best=_always(online, 0), assessed=_always(online, 1)
+    )
+    agent = state.agent.replace(online=_always(online, 2), checkpoint=checkpoint)
+    obs = jax.random.normal(jax.random.key(7), (6, 1))
+    clock = dqn.offpolicy.Clock(jnp.int32(0), jnp.int32(0), jnp.int32(0))
+    explored, _ = dqn.explore(agent, obs, jnp.zeros(6), jax.random.key(8), config, hparams, clock)
+    assert dqn.act(agent, obs, config).tolist() == [0] * 6  # evaluation: the checkpoint
+    assert explored.tolist() == [1] * 6  # training envs: the copy under assessment
+    policy = dqn.dqn.policy(state.replace(agent=agent), config)
+    assert policy(obs).tolist() == [0] * 6  # what best/ and load_policy get
+    # One episode is an assessment before env step 10: the copy's 7 passes (score -1e8) and it
+    # becomes the checkpoint; the next copy is the online network.
+    counting = jnp.ones(config.num_envs, bool)
+    agent = agent.replace(checkpoint=agent.checkpoint.replace(counting=counting))
+    done = jnp.zeros(config.num_envs, bool).at[0].set(True)
+    returns = jnp.full(config.num_envs, 7.0)
+    agent = dqn.observe(agent, None, returns, done, clock, config, hparams)
+    assert dqn.act(agent, obs, config).tolist() == [1] * 6
+    assert float(agent.checkpoint.score) == 7.0
+    jax.tree.map(np.testing.assert_array_equal, agent.checkpoint.assessed, agent.online)
+    # Off: no checkpoint in the state, and observing leaves the agent as it was.
+    plain = dqn.default_config(ENV_ID, hidden=(8,), buffer_size=16)
+    plain_agent = dqn.init(jax.random.key(6), plain, hparams).agent
+    assert plain_agent.checkpoint is None
+    assert dqn.observe(plain_agent, None, returns, done, clock, plain, hparams) is plain_agent

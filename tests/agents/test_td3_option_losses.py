@@ -11,7 +11,7 @@ import pytest
 import envs.core.probes  # noqa: F401  (registers the probe ids)
 from envs.core.spaces import Box
 from rl_jax.agents import td3, td3_agent, td3_networks, td7_parts
-from rl_jax.training import networks, offpolicy, prioritized
+from rl_jax.training import networks, offpolicy, policy_checkpoints, prioritized
 from rl_jax.training.replay import Transition
 
 modes = pytest.mark.parametrize("transform", [lambda f: f, jax.jit], ids=["nojit", "jit"])
@@ -269,8 +269,8 @@ def test_targets_are_copied_every_period_and_never_polyak_stepped():
 # ---- policy checkpoints (TD7) -------------------------------------------------------------------
 @modes
 def test_assess_episodes_counts_passes_and_fails(transform):
-    assess = transform(td7_parts.assess_episodes)
-    no = td7_parts.NO_EPISODE
+    assess = transform(policy_checkpoints.assess_episodes)
+    no = policy_checkpoints.NO_EPISODE
     counted, returns = jnp.array([True, False, True]), jnp.array([4.0, -50.0, 6.0])
     # Two counted episodes (the uncounted -50 is ignored), 3 required: going on.
     lowest, episodes, passed, ended = assess(no, 0, 1.0, returns, counted, 3)
