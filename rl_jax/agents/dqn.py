@@ -5,8 +5,11 @@ network; the target network takes a step ``tau`` towards the online one every
 ``target_update_period`` updates (``tau = 1``: the paper's periodic hard copy; ``tau < 1`` with
 period 1: Polyak averaging). Exploration is epsilon-greedy, epsilon falling linearly over env
 steps. Settings: ``double`` (van Hasselt et al. 2016: the online network picks the bootstrap
-action, the target network values it), ``dueling`` (Wang et al. 2016), ``n_step`` returns, and
-``prioritized`` replay (Schaul et al. 2016, proportional: ``rl_jax.training.prioritized``).
+action, the target network values it), ``dueling`` (Wang et al. 2016), ``n_step`` returns,
+``prioritized`` replay (Schaul et al. 2016, proportional: ``rl_jax.training.prioritized``),
+``norm="layer"`` (LayerNorm in the Q-network, as PQN's) and ``policy_checkpoints`` (TD7's: the
+greedy policy evaluated, saved and loaded is a copy of the Q-network that passed an assessment
+over training episodes, ``rl_jax.training.policy_checkpoints``; CartPole's recipe uses it).
 
 Episode ends follow the env contract, as in TD3: an n-step window stops at the first step that
 ended an episode and bootstraps from that step's true next observation unless the step
