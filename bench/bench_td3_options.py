@@ -1,0 +1,237 @@
+"""What each of TD3's options costs: updates/s per seed of the half-cheetah training program with
+5 seeds in one program, each option alone and TD7's whole set, side by side with plain TD3.
+
+``python -m bench td3_options`` (about 12 minutes on 2 cores; run it alone). Two loops:
+
+* **TD7's loop** (the TD3 paper's: 1 env per seed, 1 update per env step, batch 256, 256 x 256
+  actor and critics; ``td3.PAPER_CONFIG``), where TD7's published settings live: plain TD3, then
+  each option alone on it, then ``--recipe td7`` (all of them, TD7's 256-d embeddings).
+* **The CPU recipe's loop** (``td3_cheetah.py``'s default: 4 envs x 4 updates per iteration,
+  batch 128, 128 x 128): plain, SALE at 128-d embeddings, and TD7's set at those sizes, the
+  candidates for a recipe chosen by return against wall-clock.
+
+Each program is ``bench.cheetah_recipe.measure``: the whole training chunk (env steps, replay,
+updates, evaluation) with updates from the first step, one compiled program per option, at two
+chunk lengths; the difference of their chunk times leaves the evaluation out. Plain TD3 runs
+first and again last in each loop, so a change of load during the run shows as a difference
+between its two rows; an option's ratio is to their mean. The matmul FLOPs of one update (every
+``dot_general`` of its jaxpr) say how much of a slowdown is arithmetic, not overhead.
+"""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from typing import Any
+
+from bench.machine import describe
+
+PAPER_LOOP = {
+    "num_envs": 1,
+    "updates_per_iteration": 1,
+    "batch_size": 256,
+    "actor_hidden": [256, 256],
+    "critic_hidden": [256, 256],
+}
+CPU_LOOP = {
+    "num_envs": 4,
+    "updates_per_iteration": 4,
+    "batch_size": 128,
+    "actor_hidden": [128, 128],
+    "critic_hidden": [128, 128],
+}
+TD7_OPTIONS = {
+    "critic_activation": "elu",
+    "sale": True,
+    "lap": True,
+    "target_update_period": 250,
+    "value_clipping": True,
+    "policy_checkpoints": True,
+}
+#: (loop name, loop, [(label, overrides)]); plain TD3 first and last.
+CASES: list[tuple[str, dict[str, Any], list[tuple[str, dict[str, Any]]]]] = [
+    (
+        "TD7's loop (1 env, 1 update per step, batch 256, 256 x 256)",
+        PAPER_LOOP,
+        [
+            ("plain TD3", {}),
+            ("LayerNorm critics (`--critic-norm layer`)", {"critic_norm": "layer"}),
+            ("ELU critics (`--critic-activation elu`)", {"critic_activation": "elu"}),
+            ("LAP (`--lap`)", {"lap": True}),
+            ("SALE, 256-d (`--sale`)", {"sale": True}),
+            (
+                "hard targets every 250 + value clipping",
+                {"target_update_period": 250, "value_clipping": True},
+            ),
+            ("policy checkpoints (`--policy-checkpoints`)", {"policy_checkpoints": True}),
+            ("SimBa blocks (`--network simba`)", {"network": "simba"}),
+            (
+                "CrossQ: batch renorm, no targets",
+                {"critic_norm": "batch_renorm", "target_networks": False},
+            ),
+            ("all of TD7's (`--recipe td7`)", TD7_OPTIONS),
+            ("plain TD3 (again)", {}),
+        ],
+    ),
+    (
+        "the CPU recipe's loop (4 envs x 4 updates, batch 128, 128 x 128)",
+        CPU_LOOP,
+        [
+            ("plain TD3 (`td3_cheetah.py`'s default)", {}),
+            (
+                "SALE, 128-d embeddings",
+                {"sale": True, "embedding_dim": 128, "embedding_hidden": [128, 128]},
+            ),
+            (
+                "TD7's options, 128-d embeddings",
+                {**TD7_OPTIONS, "embedding_dim": 128, "embedding_hidden": [128, 128]},
+            ),
+            ("LayerNorm critics", {"critic_norm": "layer"}),
+            ("plain TD3 (again)", {}),
+        ],
+    ),
+]
+SEEDS = 5
+
+
+def _flops_range(jaxpr: Any) -> tuple[int, int]:
+    """Matmul FLOPs of ``jaxpr`` taking every ``cond``'s cheapest and its dearest branch."""
+    from bench.td3_programs import _dot_flops, _inner_jaxprs
+
+    low = high = 0
+    for equation in jaxpr.eqns:
+        name = equation.primitive.name
+        if name == "dot_general":
+            parts = [(_dot_flops(equation),) * 2]
+        elif name == "cond":
+            branches = [_flops_range(b.jaxpr) for b in equation.params["branches"]]
+            parts = [(min(b[0] for b in branches), max(b[1] for b in branches))]
+        elif name == "scan":
+            inner = _flops_range(equation.params["jaxpr"].jaxpr)
+            parts = [(equation.params["length"] * inner[0], equation.params["length"] * inner[1])]
+        else:
+            parts = [_flops_range(sub) for sub in _inner_jaxprs(equation)]
+        low += sum(p[0] for p in parts)
+        high += sum(p[1] for p in parts)
+    return low, high
+
+
+def update_gflop(config: Any) -> float:
+    """Matmul GFLOP of one seed's whole update (SALE's encoder step and LAP included), the
+    delayed actor step counted once per ``policy_delay`` updates: the only branch of the update
+    that holds matmuls, so the cheapest path is the critic's and the dearest adds the actor's."""
+    import jax
+    import jax.numpy as jnp
+
+    from rl_jax.agents import td3 as td3_module
+    from rl_jax.agents.td3 import td3
+
+    hparams = td3.default_hyperparams(config.env_id)
+    state = td3.init(jax.random.key(0), config, hparams)
+    traced = jax.make_jaxpr(
+        lambda agent, buffer, key, index: td3_module.update(
+            agent, buffer, key, config, hparams, index
+        )
+    )(state.agent, state.buffer, jax.random.key(1), jnp.int32(0))
+    low, high = _flops_range(traced.jaxpr)
+    return (low + (high - low) / config.policy_delay) / 1e9
+
+
+def worker(recipe: dict[str, Any], chunks: int) -> dict[str, Any]:
+    """One option's program in this (fresh) process: its updates/s without the evaluation at
+    the end of each chunk (from two chunk lengths: the time per iteration is the difference of
+    their chunk times over the difference of their iterations), and its update's FLOPs."""
+    from bench import cheetah_recipe
+    from rl_jax.agents.td3 import td3
+
+    short = recipe["iterations_per_chunk"]
+    runs = [
+        cheetah_recipe.measure({**recipe, "iterations_per_chunk": n}, SEEDS, chunks)
+        for n in (short, 3 * short)
+    ]
+    seconds = (runs[1]["chunk_s"] - runs[0]["chunk_s"]) / (2 * short)
+    updates = recipe["updates_per_iteration"]
+    measured = {
+        "updates_per_s_per_run": updates / seconds,
+        "env_steps_per_s_per_run": recipe["num_envs"] / seconds,
+        "eval_s": runs[0]["chunk_s"] - short * seconds,
+        "first_call_s": runs[1]["first_call_s"],
+        "load": runs[1]["load"],
+    }
+    config = td3.default_config(
+        cheetah_recipe.ENV_ID,
+        **{k: tuple(v) if isinstance(v, list) else v for k, v in recipe.items()},
+    )
+    measured["gflop_per_update"] = update_gflop(config)
+    return measured
+
+
+def _measure(recipe: dict[str, Any], chunks: int) -> dict[str, Any]:
+    code = (
+        "import json, sys\n"
+        "from rl_jax.training.jax_setup import configure\n"
+        "configure()\n"
+        "from bench.bench_td3_options import worker\n"
+        "print(json.dumps(worker(json.loads(sys.argv[1]), int(sys.argv[2]))))\n"
+    )
+    done = subprocess.run(
+        [sys.executable, "-c", code, json.dumps(recipe), str(chunks)],
+        capture_output=True,
+        text=True,
+        check=False,
+    )
+    if done.returncode != 0:
+        raise RuntimeError(f"the option {recipe} failed:\n{done.stderr[-2000:]}")
+    return json.loads(done.stdout.strip().splitlines()[-1])
+
+
+def run(quick: bool = False) -> str:
+    chunks = 1
+    lines = [
+        "## TD3's options: updates/s per seed, 5 seeds in one program",
+        "",
+        describe(),
+        "",
+        "`python -m bench td3_options`: the half-cheetah training program (env steps, replay, "
+        "updates, evaluation), 5 seeds vmapped on one device, updates from the first step; "
+        f"each option's program in a fresh process, at two chunk lengths (N and 3N iterations, "
+        f"{chunks} timed chunks each after the first call): the time per iteration is the "
+        "difference of their chunk times over 2N, which leaves out each chunk's evaluation. "
+        "Ratio: to the mean of the two plain-TD3 rows of the same loop. GFLOP: matmul FLOPs "
+        "of one seed's update (the actor step once per 2 updates), counted in its jaxpr.",
+        "",
+    ]
+    for title, loop, options in CASES:
+        iterations = 10 if quick else (50 if loop["num_envs"] == 1 else 25)
+        rows = []
+        for label, overrides in options:
+            recipe = {**loop, **overrides, "iterations_per_chunk": iterations}
+            measured = _measure(recipe, chunks)
+            rows.append((label, measured))
+            print(f"{label}: {measured}", file=sys.stderr, flush=True)
+        plain = [m["updates_per_s_per_run"] for label, m in rows if label.startswith("plain")]
+        reference = sum(plain) / len(plain)
+        lines += [
+            f"### {title}",
+            "",
+            "| option | updates/s per seed | x plain | env steps/s per seed | GFLOP per "
+            "update | matmul GFLOP/s, 5 seeds | eval s per chunk | first call s | load |",
+            "|---|---|---|---|---|---|---|---|---|",
+        ]
+        for label, m in rows:
+            flops = m["gflop_per_update"]
+            rate = flops * m["updates_per_s_per_run"] * SEEDS
+            lines.append(
+                f"| {label} | {m['updates_per_s_per_run']:,.0f} | "
+                f"{m['updates_per_s_per_run'] / reference:.2f} | "
+                f"{m['env_steps_per_s_per_run']:,.0f} | "
+                f"{flops:.2f} | {rate:.0f} | {m['eval_s']:.1f} | {m['first_call_s']:.1f} | "
+                f"{m['load']:.1f} |"
+            )
+        lines.append("")
+    return "\n".join(lines)
+
+
+if __name__ == "__main__":
+    print(run(quick="--quick" in sys.argv))
