@@ -69,6 +69,8 @@ from rl_jax.agents.td3_recipes import (  # noqa: F401  (re-exported: scripts rea
     PAPER_CONFIG,
     RECIPES,
     TD7_CONFIG,
+    TD7_CPU_CONFIG,
+    TD7_CPU_HPARAMS,
     TD7_HPARAMS,
 )
 from rl_jax.agents.td3_update import (  # noqa: F401  (re-exported; bench reads the steps)

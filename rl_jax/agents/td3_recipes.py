@@ -119,8 +119,22 @@ TD7_HPARAMS: dict[str, Any] = {
     "lap_alpha": 0.4,
     "checkpoint_reset_weight": 0.9,
 }
+# TD7's options in the CPU loop (4 envs x 4 updates per iteration, batch 128, 10k random steps,
+# eval every 5,000 steps) at its sizes: 128 x 128 actor and critics, 128-d embeddings from
+# 128 x 128 encoders, TD7's rates and everything else as TD7_CONFIG. A SALE update is 6x the
+# arithmetic of TD3's at the same sizes (bench td3_options), and TD7's own sizes on the paper's
+# loop cost 2.65 GFLOP per update: ~8 hours for 5 seeds x 300k steps on 2 cores, where this one
+# takes about 80 minutes (RESULTS.md, "TD3 at today's sample efficiency").
+TD7_CPU_CONFIG: dict[str, Any] = {
+    **{key: TD7_CONFIG[key] for key in TD7_CONFIG if key not in PAPER_CONFIG},
+    **FAST_CHEETAH_CONFIG,
+    "embedding_dim": 128,
+    "embedding_hidden": (128, 128),
+}
+TD7_CPU_HPARAMS: dict[str, Any] = dict(TD7_HPARAMS)
 #: Named variants of the whole recipe, (config, hyperparameters) overrides on any env's recipe.
 NAMED_RECIPES: dict[str, tuple[dict[str, Any], dict[str, Any]]] = {
     "paper": (PAPER_CONFIG, {}),
     "td7": (TD7_CONFIG, TD7_HPARAMS),
+    "td7-cpu": (TD7_CPU_CONFIG, TD7_CPU_HPARAMS),
 }

@@ -6,6 +6,8 @@ of 200 env steps (2 envs), updates from step 100, 4 per iteration (Pendulum's re
 updates per seed. Compilation dominates each test.
 """
 
+import dataclasses
+
 import jax
 import numpy as np
 import pytest
@@ -264,3 +266,24 @@ def test_the_td7_recipe_is_td7s_published_settings_and_trains():
     state, history = train(4, hparams=TD7_HPARAMS, **tiny)
     assert np.all(state.agent.checkpoint.score > -1e8)
     assert_trained_and_finite(state, history)
+
+
+def test_the_td7_cpu_recipe_is_td7s_options_in_the_cpu_loop_at_its_sizes():
+    from experiments.td3_cheetah import SCRIPT
+    from rl_jax.agents.td3 import TD7_CONFIG, TD7_CPU_CONFIG, TD7_CPU_HPARAMS, TD7_HPARAMS
+
+    cpu = td3.default_config("rl_jax/HalfCheetah-v5", **TD7_CPU_CONFIG)
+    default = td3.default_config("rl_jax/HalfCheetah-v5", **SCRIPT.config)
+    td7 = td3.default_config("rl_jax/HalfCheetah-v5", **TD7_CONFIG)
+    loop = ("num_envs", "updates_per_iteration", "batch_size", "learning_starts")
+    sizes = ("actor_hidden", "critic_hidden")
+    for name in dataclasses.fields(cpu):
+        field = name.name
+        if field in loop + sizes + ("iterations_per_chunk",):
+            assert getattr(cpu, field) == getattr(default, field), field
+        elif field in ("embedding_dim", "embedding_hidden"):
+            assert getattr(cpu, field) in (128, (128, 128)), field
+        else:
+            assert getattr(cpu, field) == getattr(td7, field), field
+    assert TD7_CPU_HPARAMS == TD7_HPARAMS
+    assert SCRIPT.recipes["td7-cpu"].config == TD7_CPU_CONFIG
