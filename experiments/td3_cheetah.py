@@ -11,7 +11,9 @@ takes about 9 minutes (RESULTS.md, row td3-cheetah).
 
 The paper's networks and its whole recipe are --recipe paper-width and --recipe paper (below);
 --recipe td7 is TD7 (Fujimoto et al. 2023) as TD3's options: SALE, LAP, hard target copies,
-value clipping and policy checkpoints on the paper's loop (td3.TD7_CONFIG, not yet measured here).
+value clipping and policy checkpoints on the paper's loop (td3.TD7_CONFIG). Its update costs 6.4x
+TD3's arithmetic, about 8 hours for 5 seeds x 300,000 steps on 2 cores; --recipe td7-cpu runs the
+same options in this script's CPU loop at 128 sizes (RESULTS.md, row td7-cpu-cheetah).
 
 It prints its plan (envs, steps, memory, devices, estimated time) before it starts, then a
 progress bar (env steps/s, updates/s, ETA, latest eval return over seeds). Ctrl-C or SIGTERM
@@ -21,7 +23,7 @@ examples:
   python experiments/td3_cheetah.py --seeds 5
   python experiments/td3_cheetah.py --seeds 2 --total-steps 50000 --out runs/cheetah --gif
   python experiments/td3_cheetah.py --recipe paper-width --seeds 5
-  python experiments/td3_cheetah.py --recipe td7 --seeds 5 --total-steps 300000
+  python experiments/td3_cheetah.py --recipe td7-cpu --seeds 5 --total-steps 300000
   python experiments/td3_cheetah.py --resume runs/cheetah --total-steps 300000
 """
 
@@ -55,7 +57,8 @@ SCRIPT = Script(
         "td7": Recipe(
             "TD7 (Fujimoto et al. 2023) from TD3's options: the paper's loop with SALE, LAP, "
             "hard target copies every 250 updates, value clipping, policy checkpoints and ELU "
-            "critics at rate 3e-4 (TD7's published settings; not yet measured here)",
+            "critics at rate 3e-4 (TD7's published settings; ~8 hours for 5 seeds x 300,000 steps "
+            "on 2 cores)",
             config=td3_module.TD7_CONFIG,
             hparams=td3_module.TD7_HPARAMS,
         ),
