@@ -1,7 +1,7 @@
 """What each of TD3's options costs: updates/s per seed of the half-cheetah training program with
 5 seeds in one program, each option alone and TD7's whole set, side by side with plain TD3.
 
-``python -m bench td3_options`` (about 12 minutes on 2 cores; run it alone). Two loops:
+``python -m bench td3_options`` (about 18 minutes on 2 cores; run it alone). Two loops:
 
 * **TD7's loop** (the TD3 paper's: 1 env per seed, 1 update per env step, batch 256, 256 x 256
   actor and critics; ``td3.PAPER_CONFIG``), where TD7's published settings live: plain TD3, then
@@ -186,6 +186,17 @@ def _measure(recipe: dict[str, Any], chunks: int) -> dict[str, Any]:
     return json.loads(done.stdout.strip().splitlines()[-1])
 
 
+def _iterations(loop: dict[str, Any], overrides: dict[str, Any], quick: bool) -> int:
+    """N, the short chunk's iterations: long enough that the 2N iterations between the two
+    chunk lengths take several seconds (the evaluation's time varies by a few tenths)."""
+    if quick:
+        return 10
+    heavy = overrides.get("sale") or overrides.get("network") == "simba"
+    if loop["num_envs"] == 1:
+        return 40 if heavy else 300
+    return 25 if heavy else 150
+
+
 def run(quick: bool = False) -> str:
     chunks = 1
     lines = [
@@ -203,9 +214,9 @@ def run(quick: bool = False) -> str:
         "",
     ]
     for title, loop, options in CASES:
-        iterations = 10 if quick else (50 if loop["num_envs"] == 1 else 25)
         rows = []
         for label, overrides in options:
+            iterations = _iterations(loop, overrides, quick)
             recipe = {**loop, **overrides, "iterations_per_chunk": iterations}
             measured = _measure(recipe, chunks)
             rows.append((label, measured))
