@@ -27,20 +27,22 @@ from typing import Any
 
 from bench.machine import describe
 
-PAPER_LOOP = {
-    "num_envs": 1,
-    "updates_per_iteration": 1,
-    "batch_size": 256,
-    "actor_hidden": [256, 256],
-    "critic_hidden": [256, 256],
-}
-CPU_LOOP = {
-    "num_envs": 4,
-    "updates_per_iteration": 4,
-    "batch_size": 128,
-    "actor_hidden": [128, 128],
-    "critic_hidden": [128, 128],
-}
+
+def _loop(envs: int, batch: int, width: int) -> dict[str, Any]:
+    """A training loop's overrides: ``envs`` envs per seed and as many updates per iteration (one
+    update per env step), ``batch``, two hidden layers of ``width`` in actor and critics."""
+    layers = [width, width]
+    return {
+        "num_envs": envs,
+        "updates_per_iteration": envs,
+        "batch_size": batch,
+        "actor_hidden": layers,
+        "critic_hidden": layers,
+    }
+
+
+PAPER_LOOP = _loop(1, 256, 256)
+CPU_LOOP = _loop(4, 128, 128)
 TD7_OPTIONS = {
     "critic_activation": "elu",
     "sale": True,
