@@ -204,7 +204,11 @@ def test_sale_encoder_loss_regresses_on_a_stopped_next_state_embedding(sale_setu
 
     grads = jax.jit(jax.grad(lambda p: td3.encoder_loss_fn(p, batch, nets)))(online)
     expected = jax.jit(jax.grad(with_constant_target))(online)
-    jax.tree.map(np.testing.assert_array_equal, grads, expected)
+    # Equal to the last bit on the pinned jax; jax 0.12 compiles the two programs into other
+    # fusions and one entry in 272 moved by 1 ulp. A gradient through f(s') would move many
+    # entries by far more than that.
+    same = lambda a, b: np.testing.assert_allclose(a, b, rtol=1e-6, atol=1e-9)  # noqa: E731
+    jax.tree.map(same, grads, expected)
 
 
 # ---- hard target updates (TD7) ------------------------------------------------------------------
