@@ -46,6 +46,7 @@ from rl_jax.agents.q_learning import (
     q_learning_loss,
 )
 from rl_jax.training import (
+    augment,
     episodes,
     frame_replay,
     networks,
@@ -131,11 +132,20 @@ class PixelConfig(Config):
     # the network loses nothing, and an update takes a third of the time (batch 32: 21.9 -> 7.3
     # ms, BENCHMARKS.md). Off by default: runs saved before it existed see the whole frame.
     crop_drawn_rows: bool = False
+    # DrQ's random shifts (rl_jax.training.augment): every sampled stack, obs and next_obs
+    # apart, is moved by up to augment_shift pixels in each axis (edges repeated) before the
+    # Q-networks see it, in the loss only; acting and evaluation see the frames as they are.
+    # DrQ used 4 at 84x84. 0: off (the update is then the same program as before it existed).
+    augment_shift: int = 0
 
     def __post_init__(self) -> None:
         super().__post_init__()
         if self.frame_size < 1 or self.frame_stack < 1:
             raise ValueError("frame_size and frame_stack must be >= 1")
+        if not 0 <= self.augment_shift < self.frame_size:
+            raise ValueError(
+                f"augment_shift must be in 0..{self.frame_size - 1}, got {self.augment_shift}"
+            )
         networks.check_conv_layers(self.conv_layers, self.frame_size)
         first, stop = self.conv_rows() or (0, self.frame_size)
         networks.check_conv_layers(self.conv_layers, stop - first)
@@ -266,6 +276,12 @@ def _gradient_step(agent: Agent, grads, hparams: Hyperparams, env_steps) -> Agen
 def update(agent: Agent, buffer, key, config: Config, hparams: Hyperparams, update_index):
     """One gradient update, then (when due) a target step and new priorities."""
     batch, weights, (rows, columns) = sample(buffer, key, config, hparams, update_index)
+    if getattr(config, "augment_shift", 0):
+        obs_key, next_key = jax.random.split(jax.random.fold_in(key, 1))
+        batch = batch._replace(
+            obs=augment.random_shift(obs_key, batch.obs, config.augment_shift),
+            next_obs=augment.random_shift(next_key, batch.next_obs, config.augment_shift),
+        )
     (loss, (td_error, q)), grads = jax.value_and_grad(loss_fn, has_aux=True)(
         agent.online, agent.target, batch, weights, hparams, config
     )

@@ -13,12 +13,13 @@ import pytest
 from jax.test_util import check_grads
 from run_helpers import leaves_bytes
 
+from rl_jax.agents import dqn as dqn_module
 from rl_jax.agents.dqn import PixelConfig, dqn
 from rl_jax.run import cli
 from rl_jax.run.checkpoint import Checkpointer
 from rl_jax.run.plan import make_plan
 from rl_jax.run.run_dir import CHECKPOINT_DIR
-from rl_jax.training import networks
+from rl_jax.training import augment, networks
 
 ENV_ID = "rl_jax/CartPolePixels-v1"
 
@@ -70,6 +71,56 @@ def test_the_pixel_recipe_crops_to_the_rows_cartpole_draws_on():
     assert dataclasses.replace(config, crop_drawn_rows=False).conv_rows() == ()
     assert dataclasses.replace(config, frame_size=42).conv_rows() == (16, 36)
     assert PixelConfig(env_id=ENV_ID).conv_rows() == ()  # off unless asked: runs saved before
+
+
+# ---- DrQ's random shifts -----------------------------------------------------------------------
+def test_random_shift_moves_each_image_by_one_offset_with_its_edges_repeated():
+    pad, batch = 2, 500
+    image = np.arange(6 * 7 * 3, dtype=np.uint8).reshape(6, 7, 3)  # every pixel distinct
+    images = jnp.asarray(np.broadcast_to(image, (batch, 6, 7, 3)))
+    shifted = np.asarray(
+        jax.jit(augment.random_shift, static_argnums=2)(jax.random.key(0), images, pad)
+    )
+    assert shifted.shape == images.shape and shifted.dtype == np.uint8
+    # Edge padding by hand: row/column i of the padded image is row/column clip(i - pad).
+    rows = np.clip(np.arange(6 + 2 * pad) - pad, 0, 5)
+    cols = np.clip(np.arange(7 + 2 * pad) - pad, 0, 6)
+    padded = image[rows][:, cols]
+    crops = {
+        (dy, dx): padded[dy : dy + 6, dx : dx + 7]
+        for dy in range(2 * pad + 1)
+        for dx in range(2 * pad + 1)
+    }
+    seen = []
+    for out in shifted:  # each output is one crop, all channels from the same offset
+        matches = [offset for offset, crop in crops.items() if np.array_equal(out, crop)]
+        assert len(matches) == 1
+        seen.append(matches[0])
+    counts = np.array([seen.count(offset) for offset in crops])
+    assert counts.min() >= 5  # all 25 offsets drawn, about uniformly (expected 20 each)
+    assert shifted[seen.index((0, 0))][0, 0, 0] == image[0, 0, 0]  # repeated corner pixel
+    assert augment.random_shift(jax.random.key(0), images, 0) is images
+
+
+def test_the_augmented_update_sees_shifted_frames_and_acting_does_not():
+    config = dqn.default_config(ENV_ID, **TINY, augment_shift=3)
+    plain = dataclasses.replace(config, augment_shift=0)
+    hparams = dqn.default_hyperparams(ENV_ID)
+    state = dqn.init(jax.random.key(0), plain, hparams)
+    state, _ = jax.jit(dqn.train_chunk, static_argnums=1)(state, plain, hparams)
+    args = (state.agent, state.buffer, jax.random.key(3))
+    update = jax.jit(dqn_module.update, static_argnums=3)
+    shifted, _, shifted_metrics = update(*args, config, hparams, 200)
+    unshifted, _, metrics = update(*args, plain, hparams, 200)
+    again, _, _ = update(*args, config, hparams, 200)
+    differs = jax.tree.map(lambda a, b: bool(jnp.any(a != b)), shifted.online, unshifted.online)
+    assert all(jax.tree.leaves(differs))  # the loss saw other pixels
+    assert float(shifted_metrics["loss"]) != float(metrics["loss"])
+    jax.tree.map(np.testing.assert_array_equal, shifted.online, again.online)  # deterministic
+    np.testing.assert_array_equal(  # acting reads the frames as they are
+        dqn_module.act(state.agent, state.obs, config),
+        dqn_module.act(state.agent, state.obs, plain),
+    )
 
 
 def test_q_network_on_frames_has_the_right_shapes_for_any_batch_dims():
@@ -157,6 +208,7 @@ TINY = {
         {"double": False, "n_step": 1},  # plain DQN (the pixel recipe is Double with 3 steps)
         {"double": True, "dueling": True, "n_step": 3, "prioritized": True},
         {"crop_drawn_rows": False},  # the torso over the whole frame (the recipe crops)
+        {"augment_shift": 2},  # DrQ's random shifts in the loss
     ],
 )
 def test_a_tiny_dqn_run_on_pixels_trains_and_evaluates(options):
@@ -187,6 +239,7 @@ def _run(argv: list[str]) -> int:
     [
         (["--frame-size", "16"], "layer 2 has a 4x4 kernel but sees 3x3 pixels"),
         (["--conv-layers", "16,8"], "(features, kernel, stride) triples"),
+        (["--augment-shift", "84"], "augment_shift must be in 0..83, got 84"),
         (["--buffer-size", "5000000", "--seeds", "3"], "the train state needs "),
     ],
 )
