@@ -8,7 +8,8 @@ pixels are scaled to [0, 1] inside the network. The replay keeps each frame once
 rebuilds the stacks when it samples (about 14 KB per transition at 84x84 instead of 56 KB for
 two uint8 stacks); the plan counts it before anything is allocated. The options of
 experiments/dqn_cartpole.py apply: --double, --dueling, --n-step 3, --prioritized, and DrQ's random
-shifts of the sampled frames (--augment-shift 4: up to 4 pixels each way, in the loss only). The recipe
+shifts of the sampled frames (--augment-shift 4: up to 4 pixels each way, in the loss only; on
+CartPole it stopped learning, RESULTS.md). The recipe
 (rl_jax.agents.dqn.RECIPES) uses Double DQN with 3-step returns, a target update every 500
 updates, rate 5e-4 and one batch-32 update per 4 env steps, and its torso sees only the 36 rows
 of the frame that CartPole ever draws on (--no-crop-drawn-rows: all 84). Its default, 3 seeds x

@@ -136,6 +136,7 @@ class PixelConfig(Config):
     # apart, is moved by up to augment_shift pixels in each axis (edges repeated) before the
     # Q-networks see it, in the loss only; acting and evaluation see the frames as they are.
     # DrQ used 4 at 84x84. 0: off (the update is then the same program as before it existed).
+    # On CartPole's frames 4 stopped learning altogether (RESULTS.md, "DQN from pixels").
     augment_shift: int = 0
 
     def __post_init__(self) -> None:
