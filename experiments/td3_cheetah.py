@@ -52,7 +52,8 @@ SCRIPT = Script(
         "paper": Recipe(
             "the TD3 paper's whole recipe: 256x256, one env, batch 256, 25,000 warm-up steps "
             "(the paper trains 1,000,000 steps: several hours here)",
-            config=td3_module.PAPER_CONFIG,
+            config=td3_module.PAPER_RECIPE_CONFIG,
+            hparams=td3_module.PAPER_HPARAMS,
         ),
         "td7": Recipe(
             "TD7 (Fujimoto et al. 2023) from TD3's options: the paper's loop with SALE, LAP, "

@@ -2,6 +2,7 @@
 other scripts (--help with --algo and --env lists the algorithm's flags and its defaults there).
 
   python experiments/train.py --algo td3 --env rl_jax/Pendulum-v1 --seeds 5
+  python experiments/train.py --algo td3 --env rl_jax/Hopper-v5 --recipe paper --seeds 5
   python experiments/train.py --algo td3 --env gymnasium:Pendulum-v1 --seeds 5
   python experiments/train.py --algo td3 --env examples.hover_rocket:examples/HoverRocket-v0
   python experiments/train.py --resume runs/HoverRocket-v0__td3__...   # the run knows the rest
@@ -13,7 +14,8 @@ flight, since gymnasium's env state is not in the checkpoint); or MODULE:ID, whi
 envs.register(ID, ...) runs first. The whole string is recorded as the run's env, so --resume
 imports the module again. Algorithms without a recipe for an env start from their own defaults
 (the TD3 paper's for td3: 25,000 random steps first), so small budgets need flags such as
---learning-starts.
+--learning-starts. --recipe NAME puts one of the algorithm's whole named recipes on top of the
+env's (td3 and ddpg: paper, the TD3 paper's loop, 256 x 256 networks and rates; td7; td7-cpu).
 """
 
 from rl_jax.run import cli

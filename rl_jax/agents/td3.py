@@ -67,6 +67,8 @@ from rl_jax.agents.td3_recipes import (  # noqa: F401  (re-exported: scripts rea
     MUJOCO_SUITE,
     NAMED_RECIPES,
     PAPER_CONFIG,
+    PAPER_HPARAMS,
+    PAPER_RECIPE_CONFIG,
     RECIPES,
     TD7_CONFIG,
     TD7_CPU_CONFIG,
@@ -318,6 +320,7 @@ class TD3Family(RecipeBook):
 
     config_type, hparams_type = Config, Hyperparams
     recipes, hparam_recipes = RECIPES, HPARAM_RECIPES
+    named_recipes = NAMED_RECIPES
     ranges = {
         "renorm_warmup": validation.NON_NEGATIVE,
         "lap_alpha": validation.UNIT,

@@ -133,9 +133,18 @@ TD7_CPU_CONFIG: dict[str, Any] = {
     "embedding_hidden": (128, 128),
 }
 TD7_CPU_HPARAMS: dict[str, Any] = dict(TD7_HPARAMS)
-#: Named variants of the whole recipe, (config, hyperparameters) overrides on any env's recipe.
+# The TD3 paper's whole recipe on any env: its loop above, its 256 x 256 networks and its rates
+# (the Config and Hyperparams defaults, restated because the MuJoCo suite's recipes change them).
+PAPER_RECIPE_CONFIG: dict[str, Any] = {
+    **PAPER_CONFIG,
+    "actor_hidden": (256, 256),
+    "critic_hidden": (256, 256),
+}
+PAPER_HPARAMS: dict[str, Any] = {"actor_lr": 3e-4, "critic_lr": 3e-4}
+#: Named variants of the whole recipe, (config, hyperparameters) overrides on any env's recipe:
+#: ``--recipe NAME`` of experiments/train.py (and of scripts without recipes of their own).
 NAMED_RECIPES: dict[str, tuple[dict[str, Any], dict[str, Any]]] = {
-    "paper": (PAPER_CONFIG, {}),
+    "paper": (PAPER_RECIPE_CONFIG, PAPER_HPARAMS),
     "td7": (TD7_CONFIG, TD7_HPARAMS),
     "td7-cpu": (TD7_CPU_CONFIG, TD7_CPU_HPARAMS),
 }

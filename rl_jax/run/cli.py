@@ -38,6 +38,7 @@ from rl_jax.run.flags import (
     flag_name,
     kind_of,
     parse_grid,
+    take_recipe,
 )
 from rl_jax.run.run_dir import load_algorithm, read_run_record
 from rl_jax.training import params
@@ -108,6 +109,39 @@ class Defaults:
     hparams: dict[str, Any] = dataclasses.field(default_factory=dict)
     # (env steps/s per seed, seeds) measured for this default config: the plan's time estimate
     throughput: tuple[float, int] | None = None
+    # offer the algorithm's ``named_recipes`` as ``--recipe NAME`` (a script with recipes of its
+    # own offers those instead)
+    named_recipes: bool = True
+
+
+def _recipes_of(algorithm: Any, defaults: Defaults) -> dict[str, tuple[dict, dict]]:
+    return dict(getattr(algorithm, "named_recipes", {})) if defaults.named_recipes else {}
+
+
+def with_named_recipe(
+    argv: list[str], algorithm: Any, defaults: Defaults
+) -> tuple[list[str], Defaults]:
+    """``--recipe NAME`` of the algorithm's ``named_recipes`` (whole recipes such as td3's
+    ``paper``: config and hyperparameter overrides on top of the env's recipe and the script's
+    defaults), taken out of ``argv``. ``UsageError`` for an unknown name or with ``--resume``
+    (a resumed run keeps the settings it recorded)."""
+    recipes = _recipes_of(algorithm, defaults)
+    if not recipes:
+        return argv, defaults
+    name, rest = take_recipe(argv, {"default": None, **recipes}, "default")
+    if name == "default":
+        return rest, defaults
+    if any(arg == "--resume" or arg.startswith("--resume=") for arg in rest):
+        raise UsageError(
+            "--recipe starts a new run; --resume continues a run with the settings it recorded"
+        )
+    config, hparams = recipes[name]
+    return rest, dataclasses.replace(
+        defaults,
+        config={**defaults.config, **config},
+        hparams={**defaults.hparams, **hparams},
+        throughput=None,
+    )
 
 
 def _base(algorithm: Any, env_id: str, defaults: Defaults) -> tuple[Any, Any]:
@@ -163,6 +197,15 @@ def build_parser(
     if choose:
         _add_choice_flags(parser)
     add_run_flags(parser, defaults.seeds, defaults.total_steps)
+    recipes = _recipes_of(algorithm, defaults)
+    if recipes:  # taken out of argv before parsing (with_named_recipe); here for --help
+        parser.add_argument(
+            "--recipe",
+            metavar="NAME",
+            default="default",
+            help=f"a whole recipe of {algorithm.name} on top of the env's: default (the env's "
+            f"own), {', '.join(recipes)} (its named_recipes)",
+        )
     config, hparams = _base(algorithm, env_id, defaults)
     config_names = add_dataclass_flags(parser, config, f"{algorithm.name} config (static)")
     hparam_names = add_dataclass_flags(parser, hparams, f"{algorithm.name} hyperparameters")
@@ -327,11 +370,13 @@ def run_experiment(
     algorithm, env_id, choose = _choose(argv, algorithm, env_id)
     if algorithm is None:
         return _help_without_algorithm(description or "", defaults)
+    given = argv  # the run records the command as typed, --recipe included
+    argv, defaults = with_named_recipe(argv, algorithm, defaults)
     parser, config_names, hparam_names = build_parser(
         algorithm, env_id, description or "", defaults, choose
     )
     args = parser.parse_args(argv)
-    spec = build_spec(args, algorithm, env_id, defaults, (config_names, hparam_names), argv)
+    spec = build_spec(args, algorithm, env_id, defaults, (config_names, hparam_names), given)
     from rl_jax.run.runner import run
 
     result = run(spec)
@@ -353,11 +398,17 @@ def main(
     hparams: dict[str, Any] | None = None,
     argv: list[str] | None = None,
     throughput: tuple[float, int] | None = None,
+    named_recipes: bool = True,
 ) -> NoReturn:
     """Entry point of an experiment script: parse, run, exit with the right status.
     ``throughput`` = (env steps/s per seed, seeds) measured for the script's defaults gives the
     plan a time estimate before anything runs."""
     defaults = Defaults(
-        seeds, total_steps, dict(config or {}), dict(hparams or {}), throughput=throughput
+        seeds,
+        total_steps,
+        dict(config or {}),
+        dict(hparams or {}),
+        throughput=throughput,
+        named_recipes=named_recipes,
     )
     exit_now(guard(lambda: run_experiment(algorithm, env_id, description, argv, defaults)))

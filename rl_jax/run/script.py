@@ -69,6 +69,7 @@ class Script:
             hparams=script.hparams,
             argv=argv,
             throughput=script.throughput,
+            named_recipes=not self.recipes,
         )
 
     def _choices(self) -> dict[str, Recipe]:

@@ -140,6 +140,8 @@ class RecipeBook(OptionalHooks):
     hparam_recipes: dict[str, dict[str, Any]] = {}
     config_overrides: dict[str, Any] = {}
     hparam_overrides: dict[str, Any] = {}
+    # whole recipes by name, (config, hyperparameter) overrides on any env's: --recipe NAME
+    named_recipes: dict[str, tuple[dict[str, Any], dict[str, Any]]] = {}
 
     def default_config(self, env_id: str, **overrides: Any) -> Any:
         recipe = {**self.recipes.get(env_id, {}), **self.config_overrides, **overrides}

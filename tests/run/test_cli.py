@@ -422,3 +422,47 @@ def test_a_resume_past_a_damaged_latest_checkpoint_says_one_line_and_keeps_it(tm
     assert "resuming from the checkpoint at step 20 (chunk 1)" in out
     kept = [p.name for p in (tmp_path / "run" / CHECKPOINT_DIR).iterdir()]
     assert sorted(name[:11] for name in kept) == ["20", "40", "damaged-40-"]
+
+
+def test_train_py_offers_the_algorithms_named_recipes_as_whole_recipes():
+    from experiments.td3_cheetah import SCRIPT as CHEETAH
+    from rl_jax.agents.td3 import ddpg, td3
+
+    hopper = "rl_jax/Hopper-v5"
+    defaults = cli.Defaults(seeds=5, total_steps=300_000)
+    rest, chosen = cli.with_named_recipe(["--recipe", "paper", "--seeds", "2"], td3, defaults)
+    assert rest == ["--seeds", "2"] and chosen.throughput is None
+    config = td3.default_config(hopper, **chosen.config)
+    rates = td3.default_hyperparams(hopper, **chosen.hparams).to_dict()
+    # the TD3 paper's loop, networks and rates, where Hopper's own recipe is the CPU one
+    loop = (config.num_envs, config.updates_per_iteration, config.batch_size)
+    assert loop == (1, 1, 256) and config.learning_starts == 25_000
+    assert (config.actor_hidden, config.critic_hidden) == ((256, 256), (256, 256))
+    assert [rates["actor_lr"], rates["critic_lr"]] == pytest.approx([3e-4, 3e-4])
+    own = td3.default_config(hopper)
+    assert (own.num_envs, own.actor_hidden) == (4, (128, 128))
+    assert cli.with_named_recipe(["--seeds", "2"], td3, defaults) == (["--seeds", "2"], defaults)
+    # the same recipe as td3_cheetah.py's --recipe paper on half cheetah
+    cheetah = "rl_jax/HalfCheetah-v5"
+    paper = CHEETAH.recipes["paper"]
+    assert td3.default_config(cheetah, **chosen.config) == td3.default_config(
+        cheetah, **paper.config
+    )
+    # DDPG stays DDPG under the paper's loop
+    _, chosen = cli.with_named_recipe(["--recipe=paper"], ddpg, defaults)
+    ddpg_config = ddpg.default_config(hopper)
+    ddpg_config = dataclasses.replace(ddpg_config, **chosen.config)
+    assert (ddpg_config.num_critics, ddpg_config.policy_delay, ddpg_config.num_envs) == (1, 1, 1)
+    with pytest.raises(cli.UsageError, match="--recipe fast: unknown recipe; known: default, pa"):
+        cli.with_named_recipe(["--recipe", "fast"], td3, defaults)
+    with pytest.raises(cli.UsageError, match="--recipe starts a new run"):
+        cli.with_named_recipe(["--recipe", "paper", "--resume", "runs/x"], td3, defaults)
+    # --help lists them; a script with recipes of its own offers only those
+    parser, _, _ = cli.build_parser(td3, hopper, "", defaults, True)
+    assert "paper, td7, td7-cpu" in " ".join(parser.format_help().split())
+    own_recipes = dataclasses.replace(defaults, named_recipes=False)
+    parser, _, _ = cli.build_parser(td3, hopper, "", own_recipes, True)
+    assert "--recipe" not in parser.format_help()
+    assert cli.with_named_recipe(["--recipe", "x"], td3, own_recipes)[0] == ["--recipe", "x"]
+    # an algorithm without named recipes leaves the flag to argparse (an unknown flag)
+    assert cli.with_named_recipe(["--recipe", "paper"], fake, defaults)[0] == ["--recipe", "paper"]
