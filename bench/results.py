@@ -42,9 +42,10 @@ RUNS = ROOT / "runs" / "results"
 class Goal:
     """At least ``seeds`` seeds reach ``threshold`` with the ``policy`` ("final" or "best"), in
     at most ``minutes`` of wall-clock (compilation included) when given. With ``mean``, the mean
-    over the seeds must reach ``threshold`` instead (``seeds`` is then unused)."""
+    over the seeds must reach ``threshold`` instead (``seeds`` is then unused). A ``threshold``
+    of None is a goal on time alone (Humanoid's: the budget that fits 60 minutes)."""
 
-    threshold: float
+    threshold: float | None
     seeds: int
     policy: str = "final"
     minutes: float | None = None
@@ -52,6 +53,8 @@ class Goal:
 
     def describe(self, total_seeds: int) -> str:
         time_part = f" in < {self.minutes:g} min" if self.minutes else ""
+        if self.threshold is None:
+            return f"{total_seeds} seeds{time_part}"
         if self.mean:
             return f"{self.policy}, mean of {total_seeds} >= {self.threshold:,.0f}{time_part}"
         return f"{self.policy} >= {self.threshold:,.0f} in {self.seeds}/{total_seeds}{time_part}"
@@ -227,6 +230,28 @@ ROWS: dict[str, Row] = {
         for algo in ("td3", "ddpg")
         for name in ("Hopper", "Walker2d", "Ant", "Reacher")
     },
+    # Humanoid: the issue asks for the budget that fits 60 minutes for 5 seeds. Measured on the
+    # CPU recipe (AMD EPYC, 2 cores): a 5,000-step chunk of 5 seeds took 45.5 s, so 300k steps
+    # (the other rows' budget) need ~46 minutes. A buffer of 300k holds every transition of the
+    # run (the default 1M would need 26.6 GB for 5 seeds: 348 numbers per observation).
+    "td3-humanoid": Row(
+        "TD3, `rl_jax/Humanoid-v5`",
+        "train.py",
+        (
+            "--algo",
+            "td3",
+            "--env",
+            "rl_jax/Humanoid-v5",
+            "--total-steps",
+            "300000",
+            "--buffer-size",
+            "300000",
+        ),
+        5,
+        "no TD3 paper figure (Humanoid is not in its table); SAC on Humanoid-v4 (SimbaV2 "
+        "repository's baseline curves, 10 seeds): 632 at 100k, 995 at 200k, 3,015 at 300k",
+        Goal(None, 5, "final", 60.0),
+    ),
     # The TD3 paper's whole recipe (1 env, 1 update per step, batch 256, 25k random steps, 256 x
     # 256 at rate 3e-4) on a second task beside the CPU recipe's td3-hopper row: what the recipe
     # changes. Its goal is the return's; it runs 4-5x longer than the CPU recipe on 2 cores.
@@ -356,12 +381,15 @@ def summarize(run_dir: Path) -> dict[str, Any]:
 def goal_met(goal: Goal, summary: dict[str, Any], wall_clock: float | None) -> tuple[bool, str]:
     """Whether the goal holds, and the row's cell saying so."""
     returns = np.asarray(summary[goal.policy])
-    reached = int(np.sum(returns >= goal.threshold))
-    ok = bool(returns.mean() >= goal.threshold) if goal.mean else reached >= goal.seeds
+    if goal.threshold is None:
+        ok, achieved = True, f"mean {returns.mean():,.0f}"
+    else:
+        reached = int(np.sum(returns >= goal.threshold))
+        ok = bool(returns.mean() >= goal.threshold) if goal.mean else reached >= goal.seeds
+        achieved = f"{returns.mean():,.0f}" if goal.mean else f"{reached}/{len(returns)} reach it"
     if goal.minutes is not None and wall_clock is not None:
         ok = ok and wall_clock <= goal.minutes * 60
     verdict = "met" if ok else "**not met**"
-    achieved = f"{returns.mean():,.0f}" if goal.mean else f"{reached}/{len(returns)} reach it"
     return ok, f"{goal.describe(len(returns))}: {achieved}, {verdict}"
 
 

@@ -62,6 +62,10 @@ def test_a_row_is_summarised_and_written_in_place(tmp_path):
     ok, cell = results.goal_met(results.Goal(490.0, 2, mean=True), summary, 10.0)
     assert ok and cell == "final, mean of 2 >= 490: 490, met"
     assert not results.goal_met(results.Goal(490.0, 2, minutes=0.1, mean=True), summary, 10.0)[0]
+    # on time alone (Humanoid's row): the returns are reported, the minutes decide
+    ok, cell = results.goal_met(results.Goal(None, 2, minutes=1.0), summary, 60.0)
+    assert ok and cell == "2 seeds in < 1 min: mean 490, met"
+    assert not results.goal_met(results.Goal(None, 2, minutes=1.0), summary, 61.0)[0]
     row = results.ROWS["dqn-cartpole"]
     page = tmp_path / "RESULTS.md"
     page.write_text("# Learning results\n")
