@@ -156,16 +156,33 @@ def format_bytes(size: float) -> str:
     return f"{size:.2f} TB"
 
 
-def check_memory(plan: Plan) -> None:
-    """Refuse, with the estimate, a state that would not fit in memory."""
+def buffer_that_fits(plan: Plan, buffer_size: int | None) -> int | None:
+    """The largest ``--buffer-size`` (two significant digits, rounded down) with which the state
+    fits in memory, everything else unchanged; None where no replay buffer would do."""
+    buffer = dict(plan.breakdown).get("buffer")
+    if not buffer_size or not buffer:
+        return None
+    room = plan.available_bytes - (plan.state_bytes - buffer)
+    fits = int(buffer_size * room / buffer) if room > 0 else 0
+    if fits < 1:
+        return None
+    step = 10 ** max(len(str(fits)) - 2, 0)
+    return fits // step * step
+
+
+def check_memory(plan: Plan, buffer_size: int | None = None) -> None:
+    """Refuse, with the estimate, a state that would not fit in memory (and, with the config's
+    ``buffer_size``, the replay buffer that would)."""
     if plan.state_bytes > plan.available_bytes:
         largest = ", ".join(f"{name} {format_bytes(size)}" for name, size in plan.breakdown[:2])
+        fits = buffer_that_fits(plan, buffer_size)
+        hint = f" (--buffer-size {fits} fits)" if fits else ""
         raise RunError(
             f"the train state needs {format_bytes(plan.state_bytes)} ({largest}; "
             f"{format_bytes(plan.device_bytes)} in training and "
             f"{format_bytes(plan.checkpoint_bytes)} for the copy a checkpoint writes) but only "
             f"{format_bytes(plan.available_bytes)} of memory is available; reduce the replay "
-            "buffer, the number of envs, --seeds or the grid"
+            f"buffer{hint}, the number of envs, --seeds or the grid"
         )
 
 

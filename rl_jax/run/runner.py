@@ -348,7 +348,7 @@ def prepare(spec: RunSpec) -> tuple[Plan, Start]:
     else:
         check_out_dir(spec.out, spec.identity)
     plan = make_plan(spec)
-    check_memory(plan)
+    check_memory(plan, getattr(spec.config, "buffer_size", None))
     start = restore_start(spec, plan) if spec.resume else None
     start = start or fresh_start(spec, plan)
     # Every process has read what it needs before the lead writes (distributed runs).

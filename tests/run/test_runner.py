@@ -230,6 +230,12 @@ def test_a_state_too_big_for_memory_is_refused_with_the_estimate(tmp_path):
     ):
         run(spec_for(out, config=big, memory_limit=1 << 30), notify=lambda message: None)
     assert not out.exists()
+    # the message names the largest buffer that fits (two digits, rounded down), and it does
+    with pytest.raises(RunError, match=r"reduce the replay buffer \(--buffer-size 22000000 fits\)"):
+        run(spec_for(out, config=big, memory_limit=1 << 30), notify=lambda message: None)
+    fits = dataclasses.replace(big, buffer_size=22_000_000)
+    plan = make_plan(spec_for(out, config=fits, memory_limit=1 << 30))
+    assert 0.95 * plan.available_bytes < plan.state_bytes <= plan.available_bytes
 
 
 def test_out_dir_holding_another_run_is_refused_and_untouched(full_run, tmp_path):
