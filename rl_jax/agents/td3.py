@@ -141,6 +141,11 @@ class Config(OffPolicyConfig):
     # critic_hidden (LN -> dense(4w) -> relu -> dense(w), plus the skip; the entries are the
     # width w, all equal), a LayerNorm and the output layer. "mlp": the paper's MLPs.
     network: str = "mlp"
+    # Observations standardised by running statistics (as "simba" does) for the paper's MLPs too:
+    # the statistics take in every observation acted on and go with the policy. Humanoid's
+    # contact forces reach ~1,900 where most entries stay below 1, enough to saturate the tanh
+    # of an actor that reads them raw (RESULTS.md, the Humanoid row).
+    normalize_obs: bool = False
     # LAP (TD7): replay draws transitions with probability proportional to
     # max(|TD error|, 1)^lap_alpha (the larger of the critics' errors), without importance
     # weights, and the critics learn with LAP's Huber-like loss (quadratic below 1, linear above).
@@ -196,12 +201,17 @@ class Config(OffPolicyConfig):
             raise ValueError("network='simba' has its own LayerNorms: leave the norms 'none'")
 
     @property
+    def standardizes_obs(self) -> bool:
+        """Whether the networks read observations standardised by running statistics."""
+        return self.normalize_obs or self.network == "simba"
+
+    @property
     def keeps_option_state(self) -> bool:
         """Whether an option keeps state beside the networks (an ``AgentWithOptions``)."""
         renorm = self.critic_norm == "batch_renorm"
         stateful = (
             self.sale,
-            self.network == "simba",
+            self.standardizes_obs,
             self.policy_checkpoints,
             self.value_clipping,
         )
@@ -285,7 +295,7 @@ def init_agent(key, config: Config, hparams: Hyperparams, obs_space, action_spac
     agent = AgentWithOptions(
         **{field.name: getattr(agent, field.name) for field in dataclasses.fields(agent)},
         encoders=_init_encoders(option_key, nets, obs, action, hparams) if config.sale else None,
-        obs_stats=normalization.init(obs.shape[-1]) if config.network == "simba" else None,
+        obs_stats=normalization.init(obs.shape[-1]) if config.standardizes_obs else None,
         critic_stats=critic_stats,
         value_range=ValueRange.initial() if config.value_clipping else None,
     )

@@ -63,7 +63,7 @@ class AgentWithOptions(Agent):
     were."""
 
     encoders: Any = None  # sale: Encoders
-    obs_stats: Any = None  # simba: normalization.RunningStats of the observations acted on
+    obs_stats: Any = None  # simba/normalize_obs: RunningStats of the observations acted on
     checkpoint: Any = None  # policy_checkpoints: PolicyCheckpoint
     critic_stats: Any = None  # critic_norm "batch_renorm": the critics' batch_stats [C, ...]
     value_range: Any = None  # value_clipping: ValueRange
@@ -174,9 +174,9 @@ def normalized_batch(agent: Agent, batch: CriticBatch) -> CriticBatch:
 
 
 def observe(agent: Agent, transitions: Transition, episode_return, done, clock, config, hparams):
-    """Every env step: SimBa's statistics take in the observations acted on; policy checkpoints
-    count the episodes that ended."""
-    if config.network == "simba":
+    """Every env step: the running statistics (SimBa's, normalize_obs) take in the observations
+    acted on; policy checkpoints count the episodes that ended."""
+    if config.standardizes_obs:
         mask = jnp.ones(transitions.obs.shape[:1], jnp.float32)
         agent = agent.replace(
             obs_stats=normalization.update(agent.obs_stats, transitions.obs, mask)

@@ -128,6 +128,28 @@ def test_simba_policy_reads_standardised_observations():
     np.testing.assert_allclose(got, expected, rtol=1e-6)
 
 
+def test_normalize_obs_standardises_the_mlps_inputs_with_the_same_statistics():
+    from rl_jax.agents.td3 import make_networks
+
+    state, history = train(normalize_obs=True)
+    stats = state.agent.obs_stats
+    np.testing.assert_allclose(stats.count, 1e-4 + 400, rtol=1e-6)  # every obs acted on
+    assert np.all(np.abs(stats.mean[..., :2]) <= 1.0) and np.all(stats.var > 0.0)
+    assert "Simba_0" not in state.agent.actor["params"]  # the paper's MLP
+    assert_trained_and_finite(state, history)
+    # the exported policy reads standardised observations
+    config = td3.default_config("rl_jax/Pendulum-v1", **{**TINY, "normalize_obs": True})
+    fresh = td3.init(jax.random.key(0), config, td3.default_hyperparams())
+    stats = jax.tree.map(lambda leaf: leaf[0, 0], stats)  # seed 0's, after 400 env steps
+    agent = fresh.agent.replace(obs_stats=stats)
+    obs = np.array([[3.0, 1.0, 2.0]], np.float32)
+    got = td3.policy(fresh.replace(agent=agent), config)(obs)
+    standardised = np.clip((obs - stats.mean[None]) / np.sqrt(stats.var[None] + 1e-8), -10, 10)
+    expected = make_networks(config).actor.apply(agent.actor, standardised)
+    np.testing.assert_allclose(got, expected, rtol=1e-5, atol=1e-6)
+    assert not td3.default_config("rl_jax/Pendulum-v1").standardizes_obs
+
+
 def test_simba_refuses_unequal_widths_and_extra_norms():
     with pytest.raises(ValueError, match="one width"):
         td3.default_config("rl_jax/Pendulum-v1", network="simba", critic_hidden=(16, 8))
