@@ -36,7 +36,7 @@ else
   [ -f .gpu/check.sh ] || { echo "no .gpu/check.sh: run ../shared/gpu/prepare.sh here first and carry .gpu"; return 2; }
   # check.sh's set-up (EGL debs, wheels into /tmp/site, PYTHONPATH, MUJOCO_GL, compilation
   # cache), and none of its steps
-  STEPS=: source .gpu/check.sh
+  STEPS=: source .gpu/check.sh  # defines its own step(): ours is run_step
   PY=python3
   WORK=/tmp/gpu_check
   TOTAL=${TOTAL:-470}
@@ -66,7 +66,7 @@ else
 fi
 [ -n "${CANDIDATES:-}" ] && RECIPES+=(--candidates "$CANDIDATES")
 XDIST=()
-[ -z "${DRY:-}" ] && $PY -c "import xdist" 2>/dev/null && XDIST=(-n 4)
+[ -z "${DRY:-}" ] && $PY -c "import xdist" 2>/dev/null && XDIST=(-n "${XDIST_N:-4}")
 
 # ---- 1. tests, beside the compiles of steps 2-4 (untimed) ---------------------------------------
 P1=${P1:-150}
@@ -75,17 +75,17 @@ P1=${P1:-150}
   if has tests; then
     eval "set -- ${PYTEST_ARGS:-$TESTS_DEFAULT}"  # the quotes of a -k expression survive
     # shellcheck disable=SC2086  # PYTEST_STOP may be empty
-    bg step tests "$P1" env JAX_DEFAULT_MATMUL_PRECISION=highest $PY -m pytest -q \
+    bg run_step tests "$P1" env JAX_DEFAULT_MATMUL_PRECISION=highest $PY -m pytest -q \
       ${PYTEST_STOP---maxfail=10} --timeout 120 -rA --junitxml="$OUT/pytest.xml" "${XDIST[@]}" "$@"
   fi
   if has throughput; then
     for env in ${ENVS//,/ }; do  # one process per env: three compiles at once
-      bg step "warm-throughput-$env" "$P1" $PY -m bench.bench_env_throughput --backend mjx \
+      bg run_step "warm-throughput-$env" "$P1" $PY -m bench.bench_env_throughput --backend mjx \
         --envs "$env" --sizes "$SIZES" --min-time 0.01 --rounds 1 --mjx-limit "$P1"
     done
   fi
-  has updates && bg step warm-updates "$P1" $PY -m bench.cheetah_recipe --measure 1 "${UPDATES[@]}"
-  has recipes && bg step warm-recipes "$P1" $PY -m bench.gpu_recipe warm --workdir "$WORK/recipes" \
+  has updates && bg run_step warm-updates "$P1" $PY -m bench.cheetah_recipe --measure 1 "${UPDATES[@]}"
+  has recipes && bg run_step warm-recipes "$P1" $PY -m bench.gpu_recipe warm --workdir "$WORK/recipes" \
     --timeout "$((P1 - 10))" "${RECIPES[@]}"
   wait
 )
@@ -93,17 +93,17 @@ snapshot
 
 # ---- 2-4, timed one at a time -------------------------------------------------------------------
 if has throughput; then
-  step throughput 100 $PY -m bench.bench_env_throughput --backend mjx --envs "$ENVS" \
+  run_step throughput 100 $PY -m bench.bench_env_throughput --backend mjx --envs "$ENVS" \
     --sizes "$SIZES" "${THROUGHPUT[@]}" --out "$OUT/throughput.md"
   snapshot
 fi
 if has updates; then
-  step updates 60 $PY -m bench.cheetah_recipe --measure 2 "${UPDATES[@]}"
+  run_step updates 60 $PY -m bench.cheetah_recipe --measure 2 "${UPDATES[@]}"
   grep '^{' "$WORK/logs/updates.log" | tail -1 > "$OUT/updates.json"
   snapshot
 fi
 if has recipes; then
-  step recipes $((DEADLINE - $(date +%s))) $PY -m bench.gpu_recipe run --workdir "$WORK/recipes" \
+  run_step recipes $((DEADLINE - $(date +%s))) $PY -m bench.gpu_recipe run --workdir "$WORK/recipes" \
     --deadline "$((DEADLINE - 5))" "${RECIPES[@]}"
   $PY -m bench.gpu_recipe table --workdir "$WORK/recipes" "${RECIPES[@]}" > "$OUT/recipes.md"
   snapshot
@@ -125,7 +125,7 @@ snapshot() { # every log and the recipes' metrics (no checkpoints), as one file
     --exclude=jaxcache --exclude=tensorboard --exclude='events.out.*' . 2>/dev/null
   mv -f "$OUT/logs.tar.gz.part" "$OUT/logs.tar.gz"
 }
-step() { # name seconds command...: at most that long (and never past the deadline); SIGINT
+run_step() { # name seconds command...: at most that long (and never past the deadline); SIGINT
   # first, so that pytest still writes its report
   local name=$1 cap=$2; shift 2
   local left=$((DEADLINE - $(date +%s)))
