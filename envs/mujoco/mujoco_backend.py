@@ -21,7 +21,8 @@ float32 quantities an env needs for its observation, reward and termination.
     ``mujoco_ffi``
         an XLA FFI custom call (``envs.mujoco.mujoco_ffi``), compiled on first use with the system
         C++ compiler: no Python runs in a step, and the program can be stored in JAX's persistent
-        compilation cache. What ``mujoco`` means when the op builds.
+        compilation cache. What ``mujoco`` means when the op builds and JAX's default device is a
+        CPU (its handlers exist for the CPU platform only; on a GPU ``mujoco`` is the callback).
     ``mujoco_callback``
         ``jax.pure_callback`` into ``mujoco.batch`` (``MujocoCallbackPhysics``): needs no
         compiler, but JAX does not cache programs with host callbacks, so each process compiles

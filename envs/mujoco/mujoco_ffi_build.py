@@ -165,6 +165,14 @@ def load() -> ctypes.CDLL:
             return _state["library"]
         if "error" in _state:
             raise _state["error"]
+        import jax
+
+        if jax.default_backend() != "cpu":  # the handlers are registered for the CPU platform
+            _state["error"] = FfiUnavailable(
+                f"the op is a CPU custom call and JAX's default device here is "
+                f"{jax.default_backend()}; JAX_PLATFORMS=cpu runs it on the CPU"
+            )
+            raise _state["error"]
         try:
             library = ctypes.CDLL(str(build()))
             _check_versions(library)

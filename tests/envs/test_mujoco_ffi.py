@@ -91,6 +91,20 @@ def test_a_failed_build_falls_back_with_its_first_error(
     assert not list((tmp_path / "rl_jax" / "mujoco_ffi").glob("*.so"))
 
 
+def test_on_an_accelerator_mujoco_takes_the_callback_and_mujoco_ffi_is_refused(
+    fresh_build_state, monkeypatch, capsys
+):
+    """On a GPU (seen on an H100) the FFI op has no handler ("No FFI handler registered for
+    rl_jax_mujoco_step on a platform CUDA"): "mujoco" goes through the host callback there, with
+    one line saying why, and an explicit "mujoco_ffi" is refused before anything is compiled."""
+    monkeypatch.setattr(jax, "default_backend", lambda: "gpu")
+    assert mujoco_backend.resolve_backend("mujoco") == "mujoco_callback"
+    lines = capsys.readouterr().err.splitlines()
+    assert len(lines) == 1 and "CPU custom call" in lines[0] and "JAX_PLATFORMS=cpu" in lines[0]
+    with pytest.raises(mujoco_ffi_build.FfiUnavailable, match="default device here is gpu"):
+        envs.make("InvertedPendulum-v5", backend="mujoco_ffi")
+
+
 @needs_ffi
 def test_model_key_is_content_addressed():
     """Two loads of one model share a key (so do two processes); any change makes a new one."""
