@@ -14,6 +14,9 @@ The paper's networks and its whole recipe are --recipe paper-width and --recipe 
 value clipping and policy checkpoints on the paper's loop (td3.TD7_CONFIG). Its update costs 6.4x
 TD3's arithmetic, about 8 hours for 5 seeds x 300,000 steps on 2 cores; --recipe td7-cpu runs the
 same options in this script's CPU loop at 128 sizes (RESULTS.md, row td7-cpu-cheetah).
+--recipe gpu is for one GPU, where MJX is the default backend: 64 envs per seed, batch 1,024 and
+32 updates per iteration; on one H100, 5 seeds passed a mean of 5,000 after 53 s of training
+(BENCHMARKS.md, "TD3 on a GPU").
 
 It prints its plan (envs, steps, memory, devices, estimated time) before it starts, then a
 progress bar (env steps/s, updates/s, ETA, latest eval return over seeds). Ctrl-C or SIGTERM
@@ -24,6 +27,7 @@ examples:
   python experiments/td3_cheetah.py --seeds 2 --total-steps 50000 --out runs/cheetah --gif
   python experiments/td3_cheetah.py --recipe paper-width --seeds 5
   python experiments/td3_cheetah.py --recipe td7-cpu --seeds 5 --total-steps 300000
+  python experiments/td3_cheetah.py --recipe gpu --seeds 5   # on a GPU
   python experiments/td3_cheetah.py --resume runs/cheetah --total-steps 300000
 """
 
@@ -62,6 +66,14 @@ SCRIPT = Script(
             "on 2 cores)",
             config=td3_module.TD7_CONFIG,
             hparams=td3_module.TD7_HPARAMS,
+        ),
+        "gpu": Recipe(
+            "for one GPU (MJX): 64 envs per seed, batch 1,024, 32 updates per iteration, 250,000 "
+            "steps; on one H100 5 seeds passed a mean of 5,000 after 53 s of training "
+            "(BENCHMARKS.md, TD3 on a GPU)",
+            config=td3_module.GPU_CHEETAH_CONFIG,
+            hparams=td3_module.FAST_CHEETAH_HPARAMS,
+            total_steps=250_000,
         ),
         "td7-cpu": Recipe(
             "TD7's options in this script's CPU loop at its sizes: 128x128 networks, 128-d "

@@ -38,3 +38,20 @@ def test_candidate_flags_name_the_loop():
     assert (values["--num-envs"], values["--batch-size"]) == ("256", "4096")
     assert values["--updates-per-iteration"] == "64"
     assert int(values["--iterations-per-chunk"]) * 256 == gpu_recipe.CHUNK_STEPS
+
+
+def test_the_gpu_recipe_is_the_candidate_that_reached_the_goal():
+    """td3_cheetah.py --recipe gpu trains the loop that bench/gpu_recipe.py timed on the H100."""
+    from rl_jax.agents import td3
+
+    args = gpu_recipe.flags("e64-b1024-u32", dry=False)
+    values = dict(zip(args[::2], args[1::2], strict=True))
+    config = td3.GPU_CHEETAH_CONFIG
+    assert int(values["--num-envs"]) == config["num_envs"]
+    assert int(values["--batch-size"]) == config["batch_size"]
+    assert int(values["--updates-per-iteration"]) == config["updates_per_iteration"]
+    assert int(values["--iterations-per-chunk"]) == config["iterations_per_chunk"]
+    assert int(values["--buffer-size"]) == config["buffer_size"]
+    assert float(values["--actor-lr"]) == td3.FAST_CHEETAH_HPARAMS["actor_lr"]
+    assert float(values["--critic-lr"]) == td3.FAST_CHEETAH_HPARAMS["critic_lr"]
+    assert config["actor_hidden"] == config["critic_hidden"] == (128, 128)  # the script's default

@@ -63,6 +63,7 @@ from rl_jax.agents.td3_networks import (  # noqa: F401  (build_networks re-expor
 from rl_jax.agents.td3_recipes import (  # noqa: F401  (re-exported: scripts read them here)
     FAST_CHEETAH_CONFIG,
     FAST_CHEETAH_HPARAMS,
+    GPU_CHEETAH_CONFIG,
     HPARAM_RECIPES,
     MUJOCO_SUITE,
     NAMED_RECIPES,

@@ -141,6 +141,19 @@ PAPER_RECIPE_CONFIG: dict[str, Any] = {
     "critic_hidden": (256, 256),
 }
 PAPER_HPARAMS: dict[str, Any] = {"actor_lr": 3e-4, "critic_lr": 3e-4}
+# Half cheetah on one GPU (MJX), chosen by return against wall-clock among bench/gpu_recipe.py's
+# candidates: a GPU runs a batch of 1,024 as fast as one of 128, and one MJX step of 320 envs
+# about as fast as one of 20, so more envs per seed and larger batches, at half an update per env
+# step. On one H100 (jax 0.11.2): 5 seeds reached a mean eval of 5,180 at 172k steps per seed,
+# 53 s of training after a 54 s compile (BENCHMARKS.md, "TD3 on a GPU").
+GPU_CHEETAH_CONFIG: dict[str, Any] = {
+    **FAST_CHEETAH_CONFIG,
+    "num_envs": 64,
+    "batch_size": 1024,
+    "updates_per_iteration": 32,
+    "iterations_per_chunk": 384,  # 24,576 env steps per seed between evaluations
+    "buffer_size": 500_000,
+}
 #: Named variants of the whole recipe, (config, hyperparameters) overrides on any env's recipe:
 #: ``--recipe NAME`` of experiments/train.py (and of scripts without recipes of their own).
 NAMED_RECIPES: dict[str, tuple[dict[str, Any], dict[str, Any]]] = {

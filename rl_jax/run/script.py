@@ -21,6 +21,7 @@ class Recipe(NamedTuple):
     config: dict[str, Any] = {}
     hparams: dict[str, Any] = {}
     throughput: tuple[float, int] | None = None
+    total_steps: int | None = None  # in place of the script's default budget
 
 
 @dataclasses.dataclass(frozen=True)
@@ -82,6 +83,11 @@ class Script:
         if name == "default":
             return self, rest
         chosen = self.recipes[name]
+        total_steps = chosen.total_steps or self.total_steps
         return dataclasses.replace(
-            self, config=chosen.config, hparams=chosen.hparams, throughput=chosen.throughput
+            self,
+            config=chosen.config,
+            hparams=chosen.hparams,
+            throughput=chosen.throughput,
+            total_steps=total_steps,
         ), rest

@@ -250,21 +250,28 @@ BAD_INPUTS = {
 
 
 def test_a_script_recipe_replaces_its_defaults_and_an_unknown_one_is_one_error():
+    script_steps = 1_000
     script = Script(
         fake,
         fake.ENV_ID,
         config={"iterations_per_chunk": 5},
         throughput=(10.0, 1),
-        recipes={"long": Recipe("longer chunks", config={"iterations_per_chunk": 50})},
+        recipes={
+            "long": Recipe("longer chunks", config={"iterations_per_chunk": 50}),
+            "big": Recipe("a longer budget", total_steps=script_steps * 3),
+        },
+        total_steps=script_steps,
     )
+    assert script.with_recipe(["--recipe", "big"])[0].total_steps == script_steps * 3
     same, rest = script.with_recipe(["--seeds", "2"])
     assert same is script and rest == ["--seeds", "2"]
     chosen, rest = script.with_recipe(["--recipe", "long", "--seeds", "2"])
     assert chosen.config == {"iterations_per_chunk": 50} and chosen.throughput is None
+    assert chosen.total_steps == script_steps  # a recipe without a budget keeps the script's
     assert rest == ["--seeds", "2"] and chosen.env_id == script.env_id
     assert script.with_recipe(["--recipe=default"])[0] is script
     with pytest.raises(
-        cli.UsageError, match="--recipe short: unknown recipe; known: default, long"
+        cli.UsageError, match="--recipe short: unknown recipe; known: default, long, big"
     ):
         script.with_recipe(["--recipe", "short"])
 
