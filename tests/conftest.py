@@ -1,4 +1,5 @@
-"""Test-wide JAX settings: fail on silent rank promotion, share the compilation cache."""
+"""Test-wide JAX settings: fail on silent rank promotion, share the compilation cache, and
+compute float32 matmuls in float32 on accelerators too."""
 
 import sys
 from pathlib import Path
@@ -19,3 +20,8 @@ jax.config.update("jax_numpy_rank_promotion", "raise")
 # the suite compiles hundreds of small programs, eager ops and test-only jits, and a warm cache
 # makes a rerun of such files 2-3x faster here (test_dqn_losses 22 s -> 8 s, test_vmap 9 s -> 3 s).
 jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.0)
+# On a GPU, float32 matmuls default to TF32-like precision (about 3 decimal digits), and the tests
+# compare against float32 references (gymnasium, hand-computed losses); CPUs compute float32
+# matmuls in full precision already, so their programs (and fingerprints) stay as they are.
+if jax.default_backend() != "cpu":
+    jax.config.update("jax_default_matmul_precision", "highest")
