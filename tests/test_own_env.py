@@ -14,6 +14,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from child_env import without_root
 
 import envs
 
@@ -105,6 +106,8 @@ def test_the_readme_command_trains_and_resumes_in_a_fresh_process(tmp_path):
     assert argv[:2] == ["python", "experiments/train.py"] and ENV_ID in argv
     out = tmp_path / "run"
     environment = {k: v for k, v in os.environ.items() if k != "PYTHONPATH"}
+    if (path := without_root()) is not None:
+        environment["PYTHONPATH"] = path
     for flags in (
         [*argv[2:], *TINY_FLAGS, "--total-steps=200", f"--out={out}"],
         ["--resume", str(out), "--total-steps=400"],

@@ -10,6 +10,7 @@ import sys
 from pathlib import Path
 
 import pytest
+from child_env import python_path
 
 # Three sweeps compile in three processes: ~1.5 min on a quiet 2-core machine, over 4 under load.
 pytestmark = pytest.mark.slow
@@ -28,7 +29,7 @@ LONGER = ["--total-steps", "150"]  # one chunk more than TINY's
 
 
 def sweep(args: list[str], cwd: Path, devices: int) -> subprocess.Popen:
-    env = {**os.environ, "PYTHONPATH": str(ROOT), "RL_JAX_CPU_DEVICES": str(devices)}
+    env = {**os.environ, "PYTHONPATH": python_path(ROOT), "RL_JAX_CPU_DEVICES": str(devices)}
     env.pop("XLA_FLAGS", None)
     env.pop("TF_CPP_MIN_LOG_LEVEL", None)  # set to 1 by importing jax here; rl_jax sets 3
     return subprocess.Popen(

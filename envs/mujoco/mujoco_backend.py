@@ -170,6 +170,11 @@ def extra_field(name: str, data: Any, numpy_like: Any) -> Any:
     """An extra of ``data`` (mjData, mjx.Data, or a batch's bound arrays), by name."""
     if name in COMPUTED_EXTRAS:
         return getattr(numpy_like, COMPUTED_EXTRAS[name])(data.qpos)
+    # mjx.Data keeps the fields only its JAX implementation computes (cfrc_ext, cinert, cacc,
+    # cfrc_int) in ``_impl``; reading them from Data itself is deprecated (a warning per access)
+    impl = getattr(data, "_impl", None)
+    if impl is not None and name not in getattr(type(data), "__dataclass_fields__", {}):
+        return getattr(impl, name)
     return getattr(data, name)
 
 

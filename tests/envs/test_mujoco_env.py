@@ -423,3 +423,25 @@ def test_small_cholesky_matches_lapack(size):
     assert jax.scipy.linalg.cho_factor.__module__ != "envs.mujoco.mujoco_backend"  # restored
     for x, y in zip(jax.tree.leaves(ours), jax.tree.leaves(expected), strict=True):
         np.testing.assert_allclose(x, y, rtol=2e-5, atol=2e-5)
+
+
+def test_mjx_extras_are_read_without_deprecation_warnings():
+    """mjx.Data keeps cfrc_ext, cinert, cacc and cfrc_int in ``_impl`` (reading them from Data
+    warns once per access: Ant and Humanoid on MJX then failed check_env on an H100); the extras
+    come from there, with the values MuJoCo C computes."""
+    import warnings
+
+    import mujoco
+    from mujoco import mjx
+
+    model = envs.make("rl_jax/Ant-v5", backend="mujoco").physics.model
+    data = mujoco.MjData(model)
+    data.qpos[2] += 0.3
+    mujoco.mj_step(model, data)
+    mjx_data = mjx.put_data(model, data)
+    names = ["cfrc_ext", "cinert", "cvel", "qfrc_actuator", "xpos", "cacc", "cfrc_int"]
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        values = {name: mujoco_backend.extra_field(name, mjx_data, jnp) for name in names}
+    for name in names:
+        np.testing.assert_allclose(values[name], getattr(data, name), rtol=1e-6, atol=1e-6)

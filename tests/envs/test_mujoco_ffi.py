@@ -19,6 +19,7 @@ import jax.numpy as jnp
 import mujoco
 import numpy as np
 import pytest
+from child_env import python_path
 
 import envs
 from envs.mujoco import mujoco_backend, mujoco_ffi_build
@@ -33,8 +34,10 @@ needs_ffi = pytest.mark.skipif(
 
 @pytest.fixture
 def fresh_build_state(monkeypatch):
-    """A process-state as before the first load, so a failure is not remembered afterwards."""
+    """A process-state as before the first load, so a failure is not remembered afterwards; on
+    the CPU, whose custom call the op is (a GPU refuses it before building: tested below)."""
     monkeypatch.setattr(mujoco_ffi_build, "_state", {})
+    monkeypatch.setattr(jax, "default_backend", lambda: "cpu")
 
 
 @needs_ffi
@@ -192,7 +195,11 @@ CHILD = textwrap.dedent(
 
 def _python(code: str, *args: str, cache: str = "") -> str:
     """The last stdout line of ``code`` run in a fresh process with this compilation cache dir."""
-    environment = {**os.environ, "JAX_COMPILATION_CACHE_DIR": cache, "PYTHONPATH": str(REPO)}
+    environment = {
+        **os.environ,
+        "JAX_COMPILATION_CACHE_DIR": cache,
+        "PYTHONPATH": python_path(REPO),
+    }
     result = subprocess.run(
         [sys.executable, "-c", code, *args],
         capture_output=True,

@@ -11,10 +11,14 @@ from test_mujoco_parity import ENV_IDS, POSITION_ULPS, _tracked_position
 
 import envs  # noqa: F401  (registers the rl_jax ids with gymnasium)
 
+# The MuJoCo C backend, named: on a GPU the default is MJX (float32 physics, and one compile of
+# each env's step, minutes under load), which test_mujoco_parity.py checks against C on its own.
+C = {"backend": "mujoco"}
+
 
 @pytest.mark.parametrize("env_id", ENV_IDS)
 def test_check_env(env_id):
-    env = gymnasium.make("rl_jax/" + env_id, render_mode="rgb_array")
+    env = gymnasium.make("rl_jax/" + env_id, render_mode="rgb_array", **C)
     check_env(env.unwrapped)
     assert env.spec.max_episode_steps == gymnasium.spec(env_id).max_episode_steps
     assert env.metadata["render_fps"] == gymnasium.make(env_id).metadata["render_fps"]
@@ -27,7 +31,7 @@ def test_check_env(env_id):
 def test_qpos_qvel_reset_then_steps_match_gymnasium(env_id):
     """From the same start (given as reset options), 30 steps of the same actions agree with
     gymnasium's env to float32 output rounding: the C backend's physics is gymnasium's."""
-    ours, theirs = gymnasium.make("rl_jax/" + env_id), gymnasium.make(env_id)
+    ours, theirs = gymnasium.make("rl_jax/" + env_id, **C), gymnasium.make(env_id)
     rng = np.random.default_rng(0)
     _, _ = theirs.reset(seed=1)
     data = theirs.unwrapped.data

@@ -17,6 +17,7 @@ import textwrap
 from pathlib import Path
 
 import pytest
+from child_env import python_path
 
 ROOT = Path(__file__).resolve().parents[2]
 N_ENVS = 2048
@@ -46,7 +47,7 @@ SCRIPT = textwrap.dedent(
 
 @pytest.mark.slow
 def test_mjx_half_cheetah_2048_envs_does_not_hang():
-    env = {**os.environ, "PYTHONPATH": str(ROOT)}
+    env = {**os.environ, "PYTHONPATH": python_path(ROOT)}
     try:
         result = subprocess.run(
             [sys.executable, "-c", SCRIPT],

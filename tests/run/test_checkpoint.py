@@ -8,6 +8,7 @@ import subprocess
 import sys
 import textwrap
 import time
+from importlib import metadata
 from pathlib import Path
 from typing import NamedTuple
 
@@ -15,6 +16,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from child_env import python_path
 from run_helpers import snapshot
 
 from rl_jax.run.checkpoint import (
@@ -83,7 +85,7 @@ def test_round_trip_is_bit_exact_for_every_leaf_kind(tmp_path):
     assert isinstance(restored["params"], Inner)  # the template's structure, not plain dicts
     assert restored["empty"].shape == (1, 2, 0, 5)
     assert meta["step"] == 10 and meta["algorithm"] == "td3"
-    assert meta["versions"]["orbax-checkpoint"] == "0.12.8"
+    assert meta["versions"]["orbax-checkpoint"] == metadata.version("orbax-checkpoint")
     # Typed keys come back as keys that still draw the same numbers.
     draw = jax.random.normal(restored["key"][0, 1], (3,))
     np.testing.assert_array_equal(draw, jax.random.normal(state["key"][0, 1], (3,)))
@@ -324,7 +326,7 @@ CRASH_SCRIPT = textwrap.dedent(
 
 def _run_crash(tmp_path: Path, mode: str) -> tuple[int, bool]:
     directory = tmp_path / "ck"
-    env = {**os.environ, "PYTHONPATH": str(ROOT)}
+    env = {**os.environ, "PYTHONPATH": python_path(ROOT)}
     process = subprocess.Popen(
         [sys.executable, "-c", CRASH_SCRIPT, mode, str(directory)],
         stdout=subprocess.PIPE,

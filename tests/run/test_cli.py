@@ -13,6 +13,7 @@ from pathlib import Path
 
 import fake_algorithm as fake
 import pytest
+from child_env import python_path
 from run_helpers import leaves_bytes, snapshot
 
 from rl_jax.run import cli, field_docs, flags
@@ -30,7 +31,7 @@ SCRIPT = ROOT / "tests" / "fake_experiment.py"
 # process's environment, which would let XLA log a warning line on every compilation-cache hit.
 ENV = {
     **{key: value for key, value in os.environ.items() if key != "TF_CPP_MIN_LOG_LEVEL"},
-    "PYTHONPATH": str(ROOT),
+    "PYTHONPATH": python_path(ROOT),
 }
 
 

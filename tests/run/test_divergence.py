@@ -11,6 +11,7 @@ from pathlib import Path
 import jax
 import numpy as np
 import pytest
+from child_env import python_path
 
 from rl_jax.agents.dqn import dqn
 from rl_jax.agents.td3 import td3
@@ -96,7 +97,7 @@ def test_a_diverging_script_exits_non_zero_and_saves_no_non_finite_checkpoint(tm
     done = subprocess.run(
         [sys.executable, str(ROOT / "experiments" / "td3_pendulum.py"), *argv],
         cwd=tmp_path,
-        env={**env, "PYTHONPATH": str(ROOT), "RL_JAX_CPU_DEVICES": "1"},
+        env={**env, "PYTHONPATH": python_path(ROOT), "RL_JAX_CPU_DEVICES": "1"},
         capture_output=True,
         text=True,
         timeout=600,

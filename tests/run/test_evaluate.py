@@ -9,6 +9,7 @@ from pathlib import Path
 import jax
 import numpy as np
 import pytest
+from child_env import python_path
 from run_helpers import fake_run
 
 from rl_jax.run import evaluate
@@ -62,7 +63,7 @@ def test_returns_are_those_of_stepping_the_env_one_episode_at_a_time(run_dir):
 def test_command_line_prints_the_table_or_one_error_line(run_dir):
     def command(*args):
         argv = [sys.executable, "-m", "rl_jax.run.evaluate", *map(str, args)]
-        env = {"PYTHONPATH": f"{ROOT}:{ROOT / 'tests'}", "PATH": "/usr/bin:/bin"}
+        env = {"PYTHONPATH": python_path(ROOT, ROOT / "tests"), "PATH": "/usr/bin:/bin"}
         return subprocess.run(argv, cwd=ROOT, capture_output=True, text=True, env=env)
 
     done = command(run_dir, "--episodes", "4", "--seed", "1")

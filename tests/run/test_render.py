@@ -13,13 +13,14 @@ import imageio.v2 as imageio
 import jax
 import numpy as np
 import pytest
+from child_env import python_path
 from run_helpers import fake_run
 
 from rl_jax.run import render
 from rl_jax.run.metrics import read_rows
 
 ROOT = Path(__file__).resolve().parents[2]
-ENV = {**os.environ, "PYTHONPATH": f"{ROOT}{os.pathsep}{ROOT / 'tests'}"}
+ENV = {**os.environ, "PYTHONPATH": python_path(ROOT, ROOT / "tests")}
 
 
 @pytest.fixture(scope="module")

@@ -11,6 +11,7 @@ import sys
 from pathlib import Path
 
 import pytest
+from child_env import python_path
 
 from rl_jax.agents.dqn import dqn
 from rl_jax.agents.reinforce import reinforce
@@ -269,7 +270,7 @@ def test_the_script_says_one_line_and_exits_non_zero(argv, message, tmp_path):
     done = subprocess.run(
         [sys.executable, str(SCRIPT), *argv],
         cwd=tmp_path,
-        env={**env, "PYTHONPATH": str(ROOT)},
+        env={**env, "PYTHONPATH": python_path(ROOT)},
         capture_output=True,
         text=True,
         timeout=300,

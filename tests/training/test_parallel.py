@@ -176,6 +176,10 @@ def _assert_leaves_close(got: list[np.ndarray], expected: list[np.ndarray]) -> N
             np.testing.assert_array_equal(a, b)
 
 
+@pytest.mark.skipif(
+    jax.default_backend() != "cpu",
+    reason="compares a run on two CPU devices with this process's runs, which are not on the CPU",
+)
 def test_sharded_over_two_cpu_devices_equals_one_device(grid_run, three_seeds_run, tmp_path: Path):
     out, padded_out = tmp_path / "sharded.npz", tmp_path / "padded.npz"
     script = SHARDED_SCRIPT.format(
@@ -257,7 +261,7 @@ def test_small_networks_spread_over_both_devices_and_large_ones_stay_on_one():
     assert td3.spread_runs(td3.default_config("rl_jax/Pendulum-v1")) and not td3.spread_runs(
         td3.default_config("rl_jax/HalfCheetah-v5")
     )
-    env = {**os.environ, "XLA_FLAGS": ""}
+    env = {**os.environ, "XLA_FLAGS": "", "JAX_PLATFORMS": "cpu"}  # the CPU's layout, on a GPU too
     result = subprocess.run(
         [sys.executable, "-c", LAYOUT_SCRIPT], env=env, capture_output=True, text=True, timeout=300
     )
