@@ -76,7 +76,7 @@ P1=${P1:-150}
     eval "set -- ${PYTEST_ARGS:-$TESTS_DEFAULT}"  # the quotes of a -k expression survive
     # shellcheck disable=SC2086  # PYTEST_STOP may be empty
     bg run_step tests "$P1" env JAX_DEFAULT_MATMUL_PRECISION=highest $PY -m pytest -q \
-      ${PYTEST_STOP---maxfail=10} --timeout 120 -rA --junitxml="$OUT/pytest.xml" "${XDIST[@]}" "$@"
+      ${PYTEST_STOP---maxfail=10} --timeout 300 -rA --junitxml="$OUT/pytest.xml" "${XDIST[@]}" "$@"
   fi
   if has throughput; then
     for env in ${ENVS//,/ }; do  # one process per env: three compiles at once
@@ -93,7 +93,7 @@ snapshot
 
 # ---- 2-4, timed one at a time -------------------------------------------------------------------
 if has throughput; then
-  run_step throughput 100 $PY -m bench.bench_env_throughput --backend mjx --envs "$ENVS" \
+  run_step throughput 160 $PY -m bench.bench_env_throughput --backend mjx --envs "$ENVS" \
     --sizes "$SIZES" "${THROUGHPUT[@]}" --out "$OUT/throughput.md"
   snapshot
 fi
