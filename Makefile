@@ -49,19 +49,24 @@ $(GPU_STAMP): $(STAMP) requirements-gpu.lock
 system-deps: ## install the system libraries for headless rendering (EGL), where possible
 	@bash scripts/system_deps.sh
 
+# Test files are spread over TEST_WORKERS processes (pytest-xdist), each file whole in one of them
+# so that its tests share their compiled programs; a cold run is mostly XLA compiling, one core per
+# program. TEST_WORKERS=0 runs everything in this process.
+TEST_WORKERS ?= 2
+
 test: install ## run the default (fast) test suite
-	$(BIN)/python -m pytest -q
+	$(BIN)/python -m pytest -q -n $(TEST_WORKERS) --dist loadfile
 
 test-latest: ## the default suite against the newest jax, flax, optax, orbax, mujoco, gymnasium (.venv-latest)
 	@test -x $(LATEST_VENV)/bin/python || $(LATEST_PYTHON) -m venv $(LATEST_VENV)
 	$(LATEST_VENV)/bin/python -m pip install --quiet --disable-pip-version-check --upgrade \
 		jax jaxlib flax optax orbax-checkpoint mujoco mujoco-mjx brax "gymnasium[mujoco]" numpy \
-		matplotlib tensorboardX tqdm imageio pillow pygame-ce pytest pytest-timeout scipy setuptools
+		matplotlib tensorboardX tqdm imageio pillow pygame-ce pytest pytest-timeout pytest-xdist scipy setuptools
 	$(LATEST_VENV)/bin/python -m pip install --quiet --disable-pip-version-check --no-deps \
 		--no-build-isolation -e .
 	@$(LATEST_VENV)/bin/python -m pip list 2>/dev/null | grep -iE '^(jax|jaxlib|flax|optax|orbax-checkpoint|mujoco|mujoco-mjx|brax|gymnasium|numpy) '
 	$(LATEST_VENV)/bin/python -m envs.mujoco.mujoco_ffi_build
-	$(LATEST_VENV)/bin/python -m pytest -q
+	$(LATEST_VENV)/bin/python -m pytest -q -n $(TEST_WORKERS) --dist loadfile
 
 test-slow: install ## run the long learning tests only
 	$(BIN)/python -m pytest -q -m slow
