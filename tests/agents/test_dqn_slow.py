@@ -67,3 +67,28 @@ def test_reinforce_balances_the_inverted_pendulum_for_1000_steps_in_every_seed(s
         steps_of=lambda metrics: metrics.extra["env_steps_taken"],  # real env steps
     )
     assert None not in reached, reached
+
+
+@pytest.mark.slow
+def test_dqn_settles_the_rocket_from_one_zero_in_every_seed(tmp_path):
+    """RESULTS.md's DQN row of rl_jax/RocketSettle-v0: the recipe (thrust in {-1, -0.5, 0, 0.5,
+    1}) for 200k env steps, 5 seeds in one program (~4 minutes); the latest policy of every seed,
+    rolled from (1, 0) by ``rocket_report``, enters |x|, |v| <= 0.01 and stays inside to step
+    500."""
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    from rl_jax.run import rocket_report
+
+    root = Path(__file__).resolve().parents[2]
+    out = tmp_path / "rocket_settle_dqn"
+    argv = ["--algo", "dqn", "--env", "rl_jax/RocketSettle-v0", "--seeds", "5"]
+    argv += ["--total-steps", "200000", "--out", str(out)]
+    subprocess.run([sys.executable, str(root / "experiments" / "train.py"), *argv], check=True)
+    entries, _ = rocket_report.compare([out], which="latest")
+    learned = [entry for entry in entries if entry.learned]
+    for entry in learned:
+        print(f"seed {entry.seed}: settled at step {entry.summary.settle_step}")
+    assert len(learned) == 5
+    assert all(entry.summary.kept for entry in learned)
