@@ -79,16 +79,11 @@ def test_dqn_settles_the_rocket_from_one_zero_in_every_seed(tmp_path):
     import sys
     from pathlib import Path
 
-    from rl_jax.run import rocket_report
+    from settle import assert_every_latest_policy_settles
 
     root = Path(__file__).resolve().parents[2]
     out = tmp_path / "rocket_settle_dqn"
     argv = ["--algo", "dqn", "--env", "rl_jax/RocketSettle-v0", "--seeds", "5"]
     argv += ["--total-steps", "200000", "--out", str(out)]
     subprocess.run([sys.executable, str(root / "experiments" / "train.py"), *argv], check=True)
-    entries, _ = rocket_report.compare([out], which="latest")
-    learned = [entry for entry in entries if entry.learned]
-    for entry in learned:
-        print(f"seed {entry.seed}: settled at step {entry.summary.settle_step}")
-    assert len(learned) == 5
-    assert all(entry.summary.kept for entry in learned)
+    assert_every_latest_policy_settles(out, seeds=5)

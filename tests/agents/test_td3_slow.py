@@ -105,15 +105,10 @@ def test_td3_settle_variant_comes_to_rest_from_one_zero_in_every_seed(tmp_path):
     import sys
     from pathlib import Path
 
-    from rl_jax.run import rocket_report
+    from settle import assert_every_latest_policy_settles
 
     root = Path(__file__).resolve().parents[2]
     out = tmp_path / "rocket_settle"
     script = root / "experiments" / "td3_rocket_settle.py"
     subprocess.run([sys.executable, str(script), "--out", str(out)], check=True, cwd=root)
-    entries, _ = rocket_report.compare([out], which="latest")
-    learned = [entry for entry in entries if entry.learned]
-    for entry in learned:
-        print(f"seed {entry.seed}: settled at step {entry.summary.settle_step}")
-    assert len(learned) == 5
-    assert all(entry.summary.kept for entry in learned)
+    assert_every_latest_policy_settles(out, seeds=5)
