@@ -53,11 +53,14 @@ DRY_CANDIDATES = {"dry-e2-b32-u2": (2, 32, 2), "dry-e4-b64-u2": (4, 64, 2)}
 COMPILED = re.compile(r"compiled in ([0-9.]+) s")
 
 
-def flags(name: str, dry: bool) -> list[str]:
-    """td3_cheetah.py's arguments for a candidate (no --out, no --total-steps)."""
+def flags(name: str, dry: bool, base_seed: int = 0) -> list[str]:
+    """td3_cheetah.py's arguments for a candidate (no --out, no --total-steps); a nonzero
+    ``base_seed`` runs another seed set (seeds base_seed .. base_seed + 4)."""
     num_envs, batch, updates = {**CANDIDATES, **DRY_CANDIDATES}[name]
     chunk = 256 if dry else CHUNK_STEPS
     args = ["--seeds", "2" if dry else "5", "--num-envs", str(num_envs)]
+    if base_seed:
+        args += ["--base-seed", str(base_seed)]
     args += ["--batch-size", str(batch), "--updates-per-iteration", str(updates)]
     args += ["--iterations-per-chunk", str(max(1, chunk // num_envs))]
     args += ["--actor-lr", "1e-3", "--critic-lr", "1e-3"]
@@ -70,8 +73,10 @@ def flags(name: str, dry: bool) -> list[str]:
     return args
 
 
-def _launch(name: str, dry: bool, out: Path, total_steps: int, log: Path) -> subprocess.Popen:
-    command = [sys.executable, str(SCRIPT), *flags(name, dry), "--out", str(out)]
+def _launch(
+    name: str, dry: bool, out: Path, total_steps: int, log: Path, base_seed: int = 0
+) -> subprocess.Popen:
+    command = [sys.executable, str(SCRIPT), *flags(name, dry, base_seed), "--out", str(out)]
     command += ["--total-steps", str(total_steps), "--log-interval", "5"]
     environment = dict(os.environ)
     environment["PYTHONPATH"] = os.pathsep.join(
@@ -84,14 +89,15 @@ def _launch(name: str, dry: bool, out: Path, total_steps: int, log: Path) -> sub
         )
 
 
-def warm(workdir: Path, names: list[str], dry: bool, timeout: float) -> None:
+def warm(workdir: Path, names: list[str], dry: bool, timeout: float, base_seed: int = 0) -> None:
     """Every candidate at once, each killed as soon as its train chunk is compiled (JAX has then
     written the program to the persistent cache), or at ``timeout``."""
     # Several processes share the GPU: none may take 75% of its memory up front.
     os.environ["XLA_PYTHON_CLIENT_PREALLOCATE"] = "false"
     logs = {name: workdir / "logs" / f"warm-{name}.log" for name in names}
     processes = {
-        name: _launch(name, dry, workdir / "warm" / name, 10_000_000, logs[name]) for name in names
+        name: _launch(name, dry, workdir / "warm" / name, 10_000_000, logs[name], base_seed)
+        for name in names
     }
     deadline = time.monotonic() + timeout
     while processes:
@@ -119,11 +125,19 @@ def _mean_rows(metrics: Path) -> list[tuple[int, float, float]]:
     ]
 
 
-def train_one(name: str, workdir: Path, dry: bool, goal: float, budget: float, deadline: float):
+def train_one(
+    name: str,
+    workdir: Path,
+    dry: bool,
+    goal: float,
+    budget: float,
+    deadline: float,
+    base_seed: int = 0,
+):
     """Train one candidate until the goal, the budget or the deadline; writes ``stop.json``."""
     out = workdir / "runs" / name
     launched = time.monotonic()
-    process = _launch(name, dry, out, 10_000_000, workdir / "logs" / f"{name}.log")
+    process = _launch(name, dry, out, 10_000_000, workdir / "logs" / f"{name}.log", base_seed)
     compiled_at, compile_seconds, curve, reason = None, None, [], "exit"
     budget_passed_rows = None
     while process.poll() is None:
@@ -153,7 +167,7 @@ def train_one(name: str, workdir: Path, dry: bool, goal: float, budget: float, d
     process.wait()
     record = {
         "name": name,
-        "flags": flags(name, dry),
+        "flags": flags(name, dry, base_seed),
         "stopped_by": reason,
         "exit": process.returncode,
         "compile_s": compile_seconds,
@@ -221,18 +235,21 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--budget", type=float, default=60.0, help="training seconds each")
     parser.add_argument("--deadline", type=float, default=float("inf"), help="epoch seconds")
     parser.add_argument("--timeout", type=float, default=150.0, help="warm: seconds in all")
+    parser.add_argument("--base-seed", type=int, default=0, help="first seed of the 5 (or 2)")
     args = parser.parse_args(argv)
     names = list(DRY_CANDIDATES if args.dry else CANDIDATES)
     if args.candidates:
         names = args.candidates.split(",")
     if args.action == "warm":
-        warm(args.workdir, names, args.dry, args.timeout)
+        warm(args.workdir, names, args.dry, args.timeout, args.base_seed)
     elif args.action == "run":
         for name in names:
             if args.deadline - time.time() < 30:  # too little left for startup and one chunk
                 print(f"{name}: not run, the deadline is near", flush=True)
                 continue
-            train_one(name, args.workdir, args.dry, args.goal, args.budget, args.deadline)
+            train_one(
+                name, args.workdir, args.dry, args.goal, args.budget, args.deadline, args.base_seed
+            )
     else:
         print(table(args.workdir, args.goal), end="")
     return 0

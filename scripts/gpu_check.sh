@@ -15,7 +15,8 @@
 # Everything else (each step's log, the recipes' metrics) is in $OUT/logs.tar.gz: the device tool
 # brings back at most 8 files from $OUT.
 # Knobs: PARTS="tests throughput updates recipes" (a subset, e.g. for a second call),
-# CANDIDATES=name,name (bench/gpu_recipe.py), PYTEST_ARGS, PYTEST_STOP (default --maxfail=10),
+# CANDIDATES=name,name and BASE_SEED=N (bench/gpu_recipe.py: which candidates, which 5 seeds),
+# ENVS=name,name (throughput), PYTEST_ARGS, PYTEST_STOP (default --maxfail=10),
 # TOTAL (seconds, default 470).
 # DRY=1 OUT=/tmp/out bash scripts/gpu_check.sh: the same steps at toy sizes on a CPU (2-4 min),
 # one at a time, with .venv's python and a fresh compilation cache, to rehearse the script itself.
@@ -48,7 +49,7 @@ rm -rf "$WORK"; mkdir -p "$WORK/logs"
 echo "gpu_check: parts [$PARTS], deadline ${TOTAL}s after the start, set-up took $(( $(date +%s) - START ))s"
 
 # ---- sizes: the check, or its toy rehearsal ----------------------------------------------------
-ENVS=InvertedPendulum-v5,InvertedDoublePendulum-v5,HalfCheetah-v5
+ENVS=${ENVS:-InvertedPendulum-v5,InvertedDoublePendulum-v5,HalfCheetah-v5}
 CHEETAH_LOOP='{"actor_hidden": [128, 128], "critic_hidden": [128, 128]}'  # td3_cheetah's default
 if [ -n "${DRY:-}" ]; then
   TESTS_DEFAULT="tests/test_bench_env_throughput.py -k over_its_limit"
@@ -65,6 +66,7 @@ else
   RECIPES=(--budget 60)
 fi
 [ -n "${CANDIDATES:-}" ] && RECIPES+=(--candidates "$CANDIDATES")
+[ -n "${BASE_SEED:-}" ] && RECIPES+=(--base-seed "$BASE_SEED")
 XDIST=()
 [ -z "${DRY:-}" ] && $PY -c "import xdist" 2>/dev/null && XDIST=(-n "${XDIST_N:-4}")
 

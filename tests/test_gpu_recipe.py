@@ -38,6 +38,16 @@ def test_candidate_flags_name_the_loop():
     assert (values["--num-envs"], values["--batch-size"]) == ("256", "4096")
     assert values["--updates-per-iteration"] == "64"
     assert int(values["--iterations-per-chunk"]) * 256 == gpu_recipe.CHUNK_STEPS
+    assert "--base-seed" not in values  # seeds 0-4 unless asked
+
+
+def test_another_seed_set_changes_only_the_first_seed():
+    first = gpu_recipe.flags("e64-b1024-u32", dry=False)
+    other = gpu_recipe.flags("e64-b1024-u32", dry=False, base_seed=5)
+    values = dict(zip(other[::2], other[1::2], strict=True))
+    assert values["--base-seed"] == "5"
+    at = other.index("--base-seed")
+    assert other[:at] + other[at + 2 :] == first
 
 
 def test_the_gpu_recipe_is_the_candidate_that_reached_the_goal():
