@@ -10,7 +10,13 @@ from envs.adapters import external_ids as _external_ids  # noqa: F401  (resolves
 from envs.adapters.gym_adapter import register_with_gymnasium
 from envs.adapters.gymnasium_host import from_gymnasium
 from envs.core.core import Environment, EnvParams, EnvState, TimeStep
-from envs.core.registry import UnknownEnvError, make, register, registered_ids
+from envs.core.registry import (
+    UnknownEnvError,
+    make,
+    parse_keywords,
+    register,
+    registered_ids,
+)
 from envs.core.spaces import Box, Discrete, Space
 from envs.core.wrappers import (
     AutoReset,
@@ -40,6 +46,7 @@ __all__ = [
     "UnknownEnvError",
     "Wrapper",
     "make",
+    "parse_keywords",
     "register",
     "registered_ids",
 ]

@@ -3,6 +3,7 @@ not pay for importing MuJoCo."""
 
 from __future__ import annotations
 
+import ast
 import importlib
 from collections.abc import Callable
 from typing import Any
@@ -127,6 +128,40 @@ def max_episode_steps(name: str) -> int:
     if env_id not in _MAX_EPISODE_STEPS:
         _MAX_EPISODE_STEPS[env_id] = int(factory(env_id).max_episode_steps)
     return _MAX_EPISODE_STEPS[env_id]
+
+
+def parse_keywords(text: str) -> dict[str, Any]:
+    """Constructor keywords written as in a call, ``"name=value, name=value"``: ``{name: value}``.
+
+    Values are Python literals (``False``, ``0.1``, ``(-1.0, 1.0)``, ``'x.xml'``); a bare word
+    that is not one is its own string (``backend=mjx``). ``""`` is no keywords. A ``ValueError``
+    with one line says what is wrong. The training scripts' ``--env-kwargs`` is this text, kept
+    as it was given in the run's config so that a resumed run or a loaded policy builds the same
+    env."""
+    if not text.strip():
+        return {}
+    try:
+        call = ast.parse(f"f({text})", mode="eval").body
+    except SyntaxError:
+        raise ValueError(f"env keywords must read name=value, name=value; got {text!r}") from None
+    if not isinstance(call, ast.Call) or call.args or any(k.arg is None for k in call.keywords):
+        raise ValueError(f"env keywords must read name=value, name=value; got {text!r}")
+    keywords: dict[str, Any] = {}
+    for keyword in call.keywords:
+        if keyword.arg in keywords:
+            raise ValueError(f"env keyword {keyword.arg!r} is given twice in {text!r}")
+        if isinstance(keyword.value, ast.Name):
+            keywords[keyword.arg] = keyword.value.id
+            continue
+        try:
+            keywords[keyword.arg] = ast.literal_eval(keyword.value)
+        except ValueError:
+            value = ast.get_source_segment(f"f({text})", keyword.value)
+            raise ValueError(
+                f"env keyword {keyword.arg}: {value} is not a Python literal (a number, "
+                "True/False, a string or a tuple of them)"
+            ) from None
+    return keywords
 
 
 def make(name: str, **kwargs: Any) -> Environment:

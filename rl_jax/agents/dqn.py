@@ -99,7 +99,7 @@ class Config(OffPolicyConfig):
 
     def make_env(self) -> envs.Environment:
         """The registered env; a continuous one with its actions discretised."""
-        env = envs.make(self.env_id)
+        env = super().make_env()
         if isinstance(env.action_space(), envs.Box):
             env = envs.DiscretizeActions(env, self.action_bins)
         return env
@@ -148,11 +148,22 @@ class PixelConfig(Config):
                 f"augment_shift must be in 0..{self.frame_size - 1}, got {self.augment_shift}"
             )
         networks.check_conv_layers(self.conv_layers, self.frame_size)
+        given = {"frame_size", "frame_stack"} & set(envs.parse_keywords(self.env_kwargs))
+        if given:
+            name = sorted(given)[0]
+            raise ValueError(
+                f"{name} is a config field here: --{name.replace('_', '-')}, not --env-kwargs"
+            )
         first, stop = self.conv_rows() or (0, self.frame_size)
         networks.check_conv_layers(self.conv_layers, stop - first)
 
     def make_env(self) -> envs.Environment:
-        return envs.make(self.env_id, frame_size=self.frame_size, frame_stack=self.frame_stack)
+        return envs.make(
+            self.env_id,
+            frame_size=self.frame_size,
+            frame_stack=self.frame_stack,
+            **envs.parse_keywords(self.env_kwargs),
+        )
 
     def conv_rows(self) -> tuple[int, ...]:
         """``(first, stop)``, the frame rows the conv torso sees, or ``()`` for all."""

@@ -79,8 +79,11 @@ class Config:
     normalize_obs: bool = False  # standardise observations by running mean and variance
     network_init: str = "fan_in_uniform"  # see rl_jax.training.networks
     squash_mean: bool = False  # Gaussian policy: the mean is tanh-squashed into the action bounds
+    # the env's constructor keywords, "name=value, name=value": envs.make(env_id, **them)
+    env_kwargs: str = ""
 
     def __post_init__(self) -> None:
+        envs.parse_keywords(self.env_kwargs)  # a ValueError names what is wrong
         for name in ("num_envs", "iterations_per_chunk", "num_eval_envs"):
             if getattr(self, name) < 1:
                 raise ValueError(f"{name} must be >= 1, got {getattr(self, name)}")
@@ -98,7 +101,7 @@ class Config:
             raise ValueError(f"network_init must be one of {networks.INITS}")
 
     def make_env(self) -> envs.Environment:
-        return envs.make(self.env_id)
+        return envs.make(self.env_id, **envs.parse_keywords(self.env_kwargs))
 
 
 @struct.dataclass

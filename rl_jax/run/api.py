@@ -140,6 +140,7 @@ def train(
     chosen_config = cli.replace_fields(base_config, dict(config or {}), "config")
     chosen_hparams = cli.replace_fields(base_hparams, dict(hparams or {}), "hyperparameters")
     cli.validate_settings(learner, chosen_config, [chosen_hparams])
+    cli.check_env_fits(learner, chosen_config, chosen_hparams)
     run_dir = Path(out) if out is not None else cli.default_run_dir(env_id, learner.name)
     spec = RunSpec(
         algorithm=learner,

@@ -176,7 +176,7 @@ def validate_settings(algorithm: Any, config: Any, hparams_list: list[Any]) -> N
             raise UsageError(str(error)) from None
 
 
-def _check_env_fits(algorithm: Any, config: Any, hparams: Any) -> None:
+def check_env_fits(algorithm: Any, config: Any, hparams: Any) -> None:
     """The algorithm can act in the env (TD3 needs a bounded Box action space, say): its init,
     traced without running, raises the algorithm's own TypeError or ValueError otherwise, which
     ``--env`` with any gymnasium id makes a user error rather than a bug."""
@@ -328,7 +328,7 @@ def build_spec(
             )
         hparams, grid_fields = params.expand(hparams[0], grid), tuple(grid)
     validate_settings(algorithm, config, hparams)
-    _check_env_fits(algorithm, config, hparams[0])
+    check_env_fits(algorithm, config, hparams[0])
     out = args.resume if resume else (args.out or default_run_dir(env_id, algorithm.name))
     script = shlex.join([Path(sys.executable).name, sys.argv[0]])
     return RunSpec(

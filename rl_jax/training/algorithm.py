@@ -93,8 +93,10 @@ class OptionalHooks:
         """``ValueError`` for settings each valid alone that the algorithm cannot run together."""
 
     def make_env(self, config: Any) -> envs.Environment:
-        """The env the policy acts in (loaded policies, rendering): the registered ``env_id``."""
-        return envs.make(config.env_id)
+        """The env the policy acts in (loaded policies, rendering): the config's ``make_env()``
+        where it has one (the registered ``env_id`` with its ``env_kwargs``), else ``env_id``."""
+        make = getattr(config, "make_env", None)
+        return make() if make is not None else envs.make(config.env_id)
 
     def spread_runs(self, config: Any) -> bool:
         """Whether a run's seeds should spread over every CPU device even when they do not split

@@ -48,8 +48,13 @@ class OffPolicyConfig:
     buffer_size: int = 1_000_000  # transitions (rounded up to a multiple of num_envs)
     learning_starts: int = 25_000  # env steps (all envs) with random actions and no updates
     num_eval_envs: int = 10  # episodes of the deterministic policy per evaluation
+    # the env's constructor keywords, "name=value, name=value" (e.g.
+    # "include_cfrc_ext_in_observation=False"): envs.make(env_id, **them) for training,
+    # evaluation and loaded policies; the recipe is still env_id's
+    env_kwargs: str = ""
 
     def __post_init__(self) -> None:
+        envs.parse_keywords(self.env_kwargs)  # a ValueError names what is wrong
         for name in (
             "num_envs",
             "updates_per_iteration",
@@ -68,8 +73,9 @@ class OffPolicyConfig:
         return self.num_envs * self.iterations_per_chunk
 
     def make_env(self) -> envs.Environment:
-        """The env as registered; learners that adapt it (e.g. discretise actions) override."""
-        return envs.make(self.env_id)
+        """The env as registered, with ``env_kwargs``; learners that adapt it (e.g. discretise
+        actions) override."""
+        return envs.make(self.env_id, **envs.parse_keywords(self.env_kwargs))
 
     def to_dict(self) -> dict[str, Any]:
         return dataclasses.asdict(self)
