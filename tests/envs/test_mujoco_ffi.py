@@ -283,7 +283,10 @@ def test_an_empty_batch_steps_to_empty_results():
 @pytest.mark.parametrize("backend", ["mujoco_ffi", "mujoco_callback", "mjx"])
 def test_step_active_steps_the_active_envs_exactly_and_keeps_the_others(backend):
     """``step_active`` = ``step`` where active (bit for bit: the FFI op steps only those envs in
-    the same batch call) and the state unchanged elsewhere, on every backend."""
+    the same batch call) and the state unchanged elsewhere, on every backend. MJX on a GPU compiles
+    ``step`` and ``step_active`` into differently fused kernels, which round the last bit
+    differently (an H100: 3 of 36 numbers 1 ulp apart), so there the stepped envs are compared to
+    a few ulp; the envs left alone are compared exactly everywhere."""
     if backend == "mujoco_ffi" and not mujoco_ffi_build.available():
         pytest.skip("the MuJoCo FFI op cannot be built here")
     env = envs.make("rl_jax/HalfCheetah-v5", backend=backend)
@@ -295,16 +298,23 @@ def test_step_active_steps_the_active_envs_exactly_and_keeps_the_others(backend)
     full_state, full = jax.jit(jax.vmap(env.step))(keys, state, actions)
     some_state, some = jax.jit(jax.vmap(env.step_active))(keys, state, actions, active)
     mask = np.asarray(active)
+    if backend == "mjx" and jax.default_backend() != "cpu":
+
+        def same_step(got, want):
+            np.testing.assert_allclose(got, want, rtol=1e-6, atol=1e-7)
+
+    else:
+        same_step = np.testing.assert_array_equal
     for new, stepped, old in zip(
         jax.tree.leaves(some_state),
         jax.tree.leaves(full_state),
         jax.tree.leaves(state),
         strict=True,
     ):
-        np.testing.assert_array_equal(np.asarray(new)[mask], np.asarray(stepped)[mask])
+        same_step(np.asarray(new)[mask], np.asarray(stepped)[mask])
         np.testing.assert_array_equal(np.asarray(new)[~mask], np.asarray(old)[~mask])
     for got, want in ((some.obs, full.obs), (some.reward, full.reward)):
-        np.testing.assert_array_equal(np.asarray(got)[mask], np.asarray(want)[mask])
+        same_step(np.asarray(got)[mask], np.asarray(want)[mask])
     assert not np.asarray(some.terminated)[mask].any()
 
 
