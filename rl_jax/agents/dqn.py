@@ -478,8 +478,9 @@ RECIPES: dict[str, dict[str, Any]] = {
     "rl_jax/Rocket-v0": {**_CLASSIC, "action_bins": 3},
     # The settle variant: thrust {-1, -0.5, 0, 0.5, 1}. With {-1, 0, +1} (the faithful rocket's)
     # 1-2 of 5 latest policies came to rest inside |x|, |v| <= 0.01 from (1, 0) at 100k steps;
-    # with five values and 200k steps, 13 of 15 (seeds 0-4 and 10-14: 5/5; 5-9: 3/5; RESULTS.md).
-    "rl_jax/RocketSettle-v0": {**_CLASSIC, "action_bins": 5},
+    # with five values and 200k steps, 13 of 15 (seeds 0-4 and 10-14: 5/5; 5-9: 3/5); with
+    # LayerNorm in the Q-network as well, 15 of 15 (seeds 0-14; RESULTS.md).
+    "rl_jax/RocketSettle-v0": {**_CLASSIC, "action_bins": 5, "norm": "layer"},
 }
 _FAST_DECAY = {"learning_rate": 1e-3, "epsilon_decay_steps": 8000.0, "epsilon_end": 0.04}
 HPARAM_RECIPES: dict[str, dict[str, float]] = {
