@@ -32,7 +32,7 @@ TINY = {
 }
 # (cpu tag, jax version) -> run name -> (eval returns [chunk][seed], {group: [sums per seed]})
 RECORDED = {
-    # AMD EPYC (AVX2), jax 0.9.2 (the pin), recorded at 0e5ccfd.
+    # AMD EPYC (its flags include AVX-512), jax 0.9.2 (the pin), recorded at 0e5ccfd.
     ("f5c94f1c7303", "0.9.2"): {
         "td3": (
             [[-1553.412109375, -1470.27783203125], [-1474.2796630859375, -1596.7691650390625]],
