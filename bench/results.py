@@ -116,6 +116,12 @@ def _paper_curve(name: str, algo: str) -> str:
     return text if algo == "td3" else f"TD3 row above (same loop); {text}"
 
 
+def _suite_args(name: str, *extra: str, algo: str = "td3") -> tuple[str, ...]:
+    """``experiments/train.py``'s arguments for ``algo`` on ``rl_jax/<name>-v5`` at the MuJoCo
+    suite's budget of 300k env steps per seed, with ``extra`` flags."""
+    return ("--algo", algo, "--env", f"rl_jax/{name}-v5", *extra, "--total-steps", "300000")
+
+
 ROWS: dict[str, Row] = {
     "reinforce-pendulum": Row(
         "REINFORCE, `rl_jax/InvertedPendulum-v5`",
@@ -214,16 +220,7 @@ ROWS: dict[str, Row] = {
     "td7-cpu-hopper": Row(
         "TD3 + TD7's options at CPU sizes (`--recipe td7-cpu`), `rl_jax/Hopper-v5`",
         "train.py",
-        (
-            "--algo",
-            "td3",
-            "--env",
-            "rl_jax/Hopper-v5",
-            "--recipe",
-            "td7-cpu",
-            "--total-steps",
-            "300000",
-        ),
+        _suite_args("Hopper", "--recipe", "td7-cpu"),
         5,
         "TD7 paper's table (10 seeds, Hopper-v4): 2,948 ± 464 at 300k, 3,512 ± 315 at 1M; "
         + _paper_curve("Hopper", "td3"),
@@ -240,7 +237,7 @@ ROWS: dict[str, Row] = {
         f"{algo}-{name.lower()}": Row(
             f"{algo.upper()}, `rl_jax/{name}-v5`",
             "train.py",
-            ("--algo", algo, "--env", f"rl_jax/{name}-v5", "--total-steps", "300000"),
+            _suite_args(name, algo=algo),
             5,
             _paper_curve(name, algo),
             Goal(TD3_PAPER_CURVES[name][300_000][1], 5, "final", 20.0, mean=True)
@@ -255,16 +252,7 @@ ROWS: dict[str, Row] = {
     "td3-ant-nocontact": Row(
         "TD3, `rl_jax/Ant-v5` with `include_cfrc_ext_in_observation=False`",
         "train.py",
-        (
-            "--algo",
-            "td3",
-            "--env",
-            "rl_jax/Ant-v5",
-            "--env-kwargs",
-            "include_cfrc_ext_in_observation=False",
-            "--total-steps",
-            "300000",
-        ),
+        _suite_args("Ant", "--env-kwargs", "include_cfrc_ext_in_observation=False"),
         5,
         _paper_curve("Ant", "td3"),
     ),
@@ -296,16 +284,7 @@ ROWS: dict[str, Row] = {
     "td3-hopper-paper": Row(
         "TD3, the paper's recipe (`--recipe paper`), `rl_jax/Hopper-v5`",
         "train.py",
-        (
-            "--algo",
-            "td3",
-            "--env",
-            "rl_jax/Hopper-v5",
-            "--recipe",
-            "paper",
-            "--total-steps",
-            "300000",
-        ),
+        _suite_args("Hopper", "--recipe", "paper"),
         5,
         _paper_curve("Hopper", "td3"),
         Goal(TD3_PAPER_CURVES["Hopper"][300_000][1], 5, "final", mean=True),
