@@ -226,6 +226,15 @@ ROWS: dict[str, Row] = {
         + _paper_curve("Hopper", "td3"),
         Goal(2948.0, 5, "final", mean=True),
     ),
+    "td7-cpu-walker2d": Row(
+        "TD3 + TD7's options at CPU sizes (`--recipe td7-cpu`), `rl_jax/Walker2d-v5`",
+        "train.py",
+        _suite_args("Walker2d", "--recipe", "td7-cpu"),
+        5,
+        "TD7 paper's table (10 seeds, Walker2d-v4): 5,379 ± 328 at 300k, 6,097 ± 570 at 1M; "
+        + _paper_curve("Walker2d", "td3"),
+        Goal(5379.0, 5, "final", mean=True),
+    ),
     "ddpg-cheetah": Row(
         "DDPG, `rl_jax/HalfCheetah-v5`",
         "ddpg_cheetah.py",
