@@ -9,7 +9,9 @@ updates per iteration, 10,000 random warm-up steps. With 5 seeds on a quiet 2-co
 eval return passed 5,000 at 90,000 env steps, 5 minutes in; the default budget of 150,000 steps
 takes about 9 minutes (RESULTS.md, row td3-cheetah).
 
-The paper's networks and its whole recipe are --recipe paper-width and --recipe paper (below);
+The paper's networks and its whole recipe are --recipe paper-width and --recipe paper (below;
+the TD3 repository's settings since 2019), and --recipe paper-2018 the settings of the paper's
+own runs (400x300 at rate 1e-3, batch 100), which made its published learning curves;
 --recipe td7 is TD7 (Fujimoto et al. 2023) as TD3's options: SALE, LAP, hard target copies,
 value clipping and policy checkpoints on the paper's loop (td3.TD7_CONFIG). Its update costs 6.4x
 TD3's arithmetic, about 8 hours for 5 seeds x 300,000 steps on 2 cores; --recipe td7-cpu runs the
@@ -54,10 +56,19 @@ SCRIPT = Script(
             throughput=(96.0, 5),
         ),
         "paper": Recipe(
-            "the TD3 paper's whole recipe: 256x256, one env, batch 256, 25,000 warm-up steps "
-            "(the paper trains 1,000,000 steps: several hours here)",
+            "the TD3 repository's whole recipe since 2019: 256x256 at rate 3e-4, one env, batch "
+            "256, 25,000 warm-up steps (the paper trains 1,000,000 steps: several hours here)",
             config=td3_module.PAPER_RECIPE_CONFIG,
             hparams=td3_module.PAPER_HPARAMS,
+        ),
+        "paper-2018": Recipe(
+            "the settings of the TD3 paper's own runs (its published learning curves): 400x300 "
+            "at rate 1e-3, one env, batch 100, 10,000 warm-up steps",
+            config={
+                **td3_module.PAPER_2018_CONFIG,
+                **td3_module.NAMED_RECIPE_ENVS["paper-2018"]["rl_jax/HalfCheetah-v5"],
+            },
+            hparams=td3_module.PAPER_2018_HPARAMS,
         ),
         "td7": Recipe(
             "TD7 (Fujimoto et al. 2023) from TD3's options: the paper's loop with SALE, LAP, "

@@ -2,7 +2,7 @@
 other scripts (--help with --algo and --env lists the algorithm's flags and its defaults there).
 
   python experiments/train.py --algo td3 --env rl_jax/Pendulum-v1 --seeds 5
-  python experiments/train.py --algo td3 --env rl_jax/Hopper-v5 --recipe paper --seeds 5
+  python experiments/train.py --algo td3 --env rl_jax/Hopper-v5 --recipe paper-2018 --seeds 5
   python experiments/train.py --algo td3 --env gymnasium:Pendulum-v1 --seeds 5
   python experiments/train.py --algo td3 --env examples.hover_rocket:examples/HoverRocket-v0
   python experiments/train.py --resume runs/HoverRocket-v0__td3__...   # the run knows the rest

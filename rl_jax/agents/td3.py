@@ -66,7 +66,10 @@ from rl_jax.agents.td3_recipes import (  # noqa: F401  (re-exported: scripts rea
     GPU_CHEETAH_CONFIG,
     HPARAM_RECIPES,
     MUJOCO_SUITE,
+    NAMED_RECIPE_ENVS,
     NAMED_RECIPES,
+    PAPER_2018_CONFIG,
+    PAPER_2018_HPARAMS,
     PAPER_CONFIG,
     PAPER_HPARAMS,
     PAPER_RECIPE_CONFIG,
@@ -332,6 +335,7 @@ class TD3Family(RecipeBook):
     config_type, hparams_type = Config, Hyperparams
     recipes, hparam_recipes = RECIPES, HPARAM_RECIPES
     named_recipes = NAMED_RECIPES
+    named_recipe_envs = NAMED_RECIPE_ENVS
     ranges = {
         "renorm_warmup": validation.NON_NEGATIVE,
         "lap_alpha": validation.UNIT,

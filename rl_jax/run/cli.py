@@ -119,12 +119,13 @@ def _recipes_of(algorithm: Any, defaults: Defaults) -> dict[str, tuple[dict, dic
 
 
 def with_named_recipe(
-    argv: list[str], algorithm: Any, defaults: Defaults
+    argv: list[str], algorithm: Any, defaults: Defaults, env_id: str | None = None
 ) -> tuple[list[str], Defaults]:
     """``--recipe NAME`` of the algorithm's ``named_recipes`` (whole recipes such as td3's
     ``paper``: config and hyperparameter overrides on top of the env's recipe and the script's
-    defaults), taken out of ``argv``. ``UsageError`` for an unknown name or with ``--resume``
-    (a resumed run keeps the settings it recorded)."""
+    defaults), taken out of ``argv``; for ``env_id``, with the recipe's overrides for that env
+    (``named_recipe_envs``). ``UsageError`` for an unknown name or with ``--resume`` (a resumed
+    run keeps the settings it recorded)."""
     recipes = _recipes_of(algorithm, defaults)
     if not recipes:
         return argv, defaults
@@ -136,6 +137,8 @@ def with_named_recipe(
             "--recipe starts a new run; --resume continues a run with the settings it recorded"
         )
     config, hparams = recipes[name]
+    per_env = getattr(algorithm, "named_recipe_envs", {}).get(name, {})
+    config = {**config, **per_env.get(env_id, {})}
     return rest, dataclasses.replace(
         defaults,
         config={**defaults.config, **config},
@@ -371,7 +374,7 @@ def run_experiment(
     if algorithm is None:
         return _help_without_algorithm(description or "", defaults)
     given = argv  # the run records the command as typed, --recipe included
-    argv, defaults = with_named_recipe(argv, algorithm, defaults)
+    argv, defaults = with_named_recipe(argv, algorithm, defaults, env_id)
     parser, config_names, hparam_names = build_parser(
         algorithm, env_id, description or "", defaults, choose
     )

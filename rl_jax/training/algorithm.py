@@ -144,6 +144,8 @@ class RecipeBook(OptionalHooks):
     hparam_overrides: dict[str, Any] = {}
     # whole recipes by name, (config, hyperparameter) overrides on any env's: --recipe NAME
     named_recipes: dict[str, tuple[dict[str, Any], dict[str, Any]]] = {}
+    # config overrides of a named recipe for one env, on top of it: {recipe: {env_id: {...}}}
+    named_recipe_envs: dict[str, dict[str, dict[str, Any]]] = {}
 
     def default_config(self, env_id: str, **overrides: Any) -> Any:
         recipe = {**self.recipes.get(env_id, {}), **self.config_overrides, **overrides}

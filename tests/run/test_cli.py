@@ -456,6 +456,17 @@ def test_train_py_offers_the_algorithms_named_recipes_as_whole_recipes():
     assert td3.default_config(cheetah, **chosen.config) == td3.default_config(
         cheetah, **paper.config
     )
+    # the paper's own 2018 runs: 400 x 300 at 1e-3, batch 100, and 1,000 random steps on Hopper
+    # but 10,000 on Ant and half cheetah (the env's overrides of the named recipe)
+    for env_id, starts in ((hopper, 1_000), ("rl_jax/Ant-v5", 10_000), (cheetah, 10_000)):
+        _, chosen = cli.with_named_recipe(["--recipe", "paper-2018"], td3, defaults, env_id)
+        config = td3.default_config(env_id, **chosen.config)
+        rates = td3.default_hyperparams(env_id, **chosen.hparams).to_dict()
+        loop = (config.num_envs, config.updates_per_iteration, config.batch_size)
+        assert loop == (1, 1, 100) and config.learning_starts == starts, env_id
+        assert (config.actor_hidden, config.critic_hidden) == ((400, 300), (400, 300))
+        assert [rates["actor_lr"], rates["critic_lr"]] == pytest.approx([1e-3, 1e-3])
+    assert config == td3.default_config(cheetah, **CHEETAH.recipes["paper-2018"].config)
     # DDPG stays DDPG under the paper's loop
     _, chosen = cli.with_named_recipe(["--recipe=paper"], ddpg, defaults)
     ddpg_config = ddpg.default_config(hopper)
@@ -467,7 +478,7 @@ def test_train_py_offers_the_algorithms_named_recipes_as_whole_recipes():
         cli.with_named_recipe(["--recipe", "paper", "--resume", "runs/x"], td3, defaults)
     # --help lists them; a script with recipes of its own offers only those
     parser, _, _ = cli.build_parser(td3, hopper, "", defaults, True)
-    assert "paper, td7, td7-cpu" in " ".join(parser.format_help().split())
+    assert "paper, paper-2018, td7, td7-cpu" in " ".join(parser.format_help().split())
     own_recipes = dataclasses.replace(defaults, named_recipes=False)
     parser, _, _ = cli.build_parser(td3, hopper, "", own_recipes, True)
     assert "--recipe" not in parser.format_help()
