@@ -432,6 +432,30 @@ def test_a_resume_past_a_damaged_latest_checkpoint_says_one_line_and_keeps_it(tm
     assert sorted(name[:11] for name in kept) == ["20", "40", "damaged-40-"]
 
 
+def test_a_named_recipe_reaches_the_run_with_its_overrides_for_the_chosen_env(monkeypatch):
+    """train.py's whole path, flags to the run's spec: --recipe paper-2018 on Ant starts learning
+    after 10,000 random steps as the paper's Ant runs did, not the recipe's 1,000."""
+    from rl_jax.run import runner
+
+    specs = []
+
+    class Stop(Exception):
+        pass
+
+    def capture(spec):
+        specs.append(spec)
+        raise Stop
+
+    monkeypatch.setattr(runner, "run", capture)
+    for env_id, starts in (("rl_jax/Ant-v5", 10_000), ("rl_jax/Hopper-v5", 1_000)):
+        argv = ["--algo", "td3", "--env", env_id, "--recipe", "paper-2018", "--seeds", "2"]
+        with pytest.raises(Stop):
+            cli.run_experiment(argv=argv)
+        config = specs[-1].config
+        assert (config.learning_starts, config.batch_size) == (starts, 100), env_id
+        assert config.actor_hidden == (400, 300)
+
+
 def test_train_py_offers_the_algorithms_named_recipes_as_whole_recipes():
     from experiments.td3_cheetah import SCRIPT as CHEETAH
     from rl_jax.agents.td3 import ddpg, td3
