@@ -114,6 +114,7 @@ def mjx_rates(
         p for p in (str(ROOT), os.environ.get("PYTHONPATH", "")) if p
     )
     results: dict[int, dict] = {}
+    interrupted = False
     phases = [("build", None)] + [(phase, n) for n in sizes for phase in ("compile", "run")]
     reason, failed_at = None, None
     with tempfile.TemporaryFile("w+") as log:
@@ -124,7 +125,11 @@ def mjx_rates(
         selector.register(process.stdout, selectors.EVENT_READ)
         try:
             for phase, n_envs in phases:
-                event = _next_event(process, selector, limit)
+                try:
+                    event = _next_event(process, selector, limit)
+                except KeyboardInterrupt:  # keep what was measured; the caller stops after us
+                    reason, failed_at, interrupted = f"{phase} interrupted", n_envs, True
+                    break
                 if event is None:
                     reason, failed_at = _failure(process, log, phase, limit), n_envs
                     break
@@ -132,6 +137,7 @@ def mjx_rates(
                     results[n_envs] = {"compile": event["seconds"]}
                 elif phase == "run":
                     results[n_envs]["rate"] = event["rate"]
+                _progress(env_id, phase, n_envs, event)
         finally:
             if process.poll() is None:
                 process.kill()
@@ -143,7 +149,29 @@ def mjx_rates(
             own = failed_at is None or n_envs == failed_at
             skipped = reason if own else f"not run after {failed_at:,} envs: {reason}"
             results[n_envs] = {**results.get(n_envs, {}), "skipped": skipped}
+    if interrupted:
+        raise Interrupted(results)
     return results
+
+
+class Interrupted(Exception):
+    """Ctrl-C (or a time limit's SIGINT) during an MJX measurement, with the sizes measured."""
+
+    def __init__(self, results: dict[int, dict]):
+        super().__init__("interrupted")
+        self.results = results
+
+
+def _progress(env_id: str, phase: str, n_envs: int | None, event: dict) -> None:
+    """One stderr line per finished phase, so that a run cut short still shows what it
+    measured."""
+    if phase == "build":
+        text = "built"
+    elif phase == "compile":
+        text = f"{n_envs:,} envs compiled in {event['seconds']:.1f} s"
+    else:
+        text = f"{n_envs:,} envs: {_format(event['rate'])} env steps/s"
+    print(f"{env_id} MJX: {text}", file=sys.stderr, flush=True)
 
 
 def _failure(process: subprocess.Popen, log, phase: str, limit: float) -> str:
@@ -239,12 +267,18 @@ def run(
 
         mujoco_ffi_build.build()  # a once-per-machine cost, not part of any measurement
     rows: dict[str, dict] = {}
+    stopped = None
     for index, env_id in enumerate(env_ids):
         row = {} if backend == "mjx" else measure_env(env_id, sizes, min_time, rounds, not quick)
         if backend == "mjx" or not quick or index == 0:
-            row["mjx"] = mjx_rates(env_id, mjx_sizes, mjx_limit, min_time, rounds)
+            try:
+                row["mjx"] = mjx_rates(env_id, mjx_sizes, mjx_limit, min_time, rounds)
+            except Interrupted as cut:
+                row["mjx"], stopped = cut.results, env_id
         rows[env_id] = row
         print(f"{env_id}: {json.dumps({str(k): v for k, v in row.items()})}", file=sys.stderr)
+        if stopped:
+            break
     lines = [
         "## Env throughput of every MuJoCo env (env steps/s, frame skip included)",
         "",
@@ -256,6 +290,12 @@ def run(
         "",
     ]
     lines += mjx_table(rows, sizes) if backend == "mjx" else full_table(rows, sizes, mjx_sizes)
+    if stopped:
+        rest = env_ids[env_ids.index(stopped) + 1 :]
+        lines += [
+            "",
+            f"Interrupted during {stopped}" + (f"; not run: {', '.join(rest)}." if rest else "."),
+        ]
     load_end = os.getloadavg()[0]
     lines += ["", f"Load average (1 min): {load_start:.2f} at start, {load_end:.2f} at end."]
     return "\n".join(lines) + "\n"

@@ -17,7 +17,7 @@
 # Knobs: PARTS="tests throughput updates recipes" (a subset, e.g. for a second call),
 # CANDIDATES=name,name and BASE_SEED=N (bench/gpu_recipe.py: which candidates, which 5 seeds),
 # ENVS=name,name (throughput), PYTEST_ARGS, PYTEST_STOP (default --maxfail=10),
-# TOTAL (seconds, default 470).
+# TOTAL (seconds, default 470), P1 (the first step's limit, 150) and P2 (the timed throughput's, 160).
 # DRY=1 OUT=/tmp/out bash scripts/gpu_check.sh: the same steps at toy sizes on a CPU (2-4 min),
 # one at a time, with .venv's python and a fresh compilation cache, to rehearse the script itself.
 set -u
@@ -95,7 +95,7 @@ snapshot
 
 # ---- 2-4, timed one at a time -------------------------------------------------------------------
 if has throughput; then
-  run_step throughput 160 $PY -m bench.bench_env_throughput --backend mjx --envs "$ENVS" \
+  run_step throughput "${P2:-160}" $PY -m bench.bench_env_throughput --backend mjx --envs "$ENVS" \
     --sizes "$SIZES" "${THROUGHPUT[@]}" --out "$OUT/throughput.md"
   snapshot
 fi

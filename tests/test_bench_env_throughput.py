@@ -34,3 +34,29 @@ def test_quick_run_makes_the_side_by_side_table():
     assert cells[4] == "skipped (build > 0.2 s)", row
     assert float(cells[5]) > 0, row
     assert "ours >= 0.9 x raw C at 2 envs" in section
+
+
+def test_interrupt_keeps_the_sizes_measured_and_says_where_it_stopped(monkeypatch, capsys):
+    # A time limit's SIGINT arrives as KeyboardInterrupt while the parent waits on its worker:
+    # here after one size's compile and run, during the second size's compile.
+    events = iter([{"phase": "build"}, {"phase": "compile", "seconds": 3.0},
+                   {"phase": "run", "rate": 1234.0}])  # fmt: skip
+
+    def next_event(process, selector, limit):
+        event = next(events, None)
+        if event is None:
+            raise KeyboardInterrupt
+        return event
+
+    monkeypatch.setattr(bench_env_throughput, "_next_event", next_event)
+    section = bench_env_throughput.run(
+        env_ids=("InvertedPendulum-v5", "Hopper-v5"), sizes=(2, 4), backend="mjx", mjx_limit=60.0
+    )
+    row = next(line for line in section.splitlines() if line.startswith("| InvertedPendulum"))
+    cells = [cell.strip() for cell in row.strip("|").split("|")]
+    assert cells[1:] == ["1,234", "skipped (compile interrupted)", "3 / -"], row
+    assert "Hopper-v5 |" not in section
+    assert "Interrupted during InvertedPendulum-v5; not run: Hopper-v5." in section
+    err = capsys.readouterr().err
+    assert "InvertedPendulum-v5 MJX: 2 envs compiled in 3.0 s" in err
+    assert "InvertedPendulum-v5 MJX: 2 envs: 1,234 env steps/s" in err
