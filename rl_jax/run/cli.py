@@ -112,6 +112,9 @@ class Defaults:
     # offer the algorithm's ``named_recipes`` as ``--recipe NAME`` (a script with recipes of its
     # own offers those instead)
     named_recipes: bool = True
+    # the flags as the user typed them, when a script took some out before (its own --recipe):
+    # the run records these as its command, so that the command reruns the same run
+    typed_argv: tuple[str, ...] | None = None
 
 
 def _recipes_of(algorithm: Any, defaults: Defaults) -> dict[str, tuple[dict, dict]]:
@@ -373,7 +376,8 @@ def run_experiment(
     algorithm, env_id, choose = _choose(argv, algorithm, env_id)
     if algorithm is None:
         return _help_without_algorithm(description or "", defaults)
-    given = argv  # the run records the command as typed, --recipe included
+    # the run records the command as typed, --recipe included (a script's own too)
+    given = argv if defaults.typed_argv is None else list(defaults.typed_argv)
     argv, defaults = with_named_recipe(argv, algorithm, defaults, env_id)
     parser, config_names, hparam_names = build_parser(
         algorithm, env_id, description or "", defaults, choose
@@ -402,6 +406,7 @@ def main(
     argv: list[str] | None = None,
     throughput: tuple[float, int] | None = None,
     named_recipes: bool = True,
+    typed_argv: list[str] | None = None,
 ) -> NoReturn:
     """Entry point of an experiment script: parse, run, exit with the right status.
     ``throughput`` = (env steps/s per seed, seeds) measured for the script's defaults gives the
@@ -413,5 +418,6 @@ def main(
         dict(hparams or {}),
         throughput=throughput,
         named_recipes=named_recipes,
+        typed_argv=None if typed_argv is None else tuple(typed_argv),
     )
     exit_now(guard(lambda: run_experiment(algorithm, env_id, description, argv, defaults)))

@@ -49,6 +49,7 @@ class Script:
 
     def main(self, description: str | None, argv: list[str] | None = None) -> NoReturn:
         argv = list(sys.argv[1:] if argv is None else argv)
+        typed = list(argv)  # recorded as the run's command, --recipe included
         script = self
         if self.recipes:
             lines = [f"  {name}: {recipe.about}" for name, recipe in self._choices().items()]
@@ -71,6 +72,7 @@ class Script:
             argv=argv,
             throughput=script.throughput,
             named_recipes=not self.recipes,
+            typed_argv=typed,
         )
 
     def _choices(self) -> dict[str, Recipe]:

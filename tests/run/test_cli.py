@@ -277,6 +277,40 @@ def test_a_script_recipe_replaces_its_defaults_and_an_unknown_one_is_one_error()
         script.with_recipe(["--recipe", "short"])
 
 
+def test_a_script_recipe_is_recorded_in_the_runs_command(monkeypatch, tmp_path):
+    """The command a run records reruns it: a script's own --recipe (which the script takes out
+    of the flags before parsing) is part of it, as typed."""
+    from rl_jax.run import runner
+
+    class Stop(Exception):
+        pass
+
+    specs = []
+
+    def capture(spec):
+        specs.append(spec)
+        raise Stop
+
+    monkeypatch.setattr(runner, "run", capture)
+    script = Script(
+        fake,
+        fake.ENV_ID,
+        config={"iterations_per_chunk": 5},
+        recipes={"long": Recipe("longer chunks", config={"iterations_per_chunk": 50})},
+        total_steps=100,
+    )
+    out = str(tmp_path / "run")
+    with pytest.raises(Stop):
+        script.main("", ["--recipe", "long", "--seeds", "2", "--out", out])
+    assert specs[0].config.iterations_per_chunk == 50
+    assert specs[0].command.endswith(f"--recipe long --seeds 2 --out {out}")
+    with pytest.raises(Stop):
+        script.main("", ["--seeds", "2", "--out", out])
+    assert (
+        specs[1].command.endswith(f"--seeds 2 --out {out}") and "--recipe" not in specs[1].command
+    )
+
+
 # Run as real processes: one line and no traceback from a fresh interpreter, including the
 # checkpoint read that fails inside orbax (its late callbacks must not print at exit). The other
 # cases call the same entry point in this process, which is much faster.
