@@ -23,7 +23,6 @@ import dataclasses
 import json
 import os
 import platform
-import shutil
 import subprocess
 import sys
 import threading
@@ -387,13 +386,51 @@ def machine() -> str:
     return f"{os.cpu_count()} cores, {cpu}"
 
 
+def unfinished(out: Path, row: Row) -> tuple[int, int] | None:
+    """``(step, total)`` when ``out`` holds an unfinished run of ``row`` with a checkpoint to go
+    on from (its latest at ``step`` of the ``total`` env steps per seed it was started for);
+    ``None`` otherwise (no run, a finished one, one without a checkpoint, or another budget)."""
+    from rl_jax.run.run_dir import CHECKPOINT_DIR
+
+    try:
+        total = int(json.loads((out / "config.json").read_text())["total_steps"])
+        steps = [int(p.name) for p in (out / CHECKPOINT_DIR).iterdir() if p.name.isdigit()]
+    except (OSError, ValueError, KeyError, TypeError):
+        return None
+    asked = row.args[row.args.index("--total-steps") + 1] if "--total-steps" in row.args else None
+    if not steps or max(steps) >= total or (asked is not None and int(asked) != total):
+        return None
+    return max(steps), total
+
+
+def set_aside(out: Path) -> Path:
+    """Move an earlier run out of the row's way, never deleting it: ``<name>.previous-<time>``."""
+    stamp = time.strftime("%Y%m%d-%H%M%S", time.gmtime(out.stat().st_mtime))
+    kept = out.with_name(f"{out.name}.previous-{stamp}")
+    suffix = 1
+    while kept.exists():
+        kept, suffix = out.with_name(f"{out.name}.previous-{stamp}-{suffix}"), suffix + 1
+    out.rename(kept)
+    return kept
+
+
 def train(name: str, row: Row, out: Path, extra: list[str]) -> dict[str, Any]:
-    """Run the row's script into ``out`` (replacing an earlier run); what was measured."""
-    if out.exists():
-        shutil.rmtree(out)
-    command = [sys.executable, str(ROOT / "experiments" / row.script), *row.args]
-    command += ["--seeds", str(row.seeds), *extra]
-    command += ["--out", str(out)]
+    """Run the row's script into ``out``; what was measured. An unfinished run of the row there
+    (a long row is made in sittings) is resumed from its latest checkpoint, unless ``extra``
+    flags ask for another run; any other run there is set aside, not deleted."""
+    script = [sys.executable, str(ROOT / "experiments" / row.script)]
+    resumed = unfinished(out, row) if not extra else None
+    if resumed is not None:
+        print(
+            f"resuming the row's unfinished run in {out} from step {resumed[0]:,} of "
+            f"{resumed[1]:,} (to start afresh, move it away first)",
+            flush=True,
+        )
+        command = [*script, "--resume", str(out)]
+    else:
+        if out.exists():
+            print(f"the earlier run in {out} is kept as {set_aside(out)}", flush=True)
+        command = [*script, *row.args, "--seeds", str(row.seeds), *extra, "--out", str(out)]
     print("$", " ".join(command[1:]), flush=True)
     started = time.perf_counter()
     with LoadSampler() as load:
@@ -401,7 +438,12 @@ def train(name: str, row: Row, out: Path, extra: list[str]) -> dict[str, Any]:
     seconds = time.perf_counter() - started
     if done.returncode != 0:
         raise SystemExit(f"error: the {name} run failed with status {done.returncode}")
-    return {"wall_clock": seconds, "load": load.describe(), "machine": machine()}
+    measured = {"wall_clock": seconds, "load": load.describe(), "machine": machine()}
+    if resumed is not None:
+        # This sitting's time is part of the run's; the row reports the run's training time as
+        # its metrics logged it over every sitting.
+        measured.update(wall_clock=None, resumed_from=resumed[0], last_sitting=seconds)
+    return measured
 
 
 def _bootstrap_mean_ci(values: np.ndarray) -> tuple[float, float]:

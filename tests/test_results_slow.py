@@ -102,3 +102,45 @@ def test_a_row_is_summarised_and_written_in_place(tmp_path):
     text = page.read_text()
     assert text.count(f"| {row.title} |") == 1 and "0:05:00 (load 0.5)" in text
     assert "1/2 reach it, **not met**" in text
+
+
+def test_a_long_row_resumes_its_unfinished_run_and_no_earlier_run_is_deleted(tmp_path, monkeypatch):
+    """A row made in sittings (the 1M-step one) goes on from its checkpoint; a finished run, one
+    of another budget, or one that other flags replace is moved aside, never deleted."""
+    from types import SimpleNamespace
+
+    name = "td7-cpu-cheetah-1m"
+    row, out = results.ROWS[name], tmp_path / name
+    commands = []
+
+    def fake_run(command, **_):
+        commands.append(command[1:])
+        return SimpleNamespace(returncode=0)
+
+    monkeypatch.setattr(results.subprocess, "run", fake_run)
+
+    def leave_run(steps, total):
+        (out / "checkpoints" / str(steps)).mkdir(parents=True, exist_ok=True)
+        (out / "config.json").write_text(results.json.dumps({"total_steps": total}))
+
+    script = str(results.ROOT / "experiments" / row.script)
+    leave_run(130_000, 1_000_000)
+    measured = results.train(name, row, out, [])
+    assert commands[-1] == [script, "--resume", str(out)]
+    assert measured["wall_clock"] is None and measured["resumed_from"] == 130_000
+    assert out.is_dir() and not list(tmp_path.glob("*.previous-*"))
+
+    kept = []
+    for steps, total, extra in (
+        (130_000, 1_000_000, ["--actor-lr", "1e-3"]),  # other flags: another run
+        (1_000_000, 1_000_000, []),  # finished
+        (130_000, 300_000, []),  # another budget than the row's
+    ):
+        leave_run(steps, total)
+        measured = results.train(name, row, out, extra)
+        assert "--resume" not in commands[-1] and commands[-1][-2:] == ["--out", str(out)]
+        assert measured["wall_clock"] is not None and "resumed_from" not in measured
+        kept = sorted(tmp_path.glob(f"{name}.previous-*"))
+        assert not out.exists() and (kept[-1] / "checkpoints" / str(steps)).is_dir()
+    assert len(kept) == 3
+    assert results.unfinished(tmp_path / "nothing", row) is None
