@@ -1,6 +1,6 @@
 """``python -m bench [NAME ...] [--quick]`` runs the benchmarks and prints their tables.
 
-Each benchmark is a module ``bench/<name>.py`` with ``run(quick: bool) -> str`` returning a
+Each benchmark is a module ``bench/bench_<name>.py`` with ``run(quick: bool) -> str`` returning a
 Markdown section (machine line, command, table with ratios). Results are also written to
 ``bench/results/<name>.md`` so BENCHMARKS.md can be updated from them.
 """
