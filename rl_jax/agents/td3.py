@@ -130,6 +130,11 @@ class Config(OffPolicyConfig):
     # that batch renormalisation's statistics cover both. The target fields of the state are
     # then left at their initial values.
     target_networks: bool = True
+    # Adam's first-moment decay for actor, critics and encoder (CrossQ: 0.5, so that the step
+    # follows the latest gradients of a critic that has no target network to slow it; Adam's
+    # default 0.9 otherwise). Written into the optimizer state with the rate at each step, so a
+    # checkpoint records it and its state has the same fields at any value.
+    adam_b1: float = 0.9
     # TD7's policy checkpoints: the training envs act with a frozen copy of the actor for an
     # assessment of checkpoint_episodes episodes (1 before env step checkpoint_episodes_from);
     # if none returned less than the checkpoint's score, the copy becomes the checkpoint, which
@@ -338,6 +343,7 @@ class TD3Family(RecipeBook):
     named_recipe_envs = NAMED_RECIPE_ENVS
     ranges = {
         "renorm_warmup": validation.NON_NEGATIVE,
+        "adam_b1": validation.Range(0.0, 1.0, high_open=True),
         "lap_alpha": validation.UNIT,
         "target_update_period": validation.NON_NEGATIVE,
         "embedding_dim": validation.AT_LEAST_ONE,

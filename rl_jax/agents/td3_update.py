@@ -65,9 +65,15 @@ def add_to_buffer(buffer, transitions: Transition, config: Config, hparams: Hype
 _ADAM = optax.inject_hyperparams(optax.adam)(learning_rate=3e-4)
 
 
-def _adam_step(grads, opt_state, params, learning_rate):
-    """Adam at the hyperparameter's rate; the rate in use is recorded in the optimizer state."""
-    return optimizer_step(_ADAM, grads, opt_state, params, learning_rate=learning_rate)
+def _adam_step(grads, opt_state, params, learning_rate, b1: float = 0.9):
+    """Adam at the hyperparameter's rate and ``Config.adam_b1``. The injected state holds every
+    numeric argument of Adam and the step reads them from it, so a ``b1`` other than Adam's 0.9
+    is written into it first (and a checkpoint records it). At 0.9 the state's own value is used
+    as before: a constant ``b1`` would let XLA fold it and round plain TD3 differently."""
+    rates = {"learning_rate": learning_rate}
+    if b1 != 0.9:
+        rates["b1"] = jnp.asarray(b1, jnp.float32)
+    return optimizer_step(_ADAM, grads, opt_state, params, **rates)
 
 
 def _critic_step(
@@ -90,7 +96,9 @@ def _critic_step(
         _value_bounds(agent),
     )
     rate = decay(hparams.critic_lr)
-    critics, critic_opt = _adam_step(grads, agent.critic_opt, agent.critics, rate)
+    critics, critic_opt = _adam_step(
+        grads, agent.critic_opt, agent.critics, rate, nets.config.adam_b1
+    )
     agent = agent.replace(critics=critics, critic_opt=critic_opt)
     if aux.batch_stats is not None:
         agent = agent.replace(critic_stats=aux.batch_stats)
@@ -112,7 +120,8 @@ def _actor_and_target_step(agent: Agent, obs, hparams: Hyperparams, nets: Networ
     loss, grads = jax.value_and_grad(actor_loss_fn)(
         agent.actor, agent.critics, obs, nets, fixed_encoders(agent)[0], stats
     )
-    actor, actor_opt = _adam_step(grads, agent.actor_opt, agent.actor, decay(hparams.actor_lr))
+    actor_rate, b1 = decay(hparams.actor_lr), nets.config.adam_b1
+    actor, actor_opt = _adam_step(grads, agent.actor_opt, agent.actor, actor_rate, b1)
     agent = agent.replace(actor=actor, actor_opt=actor_opt)
     if nets.config.target_update_period:
         return agent, loss
@@ -137,7 +146,7 @@ def _encoder_step(agent: AgentWithOptions, batch: CriticBatch, hparams, nets: Ne
     encoders = agent.encoders
     loss, grads = jax.value_and_grad(encoder_loss_fn)(encoders.online, batch, nets)
     rate = decay(hparams.encoder_lr)
-    online, opt = _adam_step(grads, encoders.opt, encoders.online, rate)
+    online, opt = _adam_step(grads, encoders.opt, encoders.online, rate, nets.config.adam_b1)
     return agent.replace(encoders=encoders.replace(online=online, opt=opt)), loss
 
 

@@ -11,7 +11,7 @@ import pytest
 import envs.core.probes  # noqa: F401  (registers the probe ids)
 from envs.core.spaces import Box
 from rl_jax.agents import td3, td3_agent, td3_networks, td7_parts
-from rl_jax.training import networks, offpolicy, policy_checkpoints, prioritized
+from rl_jax.training import networks, offpolicy, policy_checkpoints, prioritized, validation
 from rl_jax.training.replay import Transition
 
 modes = pytest.mark.parametrize("transform", [lambda f: f, jax.jit], ids=["nojit", "jit"])
@@ -479,3 +479,32 @@ def test_critic_loss_with_value_clipping_uses_and_reports_the_clipped_targets(se
     assert np.all(np.abs(bootstrap) <= 0.01 + 1e-6)
     np.testing.assert_allclose(aux.target_range, (target.min(), target.max()), rtol=1e-6)
     np.testing.assert_allclose(loss, np.sum(np.mean(np.asarray(aux.td_tm1) ** 2, -1)), 1e-6)
+
+
+def test_adam_b1_sets_the_first_moment_decay_and_is_recorded_in_the_state():
+    """CrossQ's Adam (b1 0.5) against Adam's update written out: after two steps with gradients
+    g1 then g2, m = b1 (1 - b1) g1 + (1 - b1) g2 and v likewise at b2 0.999, bias-corrected."""
+    from rl_jax.agents import td3_update
+
+    params = {"w": jnp.array([1.0, -2.0])}
+    g1, g2 = jnp.array([0.5, -1.0]), jnp.array([-2.0, 0.25])
+    rate, (b1, b2, eps) = 0.1, (0.5, 0.999, 1e-8)
+    state = td3_update._ADAM.init(params)
+    step = jax.jit(td3_update._adam_step, static_argnums=4)
+    new, state = step({"w": g1}, state, params, jnp.float32(rate), b1)
+    new, state = step({"w": g2}, state, new, jnp.float32(rate), b1)
+    m = b1 * (1 - b1) * g1 + (1 - b1) * g2
+    v = b2 * (1 - b2) * g1**2 + (1 - b2) * g2**2
+    m_hat, v_hat = m / (1 - b1**2), v / (1 - b2**2)
+    first = params["w"] - rate * g1 / (jnp.abs(g1) + eps)  # m_hat = g1, v_hat = g1^2
+    expected = first - rate * m_hat / (jnp.sqrt(v_hat) + eps)
+    np.testing.assert_allclose(new["w"], expected, rtol=1e-5)
+    assert float(state.hyperparams["b1"]) == b1
+    # Adam's default keeps the plain optimizer's state and step exactly.
+    plain_state = td3_update._ADAM.init(params)
+    plain, _ = td3_update._ADAM.update({"w": g1}, plain_state, params)
+    ours, _ = step({"w": g1}, td3_update._ADAM.init(params), params, jnp.float32(3e-4), 0.9)
+    np.testing.assert_array_equal(ours["w"], params["w"] + plain["w"])
+    config = td3.td3.default_config("rl_jax/Pendulum-v1", adam_b1=1.0)
+    with pytest.raises(validation.RangeError, match=r"--adam-b1 must be in \[0, 1\)"):
+        validation.check_ranges(td3.td3, config, [td3.Hyperparams()])

@@ -193,7 +193,12 @@ def test_policy_checkpoints_evaluate_the_checkpoint_not_the_online_actor():
     assert_trained_and_finite(state, history)
 
 
-CROSSQ = {"critic_norm": "batch_renorm", "target_networks": False, "renorm_warmup": 50}
+CROSSQ = {
+    "critic_norm": "batch_renorm",
+    "target_networks": False,
+    "renorm_warmup": 50,
+    "adam_b1": 0.5,
+}
 
 
 def test_crossq_trains_without_target_networks_and_keeps_its_statistics():
@@ -205,6 +210,8 @@ def test_crossq_trains_without_target_networks_and_keeps_its_statistics():
     # No target networks: the target fields never moved from the initial parameters.
     initial = jax.tree.leaves(agent.target_critics)[0]
     assert not np.allclose(initial, jax.tree.leaves(agent.critics)[0])
+    for opt in (agent.critic_opt, agent.actor_opt):  # CrossQ's Adam, recorded in the state
+        np.testing.assert_array_equal(opt.hyperparams["b1"], 0.5)
     assert_trained_and_finite(state, history)
 
 
