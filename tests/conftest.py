@@ -12,7 +12,12 @@ import jax
 if str(Path(__file__).resolve().parent) not in sys.path:
     sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from rl_jax.training.jax_setup import configure
+# LLVM -O0 for the tests' programs, set before JAX starts its backend (compile_level.py says why).
+import compile_level  # noqa: E402
+
+compile_level.apply()
+
+from rl_jax.training.jax_setup import configure  # noqa: E402
 
 configure()
 jax.config.update("jax_numpy_rank_promotion", "raise")

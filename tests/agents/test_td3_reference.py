@@ -11,7 +11,15 @@ the same program can round differently on another CPU model (DESIGN.md, "The mac
 so the values are kept per ``jax_setup.cpu_tag()`` and jax version (another XLA fuses and rounds
 the same program differently too: jax 0.12 moved the last bit of some of these sums); on a CPU
 or jax without a record the test skips and prints the values to add.
+
+The record is of XLA's default optimisation level, which the rest of the suite does not use
+(``compile_level.py``): the runs are made in a subprocess at that level
+(``python tests/agents/test_td3_reference.py td3 ddpg_3_step`` prints them).
 """
+
+import json
+import subprocess
+import sys
 
 import jax
 import numpy as np
@@ -78,13 +86,37 @@ def fingerprint(algorithm, **config_overrides):
     return returns, sums
 
 
+@pytest.fixture(scope="module")
+def at_the_default_level():
+    """``fingerprint`` of every run of ``RUNS``, made in one subprocess compiling at XLA's
+    default flags: ``{name: (returns, sums)}``."""
+    import compile_level
+
+    result = subprocess.run(
+        [sys.executable, __file__, *RUNS],
+        env=compile_level.default_level_env(),
+        capture_output=True,
+        text=True,
+        timeout=600,
+    )
+    assert result.returncode == 0, result.stderr[-3000:]
+    return json.loads(result.stdout.strip().splitlines()[-1])
+
+
 @pytest.mark.parametrize("name", list(RUNS))
-def test_options_off_is_bit_identical_to_plain_td3(name):
-    algorithm, overrides = RUNS[name]
-    got = fingerprint(algorithm, **overrides)
+def test_options_off_is_bit_identical_to_plain_td3(name, at_the_default_level):
+    got = at_the_default_level[name]
     where = (jax_setup.cpu_tag(), jax.__version__)
     recorded = RECORDED.get(where, {}).get(name)
     if recorded is None:
         pytest.skip(f"no reference for (CPU, jax) {where}; this one gives {got!r}")
     assert got[0] == recorded[0]
     assert got[1] == recorded[1]
+
+
+if __name__ == "__main__":  # the named runs' fingerprints as JSON, at this process's XLA flags
+    from rl_jax.training.jax_setup import configure
+
+    configure()
+    names = sys.argv[1:]
+    print(json.dumps({name: fingerprint(RUNS[name][0], **RUNS[name][1]) for name in names}))

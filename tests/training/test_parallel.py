@@ -22,6 +22,7 @@ import sys
 import textwrap
 from pathlib import Path
 
+import compile_level
 import jax
 import numpy as np
 import pytest
@@ -188,7 +189,7 @@ def test_sharded_over_two_cpu_devices_equals_one_device(grid_run, three_seeds_ru
         out=str(out),
         padded_out=str(padded_out),
     )
-    env = {**os.environ, "XLA_FLAGS": ""}
+    env = {**os.environ, "XLA_FLAGS": compile_level.subprocess_flags()}
     result = subprocess.run(
         [sys.executable, "-c", script], env=env, capture_output=True, text=True, timeout=600
     )
@@ -261,7 +262,8 @@ def test_small_networks_spread_over_both_devices_and_large_ones_stay_on_one():
     assert td3.spread_runs(td3.default_config("rl_jax/Pendulum-v1")) and not td3.spread_runs(
         td3.default_config("rl_jax/HalfCheetah-v5")
     )
-    env = {**os.environ, "XLA_FLAGS": "", "JAX_PLATFORMS": "cpu"}  # the CPU's layout, on a GPU too
+    # the CPU's layout, on a GPU too
+    env = {**os.environ, "XLA_FLAGS": compile_level.subprocess_flags(), "JAX_PLATFORMS": "cpu"}
     result = subprocess.run(
         [sys.executable, "-c", LAYOUT_SCRIPT], env=env, capture_output=True, text=True, timeout=300
     )
