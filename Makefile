@@ -53,10 +53,8 @@ system-deps: ## install the system libraries for headless rendering (EGL), where
 
 # Test files are spread over TEST_WORKERS processes (pytest-xdist), each file whole in one of them
 # so that its tests share their compiled programs; a cold run is mostly XLA compiling, one core per
-# program. Three processes on 2 cores: one that waits (on a subprocess, on files) leaves its core
-# to another (a cold suite, 2-core AMD EPYC: 6:48; with two 7:14, its fingerprint test then ~10 s
-# slower). TEST_WORKERS=0 runs everything in this process.
-TEST_WORKERS ?= 3
+# program. TEST_WORKERS=0 runs everything in this process.
+TEST_WORKERS ?= 2
 
 test: install ## run the default (fast) test suite
 	$(BIN)/python -m pytest -q -n $(TEST_WORKERS) --dist loadfile

@@ -32,7 +32,7 @@ if jax.default_backend() != "cpu":
     jax.config.update("jax_default_matmul_precision", "highest")
 
 
-# ---- spreading the files over the test processes (`make test`: -n 3 --dist loadfile) -----------
+# ---- spreading the files over the test processes (`make test`: -n 2 --dist loadfile) -----------
 # Each file runs whole in one process, so that its tests share their compiled programs. Two
 # changes to xdist's file scheduling, both for a cold run (measured on 2 cores):
 # - the MJX env files compile the same MJX step programs (test_mujoco_env imports
