@@ -58,6 +58,13 @@ def active() -> bool:
     return FLAG in os.environ.get("XLA_FLAGS", "").split()
 
 
+def default_emitters() -> dict[str, bool]:
+    """``compiler_options`` for a ``jax.jit`` whose programs must fuse as at XLA's defaults: the
+    newer emitters where this process turned them off, else nothing."""
+    on = EMITTER_FLAG in os.environ.get("XLA_FLAGS", "").split()
+    return {"xla_cpu_use_fusion_emitters": True} if on else {}
+
+
 def subprocess_flags() -> str:
     """XLA_FLAGS for a subprocess that must not inherit other flags (a device count): this
     process's compile flags only."""
