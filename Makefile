@@ -31,12 +31,13 @@ help:
 install: $(STAMP) $(if $(GPU),$(GPU_STAMP)) system-deps ## create .venv and install the locked dependencies (GPU=1: with CUDA)
 
 # Re-installs only when the lock or pyproject changed; `pip install -r` of a hashed lock is exact.
-# --no-compile: Python writes a module's bytecode when it is first imported, instead of pip
-# compiling every file of every package up front (the lock installed in 27 s instead of 43 s here).
+# --no-compile, then compileall over every core: pip compiles the packages' bytecode one file at a
+# time (the lock: 43 s here); this way 19 s of install and 11 s of compiling on 2 cores.
 $(STAMP): requirements.lock pyproject.toml
 	@command -v $(PYTHON) >/dev/null || { echo "error: $(PYTHON) not found; install Python 3.11 or run 'make PYTHON=python3 ...'" >&2; exit 1; }
 	@test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
 	$(BIN)/python -m pip install --quiet --disable-pip-version-check --no-compile -r requirements.lock
+	@$(BIN)/python -m compileall -q -j 0 "$$($(BIN)/python -c 'import sysconfig; print(sysconfig.get_paths()["purelib"])')" >/dev/null || true
 	$(BIN)/python -m pip install --quiet --disable-pip-version-check --no-deps --no-build-isolation -e .
 	$(BIN)/python -m envs.mujoco.mujoco_ffi_build  # the MuJoCo C step op (g++); without it: a callback
 	@touch $@
