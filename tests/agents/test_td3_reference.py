@@ -10,19 +10,21 @@ float32 sum, and the evaluation return after each chunk. XLA compiles for the CP
 the same program can round differently on another CPU model (DESIGN.md, "The machines vary"),
 so the values are kept per ``jax_setup.cpu_tag()`` and jax version (another XLA fuses and rounds
 the same program differently too: jax 0.12 moved the last bit of some of these sums); on a CPU
-or jax without a record the test skips and prints the values to add.
+or jax without a record the test skips and prints the values to add to
+``tests/data/td3_fingerprints.json``.
 
-The record is of XLA's default compile flags, which the rest of the suite does not use
+The first record was made at XLA's default compile flags, which the rest of the suite does not use
 (``compile_level.py``). With the suite's flags the programs of 0e5ccfd and of today differ in the
 last bits (XLA's older emitters fuse the two differently); at LLVM -O0 alone they are equal, as at
 the default flags. So the runs are made in a subprocess: inside the suite at -O0 alone, against
-``RECORDED_O0``; with ``TEST_XLA_OPT=default`` at the default flags, against ``RECORDED``
+the "-O0" record; with ``TEST_XLA_OPT=default`` at the default flags, against the "default" one
 (``python tests/agents/test_td3_reference.py td3 ddpg_3_step`` prints them).
 """
 
 import json
 import subprocess
 import sys
+from pathlib import Path
 
 import jax
 import numpy as np
@@ -41,55 +43,20 @@ TINY = {
     "actor_hidden": (16, 16),
     "critic_hidden": (16, 16),
 }
-# (cpu tag, jax version) -> run name -> (eval returns [chunk][seed], {group: [sums per seed]})
-RECORDED = {
-    # AMD EPYC (its flags include AVX-512), jax 0.9.2 (the pin), recorded at 0e5ccfd.
-    ("f5c94f1c7303", "0.9.2"): {
-        "td3": (
-            [[-1553.412109375, -1470.27783203125], [-1474.2796630859375, -1596.7691650390625]],
-            {
-                "actor": [-4.640931472182274, 11.054214596748352],
-                "critics": [49.83023130893707, 35.87864822149277],
-                "target_actor": [-4.712959110736847, 5.541360467672348],
-                "target_critics": [27.1879942715168, 19.322303231805563],
-            },
-        ),
-        "ddpg_3_step": (
-            [[-1595.5263671875, -1507.7882080078125], [-1546.3040771484375, -1476.16259765625]],
-            {
-                "actor": [-5.155573718249798, 19.147892877459526],
-                "critics": [45.851603511720896, 14.97144003212452],
-                "target_actor": [-5.517106413841248, 11.38016191124916],
-                "target_critics": [30.79944349080324, 9.53616900742054],
-            },
-        ),
-    },
-}
-# The same runs compiled at LLVM -O0 alone (``compile_level.FLAG``, XLA's newer emitters kept),
-# the flags the test's subprocess uses inside the suite: recorded at 0e5ccfd on 2026-11-28, and
-# today's code gave the same bits.
-RECORDED_O0 = {
-    ("f5c94f1c7303", "0.9.2"): {
-        "td3": (
-            [[-1553.4119873046875, -1470.27783203125], [-1474.2830810546875, -1596.7691650390625]],
-            {
-                "actor": [-4.640874423086643, 11.054214358329773],
-                "critics": [49.82920065522194, 35.87864534556866],
-                "target_actor": [-4.712945722043514, 5.541362717747688],
-                "target_critics": [27.187927186489105, 19.32230557873845],
-            },
-        ),
-        "ddpg_3_step": (
-            [[-1595.527099609375, -1507.7880859375], [-1545.9373779296875, -1476.1627197265625]],
-            {
-                "actor": [-5.108353182673454, 19.147894844412804],
-                "critics": [45.850541457533836, 14.971440568566322],
-                "target_actor": [-5.509666532278061, 11.38016563653946],
-                "target_critics": [30.798675037920475, 9.536173366010189],
-            },
-        ),
-    },
-}
+# The records: tests/data/td3_fingerprints.json, one per (CPU tag, jax version, flags), each with
+# run name -> [eval returns [chunk][seed], {group: [sums per seed]}]; flags "default" are XLA's,
+# "-O0" LLVM -O0 alone (``compile_level.FLAG``).
+RECORDS = Path(__file__).resolve().parents[1] / "data" / "td3_fingerprints.json"
+
+
+def recorded(cpu_tag: str, jax_version: str, flags: str) -> dict:
+    """The record's runs for this CPU, jax and flags, or {} where there is none."""
+    for record in json.loads(RECORDS.read_text()):
+        if (record["cpu_tag"], record["jax"], record["flags"]) == (cpu_tag, jax_version, flags):
+            return record["runs"]
+    return {}
+
+
 RUNS = {"td3": (td3, {}), "ddpg_3_step": (ddpg, {"n_step": 3})}
 
 
@@ -116,32 +83,32 @@ def fingerprint(algorithm, **config_overrides):
 
 @pytest.fixture(scope="module")
 def fingerprints():
-    """``(fingerprint of every run of RUNS, the record for those flags)``, the runs made in one
+    """``(fingerprint of every run of RUNS, the flags of their record)``, the runs made in one
     subprocess at XLA's default flags, or at -O0 alone inside the suite (half the compile time;
     XLA's older emitters of the suite's own flags are left out, see above)."""
     import compile_level
 
     env = compile_level.default_level_env()
-    records = RECORDED
+    flags = "default"
     if compile_level.active():
         env["XLA_FLAGS"] = f"{env['XLA_FLAGS']} {compile_level.FLAG}".strip()
-        records = RECORDED_O0
+        flags = "-O0"
     result = subprocess.run(
         [sys.executable, __file__, *RUNS], env=env, capture_output=True, text=True, timeout=600
     )
     assert result.returncode == 0, result.stderr[-3000:]
-    return json.loads(result.stdout.strip().splitlines()[-1]), records
+    return json.loads(result.stdout.strip().splitlines()[-1]), flags
 
 
 @pytest.mark.parametrize("name", list(RUNS))
 def test_options_off_is_bit_identical_to_plain_td3(name, fingerprints):
-    got, records = fingerprints[0][name], fingerprints[1]
-    where = (jax_setup.cpu_tag(), jax.__version__)
-    recorded = records.get(where, {}).get(name)
-    if recorded is None:
-        pytest.skip(f"no reference for (CPU, jax) {where}; this one gives {got!r}")
-    assert got[0] == recorded[0]
-    assert got[1] == recorded[1]
+    got, flags = fingerprints[0][name], fingerprints[1]
+    where = (jax_setup.cpu_tag(), jax.__version__, flags)
+    record = recorded(*where).get(name)
+    if record is None:
+        pytest.skip(f"no record for (CPU, jax, flags) {where}; this one gives {got!r}")
+    assert got[0] == record[0]
+    assert got[1] == record[1]
 
 
 if __name__ == "__main__":  # the named runs' fingerprints as JSON, at this process's XLA flags
