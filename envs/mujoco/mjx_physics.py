@@ -73,9 +73,10 @@ class MjxPhysics(Physics):
         warm = jnp.zeros_like(qvel) if qacc_warmstart is None else qacc_warmstart
         return (qpos, qvel, jnp.asarray(warm, jnp.float32))
 
-    def _data(self, state: tuple, ctrl: Array | None = None) -> mjx.Data:
+    def _data(self, state: tuple, ctrl: Array | None = None, template: Any = None) -> mjx.Data:
         qpos, qvel, warm = state
-        data = self._template.replace(qpos=qpos, qvel=qvel, qacc_warmstart=warm)
+        template = self._template if template is None else template
+        data = template.replace(qpos=qpos, qvel=qvel, qacc_warmstart=warm)
         if ctrl is not None:
             data = data.replace(ctrl=jnp.asarray(ctrl, jnp.float32))
         return data
@@ -83,7 +84,7 @@ class MjxPhysics(Physics):
     def _make_chunked_step(self) -> Any:
         from jax.custom_batching import custom_vmap
 
-        stepper = custom_vmap(self._step)
+        stepper = custom_vmap(lambda state, ctrl: self._step(state, ctrl))
 
         @stepper.def_vmap
         def rule(axis_size: int, in_batched: Any, state: tuple, ctrl: Array) -> tuple:
@@ -91,11 +92,10 @@ class MjxPhysics(Physics):
                 x if batched else jnp.broadcast_to(x, (axis_size, *x.shape))
             )
             args = jax.tree.map(broadcast, (state, ctrl), tuple(in_batched))
-            batched_step = jax.vmap(self._step)
             if axis_size <= self.chunk:
-                out = batched_step(*args)
+                out = self._batched_step(*args)
             else:
-                out = _map_in_chunks(lambda a: batched_step(*a), args, axis_size, self.chunk)
+                out = _map_in_chunks(lambda a: self._batched_step(*a), args, axis_size, self.chunk)
             return out, jax.tree.map(lambda _: True, out)
 
         return stepper
@@ -108,8 +108,16 @@ class MjxPhysics(Physics):
             return self._step(state, ctrl)
         return self._chunked_step(state, ctrl)
 
-    def _step(self, state: tuple, ctrl: Array) -> tuple[tuple, Measurement]:
-        data = self._data(state, ctrl)
+    def _batched_step(self, state: tuple, ctrl: Array) -> tuple[tuple, Measurement]:
+        """``vmap(_step)`` with the template Data given to every env: the frame loop's carry is
+        then batched from its first iteration, and ``vmap`` of the loop traces its body once
+        (with an unbatched template it traces it twice, to find the carry's batching)."""
+        size = ctrl.shape[0]
+        template = jax.tree.map(lambda x: jnp.broadcast_to(x, (size, *x.shape)), self._template)
+        return jax.vmap(self._step)(state, ctrl, template)
+
+    def _step(self, state: tuple, ctrl: Array, template: Any = None) -> tuple[tuple, Measurement]:
+        data = self._data(state, ctrl, template)
         # MJX's own code broadcasts implicitly; allow it even under rank_promotion="raise"
         with jax.numpy_rank_promotion("allow"), small_cholesky():
             data = jax.lax.fori_loop(
