@@ -37,9 +37,10 @@ $(STAMP): requirements.lock pyproject.toml
 	@command -v $(PYTHON) >/dev/null || { echo "error: $(PYTHON) not found; install Python 3.11 or run 'make PYTHON=python3 ...'" >&2; exit 1; }
 	@test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
 	$(BIN)/python -m pip install --quiet --disable-pip-version-check --no-compile -r requirements.lock
-	@$(BIN)/python -m compileall -q -j 0 "$$($(BIN)/python -c 'import sysconfig; print(sysconfig.get_paths()["purelib"])')" >/dev/null || true
 	$(BIN)/python -m pip install --quiet --disable-pip-version-check --no-deps --no-build-isolation -e .
-	$(BIN)/python -m envs.mujoco.mujoco_ffi_build  # the MuJoCo C step op (g++); without it: a callback
+	@# the bytecode and the MuJoCo C step op (g++, one core; without it: a callback) side by side
+	@$(BIN)/python -m compileall -q -j 0 "$$($(BIN)/python -c 'import sysconfig; print(sysconfig.get_paths()["purelib"])')" >/dev/null & \
+	$(BIN)/python -m envs.mujoco.mujoco_ffi_build; status=$$?; wait; exit $$status
 	@touch $@
 
 # The CUDA 12 plugin of the same jaxlib, with its NVIDIA libraries as wheels (no system CUDA
