@@ -1,6 +1,7 @@
 """Test-wide JAX settings: fail on silent rank promotion, share the compilation cache, and
 compute float32 matmuls in float32 on accelerators too."""
 
+import gc
 import sys
 from pathlib import Path
 
@@ -30,6 +31,19 @@ jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.0)
 # matmuls in full precision already, so their programs (and fingerprints) stay as they are.
 if jax.default_backend() != "cpu":
     jax.config.update("jax_default_matmul_precision", "highest")
+
+# Python's cyclic garbage collector, at its default thresholds, runs every 700 allocations and
+# walks every live object in its older generations: tracing a program allocates millions of small
+# objects, and a test process holds many. Collecting less often, with what exists after collection
+# frozen out of the walks, makes tracing and lowering ~25% faster (an MJX half-cheetah step: 5.8 s
+# -> 4.2 s here). Garbage is still collected, later.
+gc.set_threshold(50_000, 20, 20)
+
+
+def pytest_collection_finish(session):
+    """The modules, tests and fixtures collected live for the whole run: out of every GC walk."""
+    gc.collect()
+    gc.freeze()
 
 
 # ---- spreading the files over the test processes (`make test`: -n 2 --dist loadfile) -----------
