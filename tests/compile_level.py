@@ -10,8 +10,10 @@ with both; a tiny TD3 chunk in 5.5 s, 2.2 s and 1.2 s; a cold suite ran 7:14 of 
 15:43-19:07. Scripts and users keep XLA's defaults; the persistent compilation cache keys entries
 by their XLA flags, so the two never share an entry.
 
-``apply()`` must run before JAX starts its backend (conftest does); subprocesses inherit the
-flags. On a machine with an accelerator plugin (a GPU) nothing changes. ``TEST_XLA_OPT=default``
+``apply()`` must run before JAX starts its backend (conftest's ``pytest_configure`` does);
+subprocesses inherit the flags. A run that selects the slow tests (``-m slow``, ``make test-slow``)
+keeps XLA's defaults: those tests train RESULTS.md's rows, whose times and seed paths are the
+defaults'. On a machine with an accelerator plugin (a GPU) nothing changes. ``TEST_XLA_OPT=default``
 keeps XLA's defaults for the whole suite. Bit-for-bit checks against records made at other
 flags, or between two programs that the older emitters fuse differently, use
 ``default_level_env()`` (a subprocess) or ``default_emitters()`` (one jit's options).
@@ -43,9 +45,23 @@ def _accelerator_plugin() -> bool:
     return any(True for _ in pkgutil.iter_modules(jax_plugins.__path__))
 
 
-def apply() -> None:
+def selects_slow(markexpr: str) -> bool:
+    """Whether a pytest ``-m`` expression can select tests marked ``slow`` (the suite's own
+    ``not slow`` cannot)."""
+    return "slow" in markexpr and " ".join(markexpr.split()) != "not slow"
+
+
+def apply(markexpr: str = "") -> None:
+    """The tests' flags into ``XLA_FLAGS``, unless kept at XLA's defaults: by
+    ``TEST_XLA_OPT=default``, by a level already given, or because ``markexpr`` selects slow
+    tests. Those train RESULTS.md's rows, in this process or in scripts that inherit the flags,
+    and the rows' wall-clock goals and seed paths were measured at XLA's defaults: at these flags
+    the half-cheetah row ran 2.2x slower (18:24 against 8:33 on one Intel machine, and other
+    returns)."""
     flags = os.environ.get("XLA_FLAGS", "")
     if os.environ.get("TEST_XLA_OPT") == "default" or "xla_backend_optimization_level" in flags:
+        return
+    if selects_slow(markexpr):
         return
     if _accelerator_plugin():
         return

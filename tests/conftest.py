@@ -13,10 +13,7 @@ import jax
 if str(Path(__file__).resolve().parent) not in sys.path:
     sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-# LLVM -O0 for the tests' programs, set before JAX starts its backend (compile_level.py says why).
 import compile_level  # noqa: E402
-
-compile_level.apply()
 
 from rl_jax.training.jax_setup import configure  # noqa: E402
 
@@ -26,11 +23,6 @@ jax.config.update("jax_numpy_rank_promotion", "raise")
 # the suite compiles hundreds of small programs, eager ops and test-only jits, and a warm cache
 # makes a rerun of such files 2-3x faster here (test_dqn_losses 22 s -> 8 s, test_vmap 9 s -> 3 s).
 jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.0)
-# On a GPU, float32 matmuls default to TF32-like precision (about 3 decimal digits), and the tests
-# compare against float32 references (gymnasium, hand-computed losses); CPUs compute float32
-# matmuls in full precision already, so their programs (and fingerprints) stay as they are.
-if jax.default_backend() != "cpu":
-    jax.config.update("jax_default_matmul_precision", "highest")
 
 # Python's cyclic garbage collector, at its default thresholds, runs every 700 allocations and
 # walks every live object in its older generations: tracing a program allocates millions of small
@@ -38,6 +30,18 @@ if jax.default_backend() != "cpu":
 # frozen out of the walks, makes tracing and lowering ~25% faster (an MJX half-cheetah step: 5.8 s
 # -> 4.2 s here). Garbage is still collected, later.
 gc.set_threshold(50_000, 20, 20)
+
+
+def pytest_configure(config):
+    """LLVM -O0 for the tests' programs (compile_level.py says why), set before JAX starts its
+    backend; a run that selects the slow tests keeps XLA's defaults."""
+    compile_level.apply(config.getoption("markexpr", "") or "")
+    # On a GPU, float32 matmuls default to TF32-like precision (about 3 decimal digits), and the
+    # tests compare against float32 references (gymnasium, hand-computed losses); CPUs compute
+    # float32 matmuls in full precision already, so their programs (and fingerprints) stay as they
+    # are. (This starts JAX's backend: after the flags.)
+    if jax.default_backend() != "cpu":
+        jax.config.update("jax_default_matmul_precision", "highest")
 
 
 def pytest_collection_finish(session):
