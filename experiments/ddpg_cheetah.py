@@ -25,13 +25,7 @@ from rl_jax.agents.td3 import ddpg
 # that make TD3 what it is stay DDPG's. One critic and an actor update per critic update run
 # about as fast as TD3's two critics with the actor every second step, so the TD3 script's
 # measured throughput serves for the estimate.
-TD3_ONLY = ("num_critics", "policy_delay", "target_noise", "target_noise_clip")
-SCRIPT = dataclasses.replace(
-    td3_cheetah.SCRIPT,
-    algorithm=ddpg,
-    config={k: v for k, v in td3_cheetah.SCRIPT.config.items() if k not in TD3_ONLY},
-    hparams={k: v for k, v in td3_cheetah.SCRIPT.hparams.items() if k not in TD3_ONLY},
-)
+SCRIPT = dataclasses.replace(td3_cheetah.SCRIPT, algorithm=ddpg)
 
 if __name__ == "__main__":
     SCRIPT.main(__doc__)

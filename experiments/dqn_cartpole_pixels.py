@@ -28,13 +28,7 @@ examples:
 from rl_jax.agents.dqn import dqn
 from rl_jax.run.script import Script
 
-SCRIPT = Script(
-    dqn,
-    "rl_jax/CartPolePixels-v1",
-    seeds=3,
-    total_steps=200_000,  # env steps per seed
-    throughput=(117.0, 3),  # env steps/s per seed with 3 seeds: 200k in 28 minutes (RESULTS.md)
-)
+SCRIPT = Script(dqn, "rl_jax/CartPolePixels-v1", seeds=3, total_steps=200_000)
 
 if __name__ == "__main__":
     SCRIPT.main(__doc__)

@@ -17,18 +17,7 @@ examples:
 from rl_jax.agents.td3 import td3
 from rl_jax.run.script import Script
 
-SCRIPT = Script(
-    td3,
-    "rl_jax/Pendulum-v1",  # on top of td3.default_config: the Pendulum recipe
-    seeds=5,
-    # env steps per seed. At 20k, 4/5 seeds ended >= -200 (one policy had just swung to -862);
-    # at 30k, 5/5 (-111 to -165), with or without rates decaying to 0 (5 seeds, load ~1.5).
-    total_steps=30_000,
-    # (env steps/s per seed, seeds) measured with these defaults on a quiet 2-core machine
-    # (seeds spread as 3 + 3 over both cores, evaluations included: 830-850; 630 as 5 on one
-    # device): the plan's time estimate before training starts.
-    throughput=(830.0, 5),
-)
+SCRIPT = Script(td3, "rl_jax/Pendulum-v1", seeds=5, total_steps=30_000)
 
 if __name__ == "__main__":
     SCRIPT.main(__doc__)

@@ -30,6 +30,5 @@ if __name__ == "__main__":
         __doc__,
         seeds=2,
         total_steps=100,
-        config={"iterations_per_chunk": 5},
         argv=argv,
     )

@@ -59,6 +59,7 @@ from rl_jax.training import (
 )
 from rl_jax.training.algorithm import RecipeBook
 from rl_jax.training.offpolicy import OffPolicyConfig, TrainState
+from rl_jax.training.recipes import Recipe, Recipes
 from rl_jax.training.replay import NStepBatch, Transition
 
 
@@ -454,14 +455,14 @@ _CARTPOLE = {
     "checkpoint_episodes": 20,
     "checkpoint_episodes_from": 20_000,
 }
-RECIPES: dict[str, dict[str, Any]] = {
+_CONFIGS: dict[str, dict[str, Any]] = {
     "rl_jax/CartPole-v1": _CARTPOLE,
     # Pixels (RESULTS.md): 50k frame pairs (~0.7 GB per seed), one batch-32 update per 4 env steps,
     # Double DQN, 3-step returns and slower targets; with CartPole's own settings the Q-values
     # climbed towards 1 / (1 - gamma) and episodes stayed at the random ~20 steps. LayerNorm in
     # the 256-unit layer learns about twice as fast (every seed at 500 by ~100k steps instead of
-    # ~180k), and with the rate decaying to 0 over the run (HPARAM_RECIPES) the latest policies
-    # scored 475 / 493 / 500 on 100 fresh episodes (the constant rate's: 151 / 211 / 424).
+    # ~180k), and with the rate decaying to 0 over the run (its hyperparameters below) the latest
+    # policies scored 475 / 493 / 500 on 100 fresh episodes (the constant rate's: 151 / 211 / 424).
     "rl_jax/CartPolePixels-v1": {
         **_CLASSIC,
         "hidden": (256,),
@@ -483,7 +484,7 @@ RECIPES: dict[str, dict[str, Any]] = {
     "rl_jax/RocketSettle-v0": {**_CLASSIC, "action_bins": 5, "norm": "layer"},
 }
 _FAST_DECAY = {"learning_rate": 1e-3, "epsilon_decay_steps": 8000.0, "epsilon_end": 0.04}
-HPARAM_RECIPES: dict[str, dict[str, float]] = {
+_HPARAMS: dict[str, dict[str, float]] = {
     # A constant rate (the checkpoint keeps what was learned); epsilon 0.01 after 8k steps, so
     # that the training episodes that assess a copy are nearly its greedy policy's.
     "rl_jax/CartPole-v1": {**_FAST_DECAY, "learning_rate": 3e-3, "epsilon_end": 0.01},
@@ -500,22 +501,45 @@ HPARAM_RECIPES: dict[str, dict[str, float]] = {
     },
 }
 
+_ABOUT = {
+    "rl_jax/CartPole-v1": "64x64, 3-step returns, rate 3e-3, TD7's policy checkpoints",
+    "rl_jax/CartPolePixels-v1": "conv torso, Double DQN, 3-step returns, LayerNorm, rate to 0",
+    "rl_jax/InvertedPendulum-v5": "the classic-control base: 256x256, 4 envs, rate 1e-3",
+    "rl_jax/Rocket-v0": "the classic-control base, thrust {-1, 0, +1}",
+    "rl_jax/RocketSettle-v0": "thrust {-1, -0.5, 0, 0.5, 1}, LayerNorm, gamma 0.995",
+}
+# (env steps/s per seed, seeds): 3 pixel seeds took 200k steps in 28 minutes (RESULTS.md)
+_THROUGHPUT = {"rl_jax/CartPolePixels-v1": (117.0, 3)}
+RECIPES = Recipes(
+    *(
+        Recipe(
+            "default",
+            about,
+            _CONFIGS[env_id],
+            _HPARAMS.get(env_id, {}),
+            envs=(env_id,),
+            throughput=_THROUGHPUT.get(env_id),
+        )
+        for env_id, about in _ABOUT.items()
+    )
+)
+
 
 class DQN(RecipeBook):
     """DQN as an ``rl_jax.training.algorithm.Algorithm``."""
 
     name = "dqn"
     config_type, hparams_type = Config, Hyperparams
-    recipes, hparam_recipes = RECIPES, HPARAM_RECIPES
+    recipes = RECIPES
     # Gradients are always clipped here: a norm of 0 would zero them (REINFORCE's 0 means off).
     ranges = {"max_grad_norm": validation.POSITIVE}
 
-    def default_config(self, env_id: str, **overrides: Any) -> Config:
+    def default_config(self, env_id: str, recipe: str | None = None, **overrides: Any) -> Config:
         """The recipe's ``Config``; a ``PixelConfig`` for the envs of ``PIXEL_ENVS``."""
         if env_id not in PIXEL_ENVS:
-            return super().default_config(env_id, **overrides)
-        recipe = {**self.recipes.get(env_id, {}), **self.config_overrides, **overrides}
-        return PixelConfig(env_id=env_id, **recipe)
+            return super().default_config(env_id, recipe, **overrides)
+        values = {**self.recipe(env_id, recipe).config, **overrides}
+        return PixelConfig(env_id=env_id, **values)
 
     def init(self, key: jax.Array, config: Config, hparams: Hyperparams) -> TrainState:
         return offpolicy.init(LEARNER, key, config, hparams)

@@ -56,6 +56,7 @@ from rl_jax.agents.reinforce_policy import (
 )
 from rl_jax.training import episodes, networks, normalization, params
 from rl_jax.training.algorithm import ChunkMetrics, RecipeBook
+from rl_jax.training.recipes import Recipe, Recipes
 
 BASELINES = ("none", "mean", "value")
 
@@ -286,7 +287,7 @@ def step_slots_per_update(config: Config) -> int:
 # Std 0.3 kept every seed moving but slowly: 540-2,270 after 160 updates, where 0.2 had three
 # seeds near 9,000.
 # CartPole's recipe is an untuned starting point.
-RECIPES: dict[str, dict[str, Any]] = {
+_CONFIGS: dict[str, dict[str, Any]] = {
     "rl_jax/InvertedPendulum-v5": {"num_envs": 16, "normalize_returns": True},
     "rl_jax/InvertedDoublePendulum-v5": {
         "num_envs": 32,
@@ -301,7 +302,7 @@ RECIPES: dict[str, dict[str, Any]] = {
     },
     "rl_jax/CartPole-v1": {"num_envs": 16, "normalize_returns": True},
 }
-HPARAM_RECIPES: dict[str, dict[str, float]] = {
+_HPARAMS: dict[str, dict[str, float]] = {
     # 5 seeds x {rate 1e-3, 3e-3} over 300 updates (4.8M step slots): 1e-3 climbs steadily but
     # two seeds were at 138 and 392 after 180 updates; 3e-3 reaches 1,000 in every seed within
     # 100-140 updates but then collapses and recovers. 3e-3 decaying to 0 over the 300 updates:
@@ -315,13 +316,25 @@ HPARAM_RECIPES: dict[str, dict[str, float]] = {
     "rl_jax/CartPole-v1": {"learning_rate": 1e-3},
 }
 
+_ABOUT = {
+    "rl_jax/InvertedPendulum-v5": "gymnasium's tutorial network, 16 envs, rate 3e-3 to 0",
+    "rl_jax/InvertedDoublePendulum-v5": "64x64, value baseline, 32 envs, rate 1.5e-3 to 0",
+    "rl_jax/CartPole-v1": "the tutorial's network, 16 envs, rate 1e-3 (untuned)",
+}
+RECIPES = Recipes(
+    *(
+        Recipe("default", about, _CONFIGS[env_id], _HPARAMS.get(env_id, {}), envs=(env_id,))
+        for env_id, about in _ABOUT.items()
+    )
+)
+
 
 class Reinforce(RecipeBook):
     """REINFORCE as an ``rl_jax.training.algorithm.Algorithm``."""
 
     name = "reinforce"
     config_type, hparams_type = Config, Hyperparams
-    recipes, hparam_recipes = RECIPES, HPARAM_RECIPES
+    recipes = RECIPES
 
     def init(self, key: jax.Array, config: Config, hparams: Hyperparams) -> TrainState:
         return init(key, config, hparams)

@@ -66,14 +66,13 @@ from rl_jax.agents.td3_recipes import (  # noqa: F401  (re-exported: scripts rea
     GPU_CHEETAH_CONFIG,
     HPARAM_RECIPES,
     MUJOCO_SUITE,
-    NAMED_RECIPE_ENVS,
-    NAMED_RECIPES,
     PAPER_2018_CONFIG,
     PAPER_2018_HPARAMS,
     PAPER_CONFIG,
     PAPER_HPARAMS,
     PAPER_RECIPE_CONFIG,
     RECIPES,
+    TD3_RECIPES,
     TD7_CONFIG,
     TD7_CPU_CONFIG,
     TD7_CPU_HPARAMS,
@@ -337,10 +336,7 @@ class TD3Family(RecipeBook):
     """TD3 or DDPG as an ``rl_jax.training.algorithm.Algorithm``; the two differ only in their
     settings."""
 
-    config_type, hparams_type = Config, Hyperparams
-    recipes, hparam_recipes = RECIPES, HPARAM_RECIPES
-    named_recipes = NAMED_RECIPES
-    named_recipe_envs = NAMED_RECIPE_ENVS
+    recipes = TD3_RECIPES
     ranges = {
         "renorm_warmup": validation.NON_NEGATIVE,
         "adam_b1": validation.Range(0.0, 1.0, high_open=True),
@@ -352,12 +348,9 @@ class TD3Family(RecipeBook):
         "checkpoint_reset_weight": validation.NON_NEGATIVE,
     }
 
-    def __init__(
-        self, name: str, config_overrides: dict[str, Any], hparam_overrides: dict[str, Any]
-    ):
+    def __init__(self, name: str, config_type: type, hparams_type: type):
         self.name = name
-        self.config_overrides = config_overrides
-        self.hparam_overrides = hparam_overrides
+        self.config_type, self.hparams_type = config_type, hparams_type
 
     def init(self, key: jax.Array, config: Config, hparams: Hyperparams) -> TrainState:
         return offpolicy.init(LEARNER, key, config, hparams)
@@ -378,5 +371,20 @@ class TD3Family(RecipeBook):
         return lambda obs: act(agent, obs, config)
 
 
-td3 = TD3Family("td3", {}, {})
-ddpg = TD3Family("ddpg", {"num_critics": 1, "policy_delay": 1}, {"target_noise": 0.0})
+@dataclasses.dataclass(frozen=True, kw_only=True)
+class DDPGConfig(Config):
+    """DDPG's defaults: one critic, updated with the actor at every step."""
+
+    num_critics: int = 1
+    policy_delay: int = 1
+
+
+@struct.dataclass
+class DDPGHyperparams(Hyperparams):
+    """DDPG's defaults: no target policy smoothing."""
+
+    target_noise: Any = 0.0
+
+
+td3 = TD3Family("td3", Config, Hyperparams)
+ddpg = TD3Family("ddpg", DDPGConfig, DDPGHyperparams)

@@ -1,10 +1,13 @@
-"""TD3's and DDPG's recipes: per-env settings on top of the paper's defaults, and named variants
-of the whole loop, each with the measurements that chose it (RESULTS.md, BENCHMARKS.md).
+"""TD3's and DDPG's recipes (``rl_jax.training.recipes``): each env's default on top of the
+paper's settings (the ``Config``/``Hyperparams`` defaults), and named alternatives, each with the
+measurements that chose it (RESULTS.md, BENCHMARKS.md).
 """
 
 from __future__ import annotations
 
 from typing import Any
+
+from rl_jax.training.recipes import Recipe, Recipes
 
 # Per-env recipes on top of the paper's defaults (measured: see the slow tests). Small networks
 # and 4 envs with 4 updates per iteration (one update per env step, as in the paper) suffice for
@@ -174,18 +177,113 @@ GPU_CHEETAH_CONFIG: dict[str, Any] = {
     "iterations_per_chunk": 384,  # 24,576 env steps per seed between evaluations
     "buffer_size": 500_000,
 }
-#: Named variants of the whole recipe, (config, hyperparameters) overrides on any env's recipe:
-#: ``--recipe NAME`` of experiments/train.py (and of scripts without recipes of their own).
-NAMED_RECIPES: dict[str, tuple[dict[str, Any], dict[str, Any]]] = {
-    "paper": (PAPER_RECIPE_CONFIG, PAPER_HPARAMS),
-    "paper-2018": (PAPER_2018_CONFIG, PAPER_2018_HPARAMS),
-    "td7": (TD7_CONFIG, TD7_HPARAMS),
-    "td7-cpu": (TD7_CPU_CONFIG, TD7_CPU_HPARAMS),
+PAPER_2018_LONG_WARMUP = ("rl_jax/HalfCheetah-v5", "rl_jax/Ant-v5")
+CHEETAH = "rl_jax/HalfCheetah-v5"
+# The half-cheetah CPU loop at 128 x 128 and rate 1e-3, the suite's starting point.
+_CHEETAH_CPU = {**RECIPES[CHEETAH], **FAST_CHEETAH_CONFIG}
+# The inverted double pendulum: one update per env step in 4 envs, the paper's evaluation interval.
+_DOUBLE_PENDULUM = {
+    "num_envs": 4,
+    "updates_per_iteration": 4,
+    "iterations_per_chunk": 1_250,
+    "learning_starts": 10_000,
+    "buffer_size": 200_000,  # the whole run (x seeds) fits in memory with room to spare
 }
-#: Per-env config overrides of a named recipe, on top of it: the 2018 runs started learning after
-#: 10,000 random steps on the two envs that do not end early (run_experiments.sh).
-NAMED_RECIPE_ENVS: dict[str, dict[str, dict[str, Any]]] = {
-    "paper-2018": {
-        env_id: {"learning_starts": 10_000} for env_id in ("rl_jax/HalfCheetah-v5", "rl_jax/Ant-v5")
-    },
-}
+
+#: TD3's recipes (DDPG's too: its own defaults differ, its recipes are these).
+TD3_RECIPES = Recipes(
+    Recipe(
+        "default",
+        "64x64 networks, 4 envs x 4 updates per iteration",
+        RECIPES["rl_jax/Pendulum-v1"],
+        envs=("rl_jax/Pendulum-v1",),
+        # seeds spread as 3 + 3 over both cores of a quiet 2-core machine
+        throughput=(830.0, 5),
+    ),
+    Recipe(
+        "default",
+        "the Pendulum loop, gamma 0.995, AR(1) exploration noise (rho 0.98, std 0.5)",
+        {**RECIPES["rl_jax/Rocket-v0"], "iterations_per_chunk": 625},
+        HPARAM_RECIPES["rl_jax/Rocket-v0"],
+        envs=("rl_jax/Rocket-v0", "rl_jax/RocketSettle-v0"),
+    ),
+    Recipe(
+        "default",
+        "the paper's networks, 4 envs x 4 updates per iteration, 10,000 warm-up steps",
+        _DOUBLE_PENDULUM,
+        envs=("rl_jax/InvertedDoublePendulum-v5",),
+    ),
+    Recipe(
+        "default",
+        "128x128 at rate 1e-3, batch 128, 4 envs x 4 updates, 10,000 warm-up steps",
+        _CHEETAH_CPU,
+        FAST_CHEETAH_HPARAMS,
+        envs=(CHEETAH,),
+        throughput=(280.0, 5),
+    ),
+    Recipe(
+        "default",
+        "half cheetah's CPU recipe: 128x128 at rate 1e-3, batch 128, 4 envs x 4 updates",
+        _CHEETAH_CPU,
+        FAST_CHEETAH_HPARAMS,
+        envs=tuple(env_id for env_id in MUJOCO_SUITE if env_id != "rl_jax/Humanoid-v5"),
+    ),
+    Recipe(
+        "default",
+        "half cheetah's CPU recipe, observations standardised by running statistics",
+        RECIPES["rl_jax/Humanoid-v5"],
+        FAST_CHEETAH_HPARAMS,
+        envs=("rl_jax/Humanoid-v5",),
+    ),
+    Recipe(
+        "paper-width",
+        "the paper's 256x256 networks at rate 3e-4 in the CPU loop",
+        RECIPES[CHEETAH],
+        envs=(CHEETAH,),
+        throughput=(96.0, 5),
+    ),
+    Recipe(
+        "paper",
+        "the TD3 repository's recipe since 2019: 256x256 at rate 3e-4, one env, batch 256, "
+        "25,000 warm-up steps",
+        PAPER_RECIPE_CONFIG,
+        PAPER_HPARAMS,
+    ),
+    Recipe(
+        "paper-2018",
+        "the settings of the TD3 paper's own runs: 400x300 at rate 1e-3, one env, batch 100, "
+        "1,000 warm-up steps",
+        PAPER_2018_CONFIG,
+        PAPER_2018_HPARAMS,
+    ),
+    Recipe(
+        "paper-2018",
+        "the settings of the TD3 paper's own runs: 400x300 at rate 1e-3, one env, batch 100, "
+        "10,000 warm-up steps",
+        {**PAPER_2018_CONFIG, "learning_starts": 10_000},
+        PAPER_2018_HPARAMS,
+        envs=PAPER_2018_LONG_WARMUP,
+    ),
+    Recipe(
+        "gpu",
+        "for one GPU (MJX): 64 envs per seed, batch 1,024, 32 updates per iteration",
+        {**RECIPES[CHEETAH], **GPU_CHEETAH_CONFIG},
+        FAST_CHEETAH_HPARAMS,
+        envs=(CHEETAH,),
+        total_steps=250_000,
+    ),
+    Recipe(
+        "td7",
+        "TD7 (Fujimoto et al. 2023): SALE, LAP, hard target copies every 250 updates, value "
+        "clipping, policy checkpoints on the paper's loop, every rate 3e-4",
+        TD7_CONFIG,
+        TD7_HPARAMS,
+    ),
+    Recipe(
+        "td7-cpu",
+        "TD7 in the half-cheetah CPU loop at 128 sizes (128-d embeddings), TD7's rates 3e-4",
+        {**RECIPES[CHEETAH], **TD7_CPU_CONFIG},
+        TD7_CPU_HPARAMS,
+        throughput=(61.0, 5),
+    ),
+)

@@ -121,12 +121,15 @@ def train(
     hparams: dict[str, Any] | None = None,
     log_interval: float = 30.0,
     quiet: bool = False,
+    recipe: str | None = None,
 ) -> Run:
     """Train ``algorithm`` ("td3", "ddpg", "dqn", "reinforce") on ``env_id`` with every seed in
     one compiled program, into a run directory (default ``runs/<env>__<algo>__<time>/``).
 
-    ``config`` / ``hparams`` override the recipe's fields by name (as the scripts' flags do);
-    ``total_steps`` defaults to 100,000 env steps per seed.
+    The settings are the learner's ``recipe`` for the env (None: its default; the names are
+    those of ``--recipe`` in the scripts), then ``config`` / ``hparams``, which override fields
+    by name (as the scripts' flags do); ``total_steps`` defaults to the recipe's budget, else
+    100,000 env steps per seed.
     """
     from rl_jax.run import cli
     from rl_jax.run.runner import run
@@ -135,8 +138,9 @@ def train(
 
     configure()
     learner = cli.resolve_algorithm(algorithm)
-    base_config = learner.default_config(env_id)
-    base_hparams = learner.default_hyperparams(env_id)
+    chosen = cli.take_recipe(["--recipe", recipe] if recipe else [], learner, env_id)[0]
+    base_config, base_hparams = cli.recipe_settings(learner, env_id, chosen)
+    total_steps = total_steps or chosen.total_steps
     chosen_config = cli.replace_fields(base_config, dict(config or {}), "config")
     chosen_hparams = cli.replace_fields(base_hparams, dict(hparams or {}), "hyperparameters")
     cli.validate_settings(learner, chosen_config, [chosen_hparams])

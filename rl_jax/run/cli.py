@@ -5,11 +5,13 @@ validation, and a top-level guard that turns every user error into one line on s
 An experiment script is a few lines::
 
     from rl_jax.run import cli
-    from rl_jax.agents import td3
+    from rl_jax.agents.td3 import td3
 
     if __name__ == "__main__":
-        cli.main(td3, "rl_jax/Pendulum-v1", __doc__, seeds=5, total_steps=20_000,
-                 config={"num_envs": 8}, hparams={"learning_rate": 1e-3})
+        cli.main(td3, "rl_jax/Pendulum-v1", __doc__, seeds=5, total_steps=20_000)
+
+Its settings are the learner's recipe for the env (``--recipe NAME``, else the env's default),
+then the flags.
 
 With ``algorithm=None`` / ``env_id=None`` the script takes ``--algo`` / ``--env`` flags instead.
 """
@@ -38,13 +40,13 @@ from rl_jax.run.flags import (
     flag_name,
     kind_of,
     parse_grid,
-    take_recipe,
 )
 from rl_jax.run.run_dir import load_algorithm, read_run_record
 from rl_jax.training import params
 from rl_jax.training.algorithm import hooks
 from rl_jax.training.jax_setup import configure_jax
 from rl_jax.training.params import dataclass_from_dict
+from rl_jax.training.recipes import PLAIN, Recipe
 from rl_jax.training.validation import out_of_range
 
 #: name -> "module" or "module:attribute" of every algorithm the CLI knows (imported on use).
@@ -101,64 +103,47 @@ def replace_fields(instance: Any, values: dict[str, Any], what: str) -> Any:
 
 @dataclasses.dataclass
 class Defaults:
-    """What a script chooses; flags override it."""
+    """What a script chooses; flags override it. Settings themselves come from the learner's
+    recipes (``rl_jax.training.recipes``): ``--recipe NAME``, else the env's ``"default"``."""
 
     seeds: int = 1
     total_steps: int = 100_000
-    config: dict[str, Any] = dataclasses.field(default_factory=dict)
-    hparams: dict[str, Any] = dataclasses.field(default_factory=dict)
-    # (env steps/s per seed, seeds) measured for this default config: the plan's time estimate
-    throughput: tuple[float, int] | None = None
-    # offer the algorithm's ``named_recipes`` as ``--recipe NAME`` (a script with recipes of its
-    # own offers those instead)
-    named_recipes: bool = True
-    # the flags as the user typed them, when a script took some out before (its own --recipe):
-    # the run records these as its command, so that the command reruns the same run
-    typed_argv: tuple[str, ...] | None = None
 
 
-def _recipes_of(algorithm: Any, defaults: Defaults) -> dict[str, tuple[dict, dict]]:
-    return dict(getattr(algorithm, "named_recipes", {})) if defaults.named_recipes else {}
-
-
-def with_named_recipe(
-    argv: list[str], algorithm: Any, defaults: Defaults, env_id: str | None = None
-) -> tuple[list[str], Defaults]:
-    """``--recipe NAME`` of the algorithm's ``named_recipes`` (whole recipes such as td3's
-    ``paper``: config and hyperparameter overrides on top of the env's recipe and the script's
-    defaults), taken out of ``argv``; for ``env_id``, with the recipe's overrides for that env
-    (``named_recipe_envs``). ``UsageError`` for an unknown name or with ``--resume`` (a resumed
+def take_recipe(argv: list[str], algorithm: Any, env_id: str) -> tuple[Recipe, list[str]]:
+    """``--recipe NAME`` of ``algorithm``'s recipes for ``env_id`` (else its ``"default"``),
+    taken out of ``argv``. ``UsageError`` for an unknown name or with ``--resume`` (a resumed
     run keeps the settings it recorded)."""
-    recipes = _recipes_of(algorithm, defaults)
-    if not recipes:
-        return argv, defaults
-    name, rest = take_recipe(argv, {"default": None, **recipes}, "default")
-    if name == "default":
-        return rest, defaults
+    pre = argparse.ArgumentParser(add_help=False)
+    pre.add_argument("--recipe", default=None)
+    known, rest = pre.parse_known_args(argv)
+    book = hooks(algorithm)
+    if known.recipe is None:
+        return book.recipe(env_id), rest
     if any(arg == "--resume" or arg.startswith("--resume=") for arg in rest):
         raise UsageError(
             "--recipe starts a new run; --resume continues a run with the settings it recorded"
         )
-    config, hparams = recipes[name]
-    per_env = getattr(algorithm, "named_recipe_envs", {}).get(name, {})
-    config = {**config, **per_env.get(env_id, {})}
-    return rest, dataclasses.replace(
-        defaults,
-        config={**defaults.config, **config},
-        hparams={**defaults.hparams, **hparams},
-        throughput=None,
-    )
-
-
-def _base(algorithm: Any, env_id: str, defaults: Defaults) -> tuple[Any, Any]:
-    """The algorithm's recipe for ``env_id`` with the script's overrides."""
     try:
-        config = algorithm.default_config(env_id)
-        hparams = algorithm.default_hyperparams(env_id)
+        return book.recipe(env_id, known.recipe), rest
+    except KeyError:
+        names = ", ".join(book.recipes.names(env_id))
+        raise UsageError(
+            f"--recipe {known.recipe}: {algorithm.name} has no such recipe for {env_id}; "
+            f"known: {names}"
+        ) from None
+
+
+def recipe_settings(algorithm: Any, env_id: str, recipe: Recipe) -> tuple[Any, Any]:
+    """The algorithm's settings under ``recipe`` for ``env_id`` (a learner without recipes
+    only ever has its defaults)."""
+    named = {} if recipe is PLAIN else {"recipe": recipe.name}
+    try:
+        config = algorithm.default_config(env_id, **named)
+        hparams = algorithm.default_hyperparams(env_id, **named)
     except (ValueError, TypeError, KeyError) as error:
         raise UsageError(f"{algorithm.name} cannot run {env_id}: {error}") from None
-    config = replace_fields(config, defaults.config, "config")
-    return config, replace_fields(hparams, defaults.hparams, "hyperparameters")
+    return config, hparams
 
 
 def validate_settings(algorithm: Any, config: Any, hparams_list: list[Any]) -> None:
@@ -195,24 +180,31 @@ def check_env_fits(algorithm: Any, config: Any, hparams: Any) -> None:
 
 
 def build_parser(
-    algorithm: Any, env_id: str, description: str, defaults: Defaults, choose: bool
+    algorithm: Any,
+    env_id: str,
+    description: str,
+    defaults: Defaults,
+    choose: bool,
+    recipe: Recipe | None = None,
 ) -> tuple[argparse.ArgumentParser, list[str], list[str]]:
+    """The parser of a script's flags, their defaults from ``recipe`` (None: the env's)."""
+    recipe = recipe or hooks(algorithm).recipe(env_id)
     parser = OneLineParser(
         description=description, formatter_class=argparse.RawDescriptionHelpFormatter
     )
     if choose:
         _add_choice_flags(parser)
-    add_run_flags(parser, defaults.seeds, defaults.total_steps)
-    recipes = _recipes_of(algorithm, defaults)
-    if recipes:  # taken out of argv before parsing (with_named_recipe); here for --help
-        parser.add_argument(
-            "--recipe",
-            metavar="NAME",
-            default="default",
-            help=f"a whole recipe of {algorithm.name} on top of the env's: default (the env's "
-            f"own), {', '.join(recipes)} (its named_recipes)",
-        )
-    config, hparams = _base(algorithm, env_id, defaults)
+    add_run_flags(parser, defaults.seeds, recipe.total_steps or defaults.total_steps)
+    recipes = hooks(algorithm).recipes.names(env_id)
+    # taken out of argv before parsing (take_recipe); here for --help
+    parser.add_argument(
+        "--recipe",
+        metavar="NAME",
+        default="default",
+        help=f"the whole set of {algorithm.name}'s settings for {env_id} that the flags below "
+        "start from: " + "; ".join(f"{name}: {about}" for name, about in recipes.items()),
+    )
+    config, hparams = recipe_settings(algorithm, env_id, recipe)
     config_names = add_dataclass_flags(parser, config, f"{algorithm.name} config (static)")
     hparam_names = add_dataclass_flags(parser, hparams, f"{algorithm.name} hyperparameters")
     return parser, config_names, hparam_names
@@ -290,15 +282,17 @@ def _resumed_settings(args: argparse.Namespace, algorithm: Any, env_id: str) -> 
     }
 
 
-def _fresh_settings(algorithm: Any, env_id: str, defaults: Defaults) -> dict[str, Any]:
-    """The script's defaults for a new run (flags are applied on top)."""
-    config, hparams = _base(algorithm, env_id, defaults)
+def _fresh_settings(
+    algorithm: Any, env_id: str, defaults: Defaults, recipe: Recipe
+) -> dict[str, Any]:
+    """The script's defaults under ``recipe`` for a new run (flags are applied on top)."""
+    config, hparams = recipe_settings(algorithm, env_id, recipe)
     return {
         "config": config,
         "hparams": [hparams],
         "seeds": defaults.seeds,
         "base_seed": 0,
-        "total_steps": defaults.total_steps,
+        "total_steps": recipe.total_steps or defaults.total_steps,
         "grid_fields": (),
     }
 
@@ -310,8 +304,11 @@ def build_spec(
     defaults: Defaults,
     names: tuple[list[str], list[str]],
     argv: list[str],
+    recipe: Recipe | None = None,
 ) -> Any:
-    """The ``RunSpec`` the flags describe (for ``--resume``: the recorded run, then the flags)."""
+    """The ``RunSpec`` the flags describe (for ``--resume``: the recorded run, then the flags),
+    on ``recipe``'s settings (None: the env's default recipe)."""
+    recipe = recipe or hooks(algorithm).recipe(env_id)
     from rl_jax.run.spec import RunSpec
 
     if args.resume is not None and args.out is not None and args.out != args.resume:
@@ -320,7 +317,7 @@ def build_spec(
     settings = (
         _resumed_settings(args, algorithm, env_id)
         if resume
-        else _fresh_settings(algorithm, env_id, defaults)
+        else _fresh_settings(algorithm, env_id, defaults, recipe)
     )
     config = replace_fields(settings["config"], _explicit(args, names[0]), "config")
     explicit_hparams = _explicit(args, names[1])
@@ -354,10 +351,8 @@ def build_spec(
         gif=args.gif,
         command=shlex.join([Path(sys.executable).name, sys.argv[0], *argv]),
         resume_command=f"{script} --resume {shlex.quote(str(out))}",
-        # The documented throughput holds for the script's own config only.
-        throughput=None
-        if resume or args.grid or _explicit(args, names[0])
-        else defaults.throughput,
+        # The recipe's measured throughput holds for its own config only.
+        throughput=None if resume or args.grid or _explicit(args, names[0]) else recipe.throughput,
     )
 
 
@@ -376,14 +371,14 @@ def run_experiment(
     algorithm, env_id, choose = _choose(argv, algorithm, env_id)
     if algorithm is None:
         return _help_without_algorithm(description or "", defaults)
-    # the run records the command as typed, --recipe included (a script's own too)
-    given = argv if defaults.typed_argv is None else list(defaults.typed_argv)
-    argv, defaults = with_named_recipe(argv, algorithm, defaults, env_id)
+    given = list(argv)  # the run records the command as typed, --recipe included
+    recipe, argv = take_recipe(argv, algorithm, env_id)
     parser, config_names, hparam_names = build_parser(
-        algorithm, env_id, description or "", defaults, choose
+        algorithm, env_id, description or "", defaults, choose, recipe
     )
     args = parser.parse_args(argv)
-    spec = build_spec(args, algorithm, env_id, defaults, (config_names, hparam_names), given)
+    names = (config_names, hparam_names)
+    spec = build_spec(args, algorithm, env_id, defaults, names, given, recipe)
     from rl_jax.run.runner import run
 
     result = run(spec)
@@ -401,23 +396,9 @@ def main(
     *,
     seeds: int = 1,
     total_steps: int = 100_000,
-    config: dict[str, Any] | None = None,
-    hparams: dict[str, Any] | None = None,
     argv: list[str] | None = None,
-    throughput: tuple[float, int] | None = None,
-    named_recipes: bool = True,
-    typed_argv: list[str] | None = None,
 ) -> NoReturn:
-    """Entry point of an experiment script: parse, run, exit with the right status.
-    ``throughput`` = (env steps/s per seed, seeds) measured for the script's defaults gives the
-    plan a time estimate before anything runs."""
-    defaults = Defaults(
-        seeds,
-        total_steps,
-        dict(config or {}),
-        dict(hparams or {}),
-        throughput=throughput,
-        named_recipes=named_recipes,
-        typed_argv=None if typed_argv is None else tuple(typed_argv),
-    )
+    """Entry point of an experiment script: parse, run, exit with the right status. The
+    settings are the learner's recipe for the env (``--recipe NAME``, else its default)."""
+    defaults = Defaults(seeds, total_steps)
     exit_now(guard(lambda: run_experiment(algorithm, env_id, description, argv, defaults)))

@@ -244,15 +244,3 @@ def parse_grid(specs: list[str], hparams: Any, config: Any) -> dict[str, list[An
             raise UsageError(f"--grid {name} given twice")
         grid[name] = list(grid_values(name, values, fields[name]))
     return grid
-
-
-def take_recipe(argv: list[str], recipes: dict[str, Any], default: str) -> tuple[str, list[str]]:
-    """A script's ``--recipe NAME`` (one of ``recipes``, else ``default``) and the other flags.
-    Raises ``UsageError`` for an unknown name."""
-    pre = argparse.ArgumentParser(add_help=False)
-    pre.add_argument("--recipe", default=default)
-    known, rest = pre.parse_known_args(argv)
-    if known.recipe not in recipes:
-        choices = ", ".join(recipes)
-        raise UsageError(f"--recipe {known.recipe}: unknown recipe; known: {choices}")
-    return known.recipe, rest

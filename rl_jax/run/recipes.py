@@ -21,8 +21,8 @@ def settings(learner: str, env_id: str, recipe: str | None) -> tuple[Any, dict, 
     """``(algorithm, config overrides, hyperparameter overrides)`` of ``learner``'s ``recipe``
     (None: the env's own)."""
     if learner == "td7":
-        config, hparams = td3_module.NAMED_RECIPES[{"cpu": "td7-cpu", "paper": "td7"}[recipe]]
-        return td3_module.td3, dict(config), dict(hparams)
+        chosen = td3_module.td3.recipe(env_id, {"cpu": "td7-cpu", None: "td7"}[recipe])
+        return td3_module.td3, dict(chosen.config), dict(chosen.hparams)
     if learner == "crossq":
         return td3_module.td3, dict(CROSSQ_CPU), dict(td3_module.FAST_CHEETAH_HPARAMS)
     return resolve_algorithm(learner), {}, {}

@@ -107,13 +107,15 @@ def build_specs(
 
     algorithm = cli.resolve_algorithm(sweep_args.algo)
     env_id = envs.core.registry.resolve_id(sweep_args.env)
+    recipe, rest = cli.take_recipe(rest, algorithm, env_id)
     parser, config_names, hparam_names = cli.build_parser(
-        algorithm, env_id, description, cli.Defaults(), choose=False
+        algorithm, env_id, description, cli.Defaults(), choose=False, recipe=recipe
     )
     args = parser.parse_args(rest)
     out = args.resume or args.out or default_out(env_id, algorithm.name)
     args.resume, args.out = None, None
-    base = cli.build_spec(args, algorithm, env_id, cli.Defaults(), (config_names, hparam_names), [])
+    names = (config_names, hparam_names)
+    base = cli.build_spec(args, algorithm, env_id, cli.Defaults(), names, [], recipe)
     axes = [parse_axis(spec, base.config, base.hparams[0]) for spec in sweep_args.grid]
     static = [axis for axis in axes if axis.static]
     dynamic = [axis for axis in axes if not axis.static]

@@ -27,6 +27,7 @@ from typing import Any, NamedTuple, Protocol
 import jax
 
 import envs
+from rl_jax.training.recipes import Recipe, Recipes
 
 PRNGKey = jax.Array
 
@@ -84,6 +85,14 @@ class OptionalHooks:
     policy_fields: tuple[str, ...] | None = None
     #: ``validation.Range`` of config or hyperparameter fields, before the rules by name.
     ranges: dict[str, Any] = {}
+    #: Named settings for envs (``rl_jax.training.recipes``). A learner with recipes takes
+    #: ``recipe=NAME`` in ``default_config`` and ``default_hyperparams``; without, it is only
+    #: ever asked for its defaults.
+    recipes: Recipes = Recipes()
+
+    def recipe(self, env_id: str, name: str | None = None) -> Recipe:
+        """Recipe ``name`` (None: the env's default) for ``env_id``; ``KeyError`` if none."""
+        return self.recipes.get(env_id, name)
 
     def env_steps_per_chunk(self, config: Any) -> int:
         """Env steps one ``train_chunk`` takes per seed: ``num_envs * iterations_per_chunk``."""
@@ -106,7 +115,15 @@ class OptionalHooks:
         return False
 
 
-HOOKS = ("policy_fields", "ranges", "env_steps_per_chunk", "validate", "make_env", "spread_runs")
+HOOKS = (
+    "policy_fields",
+    "ranges",
+    "recipes",
+    "env_steps_per_chunk",
+    "validate",
+    "make_env",
+    "spread_runs",
+)
 
 
 class _WithDefaults(OptionalHooks):
@@ -126,35 +143,27 @@ def hooks(algorithm: Any) -> OptionalHooks:
 
 
 class RecipeBook(OptionalHooks):
-    """Per-env defaults shared by the algorithm objects: ``default_config(env_id)`` and
-    ``default_hyperparams(env_id)`` are the algorithm's own defaults, then the documented recipe
-    for that env (``recipes`` / ``hparam_recipes``), then the caller's overrides.
+    """What the algorithm objects share: settings from the learner's defaults, then one of its
+    ``recipes`` (``rl_jax.training.recipes``: ``"default"`` unless a name is given), then the
+    caller's overrides.
 
-    Subclasses set ``name``, ``config_type``, ``hparams_type`` (with ``as_arrays()``),
-    ``recipes`` and ``hparam_recipes``; ``config_overrides`` / ``hparam_overrides`` let one
-    module offer variants (DDPG is TD3 with other settings).
+    Subclasses set ``name``, ``config_type``, ``hparams_type`` (with ``as_arrays()``) and
+    ``recipes``.
     """
 
     name: str
     config_type: type
     hparams_type: type
-    recipes: dict[str, dict[str, Any]] = {}
-    hparam_recipes: dict[str, dict[str, Any]] = {}
-    config_overrides: dict[str, Any] = {}
-    hparam_overrides: dict[str, Any] = {}
-    # whole recipes by name, (config, hyperparameter) overrides on any env's: --recipe NAME
-    named_recipes: dict[str, tuple[dict[str, Any], dict[str, Any]]] = {}
-    # config overrides of a named recipe for one env, on top of it: {recipe: {env_id: {...}}}
-    named_recipe_envs: dict[str, dict[str, dict[str, Any]]] = {}
 
-    def default_config(self, env_id: str, **overrides: Any) -> Any:
-        recipe = {**self.recipes.get(env_id, {}), **self.config_overrides, **overrides}
-        return self.config_type(env_id=env_id, **recipe)
+    def default_config(self, env_id: str, recipe: str | None = None, **overrides: Any) -> Any:
+        values = {**self.recipe(env_id, recipe).config, **overrides}
+        return self.config_type(env_id=env_id, **values)
 
-    def default_hyperparams(self, env_id: str | None = None, **overrides: Any) -> Any:
-        recipe = self.hparam_recipes.get(env_id, {}) if env_id else {}
-        values = {**recipe, **self.hparam_overrides, **overrides}
-        return self.hparams_type(**values).as_arrays()
+    def default_hyperparams(
+        self, env_id: str | None = None, recipe: str | None = None, **overrides: Any
+    ) -> Any:
+        values = self.recipe(env_id, recipe).hparams if env_id else {}
+        return self.hparams_type(**{**values, **overrides}).as_arrays()
 
     def __repr__(self) -> str:
         return f"<algorithm {self.name}>"

@@ -41,7 +41,7 @@ DQN_LOOP = {"iterations_per_chunk": 100, "learning_starts": 100, "buffer_size": 
 # name -> (learner, recipe or None for the env's own, env, config overrides, hparam overrides)
 RUNS: dict[str, tuple[str, str | None, str, dict, dict]] = {
     "td7-cpu": ("td7", "cpu", PENDULUM, LOOP, {}),
-    "td7": ("td7", "paper", PENDULUM, LOOP, {}),
+    "td7": ("td7", None, PENDULUM, LOOP, {}),
     "crossq-cpu": ("crossq", "cpu", PENDULUM, {**LOOP, "renorm_warmup": 150}, {}),
     "td3-simba": (
         "td3",

@@ -267,7 +267,6 @@ def test_the_options_state_checkpoints_and_a_resumed_run_ends_bit_identical(tmp_
 
 
 def test_the_td7_recipe_is_td7s_published_settings_and_trains():
-    from experiments.td3_cheetah import SCRIPT
     from rl_jax.agents.td3 import TD7_CONFIG, TD7_HPARAMS
 
     config = td3.default_config("rl_jax/HalfCheetah-v5", **TD7_CONFIG)
@@ -285,7 +284,7 @@ def test_the_td7_recipe_is_td7s_published_settings_and_trains():
     rates = [hparams[name] for name in ("actor_lr", "critic_lr", "encoder_lr")]
     assert rates == pytest.approx([3e-4] * 3)
     assert hparams["lap_alpha"] == pytest.approx(0.4)
-    assert SCRIPT.recipes["td7"].config == TD7_CONFIG
+    assert td3.default_config("rl_jax/HalfCheetah-v5", "td7") == config
     assert validation.out_of_range(config, td3) is None
     assert validation.out_of_range(td3.default_hyperparams(**TD7_HPARAMS), td3) is None
     refused = validation.out_of_range(td3.default_hyperparams(lap_alpha=1.5), td3)
@@ -298,11 +297,10 @@ def test_the_td7_recipe_is_td7s_published_settings_and_trains():
 
 
 def test_the_td7_cpu_recipe_is_td7s_options_in_the_cpu_loop_at_its_sizes():
-    from experiments.td3_cheetah import SCRIPT
     from rl_jax.agents.td3 import TD7_CONFIG, TD7_CPU_CONFIG, TD7_CPU_HPARAMS, TD7_HPARAMS
 
     cpu = td3.default_config("rl_jax/HalfCheetah-v5", **TD7_CPU_CONFIG)
-    default = td3.default_config("rl_jax/HalfCheetah-v5", **SCRIPT.config)
+    default = td3.default_config("rl_jax/HalfCheetah-v5")
     td7 = td3.default_config("rl_jax/HalfCheetah-v5", **TD7_CONFIG)
     loop = ("num_envs", "updates_per_iteration", "batch_size", "learning_starts")
     sizes = ("actor_hidden", "critic_hidden")
@@ -315,4 +313,4 @@ def test_the_td7_cpu_recipe_is_td7s_options_in_the_cpu_loop_at_its_sizes():
         else:
             assert getattr(cpu, field) == getattr(td7, field), field
     assert TD7_CPU_HPARAMS == TD7_HPARAMS
-    assert SCRIPT.recipes["td7-cpu"].config == TD7_CPU_CONFIG
+    assert td3.default_config("rl_jax/HalfCheetah-v5", "td7-cpu") == cpu

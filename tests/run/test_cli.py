@@ -20,7 +20,7 @@ from rl_jax.run import cli, field_docs, flags
 from rl_jax.run.checkpoint import Checkpointer
 from rl_jax.run.plan import make_plan
 from rl_jax.run.run_dir import CHECKPOINT_DIR
-from rl_jax.run.script import Recipe, Script
+from rl_jax.run.script import Script
 from rl_jax.run.spec import RunSpec
 from rl_jax.run.start import fresh_start
 from rl_jax.training import params
@@ -250,36 +250,27 @@ BAD_INPUTS = {
 }
 
 
-def test_a_script_recipe_replaces_its_defaults_and_an_unknown_one_is_one_error():
-    script_steps = 1_000
-    script = Script(
-        fake,
-        fake.ENV_ID,
-        config={"iterations_per_chunk": 5},
-        throughput=(10.0, 1),
-        recipes={
-            "long": Recipe("longer chunks", config={"iterations_per_chunk": 50}),
-            "big": Recipe("a longer budget", total_steps=script_steps * 3),
-        },
-        total_steps=script_steps,
-    )
-    assert script.with_recipe(["--recipe", "big"])[0].total_steps == script_steps * 3
-    same, rest = script.with_recipe(["--seeds", "2"])
-    assert same is script and rest == ["--seeds", "2"]
-    chosen, rest = script.with_recipe(["--recipe", "long", "--seeds", "2"])
-    assert chosen.config == {"iterations_per_chunk": 50} and chosen.throughput is None
-    assert chosen.total_steps == script_steps  # a recipe without a budget keeps the script's
-    assert rest == ["--seeds", "2"] and chosen.env_id == script.env_id
-    assert script.with_recipe(["--recipe=default"])[0] is script
-    with pytest.raises(
-        cli.UsageError, match="--recipe short: unknown recipe; known: default, long, big"
-    ):
-        script.with_recipe(["--recipe", "short"])
+def test_a_recipe_is_whole_and_an_unknown_one_is_one_error():
+    from rl_jax.agents.td3 import td3
+
+    cheetah = "rl_jax/HalfCheetah-v5"
+    recipe, rest = cli.take_recipe(["--recipe", "gpu", "--seeds", "2"], td3, cheetah)
+    assert (recipe.name, recipe.total_steps, rest) == ("gpu", 250_000, ["--seeds", "2"])
+    default, rest = cli.take_recipe(["--seeds", "2"], td3, cheetah)
+    assert default.name == "default" and default.throughput == (280.0, 5)
+    assert cli.take_recipe(["--recipe=default"], td3, cheetah)[0] is default
+    with pytest.raises(cli.UsageError, match="--recipe short: td3 has no such recipe for rl_jax/"):
+        cli.take_recipe(["--recipe", "short"], td3, cheetah)
+    # a learner without recipes has only its defaults
+    assert cli.take_recipe([], fake, fake.ENV_ID)[0].name == "default"
+    with pytest.raises(cli.UsageError, match="known: default$"):
+        cli.take_recipe(["--recipe", "paper"], fake, fake.ENV_ID)
 
 
-def test_a_script_recipe_is_recorded_in_the_runs_command(monkeypatch, tmp_path):
-    """The command a run records reruns it: a script's own --recipe (which the script takes out
-    of the flags before parsing) is part of it, as typed."""
+def test_a_recipe_is_recorded_in_the_runs_command(monkeypatch, tmp_path):
+    """The command a run records reruns it: --recipe (which is taken out of the flags before
+    parsing) is part of it, as typed."""
+    from rl_jax.agents.td3 import td3
     from rl_jax.run import runner
 
     class Stop(Exception):
@@ -292,20 +283,15 @@ def test_a_script_recipe_is_recorded_in_the_runs_command(monkeypatch, tmp_path):
         raise Stop
 
     monkeypatch.setattr(runner, "run", capture)
-    script = Script(
-        fake,
-        fake.ENV_ID,
-        config={"iterations_per_chunk": 5},
-        recipes={"long": Recipe("longer chunks", config={"iterations_per_chunk": 50})},
-        total_steps=100,
-    )
+    script = Script(td3, "rl_jax/Pendulum-v1", total_steps=100)
     out = str(tmp_path / "run")
     with pytest.raises(Stop):
-        script.main("", ["--recipe", "long", "--seeds", "2", "--out", out])
-    assert specs[0].config.iterations_per_chunk == 50
-    assert specs[0].command.endswith(f"--recipe long --seeds 2 --out {out}")
+        script.main("", ["--recipe", "paper", "--seeds", "2", "--out", out])
+    assert specs[0].config.batch_size == 256 and specs[0].throughput is None
+    assert specs[0].command.endswith(f"--recipe paper --seeds 2 --out {out}")
     with pytest.raises(Stop):
         script.main("", ["--seeds", "2", "--out", out])
+    assert specs[1].config.actor_hidden == (64, 64) and specs[1].throughput == (830.0, 5)
     assert (
         specs[1].command.endswith(f"--seeds 2 --out {out}") and "--recipe" not in specs[1].command
     )
@@ -324,7 +310,7 @@ def run_in_process(argv: list[str]) -> tuple[str, str, int]:
 
     generic = "--generic" in argv
     argv = [arg for arg in argv if arg != "--generic"]
-    defaults = cli.Defaults(seeds=2, total_steps=100, config={"iterations_per_chunk": 5})
+    defaults = cli.Defaults(seeds=2, total_steps=100)
     algorithm, env_id = (None, None) if generic else (fake, fake.ENV_ID)
     out, err = io.StringIO(), io.StringIO()
     xla_flags = os.environ.get("XLA_FLAGS")
@@ -490,16 +476,14 @@ def test_a_named_recipe_reaches_the_run_with_its_overrides_for_the_chosen_env(mo
         assert config.actor_hidden == (400, 300)
 
 
-def test_train_py_offers_the_algorithms_named_recipes_as_whole_recipes():
-    from experiments.td3_cheetah import SCRIPT as CHEETAH
+def test_train_py_offers_the_learners_recipes_as_whole_recipes():
     from rl_jax.agents.td3 import ddpg, td3
 
-    hopper = "rl_jax/Hopper-v5"
-    defaults = cli.Defaults(seeds=5, total_steps=300_000)
-    rest, chosen = cli.with_named_recipe(["--recipe", "paper", "--seeds", "2"], td3, defaults)
+    hopper, cheetah = "rl_jax/Hopper-v5", "rl_jax/HalfCheetah-v5"
+    chosen, rest = cli.take_recipe(["--recipe", "paper", "--seeds", "2"], td3, hopper)
     assert rest == ["--seeds", "2"] and chosen.throughput is None
-    config = td3.default_config(hopper, **chosen.config)
-    rates = td3.default_hyperparams(hopper, **chosen.hparams).to_dict()
+    config, hparams = cli.recipe_settings(td3, hopper, chosen)
+    rates = hparams.to_dict()
     # the TD3 paper's loop, networks and rates, where Hopper's own recipe is the CPU one
     loop = (config.num_envs, config.updates_per_iteration, config.batch_size)
     assert loop == (1, 1, 256) and config.learning_starts == 25_000
@@ -507,39 +491,23 @@ def test_train_py_offers_the_algorithms_named_recipes_as_whole_recipes():
     assert [rates["actor_lr"], rates["critic_lr"]] == pytest.approx([3e-4, 3e-4])
     own = td3.default_config(hopper)
     assert (own.num_envs, own.actor_hidden) == (4, (128, 128))
-    assert cli.with_named_recipe(["--seeds", "2"], td3, defaults) == (["--seeds", "2"], defaults)
-    # the same recipe as td3_cheetah.py's --recipe paper on half cheetah
-    cheetah = "rl_jax/HalfCheetah-v5"
-    paper = CHEETAH.recipes["paper"]
-    assert td3.default_config(cheetah, **chosen.config) == td3.default_config(
-        cheetah, **paper.config
-    )
     # the paper's own 2018 runs: 400 x 300 at 1e-3, batch 100, and 1,000 random steps on Hopper
-    # but 10,000 on Ant and half cheetah (the env's overrides of the named recipe)
+    # but 10,000 on Ant and half cheetah (their own recipe of that name)
     for env_id, starts in ((hopper, 1_000), ("rl_jax/Ant-v5", 10_000), (cheetah, 10_000)):
-        _, chosen = cli.with_named_recipe(["--recipe", "paper-2018"], td3, defaults, env_id)
-        config = td3.default_config(env_id, **chosen.config)
-        rates = td3.default_hyperparams(env_id, **chosen.hparams).to_dict()
+        config = td3.default_config(env_id, "paper-2018")
+        rates = td3.default_hyperparams(env_id, "paper-2018").to_dict()
         loop = (config.num_envs, config.updates_per_iteration, config.batch_size)
         assert loop == (1, 1, 100) and config.learning_starts == starts, env_id
         assert (config.actor_hidden, config.critic_hidden) == ((400, 300), (400, 300))
         assert [rates["actor_lr"], rates["critic_lr"]] == pytest.approx([1e-3, 1e-3])
-    assert config == td3.default_config(cheetah, **CHEETAH.recipes["paper-2018"].config)
     # DDPG stays DDPG under the paper's loop
-    _, chosen = cli.with_named_recipe(["--recipe=paper"], ddpg, defaults)
-    ddpg_config = ddpg.default_config(hopper)
-    ddpg_config = dataclasses.replace(ddpg_config, **chosen.config)
+    ddpg_config = ddpg.default_config(hopper, "paper")
     assert (ddpg_config.num_critics, ddpg_config.policy_delay, ddpg_config.num_envs) == (1, 1, 1)
-    with pytest.raises(cli.UsageError, match="--recipe fast: unknown recipe; known: default, pa"):
-        cli.with_named_recipe(["--recipe", "fast"], td3, defaults)
-    with pytest.raises(cli.UsageError, match="--recipe starts a new run"):
-        cli.with_named_recipe(["--recipe", "paper", "--resume", "runs/x"], td3, defaults)
-    # --help lists them; a script with recipes of its own offers only those
-    parser, _, _ = cli.build_parser(td3, hopper, "", defaults, True)
-    assert "paper, paper-2018, td7, td7-cpu" in " ".join(parser.format_help().split())
-    own_recipes = dataclasses.replace(defaults, named_recipes=False)
-    parser, _, _ = cli.build_parser(td3, hopper, "", own_recipes, True)
-    assert "--recipe" not in parser.format_help()
-    assert cli.with_named_recipe(["--recipe", "x"], td3, own_recipes)[0] == ["--recipe", "x"]
-    # an algorithm without named recipes leaves the flag to argparse (an unknown flag)
-    assert cli.with_named_recipe(["--recipe", "paper"], fake, defaults)[0] == ["--recipe", "paper"]
+    assert float(ddpg.default_hyperparams(hopper, "paper").target_noise) == 0.0
+    with pytest.raises(cli.UsageError, match="starts a new run"):
+        cli.take_recipe(["--recipe", "paper", "--resume", "runs/x"], td3, hopper)
+    # --help lists them with their summaries
+    parser, _, _ = cli.build_parser(td3, hopper, "", cli.Defaults(), True)
+    text = " ".join(parser.format_help().split())
+    assert "paper: the TD3 repository's recipe since 2019" in text
+    assert "paper-2018: the settings of the TD3 paper's own runs" in text

@@ -129,11 +129,13 @@ def test_the_edges_of_each_range_and_every_recipe_are_accepted():
     assert validation.out_of_range(dqn.default_hyperparams(epsilon_end=1.0), dqn) is None
     assert validation.out_of_range(reinforce.default_hyperparams(max_grad_norm=0.0)) is None
     for algorithm in (td3, dqn, reinforce):
-        for env_id in {**algorithm.recipes, **algorithm.hparam_recipes}:
-            config = algorithm.default_config(env_id)
-            hparams = algorithm.default_hyperparams(env_id)
-            assert validation.out_of_range(config, algorithm) is None, (algorithm, env_id)
-            assert validation.out_of_range(hparams, algorithm) is None, (algorithm, env_id)
+        for recipe in algorithm.recipes:
+            for env_id in recipe.envs or ("rl_jax/Hopper-v5",):
+                config = algorithm.default_config(env_id, recipe.name)
+                hparams = algorithm.default_hyperparams(env_id, recipe.name)
+                where = (algorithm, env_id, recipe.name)
+                assert validation.out_of_range(config, algorithm) is None, where
+                assert validation.out_of_range(hparams, algorithm) is None, where
 
 
 @pytest.mark.parametrize("where", ["/proc/x", "/sys/x", "file/run", "file"])
