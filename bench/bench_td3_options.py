@@ -1,13 +1,13 @@
-"""What each of TD3's options costs: updates/s per seed of the half-cheetah training program with
-5 seeds in one program, each option alone and TD7's whole set, side by side with plain TD3.
+"""What TD3's network options, TD7 and CrossQ cost: updates/s per seed of the half-cheetah
+training program with 5 seeds in one program, side by side with plain TD3.
 
 ``python -m bench td3_options`` (about 18 minutes on 2 cores; run it alone). Two loops:
 
 * **TD7's loop** (the TD3 paper's: 1 env per seed, 1 update per env step, batch 256, 256 x 256
-  actor and critics; ``td3.PAPER_CONFIG``), where TD7's published settings live: plain TD3, then
-  each option alone on it, then ``--recipe td7`` (all of them, TD7's 256-d embeddings).
+  actor and critics), where TD7's published settings live: plain TD3, each network option,
+  CrossQ and TD7 (256-d embeddings) at those sizes.
 * **The CPU recipe's loop** (``td3_cheetah.py``'s default: 4 envs x 4 updates per iteration,
-  batch 128, 128 x 128): plain, SALE at 128-d embeddings, and TD7's set at those sizes, the
+  batch 128, 128 x 128): plain, TD7 at 128-d embeddings and CrossQ at those sizes, the
   candidates for a recipe chosen by return against wall-clock.
 
 Each program is ``bench.cheetah_recipe.measure``: the whole training chunk (env steps, replay,
@@ -43,15 +43,9 @@ def _loop(envs: int, batch: int, width: int) -> dict[str, Any]:
 
 PAPER_LOOP = _loop(1, 256, 256)
 CPU_LOOP = _loop(4, 128, 128)
-TD7_OPTIONS = {
-    "critic_activation": "elu",
-    "sale": True,
-    "lap": True,
-    "target_update_period": 250,
-    "value_clipping": True,
-    "policy_checkpoints": True,
-}
-#: (loop name, loop, [(label, overrides)]); plain TD3 first and last.
+SALE_128 = {"embedding_dim": 128, "embedding_hidden": [128, 128]}
+#: (loop name, loop, [(label, overrides)]); plain TD3 first and last. ``"learner"`` names a
+#: learner other than td3 (TD7 and CrossQ are learners of their own).
 CASES: list[tuple[str, dict[str, Any], list[tuple[str, dict[str, Any]]]]] = [
     (
         "TD7's loop (1 env, 1 update per step, batch 256, 256 x 256)",
@@ -60,19 +54,9 @@ CASES: list[tuple[str, dict[str, Any], list[tuple[str, dict[str, Any]]]]] = [
             ("plain TD3", {}),
             ("LayerNorm critics (`--critic-norm layer`)", {"critic_norm": "layer"}),
             ("ELU critics (`--critic-activation elu`)", {"critic_activation": "elu"}),
-            ("LAP (`--lap`)", {"lap": True}),
-            ("SALE, 256-d (`--sale`)", {"sale": True}),
-            (
-                "hard targets every 250 + value clipping",
-                {"target_update_period": 250, "value_clipping": True},
-            ),
-            ("policy checkpoints (`--policy-checkpoints`)", {"policy_checkpoints": True}),
             ("SimBa blocks (`--network simba`)", {"network": "simba"}),
-            (
-                "CrossQ: batch renorm, no targets",
-                {"critic_norm": "batch_renorm", "target_networks": False},
-            ),
-            ("all of TD7's (`--recipe td7`)", TD7_OPTIONS),
+            ("CrossQ at these widths (`--algo crossq`)", {"learner": "crossq"}),
+            ("TD7 (`--algo td7`)", {"learner": "td7"}),
             ("plain TD3 (again)", {}),
         ],
     ),
@@ -81,14 +65,8 @@ CASES: list[tuple[str, dict[str, Any], list[tuple[str, dict[str, Any]]]]] = [
         CPU_LOOP,
         [
             ("plain TD3 (`td3_cheetah.py`'s default)", {}),
-            (
-                "SALE, 128-d embeddings",
-                {"sale": True, "embedding_dim": 128, "embedding_hidden": [128, 128]},
-            ),
-            (
-                "TD7's options, 128-d embeddings",
-                {**TD7_OPTIONS, "embedding_dim": 128, "embedding_hidden": [128, 128]},
-            ),
+            ("TD7, 128-d embeddings (`--recipe td7-cpu`)", {"learner": "td7", **SALE_128}),
+            ("CrossQ (`--recipe crossq-cpu`)", {"learner": "crossq"}),
             ("LayerNorm critics", {"critic_norm": "layer"}),
             ("plain TD3 (again)", {}),
         ],
@@ -119,22 +97,23 @@ def _flops_range(jaxpr: Any) -> tuple[int, int]:
     return low, high
 
 
-def update_gflop(config: Any) -> float:
-    """Matmul GFLOP of one seed's whole update (SALE's encoder step and LAP included), the
+def update_gflop(config: Any, learner_name: str = "td3") -> float:
+    """Matmul GFLOP of one seed's whole update (TD7's encoder step and LAP included), the
     delayed actor step counted once per ``policy_delay`` updates: the only branch of the update
     that holds matmuls, so the cheapest path is the critic's and the dearest adds the actor's."""
+    import importlib
+
     import jax
     import jax.numpy as jnp
 
-    from rl_jax.agents import td3 as td3_module
-    from rl_jax.agents.td3 import td3
+    from rl_jax.run.cli import resolve_algorithm
 
-    hparams = td3.default_hyperparams(config.env_id)
-    state = td3.init(jax.random.key(0), config, hparams)
+    learner = resolve_algorithm(learner_name)
+    module = importlib.import_module(type(learner).__module__)
+    hparams = learner.default_hyperparams(config.env_id)
+    state = learner.init(jax.random.key(0), config, hparams)
     traced = jax.make_jaxpr(
-        lambda agent, buffer, key, index: td3_module.update(
-            agent, buffer, key, config, hparams, index
-        )
+        lambda agent, buffer, key, index: module.update(agent, buffer, key, config, hparams, index)
     )(state.agent, state.buffer, jax.random.key(1), jnp.int32(0))
     low, high = _flops_range(traced.jaxpr)
     return (low + (high - low) / config.policy_delay) / 1e9
@@ -145,7 +124,7 @@ def worker(recipe: dict[str, Any], chunks: int) -> dict[str, Any]:
     the end of each chunk (from two chunk lengths: the time per iteration is the difference of
     their chunk times over the difference of their iterations), and its update's FLOPs."""
     from bench import cheetah_recipe
-    from rl_jax.agents.td3 import td3
+    from rl_jax.run.cli import resolve_algorithm
 
     short = recipe["iterations_per_chunk"]
     runs = [
@@ -161,11 +140,10 @@ def worker(recipe: dict[str, Any], chunks: int) -> dict[str, Any]:
         "first_call_s": runs[1]["first_call_s"],
         "load": runs[1]["load"],
     }
-    config = td3.default_config(
-        cheetah_recipe.ENV_ID,
-        **{k: tuple(v) if isinstance(v, list) else v for k, v in recipe.items()},
-    )
-    measured["gflop_per_update"] = update_gflop(config)
+    settings = {k: tuple(v) if isinstance(v, list) else v for k, v in recipe.items()}
+    learner_name = settings.pop("learner", "td3")
+    config = resolve_algorithm(learner_name).default_config(cheetah_recipe.ENV_ID, **settings)
+    measured["gflop_per_update"] = update_gflop(config, learner_name)
     return measured
 
 
@@ -193,7 +171,7 @@ def _iterations(loop: dict[str, Any], overrides: dict[str, Any], quick: bool) ->
     chunk lengths take several seconds (the evaluation's time varies by a few tenths)."""
     if quick:
         return 10
-    heavy = overrides.get("sale") or overrides.get("network") == "simba"
+    heavy = overrides.get("learner") == "td7" or overrides.get("network") == "simba"
     if loop["num_envs"] == 1:
         return 40 if heavy else 300
     return 25 if heavy else 150

@@ -1,6 +1,6 @@
 """Train TD3 on half cheetah with S seeds in one program and log eval return vs steps and seconds.
 
-The evidence behind ``td3.RECIPES["rl_jax/HalfCheetah-v5"]``: a recipe (config overrides as
+The evidence behind td3's half-cheetah recipe: a recipe (config overrides as
 JSON) runs with ``rl_jax.training.parallel.Program`` on the MuJoCo C backend, one chunk at a time,
 and every chunk appends one JSON line (env steps per seed, wall-clock seconds since start with and
 without the first call's compilation, each seed's eval return, their mean, the load average)::
@@ -26,7 +26,12 @@ ENV_ID = "rl_jax/HalfCheetah-v5"
 
 def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawTextHelpFormatter)
-    p.add_argument("--recipe", default="{}", help="JSON of td3.Config overrides")
+    p.add_argument(
+        "--recipe",
+        default="{}",
+        help='JSON of Config overrides; "learner": "td7" (or another name) for a learner other '
+        "than td3",
+    )
     p.add_argument("--seeds", type=int, default=5)
     p.add_argument("--devices", type=int, default=1, help="CPU devices to shard seeds over")
     p.add_argument("--total-steps", type=int, default=1_000_000, help="env steps per seed")
@@ -39,19 +44,21 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
 
 def make_runner(recipe: dict[str, Any], seeds: int, hparam_sets: int = 1) -> tuple:
     """``(runner, state, hparams, config)`` for ``seeds`` x ``hparam_sets`` runs of a recipe
-    (hyperparameter sets identical: the grid benchmark measures cost, not learning)."""
-    from rl_jax.agents.td3 import td3
+    (hyperparameter sets identical: the grid benchmark measures cost, not learning); the
+    recipe's ``"learner"`` (default ``"td3"``) names its learner."""
+    from rl_jax.run.cli import resolve_algorithm
     from rl_jax.training import episodes, parallel, params
 
     # JSON gives lists; the static config must be hashable (it keys the compiled program)
     recipe = {k: tuple(v) if isinstance(v, list) else v for k, v in recipe.items()}
-    config = td3.default_config(ENV_ID, **recipe)
+    learner = resolve_algorithm(recipe.pop("learner", "td3"))
+    config = learner.default_config(ENV_ID, **recipe)
     # Build (and cache) the envs outside any trace: the MuJoCo env's constructor computes its
     # initial observation with jnp, which fails when first called under Program's eval_shape.
     episodes.make_train_env(config)
-    one = td3.default_hyperparams(ENV_ID)
+    one = learner.default_hyperparams(ENV_ID)
     hparams = params.stack([one] * hparam_sets)
-    runner = parallel.Program(td3, config, num_hparams=hparam_sets, num_seeds=seeds)
+    runner = parallel.Program(learner, config, num_hparams=hparam_sets, num_seeds=seeds)
     state = runner.init(parallel.seed_keys(list(range(seeds))), hparams)
     return runner, state, hparams, config
 

@@ -41,7 +41,7 @@ CHUNK_STEPS = 24_576
 #: name: (num_envs, batch_size, updates_per_iteration), in the order ``run`` tries them.
 #: Updates per env step = updates_per_iteration / num_envs; the CPU recipe makes 1 at batch 128.
 #: The first reached the goal on one H100 (5,180 at 172k steps, 53 s of training; BENCHMARKS.md)
-#: and is ``td3_cheetah.py --recipe gpu`` (``td3.GPU_CHEETAH_CONFIG``); the deadline came before
+#: and is ``td3_cheetah.py --recipe gpu`` (td3's recipe "gpu"); the deadline came before
 #: the others were timed.
 CANDIDATES = {
     "e64-b1024-u32": (64, 1024, 32),  # 0.5 update per env step

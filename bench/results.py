@@ -129,7 +129,7 @@ def _td7_cpu_cheetah(steps: int, reference: str, goal: float) -> Row:
     (10 seeds) and ``reference``'s other anchors; the goal is the mean of the 5 final returns."""
     suffix = "" if steps == 300_000 else f", {steps // 1_000_000}M steps"
     return Row(
-        f"TD3 + TD7's options at CPU sizes (`--recipe td7-cpu`), `rl_jax/HalfCheetah-v5`{suffix}",
+        f"TD7 at CPU sizes (`--recipe td7-cpu`), `rl_jax/HalfCheetah-v5`{suffix}",
         "td3_cheetah.py",
         ("--recipe", "td7-cpu", "--total-steps", str(steps)),
         5,
@@ -225,7 +225,7 @@ ROWS: dict[str, Row] = {
         "TD3 paper, HalfCheetah-v1: 9,637 at 1M steps; ~5,000 near 150k in its curves",
         Goal(5000.0, 5, "final", 10.0, mean=True),
     ),
-    # TD7's options (Fujimoto et al. 2023) in the CPU loop at its sizes (td3.TD7_CPU_CONFIG): the
+    # TD7's options (Fujimoto et al. 2023) in the CPU loop at its sizes (td7's recipe "cpu"): the
     # issue's goal, a mean of 12,000 at 300k steps. TD7's own sizes (--recipe td7) cost 6x more
     # per update: ~8 hours here, so not a row (RESULTS.md).
     "td7-cpu-cheetah": _td7_cpu_cheetah(
@@ -247,9 +247,9 @@ ROWS: dict[str, Row] = {
     # table, 10 seeds, v4 envs): the goal is to reach it at CPU sizes, as on half cheetah.
     **{
         f"td7-cpu-{name.lower()}": Row(
-            f"TD3 + TD7's options at CPU sizes (`--recipe td7-cpu`), `rl_jax/{name}-v5`",
+            f"TD7 at CPU sizes (`--algo td7 --recipe cpu`), `rl_jax/{name}-v5`",
             "train.py",
-            _suite_args(name, "--recipe", "td7-cpu"),
+            _suite_args(name, "--recipe", "cpu", algo="td7"),
             5,
             "TD7 paper's table (10 seeds, {}-v4): {:,} ± {} at 300k, {:,} ± {} at 1M; ".format(
                 name, *TD7_TABLE[name][0], *TD7_TABLE[name][1]
@@ -324,7 +324,7 @@ ROWS: dict[str, Row] = {
     ),
     # The settings of the paper's own runs, which made the curves the goal is read from (400 x 300
     # at rate 1e-3, batch 100, 1,000 random steps on Hopper and 10,000 on Ant;
-    # td3.PAPER_2018_CONFIG): on Hopper, and on Ant, where the CPU recipe ends below the band.
+    # td3's recipe "paper-2018"): on Hopper, and on Ant, where the CPU recipe ends below the band.
     **{
         f"td3-{name.lower()}-paper2018": Row(
             f"TD3, the paper's own settings (`--recipe paper-2018`), `rl_jax/{name}-v5`",

@@ -20,7 +20,9 @@ from jax.extend import core as jax_core
 from jax.sharding import Mesh, PartitionSpec
 
 from rl_jax.agents import td3 as td3_module
+from rl_jax.agents.actor_critic import CriticBatch
 from rl_jax.agents.td3 import td3
+from rl_jax.training import replay
 
 ENV_ID = "rl_jax/HalfCheetah-v5"
 MATMUL_SIZE = 1024
@@ -84,16 +86,17 @@ def update_flops(config: td3_module.Config) -> dict[str, float]:
     hparams = td3.default_hyperparams()
     state = td3.init(jax.random.key(0), config, hparams)
     nets = td3_module.make_networks(config)
-    batch = td3_module.replay.sample(state.buffer, jax.random.key(1), config.batch_size)
+    stored = replay.sample(state.buffer, jax.random.key(1), config.batch_size)
+    batch = CriticBatch.one_step(stored, hparams.gamma)
 
     def constant(rate):  # the learning-rate schedule: no decay
         return rate
 
     critic = jax.make_jaxpr(
-        lambda agent, key: td3_module._critic_step(agent, batch, key, hparams, nets, constant)
+        lambda agent, key: td3_module.critic_step(agent, batch, key, hparams, nets, constant)
     )(state.agent, jax.random.key(2))
     actor = jax.make_jaxpr(
-        lambda agent: td3_module._actor_and_target_step(agent, batch.obs, hparams, nets, constant)
+        lambda agent: td3_module.actor_step(agent, batch.obs, hparams, nets, constant)
     )(state.agent)
     critic_flops = jaxpr_matmul_flops(critic.jaxpr)
     actor_flops = jaxpr_matmul_flops(actor.jaxpr)
@@ -113,18 +116,18 @@ def update_dots(config: td3_module.Config, seeds: int) -> list[tuple[Any, float]
         jax.random.split(jax.random.key(0), seeds)
     )
     nets = td3_module.make_networks(config)
-    batch = jax.vmap(lambda b, k: td3_module.replay.sample(b, k, config.batch_size))(
-        state.buffer, jax.random.split(jax.random.key(1), seeds)
-    )
+    batch = jax.vmap(
+        lambda b, k: CriticBatch.one_step(replay.sample(b, k, config.batch_size), hparams.gamma)
+    )(state.buffer, jax.random.split(jax.random.key(1), seeds))
 
     def constant(rate):
         return rate
 
     def critic(agent, batch, key):
-        return td3_module._critic_step(agent, batch, key, hparams, nets, constant)
+        return td3_module.critic_step(agent, batch, key, hparams, nets, constant)
 
     def actor(agent, batch):
-        return td3_module._actor_and_target_step(agent, batch.obs, hparams, nets, constant)
+        return td3_module.actor_step(agent, batch.obs, hparams, nets, constant)
 
     keys = jax.random.split(jax.random.key(2), seeds)
     traced = [

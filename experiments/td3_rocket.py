@@ -6,8 +6,9 @@ before it moves anything: exploration here is temporally correlated (AR(1) noise
 correlation 0.98 and std 0.5, the discrete Ornstein-Uhlenbeck process of the original DDPG), and
 gamma is 0.995 (at 0.99 creeping towards the origin scores as well as arriving). 4 envs stepped
 together, one gradient update per env step, 64x64 networks, otherwise the TD3 paper's settings
-(td3.RECIPES / HPARAM_RECIPES, with the measurements behind them). Known shortfall: from (1, 0)
-the learned policies do not yet all settle inside |x|, |v| < 0.05 (tests/agents/test_td3_slow.py).
+(td3's recipe for the env in rl_jax/agents/td3_recipes.py, with the measurements behind it).
+Known shortfall: from (1, 0) the learned policies do not yet all settle inside |x|, |v| < 0.05
+(tests/agents/test_td3_slow.py).
 Episodes end after 500 steps, on leaving |x|, |v| <= 2 (-500) or on reaching the goal (+500).
 
 It prints its plan (envs, steps, memory, devices, estimated time) before it starts, then a

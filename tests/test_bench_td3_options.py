@@ -7,13 +7,17 @@ import pytest
 from bench import td3_programs
 from bench.bench_td3_options import update_gflop
 from rl_jax.agents.td3 import td3
+from rl_jax.agents.td7 import td7
 
 pytestmark = pytest.mark.filterwarnings("ignore::DeprecationWarning")
 
 
-def _config(**overrides):
+def _config(learner=td3, **overrides):
     base = {"actor_hidden": (32, 32), "critic_hidden": (32, 32), "batch_size": 16}
-    return td3.default_config("rl_jax/HalfCheetah-v5", **{**base, **overrides})
+    return learner.default_config("rl_jax/HalfCheetah-v5", **{**base, **overrides})
+
+
+SALE = {"embedding_dim": 8, "embedding_hidden": (32, 32)}
 
 
 def test_whole_update_count_equals_the_step_by_step_count_for_plain_td3():
@@ -30,16 +34,16 @@ def test_sale_encoder_loss_counts_its_products_by_hand():
     import jax.numpy as jnp
 
     from bench.bench_td3_options import _flops_range
-    from rl_jax.agents.td3_losses import CriticBatch, encoder_loss_fn
-    from rl_jax.agents.td3_networks import make_networks
+    from rl_jax.agents.actor_critic import CriticBatch
+    from rl_jax.agents.td7 import encoder_loss_fn, make_networks
 
-    config = _config(sale=True, embedding_dim=8, embedding_hidden=(32, 32))
-    nets = make_networks(config)
+    config = _config(td7, **SALE)
+    encoder = make_networks(config)[1]
     batch_size = 16
     obs, action = jnp.zeros((batch_size, 17)), jnp.zeros((batch_size, 6))
-    params = nets.encoder.init(jax.random.key(0), obs, action)
+    params = encoder.init(jax.random.key(0), obs, action)
     batch = CriticBatch(obs, action, jnp.zeros(batch_size), jnp.ones(batch_size), obs)
-    loss = jax.value_and_grad(lambda params, batch: encoder_loss_fn(params, batch, nets))
+    loss = jax.value_and_grad(lambda params, batch: encoder_loss_fn(params, batch, config))
     traced = jax.make_jaxpr(loss)(params, batch)
 
     def dense(n_in, n_out):
@@ -53,10 +57,10 @@ def test_sale_encoder_loss_counts_its_products_by_hand():
     assert _flops_range(traced.jaxpr) == (forward + backward + target,) * 2
 
 
-def test_sale_costs_more_than_its_encoder_step():
-    """The critics and the actor read the embeddings too: SALE's update costs its encoder step
-    plus wider first layers, so more than plain TD3's update and its encoder step together."""
+def test_td7_costs_more_than_td3():
+    """The critics and the actor read the embeddings too: TD7's update costs its encoder step
+    plus wider first layers, so more than plain TD3's update."""
     plain = update_gflop(_config())
-    sale = update_gflop(_config(sale=True, embedding_dim=8, embedding_hidden=(32, 32)))
+    sale = update_gflop(_config(td7, **SALE), "td7")
     assert sale > plain
     jax.clear_caches()

@@ -96,50 +96,6 @@ PAPER_CONFIG: dict[str, Any] = {
     "batch_size": 256,
     "learning_starts": 25_000,
 }
-# TD7 (Fujimoto et al. 2023), its settings as sfujim/TD7 publishes them (Hyperparameters, main.py):
-# the paper loop above (one env, one update per env step, batch 256, 25k random steps, eval every
-# 5,000 steps) with 256 x 256 actor and critics (ELU critics, ReLU actor), SALE with 256-d
-# embeddings from 256 x 256 ELU encoders, LAP at alpha 0.4, hard target copies every 250
-# updates, value clipping, and policy checkpoints (assessments of 1 episode, of 20 from 750k
-# steps with the score x 0.9 then). Every rate 3e-4; TD3's noise and policy delay 2 unchanged.
-# Its update is 2.65 GFLOP of matmuls (6.4x TD3's at these sizes): ~9 updates/s per seed with
-# 5 seeds on 2 cores. Options: td3.Config; differences from TD7: rl_jax.agents.td3_agent.
-TD7_CONFIG: dict[str, Any] = {
-    **PAPER_CONFIG,
-    "actor_hidden": (256, 256),
-    "critic_hidden": (256, 256),
-    "actor_activation": "relu",
-    "critic_activation": "elu",
-    "sale": True,
-    "embedding_dim": 256,
-    "embedding_hidden": (256, 256),
-    "lap": True,
-    "target_update_period": 250,
-    "value_clipping": True,
-    "policy_checkpoints": True,
-    "checkpoint_episodes": 20,
-    "checkpoint_episodes_from": 750_000,
-}
-TD7_HPARAMS: dict[str, Any] = {
-    "actor_lr": 3e-4,
-    "critic_lr": 3e-4,
-    "encoder_lr": 3e-4,
-    "lap_alpha": 0.4,
-    "checkpoint_reset_weight": 0.9,
-}
-# TD7's options in the CPU loop (4 envs x 4 updates per iteration, batch 128, 10k random steps,
-# eval every 5,000 steps) at its sizes: 128 x 128 actor and critics, 128-d embeddings from
-# 128 x 128 encoders, TD7's rates and everything else as TD7_CONFIG. A SALE update is 6x the
-# arithmetic of TD3's at the same sizes (bench td3_options), and TD7's own sizes on the paper's
-# loop cost 2.65 GFLOP per update: ~8 hours for 5 seeds x 300k steps on 2 cores, where this one
-# takes about 80 minutes (RESULTS.md, "TD3 at today's sample efficiency").
-TD7_CPU_CONFIG: dict[str, Any] = {
-    **{key: TD7_CONFIG[key] for key in TD7_CONFIG if key not in PAPER_CONFIG},
-    **FAST_CHEETAH_CONFIG,
-    "embedding_dim": 128,
-    "embedding_hidden": (128, 128),
-}
-TD7_CPU_HPARAMS: dict[str, Any] = dict(TD7_HPARAMS)
 # The TD3 paper's whole recipe on any env: its loop above, its 256 x 256 networks and its rates
 # (the Config and Hyperparams defaults, restated because the MuJoCo suite's recipes change them).
 PAPER_RECIPE_CONFIG: dict[str, Any] = {
@@ -271,19 +227,5 @@ TD3_RECIPES = Recipes(
         FAST_CHEETAH_HPARAMS,
         envs=(CHEETAH,),
         total_steps=250_000,
-    ),
-    Recipe(
-        "td7",
-        "TD7 (Fujimoto et al. 2023): SALE, LAP, hard target copies every 250 updates, value "
-        "clipping, policy checkpoints on the paper's loop, every rate 3e-4",
-        TD7_CONFIG,
-        TD7_HPARAMS,
-    ),
-    Recipe(
-        "td7-cpu",
-        "TD7 in the half-cheetah CPU loop at 128 sizes (128-d embeddings), TD7's rates 3e-4",
-        {**RECIPES[CHEETAH], **TD7_CPU_CONFIG},
-        TD7_CPU_HPARAMS,
-        throughput=(61.0, 5),
     ),
 )

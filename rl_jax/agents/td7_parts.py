@@ -1,5 +1,5 @@
-"""TD7's parts (Fujimoto et al. 2023, "For SALE: State-Action Learned Embeddings") as pure maths,
-for TD3's options (``rl_jax.agents.td3``): one code path, no separate TD7 agent.
+"""TD7's parts (Fujimoto et al. 2023, "For SALE: State-Action Learned Embeddings"): the pure maths
+of the ``td7`` learner (``rl_jax.agents.td7``) and the state it keeps beside its networks.
 
 * LAP, loss-adjusted prioritized replay (Fujimoto, Meger and Precup 2020, "An Equivalence between
   Loss Functions and Non-Uniform Sampling in Experience Replay"): transitions are drawn with
@@ -28,8 +28,14 @@ Naming as rlax (and ``td3``): ``td_tm1`` is the TD error of the transition's sta
 
 from __future__ import annotations
 
+from typing import Any
+
 import jax
 import jax.numpy as jnp
+import optax
+from flax import struct
+
+from rl_jax.training import policy_checkpoints
 
 #: LAP's floor on priorities, which is also where its loss turns from quadratic to linear.
 LAP_MIN_PRIORITY = 1.0
@@ -66,3 +72,46 @@ def sale_loss(zsa_tm1: jax.Array, zs_t: jax.Array) -> jax.Array:
 def value_clipped_target(r_t, discount_t, q_t, low, high) -> jax.Array:
     """``r_t + discount_t * clip(min_i q_t[i], low, high)`` with no gradient; ``q_t`` [C, B]."""
     return jax.lax.stop_gradient(r_t + discount_t * jnp.clip(jnp.min(q_t, axis=0), low, high))
+
+
+# ---- the state TD7 keeps beside its networks -----------------------------------------------------
+@struct.dataclass
+class Encoders:
+    """SALE's encoder (``networks.StateActionEncoder`` parameters) and its fixed copies."""
+
+    online: Any  # learns every update
+    fixed: Any  # what the actor and critics read: the online one at the last target update
+    fixed_target: Any  # what the targets read: the fixed one before that
+    opt: optax.OptState  # Adam state of ``online``
+
+    def renewed(self) -> Encoders:
+        """At a target update: fixed target <- fixed <- online."""
+        return self.replace(fixed_target=self.fixed, fixed=self.online)
+
+
+@struct.dataclass
+class ValueRange:
+    """Value clipping's bounds: bootstrap values are clipped to ``[low, high]``, the extremes of
+    the targets seen up to the last target update (``[0, 0]`` before the first, as TD7)."""
+
+    low: jax.Array  # [] float32
+    high: jax.Array
+    seen_min: jax.Array  # [] float32, the extremes of all targets so far
+    seen_max: jax.Array
+
+    @classmethod
+    def initial(cls) -> ValueRange:
+        zero = jnp.float32(0.0)
+        no_min = jnp.float32(policy_checkpoints.NO_EPISODE)
+        no_max = jnp.float32(policy_checkpoints.NO_SCORE)
+        return cls(low=zero, high=zero, seen_min=no_min, seen_max=no_max)
+
+    def seeing(self, target_range: tuple[jax.Array, jax.Array]) -> ValueRange:
+        low, high = target_range
+        return self.replace(
+            seen_min=jnp.minimum(self.seen_min, low), seen_max=jnp.maximum(self.seen_max, high)
+        )
+
+    def renewed(self) -> ValueRange:
+        """At a target update: the bounds become the extremes seen so far."""
+        return self.replace(low=self.seen_min, high=self.seen_max)

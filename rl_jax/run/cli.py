@@ -53,6 +53,8 @@ from rl_jax.training.validation import out_of_range
 ALGORITHMS: dict[str, str] = {
     "td3": "rl_jax.agents.td3:td3",
     "ddpg": "rl_jax.agents.td3:ddpg",
+    "td7": "rl_jax.agents.td7:td7",
+    "crossq": "rl_jax.agents.crossq:crossq",
     "dqn": "rl_jax.agents.dqn:dqn",
     "reinforce": "rl_jax.agents.reinforce:reinforce",
 }
@@ -128,10 +130,46 @@ def take_recipe(argv: list[str], algorithm: Any, env_id: str) -> tuple[Recipe, l
         return book.recipe(env_id, known.recipe), rest
     except KeyError:
         names = ", ".join(book.recipes.names(env_id))
+        learner, _, own = known.recipe.partition("-")
+        hint = ""
+        if learner in ALGORITHMS and learner != algorithm.name:
+            hint = f" ({known.recipe} is {learner}'s: --algo {learner} --recipe {own or 'default'})"
         raise UsageError(
-            f"--recipe {known.recipe}: {algorithm.name} has no such recipe for {env_id}; "
+            f"--recipe {known.recipe}: {algorithm.name} has no such recipe for {env_id}{hint}; "
             f"known: {names}"
         ) from None
+
+
+def learner_of_recipe(argv: list[str], algorithm: Any, env_id: str) -> tuple[Any, list[str]]:
+    """A script's ``--recipe NAME`` may name another built-in learner's recipe for its env:
+    ``td7`` (that learner's default) or ``td7-cpu`` (its ``cpu``). ``(the learner to run, argv
+    with the recipe's own name)``; the script's learner and ``argv`` where NAME is its own."""
+    pre = argparse.ArgumentParser(add_help=False)
+    pre.add_argument("--recipe", default=None)
+    known, rest = pre.parse_known_args(argv)
+    name = known.recipe
+    if name is None or name in hooks(algorithm).recipes.names(env_id):
+        return algorithm, argv
+    learner, _, own = name.partition("-")
+    if learner not in ALGORITHMS or learner == algorithm.name:
+        return algorithm, argv
+    other = resolve_algorithm(learner)
+    return other, [*rest, "--recipe", own or "default"]
+
+
+def _other_learners_recipes(algorithm: Any, env_id: str) -> str:
+    """``--help``'s list of the other built-in learners' recipes written for ``env_id`` or for
+    any env, by the names ``learner_of_recipe`` takes."""
+    names = []
+    for learner in ALGORITHMS:
+        if learner == algorithm.name:
+            continue
+        book = hooks(resolve_algorithm(learner)).recipes
+        for name in book.names(env_id) if any(r.is_for(env_id) for r in book) else ():
+            names.append(learner if name == "default" else f"{learner}-{name}")
+    return (
+        f". Other learners' recipes (the run is then theirs): {', '.join(names)}" if names else ""
+    )
 
 
 def recipe_settings(algorithm: Any, env_id: str, recipe: Recipe) -> tuple[Any, Any]:
@@ -196,13 +234,14 @@ def build_parser(
         _add_choice_flags(parser)
     add_run_flags(parser, defaults.seeds, recipe.total_steps or defaults.total_steps)
     recipes = hooks(algorithm).recipes.names(env_id)
+    others = "" if choose else _other_learners_recipes(algorithm, env_id)
     # taken out of argv before parsing (take_recipe); here for --help
     parser.add_argument(
         "--recipe",
         metavar="NAME",
         default="default",
         help=f"the whole set of {algorithm.name}'s settings for {env_id} that the flags below "
-        "start from: " + "; ".join(f"{name}: {about}" for name, about in recipes.items()),
+        "start from: " + "; ".join(f"{name}: {about}" for name, about in recipes.items()) + others,
     )
     config, hparams = recipe_settings(algorithm, env_id, recipe)
     config_names = add_dataclass_flags(parser, config, f"{algorithm.name} config (static)")
@@ -230,13 +269,16 @@ def _choose(argv: list[str], algorithm: Any, env_id: str | None) -> tuple[Any, s
     """Algorithm and env: fixed by the script, or from --algo/--env (or the resumed run)."""
     import envs
 
-    if algorithm is not None and env_id is not None:
-        return algorithm, envs.core.registry.resolve_id(env_id), False
     pre = OneLineParser(add_help=False)
     _add_choice_flags(pre)
     pre.add_argument("--resume", type=Path, default=None)
     known, _ = pre.parse_known_args(argv)
     record = read_run_record(known.resume)["identity"] if known.resume else None
+    if algorithm is not None and env_id is not None:
+        # a script's run may be another built-in learner's, chosen by its --recipe
+        if record is not None and record["algorithm"] in ALGORITHMS:
+            algorithm = resolve_algorithm(record["algorithm"])
+        return algorithm, envs.core.registry.resolve_id(env_id), False
     name = known.algo or (record["algorithm"] if record else None)
     env_name = env_id or known.env or (record["env_id"] if record else None)
     if {"-h", "--help"} & set(argv) and (algorithm or name) is None:
@@ -372,6 +414,8 @@ def run_experiment(
     if algorithm is None:
         return _help_without_algorithm(description or "", defaults)
     given = list(argv)  # the run records the command as typed, --recipe included
+    if not choose:
+        algorithm, argv = learner_of_recipe(argv, algorithm, env_id)
     recipe, argv = take_recipe(argv, algorithm, env_id)
     parser, config_names, hparam_names = build_parser(
         algorithm, env_id, description or "", defaults, choose, recipe

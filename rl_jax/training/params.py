@@ -100,7 +100,16 @@ def dataclass_to_dict(instance: Any) -> dict[str, Any]:
 
 
 def dataclass_from_dict(template: Any, values: dict[str, Any]) -> Any:
-    """``template`` with ``values`` replaced, each converted to the template field's type."""
+    """``template`` with ``values`` replaced, each converted to the template field's type.
+
+    A field the dataclass no longer has is dropped where a run recorded it at the value that
+    meant "off" (its class's ``RETIRED``: name -> (that value, what became of it)), so that runs
+    recorded before it went still load; at another value it is an error that says where the
+    setting went."""
+    values = dict(values)
+    for name, (off, moved) in getattr(type(template), "RETIRED", {}).items():
+        if name in values and not _same(values.pop(name), off):
+            raise RunError(f"this run set {name}, which {moved}: it cannot be continued here")
     names = {f.name for f in dataclasses.fields(template)}
     unknown = sorted(set(values) - names)
     if unknown:
@@ -112,6 +121,14 @@ def dataclass_from_dict(template: Any, values: dict[str, Any]) -> Any:
         return dataclasses.replace(template, **converted)
     except (TypeError, ValueError) as error:  # the dataclass's own validation
         raise RunError(f"invalid {type(template).__name__}: {error}") from None
+
+
+def _same(recorded: Any, value: Any) -> bool:
+    """Whether a recorded setting is ``value`` (numbers as the float32 a run stores them in)."""
+    if isinstance(value, (int, float)) and not isinstance(value, bool):
+        numeric = isinstance(recorded, (int, float)) and not isinstance(recorded, bool)
+        return numeric and np.float32(recorded) == np.float32(value)
+    return recorded == value
 
 
 def _like(default: Any, value: Any, name: str) -> Any:

@@ -7,7 +7,7 @@ A learner keeps a ``PolicyCheckpoint`` in its agent, acts in its training envs w
 ``assessed`` (exploration on top, as usual), evaluates ``best``, and calls ``assess`` from its
 ``observe`` hook at every env step with the policy it would act with now. The policy is any
 pytree (TD3: its actor with what it reads; DQN: the Q-network's parameters). How this differs
-from TD7's one env and deferred updates: ``rl_jax.agents.td3_agent``'s docstring.
+from TD7's one env and deferred updates: ``rl_jax.agents.td7``'s docstring.
 """
 
 from __future__ import annotations

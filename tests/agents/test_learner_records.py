@@ -24,6 +24,7 @@ import jax
 import numpy as np
 import pytest
 
+from rl_jax.run.cli import resolve_algorithm
 from rl_jax.training import jax_setup, parallel, params
 
 RECORDS = Path(__file__).resolve().parents[1] / "data" / "learner_records.json"
@@ -107,12 +108,10 @@ def recorded(name: str) -> list | None:
 
 def settings(name: str):
     """``(algorithm, config, hparams)`` of run ``name``: its recipe, then its overrides."""
-    from rl_jax.run import recipes
-
     learner, recipe, env_id, config, hparams = RUNS[name]
-    algorithm, config_values, hparam_values = recipes.settings(learner, env_id, recipe)
-    config = algorithm.default_config(env_id, **{**config_values, **config})
-    hparams = algorithm.default_hyperparams(env_id, **{**hparam_values, **hparams})
+    algorithm = resolve_algorithm(learner)
+    config = algorithm.default_config(env_id, recipe, **config)
+    hparams = algorithm.default_hyperparams(env_id, recipe, **hparams)
     return algorithm, config, hparams
 
 

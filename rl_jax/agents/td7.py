@@ -1,0 +1,360 @@
+"""TD7 (Fujimoto et al. 2023, "For SALE: State-Action Learned Embeddings"): TD3 with
+
+* SALE: an encoder learns ``z_s = f(s)`` and ``z_sa = g(z_s, a)`` by regressing ``g(f(s), a)``
+  on ``f(s')``; the actor reads ``[AvgL1Norm(linear(s)), z_s]`` and the critics
+  ``[AvgL1Norm(linear(s, a)), z_sa, z_s]`` from a fixed copy of the encoder, renewed with the
+  targets (the targets read the copy before it);
+* LAP: replay draws transitions in proportion to ``max(|TD error|, 1)^lap_alpha``, and the critics
+  learn with LAP's Huber-like loss;
+* hard target copies every ``target_update_period`` updates, which also renew the fixed
+  encoders, the value-clipping range and LAP's priority for new transitions;
+* value clipping: the bootstrap value is clipped to the range of targets seen up to the last
+  target update;
+* policy checkpoints: evaluation uses a checkpoint of the actor, replaced only when a frozen copy
+  passes an assessment over training episodes (``rl_jax.training.policy_checkpoints``).
+
+The pure maths and the state beside the networks are ``rl_jax.agents.td7_parts``.
+
+How policy checkpoints differ from TD7's. TD7 (one env) stops training while it assesses its
+actor, then runs all the updates it owes at once. Here the loop keeps its fixed number of updates
+per env step (a fixed-size scan, and a clock shared by every seed under the vmap, leave no room for
+bursts of deferred updates): the training envs act with the frozen copy while the online actor
+goes on learning. So the acting policies, the data they collect and the number of updates follow
+TD7; each update sees the replay as it was at its env step, not after the whole assessment. With
+several envs an episode counts only if it began under the assessed copy, episodes ending in the
+same step count together, and the switch to ``checkpoint_episodes`` episodes happens at env step
+``checkpoint_episodes_from`` (TD7 counts steps after its warm-up).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+from collections.abc import Callable
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+import optax
+from flax import struct
+
+from rl_jax.agents import actor_critic, td7_parts
+from rl_jax.agents.actor_critic import ActorCriticConfig, ActorCriticHyperparams, CriticBatch
+from rl_jax.agents.common import linearly_decayed, optimizer_step
+from rl_jax.agents.td7_parts import Encoders, ValueRange
+from rl_jax.agents.td7_recipes import TD7_RECIPES
+from rl_jax.training import episodes, networks, offpolicy, policy_checkpoints, prioritized
+from rl_jax.training.algorithm import ChunkMetrics, RecipeBook
+from rl_jax.training.offpolicy import Clock, TrainState
+from rl_jax.training.policy_checkpoints import PolicyCheckpoint
+from rl_jax.training.prioritized import PrioritizedBuffer
+from rl_jax.training.replay import Transition
+
+
+@dataclasses.dataclass(frozen=True, kw_only=True)
+class Config(ActorCriticConfig):
+    """Static settings of TD7; defaults: its published ones (sfujim/TD7), on the TD3 paper's loop
+    (one env, one update per env step, batch 256, 25,000 random steps)."""
+
+    critic_activation: str = "elu"  # TD7's critics (and encoders) use ELU
+    embedding_dim: int = 256  # size of z_s and z_sa
+    embedding_hidden: tuple[int, ...] = (256, 256)  # hidden widths of f and of g
+    target_update_period: int = 250  # updates between hard target copies
+    checkpoint_episodes: int = 20  # episodes per assessment of a policy checkpoint
+    # env step from which assessments take checkpoint_episodes episodes instead of 1
+    checkpoint_episodes_from: int = 750_000
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        if self.target_update_period < 1 or self.embedding_dim < 1:
+            raise ValueError("target_update_period and embedding_dim must be >= 1")
+        if self.checkpoint_episodes < 1 or self.checkpoint_episodes_from < 0:
+            raise ValueError("checkpoint_episodes must be >= 1, checkpoint_episodes_from >= 0")
+
+
+@struct.dataclass
+class Hyperparams(ActorCriticHyperparams):
+    """TD7's hyperparameters: the shared ones and its own."""
+
+    lap_alpha: Any = 0.4  # P(i) proportional to max(|TD error|, 1)^lap_alpha
+    encoder_lr: Any = 3e-4  # Adam step size of the encoder
+    # the checkpoint's score is multiplied by this when assessments lengthen
+    checkpoint_reset_weight: Any = 0.9
+
+
+@struct.dataclass
+class Policy:
+    """What acting needs: actor parameters and the fixed encoder it reads."""
+
+    actor: Any
+    encoder: Any
+
+
+@struct.dataclass
+class Agent:
+    actor: Any
+    critics: Any  # leaves [num_critics, ...]
+    target_actor: Any
+    target_critics: Any
+    actor_opt: optax.OptState
+    critic_opt: optax.OptState
+    encoders: Encoders
+    checkpoint: PolicyCheckpoint  # of ``Policy``
+    value_range: ValueRange
+
+    def current_policy(self) -> Policy:
+        return Policy(actor=self.actor, encoder=self.encoders.fixed)
+
+
+@functools.lru_cache(maxsize=64)
+def make_networks(config: Config) -> tuple[actor_critic.Networks, networks.StateActionEncoder]:
+    """``(actor-critic networks, SALE's encoder)`` for ``config.env_id`` (cached)."""
+    action_space = episodes.make_eval_env(config).action_space()
+    low, high = actor_critic.bounds(action_space, "TD7")
+    dtype = jnp.dtype(config.compute_dtype)
+    init, act_fn = config.network_init, config.actor_activation
+    actor = networks.Actor(config.actor_hidden, low, high, init, dtype, act_fn)
+    critic = networks.Critic(config.critic_hidden, init, dtype, config.critic_activation)
+    encoder = networks.StateActionEncoder(
+        config.embedding_hidden, config.embedding_dim, init, dtype, config.critic_activation
+    )
+    nets = actor_critic.Networks(actor, critic, action_space.low.copy(), action_space.high.copy())
+    return nets, encoder
+
+
+# ---- acting through the embeddings --------------------------------------------------------------
+def embed_state(encoder: networks.StateActionEncoder, params: Any, obs: jax.Array) -> jax.Array:
+    """``z_s = f(obs)`` of a fixed encoder (no gradient into its parameters)."""
+    return encoder.apply(jax.lax.stop_gradient(params), obs, method="embed_state")
+
+
+def embeddings(encoder: networks.StateActionEncoder, params: Any, obs, action) -> jax.Array:
+    """The critics' extra input ``[z_sa, z_s]`` of a fixed encoder."""
+    zs = embed_state(encoder, params, obs)
+    zsa = encoder.apply(jax.lax.stop_gradient(params), zs, action, method="embed_pair")
+    return jnp.concatenate([zsa, zs], axis=-1)
+
+
+def policy_action(config: Config, actor: Any, encoder: Any, obs: jax.Array) -> jax.Array:
+    """The deterministic action of actor parameters ``actor`` reading ``z_s`` of ``encoder``."""
+    nets, sale = make_networks(config)
+    return nets.actor.apply(actor, obs, embed_state(sale, encoder, obs))
+
+
+def act(agent: Agent, obs: jax.Array, config: Config) -> jax.Array:
+    """The checkpoint's deterministic action, in the env's own units."""
+    best = agent.checkpoint.best
+    return policy_action(config, best.actor, best.encoder, obs)
+
+
+def explore(agent: Agent, obs, noise, key, config: Config, hparams: Hyperparams, clock: Clock):
+    """``(actions, noise)``: the copy under assessment plus AR(1) exploration noise."""
+    assessed = agent.checkpoint.assessed
+    action = policy_action(config, assessed.actor, assessed.encoder, obs)
+    return actor_critic.explore(action, noise, key, make_networks(config)[0], hparams)
+
+
+def observe(agent: Agent, transitions: Transition, episode_return, done, clock, config, hparams):
+    """Every env step: the policy checkpoints count the episodes that ended."""
+    checkpoint = policy_checkpoints.assess(
+        agent.checkpoint,
+        agent.current_policy(),
+        episode_return,
+        done,
+        clock,
+        config,
+        hparams.checkpoint_reset_weight,
+    )
+    return agent.replace(checkpoint=checkpoint)
+
+
+def init_agent(key, config: Config, hparams: Hyperparams, obs_space, action_space) -> Agent:
+    nets, sale = make_networks(config)
+    actor_key, critic_key = jax.random.split(key)
+    obs = jnp.zeros(obs_space.shape, jnp.float32)
+    action = jnp.zeros(action_space.shape, jnp.float32)
+    actor = nets.actor.init(actor_key, obs, jnp.zeros(config.embedding_dim))
+    extra = jnp.zeros(2 * config.embedding_dim)
+    critics = networks.init_stacked(nets.critic, critic_key, config.num_critics, obs, action, extra)
+    critics = dict(critics)
+    adam = optax.inject_hyperparams(optax.adam)
+    online = sale.init(jax.random.fold_in(key, 1), obs, action)
+    encoders = Encoders(
+        online=online,
+        fixed=online,
+        fixed_target=online,
+        opt=adam(learning_rate=hparams.encoder_lr).init(online),
+    )
+    policy = Policy(actor=actor, encoder=online)
+    return Agent(
+        actor=actor,
+        critics=critics,
+        target_actor=actor,
+        target_critics=critics,
+        actor_opt=adam(learning_rate=hparams.actor_lr).init(actor),
+        critic_opt=adam(learning_rate=hparams.critic_lr).init(critics),
+        encoders=encoders,
+        checkpoint=policy_checkpoints.init(policy, config.num_envs, config.learning_starts),
+        value_range=ValueRange.initial(),
+    )
+
+
+# ---- losses -------------------------------------------------------------------------------------
+def critic_loss_fn(critics, agent: Agent, batch: CriticBatch, noise, hparams, config: Config):
+    """``(loss, (q_tm1, td_tm1, (min, max) of the targets))``: LAP's loss of the critics' errors
+    against the value-clipped double-Q target of the target networks, which read the fixed target
+    encoder (the critics read the fixed one)."""
+    nets, sale = make_networks(config)
+    fixed, fixed_target = agent.encoders.fixed, agent.encoders.fixed_target
+    a_t = policy_action(config, agent.target_actor, fixed_target, batch.next_obs)
+    a_t = actor_critic.target_action(a_t, noise, hparams, nets)
+    extra_t = embeddings(sale, fixed_target, batch.next_obs, a_t)
+    q_t = actor_critic.critic_values(nets, agent.target_critics, batch.next_obs, a_t, extra_t)
+    extra_tm1 = embeddings(sale, fixed, batch.obs, batch.action)
+    q_tm1 = actor_critic.critic_values(nets, critics, batch.obs, batch.action, extra_tm1)
+    bounds = agent.value_range.low, agent.value_range.high
+    target = td7_parts.value_clipped_target(batch.r_t, batch.discount_t, q_t, *bounds)
+    td_tm1 = q_tm1 - target[None, :]
+    return td7_parts.lap_loss(td_tm1), (q_tm1, td_tm1, (jnp.min(target), jnp.max(target)))
+
+
+def actor_loss_fn(actor, critics, encoder, obs: jax.Array, config: Config) -> jax.Array:
+    """The deterministic policy gradient through the first critic, via the fixed encoder's
+    embeddings of the actor's own action (the encoder itself never changes here)."""
+    nets, sale = make_networks(config)
+    action = policy_action(config, actor, encoder, obs)
+    extra = embeddings(sale, encoder, obs, action)
+    q = actor_critic.first_critic_value(nets, critics, obs, action, extra)
+    return actor_critic.deterministic_policy_loss(q)
+
+
+def encoder_loss_fn(online, batch: CriticBatch, config: Config) -> jax.Array:
+    """SALE's loss: ``g(f(s), a)`` against ``f(s')`` of the same (online) encoder, stopped."""
+    sale = make_networks(config)[1]
+    zs_t = sale.apply(online, batch.next_obs, method="embed_state")
+    zsa_tm1 = sale.apply(online, batch.obs, batch.action)[1]
+    return td7_parts.sale_loss(zsa_tm1, zs_t)
+
+
+# ---- one update ---------------------------------------------------------------------------------
+_ADAM = optax.inject_hyperparams(optax.adam)(learning_rate=3e-4)
+
+
+def _adam(grads, opt_state, params, rate):
+    return optimizer_step(_ADAM, grads, opt_state, params, learning_rate=rate)
+
+
+def encoder_step(agent: Agent, batch: CriticBatch, hparams, config: Config, rate: Callable):
+    """``(agent, loss)`` after one Adam step of SALE's online encoder."""
+    encoders = agent.encoders
+    loss, grads = jax.value_and_grad(encoder_loss_fn)(encoders.online, batch, config)
+    online, opt = _adam(grads, encoders.opt, encoders.online, rate(hparams.encoder_lr))
+    return agent.replace(encoders=encoders.replace(online=online, opt=opt)), loss
+
+
+def critic_step(agent: Agent, batch: CriticBatch, key, hparams, config: Config, rate: Callable):
+    """``(agent, loss, q_tm1, td_tm1)`` after one Adam step of the critics; the targets' range
+    joins the value-clipping range's extremes."""
+    noise = jax.random.normal(key, batch.action.shape, jnp.float32)
+    (loss, (q_tm1, td_tm1, target_range)), grads = jax.value_and_grad(critic_loss_fn, has_aux=True)(
+        agent.critics, agent, batch, noise, hparams, config
+    )
+    critics, opt = _adam(grads, agent.critic_opt, agent.critics, rate(hparams.critic_lr))
+    values = agent.value_range.seeing(target_range)
+    return agent.replace(critics=critics, critic_opt=opt, value_range=values), loss, q_tm1, td_tm1
+
+
+def actor_step(agent: Agent, obs, hparams, config: Config, rate: Callable):
+    """``(agent, loss)`` after one Adam step of the actor (the targets are copied, not
+    stepped)."""
+    args = (agent.actor, agent.critics, agent.encoders.fixed, obs, config)
+    loss, grads = jax.value_and_grad(actor_loss_fn)(*args)
+    actor, opt = _adam(grads, agent.actor_opt, agent.actor, rate(hparams.actor_lr))
+    return agent.replace(actor=actor, actor_opt=opt), loss
+
+
+def copy_targets(agent: Agent) -> Agent:
+    """TD7's periodic copies: targets <- online, fixed target encoder <- fixed <- online, and
+    the value-clipping range renewed."""
+    return agent.replace(
+        target_actor=agent.actor,
+        target_critics=agent.critics,
+        value_range=agent.value_range.renewed(),
+        encoders=agent.encoders.renewed(),
+    )
+
+
+def update(agent: Agent, buffer: PrioritizedBuffer, key, config: Config, hparams, update_index):
+    """One encoder and critic update, with LAP's new priorities for the batch; every
+    ``policy_delay``-th an actor update; every ``target_update_period``-th the hard copies (and
+    LAP's priority for new transitions reset to the largest stored)."""
+    sample_key, noise_key = jax.random.split(key)
+    rows, columns, _ = prioritized.sample_indices(buffer, sample_key, config.batch_size, 0.0)
+    batch = actor_critic.gather_batch(buffer.buffer, rows, columns, hparams.gamma)
+    env_steps = offpolicy.env_steps_at_update(update_index, config)
+
+    def rate(value):
+        return linearly_decayed(value, env_steps, hparams.lr_decay_steps)
+
+    agent, encoder_loss = encoder_step(agent, batch, hparams, config, rate)
+    agent, critic_loss, q_tm1, td_tm1 = critic_step(agent, batch, noise_key, hparams, config, rate)
+    priorities = td7_parts.lap_priorities(td_tm1)
+    buffer = prioritized.update_priorities(buffer, rows, columns, priorities, hparams.lap_alpha)
+    delayed = (update_index + 1) % config.policy_delay == 0
+    agent, actor_loss = jax.lax.cond(
+        delayed,
+        lambda agent: actor_step(agent, batch.obs, hparams, config, rate),
+        lambda agent: (agent, jnp.full((), jnp.nan, jnp.float32)),
+        agent,
+    )
+    due = (update_index + 1) % config.target_update_period == 0
+    agent = jax.lax.cond(due, copy_targets, lambda agent: agent, agent)
+    reset = functools.partial(prioritized.reset_max_priority, alpha=hparams.lap_alpha)
+    buffer = jax.lax.cond(due, reset, lambda buffer: buffer, buffer)
+    metrics = {"encoder_loss": encoder_loss, "critic_loss": critic_loss, "actor_loss": actor_loss}
+    return agent, buffer, {**metrics, "q": jnp.mean(q_tm1)}
+
+
+def init_buffer(example: Transition, config: Config) -> PrioritizedBuffer:
+    return prioritized.init(example, config.buffer_size, config.num_envs)
+
+
+def add_to_buffer(buffer: PrioritizedBuffer, transitions: Transition, config, hparams):
+    """Store one row at the largest priority so far."""
+    return prioritized.add(buffer, transitions, hparams.lap_alpha)
+
+
+LEARNER = offpolicy.Learner(
+    init_agent,
+    explore,
+    act,
+    update,
+    ("encoder_loss", "critic_loss", "actor_loss", "q"),
+    init_buffer,
+    add_to_buffer,
+    observe,
+)
+
+
+class TD7(RecipeBook):
+    """TD7 as an ``rl_jax.training.algorithm.Algorithm``."""
+
+    name = "td7"
+    config_type, hparams_type = Config, Hyperparams
+    recipes = TD7_RECIPES
+
+    def init(self, key: jax.Array, config: Config, hparams: Hyperparams) -> TrainState:
+        return offpolicy.init(LEARNER, key, config, hparams)
+
+    def train_chunk(
+        self, state: TrainState, config: Config, hparams: Hyperparams
+    ) -> tuple[TrainState, ChunkMetrics]:
+        return offpolicy.train_chunk(LEARNER, state, config, hparams)
+
+    def policy(self, state: TrainState, config: Config) -> Callable[[jax.Array], jax.Array]:
+        """``obs -> action`` (env units) of the checkpoint of one seed's state."""
+        agent = state.agent
+        return lambda obs: act(agent, obs, config)
+
+
+td7 = TD7()
