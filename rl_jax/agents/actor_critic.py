@@ -10,16 +10,18 @@ code scales them by ``max_action``.
 from __future__ import annotations
 
 import dataclasses
-from typing import Any, NamedTuple
+from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 from flax import struct
 
-from envs.core.spaces import Box
+from envs.core.spaces import Box, Space
 from rl_jax.training import networks, params, replay
+from rl_jax.training.networks import Params
 from rl_jax.training.offpolicy import OffPolicyConfig
+from rl_jax.training.params import Scalar
 from rl_jax.training.replay import ReplayBuffer, Transition
 
 
@@ -52,19 +54,19 @@ class ActorCriticConfig(OffPolicyConfig):
 class ActorCriticHyperparams(params.HyperparamsMethods):
     """What a sweep may vary without recompiling. Defaults: the TD3 paper's (code's) values."""
 
-    actor_lr: Any = 3e-4  # Adam step size of the actor
-    critic_lr: Any = 3e-4  # Adam step size of the critics
-    gamma: Any = 0.99  # discount
-    exploration_noise: Any = 0.1  # std of the Gaussian added to actions, x half-range
+    actor_lr: Scalar = 3e-4  # Adam step size of the actor
+    critic_lr: Scalar = 3e-4  # Adam step size of the critics
+    gamma: Scalar = 0.99  # discount
+    exploration_noise: Scalar = 0.1  # std of the Gaussian added to actions, x half-range
     # Step-to-step correlation rho of that noise, n_t = rho n_{t-1} + sqrt(1 - rho^2) eps_t (an
     # AR(1), i.e. discretised Ornstein-Uhlenbeck, process with the same std). 0: independent
     # noise, as in the TD3 paper. Near 1: slow pushes, as the original DDPG's OU noise; inertial
     # systems with a small time step need them, since independent noise averages out.
-    exploration_correlation: Any = 0.0
-    target_noise: Any = 0.2  # std of target policy smoothing, x half-range (0 turns it off)
-    target_noise_clip: Any = 0.5  # smoothing noise clipped to +-this, x half-range
+    exploration_correlation: Scalar = 0.0
+    target_noise: Scalar = 0.2  # std of target policy smoothing, x half-range (0 turns it off)
+    target_noise_clip: Scalar = 0.5  # smoothing noise clipped to +-this, x half-range
     # Env steps (all envs) over which both learning rates fall linearly to 0 (0: constant).
-    lr_decay_steps: Any = 0.0
+    lr_decay_steps: Scalar = 0.0
 
 
 class Networks(NamedTuple):
@@ -81,7 +83,7 @@ class Networks(NamedTuple):
         return (self.high - self.low) / 2.0
 
 
-def bounds(action_space: Any, learner: str) -> tuple[tuple[float, ...], tuple[float, ...]]:
+def bounds(action_space: Space, learner: str) -> tuple[tuple[float, ...], tuple[float, ...]]:
     """The action bounds as tuples; ``TypeError`` unless a bounded 1-D ``Box``."""
     if (
         not isinstance(action_space, Box)
@@ -97,13 +99,13 @@ def row(x: np.ndarray, like: jax.Array) -> jax.Array:
     return jnp.reshape(jnp.asarray(x, jnp.float32), (1,) * (like.ndim - 1) + (-1,))
 
 
-def critic_values(nets: Networks, critics: Any, obs, action, *extra) -> jax.Array:
+def critic_values(nets: Networks, critics: Params, obs, action, *extra) -> jax.Array:
     """``[num_critics, B]``: every stacked critic at ``(obs, action)`` (``extra``: more inputs,
     such as TD7's embeddings)."""
     return networks.apply_stacked(nets.critic, critics, obs, action, *extra)
 
 
-def first_critic_value(nets: Networks, critics: Any, obs, action, *extra) -> jax.Array:
+def first_critic_value(nets: Networks, critics: Params, obs, action, *extra) -> jax.Array:
     """``[B]``: the first critic alone (the one the actor ascends)."""
     first = jax.tree.map(lambda x: x[0], critics)
     return nets.critic.apply(first, obs, action, *extra)

@@ -35,7 +35,9 @@ from rl_jax.agents.actor_critic import (
 from rl_jax.agents.common import linearly_decayed, optimizer_step
 from rl_jax.training import episodes, networks, offpolicy, replay, validation
 from rl_jax.training.algorithm import ChunkMetrics, RecipeBook
+from rl_jax.training.networks import Params
 from rl_jax.training.offpolicy import Clock, TrainState
+from rl_jax.training.params import Scalar
 from rl_jax.training.recipes import Recipe, Recipes
 from rl_jax.training.replay import ReplayBuffer
 
@@ -56,17 +58,17 @@ class Config(ActorCriticConfig):
 class Hyperparams(ActorCriticHyperparams):
     """CrossQ's rates: 1e-3 (no targets: nothing to step slowly)."""
 
-    actor_lr: Any = 1e-3
-    critic_lr: Any = 1e-3
+    actor_lr: Scalar = 1e-3
+    critic_lr: Scalar = 1e-3
 
 
 @struct.dataclass
 class Agent:
-    actor: Any
-    critics: Any  # parameters, leaves [num_critics, ...]
+    actor: Params
+    critics: Params  # parameters, leaves [num_critics, ...]
     actor_opt: optax.OptState
     critic_opt: optax.OptState
-    critic_stats: Any  # batch renormalisation's statistics, leaves [num_critics, ...]
+    critic_stats: Params  # batch renormalisation's statistics, leaves [num_critics, ...]
 
 
 @functools.lru_cache(maxsize=64)

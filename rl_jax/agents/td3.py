@@ -44,8 +44,10 @@ from rl_jax.agents.common import linearly_decayed, optimizer_step, polyak_update
 from rl_jax.agents.td3_recipes import TD3_RECIPES
 from rl_jax.training import episodes, networks, normalization, offpolicy, replay
 from rl_jax.training.algorithm import ChunkMetrics, RecipeBook
+from rl_jax.training.networks import Params
 from rl_jax.training.normalization import RunningStats
 from rl_jax.training.offpolicy import Clock, TrainState
+from rl_jax.training.params import Scalar
 from rl_jax.training.replay import ReplayBuffer, Transition
 
 _TD7_OFF = {
@@ -117,7 +119,7 @@ class Config(ActorCriticConfig):
 class Hyperparams(ActorCriticHyperparams):
     """TD3's hyperparameters: the shared ones and the targets' Polyak step."""
 
-    tau: Any = 0.005  # Polyak step of the target networks
+    tau: Scalar = 0.005  # Polyak step of the target networks
 
     # TD7's, recorded by TD3 runs before TD7 became a learner of its own (see Config.RETIRED)
     RETIRED: ClassVar[dict[str, tuple[Any, str]]] = {
@@ -132,10 +134,10 @@ class Hyperparams(ActorCriticHyperparams):
 
 @struct.dataclass
 class Agent:
-    actor: Any  # actor parameters
-    critics: Any  # critic parameters, leaves [num_critics, ...]
-    target_actor: Any
-    target_critics: Any
+    actor: Params  # actor parameters
+    critics: Params  # critic parameters, leaves [num_critics, ...]
+    target_actor: Params
+    target_critics: Params
     actor_opt: optax.OptState  # inject_hyperparams(adam) state: holds the learning rate
     critic_opt: optax.OptState
     # standardizes_obs: the running statistics of the observations acted on (None otherwise)
@@ -331,7 +333,7 @@ class DDPGConfig(Config):
 class DDPGHyperparams(Hyperparams):
     """DDPG's defaults: no target policy smoothing."""
 
-    target_noise: Any = 0.0
+    target_noise: Scalar = 0.0
 
 
 td3 = TD3Family("td3", Config, Hyperparams)

@@ -31,7 +31,6 @@ from __future__ import annotations
 import dataclasses
 import functools
 from collections.abc import Callable
-from typing import Any
 
 import jax
 import jax.numpy as jnp
@@ -45,7 +44,9 @@ from rl_jax.agents.td7_parts import Encoders, ValueRange
 from rl_jax.agents.td7_recipes import TD7_RECIPES
 from rl_jax.training import episodes, networks, offpolicy, policy_checkpoints, prioritized
 from rl_jax.training.algorithm import ChunkMetrics, RecipeBook
+from rl_jax.training.networks import Params
 from rl_jax.training.offpolicy import Clock, TrainState
+from rl_jax.training.params import Scalar
 from rl_jax.training.policy_checkpoints import PolicyCheckpoint
 from rl_jax.training.prioritized import PrioritizedBuffer
 from rl_jax.training.replay import Transition
@@ -76,26 +77,26 @@ class Config(ActorCriticConfig):
 class Hyperparams(ActorCriticHyperparams):
     """TD7's hyperparameters: the shared ones and its own."""
 
-    lap_alpha: Any = 0.4  # P(i) proportional to max(|TD error|, 1)^lap_alpha
-    encoder_lr: Any = 3e-4  # Adam step size of the encoder
+    lap_alpha: Scalar = 0.4  # P(i) proportional to max(|TD error|, 1)^lap_alpha
+    encoder_lr: Scalar = 3e-4  # Adam step size of the encoder
     # the checkpoint's score is multiplied by this when assessments lengthen
-    checkpoint_reset_weight: Any = 0.9
+    checkpoint_reset_weight: Scalar = 0.9
 
 
 @struct.dataclass
 class Policy:
     """What acting needs: actor parameters and the fixed encoder it reads."""
 
-    actor: Any
-    encoder: Any
+    actor: Params
+    encoder: Params
 
 
 @struct.dataclass
 class Agent:
-    actor: Any
-    critics: Any  # leaves [num_critics, ...]
-    target_actor: Any
-    target_critics: Any
+    actor: Params
+    critics: Params  # leaves [num_critics, ...]
+    target_actor: Params
+    target_critics: Params
     actor_opt: optax.OptState
     critic_opt: optax.OptState
     encoders: Encoders
@@ -123,19 +124,19 @@ def make_networks(config: Config) -> tuple[actor_critic.Networks, networks.State
 
 
 # ---- acting through the embeddings --------------------------------------------------------------
-def embed_state(encoder: networks.StateActionEncoder, params: Any, obs: jax.Array) -> jax.Array:
+def embed_state(encoder: networks.StateActionEncoder, params: Params, obs: jax.Array) -> jax.Array:
     """``z_s = f(obs)`` of a fixed encoder (no gradient into its parameters)."""
     return encoder.apply(jax.lax.stop_gradient(params), obs, method="embed_state")
 
 
-def embeddings(encoder: networks.StateActionEncoder, params: Any, obs, action) -> jax.Array:
+def embeddings(encoder: networks.StateActionEncoder, params: Params, obs, action) -> jax.Array:
     """The critics' extra input ``[z_sa, z_s]`` of a fixed encoder."""
     zs = embed_state(encoder, params, obs)
     zsa = encoder.apply(jax.lax.stop_gradient(params), zs, action, method="embed_pair")
     return jnp.concatenate([zsa, zs], axis=-1)
 
 
-def policy_action(config: Config, actor: Any, encoder: Any, obs: jax.Array) -> jax.Array:
+def policy_action(config: Config, actor: Params, encoder: Params, obs: jax.Array) -> jax.Array:
     """The deterministic action of actor parameters ``actor`` reading ``z_s`` of ``encoder``."""
     nets, sale = make_networks(config)
     return nets.actor.apply(actor, obs, embed_state(sale, encoder, obs))

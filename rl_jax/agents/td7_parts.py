@@ -28,14 +28,13 @@ Naming as rlax (and ``td3``): ``td_tm1`` is the TD error of the transition's sta
 
 from __future__ import annotations
 
-from typing import Any
-
 import jax
 import jax.numpy as jnp
 import optax
 from flax import struct
 
 from rl_jax.training import policy_checkpoints
+from rl_jax.training.networks import Params
 
 #: LAP's floor on priorities, which is also where its loss turns from quadratic to linear.
 LAP_MIN_PRIORITY = 1.0
@@ -79,9 +78,9 @@ def value_clipped_target(r_t, discount_t, q_t, low, high) -> jax.Array:
 class Encoders:
     """SALE's encoder (``networks.StateActionEncoder`` parameters) and its fixed copies."""
 
-    online: Any  # learns every update
-    fixed: Any  # what the actor and critics read: the online one at the last target update
-    fixed_target: Any  # what the targets read: the fixed one before that
+    online: Params  # learns every update
+    fixed: Params  # what the actor and critics read: the online one at the last target update
+    fixed_target: Params  # what the targets read: the fixed one before that
     opt: optax.OptState  # Adam state of ``online``
 
     def renewed(self) -> Encoders:

@@ -22,7 +22,8 @@ delayed updates) with real branches under vmap; every other leaf gains the ``[H,
 
 from __future__ import annotations
 
-from typing import Any, NamedTuple, Protocol
+from collections.abc import Callable
+from typing import Any, NamedTuple, Protocol, Self, TypeAlias
 
 import jax
 
@@ -45,30 +46,54 @@ class ChunkMetrics(NamedTuple):
     extra: dict[str, jax.Array]
 
 
+class Config(Protocol):
+    """What the run machinery reads of any learner's static ``Config`` (a frozen dataclass)."""
+
+    env_id: str
+    num_envs: int
+    iterations_per_chunk: int
+
+
+class Hyperparams(Protocol):
+    """What it asks of any learner's ``Hyperparams`` (a ``flax.struct`` dataclass of arrays)."""
+
+    def as_arrays(self) -> Self: ...
+
+    def to_dict(self) -> dict[str, Any]: ...
+
+
+#: The pytree a learner keeps everything of one run in (``init`` makes it).
+TrainState: TypeAlias = Any
+#: ``obs -> action`` of a deterministic policy.
+PolicyFn: TypeAlias = Callable[[jax.Array], jax.Array]
+
+
 class Algorithm(Protocol):
     """A learner. Implementations are plain modules or small stateless objects.
 
     Beyond the methods below, an algorithm may define the hooks of ``OptionalHooks``
-    (``policy_fields``, ``ranges``, ``env_steps_per_chunk``, ``validate``, ``make_env``,
-    ``spread_runs``); callers
-    reach them through ``hooks(algorithm)``, which supplies the defaults."""
+    (``policy_fields``, ``ranges``, ``recipes``, ``env_steps_per_chunk``, ``validate``,
+    ``make_env``, ``spread_runs``); callers reach them through ``hooks(algorithm)``, which
+    supplies the defaults."""
 
-    name: str  # "td3", "ddpg", "dqn", "reinforce"
+    name: str  # "td3", "ddpg", "td7", "crossq", "dqn", "reinforce", or a learner of your own
 
-    def default_config(self, env_id: str) -> Any:
-        """The static ``Config`` for an env (the documented recipe)."""
+    def default_config(self, env_id: str) -> Config:
+        """The static ``Config`` for an env (its default recipe)."""
 
-    def default_hyperparams(self, env_id: str | None = None) -> Any:
-        """The ``Hyperparams`` pytree of scalars (the documented recipe, for ``env_id`` if
-        given: some envs need, e.g., another discount)."""
+    def default_hyperparams(self, env_id: str | None = None) -> Hyperparams:
+        """The ``Hyperparams`` pytree of scalars (the default recipe, for ``env_id`` if given:
+        some envs need, e.g., another discount)."""
 
-    def init(self, key: PRNGKey, config: Any, hparams: Any) -> Any:
+    def init(self, key: PRNGKey, config: Config, hparams: Hyperparams) -> TrainState:
         """A fresh ``TrainState`` for one seed and one hyperparameter set."""
 
-    def train_chunk(self, state: Any, config: Any, hparams: Any) -> tuple[Any, ChunkMetrics]:
+    def train_chunk(
+        self, state: TrainState, config: Config, hparams: Hyperparams
+    ) -> tuple[TrainState, ChunkMetrics]:
         """``config.iterations_per_chunk`` train iterations, then one evaluation. Pure."""
 
-    def policy(self, state: Any, config: Any) -> Any:
+    def policy(self, state: TrainState, config: Config) -> PolicyFn:
         """A pure ``obs -> action`` function of the deterministic policy (for eval and GIFs)."""
 
 
@@ -94,20 +119,20 @@ class OptionalHooks:
         """Recipe ``name`` (None: the env's default) for ``env_id``; ``KeyError`` if none."""
         return self.recipes.get(env_id, name)
 
-    def env_steps_per_chunk(self, config: Any) -> int:
+    def env_steps_per_chunk(self, config: Config) -> int:
         """Env steps one ``train_chunk`` takes per seed: ``num_envs * iterations_per_chunk``."""
         return int(config.num_envs * config.iterations_per_chunk)
 
-    def validate(self, config: Any, hparams: Any) -> None:
+    def validate(self, config: Config, hparams: Hyperparams) -> None:
         """``ValueError`` for settings each valid alone that the algorithm cannot run together."""
 
-    def make_env(self, config: Any) -> envs.Environment:
+    def make_env(self, config: Config) -> envs.Environment:
         """The env the policy acts in (loaded policies, rendering): the config's ``make_env()``
         where it has one (the registered ``env_id`` with its ``env_kwargs``), else ``env_id``."""
         make = getattr(config, "make_env", None)
         return make() if make is not None else envs.make(config.env_id)
 
-    def spread_runs(self, config: Any) -> bool:
+    def spread_runs(self, config: Config) -> bool:
         """Whether a run's seeds should spread over every CPU device even when they do not split
         evenly (padded with copies that are computed and dropped). Default no: one device's
         large matmuls already use every core. Programs of small ops run on one core per device,
@@ -129,13 +154,13 @@ HOOKS = (
 class _WithDefaults(OptionalHooks):
     """An algorithm module's own hooks, and the defaults for those it does not define."""
 
-    def __init__(self, algorithm: Any) -> None:
+    def __init__(self, algorithm: Algorithm) -> None:
         for name in HOOKS:
             if hasattr(algorithm, name):
                 setattr(self, name, getattr(algorithm, name))
 
 
-def hooks(algorithm: Any) -> OptionalHooks:
+def hooks(algorithm: Algorithm) -> OptionalHooks:
     """The optional hooks of ``algorithm``: its own where it defines them, else the defaults."""
     if isinstance(algorithm, OptionalHooks):
         return algorithm
@@ -155,13 +180,13 @@ class RecipeBook(OptionalHooks):
     config_type: type
     hparams_type: type
 
-    def default_config(self, env_id: str, recipe: str | None = None, **overrides: Any) -> Any:
+    def default_config(self, env_id: str, recipe: str | None = None, **overrides: Any) -> Config:
         values = {**self.recipe(env_id, recipe).config, **overrides}
         return self.config_type(env_id=env_id, **values)
 
     def default_hyperparams(
         self, env_id: str | None = None, recipe: str | None = None, **overrides: Any
-    ) -> Any:
+    ) -> Hyperparams:
         values = self.recipe(env_id, recipe).hparams if env_id else {}
         return self.hparams_type(**{**values, **overrides}).as_arrays()
 

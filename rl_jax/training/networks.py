@@ -34,14 +34,18 @@ appended and the usual MLP follows.
 
 from __future__ import annotations
 
-from collections.abc import Sequence
-from typing import Any
+from collections.abc import Mapping, Sequence
+from typing import Any, TypeAlias
 
 import flax.linen as nn
 import jax
 import jax.numpy as jnp
+from jax.typing import DTypeLike
 
 from rl_jax.training.batch_renorm import BatchRenorm
+
+#: A network's variables as flax keeps them (``{"params": ..., "batch_stats": ...}``).
+Params: TypeAlias = Mapping[str, Any]
 
 INITS = ("fan_in_uniform", "orthogonal")
 #: hidden-layer nonlinearities, with the orthogonal gain that keeps activations' scale
@@ -53,13 +57,13 @@ ARCHITECTURES = ("mlp", "simba")
 
 
 def _uniform(bound: float):
-    def init(key: jax.Array, shape: Sequence[int], dtype: Any = jnp.float32) -> jax.Array:
+    def init(key: jax.Array, shape: Sequence[int], dtype: DTypeLike = jnp.float32) -> jax.Array:
         return jax.random.uniform(key, shape, dtype, -bound, bound)
 
     return init
 
 
-def dense(features: int, fan_in: int, initializer: str, gain: float, dtype: Any) -> nn.Dense:
+def dense(features: int, fan_in: int, initializer: str, gain: float, dtype: DTypeLike) -> nn.Dense:
     """A linear layer initialised by the named scheme (``gain`` only matters for orthogonal)."""
     if initializer == "fan_in_uniform":
         bound = 1.0 / fan_in**0.5
@@ -94,7 +98,7 @@ class Torso(nn.Module):
     hidden: tuple[int, ...]
     initializer: str = "fan_in_uniform"
     activation: str = "relu"
-    dtype: Any = jnp.float32
+    dtype: DTypeLike = jnp.float32
     norm: str = "none"  # "none" or "layer"
 
     @nn.compact
@@ -197,7 +201,7 @@ class MatmulConv(nn.Module):
     kernel: int
     stride: int
     initializer: str = "fan_in_uniform"
-    dtype: Any = jnp.float32
+    dtype: DTypeLike = jnp.float32
 
     @nn.compact
     def __call__(self, x: jax.Array) -> jax.Array:
@@ -242,7 +246,7 @@ class ConvTorso(nn.Module):
 
     layers: tuple[int, ...]
     initializer: str = "fan_in_uniform"
-    dtype: Any = jnp.float32
+    dtype: DTypeLike = jnp.float32
     rows: tuple[int, ...] = ()  # (first, stop): the only rows the layers see; () all of them
 
     @nn.compact
@@ -269,7 +273,7 @@ class MLP(nn.Module):
     outputs: int
     initializer: str = "fan_in_uniform"
     output_gain: float = 1.0
-    dtype: Any = jnp.float32
+    dtype: DTypeLike = jnp.float32
     activation: str = "relu"
     norm: str = "none"
     renorm_warmup: int = 100_000
@@ -299,7 +303,7 @@ class SimbaBlock(nn.Module):
 
     width: int
     initializer: str = "fan_in_uniform"
-    dtype: Any = jnp.float32
+    dtype: DTypeLike = jnp.float32
     activation: str = "relu"
 
     @nn.compact
@@ -318,7 +322,7 @@ class Simba(nn.Module):
     outputs: int
     initializer: str = "fan_in_uniform"
     output_gain: float = 1.0
-    dtype: Any = jnp.float32
+    dtype: DTypeLike = jnp.float32
     activation: str = "relu"
 
     @nn.compact
@@ -365,7 +369,7 @@ class StateActionEncoder(nn.Module):
     hidden: tuple[int, ...]
     embedding_dim: int
     initializer: str = "fan_in_uniform"
-    dtype: Any = jnp.float32
+    dtype: DTypeLike = jnp.float32
     activation: str = "elu"
 
     def setup(self) -> None:
@@ -402,7 +406,7 @@ class Actor(nn.Module):
     action_low: tuple[float, ...]
     action_high: tuple[float, ...]
     initializer: str = "fan_in_uniform"
-    dtype: Any = jnp.float32
+    dtype: DTypeLike = jnp.float32
     activation: str = "relu"
     norm: str = "none"  # see MLP
     architecture: str = "mlp"  # or "simba"
@@ -426,7 +430,7 @@ class Critic(nn.Module):
 
     hidden: tuple[int, ...]
     initializer: str = "fan_in_uniform"
-    dtype: Any = jnp.float32
+    dtype: DTypeLike = jnp.float32
     activation: str = "relu"
     norm: str = "none"  # see MLP
     architecture: str = "mlp"  # or "simba"
@@ -459,7 +463,7 @@ class QNetwork(nn.Module):
     num_actions: int
     dueling: bool = False
     initializer: str = "fan_in_uniform"
-    dtype: Any = jnp.float32
+    dtype: DTypeLike = jnp.float32
     conv_layers: tuple[int, ...] = ()  # set: obs are images [..., H, W, C], see ConvTorso
     conv_rows: tuple[int, ...] = ()  # (first, stop): the image rows the ConvTorso sees
     norm: str = "none"  # "layer": LayerNorm in each hidden layer after the conv torso
@@ -529,14 +533,16 @@ class StochasticPolicy(nn.Module):
         )
 
 
-def init_stacked(module: nn.Module, key: jax.Array, count: int, *example_inputs: Any) -> Any:
+def init_stacked(
+    module: nn.Module, key: jax.Array, count: int, *example_inputs: jax.Array
+) -> Params:
     """Independent parameters for ``count`` copies of ``module`` as one pytree, leaves
     ``[count, ...]`` (the twin critics of TD3 are ``count=2``)."""
     in_axes = (0,) + (None,) * len(example_inputs)
     return jax.vmap(module.init, in_axes=in_axes)(jax.random.split(key, count), *example_inputs)
 
 
-def apply_stacked(module: nn.Module, params: Any, *inputs: Any) -> jax.Array:
+def apply_stacked(module: nn.Module, params: Params, *inputs: jax.Array) -> jax.Array:
     """Every stacked copy on the same inputs: outputs gain a leading ``[count]`` axis."""
     in_axes = (0,) + (None,) * len(inputs)
     return jax.vmap(module.apply, in_axes=in_axes)(params, *inputs)

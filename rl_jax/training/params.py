@@ -12,7 +12,7 @@ from __future__ import annotations
 import dataclasses
 import itertools
 from collections.abc import Sequence
-from typing import Any
+from typing import Any, TypeAlias
 
 import jax
 import numpy as np
@@ -22,6 +22,9 @@ from rl_jax.errors import RunError
 # ---- arrays ---------------------------------------------------------------------------------
 
 _DTYPES = {"f": np.float32, "i": np.int32, "u": np.int32, "b": np.bool_}
+
+#: A hyperparameter's value: a Python number, or an array leaf (stacked: ``[H]``).
+Scalar: TypeAlias = float | jax.Array
 
 
 def _as_array(value: Any, like: Any = None) -> np.ndarray:
