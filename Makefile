@@ -1,6 +1,6 @@
 # rl_jax — every set-up step lives here so that a fresh machine needs only Python 3.11 and pip.
 #   make train   install, then train TD3 on half cheetah with 5 seeds
-#   make test    install, then run the test suite (what CI runs)
+#   make test    install, then run the test suite (CI runs make lint, make typecheck, then this)
 #   make install GPU=1        also the CUDA 12 build of the pinned jaxlib (requirements-gpu.lock)
 #   make test-latest          the default suite against the newest releases, in .venv-latest
 PYTHON ?= python3.11
@@ -22,8 +22,8 @@ LATEST_VENV := .venv-latest
 # Headless MuJoCo rendering picks EGL, else OSMesa, when a frame is first drawn
 # (envs/mujoco/opengl.py); nothing else needs OpenGL, so MUJOCO_GL is not set here.
 
-.PHONY: install test test-slow test-latest lint format bench results train lock lock-gpu \
-	system-deps clean help
+.PHONY: install test test-slow test-latest lint typecheck format bench results train lock \
+	lock-gpu system-deps clean help
 
 help:
 	@grep -E '^[a-z-]+:.*## ' $(MAKEFILE_LIST) | sed 's/:.*## /\t/' | sort
@@ -79,6 +79,12 @@ lint: install ## ruff lint + format check
 	$(BIN)/ruff check .
 	$(BIN)/ruff format --check .
 
+# mypy over rl_jax/ and envs/ (settings in pyproject.toml; its cache in .mypy_cache), failing when
+# the errors outnumber scripts/typecheck_baseline.txt, and when they fall short of it (then
+# `$(BIN)/python scripts/typecheck.py --update` lowers it).
+typecheck: install ## mypy against its baseline of known errors, which may only shrink
+	$(BIN)/python scripts/typecheck.py
+
 format: install ## apply ruff formatting and safe fixes
 	$(BIN)/ruff format .
 	$(BIN)/ruff check --fix .
@@ -92,10 +98,15 @@ results: install ## regenerate every row of RESULTS.md, one long training run at
 train: install ## train TD3 on half cheetah, 5 seeds in one compiled program
 	$(BIN)/python experiments/td3_cheetah.py --seeds 5
 
-lock: ## regenerate requirements.lock from pyproject.toml (needs network)
+# The lock holds the library and its test and dev extras. pip-compile keeps every pin already in
+# requirements.lock that pyproject.toml still admits (adding, dropping or moving only what changed);
+# UPGRADE=1 takes the newest release of everything inside pyproject.toml's ranges instead.
+UPGRADE ?=
+lock: ## regenerate requirements.lock from pyproject.toml (needs network; UPGRADE=1: newest in range)
 	@test -x $(BIN)/pip-compile || $(MAKE) install
-	$(BIN)/pip-compile --quiet --extra dev --strip-extras --generate-hashes --allow-unsafe \
-		--no-emit-index-url --no-emit-find-links --upgrade -o requirements.lock pyproject.toml
+	$(BIN)/pip-compile --quiet --extra test --extra dev --strip-extras --generate-hashes \
+		--allow-unsafe --no-emit-index-url --no-emit-find-links $(if $(UPGRADE),--upgrade) \
+		-o requirements.lock pyproject.toml
 
 lock-gpu: ## regenerate requirements-gpu.lock (the CUDA plugin of the pinned jaxlib; needs network)
 	@test -x $(BIN)/pip-compile || $(MAKE) install
@@ -103,4 +114,4 @@ lock-gpu: ## regenerate requirements-gpu.lock (the CUDA plugin of the pinned jax
 		--no-emit-find-links -c requirements.lock -o requirements-gpu.lock requirements-gpu.in
 
 clean: ## remove the venvs and caches (runs/ is kept)
-	rm -rf $(VENV) $(LATEST_VENV) .pytest_cache .ruff_cache
+	rm -rf $(VENV) $(LATEST_VENV) .pytest_cache .ruff_cache .mypy_cache

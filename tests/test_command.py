@@ -1,0 +1,43 @@
+"""The `rl-jax` command (rl_jax/__main__.py): its help, its one-line errors, and the subcommands
+reaching the scripts' entry points. tests/test_install.py runs it from an installed wheel."""
+
+import importlib
+import tomllib
+from pathlib import Path
+
+import pytest
+
+from rl_jax import __main__ as command
+
+ROOT = Path(__file__).resolve().parent.parent
+
+
+def test_console_script_names_the_entry_point():
+    scripts = tomllib.loads((ROOT / "pyproject.toml").read_text())["project"]["scripts"]
+    module, _, name = scripts["rl-jax"].partition(":")
+    assert getattr(importlib.import_module(module), name) is command.main
+
+
+def test_help_lists_every_subcommand(capsys):
+    assert command.main(["--help"]) == 0
+    out = capsys.readouterr().out
+    assert out.startswith("usage: rl-jax COMMAND")
+    for name in ("train", "sweep", "evaluate", "render"):
+        assert f"\n  {name} " in out
+
+
+@pytest.mark.parametrize("argv", [["trian", "--algo", "td3"], [], ["--seeds", "2"]])
+def test_unknown_or_missing_command_is_one_line_and_exit_2(argv, capsys):
+    assert command.main(argv) == 2
+    captured = capsys.readouterr()
+    assert captured.out == ""
+    assert len(captured.err.splitlines()) == 1 and captured.err.startswith("error: ")
+
+
+def test_train_help_names_the_command(capsys, monkeypatch):
+    monkeypatch.setattr("sys.argv", ["rl-jax"])  # the command replaces it; restored after
+    with pytest.raises(SystemExit) as exit_:
+        command.main(["train", "--help"])
+    assert exit_.value.code == 0
+    out = capsys.readouterr().out
+    assert out.startswith("usage: rl-jax train ") and "--algo NAME" in out
