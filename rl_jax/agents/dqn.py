@@ -37,6 +37,7 @@ import jax
 import jax.numpy as jnp
 import optax
 from flax import struct
+from jax.typing import ArrayLike
 
 import envs
 from rl_jax.agents.common import linearly_decayed, optimizer_step, polyak_update
@@ -108,7 +109,7 @@ def loss_fn(
     return loss, (td_error, jnp.mean(target_tm1 - td_error))  # the mean q of the taken actions
 
 
-def _optimizer(learning_rate: float, max_grad_norm: float) -> optax.GradientTransformation:
+def _optimizer(learning_rate: ArrayLike, max_grad_norm: ArrayLike) -> optax.GradientTransformation:
     return optax.chain(optax.clip_by_global_norm(max_grad_norm), optax.adam(learning_rate))
 
 
