@@ -7,16 +7,19 @@ The envs they train and evaluate on, and the evaluation itself, are in
 
 from __future__ import annotations
 
-from typing import Any
-
 import jax
 import jax.numpy as jnp
 import optax
+from jax.typing import ArrayLike
 
 
 def optimizer_step(
-    optimizer: optax.GradientTransformation, grads: Any, opt_state: Any, params: Any, **rates: Any
-) -> tuple[Any, Any]:
+    optimizer: optax.GradientTransformation,
+    grads: optax.Updates,
+    opt_state: optax.InjectStatefulHyperparamsState,
+    params: optax.Params,
+    **rates: ArrayLike,
+) -> tuple[optax.Params, optax.InjectStatefulHyperparamsState]:
     """One step of an ``optax.inject_hyperparams`` optimizer at ``rates`` (this update's values of
     its hyperparameters, e.g. a decayed learning rate): ``(new params, new opt_state)``. The
     rates are written into the state first, so a checkpoint holds the rates in use."""
@@ -25,14 +28,16 @@ def optimizer_step(
     return optax.apply_updates(params, updates), opt_state
 
 
-def clip_by_global_norm(grads, max_norm) -> tuple[Any, jax.Array]:
+def clip_by_global_norm(
+    grads: optax.Updates, max_norm: ArrayLike
+) -> tuple[optax.Updates, jax.Array]:
     """``(grads scaled to global norm <= max_norm, norm before)``; ``max_norm <= 0`` keeps them."""
     norm = optax.tree.norm(grads)
     scale = jnp.where(max_norm > 0.0, jnp.minimum(1.0, max_norm / jnp.maximum(norm, 1e-12)), 1.0)
     return jax.tree.map(lambda g: g * scale, grads), norm
 
 
-def linearly_decayed(rate, progress, decay_length) -> jax.Array:
+def linearly_decayed(rate: ArrayLike, progress: ArrayLike, decay_length: ArrayLike) -> jax.Array:
     """``rate`` falling linearly to 0 over ``decay_length`` (env steps or updates, as
     ``progress``; constant if the length is <= 0). A rate that ends at 0 freezes the policy a run
     has converged to, instead of leaving the last updates to move it around a good solution."""
@@ -40,6 +45,6 @@ def linearly_decayed(rate, progress, decay_length) -> jax.Array:
     return rate * jnp.where(decay_length > 0.0, fraction, 1.0)
 
 
-def polyak_update(target, online, tau) -> Any:
+def polyak_update(target: optax.Params, online: optax.Params, tau: ArrayLike) -> optax.Params:
     """``target <- (1 - tau) * target + tau * online``, leaf by leaf."""
     return jax.tree.map(lambda t, o: (1.0 - tau) * t + tau * o, target, online)

@@ -17,7 +17,9 @@ ended an episode and bootstraps from that step's true next observation unless th
 ``envs.DiscretizeActions`` with ``action_bins`` values per dimension (3 bins: the rocket's thrust
 in {-1, 0, +1}).
 
-Usage is TD3's::
+Beside this module: its settings (``dqn_config``: ``Config``, ``PixelConfig`` for envs seen as
+frames, ``Hyperparams``), its replay (``dqn_replay``), its recipes per env (``dqn_recipes``) and
+its pure maths (``q_learning``). Usage is TD3's::
 
     config = dqn.default_config("rl_jax/CartPole-v1", double=True, n_step=3)
     hparams = dqn.default_hyperparams("rl_jax/CartPole-v1")
@@ -27,17 +29,21 @@ Usage is TD3's::
 
 from __future__ import annotations
 
-import dataclasses
 import functools
+from collections.abc import Callable
 from typing import Any
 
 import jax
 import jax.numpy as jnp
 import optax
 from flax import struct
+from jax.typing import ArrayLike
 
 import envs
 from rl_jax.agents.common import linearly_decayed, optimizer_step, polyak_update
+from rl_jax.agents.dqn_config import PIXEL_ENVS, Config, Hyperparams, PixelConfig
+from rl_jax.agents.dqn_recipes import RECIPES
+from rl_jax.agents.dqn_replay import Buffer, add_to_buffer, init_buffer, sample, write_priorities
 from rl_jax.agents.q_learning import (
     double_q_values,
     greedy_values,
@@ -45,165 +51,21 @@ from rl_jax.agents.q_learning import (
     n_step_target,
     q_learning_loss,
 )
-from rl_jax.training import (
-    augment,
-    episodes,
-    frame_replay,
-    networks,
-    offpolicy,
-    params,
-    policy_checkpoints,
-    prioritized,
-    replay,
-    validation,
-)
-from rl_jax.training.algorithm import RecipeBook
-from rl_jax.training.offpolicy import OffPolicyConfig, TrainState
-from rl_jax.training.recipes import Recipe, Recipes
+from rl_jax.training import augment, episodes, networks, offpolicy, policy_checkpoints, validation
+from rl_jax.training.algorithm import ChunkMetrics, RecipeBook
+from rl_jax.training.offpolicy import Clock, TrainState
+from rl_jax.training.policy_checkpoints import PolicyCheckpoint
 from rl_jax.training.replay import NStepBatch, Transition
-
-
-@dataclasses.dataclass(frozen=True, kw_only=True)
-class Config(OffPolicyConfig):
-    """Static settings of DQN (the loop's are in ``OffPolicyConfig``)."""
-
-    hidden: tuple[int, ...] = (120, 84)  # hidden ReLU layers of the Q-network
-    double: bool = False  # Double DQN targets: the online net's argmax, valued by the target net
-    dueling: bool = False  # dueling head: q = v + a - mean(a)
-    n_step: int = 1  # rewards summed before bootstrapping (a window stops at an episode's end)
-    prioritized: bool = False  # proportional prioritized replay with importance weights
-    target_update_period: int = 500  # gradient updates between target steps of size tau
-    action_bins: int = 3  # values per action dim when the env's actions are continuous
-    network_init: str = "fan_in_uniform"  # see rl_jax.training.networks
-    norm: str = "none"  # "layer": LayerNorm before each hidden ReLU of the Q-network
-    # TD7's policy checkpoints (rl_jax.training.policy_checkpoints): the training envs act
-    # (epsilon-greedily) with a frozen copy of the Q-network for an assessment of
-    # checkpoint_episodes episodes (1 before env step checkpoint_episodes_from); if none returned
-    # less than the checkpoint's score, the copy becomes the checkpoint, whose greedy policy is
-    # what evaluation, best/ and loaded policies use. Updates go on meanwhile.
-    policy_checkpoints: bool = False
-    checkpoint_episodes: int = 20  # policy_checkpoints: episodes per assessment (TD7: 20)
-    checkpoint_episodes_from: int = 750_000  # policy_checkpoints: env step of the switch
-
-    def __post_init__(self) -> None:
-        super().__post_init__()
-        if self.norm not in ("none", "layer"):
-            raise ValueError(f"norm must be 'none' or 'layer', got {self.norm!r}")
-        if self.n_step < 1 or self.target_update_period < 1:
-            raise ValueError("n_step and target_update_period must be >= 1")
-        if self.checkpoint_episodes < 1 or self.checkpoint_episodes_from < 0:
-            raise ValueError("checkpoint_episodes must be >= 1, checkpoint_episodes_from >= 0")
-        if self.action_bins < 2:
-            raise ValueError(f"action_bins must be >= 2, got {self.action_bins}")
-        if self.network_init not in networks.INITS:
-            raise ValueError(f"network_init must be one of {networks.INITS}")
-
-    def make_env(self) -> envs.Environment:
-        """The registered env; a continuous one with its actions discretised."""
-        env = super().make_env()
-        if isinstance(env.action_space(), envs.Box):
-            env = envs.DiscretizeActions(env, self.action_bins)
-        return env
-
-
-#: Envs observed as stacked frames: their config is a ``PixelConfig``.
-PIXEL_ENVS = ("rl_jax/CartPolePixels-v1",)
-
-
-@dataclasses.dataclass(frozen=True, kw_only=True)
-class PixelConfig(Config):
-    """DQN on frames (``PIXEL_ENVS``): the frame geometry and a conv torso before ``hidden``.
-
-    The replay keeps each frame once per step and rebuilds stacks when sampling
-    (``rl_jax.training.frame_replay``). The default torso is the 2013 DQN paper's (16 8x8/4, 32
-    4x4/2, then 256 units), not Nature DQN's (32 8x8/4, 64 4x4/2, 64 3x3/1, 512): a batch-32
-    gradient step on 84x84 frames took ~26 ms against ~72 ms (side by side, this 2-core machine
-    under load), and CartPole's frames are simple."""
-
-    image_observations = True  # (not a field) offpolicy keeps the frames [H, W, C]
-    hidden: tuple[int, ...] = (256,)  # hidden ReLU layers after the conv torso
-    frame_size: int = 84  # frames are frame_size x frame_size grayscale pixels
-    frame_stack: int = 4  # the last frame_stack frames are the observation's channels
-    conv_layers: tuple[int, ...] = (16, 8, 4, 32, 4, 2)  # (features, kernel, stride) per layer
-    # Seeds as an unrolled loop in the one program (training.parallel.seed_loop), not a vmap:
-    # 3 seeds: 1.2-1.3x the vmapped updates/s at 42x42 and 84x84 (python -m bench pixel_dqn).
-    loop_seeds: bool = True
-    # The torso sees only the rows the env ever draws on (its ``drawn_rows``; CartPole: 31 of 84,
-    # grown to 36 that the conv stack reads whole). The other rows are white in every frame, so
-    # the network loses nothing, and an update takes a third of the time (batch 32: 21.9 -> 7.3
-    # ms, BENCHMARKS.md). Off by default: runs saved before it existed see the whole frame.
-    crop_drawn_rows: bool = False
-    # DrQ's random shifts (rl_jax.training.augment): every sampled stack, obs and next_obs
-    # apart, is moved by up to augment_shift pixels in each axis (edges repeated) before the
-    # Q-networks see it, in the loss only; acting and evaluation see the frames as they are.
-    # DrQ used 4 at 84x84. 0: off (the update is then the same program as before it existed).
-    # On CartPole's frames 4 stopped learning altogether (RESULTS.md, "DQN from pixels").
-    augment_shift: int = 0
-
-    def __post_init__(self) -> None:
-        super().__post_init__()
-        if self.frame_size < 1 or self.frame_stack < 1:
-            raise ValueError("frame_size and frame_stack must be >= 1")
-        if not 0 <= self.augment_shift < self.frame_size:
-            raise ValueError(
-                f"augment_shift must be in 0..{self.frame_size - 1}, got {self.augment_shift}"
-            )
-        networks.check_conv_layers(self.conv_layers, self.frame_size)
-        given = {"frame_size", "frame_stack"} & set(envs.parse_keywords(self.env_kwargs))
-        if given:
-            name = sorted(given)[0]
-            raise ValueError(
-                f"{name} is a config field here: --{name.replace('_', '-')}, not --env-kwargs"
-            )
-        first, stop = self.conv_rows() or (0, self.frame_size)
-        networks.check_conv_layers(self.conv_layers, stop - first)
-
-    def make_env(self) -> envs.Environment:
-        return envs.make(
-            self.env_id,
-            frame_size=self.frame_size,
-            frame_stack=self.frame_stack,
-            **envs.parse_keywords(self.env_kwargs),
-        )
-
-    def conv_rows(self) -> tuple[int, ...]:
-        """``(first, stop)``, the frame rows the conv torso sees, or ``()`` for all."""
-        env = self.make_env()
-        if not self.crop_drawn_rows or not hasattr(env, "drawn_rows"):
-            return ()
-        return networks.covering_rows(self.conv_layers, *env.drawn_rows(), self.frame_size)
-
-
-@struct.dataclass
-class Hyperparams(params.HyperparamsMethods):
-    """What a sweep may vary without recompiling. Defaults: CleanRL's classic-control DQN."""
-
-    learning_rate: Any = 2.5e-4  # Adam step size
-    lr_decay_steps: Any = 0.0  # env steps (all envs) over which the rate falls to 0 (0: constant)
-    gamma: Any = 0.99  # discount
-    tau: Any = 1.0  # target step every target_update_period updates (1: hard copy)
-    epsilon_start: Any = 1.0  # exploration rate at env step 0
-    epsilon_end: Any = 0.05  # exploration rate after epsilon_decay_steps
-    epsilon_decay_steps: Any = 250_000.0  # env steps (all envs) of the linear epsilon decay
-    huber_delta: Any = 1.0  # TD errors beyond this are penalised linearly, not squared
-    max_grad_norm: Any = 10.0  # gradients are clipped to this global norm
-    priority_alpha: Any = 0.6  # prioritized: P(i) proportional to priority_i^alpha
-    priority_beta_start: Any = 0.4  # prioritized: importance-weight exponent at the start
-    priority_beta_steps: Any = 500_000.0  # prioritized: env steps for beta to rise to 1
-    priority_eps: Any = 1e-6  # prioritized: priority = |TD error| + eps
-    # policy_checkpoints: the checkpoint's score is multiplied by this when assessments lengthen
-    # to checkpoint_episodes (TD7: 0.9)
-    checkpoint_reset_weight: Any = 0.9
 
 
 @struct.dataclass
 class Agent:
-    online: Any  # Q-network parameters
-    target: Any  # target Q-network parameters
-    opt_state: Any  # optax inject_hyperparams state: holds learning rate and clip norm
-    # policy_checkpoints: a PolicyCheckpoint of Q-network parameters (None without: the state
-    # and checkpoints of runs without it stay as they were)
-    checkpoint: Any = None
+    online: optax.Params  # Q-network parameters
+    target: optax.Params  # target Q-network parameters
+    opt_state: optax.InjectStatefulHyperparamsState  # holds the learning rate and clip norm
+    # policy_checkpoints: the checkpoint of Q-network parameters (None without: the state and
+    # checkpoints of runs without it stay as they were)
+    checkpoint: PolicyCheckpoint | None = None
 
 
 @functools.lru_cache(maxsize=64)
@@ -225,7 +87,14 @@ def make_network(config: Config) -> networks.QNetwork:
 
 
 # ---- losses on networks, one update ------------------------------------------------------------
-def loss_fn(online, target, batch: NStepBatch, weights, hparams: Hyperparams, config: Config):
+def loss_fn(
+    online: optax.Params,
+    target: optax.Params,
+    batch: NStepBatch,
+    weights: jax.Array,
+    hparams: Hyperparams,
+    config: Config,
+) -> tuple[jax.Array, tuple[jax.Array, jax.Array]]:
     """``(loss, (td_error [B], q_taken mean))``; the target net enters only through the
     stopped-gradient target."""
     net = make_network(config)
@@ -240,26 +109,7 @@ def loss_fn(online, target, batch: NStepBatch, weights, hparams: Hyperparams, co
     return loss, (td_error, jnp.mean(target_tm1 - td_error))  # the mean q of the taken actions
 
 
-def sample(buffer, key, config: Config, hparams: Hyperparams, update_index):
-    """``(batch, weights [B], (rows, columns))`` from uniform or prioritized replay."""
-    frames, buffer = buffer, _rows_of(buffer, config)
-    if config.prioritized:
-        env_steps = offpolicy.env_steps_at_update(update_index, config)
-        beta = prioritized.annealed_beta(
-            hparams.priority_beta_start, env_steps, hparams.priority_beta_steps
-        )
-        rows, columns, weights = prioritized.sample_indices(buffer, key, config.batch_size, beta)
-        storage = buffer.buffer
-    else:
-        rows, columns = replay.sample_indices(buffer, key, config.batch_size)
-        weights, storage = jnp.ones(config.batch_size, jnp.float32), buffer
-    window, stored = replay.gather_windows(storage, rows, columns, config.n_step)
-    if isinstance(config, PixelConfig):
-        window = frame_replay.transitions(frames, window, rows, columns)
-    return replay.n_step_batch(window, stored, hparams.gamma), weights, (rows, columns)
-
-
-def _optimizer(learning_rate, max_grad_norm) -> optax.GradientTransformation:
+def _optimizer(learning_rate: ArrayLike, max_grad_norm: ArrayLike) -> optax.GradientTransformation:
     return optax.chain(optax.clip_by_global_norm(max_grad_norm), optax.adam(learning_rate))
 
 
@@ -267,14 +117,16 @@ def _optimizer(learning_rate, max_grad_norm) -> optax.GradientTransformation:
 _OPTIMIZER = optax.inject_hyperparams(_optimizer)(learning_rate=2.5e-4, max_grad_norm=10.0)
 
 
-def learning_rate_at(env_steps, hparams: Hyperparams) -> jax.Array:
+def learning_rate_at(env_steps: jax.Array, hparams: Hyperparams) -> jax.Array:
     """The Adam rate after ``env_steps``: linear decay to 0 over ``lr_decay_steps`` (if > 0).
     DQN's greedy policy on CartPole otherwise keeps collapsing and recovering long after it first
     scores 500."""
     return linearly_decayed(hparams.learning_rate, env_steps, hparams.lr_decay_steps)
 
 
-def _gradient_step(agent: Agent, grads, hparams: Hyperparams, env_steps) -> Agent:
+def _gradient_step(
+    agent: Agent, grads: optax.Updates, hparams: Hyperparams, env_steps: jax.Array
+) -> Agent:
     online, opt_state = optimizer_step(
         _OPTIMIZER,
         grads,
@@ -286,15 +138,27 @@ def _gradient_step(agent: Agent, grads, hparams: Hyperparams, env_steps) -> Agen
     return agent.replace(online=online, opt_state=opt_state)
 
 
-def update(agent: Agent, buffer, key, config: Config, hparams: Hyperparams, update_index):
+def _shifted(batch: NStepBatch, key: jax.Array, shift: int) -> NStepBatch:
+    """DrQ's random shifts (``PixelConfig.augment_shift``): obs and next_obs apart."""
+    obs_key, next_key = jax.random.split(jax.random.fold_in(key, 1))
+    return batch._replace(
+        obs=augment.random_shift(obs_key, batch.obs, shift),
+        next_obs=augment.random_shift(next_key, batch.next_obs, shift),
+    )
+
+
+def update(
+    agent: Agent,
+    buffer: Buffer,
+    key: jax.Array,
+    config: Config,
+    hparams: Hyperparams,
+    update_index: jax.Array,
+) -> tuple[Agent, Buffer, dict[str, jax.Array]]:
     """One gradient update, then (when due) a target step and new priorities."""
-    batch, weights, (rows, columns) = sample(buffer, key, config, hparams, update_index)
-    if getattr(config, "augment_shift", 0):
-        obs_key, next_key = jax.random.split(jax.random.fold_in(key, 1))
-        batch = batch._replace(
-            obs=augment.random_shift(obs_key, batch.obs, config.augment_shift),
-            next_obs=augment.random_shift(next_key, batch.next_obs, config.augment_shift),
-        )
+    batch, weights, indices = sample(buffer, key, config, hparams, update_index)
+    if isinstance(config, PixelConfig) and config.augment_shift:
+        batch = _shifted(batch, key, config.augment_shift)
     (loss, (td_error, q)), grads = jax.value_and_grad(loss_fn, has_aux=True)(
         agent.online, agent.target, batch, weights, hparams, config
     )
@@ -305,24 +169,19 @@ def update(agent: Agent, buffer, key, config: Config, hparams: Hyperparams, upda
         due, lambda: polyak_update(agent.target, agent.online, hparams.tau), lambda: agent.target
     )
     agent = agent.replace(target=target)
-    if config.prioritized:
-        priorities = jnp.abs(td_error) + hparams.priority_eps
-        rows_buffer = prioritized.update_priorities(
-            _rows_of(buffer, config), rows, columns, priorities, hparams.priority_alpha
-        )
-        buffer = _with_rows(buffer, rows_buffer, config)
+    buffer = write_priorities(buffer, indices, td_error, config, hparams)
     epsilon = epsilon_at(env_steps, hparams)
     return agent, buffer, {"loss": loss, "q": q, "epsilon": epsilon}
 
 
-# ---- acting, buffer and init --------------------------------------------------------------------
-def epsilon_at(env_steps, hparams: Hyperparams) -> jax.Array:
+# ---- acting -------------------------------------------------------------------------------------
+def epsilon_at(env_steps: jax.Array, hparams: Hyperparams) -> jax.Array:
     return linear_schedule(
         hparams.epsilon_start, hparams.epsilon_end, env_steps, hparams.epsilon_decay_steps
     )
 
 
-def greedy(params, obs: jax.Array, config: Config) -> jax.Array:
+def greedy(params: optax.Params, obs: jax.Array, config: Config) -> jax.Array:
     """Greedy actions ``[N]`` int32 of the Q-network ``params``."""
     return jnp.argmax(make_network(config).apply(params, obs), axis=-1).astype(jnp.int32)
 
@@ -332,12 +191,20 @@ def act(agent: Agent, obs: jax.Array, config: Config) -> jax.Array:
     return greedy(policy_params(agent, config), obs, config)
 
 
-def policy_params(agent: Agent, config: Config):
+def policy_params(agent: Agent, config: Config) -> optax.Params:
     """The Q-network whose greedy policy is evaluated, saved as best/ and loaded."""
     return agent.checkpoint.best if config.policy_checkpoints else agent.online
 
 
-def explore(agent: Agent, obs, noise, key, config: Config, hparams: Hyperparams, clock):
+def explore(
+    agent: Agent,
+    obs: jax.Array,
+    noise: jax.Array,
+    key: jax.Array,
+    config: Config,
+    hparams: Hyperparams,
+    clock: Clock,
+) -> tuple[jax.Array, jax.Array]:
     """``(actions, noise)``. Epsilon-greedy: a uniform action with probability epsilon(env steps),
     else greedy (with ``policy_checkpoints``, the assessed copy's). Independent from step to step,
     so the carried ``noise`` state is passed through."""
@@ -351,7 +218,15 @@ def explore(agent: Agent, obs, noise, key, config: Config, hparams: Hyperparams,
     return jnp.where(explore_now, uniform, greedy_actions), noise
 
 
-def observe(agent: Agent, transitions, episode_return, done, clock, config, hparams):
+def observe(
+    agent: Agent,
+    transitions: Transition,
+    episode_return: jax.Array,
+    done: jax.Array,
+    clock: Clock,
+    config: Config,
+    hparams: Hyperparams,
+) -> Agent:
     """Every env step: policy checkpoints count the episodes that ended."""
     if not config.policy_checkpoints:
         return agent
@@ -367,41 +242,14 @@ def observe(agent: Agent, transitions, episode_return, done, clock, config, hpar
     return agent.replace(checkpoint=checkpoint)
 
 
-def init_buffer(example: Transition, config: Config):
-    if isinstance(config, PixelConfig):  # frames kept once, stacks rebuilt when sampled
-        return frame_replay.init(example, lambda row: _init_rows(row, config))
-    return _init_rows(example, config)
-
-
-def _init_rows(example, config: Config):
-    if config.prioritized:
-        return prioritized.init(example, config.buffer_size, config.num_envs)
-    return offpolicy.uniform_buffer(example, config)
-
-
-def _rows_of(buffer, config: Config):
-    """The transition rows (uniform or prioritized) whatever the observation layout."""
-    return buffer.rows if isinstance(config, PixelConfig) else buffer
-
-
-def _with_rows(buffer, rows, config: Config):
-    return buffer.replace(rows=rows) if isinstance(config, PixelConfig) else rows
-
-
-def add_to_buffer(buffer, transitions: Transition, config: Config, hparams: Hyperparams):
-    if isinstance(config, PixelConfig):
-        add_rows = lambda rows, batch: _add_rows(rows, batch, config, hparams)  # noqa: E731
-        return frame_replay.add(buffer, transitions, add_rows)
-    return _add_rows(buffer, transitions, config, hparams)
-
-
-def _add_rows(buffer, transitions, config: Config, hparams: Hyperparams):
-    if config.prioritized:
-        return prioritized.add(buffer, transitions, hparams.priority_alpha)
-    return replay.add(buffer, transitions)
-
-
-def init_agent(key, config: Config, hparams: Hyperparams, obs_space, action_space) -> Agent:
+# ---- init and the loop's learner ----------------------------------------------------------------
+def init_agent(
+    key: jax.Array,
+    config: Config,
+    hparams: Hyperparams,
+    obs_space: envs.Space,
+    action_space: envs.Space,
+) -> Agent:
     online = make_network(config).init(key, jnp.zeros(obs_space.shape, jnp.float32))
     optimizer = optax.inject_hyperparams(_optimizer)(hparams.learning_rate, hparams.max_grad_norm)
     opt_state = optimizer.init(online)
@@ -425,106 +273,6 @@ LEARNER = offpolicy.Learner(
 
 
 # ---- the Algorithm object -----------------------------------------------------------------------
-# Per-env recipes on top of the defaults. The classic-control base: wider layers, a faster rate and
-# a short epsilon decay (as in rl-baselines3-zoo's tuned DQN), with 4 envs and one update per 2
-# env steps.
-_CLASSIC = {
-    "num_envs": 4,
-    "updates_per_iteration": 2,
-    "iterations_per_chunk": 1000,
-    "learning_starts": 1000,
-    "buffer_size": 100_000,
-    "batch_size": 64,
-    "hidden": (256, 256),
-    "target_update_period": 100,
-}
-# CartPole (RESULTS.md, "DQN on CartPole"): the final policy balances 500 steps in 29/30 seeds
-# (0-29; the 30th scores 499.4) and 20/20 others (1000-1019) at 60k env steps, because the policy
-# the run ends with is TD7's checkpoint: a copy of the Q-network
-# that played 20 training episodes (epsilon 0.01) without one scoring below the previous
-# checkpoint's score. On its own the greedy policy keeps collapsing and recovering after it first
-# scores 500 (at any one time about 2 seeds in 3 are at 500); decaying the rate to 0 froze seeds
-# part-way (21/30). With the checkpoint, what is left is to reach 500 at all within the budget,
-# which 3-step returns and a rate of 3e-3 on a 64x64 network do by 40k steps in 40/40 tuning seeds
-# (500-539); 64x64 instead of 256x256 also runs 30 seeds 5x faster (~40 s).
-_CARTPOLE = {
-    **_CLASSIC,
-    "hidden": (64, 64),
-    "n_step": 3,
-    "policy_checkpoints": True,
-    "checkpoint_episodes": 20,
-    "checkpoint_episodes_from": 20_000,
-}
-_CONFIGS: dict[str, dict[str, Any]] = {
-    "rl_jax/CartPole-v1": _CARTPOLE,
-    # Pixels (RESULTS.md): 50k frame pairs (~0.7 GB per seed), one batch-32 update per 4 env steps,
-    # Double DQN, 3-step returns and slower targets; with CartPole's own settings the Q-values
-    # climbed towards 1 / (1 - gamma) and episodes stayed at the random ~20 steps. LayerNorm in
-    # the 256-unit layer learns about twice as fast (every seed at 500 by ~100k steps instead of
-    # ~180k), and with the rate decaying to 0 over the run (its hyperparameters below) the latest
-    # policies scored 475 / 493 / 500 on 100 fresh episodes (the constant rate's: 151 / 211 / 424).
-    "rl_jax/CartPolePixels-v1": {
-        **_CLASSIC,
-        "hidden": (256,),
-        "buffer_size": 50_000,
-        "batch_size": 32,
-        "updates_per_iteration": 1,
-        "double": True,
-        "n_step": 3,
-        "target_update_period": 500,
-        "crop_drawn_rows": True,
-        "norm": "layer",
-    },
-    "rl_jax/InvertedPendulum-v5": _CLASSIC,
-    "rl_jax/Rocket-v0": {**_CLASSIC, "action_bins": 3},
-    # The settle variant: thrust {-1, -0.5, 0, 0.5, 1}. With {-1, 0, +1} (the faithful rocket's)
-    # 1-2 of 5 latest policies came to rest inside |x|, |v| <= 0.01 from (1, 0) at 100k steps;
-    # with five values and 200k steps, 13 of 15 (seeds 0-4 and 10-14: 5/5; 5-9: 3/5); with
-    # LayerNorm in the Q-network as well, 15 of 15 (seeds 0-14; RESULTS.md).
-    "rl_jax/RocketSettle-v0": {**_CLASSIC, "action_bins": 5, "norm": "layer"},
-}
-_FAST_DECAY = {"learning_rate": 1e-3, "epsilon_decay_steps": 8000.0, "epsilon_end": 0.04}
-_HPARAMS: dict[str, dict[str, float]] = {
-    # A constant rate (the checkpoint keeps what was learned); epsilon 0.01 after 8k steps, so
-    # that the training episodes that assess a copy are nearly its greedy policy's.
-    "rl_jax/CartPole-v1": {**_FAST_DECAY, "learning_rate": 3e-3, "epsilon_end": 0.01},
-    # The rate falls to 0 over the script's 200k steps, so that the policy the run ends with is a
-    # settled one: at a constant rate it kept collapsing and recovering (RESULTS.md).
-    "rl_jax/CartPolePixels-v1": {**_FAST_DECAY, "learning_rate": 5e-4, "lr_decay_steps": 200_000.0},
-    "rl_jax/InvertedPendulum-v5": _FAST_DECAY,
-    "rl_jax/Rocket-v0": {"learning_rate": 1e-3, "epsilon_decay_steps": 50_000.0},
-    # gamma 0.995 as TD3's rocket recipe: at 0.99 creeping in scores about as well as arriving.
-    "rl_jax/RocketSettle-v0": {
-        "learning_rate": 1e-3,
-        "epsilon_decay_steps": 50_000.0,
-        "gamma": 0.995,
-    },
-}
-
-_ABOUT = {
-    "rl_jax/CartPole-v1": "64x64, 3-step returns, rate 3e-3, TD7's policy checkpoints",
-    "rl_jax/CartPolePixels-v1": "conv torso, Double DQN, 3-step returns, LayerNorm, rate to 0",
-    "rl_jax/InvertedPendulum-v5": "the classic-control base: 256x256, 4 envs, rate 1e-3",
-    "rl_jax/Rocket-v0": "the classic-control base, thrust {-1, 0, +1}",
-    "rl_jax/RocketSettle-v0": "thrust {-1, -0.5, 0, 0.5, 1}, LayerNorm, gamma 0.995",
-}
-# (env steps/s per seed, seeds): 3 pixel seeds took 200k steps in 28 minutes (RESULTS.md)
-_THROUGHPUT = {"rl_jax/CartPolePixels-v1": (117.0, 3)}
-RECIPES = Recipes(
-    *(
-        Recipe(
-            "default",
-            about,
-            _CONFIGS[env_id],
-            _HPARAMS.get(env_id, {}),
-            envs=(env_id,),
-            throughput=_THROUGHPUT.get(env_id),
-        )
-        for env_id, about in _ABOUT.items()
-    )
-)
-
-
 class DQN(RecipeBook):
     """DQN as an ``rl_jax.training.algorithm.Algorithm``."""
 
@@ -544,10 +292,12 @@ class DQN(RecipeBook):
     def init(self, key: jax.Array, config: Config, hparams: Hyperparams) -> TrainState:
         return offpolicy.init(LEARNER, key, config, hparams)
 
-    def train_chunk(self, state: TrainState, config: Config, hparams: Hyperparams):
+    def train_chunk(
+        self, state: TrainState, config: Config, hparams: Hyperparams
+    ) -> tuple[TrainState, ChunkMetrics]:
         return offpolicy.train_chunk(LEARNER, state, config, hparams)
 
-    def policy(self, state: TrainState, config: Config):
+    def policy(self, state: TrainState, config: Config) -> Callable[[jax.Array], jax.Array]:
         """``obs -> action index`` of the greedy policy of one seed's state (with
         ``policy_checkpoints``, the checkpoint's)."""
         params = policy_params(state.agent, config)

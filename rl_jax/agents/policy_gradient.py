@@ -7,9 +7,10 @@ from __future__ import annotations
 
 import jax
 import jax.numpy as jnp
+from jax.typing import ArrayLike
 
 
-def reward_to_go(r_t, mask, gamma) -> jax.Array:
+def reward_to_go(r_t: jax.Array, mask: jax.Array, gamma: ArrayLike) -> jax.Array:
     """``G_t = mask_t (r_t + gamma G_{t+1})`` backwards over axis 0: ``[T, N] -> [T, N]``."""
 
     def back(g_next, inputs):
@@ -20,7 +21,7 @@ def reward_to_go(r_t, mask, gamma) -> jax.Array:
     return jax.lax.scan(back, jnp.zeros_like(r_t[0]), (r_t, mask), reverse=True)[1]
 
 
-def normalize(x, mask, eps: float = 1e-8) -> jax.Array:
+def normalize(x: jax.Array, mask: jax.Array, eps: float = 1e-8) -> jax.Array:
     """``(x - mean) / (std + eps)`` over the entries where ``mask`` is 1 (others become 0)."""
     count = jnp.maximum(jnp.sum(mask), 1.0)
     mean = jnp.sum(x * mask) / count
@@ -28,19 +29,19 @@ def normalize(x, mask, eps: float = 1e-8) -> jax.Array:
     return mask * (x - mean) / (std + eps)
 
 
-def gaussian_log_prob(action, mean, std) -> jax.Array:
+def gaussian_log_prob(action: jax.Array, mean: jax.Array, std: jax.Array) -> jax.Array:
     """Diagonal Gaussian log-density, summed over the last axis: ``[..., D] -> [...]``."""
     z = (action - mean) / std
     return jnp.sum(-0.5 * z**2 - jnp.log(std) - 0.5 * jnp.log(2.0 * jnp.pi), axis=-1)
 
 
-def categorical_log_prob(logits, action) -> jax.Array:
+def categorical_log_prob(logits: jax.Array, action: jax.Array) -> jax.Array:
     """``log softmax(logits)[action]``: ``[..., A], [...] -> [...]``."""
     log_probs = jax.nn.log_softmax(logits, axis=-1)
     return jnp.take_along_axis(log_probs, action[..., None].astype(jnp.int32), axis=-1)[..., 0]
 
 
-def policy_gradient_loss(log_prob, advantage, mask) -> jax.Array:
+def policy_gradient_loss(log_prob: jax.Array, advantage: jax.Array, mask: jax.Array) -> jax.Array:
     """``-1/N sum_{t,i} mask log_prob stop_gradient(advantage)`` for ``[T, N]`` inputs: the
     negated score-function estimate of the gradient of the mean episode return."""
     weighted = mask * log_prob * jax.lax.stop_gradient(advantage)
@@ -55,7 +56,7 @@ def entropy(policy: dict[str, jax.Array]) -> jax.Array:
     return jnp.sum(jnp.log(policy["std"]) + 0.5 * jnp.log(2.0 * jnp.pi * jnp.e), axis=-1)
 
 
-def log_prob(policy: dict[str, jax.Array], action) -> jax.Array:
+def log_prob(policy: dict[str, jax.Array], action: jax.Array) -> jax.Array:
     if "logits" in policy:
         return categorical_log_prob(policy["logits"], action)
     return gaussian_log_prob(action, policy["mean"], policy["std"])

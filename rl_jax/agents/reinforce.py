@@ -26,17 +26,21 @@ over seeds, results) needs one step axis shared by all seeds. So ``ChunkMetrics.
 logged ``step``, ``--total-steps``) counts env step *slots*: ``num_envs * max_episode_steps`` per
 update, the most a batch can take (exact once episodes run to the time limit, an overcount while
 they end early). The real count of env steps inside episodes is logged as ``env_steps_taken``.
+
+Beside this module: its settings (``reinforce_config``), its policy network and the episodes it
+collects (``reinforce_policy``), its recipes per env (``reinforce_recipes``) and its pure maths
+(``policy_gradient``).
 """
 
 from __future__ import annotations
 
-import dataclasses
-from typing import Any
+from collections.abc import Callable
 
 import jax
 import jax.numpy as jnp
 import optax
 from flax import struct
+from jax.typing import ArrayLike
 
 import envs
 from rl_jax.agents.common import clip_by_global_norm, linearly_decayed, optimizer_step
@@ -47,6 +51,7 @@ from rl_jax.agents.policy_gradient import (
     policy_gradient_loss,
     reward_to_go,
 )
+from rl_jax.agents.reinforce_config import Config, Hyperparams
 from rl_jax.agents.reinforce_policy import (
     Trajectory,
     make_network,
@@ -54,75 +59,16 @@ from rl_jax.agents.reinforce_policy import (
     rollout,
     to_env_action,
 )
-from rl_jax.training import episodes, networks, normalization, params
+from rl_jax.agents.reinforce_recipes import RECIPES
+from rl_jax.training import episodes, normalization
 from rl_jax.training.algorithm import ChunkMetrics, RecipeBook
-from rl_jax.training.recipes import Recipe, Recipes
-
-BASELINES = ("none", "mean", "value")
-
-
-@dataclasses.dataclass(frozen=True, kw_only=True)
-class Config:
-    """Static settings (changing one recompiles)."""
-
-    env_id: str
-    num_envs: int = 16  # episodes per update, collected by vmapped envs
-    iterations_per_chunk: int = 20  # updates per compiled call; eval after each chunk
-    num_eval_envs: int = 10  # episodes of the deterministic policy per evaluation
-    hidden: tuple[int, ...] = (16, 32)  # the policy's torso
-    activation: str = "tanh"  # see rl_jax.training.networks.ACTIVATIONS
-    baseline: str = "none"  # "none", "mean" (batch mean of returns) or "value" (learned)
-    normalize_returns: bool = False  # standardise the returns over each batch
-    std_floor: float = 1e-6  # Gaussian policy: the std's lower bound
-    std_mode: str = "state"  # Gaussian std: "state" (a head) or "param" (learned, state-free)
-    initial_std: float = 1.0  # with std_mode "param": the std before training
-    value_hidden: tuple[int, ...] = ()  # baseline "value": its own torso (empty: shares policy's)
-    normalize_obs: bool = False  # standardise observations by running mean and variance
-    network_init: str = "fan_in_uniform"  # see rl_jax.training.networks
-    squash_mean: bool = False  # Gaussian policy: the mean is tanh-squashed into the action bounds
-    # the env's constructor keywords, "name=value, name=value": envs.make(env_id, **them)
-    env_kwargs: str = ""
-
-    def __post_init__(self) -> None:
-        envs.parse_keywords(self.env_kwargs)  # a ValueError names what is wrong
-        for name in ("num_envs", "iterations_per_chunk", "num_eval_envs"):
-            if getattr(self, name) < 1:
-                raise ValueError(f"{name} must be >= 1, got {getattr(self, name)}")
-        if self.baseline not in BASELINES:
-            raise ValueError(f"baseline must be one of {BASELINES}, got {self.baseline!r}")
-        if self.activation not in networks.ACTIVATIONS:
-            raise ValueError(f"activation must be one of {list(networks.ACTIVATIONS)}")
-        if self.std_mode not in ("state", "param"):
-            raise ValueError(f"std_mode must be 'state' or 'param', got {self.std_mode!r}")
-        if self.initial_std <= 0.0:
-            raise ValueError(f"initial_std must be > 0, got {self.initial_std}")
-        if self.std_floor <= 0.0:
-            raise ValueError(f"std_floor must be > 0, got {self.std_floor}")
-        if self.network_init not in networks.INITS:
-            raise ValueError(f"network_init must be one of {networks.INITS}")
-
-    def make_env(self) -> envs.Environment:
-        return envs.make(self.env_id, **envs.parse_keywords(self.env_kwargs))
-
-
-@struct.dataclass
-class Hyperparams(params.HyperparamsMethods):
-    """What a sweep may vary without recompiling. Defaults: gymnasium's REINFORCE tutorial."""
-
-    learning_rate: Any = 1e-4  # AdamW step size
-    weight_decay: Any = 0.01  # AdamW's decoupled weight decay (torch's default)
-    gamma: Any = 0.99  # discount of the reward-to-go
-    value_coef: Any = 0.5  # weight of the value head's loss (baseline "value")
-    entropy_coef: Any = 0.0  # weight of the policy's mean entropy, subtracted from the loss
-    max_grad_norm: Any = 0.0  # clip the gradient's global norm to this (0: no clipping)
-    lr_decay_updates: Any = 0.0  # rate falls linearly to 0 over this many updates (0: constant)
 
 
 @struct.dataclass
 class Agent:
-    params: Any  # policy (and value head) parameters
-    opt_state: Any  # optax inject_hyperparams(adamw) state: holds the rates in use
-    obs_stats: Any = None  # normalization.RunningStats with normalize_obs, else None
+    params: optax.Params  # policy (and value head) parameters
+    opt_state: optax.InjectStatefulHyperparamsState  # adamw's: holds the rates in use
+    obs_stats: normalization.RunningStats | None = None  # with normalize_obs, else None
 
 
 @struct.dataclass
@@ -142,7 +88,13 @@ class TrainState:
 
 
 # ---- the loss -------------------------------------------------------------------------------
-def loss_fn(params, trajectory: Trajectory, hparams: Hyperparams, config: Config, obs_stats=None):
+def loss_fn(
+    params: optax.Params,
+    trajectory: Trajectory,
+    hparams: Hyperparams,
+    config: Config,
+    obs_stats: normalization.RunningStats | None = None,
+) -> tuple[jax.Array, dict[str, jax.Array]]:
     """``(loss, metrics)`` of one batch of whole episodes (``obs_stats``: the statistics the
     episodes were collected with, ``None`` without observation normalisation)."""
     policy = policy_outputs(params, obs_stats, trajectory.obs, config)
@@ -176,7 +128,7 @@ def act(agent: Agent, obs: jax.Array, config: Config) -> jax.Array:
 
 
 # ---- training ---------------------------------------------------------------------------------
-def _adamw(learning_rate, weight_decay) -> optax.GradientTransformation:
+def _adamw(learning_rate: ArrayLike, weight_decay: ArrayLike) -> optax.GradientTransformation:
     return optax.adamw(learning_rate, weight_decay=weight_decay)
 
 
@@ -188,7 +140,13 @@ def learning_rate(hparams: Hyperparams, updates: jax.Array) -> jax.Array:
     return linearly_decayed(hparams.learning_rate, updates, hparams.lr_decay_updates)
 
 
-def update(agent: Agent, trajectory: Trajectory, hparams: Hyperparams, config: Config, updates=0):
+def update(
+    agent: Agent,
+    trajectory: Trajectory,
+    hparams: Hyperparams,
+    config: Config,
+    updates: jax.Array | int = 0,
+) -> tuple[Agent, dict[str, jax.Array]]:
     """One AdamW step on a batch of episodes at the hyperparameters' rates; the observation
     statistics then take in the batch."""
     grads, metrics = jax.grad(loss_fn, has_aux=True)(
@@ -209,7 +167,9 @@ def update(agent: Agent, trajectory: Trajectory, hparams: Hyperparams, config: C
     return Agent(params, opt_state, obs_stats), metrics
 
 
-def train_iteration(state: TrainState, config: Config, hparams: Hyperparams):
+def train_iteration(
+    state: TrainState, config: Config, hparams: Hyperparams
+) -> tuple[TrainState, dict[str, jax.Array]]:
     key, rollout_key = jax.random.split(state.key)
     trajectory = rollout(state.agent.params, rollout_key, config, state.agent.obs_stats)
     agent, metrics = update(state.agent, trajectory, hparams, config, state.clock.updates)
@@ -241,7 +201,9 @@ def init(key: jax.Array, config: Config, hparams: Hyperparams) -> TrainState:
     )
 
 
-def train_chunk(state: TrainState, config: Config, hparams: Hyperparams):
+def train_chunk(
+    state: TrainState, config: Config, hparams: Hyperparams
+) -> tuple[TrainState, ChunkMetrics]:
     """``iterations_per_chunk`` rollouts and updates, then one evaluation. Pure; jit outside."""
     state, metrics = jax.lax.scan(
         lambda s, _: train_iteration(s, config, hparams),
@@ -269,66 +231,6 @@ def step_slots_per_update(config: Config) -> int:
 
 
 # ---- the Algorithm object ---------------------------------------------------------------------
-# Per-env recipes on top of the tutorial's defaults. Inverted pendulum: the tutorial's network with
-# 16 episodes per update, normalised returns and a 10x larger rate; in tests/agents/test_dqn_slow.py
-# seeds 0, 1, 2 first reached eval return 1,000 after 424k, 536k and 215k real env steps. Double
-# pendulum: 32 episodes per update, standardised observations, a state-free std, a value baseline
-# on its own torso, clipped gradients, and a small state-free exploration std (0.2). Measured
-# (3 seeds x 2 rates in one program, constant rates): with std 0.5 the eval return was ~500-900
-# after 200 updates in every seed (the noisy training episodes end within ~50 steps, so the
-# gradient only ever sees short episodes); with std 0.2 5 of 6 runs were above 7,500 after 160
-# updates. Rate 3e-3 left one seed stuck near 1,100 at 180 updates; 1e-3 had [9,359, 8,438,
-# 6,585]. The rate (1.5e-3) decays to 0 over the script's 300-update budget so the final policy
-# settles: all 5 seeds at 9,349-9,356 at the end (RESULTS.md). Cut to 250 updates decaying over
-# them, one seed ended at 8,435 (one of its 10 eval episodes failed). An earlier recipe left one
-# seed in five at return ~130 from update 20 to 120, half its actions at +-1: its unbounded mean
-# had left the action bounds; the mean is now tanh-squashed (that seed then oscillated instead,
-# still near 130 at update 100).
-# Std 0.3 kept every seed moving but slowly: 540-2,270 after 160 updates, where 0.2 had three
-# seeds near 9,000.
-# CartPole's recipe is an untuned starting point.
-_CONFIGS: dict[str, dict[str, Any]] = {
-    "rl_jax/InvertedPendulum-v5": {"num_envs": 16, "normalize_returns": True},
-    "rl_jax/InvertedDoublePendulum-v5": {
-        "num_envs": 32,
-        "hidden": (64, 64),
-        "baseline": "value",
-        "value_hidden": (64, 64),
-        "normalize_returns": True,
-        "normalize_obs": True,
-        "std_mode": "param",
-        "initial_std": 0.2,
-        "squash_mean": True,
-    },
-    "rl_jax/CartPole-v1": {"num_envs": 16, "normalize_returns": True},
-}
-_HPARAMS: dict[str, dict[str, float]] = {
-    # 5 seeds x {rate 1e-3, 3e-3} over 300 updates (4.8M step slots): 1e-3 climbs steadily but
-    # two seeds were at 138 and 392 after 180 updates; 3e-3 reaches 1,000 in every seed within
-    # 100-140 updates but then collapses and recovers. 3e-3 decaying to 0 over the 300 updates:
-    # 1,000 in 5/5 from update 140 to the end (decaying over 160 froze one seed at 130).
-    "rl_jax/InvertedPendulum-v5": {"learning_rate": 3e-3, "lr_decay_updates": 300.0},
-    "rl_jax/InvertedDoublePendulum-v5": {
-        "learning_rate": 1.5e-3,
-        "max_grad_norm": 0.5,
-        "lr_decay_updates": 300.0,  # = the script's default budget of 300 updates
-    },
-    "rl_jax/CartPole-v1": {"learning_rate": 1e-3},
-}
-
-_ABOUT = {
-    "rl_jax/InvertedPendulum-v5": "gymnasium's tutorial network, 16 envs, rate 3e-3 to 0",
-    "rl_jax/InvertedDoublePendulum-v5": "64x64, value baseline, 32 envs, rate 1.5e-3 to 0",
-    "rl_jax/CartPole-v1": "the tutorial's network, 16 envs, rate 1e-3 (untuned)",
-}
-RECIPES = Recipes(
-    *(
-        Recipe("default", about, _CONFIGS[env_id], _HPARAMS.get(env_id, {}), envs=(env_id,))
-        for env_id, about in _ABOUT.items()
-    )
-)
-
-
 class Reinforce(RecipeBook):
     """REINFORCE as an ``rl_jax.training.algorithm.Algorithm``."""
 
@@ -339,14 +241,16 @@ class Reinforce(RecipeBook):
     def init(self, key: jax.Array, config: Config, hparams: Hyperparams) -> TrainState:
         return init(key, config, hparams)
 
-    def train_chunk(self, state: TrainState, config: Config, hparams: Hyperparams):
+    def train_chunk(
+        self, state: TrainState, config: Config, hparams: Hyperparams
+    ) -> tuple[TrainState, ChunkMetrics]:
         return train_chunk(state, config, hparams)
 
     def env_steps_per_chunk(self, config: Config) -> int:
         """Env step slots per chunk (see the module docstring)."""
         return step_slots_per_update(config) * config.iterations_per_chunk
 
-    def policy(self, state: TrainState, config: Config):
+    def policy(self, state: TrainState, config: Config) -> Callable[[jax.Array], jax.Array]:
         """``obs -> action`` of the deterministic policy of one seed's state."""
         return lambda obs: act(state.agent, obs, config)
 

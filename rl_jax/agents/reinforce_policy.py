@@ -5,16 +5,15 @@ outputs on observations, sampling an action, and the whole episodes it collects 
 from __future__ import annotations
 
 import functools
-from typing import TYPE_CHECKING, NamedTuple
+from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
+import optax
 
 import envs
+from rl_jax.agents.reinforce_config import Config
 from rl_jax.training import episodes, networks, normalization
-
-if TYPE_CHECKING:
-    from rl_jax.agents.reinforce import Config
 
 
 class Trajectory(NamedTuple):
@@ -42,7 +41,12 @@ def make_network(config: Config) -> networks.StochasticPolicy:
     )
 
 
-def policy_outputs(params, obs_stats, obs, config: Config) -> dict[str, jax.Array]:
+def policy_outputs(
+    params: optax.Params,
+    obs_stats: normalization.RunningStats | None,
+    obs: jax.Array,
+    config: Config,
+) -> dict[str, jax.Array]:
     """The network's outputs on (standardised, when there are statistics) observations.
 
     With ``squash_mean`` the Gaussian's mean is ``tanh`` of the head mapped onto the action
@@ -59,14 +63,14 @@ def policy_outputs(params, obs_stats, obs, config: Config) -> dict[str, jax.Arra
     return policy
 
 
-def sample_action(policy: dict[str, jax.Array], key) -> jax.Array:
+def sample_action(policy: dict[str, jax.Array], key: jax.Array) -> jax.Array:
     """A draw from the policy (unclipped for the Gaussian)."""
     if "logits" in policy:
         return jax.random.categorical(key, policy["logits"]).astype(jnp.int32)
     return policy["mean"] + policy["std"] * jax.random.normal(key, policy["mean"].shape)
 
 
-def to_env_action(action, space) -> jax.Array:
+def to_env_action(action: jax.Array, space: envs.Space) -> jax.Array:
     if isinstance(space, envs.Box):
         leading = (1,) * (action.ndim - len(space.shape))
         low, high = (jnp.reshape(bound, leading + space.shape) for bound in (space.low, space.high))
@@ -74,7 +78,13 @@ def to_env_action(action, space) -> jax.Array:
     return action
 
 
-def rollout(params, key, config: Config, obs_stats=None, env=None) -> Trajectory:
+def rollout(
+    params: optax.Params,
+    key: jax.Array,
+    config: Config,
+    obs_stats: normalization.RunningStats | None = None,
+    env: envs.Environment | None = None,
+) -> Trajectory:
     """``num_envs`` whole episodes, stopping as soon as all have ended (raw observations are
     stored; the policy acts on them standardised by ``obs_stats`` when given). ``env``: the env
     to run instead of the config's (as ``episodes.make_eval_env`` builds it)."""
