@@ -178,10 +178,17 @@ def _import(reference: str) -> Any:
     if attribute is None:
         return module
     if not hasattr(module, attribute):
-        public = sorted(name for name in vars(module) if not name.startswith("_"))
-        listed = ", ".join(public[:12]) + (", ..." if len(public) > 12 else "")
-        raise UsageError(f"{where} has no attribute {attribute!r} (it has: {listed})")
+        found = [name for name, value in vars(module).items() if _looks_like_a_learner(value)]
+        listed = f"learners in it: {', '.join(found)}" if found else "nor any learner"
+        raise UsageError(f"{where} has no attribute {attribute!r} ({listed})")
     return getattr(module, attribute)
+
+
+def _looks_like_a_learner(value: Any) -> bool:
+    """An object (not a class) with the whole interface: what an error may suggest."""
+    if isinstance(value, type) or not isinstance(getattr(value, "name", None), str):
+        return False
+    return all(callable(getattr(value, method, None)) for method in INTERFACE)
 
 
 def _import_module(module_name: str, reference: str) -> types.ModuleType:
