@@ -1,9 +1,8 @@
 """Expected SARSA for discrete actions: a learner written outside rl_jax, on its interface.
 
-Each iteration every env of a seed takes an epsilon-greedy step, then one gradient step moves
-Q(s, a) towards r + gamma * E[Q'(s', a')], the expectation over the epsilon-greedy policy's
-actions in s', Q' a slowly following copy of Q. There is no replay buffer: the many envs stepped
-together give each update a batch of different states. The guide: docs/own_learner.md.
+Every env of a seed takes an epsilon-greedy step; one gradient step then moves Q(s, a) towards
+r + gamma * E[Q'(s', a')] over the epsilon-greedy policy's actions in s' (Q' follows Q slowly).
+No replay buffer: the envs stepped together batch each update. Guide: docs/own_learner.md.
 
     python experiments/train.py --algo examples/expected_sarsa.py:learner --env rl_jax/CartPole-v1
 """
@@ -73,9 +72,11 @@ class ExpectedSarsa:
 
     def network(self, config: Config) -> nn.Module:
         """Q(s, .): Dense, LayerNorm and ReLU per hidden layer, then one value per action."""
-        actions = episodes.make_eval_env(config).action_space().n
+        space = episodes.make_eval_env(config).action_space()
+        if not isinstance(space, envs.Discrete):  # rl_jax reports it as one line, before a run
+            raise TypeError(f"expected SARSA needs discrete actions, not {space}")
         layers = [f for width in config.hidden for f in (nn.Dense(width), nn.LayerNorm(), nn.relu)]
-        return nn.Sequential([*layers, nn.Dense(actions)])
+        return nn.Sequential([*layers, nn.Dense(space.n)])
 
     def optimizer(self, hparams: Hyperparams) -> optax.GradientTransformation:
         return optax.inject_hyperparams(optax.adam)(learning_rate=hparams.learning_rate)
@@ -142,9 +143,8 @@ class ExpectedSarsa:
         return state._replace(key=key), metrics
 
     def policy(self, state: TrainState, config: Config):
-        """The greedy action of one observation."""
         network, params = self.network(config), state.params
-        return lambda obs: jnp.argmax(network.apply(params, obs), axis=-1)
+        return lambda obs: jnp.argmax(network.apply(params, obs), axis=-1)  # greedy, one obs
 
 
 learner = ExpectedSarsa()

@@ -196,6 +196,8 @@ def test_every_wrong_name_is_one_line(tmp_path):
     out = str(tmp_path / "out")
     for name, expected in cases.items():
         one_line(*in_process(["--algo", name, *FLAGS, "--out", out])[1:], expected)
+    pendulum = ["--algo", BY_FILE, *FLAGS, "--env", "rl_jax/Pendulum-v1", "--out", out]
+    one_line(*in_process(pendulum)[1:], "expected SARSA needs discrete actions, not Box(")
     assert not Path(out).exists()
     with pytest.raises(UsageError, match="has no name"):
         rl_jax.train(object(), "rl_jax/CartPole-v1")
