@@ -32,6 +32,7 @@ from __future__ import annotations
 import dataclasses
 import hashlib
 import importlib
+import importlib.machinery
 import importlib.util
 import os
 import shlex
@@ -144,7 +145,16 @@ def check_interface(learner: Any, label: str) -> None:
 
 
 def _checked(learner: Any, label: str) -> Algorithm:
-    check_interface(learner, label)
+    try:
+        check_interface(learner, label)
+    except UsageError as error:
+        if not isinstance(learner, types.ModuleType):
+            raise
+        found = [name for name, value in vars(learner).items() if _looks_like_a_learner(value)]
+        if not found:
+            raise
+        named = ", ".join(f"{label}:{name}" for name in found)
+        raise UsageError(f"{error}; the learners in it: {named}") from None
     origin_of(learner)  # a learner whose origin cannot be recorded fails here, before any run
     return learner
 
@@ -155,9 +165,13 @@ def _is_reference(text: str) -> bool:
     if ":" in text or _is_file(text):
         return True
     try:
-        return importlib.util.find_spec(text) is not None
+        if importlib.util.find_spec(text) is not None:
+            return True
     except (ImportError, ValueError):
         return False
+    # Not on the path: a module of the current directory is imported from there (_import_module).
+    top = text.partition(".")[0]
+    return importlib.machinery.PathFinder.find_spec(top, [os.getcwd()]) is not None
 
 
 def _is_file(where: str) -> bool:

@@ -192,6 +192,9 @@ def test_every_wrong_name_is_one_line(tmp_path):
         f"{tmp_path}/incomplete.py:learner": f"{tmp_path}/incomplete.py:learner has no "
         "train_chunk(state, config, hparams)",
         "examples.expected_sarsa:Config": "examples.expected_sarsa:Config has no name",
+        "examples/expected_sarsa.py": "examples/expected_sarsa.py has no name (a string: the "
+        "learner's name in run directories); the learners in it: "
+        "examples/expected_sarsa.py:learner",
     }
     out = str(tmp_path / "out")
     for name, expected in cases.items():
