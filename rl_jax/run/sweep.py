@@ -159,9 +159,10 @@ def _resumed_learner(saved: dict[str, Any], named: str | None, out: Path) -> Any
         learner = cli.resolve_algorithm(named)
         given = learners.origin_of(learner)
         if recorded is not None and str(given) != recorded:
+            own = learners.Origin.parse(recorded).describe(saved["algo"])
             raise RunError(
-                f"{out} is a sweep of the learner {recorded}, not of "
-                f"{given.describe(learner.name)}; name the sweep's own learner"
+                f"{out} is a sweep of {own}, not of {given.describe(learner.name)}; name the "
+                "sweep's own learner"
             )
         return learner
     if recorded == learners.BUILTIN:
