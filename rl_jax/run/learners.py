@@ -284,7 +284,9 @@ def _locate(learner: Any) -> tuple[types.ModuleType, str | None]:
     first = [sys.modules.get(type(learner).__module__), sys.modules.get("__main__")]
     # Then every module: a learner object may live elsewhere than its class.
     for module in [*first, *list(sys.modules.values())]:
-        for attribute, value in list(vars(module or types.ModuleType("none")).items()):
+        if not isinstance(module, types.ModuleType):  # sys.modules may hold other objects
+            continue
+        for attribute, value in list(vars(module).items()):
             if value is learner and not attribute.startswith("_"):
                 return module, attribute
     raise UsageError(
@@ -370,9 +372,7 @@ def check_same(record: dict[str, Any], learner: Any, run_dir: Path | str) -> Non
             f"{given.describe(learner.name)}; name the run's own learner"
         )
     if learner.name != name:
-        raise RunError(
-            f"{run_dir} is a {name} run; {given.spelling(learner.name)} is {learner.name}"
-        )
+        raise RunError(f"{run_dir} is a {name} run, not a {learner.name} run")
 
 
 def cli_args(learner: Any) -> list[str]:
@@ -396,7 +396,12 @@ def _builtin(record: dict[str, Any], name: str) -> Algorithm:
     reference = record.get("algorithm_module")
     if not isinstance(reference, str) or not reference.startswith(_PACKAGE + "."):
         raise RunError(f"the run record names a built-in learner at {reference!r}, not in rl_jax")
-    learner = load_algorithm(reference)
+    try:
+        learner = load_algorithm(reference)
+    except AttributeError:
+        learner = None
+    if learner is None or getattr(learner, "name", None) != name:
+        raise RunError(f"the run record's built-in learner {reference!r} is not its {name}")
     check_interface(learner, reference)
     return learner
 
