@@ -11,6 +11,10 @@
 
     run = rl_jax.open_run("runs/Pendulum-v1__td3__...")   # the same object for an existing run
 
+A learner of your own goes where a name goes: ``rl_jax.train("my_learner.py:learner", ...)``
+or the object itself; its runs are opened with it named again (``open_run(dir, algorithm=...)``,
+``resume(dir, algorithm=...)``): a run directory never makes this process import code.
+
 ``train`` writes the same run directory as the experiment scripts (config.json, metrics.jsonl,
 checkpoints/, best/, curves.png, results.txt), so ``python -m rl_jax.run.render`` and ``--resume``
 work on it. Progress is one line per ``log_interval`` seconds when the output is not a terminal
@@ -26,12 +30,16 @@ import numpy as np
 
 
 class Run:
-    """A run directory, trained or opened: its results, curves, policies and GIFs."""
+    """A run directory, trained or opened: its results, curves, policies and GIFs.
+    ``learner``: the run's learner as named (None: the run's built-in one)."""
 
-    def __init__(self, run_dir: str | Path, results: list[Any] | None = None):
+    def __init__(
+        self, run_dir: str | Path, results: list[Any] | None = None, algorithm: Any = None
+    ):
         from rl_jax.run.run_dir import read_run_record
 
         self.run_dir = Path(run_dir)
+        self.learner = algorithm
         self.record = read_run_record(self.run_dir)
         identity = self.record["identity"]
         self.algorithm: str = identity["algorithm"]
@@ -62,7 +70,7 @@ class Run:
         """The numpy ``obs -> action`` callable of ``seed`` (default: the best seed)."""
         from rl_jax.run.policy import load_policy
 
-        return load_policy(self.run_dir, seed, which, config)
+        return load_policy(self.run_dir, seed, which, config, self.learner)
 
     def evaluate(self, episodes: int = 10, which: str = "best", key: int = 0) -> dict[int, float]:
         """Mean undiscounted return of ``episodes`` fresh episodes of each seed's deterministic
@@ -73,7 +81,7 @@ class Run:
 
         returns = {}
         for seed in self.seeds:
-            loaded = LoadedPolicy(self.run_dir, seed, None, which)
+            loaded = LoadedPolicy(self.run_dir, seed, None, which, self.learner)
             totals = evaluate_policy(loaded.env(), loaded.act(), jax.random.key(key), episodes)
             returns[seed] = float(np.mean(totals))
         return returns
@@ -88,7 +96,7 @@ class Run:
         """A GIF of the policy (default: ``RUN_DIR/policy.gif`` of the best seed's best)."""
         from rl_jax.run.render import write_gif
 
-        return write_gif(self.run_dir, seed, episodes, path, which=which)
+        return write_gif(self.run_dir, seed, episodes, path, which=which, algorithm=self.learner)
 
     def plot(self) -> Any:
         """curves.png (redrawn from metrics.jsonl): an inline image in IPython, else its path."""
@@ -112,7 +120,7 @@ class Run:
 
 
 def train(
-    algorithm: str,
+    algorithm: str | Any,
     env_id: str,
     seeds: int = 1,
     total_steps: int | None = None,
@@ -123,15 +131,17 @@ def train(
     quiet: bool = False,
     recipe: str | None = None,
 ) -> Run:
-    """Train ``algorithm`` ("td3", "ddpg", "dqn", "reinforce") on ``env_id`` with every seed in
-    one compiled program, into a run directory (default ``runs/<env>__<algo>__<time>/``).
+    """Train ``algorithm`` ("td3", "ddpg", "dqn", "reinforce"; a learner of your own as
+    "my_package.my_module:learner" or "path/to/file.py:learner", or the learner object) on
+    ``env_id`` with every seed in one compiled program, into a run directory (default
+    ``runs/<env>__<algo>__<time>/``).
 
     The settings are the learner's ``recipe`` for the env (None: its default; the names are
     those of ``--recipe`` in the scripts), then ``config`` / ``hparams``, which override fields
     by name (as the scripts' flags do); ``total_steps`` defaults to the recipe's budget, else
     100,000 env steps per seed.
     """
-    from rl_jax.run import cli
+    from rl_jax.run import cli, learners
     from rl_jax.run.runner import run
     from rl_jax.run.spec import RunSpec
     from rl_jax.training.jax_setup import configure
@@ -146,6 +156,7 @@ def train(
     cli.validate_settings(learner, chosen_config, [chosen_hparams])
     cli.check_env_fits(learner, chosen_config, chosen_hparams)
     run_dir = Path(out) if out is not None else cli.default_run_dir(env_id, learner.name)
+    named = algorithm if isinstance(algorithm, str) else learner.name
     spec = RunSpec(
         algorithm=learner,
         env_id=env_id,
@@ -155,16 +166,23 @@ def train(
         seeds=seeds,
         total_steps=100_000 if total_steps is None else int(total_steps),
         log_interval=log_interval,
-        command=f"rl_jax.train({algorithm!r}, {env_id!r}, seeds={seeds}, ...)",
-        resume_command=f"rl_jax.resume({str(run_dir)!r})",
+        command=f"rl_jax.train({named!r}, {env_id!r}, seeds={seeds}, ...)",
+        resume_command=f"rl_jax.resume({str(run_dir)!r}{learners.python_hint(learner)})",
     )
     result = run(spec, notify=(lambda message: None) if quiet else print)
-    return Run(result.run_dir, result.results or None)
+    return Run(result.run_dir, result.results or None, learner)
 
 
-def resume(run_dir: str | Path, total_steps: int | None = None, quiet: bool = False) -> Run:
-    """Continue a run (from the scripts or ``train``) from its latest checkpoint."""
-    from rl_jax.run.run_dir import load_algorithm, read_run_record
+def resume(
+    run_dir: str | Path,
+    total_steps: int | None = None,
+    quiet: bool = False,
+    algorithm: str | Any = None,
+) -> Run:
+    """Continue a run (from the scripts or ``train``) from its latest checkpoint.
+    ``algorithm``: the run's learner, when it is one of your own (named as for ``train``)."""
+    from rl_jax.run.learners import for_run
+    from rl_jax.run.run_dir import read_run_record
     from rl_jax.run.runner import run
     from rl_jax.run.spec import RunSpec
     from rl_jax.training.jax_setup import configure
@@ -174,7 +192,7 @@ def resume(run_dir: str | Path, total_steps: int | None = None, quiet: bool = Fa
     run_dir = Path(run_dir)
     record = read_run_record(run_dir)
     identity = record["identity"]
-    learner = load_algorithm(record["algorithm_module"])
+    learner = for_run(record, run_dir, algorithm, how="algorithm=")
     config = dataclass_from_dict(learner.default_config(identity["env_id"]), identity["config"])
     template = learner.default_hyperparams()
     spec = RunSpec(
@@ -190,12 +208,13 @@ def resume(run_dir: str | Path, total_steps: int | None = None, quiet: bool = Fa
         grid_fields=tuple(record.get("grid_fields", ())),
     )
     result = run(spec, notify=(lambda message: None) if quiet else print)
-    return Run(result.run_dir, result.results or None)
+    return Run(result.run_dir, result.results or None, learner)
 
 
-def open_run(run_dir: str | Path) -> Run:
-    """The ``Run`` of an existing run directory."""
-    return Run(run_dir)
+def open_run(run_dir: str | Path, algorithm: str | Any = None) -> Run:
+    """The ``Run`` of an existing run directory; ``algorithm`` names its learner when it is one
+    of your own (its policies, evaluation and GIFs need it)."""
+    return Run(run_dir, algorithm=algorithm)
 
 
 def evaluate_policy(env: Any, act: Any, key: Any, episodes: int) -> np.ndarray:

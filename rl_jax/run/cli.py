@@ -34,6 +34,7 @@ from rl_jax.errors import (
     guard,
 )
 from rl_jax.errors import user_errors as user_errors  # cli.user_errors, as before
+from rl_jax.run import learners
 from rl_jax.run.flags import (
     add_dataclass_flags,
     add_run_flags,
@@ -41,7 +42,9 @@ from rl_jax.run.flags import (
     kind_of,
     parse_grid,
 )
-from rl_jax.run.run_dir import load_algorithm, read_run_record
+from rl_jax.run.learners import ALGORITHMS as ALGORITHMS  # cli.ALGORITHMS, as before
+from rl_jax.run.learners import register_algorithm as register_algorithm
+from rl_jax.run.run_dir import read_run_record
 from rl_jax.training import params
 from rl_jax.training.algorithm import hooks
 from rl_jax.training.jax_setup import configure_jax
@@ -49,32 +52,13 @@ from rl_jax.training.params import dataclass_from_dict
 from rl_jax.training.recipes import PLAIN, Recipe
 from rl_jax.training.validation import out_of_range
 
-#: name -> "module" or "module:attribute" of every algorithm the CLI knows (imported on use).
-ALGORITHMS: dict[str, str] = {
-    "td3": "rl_jax.agents.td3:td3",
-    "ddpg": "rl_jax.agents.td3:ddpg",
-    "td7": "rl_jax.agents.td7:td7",
-    "crossq": "rl_jax.agents.crossq:crossq",
-    "dqn": "rl_jax.agents.dqn:dqn",
-    "reinforce": "rl_jax.agents.reinforce:reinforce",
-}
 RUNS_ROOT = Path("runs")
 
 
-def register_algorithm(name: str, reference: str) -> None:
-    ALGORITHMS[name] = reference
-
-
-def resolve_algorithm(name: str) -> Any:
-    """The algorithm registered as ``name``."""
-
-    if name not in ALGORITHMS:
-        known = ", ".join(sorted(ALGORITHMS))
-        raise UsageError(f"unknown algorithm {name!r}; known algorithms: {known}")
-    try:
-        return load_algorithm(ALGORITHMS[name])
-    except RunError as error:
-        raise UsageError(f"algorithm {name!r} is not available: {error}") from None
+def resolve_algorithm(name: str | Any) -> Any:
+    """The learner ``name`` names: a built-in or registered name, ``MODULE:NAME``,
+    ``path/to/file.py:NAME`` or the learner object (``rl_jax.run.learners``)."""
+    return learners.resolve(name)
 
 
 # ---- building the run -----------------------------------------------------------------------
@@ -161,8 +145,8 @@ def _other_learners_recipes(algorithm: Any, env_id: str) -> str:
     """``--help``'s list of the other built-in learners' recipes written for ``env_id`` or for
     any env, by the names ``learner_of_recipe`` takes."""
     names = []
-    for learner in ALGORITHMS:
-        if learner == algorithm.name:
+    for learner, where in ALGORITHMS.items():
+        if learner == algorithm.name or not str(where).startswith("rl_jax."):
             continue
         book = hooks(resolve_algorithm(learner)).recipes
         for name in book.names(env_id) if any(r.is_for(env_id) for r in book) else ():
@@ -251,7 +235,12 @@ def build_parser(
 
 def _add_choice_flags(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
-        "--algo", default=None, metavar="NAME", help=f"algorithm: {', '.join(sorted(ALGORITHMS))}"
+        "--algo",
+        default=None,
+        metavar="NAME",
+        help=f"algorithm: {', '.join(sorted(ALGORITHMS))}; or a learner of your own, "
+        "MODULE:NAME (MODULE searched on the Python path and in the current directory) or "
+        "path/to/file.py:NAME (docs/own_learner.md)",
     )
     parser.add_argument(
         "--env",
@@ -273,21 +262,25 @@ def _choose(argv: list[str], algorithm: Any, env_id: str | None) -> tuple[Any, s
     _add_choice_flags(pre)
     pre.add_argument("--resume", type=Path, default=None)
     known, _ = pre.parse_known_args(argv)
-    record = read_run_record(known.resume)["identity"] if known.resume else None
+    record = read_run_record(known.resume) if known.resume else None
     if algorithm is not None and env_id is not None:
         # a script's run may be another built-in learner's, chosen by its --recipe
-        if record is not None and record["algorithm"] in ALGORITHMS:
-            algorithm = resolve_algorithm(record["algorithm"])
+        recorded = record["identity"]["algorithm"] if record else None
+        if recorded not in (None, algorithm.name) and isinstance(ALGORITHMS.get(recorded), str):
+            algorithm = resolve_algorithm(recorded)
         return algorithm, envs.core.registry.resolve_id(env_id), False
-    name = known.algo or (record["algorithm"] if record else None)
-    env_name = env_id or known.env or (record["env_id"] if record else None)
-    if {"-h", "--help"} & set(argv) and (algorithm or name) is None:
+    env_name = env_id or known.env or (record["identity"]["env_id"] if record else None)
+    if {"-h", "--help"} & set(argv) and (algorithm or known.algo or record) is None:
         return None, "", True
-    if algorithm is None and name is None:
+    if algorithm is None and known.algo is None and record is None:
         raise UsageError("--algo is required")
     if env_name is None:
         raise UsageError("--env is required")
-    return algorithm or resolve_algorithm(name), envs.core.registry.resolve_id(env_name), True
+    if algorithm is None and known.algo is not None:
+        algorithm = resolve_algorithm(known.algo)
+    elif algorithm is None:  # the resumed run's own learner, if built in (never imported else)
+        algorithm = learners.for_run(record, known.resume, how="--algo")
+    return algorithm, envs.core.registry.resolve_id(env_name), True
 
 
 def _help_without_algorithm(description: str, defaults: Defaults) -> int:
@@ -311,6 +304,7 @@ def _resumed_settings(args: argparse.Namespace, algorithm: Any, env_id: str) -> 
             f"cannot resume {args.resume}: it is a {saved['algorithm']} run on "
             f"{saved['env_id']}, this is {algorithm.name} on {env_id}"
         )
+    learners.check_same(record, algorithm, args.resume)
     config = dataclass_from_dict(algorithm.default_config(env_id), saved["config"])
     template = algorithm.default_hyperparams()
     hparams = [dataclass_from_dict(template, values) for values in saved["hparams"]]
@@ -376,6 +370,8 @@ def build_spec(
     check_env_fits(algorithm, config, hparams[0])
     out = args.resume if resume else (args.out or default_run_dir(env_id, algorithm.name))
     script = shlex.join([Path(sys.executable).name, sys.argv[0]])
+    # A learner of the user's own is named again on resume (never imported from the record).
+    named = shlex.join(learners.cli_args(algorithm)) if hasattr(args, "algo") else ""
     return RunSpec(
         algorithm=algorithm,
         env_id=env_id,
@@ -392,7 +388,7 @@ def build_spec(
         log_interval=args.log_interval,
         gif=args.gif,
         command=shlex.join([Path(sys.executable).name, sys.argv[0], *argv]),
-        resume_command=f"{script} --resume {shlex.quote(str(out))}",
+        resume_command=f"{script} --resume {shlex.quote(str(out))} {named}".strip(),
         # The recipe's measured throughput holds for its own config only.
         throughput=None if resume or args.grid or _explicit(args, names[0]) else recipe.throughput,
     )

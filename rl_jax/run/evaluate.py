@@ -5,7 +5,8 @@ keeps the policy of each seed's best evaluation in ``best/``: the best of many s
 its recorded return is optimistic. This evaluates the kept policies again, on ``--episodes`` new
 episodes each (100 by default, all stepped together in one compiled loop, with env keys no
 training evaluation used), and prints per seed the run's own figure beside the mean, spread and
-range of the new episodes. ``--latest`` adds each seed's latest checkpoint.
+range of the new episodes. ``--latest`` adds each seed's latest checkpoint. A run of a learner
+of your own needs ``--algo`` naming it again, as it was trained with.
 
     python -m rl_jax.run.evaluate runs/results/dqn-cartpole-pixels --episodes 100 --latest
 """
@@ -14,11 +15,12 @@ from __future__ import annotations
 
 import dataclasses
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
 from rl_jax.errors import OneLineParser, exit_now, guard, positive_int
-from rl_jax.run.policy import LoadedPolicy, add_run_choice
+from rl_jax.run.policy import LoadedPolicy, add_run_choice, command_line_learner
 from rl_jax.training.jax_setup import configure
 
 KEY = 20_251_125  # evaluation episodes' key: none of a run's own evaluations draws it
@@ -48,13 +50,15 @@ def evaluate_run(
     seeds: list[int] | None = None,
     config_index: int | None = None,
     latest: bool = False,
+    algorithm: Any = None,
 ) -> list[Evaluation]:
-    """Every seed's best policy (and its latest, with ``latest``) on ``episodes`` episodes."""
-    first = LoadedPolicy(run_dir, None, config_index, "latest")
+    """Every seed's best policy (and its latest, with ``latest``) on ``episodes`` episodes;
+    ``algorithm`` names the run's learner when it is not built in."""
+    first = LoadedPolicy(run_dir, None, config_index, "latest", algorithm)
     evaluations = []
     for seed in first.seeds if seeds is None else seeds:
         for which in ("best", "latest") if latest else ("best",):
-            loaded = LoadedPolicy(run_dir, seed, first.config_index, which)
+            loaded = LoadedPolicy(run_dir, seed, first.config_index, which, first.algorithm)
             returns = evaluate_policy(loaded, episodes)
             evaluations.append(
                 Evaluation(seed, loaded.which, loaded.step, loaded.eval_return, returns)
@@ -99,8 +103,9 @@ def main(argv: list[str] | None = None) -> int:
     def run() -> int:
         configure()
         seeds = None if args.seed is None else [args.seed]
+        learner = command_line_learner(args.run_dir, args.algo)
         evaluations = evaluate_run(
-            args.run_dir, args.episodes, seeds, args.config_index, args.latest
+            args.run_dir, args.episodes, seeds, args.config_index, args.latest, learner
         )
         print(table(evaluations))
         return 0

@@ -11,6 +11,10 @@
 ``which="best"`` (the default) is the policy of the seed's best evaluation, kept in
 ``RUN_DIR/best/`` by the runner; ``which="latest"`` is the one of the latest checkpoint. Without
 a seed, the seed (and sweep config) with the highest such eval return is chosen.
+
+A run of a learner of the user's own is opened with that learner named again
+(``load_policy(run_dir, algorithm="my_learner.py:learner")``, or the object): a run directory
+never makes this process import code by itself (``rl_jax.run.learners``).
 """
 
 from __future__ import annotations
@@ -33,7 +37,8 @@ class LoadedPolicy:
     (what was loaded: "best" falls back to "latest" for a run that kept no best policy), ``step``
     (the env step of that policy), ``eval_return`` (the run's eval of it, if known) and
     ``state`` (a train state whose policy fields are this run's; pass it to
-    ``algorithm.policy(state, config)``).
+    ``algorithm.policy(state, config)``). ``algorithm`` names the run's learner, which a run
+    of the user's own learner needs (``rl_jax.run.learners.for_run``).
     """
 
     def __init__(
@@ -42,6 +47,7 @@ class LoadedPolicy:
         seed: int | None = None,
         config_index: int | None = None,
         which: str = "best",
+        algorithm: Any = None,
     ):
         from rl_jax.run.run_dir import read_run_record
 
@@ -55,6 +61,7 @@ class LoadedPolicy:
         self.which = which
         self.note: str | None = None
         self.eval_return: float | None = None
+        self._named = algorithm
         self.config_index, self.seed = self._choose(seed, config_index, len(identity["hparams"]))
         self.algorithm, self.config, self.state, self.step = self._restore()
 
@@ -74,13 +81,14 @@ class LoadedPolicy:
     def _restore(self) -> tuple[Any, Any, Any, int]:
         from rl_jax.run.best import BEST_DIR, load_part, policy_fields, with_policy_part
         from rl_jax.run.checkpoint import Checkpointer
+        from rl_jax.run.learners import for_run
         from rl_jax.run.plan import make_plan
-        from rl_jax.run.run_dir import CHECKPOINT_DIR, identity_hash, load_algorithm
+        from rl_jax.run.run_dir import CHECKPOINT_DIR, identity_hash
         from rl_jax.run.spec import RunSpec
         from rl_jax.training.params import dataclass_from_dict
 
         identity = self.record["identity"]
-        algorithm = load_algorithm(self.record["algorithm_module"])
+        algorithm = for_run(self.record, self.run_dir, self._named, how="algorithm=")
         config = dataclass_from_dict(algorithm.default_config(self.env_id), identity["config"])
         template = algorithm.default_hyperparams()
         hparams = tuple(dataclass_from_dict(template, h) for h in identity["hparams"])
@@ -174,8 +182,17 @@ class Policy:
 
 
 def add_run_choice(parser: Any, seed_help: str) -> None:
-    """The ``--seed`` and ``--config`` options of the commands that load a run's policies."""
+    """The ``--seed``, ``--config`` and ``--algo`` options of the commands that load a run's
+    policies."""
     from rl_jax.errors import parse_int
+
+    parser.add_argument(
+        "--algo",
+        default=None,
+        metavar="LEARNER",
+        help="the run's learner, when it is one of your own (MODULE:NAME or "
+        "path/to/file.py:NAME, as it was trained with): a run never imports one by itself",
+    )
 
     parser.add_argument("--seed", type=parse_int, default=None, help=seed_help)
     parser.add_argument(
@@ -187,19 +204,33 @@ def add_run_choice(parser: Any, seed_help: str) -> None:
     )
 
 
+def command_line_learner(run_dir: Path, named: str | None) -> Any:
+    """The learner a command that opens ``run_dir`` uses (``--algo``, or the run's built-in
+    one); its errors say to give ``--algo``."""
+    from rl_jax.run.learners import for_run
+    from rl_jax.run.run_dir import read_run_record
+
+    return for_run(read_run_record(run_dir), run_dir, named, how="--algo")
+
+
 def load_policy(
-    run_dir: str | Path, seed: int | None = None, which: str = "best", config: int | None = None
+    run_dir: str | Path,
+    seed: int | None = None,
+    which: str = "best",
+    config: int | None = None,
+    algorithm: Any = None,
 ) -> Policy:
     """The trained policy of a run as a numpy ``obs -> action`` callable.
 
     ``seed``: which seed (default: the one with the best eval return); ``which``: "best" (the
     policy of that seed's best evaluation) or "latest" (its latest checkpoint); ``config``: the
-    config index of a sweep (default: the best).
+    config index of a sweep (default: the best); ``algorithm``: the run's learner, when it is
+    one of your own (as ``--algo`` names it, or the object).
     """
     from rl_jax.training.jax_setup import configure
 
     configure()
-    return Policy(LoadedPolicy(Path(run_dir), seed, config, which))
+    return Policy(LoadedPolicy(Path(run_dir), seed, config, which, algorithm))
 
 
 def _index(tree: Any, run: tuple[int, int]) -> Any:

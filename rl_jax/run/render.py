@@ -2,7 +2,9 @@
 policy by default, ``--latest`` for the latest checkpoint's).
 
     python -m rl_jax.run.render RUN_DIR [--seed K] [--config I] [--episodes N] [--out FILE]
-                                [--latest]
+                                [--latest] [--algo LEARNER]
+
+``--algo`` names the run's learner when it is one of your own (``rl_jax.run.learners``).
 
 Frames come from the environment, through one of two hooks (the first one the env has):
 
@@ -36,6 +38,7 @@ from rl_jax.errors import OneLineParser, RenderError, exit_now, guard, positive_
 from rl_jax.run.policy import (  # loading lives there; render.LoadedPolicy stays
     LoadedPolicy,
     add_run_choice,
+    command_line_learner,
 )
 from rl_jax.training.jax_setup import configure
 
@@ -181,13 +184,15 @@ def write_gif(
     config_index: int | None = None,
     max_frames: int = 600,
     which: str = "best",
+    algorithm: Any = None,
 ) -> Path:
     """Render the deterministic policy of (config, seed) of ``run_dir`` to a GIF; its path.
-    ``which``: the seed's best evaluated policy ("best") or its latest checkpoint ("latest")."""
+    ``which``: the seed's best evaluated policy ("best") or its latest checkpoint ("latest");
+    ``algorithm``: the run's learner, when it is not built in."""
     import jax
 
     with opengl_errors():  # a MuJoCo env may import mujoco (and fail) while being built
-        loaded = LoadedPolicy(Path(run_dir), seed, config_index, which)
+        loaded = LoadedPolicy(Path(run_dir), seed, config_index, which, algorithm)
         env = loaded.env()
         act = loaded.act()
         episodes_data = rollout(env, act, jax.random.key(loaded.seed), episodes)
@@ -248,6 +253,7 @@ def main(argv: list[str] | None = None) -> int:
             args.config_index,
             args.max_frames,
             "latest" if args.latest else "best",
+            command_line_learner(args.run_dir, args.algo),
         )
         return 0
 

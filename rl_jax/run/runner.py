@@ -37,7 +37,7 @@ from typing import Any
 
 import numpy as np
 
-from rl_jax.run import plots, processes
+from rl_jax.run import learners, plots, processes
 from rl_jax.run.best import BEST_DIR, BestPolicies, policy_part
 from rl_jax.run.checkpoint import Checkpointer
 from rl_jax.run.divergence import DivergenceError, check_finite, finite_runs
@@ -297,7 +297,9 @@ def _render_gif(spec: RunSpec, notify: Callable[[str], None]) -> str | None:
     OpenGL backend once per process, and the child can choose headless EGL whatever this
     process chose. Returns the error line if rendering failed."""
     env = {**os.environ, "PYTHONPATH": os.pathsep.join(path for path in sys.path if path)}
+    # A learner of the user's own is named to the child (it never imports one by itself).
     command = [sys.executable, "-m", "rl_jax.run.render", str(spec.out)]
+    command += learners.cli_args(spec.algorithm)
     done = subprocess.run(command, env=env, capture_output=True, text=True)
     if done.returncode != 0:
         lines = done.stderr.strip().splitlines() or [f"rendering failed ({done.returncode})"]
@@ -344,7 +346,7 @@ def prepare(spec: RunSpec) -> tuple[Plan, Start]:
         raise RunError("no hyperparameter config to run")
     check_ranges(spec.algorithm, spec.config, spec.hparams)  # scripts, grids and the API alike
     if spec.resume:
-        check_resume_dir(spec.out, spec.identity)
+        learners.check_same(check_resume_dir(spec.out, spec.identity), spec.algorithm, spec.out)
     else:
         check_out_dir(spec.out, spec.identity)
     plan = make_plan(spec)

@@ -13,13 +13,13 @@ from collections.abc import Callable
 from typing import Any
 
 from rl_jax.errors import RunError
+from rl_jax.run import learners
 from rl_jax.run.best import BEST_DIR, BestPolicies, policy_fields
 from rl_jax.run.checkpoint import Checkpointer, Skipped, set_aside
 from rl_jax.run.plan import Plan
 from rl_jax.run.run_dir import (
     CHECKPOINT_DIR,
     CONFIG_FILE,
-    algorithm_reference,
     identity_hash,
     new_run_record,
     read_run_record,
@@ -181,5 +181,8 @@ def write_run_record(
             "command": spec.command,
             "sessions": [session],
         }
-        record = new_run_record(spec.identity, algorithm_reference(spec.algorithm), extra)
+        learner = learners.record_fields(spec.algorithm)  # where it came from (learners.py)
+        record = new_run_record(
+            spec.identity, learner["algorithm_module"], {"learner": learner["learner"], **extra}
+        )
     write_json_atomic(path, record)

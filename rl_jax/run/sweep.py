@@ -11,13 +11,14 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import shlex
 import sys
 import time
 from pathlib import Path
 from typing import Any
 
 from rl_jax.errors import OneLineParser, UsageError, exit_now, guard, parse_int, positive_int
-from rl_jax.run import cli, flags
+from rl_jax.run import cli, flags, learners
 from rl_jax.run.run_dir import RunError
 from rl_jax.training import params
 from rl_jax.training.jax_setup import configure_jax
@@ -28,6 +29,7 @@ ALIASES = {
     "batch": ("batch_size",),
     "buffer": ("buffer_size",),
 }
+BUILTIN_NAMES = tuple(learners.ALGORITHMS)  # before any name is registered
 SWEEP_FLAGS = ("--algo", "--env", "--grid", "--coordinator", "--num-processes", "--process-id")
 
 
@@ -95,9 +97,11 @@ def build_specs(
     """One RunSpec per shape of the grid, with its hyperparameter grid inside."""
     sweep_args, rest = parse_args(argv)
     resume = "--resume" in rest
+    algorithm = None
     if resume:
         out = Path(rest[rest.index("--resume") + 1])
         saved = sweep_record(out)
+        algorithm = _resumed_learner(saved, sweep_args.algo, out)
         sweep_args.algo, sweep_args.env = saved["algo"], saved["env"]
         sweep_args.grid = saved["grid"]
         rest = [*saved["argv"], *rest]
@@ -105,7 +109,9 @@ def build_specs(
         raise UsageError("--algo and --env are required")
     import envs
 
-    algorithm = cli.resolve_algorithm(sweep_args.algo)
+    algorithm = algorithm or cli.resolve_algorithm(sweep_args.algo)
+    sweep_args.learner = str(learners.origin_of(algorithm))
+    sweep_args.algo = learners.origin_of(algorithm).spelling(algorithm.name)
     env_id = envs.core.registry.resolve_id(sweep_args.env)
     recipe, rest = cli.take_recipe(rest, algorithm, env_id)
     parser, config_names, hparam_names = cli.build_parser(
@@ -114,6 +120,7 @@ def build_specs(
     args = parser.parse_args(rest)
     out = args.resume or args.out or default_out(env_id, algorithm.name)
     args.resume, args.out = None, None
+    named = [shlex.quote(arg) for arg in learners.cli_args(algorithm)]
     names = (config_names, hparam_names)
     base = cli.build_spec(args, algorithm, env_id, cli.Defaults(), names, [], recipe)
     axes = [parse_axis(spec, base.config, base.hparams[0]) for spec in sweep_args.grid]
@@ -136,12 +143,36 @@ def build_specs(
                 resume=resume and (Path(out) / label / "config.json").is_file(),
                 grid_fields=tuple(axis.fields[0] for axis in dynamic),
                 command=" ".join([Path(sys.executable).name, *sys.argv]),
-                resume_command=f"python experiments/sweep.py --resume {out}",
+                resume_command=" ".join(["python experiments/sweep.py --resume", str(out), *named]),
                 throughput=None,
             )
         )
         labels.append(label)
     return specs, labels, Path(out), sweep_args
+
+
+def _resumed_learner(saved: dict[str, Any], named: str | None, out: Path) -> Any:
+    """The learner of a resumed sweep: ``--algo`` if given (checked against the sweep's), else
+    the sweep's own if it is built in; a learner of the user's own is never imported from the
+    record (``rl_jax.run.learners``). Each shape's run directory is checked again on resume."""
+    # A sweep recorded before "learner" was kept ran a built-in or a registered name.
+    recorded = saved.get("learner") or ("builtin" if saved["algo"] in BUILTIN_NAMES else None)
+    if named is not None:
+        learner = cli.resolve_algorithm(named)
+        given = learners.origin_of(learner)
+        if recorded is not None and str(given) != recorded:
+            own = learners.Origin.parse(recorded).describe(saved["algo"])
+            raise RunError(
+                f"{out} is a sweep of {own}, not of {given.describe(learner.name)}; name the "
+                "sweep's own learner"
+            )
+        return learner
+    if recorded == learners.BUILTIN:
+        return cli.resolve_algorithm(saved["algo"])
+    raise RunError(
+        f"{out} is a sweep of the learner {recorded or saved['algo']}, which a resume does not "
+        f"import by itself; name it again: --algo {shlex.quote(saved['algo'])}"
+    )
 
 
 def default_out(env_id: str, algorithm_name: str) -> Path:
@@ -153,6 +184,7 @@ def write_record(out: Path, argv: list[str], sweep_args: argparse.Namespace) -> 
 
     passed = [a for a in argv if a not in ("--resume",)]
     record = {"algo": sweep_args.algo, "env": sweep_args.env, "grid": sweep_args.grid}
+    record["learner"] = sweep_args.learner
     record["argv"] = [a for a in _without_sweep_flags(passed) if a != str(out)]
     out.mkdir(parents=True, exist_ok=True)
     if not (out / "sweep.json").exists():

@@ -66,12 +66,14 @@ def test_command_line_prints_the_table_or_one_error_line(run_dir):
         env = {"PYTHONPATH": python_path(ROOT, ROOT / "tests"), "PATH": "/usr/bin:/bin"}
         return subprocess.run(argv, cwd=ROOT, capture_output=True, text=True, env=env)
 
-    done = command(run_dir, "--episodes", "4", "--seed", "1")
+    # A learner not built in is named, never imported from the run's record.
+    done = command(run_dir, "--episodes", "4", "--seed", "1", "--algo", "fake_algorithm")
     assert done.returncode == 0, done.stderr
     assert "     1  best" in done.stdout and "     0  best" not in done.stdout
     for args, expected in [
         ((run_dir.parent / "missing",), "no run directory"),
-        ((run_dir, "--seed", "9"), "--seed 9 is not in this run"),
+        ((run_dir, "--seed", "9", "--algo", "fake_algorithm"), "--seed 9 is not in this run"),
+        ((run_dir,), "name it again: --algo fake_algorithm"),
         ((run_dir, "--episodes", "0"), "--episodes"),
     ]:
         done = command(*args)

@@ -81,6 +81,8 @@ def test_render_command_line(run_dir, tmp_path):
         "0",
         "--out",
         str(tmp_path / "cli.gif"),
+        "--algo",  # a learner not built in is named, never imported from the run's record
+        "fake_algorithm",
     ]
     done = subprocess.run(command, env=ENV, capture_output=True, text=True, timeout=300)
     assert done.returncode == 0, done.stderr
@@ -96,7 +98,11 @@ def test_render_command_line(run_dir, tmp_path):
         (["--episodes", "0"], "argument --episodes: must be >= 1"),
     ):
         bad = subprocess.run(
-            command[:4] + args, env=ENV, capture_output=True, text=True, timeout=300
+            [*command[:4], "--algo", "fake_algorithm", *args],
+            env=ENV,
+            capture_output=True,
+            text=True,
+            timeout=300,
         )
         lines = bad.stderr.strip().splitlines()
         assert bad.returncode != 0 and len(lines) == 1, bad.stderr
