@@ -90,8 +90,8 @@ class Config(OffPolicyConfig):
     normalize_obs: bool = False
     # False: the temperature stays at initial_alpha (the first SAC paper's fixed alpha)
     learn_temperature: bool = True
-    log_std_min: float = -20.0  # the actor's log-std is clipped to [log_std_min, log_std_max]
-    log_std_max: float = 2.0
+    log_std_min: float = -20.0  # lower clip of the actor's log-std (softlearning's, CrossQ's)
+    log_std_max: float = 2.0  # upper clip of the actor's log-std
 
     def __post_init__(self) -> None:
         super().__post_init__()

@@ -26,6 +26,7 @@ from rl_jax.agents.sac_losses import (
     soft_td_target,
     temperature_loss,
 )
+from rl_jax.run import field_docs
 from rl_jax.training import networks, replay, squashed_gaussian
 from rl_jax.training.replay import Transition
 
@@ -459,6 +460,9 @@ def test_recipes_build_valid_configs():
     assert "untuned" in sac.recipe("rl_jax/HalfCheetah-v5").about
     assert sac.default_config("rl_jax/Humanoid-v5").normalize_obs
     assert float(Hyperparams().as_arrays().target_entropy_per_dim) == -1.0
+    # every field is a documented flag (env_id is the script's)
+    assert field_docs.undocumented_fields(paper) == ["env_id"]
+    assert field_docs.undocumented_fields(sac.default_hyperparams()) == []
 
 
 def test_command_line_trains_pendulum(tmp_path):
