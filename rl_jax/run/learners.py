@@ -54,6 +54,7 @@ ALGORITHMS: dict[str, Any] = {
     "crossq": "rl_jax.agents.crossq:crossq",
     "dqn": "rl_jax.agents.dqn:dqn",
     "reinforce": "rl_jax.agents.reinforce:reinforce",
+    "sac": "rl_jax.agents.sac:sac",
 }
 
 #: What ``resolve`` checks a learner has, as the error line shows it.

@@ -1,0 +1,489 @@
+"""SAC: the squashed Gaussian's maths against numeric references, the losses' exact values and
+gradients, terminated vs truncated in the soft target, the probe envs end to end, a tiny CrossQ
+run, and the command line."""
+
+import functools
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+from jax.test_util import check_grads
+
+import envs.core.probes  # noqa: F401  (registers the probe ids)
+from envs.core.probes import Truncation
+from envs.core.spaces import Box
+from rl_jax.agents import sac_losses, sac_networks
+from rl_jax.agents.sac import Config, Hyperparams, sac
+from rl_jax.agents.sac_losses import (
+    CriticBatch,
+    soft_critic_loss,
+    soft_policy_loss,
+    soft_td_target,
+    temperature_loss,
+)
+from rl_jax.run import field_docs
+from rl_jax.training import networks, replay, squashed_gaussian
+from rl_jax.training.replay import Transition
+
+ROOT = Path(__file__).resolve().parents[2]
+modes = pytest.mark.parametrize("transform", [lambda f: f, jax.jit], ids=["nojit", "jit"])
+
+
+# ---- the squashed Gaussian -----------------------------------------------------------------------
+def test_tanh_log_prob_is_the_change_of_variables():
+    """log pi(tanh(u)) = log N(u) - log |det d tanh / du|, the Jacobian taken by jax.jacfwd."""
+    key = jax.random.key(0)
+    mean, log_std, eps = jax.random.normal(key, (3, 4, 3))
+    log_std = 0.5 * log_std
+    u = mean + jnp.exp(log_std) * eps
+    for row in range(4):
+        jacobian = jax.jacfwd(jnp.tanh)(u[row])
+        gaussian = jax.scipy.stats.norm.logpdf(u[row], mean[row], jnp.exp(log_std[row])).sum()
+        expected = gaussian - jnp.linalg.slogdet(jacobian)[1]
+        got = squashed_gaussian.log_prob(u[row], mean[row], log_std[row])
+        np.testing.assert_allclose(got, expected, rtol=1e-5, atol=1e-5)
+
+
+def test_tanh_correction_is_exact_where_the_direct_form_fails():
+    u = jnp.array([-15.0, -3.0, 0.0, 0.5, 9.0, 15.0])
+    reference = np.log1p(-(np.tanh(np.asarray(u, np.float64)) ** 2))
+    got = squashed_gaussian.tanh_log_det_jacobian(u)
+    np.testing.assert_allclose(got, reference, rtol=1e-5)
+    with np.errstate(divide="ignore"):  # what the stable form avoids: log(0)
+        assert np.isinf(np.log(1.0 - np.tanh(np.float32(15.0)) ** 2))
+
+
+def test_samples_follow_the_density():
+    """A histogram of sampled actions against pi(a) = exp(log_prob(atanh(a))), and the sample's
+    own log pi against log_prob of its pre-tanh value."""
+    mean, log_std = jnp.full((200_000, 1), 0.4), jnp.full((200_000, 1), -0.3)
+    a, log_pi = squashed_gaussian.sample(jax.random.key(1), mean, log_std)
+    assert float(jnp.max(jnp.abs(a))) < 1.0
+    u = jnp.arctanh(a[:1000])
+    np.testing.assert_allclose(
+        log_pi[:1000], squashed_gaussian.log_prob(u, mean[:1000], log_std[:1000]), atol=2e-4
+    )
+    counts, edges = np.histogram(np.asarray(a[:, 0]), bins=40, range=(-0.95, 0.95))
+    centres = jnp.asarray((edges[:-1] + edges[1:]) / 2)[:, None]
+    density = jnp.exp(squashed_gaussian.log_prob(jnp.arctanh(centres), mean[:40], log_std[:40]))
+    expected = np.asarray(density) * (edges[1] - edges[0]) * a.shape[0]
+    np.testing.assert_allclose(counts, expected, rtol=0.06, atol=60)
+
+
+def squashed_entropy(mean: float, log_std: float) -> float:
+    """H of tanh(N(mean, std)) by quadrature over u (float64): H_gauss + E[log(1 - tanh^2 u)]."""
+    std = np.exp(log_std)
+    u = np.linspace(mean - 12 * std, mean + 12 * std, 200_001)
+    gauss = np.exp(-0.5 * ((u - mean) / std) ** 2) / (std * np.sqrt(2 * np.pi))
+    log_det = 2.0 * (np.log(2.0) - u - np.logaddexp(0.0, -2.0 * u))
+    return float(0.5 * np.log(2 * np.pi * np.e * std**2) + np.trapezoid(gauss * log_det, u))
+
+
+@pytest.mark.parametrize("mean, log_std", [(0.0, 0.0), (0.8, -1.0), (-1.5, 0.5)])
+def test_entropy_estimate_matches_quadrature(mean, log_std):
+    shape = (400_000, 1)
+    _, log_pi = squashed_gaussian.sample(
+        jax.random.key(2), jnp.full(shape, mean), jnp.full(shape, log_std)
+    )
+    estimate = float(squashed_gaussian.entropy_estimate(log_pi))
+    assert estimate == pytest.approx(squashed_entropy(mean, log_std), abs=0.01)
+
+
+def test_rescale_maps_the_unit_box_onto_the_bounds():
+    a = jnp.array([[-1.0, -1.0], [0.0, 0.0], [1.0, 1.0]])
+    got = squashed_gaussian.rescale(a, np.array([-2.0, 0.0]), np.array([2.0, 1.0]))
+    np.testing.assert_allclose(got, [[-2.0, 0.0], [0.0, 0.5], [2.0, 1.0]])
+
+
+# ---- the losses' maths ---------------------------------------------------------------------------
+@modes
+def test_soft_target_and_losses_exact_values(transform):
+    r_t, discount_t = jnp.array([1.0, 0.5]), jnp.array([0.9, 0.0])
+    q_t = jnp.array([[2.0, 3.0], [1.0, 4.0]])  # min per column: 1, 3
+    log_pi_t, alpha = jnp.array([-1.0, 2.0]), 0.5
+    # y = r + d (min q - alpha log pi): 1 + 0.9 (1 + 0.5) = 2.35; 0.5 + 0 = 0.5
+    target = transform(soft_td_target)(r_t, discount_t, q_t, log_pi_t, alpha)
+    np.testing.assert_allclose(target, [2.35, 0.5], rtol=1e-6)
+    q_tm1 = jnp.array([[2.35, 1.5], [1.35, 0.5]])
+    # 1/2 sum over critics of the mean squared error: 1/2 (0.5 + 0.5)
+    loss = transform(soft_critic_loss)(q_tm1, r_t, discount_t, q_t, log_pi_t, alpha)
+    assert float(loss) == pytest.approx(0.5, rel=1e-6)
+    # mean(alpha log pi - min q): (0.5 * -1 - 1.35 + 0.5 * 2 - 0.5) / 2
+    policy = transform(soft_policy_loss)(q_tm1, log_pi_t, alpha)
+    assert float(policy) == pytest.approx((-0.5 - 1.35 + 1.0 - 0.5) / 2, rel=1e-6)
+
+
+def test_temperature_gradient_is_entropy_minus_target():
+    log_pi = jnp.array([-0.2, 0.4, 1.3])  # entropy estimate -0.5
+    target_entropy = -2.0
+    grad = jax.grad(temperature_loss)(jnp.float32(0.3), log_pi, target_entropy)
+    assert float(grad) == pytest.approx(-0.5 - target_entropy, rel=1e-6)  # 1.5 > 0: alpha falls
+    eps = 1e-2
+    loss = lambda x: temperature_loss(x, log_pi, target_entropy)  # noqa: E731
+    numeric = (loss(0.3 + eps) - loss(0.3 - eps)) / (2 * eps)
+    assert float(grad) == pytest.approx(float(numeric), rel=1e-3)
+    # value: -0.3 * (0.5 - 2)
+    assert float(loss(0.3)) == pytest.approx(0.45, rel=1e-6)
+    # The log-densities are data for the temperature: no gradient reaches them.
+    assert np.all(np.asarray(jax.grad(temperature_loss, argnums=1)(0.3, log_pi, -2.0)) == 0.0)
+
+
+def test_soft_target_has_no_gradient():
+    args = (jnp.ones(3), jnp.full(3, 0.9), jnp.full((2, 3), 2.0), jnp.zeros(3), 0.2)
+    grads = jax.grad(soft_critic_loss, argnums=(3, 4))(jnp.ones((2, 3)), *args)
+    assert all(np.all(np.asarray(g) == 0.0) for g in grads)
+
+
+def test_pure_losses_check_grads():
+    q_tm1, q_t = jax.random.normal(jax.random.key(0), (2, 2, 7))
+    r_t, discount_t = jnp.linspace(-1.0, 1.0, 7), jnp.full((7,), 0.9)
+    log_pi = jnp.linspace(-2.0, 1.0, 7)
+    check_grads(
+        jax.jit(lambda q: soft_critic_loss(q, r_t, discount_t, q_t, log_pi, 0.3)),
+        (q_tm1,),
+        order=2,
+        eps=1e-2,
+    )
+    check_grads(jax.jit(lambda q, lp: soft_policy_loss(q, lp, 0.3)), (q_t, log_pi), 2, eps=1e-2)
+    check_grads(jax.jit(lambda x: temperature_loss(x, log_pi, -1.0)), (0.1,), order=2, eps=1e-2)
+    check_grads(jax.jit(squashed_gaussian.tanh_log_det_jacobian), (q_t,), order=2, eps=1e-3)
+
+
+# ---- terminated vs truncated ---------------------------------------------------------------------
+def test_target_stops_at_termination_and_bootstraps_through_truncation():
+    """Four hand-made transitions: running, truncated, terminated, both flags. Only termination
+    zeroes the bootstrap; truncation keeps gamma x the soft value of the true next obs."""
+    gamma, alpha = 0.9, 0.5
+    batch = Transition(
+        obs=jnp.zeros((4, 1)),
+        action=jnp.zeros((4, 1)),
+        reward=jnp.array([1.0, 2.0, 3.0, 4.0]),
+        next_obs=jnp.ones((4, 1)),
+        terminated=jnp.array([False, False, True, True]),
+        truncated=jnp.array([False, True, False, True]),
+    )
+    critic_batch = CriticBatch.one_step(batch, gamma)
+    np.testing.assert_allclose(critic_batch.discount_t, [0.9, 0.9, 0.0, 0.0])
+    q_t = jnp.array([[5.0, 6.0, 7.0, 8.0], [4.0, 9.0, 9.0, 9.0]])
+    log_pi_t = jnp.array([-1.0, 1.0, -1.0, 1.0])
+    target = soft_td_target(critic_batch.r_t, critic_batch.discount_t, q_t, log_pi_t, alpha)
+    # 1 + 0.9 (4 + 0.5); 2 + 0.9 (6 - 0.5); 3; 4
+    np.testing.assert_allclose(target, [5.05, 6.95, 3.0, 4.0], rtol=1e-6)
+
+
+def test_n_step_window_stops_at_episode_ends():
+    """3-step windows of one env (gamma 0.5): one runs through, one is cut by a truncation (it
+    bootstraps after 2 steps), one by a termination (no bootstrap)."""
+    ones = jnp.ones((3, 3))
+    window = Transition(
+        obs=jnp.zeros((3, 3, 1)),
+        action=jnp.zeros((3, 3, 1)),
+        reward=ones,
+        next_obs=jnp.arange(9.0).reshape(3, 3, 1),
+        terminated=jnp.array([[0, 0, 0], [0, 0, 0], [0, 1, 0]], bool),
+        truncated=jnp.array([[0, 0, 0], [0, 1, 0], [0, 0, 0]], bool),
+    )
+    batch = CriticBatch.n_step(replay.n_step_batch(window, jnp.ones((3, 3), bool), 0.5))
+    np.testing.assert_allclose(batch.r_t, [1.75, 1.5, 1.5])
+    np.testing.assert_allclose(batch.discount_t, [0.125, 0.25, 0.0])
+    np.testing.assert_allclose(batch.next_obs[:, 0], [2.0, 4.0, 7.0])
+
+
+# ---- losses on networks --------------------------------------------------------------------------
+ACTION_SPACE = Box(np.array([-2.0, 0.0]), np.array([2.0, 1.0]), (2,))
+
+
+def _network_setup(dtype=jnp.float32, **overrides):
+    config = Config(
+        env_id="unused",
+        actor_hidden=(8,),
+        critic_hidden=(8,),
+        compute_dtype=jnp.dtype(dtype).name,
+        **overrides,
+    )
+    nets = sac_networks.build_networks(config, ACTION_SPACE)
+    keys = jax.random.split(jax.random.key(3), 6)
+    obs = jax.random.normal(keys[0], (5, 3), dtype)
+    variables = dict(nets.actor.init(keys[1], obs))
+    actor_stats = variables.pop("batch_stats", None)
+    critics = dict(networks.init_stacked(nets.critic, keys[2], 2, obs, jnp.zeros((5, 2), dtype)))
+    critic_stats = critics.pop("batch_stats", None)
+    to = lambda tree: jax.tree.map(lambda x: x.astype(dtype), tree)  # noqa: E731
+    batch = CriticBatch(
+        obs=obs,
+        action=jax.random.uniform(keys[3], (5, 2), dtype, 0.0, 1.0),
+        r_t=jax.random.normal(keys[4], (5,), dtype),
+        discount_t=jnp.array([0.9, 0.9, 0.0, 0.9, 0.0], dtype),
+        next_obs=jax.random.normal(keys[5], (5, 3), dtype),
+    )
+    return nets, to(variables), to(critics), batch, actor_stats, critic_stats
+
+
+def test_network_losses_check_grads():
+    # ReLU kinks and float32 rounding make finite differences of whole networks unreliable, so
+    # this runs in float64 (locally; library code stays float32).
+    with jax.enable_x64(True):
+        nets, actor, critics, batch, _, _ = _network_setup(jnp.float64)
+        key, alpha = jax.random.key(4), jnp.float64(0.2)
+
+        def critic_objective(c):
+            return sac_losses.critic_loss_fn(c, critics, actor, batch, key, alpha, nets)[0]
+
+        def actor_objective(a):
+            return sac_losses.actor_loss_fn(a, critics, batch.obs, key, alpha, nets)[0]
+
+        check_grads(jax.jit(critic_objective), (critics,), order=1, modes=("rev",), eps=1e-6)
+        check_grads(jax.jit(actor_objective), (actor,), order=1, modes=("rev",), eps=1e-6)
+
+
+@pytest.mark.parametrize("targets", [True, False], ids=["target-critics", "crossq-joint"])
+def test_critic_gradient_reaches_only_the_online_critics(targets):
+    """The bootstrap action is data (no gradient to the actor), and so are the target critics'
+    values, or under CrossQ the bootstrap half of the joint pass."""
+    overrides = {} if targets else {"critic_norm": "batch_renorm", "target_networks": False}
+    nets, actor, critics, batch, actor_stats, stats = _network_setup(**overrides)
+    key, alpha = jax.random.key(5), jnp.float32(0.2)
+
+    def loss(online, target, actor):
+        args = (batch, key, alpha, nets, stats, actor_stats)
+        return sac_losses.critic_loss_fn(online, target, actor, *args)[0]
+
+    if targets:
+        online, target, actor_grads = jax.grad(loss, argnums=(0, 1, 2))(critics, critics, actor)
+        assert all(np.all(np.asarray(g) == 0.0) for g in jax.tree.leaves(target))
+    else:
+        online, actor_grads = jax.grad(loss, argnums=(0, 2))(critics, None, actor)
+    assert all(np.all(np.asarray(g) == 0.0) for g in jax.tree.leaves(actor_grads))
+    assert any(np.any(np.asarray(g) != 0.0) for g in jax.tree.leaves(online))
+
+
+def test_crossq_joint_pass_matches_a_pass_over_both_halves():
+    """The joint pass is one training-mode pass over [s; s'] x [a; a']: its values and
+    statistics are those of the 2B rows together."""
+    nets, actor, critics, batch, _, stats = _network_setup(
+        critic_norm="batch_renorm", target_networks=False
+    )
+    a_t = jnp.full((5, 2), 0.5)
+    q_tm1, q_t, new_stats = sac_losses.joint_values(nets, critics, stats, batch, a_t)
+    both, expected_stats = sac_networks.critic_values_train(
+        nets,
+        critics,
+        stats,
+        jnp.concatenate([batch.obs, batch.next_obs]),
+        jnp.concatenate([batch.action, a_t]),
+    )
+    np.testing.assert_array_equal(jnp.concatenate([q_tm1, q_t], axis=1), both)
+    for got, want in zip(jax.tree.leaves(new_stats), jax.tree.leaves(expected_stats), strict=True):
+        np.testing.assert_array_equal(got, want)
+
+
+# ---- probe envs, end to end ----------------------------------------------------------------------
+GAMMA, TOL, CHUNKS = 0.5, 0.05, 6
+FIXED_ALPHA = 0.5
+PROBE_CONFIG = {
+    "num_envs": 8,
+    "learning_starts": 256,
+    "batch_size": 64,
+    "buffer_size": 16_384,
+    "iterations_per_chunk": 250,
+    "actor_hidden": (32, 32),
+    "critic_hidden": (32, 32),
+}
+# A short horizon (gamma 0.5) and fast targets (tau 0.05) let values converge in ~1,500 updates;
+# log(alpha) at rate 1e-2 reaches its equilibrium within them (at 1e-3 it is still falling).
+PROBE_HPARAMS = {"gamma": GAMMA, "tau": 0.05, "actor_lr": 1e-3, "critic_lr": 1e-3, "alpha_lr": 1e-2}
+
+
+@functools.cache
+def probe_run(env_id: str, fixed_alpha: bool = False, n_step: int = 1):
+    """``(state, config, metrics of the last chunk)`` after ``CHUNKS`` chunks of one seed; with
+    ``fixed_alpha`` the temperature stays at ``FIXED_ALPHA``."""
+    extra = {"learn_temperature": False} if fixed_alpha else {}
+    config = sac.default_config(env_id, **PROBE_CONFIG, n_step=n_step, **extra)
+    alpha = {"initial_alpha": FIXED_ALPHA} if fixed_alpha else {}
+    hparams = sac.default_hyperparams(**PROBE_HPARAMS, **alpha)
+    state = sac.init(jax.random.key(0), config, hparams)
+    chunk = jax.jit(sac.train_chunk, static_argnums=1)
+    for _ in range(CHUNKS):
+        state, metrics = chunk(state, config, hparams)
+    return state, config, metrics
+
+
+def q_values(state, config, obs_values, action_values):
+    obs = jnp.asarray(obs_values, jnp.float32)[:, None]
+    actions = jnp.asarray(action_values, jnp.float32)[:, None]
+    nets = sac_networks.make_networks(config)
+    return sac_networks.critic_values(nets, state.agent.critics, None, obs, actions)
+
+
+def policy_entropy(state, config, obs_value) -> float:
+    """The learned policy's entropy at one observation, by quadrature."""
+    nets = sac_networks.make_networks(config)
+    obs = jnp.array([[obs_value]], jnp.float32)
+    mean, log_std = sac_networks.actor_outputs(nets, state.agent.actor, None, obs)
+    return squashed_entropy(float(mean[0, 0]), float(log_std[0, 0]))
+
+
+def test_learns_constant_value():
+    state, config, metrics = probe_run("rl_jax/ProbeConstantReward-v0")
+    q = q_values(state, config, [0.0] * 5, np.linspace(-1, 1, 5))
+    np.testing.assert_allclose(q, 1.0, atol=TOL)
+    assert float(metrics.eval_return) == 1.0
+
+
+def test_learns_best_action_and_tunes_the_temperature():
+    state, config, metrics = probe_run("rl_jax/ProbeActionReward-v0")
+    action = sac.policy(state, config)(jnp.zeros((1, 1)))
+    assert float(action[0, 0]) == pytest.approx(0.5, abs=TOL)
+    # Inside the bounds: after the warm-up few actions reach +-1, where the critics extrapolate.
+    actions = np.array([-0.6, 0.0, 0.5, 0.8])
+    q = q_values(state, config, [0.0] * 4, actions)
+    np.testing.assert_allclose(q, np.broadcast_to(1 - (actions - 0.5) ** 2, q.shape), atol=TOL)
+    # The temperature moved from 1 to hold the entropy near its target, -|A| = -1.
+    assert float(jnp.exp(state.agent.log_alpha)) < 0.5
+    assert policy_entropy(state, config, 0.0) == pytest.approx(-1.0, abs=0.1)
+    assert int(state.agent.alpha_opt.count) == int(state.clock.updates)
+
+
+def test_learns_soft_two_step_values():
+    """Q(1, .) = 1 (terminal); Q(0, .) = gamma (1 + alpha H(pi(.|1))): the soft value of the
+    next state carries the policy's entropy there."""
+    state, config, _ = probe_run("rl_jax/ProbeTwoStep-v0", fixed_alpha=True)
+    assert float(jnp.exp(state.agent.log_alpha)) == pytest.approx(FIXED_ALPHA)
+    expected = [GAMMA * (1.0 + FIXED_ALPHA * policy_entropy(state, config, 1.0)), 1.0]
+    q = q_values(state, config, [0.0, 1.0], [0.3, -0.3])
+    np.testing.assert_allclose(q, np.broadcast_to(expected, q.shape), atol=TOL)
+
+
+def soft_truncation_values(h0: float, h1: float, terminal: bool) -> list[float]:
+    """Q(0), Q(1) of the truncation probes with the entropy bonus ``alpha H`` at each obs."""
+    if terminal:
+        return [0.0, 1.0]
+    c0, c1 = GAMMA * FIXED_ALPHA * h1, GAMMA * FIXED_ALPHA * h0
+    q0 = (GAMMA + GAMMA * c1 + c0) / (1.0 - GAMMA**2)
+    return [q0, 1.0 + GAMMA * q0 + c1]
+
+
+@pytest.mark.parametrize("n_step", [1, 3])
+@pytest.mark.parametrize("env_id", ["rl_jax/ProbeTruncation-v0", "rl_jax/ProbeTermination-v0"])
+def test_bootstraps_through_truncation_not_termination(env_id, n_step):
+    """One-step episodes cut by the time limit (bootstrap from the true final obs) or ended in a
+    terminal state (no bootstrap); 3-step windows must stop at each end the same way."""
+    state, config, _ = probe_run(env_id, fixed_alpha=True, n_step=n_step)
+    terminal = env_id.endswith("Termination-v0")
+    h0, h1 = (policy_entropy(state, config, p) for p in (0.0, 1.0))
+    expected = soft_truncation_values(h0, h1, terminal)
+    q = q_values(state, config, [0.0, 1.0], [0.2, -0.2])
+    np.testing.assert_allclose(q, np.broadcast_to(expected, q.shape), atol=TOL)
+    # The wrong answers are far: the flags swapped, or the entropy bonus left out.
+    wrong = [soft_truncation_values(h0, h1, not terminal)]
+    wrong.append([Truncation.true_q(p, GAMMA, terminal) for p in (0.0, 1.0)])
+    for values in wrong[: 1 if terminal else 2]:
+        assert np.max(np.abs(np.asarray(values) - np.asarray(expected))) > 3 * TOL
+
+
+# ---- CrossQ and the network options, tiny ---------------------------------------------------
+TINY_LOOP = {
+    "num_envs": 2,
+    "updates_per_iteration": 2,
+    "iterations_per_chunk": 100,
+    "batch_size": 32,
+    "learning_starts": 64,
+    "buffer_size": 1_000,
+}
+
+
+def tiny_run(recipe=None, **overrides):
+    """``(state, metrics)`` after one chunk of 100 iterations on Pendulum."""
+    config = sac.default_config("rl_jax/Pendulum-v1", recipe, **TINY_LOOP, **overrides)
+    hparams = sac.default_hyperparams("rl_jax/Pendulum-v1", recipe)
+    state = sac.init(jax.random.key(0), config, hparams)
+    state, metrics = jax.jit(sac.train_chunk, static_argnums=1)(state, config, hparams)
+    assert all(np.all(np.isfinite(np.asarray(x))) for x in jax.tree.leaves(state.agent))
+    assert np.isfinite(float(metrics.eval_return)) and np.isfinite(metrics.extra["q"])
+    assert int(state.clock.updates) == 2 * (100 - 32)
+    return state, config
+
+
+def test_tiny_crossq_run_is_finite():
+    sizes = {"actor_hidden": (16, 16), "critic_hidden": (32, 32), "renorm_warmup": 50}
+    state, config = tiny_run("crossq-cpu", **sizes)
+    assert (config.critic_norm, config.actor_norm, config.target_networks) == (
+        "batch_renorm",
+        "batch_renorm",
+        False,
+    )
+    agent, updates = state.agent, int(state.clock.updates)
+    assert agent.target_critics is None
+    # Every critic update folded its batch into the statistics; the actor's every third.
+    steps = agent.critic_stats["MLP_0"]["BatchRenorm_0"]["steps"]
+    np.testing.assert_array_equal(steps, [updates, updates])
+    assert int(agent.actor_stats["MLP_0"]["BatchRenorm_0"]["steps"]) == updates // 3
+    assert int(agent.actor_opt.count) == updates // 3
+    assert float(agent.critic_opt.hyperparams["b1"]) == 0.5
+    assert float(agent.alpha_opt.hyperparams["b1"]) == pytest.approx(0.9)
+
+
+@pytest.mark.parametrize(
+    "options",
+    [
+        {"network": "simba", "actor_hidden": (16,), "critic_hidden": (16, 16)},
+        {"critic_norm": "layer", "actor_norm": "layer", "n_step": 3, "actor_hidden": (16,)},
+    ],
+    ids=["simba", "layer-norm-n-step"],
+)
+def test_network_options_run(options):
+    state, config = tiny_run(**{"critic_hidden": (16,), **options})
+    agent = state.agent
+    assert (agent.obs_stats is not None) == (config.network == "simba")
+    if config.network == "simba":  # every observation acted on, warm-up included
+        assert float(agent.obs_stats.count) == pytest.approx(2 * 100, rel=1e-3)
+    else:
+        assert "LayerNorm_0" in agent.critics["params"]["MLP_0"]
+
+
+# ---- recipes and the command line ---------------------------------------------------------------
+def test_recipes_build_valid_configs():
+    for env_id in ("rl_jax/Pendulum-v1", "rl_jax/HalfCheetah-v5", "rl_jax/Humanoid-v5"):
+        for name in sac.recipes.names(env_id):
+            sac.default_config(env_id, recipe=name)
+            sac.default_hyperparams(env_id, recipe=name)
+    paper = sac.default_config("rl_jax/Hopper-v5", recipe="sac-paper")
+    assert (paper.num_envs, paper.updates_per_iteration, paper.batch_size) == (1, 1, 256)
+    crossq = sac.default_config("rl_jax/Hopper-v5", recipe="crossq")
+    assert crossq.critic_hidden == (2048, 2048) and crossq.policy_delay == 3
+    assert "untuned" in sac.recipe("rl_jax/HalfCheetah-v5").about
+    assert sac.default_config("rl_jax/Humanoid-v5").normalize_obs
+    assert float(Hyperparams().as_arrays().target_entropy_per_dim) == -1.0
+    # every field is a documented flag (env_id is the script's)
+    assert field_docs.undocumented_fields(paper) == ["env_id"]
+    assert field_docs.undocumented_fields(sac.default_hyperparams()) == []
+
+
+def test_command_line_trains_pendulum(tmp_path):
+    env = {
+        **os.environ,
+        "PYTHONPATH": os.pathsep.join([str(ROOT), os.environ.get("PYTHONPATH", "")]),
+    }
+    command = [
+        sys.executable,
+        str(ROOT / "experiments" / "train.py"),
+        "--algo",
+        "sac",
+        "--env",
+        "rl_jax/Pendulum-v1",
+        "--total-steps",
+        "1500",
+        "--iterations-per-chunk",
+        "125",
+        "--out",
+        str(tmp_path / "run"),
+    ]
+    done = subprocess.run(command, env=env, capture_output=True, text=True, timeout=600)
+    assert done.returncode == 0, done.stderr[-2000:]
+    assert (tmp_path / "run" / "metrics.jsonl").read_text().count("eval_return") >= 3
