@@ -1,7 +1,7 @@
 """Pixel DQN (``rl_jax/CartPolePixels-v1``): where its update time goes on this CPU.
 
 1. The conv torso's gradient step inside a ``lax.scan`` (where the training chunk runs it):
-   ``flax.linen.Conv`` against ``rl_jax.training.networks.MatmulConv`` (space-to-depth + one
+   ``flax.linen.Conv`` against ``rl_jax.training.conv.MatmulConv`` (space-to-depth + one
    matmul, the same parameters and results). XLA's CPU backend runs a convolution's gradient
    inside a loop body far slower than outside one (jax-ml/jax#12868).
 2. The recipe's whole training chunk (``dqn.RECIPES``: 4 envs, one batch-32 update per
@@ -24,7 +24,7 @@ import numpy as np
 
 from bench.machine import describe
 from rl_jax.agents.dqn import dqn
-from rl_jax.training import networks, parallel, params
+from rl_jax.training import conv, parallel, params
 
 ENV_ID = "rl_jax/CartPolePixels-v1"
 ITERATIONS = 100  # per timed chunk: 200 updates per seed
@@ -67,7 +67,7 @@ def measure(once, rounds: int, min_time: float) -> float:
 
 
 class _FlaxTorso(nn.Module):
-    """The 2013 DQN torso and head with ``nn.Conv`` (what ``networks.ConvTorso`` was)."""
+    """The 2013 DQN torso and head with ``nn.Conv`` (what ``conv.ConvTorso`` was)."""
 
     matmul: bool
 
@@ -76,10 +76,10 @@ class _FlaxTorso(nn.Module):
         x = pixels / 255.0
         for index, (features, kernel, stride) in enumerate(((16, 8, 4), (32, 4, 2))):
             if self.matmul:
-                conv = networks.MatmulConv(features, kernel, stride, name=f"Conv_{index}")
+                layer = conv.MatmulConv(features, kernel, stride, name=f"Conv_{index}")
             else:
-                conv = nn.Conv(features, (kernel, kernel), (stride, stride), "VALID")
-            x = nn.relu(conv(x))
+                layer = nn.Conv(features, (kernel, kernel), (stride, stride), "VALID")
+            x = nn.relu(layer(x))
         return nn.Dense(2)(nn.relu(nn.Dense(256)(x.reshape(x.shape[:-3] + (-1,)))))
 
 

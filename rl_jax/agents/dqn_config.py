@@ -11,7 +11,7 @@ from flax import struct
 from jax.typing import ArrayLike
 
 import envs
-from rl_jax.training import networks, params
+from rl_jax.training import conv, networks, params
 from rl_jax.training.offpolicy import OffPolicyConfig
 
 
@@ -99,7 +99,7 @@ class PixelConfig(Config):
             raise ValueError(
                 f"augment_shift must be in 0..{self.frame_size - 1}, got {self.augment_shift}"
             )
-        networks.check_conv_layers(self.conv_layers, self.frame_size)
+        conv.check_conv_layers(self.conv_layers, self.frame_size)
         given = {"frame_size", "frame_stack"} & set(envs.parse_keywords(self.env_kwargs))
         if given:
             name = sorted(given)[0]
@@ -107,7 +107,7 @@ class PixelConfig(Config):
                 f"{name} is a config field here: --{name.replace('_', '-')}, not --env-kwargs"
             )
         first, stop = self.conv_rows() or (0, self.frame_size)
-        networks.check_conv_layers(self.conv_layers, stop - first)
+        conv.check_conv_layers(self.conv_layers, stop - first)
 
     def make_env(self) -> envs.Environment:
         return envs.make(
@@ -122,7 +122,7 @@ class PixelConfig(Config):
         env = self.make_env()
         if not self.crop_drawn_rows or not hasattr(env, "drawn_rows"):
             return ()
-        return networks.covering_rows(self.conv_layers, *env.drawn_rows(), self.frame_size)
+        return conv.covering_rows(self.conv_layers, *env.drawn_rows(), self.frame_size)
 
 
 @struct.dataclass

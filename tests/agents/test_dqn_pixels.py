@@ -19,7 +19,7 @@ from rl_jax.run import cli
 from rl_jax.run.checkpoint import Checkpointer
 from rl_jax.run.plan import make_plan
 from rl_jax.run.run_dir import CHECKPOINT_DIR
-from rl_jax.training import augment, networks
+from rl_jax.training import augment, conv, networks
 
 ENV_ID = "rl_jax/CartPolePixels-v1"
 
@@ -27,12 +27,12 @@ ENV_ID = "rl_jax/CartPolePixels-v1"
 # ---- the conv torso ------------------------------------------------------------------------
 def test_conv_output_sizes_follow_valid_padding():
     nature = (32, 8, 4, 64, 4, 2, 64, 3, 1)
-    assert networks.conv_output_sizes(nature, 84) == [20, 9, 7]
-    assert networks.conv_output_sizes((16, 8, 4, 32, 4, 2), 84) == [20, 9]
+    assert conv.conv_output_sizes(nature, 84) == [20, 9, 7]
+    assert conv.conv_output_sizes((16, 8, 4, 32, 4, 2), 84) == [20, 9]
     with pytest.raises(ValueError, match="layer 3 has a 3x3 kernel but sees 2x2 pixels"):
-        networks.check_conv_layers(nature, 32)
+        conv.check_conv_layers(nature, 32)
     with pytest.raises(ValueError, match="triples"):
-        networks.check_conv_layers((32, 8), 84)
+        conv.check_conv_layers((32, 8), 84)
 
 
 @pytest.mark.parametrize(
@@ -48,7 +48,7 @@ def test_conv_output_sizes_follow_valid_padding():
 def test_covering_rows_grow_the_band_to_a_height_the_conv_stack_reads_whole(
     layers, band, size, expected
 ):
-    first, stop = networks.covering_rows(layers, *band, size)
+    first, stop = conv.covering_rows(layers, *band, size)
     assert (first, stop) == expected
     assert first <= band[0] and band[1] <= stop
 
@@ -136,11 +136,11 @@ def test_q_network_on_frames_has_the_right_shapes_for_any_batch_dims():
 
 
 def test_pixels_are_scaled_to_unit_range_inside_the_network():
-    torso = networks.ConvTorso((4, 3, 1))
+    torso = conv.ConvTorso((4, 3, 1))
     frames = jax.random.randint(jax.random.key(0), (2, 6, 6, 1), 0, 256).astype(jnp.uint8)
     params = torso.init(jax.random.key(1), frames)
-    conv = {"params": params["params"]["Conv_0"]}
-    expected = nn.relu(nn.Conv(4, (3, 3), padding="VALID").apply(conv, frames / 255.0))
+    first = {"params": params["params"]["Conv_0"]}
+    expected = nn.relu(nn.Conv(4, (3, 3), padding="VALID").apply(first, frames / 255.0))
     np.testing.assert_allclose(
         torso.apply(params, frames), expected.reshape(2, -1), rtol=1e-5, atol=1e-6
     )
@@ -154,7 +154,7 @@ def test_matmul_conv_equals_flax_conv_and_its_gradients(kernel, stride, size):
     """MatmulConv (space-to-depth, then one matmul) against nn.Conv with the same parameters:
     outputs, parameter gradients and input gradients, strides that divide the kernel or not."""
     x = jax.random.normal(jax.random.key(1), (2, 3, size, size, 5))
-    layer = networks.MatmulConv(7, kernel, stride)
+    layer = conv.MatmulConv(7, kernel, stride)
     params = layer.init(jax.random.key(0), x)
     reference = nn.Conv(7, (kernel, kernel), (stride, stride), "VALID")
     np.testing.assert_allclose(
