@@ -266,7 +266,8 @@ def _choose(argv: list[str], algorithm: Any, env_id: str | None) -> tuple[Any, s
     if algorithm is not None and env_id is not None:
         # a script's run may be another built-in learner's, chosen by its --recipe
         recorded = record["identity"]["algorithm"] if record else None
-        if recorded not in (None, algorithm.name) and isinstance(ALGORITHMS.get(recorded), str):
+        built_in = record is not None and record.get("learner", "builtin") == "builtin"
+        if built_in and recorded != algorithm.name and isinstance(ALGORITHMS.get(recorded), str):
             algorithm = resolve_algorithm(recorded)
         return algorithm, envs.core.registry.resolve_id(env_id), False
     env_name = env_id or known.env or (record["identity"]["env_id"] if record else None)
