@@ -1,9 +1,10 @@
-"""rl_jax: pure-functional TD3, DDPG, DQN and REINFORCE, jit-compiled with vmapped envs.
+"""rl_jax: pure-functional TD3, DDPG, DQN, REINFORCE and PPO, jit-compiled with vmapped envs.
 
 What a user imports: ``train``, ``resume``, ``open_run`` and ``Run`` (``rl_jax.run.api``),
-``load_policy`` (``rl_jax.run.policy``) and the algorithms ``td3``, ``ddpg``, ``dqn`` and
-``reinforce`` (``rl_jax.agents``). The package: ``agents`` (the algorithms), ``training`` (what
-makes the compiled program), ``run`` (what touches disk, terminal and processes).
+``load_policy`` (``rl_jax.run.policy``) and the algorithms ``td3``, ``ddpg``, ``dqn``,
+``reinforce`` and ``ppo`` (``rl_jax.agents``). The package: ``agents`` (the algorithms),
+``training`` (what makes the compiled program), ``run`` (what touches disk, terminal and
+processes).
 """
 
 import os
@@ -19,12 +20,24 @@ os.environ.setdefault("TF_CPP_MIN_LOG_LEVEL", "3")
 
 __version__ = "0.1.0"
 
-__all__ = ["Run", "ddpg", "dqn", "load_policy", "open_run", "reinforce", "resume", "td3", "train"]
+__all__ = [
+    "Run",
+    "ddpg",
+    "dqn",
+    "load_policy",
+    "open_run",
+    "ppo",
+    "reinforce",
+    "resume",
+    "td3",
+    "train",
+]
 _LAZY = {
     "td3": "rl_jax.agents.td3",
     "ddpg": "rl_jax.agents.td3",
     "dqn": "rl_jax.agents.dqn",
     "reinforce": "rl_jax.agents.reinforce",
+    "ppo": "rl_jax.agents.ppo",
     "load_policy": "rl_jax.run.policy",
     "train": "rl_jax.run.api",
     "resume": "rl_jax.run.api",

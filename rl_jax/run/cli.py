@@ -55,6 +55,7 @@ ALGORITHMS: dict[str, str] = {
     "ddpg": "rl_jax.agents.td3:ddpg",
     "dqn": "rl_jax.agents.dqn:dqn",
     "reinforce": "rl_jax.agents.reinforce:reinforce",
+    "ppo": "rl_jax.agents.ppo:ppo",
 }
 RUNS_ROOT = Path("runs")
 
