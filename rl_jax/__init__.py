@@ -1,11 +1,11 @@
-"""rl_jax: pure-functional RL learners (TD3, DDPG, TD7, CrossQ, DQN, REINFORCE), jit-compiled
-with vmapped envs.
+"""rl_jax: pure-functional RL learners (TD3, DDPG, TD7, CrossQ, SAC, PPO, DQN, REINFORCE),
+jit-compiled with vmapped envs.
 
 What a user imports: ``train``, ``resume``, ``open_run`` and ``Run`` (``rl_jax.run.api``),
 ``load_policy`` (``rl_jax.run.policy``) and the learners ``td3``, ``ddpg``, ``td7``, ``crossq``,
-``dqn`` and ``reinforce`` (``rl_jax.agents``). The package: ``agents`` (the learners),
-``training`` (what makes the compiled program), ``run`` (what touches disk, terminal and
-processes).
+``sac``, ``ppo``, ``dqn`` and ``reinforce`` (``rl_jax.agents``). The package: ``agents`` (the
+learners), ``training`` (what makes the compiled program), ``run`` (what touches disk, terminal
+and processes).
 """
 
 import os
@@ -28,8 +28,10 @@ __all__ = [
     "dqn",
     "load_policy",
     "open_run",
+    "ppo",
     "reinforce",
     "resume",
+    "sac",
     "td3",
     "td7",
     "train",
@@ -41,6 +43,8 @@ _LAZY = {
     "crossq": "rl_jax.agents.crossq",
     "dqn": "rl_jax.agents.dqn",
     "reinforce": "rl_jax.agents.reinforce",
+    "ppo": "rl_jax.agents.ppo",
+    "sac": "rl_jax.agents.sac",
     "load_policy": "rl_jax.run.policy",
     "train": "rl_jax.run.api",
     "resume": "rl_jax.run.api",

@@ -55,6 +55,7 @@ ALGORITHMS: dict[str, Any] = {
     "dqn": "rl_jax.agents.dqn:dqn",
     "reinforce": "rl_jax.agents.reinforce:reinforce",
     "sac": "rl_jax.agents.sac:sac",
+    "ppo": "rl_jax.agents.ppo:ppo",
 }
 
 #: What ``resolve`` checks a learner has, as the error line shows it.

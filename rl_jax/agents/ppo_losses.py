@@ -1,0 +1,105 @@
+"""PPO's maths (Schulman et al. 2017), pure and network-free: generalized advantage estimates
+(Schulman et al. 2016), the clipped surrogate objective, the (optionally clipped) value loss,
+advantage standardisation and the running scale of rewards.
+
+Names follow the time steps, as rlax does: a rollout step acts in ``s_tm1`` (value ``v_tm1``),
+earns ``r_t`` and lands in ``s_t`` (value ``v_t``, the *true* next observation, also where the
+episode was cut by the time limit). Arrays are ``[T, N]`` (time, envs) unless said otherwise.
+"""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+
+from rl_jax.training import normalization
+
+
+def generalized_advantage_estimates(r_t, discount_t, v_tm1, v_t, trace_t) -> jax.Array:
+    """``A_tm1 = delta_t + trace_t A_t`` backwards over axis 0, with the TD error
+    ``delta_t = r_t + discount_t v_t - v_tm1``: ``[T, N] -> [T, N]``.
+
+    ``discount_t`` is ``gamma`` except at a termination (0: no value after a terminal state), so a
+    step cut by the time limit still bootstraps from ``v_t``, the value of its true final
+    observation. ``trace_t`` is ``gamma * lambda`` except where the episode ended in any way (0: the
+    next step's advantage belongs to a new episode). The last step's trace is cut too: no
+    advantage is known beyond the rollout, and ``v_t`` already bootstraps for it."""
+    delta_t = r_t + discount_t * v_t - v_tm1
+
+    def back(a_next, inputs):
+        delta, trace = inputs
+        a = delta + trace * a_next
+        return a, a
+
+    _, advantages = jax.lax.scan(back, jnp.zeros_like(delta_t[0]), (delta_t, trace_t), reverse=True)
+    return advantages
+
+
+def normalize_advantages(adv_t, eps: float = 1e-8) -> jax.Array:
+    """``(adv - mean) / (std + eps)`` over the whole (mini)batch (population std)."""
+    return (adv_t - jnp.mean(adv_t)) / (jnp.std(adv_t) + eps)
+
+
+def clipped_surrogate_loss(log_pi_t, log_mu_t, adv_t, epsilon) -> jax.Array:
+    """The negated clipped surrogate objective (PPO's L^CLIP), averaged:
+    ``mean(max(-A rho, -A clip(rho, 1 - eps, 1 + eps)))`` with ``rho = pi / mu`` the ratio of the
+    current policy's probability of the taken action to the behaviour policy's. The advantages
+    are constants here; only ``log_pi_t`` carries a gradient."""
+    rho_t = jnp.exp(log_pi_t - jax.lax.stop_gradient(log_mu_t))
+    adv_t = jax.lax.stop_gradient(adv_t)
+    unclipped = -adv_t * rho_t
+    clipped = -adv_t * jnp.clip(rho_t, 1.0 - epsilon, 1.0 + epsilon)
+    return jnp.mean(jnp.maximum(unclipped, clipped))
+
+
+def value_loss(v_t, target_t) -> jax.Array:
+    """``0.5 mean((v - target)^2)``."""
+    return 0.5 * jnp.mean((v_t - jax.lax.stop_gradient(target_t)) ** 2)
+
+
+def clipped_value_loss(v_t, v_old_t, target_t, epsilon) -> jax.Array:
+    """``0.5 mean(max((v - target)^2, (v_clip - target)^2))`` with ``v_clip`` the new value kept
+    within ``epsilon`` of the value at collection (``v_old_t``): the pessimistic of the two, so
+    a step cannot gain by moving the value further than ``epsilon``."""
+    target_t = jax.lax.stop_gradient(target_t)
+    v_old_t = jax.lax.stop_gradient(v_old_t)
+    v_clipped = v_old_t + jnp.clip(v_t - v_old_t, -epsilon, epsilon)
+    return 0.5 * jnp.mean(jnp.maximum((v_t - target_t) ** 2, (v_clipped - target_t) ** 2))
+
+
+def policy_statistics(log_pi_t, log_mu_t, epsilon) -> dict[str, jax.Array]:
+    """Diagnostics of one minibatch: ``approx_kl``, the estimate ``mean((rho - 1) - log rho)``
+    of KL(mu || pi) (non-negative, unbiased), and ``clip_fraction``, the share of ratios outside
+    ``[1 - eps, 1 + eps]``."""
+    log_rho = jax.lax.stop_gradient(log_pi_t - log_mu_t)
+    rho = jnp.exp(log_rho)
+    return {
+        "approx_kl": jnp.mean((rho - 1.0) - log_rho),
+        "clip_fraction": jnp.mean((jnp.abs(rho - 1.0) > epsilon).astype(jnp.float32)),
+    }
+
+
+def discounted_returns(r_t, ended_t, g_0, gamma) -> tuple[jax.Array, jax.Array]:
+    """The running discounted return of each env's current episode, ``g_t = gamma g_tm1 + r_t``,
+    restarted after an episode ends (``ended_t``: terminated or truncated at step t).
+    ``g_0 [N]`` is the value carried in from the previous rollout (already restarted where the
+    previous step ended an episode). Returns ``(g [T, N], the carry for the next rollout [N])``."""
+
+    def forward(g_prev, inputs):
+        r, ended = inputs
+        g = gamma * g_prev + r
+        return jnp.where(ended, 0.0, g), g
+
+    carry, g_t = jax.lax.scan(forward, g_0, (r_t, ended_t))
+    return g_t, carry
+
+
+def scale_rewards(r_t, g_t, stats: normalization.RunningStats, clip):
+    """Rewards divided by the running std of the discounted returns ``g_t`` (after folding them
+    into ``stats``), then clipped to ``+-clip`` (``clip <= 0``: not clipped). The scale keeps the
+    value targets near unit size whatever the env's reward units; the mean is not removed, so the
+    sign of every reward stays. Returns ``(scaled r_t, new stats)``."""
+    stats = normalization.update(stats, g_t[..., None], jnp.ones_like(g_t))
+    scaled = r_t / jnp.sqrt(stats.var[0] + normalization.EPSILON)
+    scaled = jnp.where(clip > 0.0, jnp.clip(scaled, -clip, clip), scaled)
+    return scaled, stats

@@ -1,0 +1,137 @@
+"""PPO's recipes: whole, named settings per env (``rl_jax.training.recipes``), over the defaults
+of ``ppo_config``. Envs without a recipe of their own train on those defaults.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+from rl_jax.training.recipes import Recipe, Recipes
+
+MUJOCO = tuple(
+    f"rl_jax/{name}-v5"
+    for name in (
+        "InvertedPendulum",
+        "InvertedDoublePendulum",
+        "HalfCheetah",
+        "Hopper",
+        "Walker2d",
+        "Swimmer",
+        "Reacher",
+        "Ant",
+        "Humanoid",
+    )
+)
+
+# CleanRL's ppo_continuous_action.py (its Args and make_env): one env, 2048-step rollouts, 10
+# epochs of 32 minibatches (64 steps each), Adam at 3e-4 (eps 1e-5) annealed linearly to 0 over
+# the 1M-step run, gamma 0.99, lambda 0.95, clip 0.2 for the ratio and the value, value weight
+# 0.5, no entropy bonus, gradients clipped to norm 0.5, 64x64 tanh actor and critic apart,
+# orthogonal init, a state-independent log-std starting at 0 (std 1), observations standardised
+# (clipped to +-10) and rewards scaled by the std of discounted returns (clipped to +-10).
+CLEANRL_CONFIG: dict[str, Any] = {
+    "num_envs": 1,
+    "num_steps": 2048,
+    "num_epochs": 10,
+    "num_minibatches": 32,
+    "iterations_per_chunk": 5,  # evaluated every 10,240 env steps
+    "hidden": (64, 64),
+    "activation": "tanh",
+    "initial_std": 1.0,
+    "normalize_obs": True,
+    "normalize_rewards": True,
+    "normalize_advantages": True,
+    "clip_value_loss": True,
+}
+CLEANRL_HPARAMS: dict[str, Any] = {
+    "learning_rate": 3e-4,
+    "lr_decay_steps": 1_000_000.0,
+    "gamma": 0.99,
+    "gae_lambda": 0.95,
+    "clip_eps": 0.2,
+    "value_clip_eps": 0.2,
+    "vf_coef": 0.5,
+    "ent_coef": 0.0,
+    "max_grad_norm": 0.5,
+    "adam_eps": 1e-5,
+    "reward_clip": 10.0,
+}
+
+# Vectorised: 32 envs x 64 steps make the same 2,048-step batch from 32 shorter rollouts (one
+# compiled step advances 32 envs), and 8 minibatches of 256 cost a quarter of the gradient steps
+# of 32 of 64. Untuned.
+MUJOCO_CONFIG: dict[str, Any] = {
+    **CLEANRL_CONFIG,
+    "num_envs": 32,
+    "num_steps": 64,
+    "num_minibatches": 8,
+}
+
+# CartPole: 16 envs x 32 steps, 10 epochs of 2 minibatches; gamma 0.98, lambda 0.8, rate 1e-3
+# falling to 0 over the 100k-step budget, no entropy bonus and no value clipping (the settings of
+# rl-baselines3-zoo's tuned CartPole PPO, there with 8 envs and 20 epochs). Seeds 0-29, 100k steps
+# (experiments/train.py --seeds 30): the final policy scored 500 on its 10 evaluation episodes in
+# 29 of 30 seeds (the 30th: 473.7; every seed's best was 500). CleanRL's ppo.py settings (rate
+# 2.5e-4, gamma 0.99, lambda 0.95, entropy 0.01, 4 epochs x 4 minibatches, value clipping) on the
+# same envs ended at 500 in 3 of 30 (mean 433). Tried and not kept: 32 envs x 16 steps with 6
+# epochs over 80k steps (4 of 30 at 500) and 1 minibatch at rate 2e-3 (24 of 30).
+CARTPOLE_CONFIG: dict[str, Any] = {
+    "num_envs": 16,
+    "num_steps": 32,
+    "num_epochs": 10,
+    "num_minibatches": 2,
+    "iterations_per_chunk": 10,  # evaluated every 5,120 env steps
+    "clip_value_loss": False,
+}
+CARTPOLE_HPARAMS: dict[str, Any] = {
+    "learning_rate": 1e-3,
+    "lr_decay_steps": 100_000.0,
+    "gamma": 0.98,
+    "gae_lambda": 0.8,
+    "ent_coef": 0.0,
+}
+
+# Frames: CartPole's pixels through DQN's conv torso. Untuned.
+PIXELS_CONFIG: dict[str, Any] = {
+    "num_envs": 8,
+    "num_steps": 128,
+    "num_epochs": 4,
+    "num_minibatches": 4,
+    "iterations_per_chunk": 5,
+}
+PIXELS_HPARAMS: dict[str, Any] = {"learning_rate": 2.5e-4, "lr_decay_steps": 500_000.0}
+
+RECIPES = Recipes(
+    Recipe(
+        "default",
+        "16 envs x 32 steps, 10 epochs x 2 minibatches, rate 1e-3 to 0 over 100k steps",
+        CARTPOLE_CONFIG,
+        CARTPOLE_HPARAMS,
+        envs=("rl_jax/CartPole-v1",),
+        total_steps=100_000,
+    ),
+    Recipe(
+        "default",
+        "conv torso shared by actor and critic, 8 envs x 128 steps (untuned)",
+        PIXELS_CONFIG,
+        PIXELS_HPARAMS,
+        envs=("rl_jax/CartPolePixels-v1",),
+        total_steps=500_000,
+    ),
+    Recipe(
+        "default",
+        "32 envs x 64 steps, 10 epochs x 8 minibatches, CleanRL's rates and norms (untuned)",
+        MUJOCO_CONFIG,
+        CLEANRL_HPARAMS,
+        envs=MUJOCO,
+        total_steps=1_000_000,
+    ),
+    Recipe(
+        "cleanrl",
+        "CleanRL's ppo_continuous_action.py: 1 env x 2048 steps, 10 epochs x 32 minibatches",
+        CLEANRL_CONFIG,
+        CLEANRL_HPARAMS,
+        envs=MUJOCO,
+        total_steps=1_000_000,
+    ),
+)
