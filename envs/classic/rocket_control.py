@@ -25,7 +25,7 @@ from step 202 on, and even meets the faithful env's 1e-8 goal there.
 ``simulate(controller, start, steps, env)`` rolls any ``obs -> action`` callable (these, or
 ``rl_jax.load_policy(...)``) through the registered env's own jitted step from an exact start,
 ignoring termination so that staying at the goal is measured too; ``settle_step`` and
-``summarize`` turn a trajectory into the numbers of ``python -m rl_jax.run.rocket_report``.
+``summarize`` turn a trajectory into the numbers of ``envs.classic.rocket_comparison``.
 
 Everything here except ``simulate`` is numpy on plain floats; controllers take one observation
 ``[2]`` or a batch ``[..., 2]`` and return thrust ``[..., 1]``.
@@ -279,7 +279,7 @@ def first_entry_step(positions: Any, velocities: Any, tolerance: float = TOLERAN
 
 @dataclasses.dataclass(frozen=True)
 class Summary:
-    """What a trajectory achieved, as ``rocket_report``'s table shows it."""
+    """What a trajectory achieved, as ``rocket_comparison``'s table shows it."""
 
     settle_step: int | None  # from here on inside the box to the end; None: never settled
     settle_time: float | None  # settle_step * dt, seconds

@@ -9,11 +9,11 @@ Frames come from the environment, through one of two hooks (the first one the en
 * ``env.render_episode(states, params) -> list of (H, W, 3) uint8 frames`` for a whole episode
   (``states`` is the list of unbatched env states, first to last). An env that needs context
   across frames uses it: a MuJoCo env keeps one ``mujoco.Renderer`` open and follows the torso
-  with its tracking camera; the rocket draws its x(t) and v(t) traces next to the moving point.
+  with its tracking camera.
 * ``env.render(state, params) -> frame`` for one state (the ``Environment`` API).
 
-``EPISODE_PLOTS`` maps an env id to a function that writes a plot of the rendered episode next
-to the GIF as ``<name>_episode.png`` (the rocket's x(t), v(t) plot).
+An env with an ``episode_plot(states, params, path)`` hook also gets a plot of the last rendered
+episode next to the GIF, as ``<name>_episode.png`` (the rocket's x(t), v(t) plot).
 
 MuJoCo renders headless through EGL, else OSMesa (``envs.mujoco.opengl`` picks one when the
 first frame is drawn, unless ``MUJOCO_GL`` chose); without an OpenGL backend the command says in
@@ -32,6 +32,7 @@ from typing import Any
 
 import numpy as np
 
+from envs.core.wrappers import Wrapper
 from rl_jax.errors import OneLineParser, RenderError, exit_now, guard, positive_int
 from rl_jax.run.policy import (  # loading lives there; render.LoadedPolicy stays
     LoadedPolicy,
@@ -73,11 +74,10 @@ def rollout(env: Any, act: Any, key: Any, episodes: int) -> list[dict[str, Any]]
     return results
 
 
-def _innermost(env: Any, states: list[Any]) -> tuple[Any, list[Any]]:
-    """Unwrap wrappers whose state wraps the inner env's state (``.env_state``)."""
-    from envs.core.wrappers import Wrapper
-
-    while isinstance(env, Wrapper) and not _has_own(env, "render_episode"):
+def _innermost(env: Any, states: list[Any], hook: str = "render_episode") -> tuple[Any, list[Any]]:
+    """Unwrap wrappers (whose state wraps the inner env's state in ``.env_state``) down to the
+    first env with its own ``hook``, else the innermost env."""
+    while isinstance(env, Wrapper) and not _has_own(env, hook):
         if states and hasattr(states[0], "env_state"):
             states = [state.env_state for state in states]
         env = env.env
@@ -155,24 +155,6 @@ def save_gif(frames: list[np.ndarray], path: Path, fps: float, max_frames: int =
     imageio.mimsave(path, kept, duration=1000.0 * every / fps, loop=0)
 
 
-def _rocket_episode_plot(states: list[Any], params: Any, path: Path) -> None:
-    from envs.classic.rocket import plot_episode
-
-    positions = np.array([float(state.x) for state in states])
-    velocities = np.array([float(state.v) for state in states])
-    plot_episode(
-        positions,
-        velocities,
-        dt=float(params.dt),
-        path=path,
-        title="Rocket: the deterministic policy",
-    )
-
-
-#: env id -> ``plot(states, params, path)`` writing a plot of one rendered episode.
-EPISODE_PLOTS: dict[str, Any] = {"rl_jax/Rocket-v0": _rocket_episode_plot}
-
-
 def write_gif(
     run_dir: str | Path,
     seed: int | None = None,
@@ -208,12 +190,11 @@ def write_gif(
 
 
 def _save_episode_plot(env: Any, states: list[Any], gif_path: Path) -> Path | None:
-    plot = EPISODE_PLOTS.get(getattr(env, "id", ""))
-    if plot is None:
+    inner, inner_states = _innermost(env, states, "episode_plot")
+    if not _has_own(inner, "episode_plot"):
         return None
-    inner, inner_states = _innermost(env, states)
     path = gif_path.with_name(gif_path.stem + "_episode.png")
-    plot(inner_states, inner.default_params, path)
+    inner.episode_plot(inner_states, inner.default_params, path)
     return path
 
 
