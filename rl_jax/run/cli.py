@@ -31,7 +31,6 @@ from rl_jax.errors import (
     exit_now,
     guard,
 )
-from rl_jax.errors import user_errors as user_errors  # cli.user_errors, as before
 from rl_jax.run.flags import (
     add_dataclass_flags,
     add_run_flags,

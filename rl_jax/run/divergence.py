@@ -10,8 +10,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from rl_jax.errors import RunError
 from rl_jax.run.best import policy_fields, policy_part
-from rl_jax.run.run_dir import RunError
 from rl_jax.run.spec import RunSpec
 
 if TYPE_CHECKING:

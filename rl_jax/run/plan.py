@@ -14,9 +14,9 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from rl_jax.errors import RunError
 from rl_jax.run import plots
 from rl_jax.run.progress import Progress
-from rl_jax.run.run_dir import RunError
 from rl_jax.run.spec import RunSpec
 from rl_jax.training import parallel, params
 from rl_jax.training.algorithm import hooks

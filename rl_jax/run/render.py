@@ -34,10 +34,7 @@ import numpy as np
 
 from envs.core.wrappers import Wrapper
 from rl_jax.errors import OneLineParser, RenderError, exit_now, guard, positive_int
-from rl_jax.run.policy import (  # loading lives there; render.LoadedPolicy stays
-    LoadedPolicy,
-    add_run_choice,
-)
+from rl_jax.run.policy import LoadedPolicy, add_run_choice
 from rl_jax.training.jax_setup import configure
 
 NO_OPENGL = (

@@ -37,10 +37,11 @@ from typing import Any
 
 import numpy as np
 
+from rl_jax.errors import RunError
 from rl_jax.run import plots, processes
 from rl_jax.run.best import BEST_DIR, BestPolicies, policy_part
 from rl_jax.run.checkpoint import Checkpointer
-from rl_jax.run.divergence import DivergenceError, check_finite, finite_runs
+from rl_jax.run.divergence import check_finite, finite_runs
 from rl_jax.run.metrics import METRICS_FILE, MetricsLog, read_rows
 from rl_jax.run.plan import (
     Plan,
@@ -54,7 +55,6 @@ from rl_jax.run.run_dir import (
     CHECKPOINT_DIR,
     CURVES_FILE,
     RESULTS_FILE,
-    RunError,
     check_out_dir,
     check_resume_dir,
 )
@@ -70,8 +70,6 @@ from rl_jax.run.start import (
 )
 from rl_jax.training import params
 from rl_jax.training.validation import check_ranges
-
-__all__ = ["DivergenceError", "RunError", "RunResult", "RunSpec", "make_plan", "run"]
 
 #: Checkpoints a run keeps at the least, whatever ``keep_checkpoints`` asks: with one, a damaged
 #: latest checkpoint has nothing to fall back on and the whole run is lost.

@@ -16,9 +16,16 @@ import time
 from pathlib import Path
 from typing import Any
 
-from rl_jax.errors import OneLineParser, UsageError, exit_now, guard, parse_int, positive_int
+from rl_jax.errors import (
+    OneLineParser,
+    RunError,
+    UsageError,
+    exit_now,
+    guard,
+    parse_int,
+    positive_int,
+)
 from rl_jax.run import cli, flags
-from rl_jax.run.run_dir import RunError
 from rl_jax.training import params
 from rl_jax.training.jax_setup import configure_jax
 

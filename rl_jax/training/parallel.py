@@ -36,7 +36,6 @@ from jax.sharding import Mesh, NamedSharding, PartitionSpec
 
 from rl_jax.training.algorithm import Algorithm
 from rl_jax.training.device_layout import AXES, plan_layout
-from rl_jax.training.params import stack as stack  # parallel.stack, as before
 
 _PROGRAMS: dict[Any, tuple[Any, Any]] = {}  # see Program._build
 _COMPILED: dict[Any, Any] = {}  # the chunk compiled ahead of time, per program
@@ -385,8 +384,3 @@ class Program:
                 f"expected {self.num_seeds} keys and hyperparameters stacked to "
                 f"{self.num_hparams}, got {num_keys} keys and leading sizes {sorted(sizes)}"
             )
-
-
-#: The old name: ``README``'s earlier library example and BENCHMARKS.md's notes call the program
-#: ``parallel.Runner``; ``rl_jax.run.runner`` is what drives a run.
-Runner = Program

@@ -118,7 +118,8 @@ def test_render_command_line(run_dir, tmp_path):
 MUJOCO_RENDER = textwrap.dedent(
     """
     import numpy as np
-    from rl_jax.run import cli, render
+    from rl_jax.errors import guard
+    from rl_jax.run import render
 
     XML = '<mujoco><worldbody><light pos="0 0 3"/><body name="ball" mocap="true">'
     XML += '<geom type="sphere" size="0.2" rgba="1 0 0 1"/></body></worldbody></mujoco>'
@@ -145,7 +146,7 @@ MUJOCO_RENDER = textwrap.dedent(
         print(len(frames), frames[0].shape, int(np.argmax(frames[0][24].sum(-1) > 0)))
         return 0
 
-    raise SystemExit(cli.guard(main))
+    raise SystemExit(guard(main))
     """
 )
 
