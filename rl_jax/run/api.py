@@ -22,15 +22,25 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
+import jax
 import numpy as np
+
+from rl_jax.run import cli, plots
+from rl_jax.run.metrics import METRICS_FILE, read_rows
+from rl_jax.run.policy import LoadedPolicy, load_policy
+from rl_jax.run.render import write_gif
+from rl_jax.run.run_dir import CURVES_FILE, load_algorithm, read_run_record
+from rl_jax.run.runner import run
+from rl_jax.run.spec import RunSpec
+from rl_jax.training.episodes import episode_returns
+from rl_jax.training.jax_setup import configure
+from rl_jax.training.params import dataclass_from_dict
 
 
 class Run:
     """A run directory, trained or opened: its results, curves, policies and GIFs."""
 
     def __init__(self, run_dir: str | Path, results: list[Any] | None = None):
-        from rl_jax.run.run_dir import read_run_record
-
         self.run_dir = Path(run_dir)
         self.record = read_run_record(self.run_dir)
         identity = self.record["identity"]
@@ -51,8 +61,6 @@ class Run:
     @property
     def table(self) -> str:
         """The final table as text (what the scripts print at the end)."""
-        from rl_jax.run import plots
-
         results = self.results
         if isinstance(results, list):
             return plots.sweep_table(results)
@@ -60,17 +68,11 @@ class Run:
 
     def policy(self, seed: int | None = None, which: str = "best", config: int | None = None):
         """The numpy ``obs -> action`` callable of ``seed`` (default: the best seed)."""
-        from rl_jax.run.policy import load_policy
-
         return load_policy(self.run_dir, seed, which, config)
 
     def evaluate(self, episodes: int = 10, which: str = "best", key: int = 0) -> dict[int, float]:
         """Mean undiscounted return of ``episodes`` fresh episodes of each seed's deterministic
         policy (in the env the run trained on, episodes vmapped in one compiled call)."""
-        import jax
-
-        from rl_jax.run.policy import LoadedPolicy
-
         returns = {}
         for seed in self.seeds:
             loaded = LoadedPolicy(self.run_dir, seed, None, which)
@@ -86,23 +88,17 @@ class Run:
         episodes: int = 1,
     ) -> Path:
         """A GIF of the policy (default: ``RUN_DIR/policy.gif`` of the best seed's best)."""
-        from rl_jax.run.render import write_gif
-
         return write_gif(self.run_dir, seed, episodes, path, which=which)
 
     def plot(self) -> Any:
         """curves.png (redrawn from metrics.jsonl): an inline image in IPython, else its path."""
-        from rl_jax.run import plots
-        from rl_jax.run.metrics import METRICS_FILE, read_rows
-        from rl_jax.run.run_dir import CURVES_FILE
-
         path = self.run_dir / CURVES_FILE
         curves = plots.curves_from_rows(
             read_rows(self.run_dir / METRICS_FILE), tuple(self.record.get("grid_fields", ()))
         )
         plots.plot_curves(curves, path, title=f"{self.algorithm} on {self.env_id}")
         try:
-            from IPython.display import Image
+            from IPython.display import Image  # heavy and optional: only in a notebook
         except ImportError:
             return path
         return Image(filename=str(path))
@@ -128,11 +124,6 @@ def train(
     ``config`` / ``hparams`` override the recipe's fields by name (as the scripts' flags do);
     ``total_steps`` defaults to 100,000 env steps per seed.
     """
-    from rl_jax.run import cli
-    from rl_jax.run.runner import run
-    from rl_jax.run.spec import RunSpec
-    from rl_jax.training.jax_setup import configure
-
     configure()
     learner = cli.resolve_algorithm(algorithm)
     base_config = learner.default_config(env_id)
@@ -160,12 +151,6 @@ def train(
 
 def resume(run_dir: str | Path, total_steps: int | None = None, quiet: bool = False) -> Run:
     """Continue a run (from the scripts or ``train``) from its latest checkpoint."""
-    from rl_jax.run.run_dir import load_algorithm, read_run_record
-    from rl_jax.run.runner import run
-    from rl_jax.run.spec import RunSpec
-    from rl_jax.training.jax_setup import configure
-    from rl_jax.training.params import dataclass_from_dict
-
     configure()
     run_dir = Path(run_dir)
     record = read_run_record(run_dir)
@@ -198,17 +183,11 @@ def evaluate_policy(env: Any, act: Any, key: Any, episodes: int) -> np.ndarray:
     """``[episodes]`` undiscounted returns of ``act`` (one observation -> its action) in
     ``env``, all episodes vmapped in one jitted while loop (each stops at termination or the
     env's step limit): ``rl_jax.training.episodes.episode_returns``."""
-    import jax
-
-    from rl_jax.training.episodes import episode_returns
-
     run_all = jax.jit(lambda key: episode_returns(jax.vmap(act), env, key, episodes))
     return np.asarray(run_all(key))
 
 
 def _results_from_metrics(run_dir: Path, record: dict[str, Any]) -> list[Any]:
-    from rl_jax.run import plots
-    from rl_jax.run.metrics import METRICS_FILE, read_rows
 
     rows = read_rows(run_dir / METRICS_FILE)
     curves = plots.curves_from_rows(rows, tuple(record.get("grid_fields", ())))

@@ -24,6 +24,9 @@ import time
 from pathlib import Path
 from typing import Any, NoReturn
 
+import jax
+
+import envs
 from rl_jax.errors import (
     OneLineParser,
     RunError,
@@ -40,6 +43,8 @@ from rl_jax.run.flags import (
     take_recipe,
 )
 from rl_jax.run.run_dir import load_algorithm, read_run_record
+from rl_jax.run.runner import run
+from rl_jax.run.spec import RunSpec
 from rl_jax.training import params
 from rl_jax.training.algorithm import hooks
 from rl_jax.training.jax_setup import configure_jax
@@ -185,8 +190,6 @@ def check_env_fits(algorithm: Any, config: Any, hparams: Any) -> None:
     """The algorithm can act in the env (TD3 needs a bounded Box action space, say): its init,
     traced without running, raises the algorithm's own TypeError or ValueError otherwise, which
     ``--env`` with any gymnasium id makes a user error rather than a bug."""
-    import jax
-
     try:
         jax.eval_shape(lambda key: algorithm.init(key, config, hparams), jax.random.key(0))
     except (TypeError, ValueError) as error:
@@ -235,8 +238,6 @@ def _add_choice_flags(parser: argparse.ArgumentParser) -> None:
 
 def _choose(argv: list[str], algorithm: Any, env_id: str | None) -> tuple[Any, str, bool]:
     """Algorithm and env: fixed by the script, or from --algo/--env (or the resumed run)."""
-    import envs
-
     if algorithm is not None and env_id is not None:
         return algorithm, envs.core.registry.resolve_id(env_id), False
     pre = OneLineParser(add_help=False)
@@ -311,8 +312,6 @@ def build_spec(
     argv: list[str],
 ) -> Any:
     """The ``RunSpec`` the flags describe (for ``--resume``: the recorded run, then the flags)."""
-    from rl_jax.run.spec import RunSpec
-
     if args.resume is not None and args.out is not None and args.out != args.resume:
         raise UsageError("--out and --resume name different directories; give only --resume")
     resume = args.resume is not None
@@ -383,8 +382,6 @@ def run_experiment(
     )
     args = parser.parse_args(argv)
     spec = build_spec(args, algorithm, env_id, defaults, (config_names, hparam_names), given)
-    from rl_jax.run.runner import run
-
     result = run(spec)
     print(f"run directory: {result.run_dir}")
     if result.gif_error:

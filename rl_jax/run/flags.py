@@ -10,6 +10,8 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 from rl_jax.errors import UsageError, parse_float, parse_int, positive_int
 from rl_jax.run.field_docs import field_docs
 
@@ -35,8 +37,6 @@ def non_negative_float(text: str) -> float:
 
 def kind_of(default: Any) -> str:
     """bool, int, float, str or tuple: how a field's values are parsed."""
-    import numpy as np
-
     if isinstance(default, tuple):
         return "tuple"
     if isinstance(default, (bool, np.bool_)):

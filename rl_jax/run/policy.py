@@ -18,10 +18,20 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
+import jax
+import jax.numpy as jnp
 import numpy as np
 
-from rl_jax.errors import PolicyError
+from rl_jax.errors import PolicyError, parse_int
+from rl_jax.run.best import BEST_DIR, load_part, policy_fields, with_policy_part
+from rl_jax.run.checkpoint import Checkpointer
+from rl_jax.run.metrics import METRICS_FILE, read_rows
+from rl_jax.run.plan import make_plan
+from rl_jax.run.run_dir import CHECKPOINT_DIR, identity_hash, load_algorithm, read_run_record
+from rl_jax.run.spec import RunSpec
 from rl_jax.training.algorithm import hooks
+from rl_jax.training.jax_setup import configure
+from rl_jax.training.params import dataclass_from_dict
 
 WHICH = ("best", "latest")
 
@@ -43,8 +53,6 @@ class LoadedPolicy:
         config_index: int | None = None,
         which: str = "best",
     ):
-        from rl_jax.run.run_dir import read_run_record
-
         if which not in WHICH:
             raise PolicyError(f"which must be one of {', '.join(WHICH)}, got {which!r}")
         self.run_dir = Path(run_dir)
@@ -72,13 +80,6 @@ class LoadedPolicy:
         )
 
     def _restore(self) -> tuple[Any, Any, Any, int]:
-        from rl_jax.run.best import BEST_DIR, load_part, policy_fields, with_policy_part
-        from rl_jax.run.checkpoint import Checkpointer
-        from rl_jax.run.plan import make_plan
-        from rl_jax.run.run_dir import CHECKPOINT_DIR, identity_hash, load_algorithm
-        from rl_jax.run.spec import RunSpec
-        from rl_jax.training.params import dataclass_from_dict
-
         identity = self.record["identity"]
         algorithm = load_algorithm(self.record["algorithm_module"])
         config = dataclass_from_dict(algorithm.default_config(self.env_id), identity["config"])
@@ -140,9 +141,6 @@ class Policy:
     """
 
     def __init__(self, loaded: LoadedPolicy):
-        import jax
-        import jax.numpy as jnp
-
         self.loaded = loaded
         env = loaded.env()
         space = env.observation_space()
@@ -175,8 +173,6 @@ class Policy:
 
 def add_run_choice(parser: Any, seed_help: str) -> None:
     """The ``--seed`` and ``--config`` options of the commands that load a run's policies."""
-    from rl_jax.errors import parse_int
-
     parser.add_argument("--seed", type=parse_int, default=None, help=seed_help)
     parser.add_argument(
         "--config",
@@ -196,21 +192,15 @@ def load_policy(
     policy of that seed's best evaluation) or "latest" (its latest checkpoint); ``config``: the
     config index of a sweep (default: the best).
     """
-    from rl_jax.training.jax_setup import configure
-
     configure()
     return Policy(LoadedPolicy(Path(run_dir), seed, config, which))
 
 
 def _index(tree: Any, run: tuple[int, int]) -> Any:
-    import jax
-
     return jax.tree.map(lambda leaf: leaf[run], tree)
 
 
 def _rows(run_dir: Path) -> list[dict[str, Any]]:
-    from rl_jax.run.metrics import METRICS_FILE, read_rows
-
     return [row for row in read_rows(run_dir / METRICS_FILE) if row.get("eval_return") is not None]
 
 

@@ -30,6 +30,8 @@ from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
+import imageio.v2 as imageio
+import jax
 import numpy as np
 
 from envs.core.wrappers import Wrapper
@@ -50,8 +52,6 @@ _GL_MARKERS = ("OpenGL", "EGL", "GLFW", "glGetError", "mjr_makeContext", "osmesa
 
 def rollout(env: Any, act: Any, key: Any, episodes: int) -> list[dict[str, Any]]:
     """``episodes`` episodes of ``act`` in ``env``: per episode the states and total reward."""
-    import jax
-
     params = env.default_params
     reset = jax.jit(lambda key: env.reset(key, params))
     step = jax.jit(lambda key, state, obs: env.step(key, state, act(obs), params))
@@ -145,8 +145,6 @@ MAX_GIF_FPS = 50.0
 
 def save_gif(frames: list[np.ndarray], path: Path, fps: float, max_frames: int = 600) -> None:
     """Write frames as a looping GIF in real time; long episodes keep every k-th frame."""
-    import imageio.v2 as imageio
-
     every = max(1, math.ceil(len(frames) / max_frames), math.ceil(fps / MAX_GIF_FPS))
     kept = [np.asarray(frame, np.uint8) for frame in frames[::every]]
     imageio.mimsave(path, kept, duration=1000.0 * every / fps, loop=0)
@@ -163,8 +161,6 @@ def write_gif(
 ) -> Path:
     """Render the deterministic policy of (config, seed) of ``run_dir`` to a GIF; its path.
     ``which``: the seed's best evaluated policy ("best") or its latest checkpoint ("latest")."""
-    import jax
-
     with opengl_errors():  # a MuJoCo env may import mujoco (and fail) while being built
         loaded = LoadedPolicy(Path(run_dir), seed, config_index, which)
         env = loaded.env()

@@ -32,6 +32,7 @@ from typing import Any
 import jax
 import jax.numpy as jnp
 import numpy as np
+from jax.experimental import multihost_utils
 from jax.sharding import Mesh, NamedSharding, PartitionSpec
 
 from rl_jax.training.algorithm import Algorithm
@@ -231,8 +232,6 @@ class Program:
 
     def _gather_leaf(self, leaf: Any) -> np.ndarray:
         if self.multiprocess and not leaf.is_fully_addressable:
-            from jax.experimental import multihost_utils
-
             if _is_key(leaf):
                 leaf = jax.random.key_data(leaf)
             return np.asarray(multihost_utils.process_allgather(leaf, tiled=True))
