@@ -19,12 +19,14 @@ work on it. Progress is one line per ``log_interval`` seconds when the output is
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
 import jax
 import numpy as np
 
+import envs
 from rl_jax.run import cli, plots
 from rl_jax.run.metrics import METRICS_FILE, read_rows
 from rl_jax.run.policy import LoadedPolicy, load_policy
@@ -179,7 +181,9 @@ def open_run(run_dir: str | Path) -> Run:
     return Run(run_dir)
 
 
-def evaluate_policy(env: Any, act: Any, key: Any, episodes: int) -> np.ndarray:
+def evaluate_policy(
+    env: envs.Environment, act: Callable[[jax.Array], jax.Array], key: jax.Array, episodes: int
+) -> np.ndarray:
     """``[episodes]`` undiscounted returns of ``act`` (one observation -> its action) in
     ``env``, all episodes vmapped in one jitted while loop (each stops at termination or the
     env's step limit): ``rl_jax.training.episodes.episode_returns``."""

@@ -41,6 +41,7 @@ import jax
 import jaxlib
 import numpy as np
 import optax
+from flax.typing import ArrayPytree
 
 import rl_jax
 from rl_jax.errors import CheckpointError
@@ -152,7 +153,7 @@ class Checkpointer:
             self._manager.delete(s)
         return newer
 
-    def save(self, step: int, state: Any, metadata: dict[str, Any] | None = None) -> None:
+    def save(self, step: int, state: ArrayPytree, metadata: dict[str, Any] | None = None) -> None:
         """Write ``state`` as checkpoint ``step`` (must be newer than the latest)."""
         latest = self.latest_step()
         if latest is not None and step <= latest:
@@ -190,11 +191,11 @@ class Checkpointer:
 
     def restore(
         self,
-        template: Any,
+        template: ArrayPytree,
         step: int | None = None,
         expect: dict[str, Any] | None = None,
-        sharding: Any = None,
-    ) -> tuple[Any, dict[str, Any]]:
+        sharding: jax.sharding.Sharding | None = None,
+    ) -> tuple[ArrayPytree, dict[str, Any]]:
         """Restore ``step`` (default: latest) into the structure of ``template``.
 
         ``template`` is a pytree of arrays or ``jax.ShapeDtypeStruct`` with the run's exact
@@ -219,7 +220,9 @@ class Checkpointer:
         treedef = jax.tree_util.tree_structure(template)
         return jax.tree_util.tree_unflatten(treedef, leaves), meta
 
-    def _restore_arrays(self, step: int, records: list[dict], sharding: Any) -> dict[str, Any]:
+    def _restore_arrays(
+        self, step: int, records: list[dict], sharding: jax.sharding.Sharding | None
+    ) -> dict[str, jax.Array]:
         if sharding is None:
             sharding = jax.sharding.SingleDeviceSharding(jax.local_devices()[0])
         targets = {
@@ -240,8 +243,11 @@ class Checkpointer:
             raise self._unreadable(step, error) from None
 
     def restore_newest_readable(
-        self, template: Any, expect: dict[str, Any] | None = None, sharding: Any = None
-    ) -> tuple[Any, dict[str, Any], list[Skipped]]:
+        self,
+        template: ArrayPytree,
+        expect: dict[str, Any] | None = None,
+        sharding: jax.sharding.Sharding | None = None,
+    ) -> tuple[ArrayPytree, dict[str, Any], list[Skipped]]:
         """``restore`` of the newest checkpoint that can be restored, with the newer ones that
         cannot (damaged: ``Skipped``, newest first). A checkpoint of another run (``expect``) is
         refused at once, never passed over: it is no damage, and an older one would not be this
@@ -308,7 +314,7 @@ class Checkpointer:
     def __enter__(self) -> Checkpointer:
         return self
 
-    def __exit__(self, *exc_info: Any) -> None:
+    def __exit__(self, *exc_info: object) -> None:
         self.close()
 
 

@@ -13,15 +13,16 @@ from typing import Any
 
 import jax
 import numpy as np
+from flax.typing import ArrayPytree
 
 from rl_jax.errors import CheckpointError
 
 
-def is_key(leaf: Any) -> bool:
+def is_key(leaf: object) -> bool:
     return hasattr(leaf, "dtype") and jax.dtypes.issubdtype(leaf.dtype, jax.dtypes.prng_key)
 
 
-def leaf_record(path: str, leaf: Any) -> dict[str, Any]:
+def leaf_record(path: str, leaf: object) -> dict[str, Any]:
     """How a leaf is stored: ``kind`` is array, key, empty (zero-size) or json."""
     if is_key(leaf):
         data = jax.random.key_data(leaf)
@@ -39,7 +40,7 @@ def leaf_record(path: str, leaf: Any) -> dict[str, Any]:
     return {"path": path, "kind": "json", "value": leaf}
 
 
-def split_state(state: Any) -> tuple[dict[str, Any], list[dict[str, Any]]]:
+def split_state(state: ArrayPytree) -> tuple[dict[str, jax.Array], list[dict[str, Any]]]:
     """The saveable arrays (keyed ``leaf_00000``...) and the per-leaf records."""
     arrays, records = {}, []
     for index, (path, leaf) in enumerate(jax.tree_util.tree_flatten_with_path(state)[0]):
@@ -64,7 +65,7 @@ def leaf_name(index: int) -> str:
     return f"leaf_{index:05d}"
 
 
-def template_records(template: Any) -> list[dict[str, Any]]:
+def template_records(template: ArrayPytree) -> list[dict[str, Any]]:
     """Records describing what the caller expects (arrays or ``jax.ShapeDtypeStruct``s)."""
     records = []
     for path, leaf in jax.tree_util.tree_flatten_with_path(template)[0]:
@@ -103,7 +104,9 @@ def first_mismatch(saved: list[dict], expected: list[dict]) -> str | None:
     return None
 
 
-def rebuild_leaf(record: dict, arrays: dict[str, Any], index: int, sharding: Any) -> Any:
+def rebuild_leaf(
+    record: dict, arrays: dict[str, jax.Array], index: int, sharding: jax.sharding.Sharding | None
+) -> object:
     kind = record["kind"]
     if kind == "json":
         return record["value"]

@@ -15,12 +15,15 @@ a seed, the seed (and sweep config) with the highest such eval return is chosen.
 
 from __future__ import annotations
 
+import argparse
 from pathlib import Path
 from typing import Any
 
 import jax
 import jax.numpy as jnp
 import numpy as np
+import numpy.typing as npt
+from flax.typing import ArrayPytree
 
 from rl_jax.errors import PolicyError, parse_int
 from rl_jax.run.best import BEST_DIR, load_part, policy_fields, with_policy_part
@@ -156,7 +159,7 @@ class Policy:
 
         self._act = jax.jit(batched)
 
-    def __call__(self, obs: Any) -> np.ndarray:
+    def __call__(self, obs: npt.ArrayLike) -> np.ndarray:
         obs = np.asarray(obs, dtype=self._dtype)
         single = obs.shape == self.observation_shape
         if not single and obs.shape[1:] != self.observation_shape:
@@ -171,7 +174,7 @@ class Policy:
         return f"<Policy: {self.loaded.describe()} of {self.loaded.run_dir}>"
 
 
-def add_run_choice(parser: Any, seed_help: str) -> None:
+def add_run_choice(parser: argparse.ArgumentParser, seed_help: str) -> None:
     """The ``--seed`` and ``--config`` options of the commands that load a run's policies."""
     parser.add_argument("--seed", type=parse_int, default=None, help=seed_help)
     parser.add_argument(
@@ -196,7 +199,7 @@ def load_policy(
     return Policy(LoadedPolicy(Path(run_dir), seed, config, which))
 
 
-def _index(tree: Any, run: tuple[int, int]) -> Any:
+def _index(tree: ArrayPytree, run: tuple[int, int]) -> ArrayPytree:
     return jax.tree.map(lambda leaf: leaf[run], tree)
 
 

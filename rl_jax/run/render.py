@@ -26,7 +26,7 @@ import contextlib
 import math
 import traceback
 import warnings
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
 
@@ -34,6 +34,7 @@ import imageio.v2 as imageio
 import jax
 import numpy as np
 
+from envs.core.core import Environment
 from envs.core.wrappers import Wrapper
 from rl_jax.errors import OneLineParser, RenderError, exit_now, guard, positive_int
 from rl_jax.run.policy import LoadedPolicy, add_run_choice
@@ -50,7 +51,9 @@ _GL_MARKERS = ("OpenGL", "EGL", "GLFW", "glGetError", "mjr_makeContext", "osmesa
 # ---- rollouts and frames --------------------------------------------------------------------
 
 
-def rollout(env: Any, act: Any, key: Any, episodes: int) -> list[dict[str, Any]]:
+def rollout(
+    env: Environment, act: Callable[[jax.Array], jax.Array], key: jax.Array, episodes: int
+) -> list[dict[str, Any]]:
     """``episodes`` episodes of ``act`` in ``env``: per episode the states and total reward."""
     params = env.default_params
     reset = jax.jit(lambda key: env.reset(key, params))
@@ -71,7 +74,9 @@ def rollout(env: Any, act: Any, key: Any, episodes: int) -> list[dict[str, Any]]
     return results
 
 
-def _innermost(env: Any, states: list[Any], hook: str = "render_episode") -> tuple[Any, list[Any]]:
+def _innermost(
+    env: Environment, states: list[Any], hook: str = "render_episode"
+) -> tuple[Environment, list[Any]]:
     """Unwrap wrappers (whose state wraps the inner env's state in ``.env_state``) down to the
     first env with its own ``hook``, else the innermost env."""
     while isinstance(env, Wrapper) and not _has_own(env, hook):
@@ -81,7 +86,7 @@ def _innermost(env: Any, states: list[Any], hook: str = "render_episode") -> tup
     return env, states
 
 
-def _has_own(env: Any, name: str) -> bool:
+def _has_own(env: Environment, name: str) -> bool:
     return any(name in vars(cls) for cls in type(env).__mro__)
 
 
@@ -103,7 +108,7 @@ def opengl_errors() -> Iterator[None]:
         raise
 
 
-def episode_frames(env: Any, states: list[Any]) -> list[np.ndarray]:
+def episode_frames(env: Environment, states: list[Any]) -> list[np.ndarray]:
     """Frames of one episode through the env's hooks (``render_episode`` or ``render``)."""
     inner, inner_states = _innermost(env, states)
     params = inner.default_params
@@ -128,7 +133,7 @@ def _is_gl_failure(error: BaseException) -> bool:
     )
 
 
-def _fps(env: Any) -> float:
+def _fps(env: Environment) -> float:
     """Playback rate: the env's ``render_fps``, else ``1 / params.dt``, else 30."""
     fps = getattr(env, "render_fps", None) or (getattr(env, "metadata", None) or {}).get(
         "render_fps"
@@ -182,7 +187,7 @@ def write_gif(
     return path
 
 
-def _save_episode_plot(env: Any, states: list[Any], gif_path: Path) -> Path | None:
+def _save_episode_plot(env: Environment, states: list[Any], gif_path: Path) -> Path | None:
     inner, inner_states = _innermost(env, states, "episode_plot")
     if not _has_own(inner, "episode_plot"):
         return None

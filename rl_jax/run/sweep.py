@@ -15,7 +15,7 @@ import json
 import sys
 import time
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import jax
 
@@ -33,6 +33,9 @@ from rl_jax.run import cli, flags, plots, processes, runner
 from rl_jax.run.metrics import METRICS_FILE, read_rows
 from rl_jax.training import params
 from rl_jax.training.jax_setup import configure_jax
+
+if TYPE_CHECKING:
+    from _typeshed import DataclassInstance
 
 ALIASES = {
     "lr": ("actor_lr", "critic_lr", "learning_rate"),
@@ -53,7 +56,7 @@ class Axis:
     static: bool  # a config field: one compiled program per value
 
 
-def parse_axis(spec: str, config: Any, hparams: Any) -> Axis:
+def parse_axis(spec: str, config: DataclassInstance, hparams: DataclassInstance) -> Axis:
     name, text = flags.split_grid_spec(spec)
     static = {f.name: getattr(config, f.name) for f in dataclasses.fields(config)}
     dynamic = {f.name: getattr(hparams, f.name) for f in dataclasses.fields(hparams)}
