@@ -13,7 +13,7 @@ steps per seed, where 5/5 seeds came to rest in the box from (1, 0) (3/5 at 100,
 Compare the learned policy with the time-optimal bang-bang controller (at rest at t = 2.0 s from
 (1, 0)) and an LQR law:
 
-  python -m rl_jax.run.rocket_report runs/rocket_settle
+  python experiments/rocket_report.py runs/rocket_settle
 
 examples:
   python experiments/td3_rocket_settle.py --seeds 5 --out runs/rocket_settle --gif

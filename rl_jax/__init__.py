@@ -8,6 +8,7 @@ learners), ``training`` (what makes the compiled program), ``run`` (what touches
 and processes).
 """
 
+import importlib
 import os
 
 # XLA's C++ runtime logs on every persistent-cache hit: a warning ("Assume version
@@ -56,7 +57,5 @@ _LAZY = {
 def __getattr__(name: str):
     # Imported on first use: ``import rl_jax`` stays cheap (no JAX until it is needed).
     if name in _LAZY:
-        import importlib
-
         return getattr(importlib.import_module(_LAZY[name]), name)
     raise AttributeError(f"module 'rl_jax' has no attribute {name!r}")

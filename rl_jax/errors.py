@@ -4,9 +4,8 @@ report them as one line on stderr (``error: <message>``, exit status 2) instead 
 They are raised in every layer (``rl_jax.training.validation``'s range check is a ``RunError``;
 the run tools raise the others), so they live beside the public face and import nothing of the
 package. The envs' own user errors (unknown id, unknown MuJoCo backend, unsupported external env)
-stay in ``envs`` and are looked up when an error is reported. ``rl_jax.run.cli`` and the other
-modules that raise these types import them from here, and still offer them under their own name
-(``cli.UsageError``, ``run_dir.RunError``, ``checkpoint.CheckpointError``, ...).
+stay in ``envs`` and are looked up when an error is reported. Every module, tests included,
+imports these types from here.
 """
 
 from __future__ import annotations
@@ -87,6 +86,7 @@ class OneLineParser(argparse.ArgumentParser):
 
 def user_errors() -> tuple[type[BaseException], ...]:
     """Exception types that mean bad input, not a bug: reported in one line."""
+    # heavy: envs imports JAX and gymnasium, and is needed only once an error is caught
     from envs.core.registry import BackendError, UnknownEnvError, UnsupportedEnvError
 
     errors = (UsageError, RunError, CheckpointError, UnknownEnvError, BackendError)

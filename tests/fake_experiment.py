@@ -16,9 +16,9 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 import fake_algorithm  # noqa: E402
 
-from rl_jax.run import cli  # noqa: E402
+from rl_jax.run import cli, learners  # noqa: E402
 
-cli.register_algorithm("fake", "fake_algorithm")
+learners.register_algorithm("fake", "fake_algorithm")
 
 if __name__ == "__main__":
     argv = sys.argv[1:]

@@ -4,12 +4,12 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from experiments import rocket_report
+
 
 def assert_every_latest_policy_settles(run_dir: Path, seeds: int) -> None:
     """Every seed's latest policy of ``run_dir``, rolled from (1, 0) by ``rocket_report``,
     enters |x|, |v| <= 0.01 and stays inside to the episode's last step."""
-    from rl_jax.run import rocket_report
-
     entries, _ = rocket_report.compare([run_dir], which="latest")
     learned = [entry for entry in entries if entry.learned]
     for entry in learned:

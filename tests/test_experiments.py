@@ -9,6 +9,7 @@ import pytest
 from run_helpers import leaves_bytes, snapshot
 
 from rl_jax.agents.td3 import ddpg, td3
+from rl_jax.errors import guard
 from rl_jax.run import cli
 from rl_jax.run.checkpoint import Checkpointer
 from rl_jax.run.plan import make_plan
@@ -26,7 +27,7 @@ CHUNK = 100
 
 
 def run_cli(algorithm, env_id, argv) -> int:
-    return cli.guard(lambda: cli.run_experiment(algorithm, env_id, "", argv))
+    return guard(lambda: cli.run_experiment(algorithm, env_id, "", argv))
 
 
 def final_state(run_dir: Path, algorithm=td3, env_id=ENV_ID):
@@ -206,7 +207,7 @@ def test_load_policy_drives_gymnasiums_own_pendulum_as_our_env(runs):
 
 def test_load_policy_refuses_what_the_run_does_not_have(runs):
     import rl_jax
-    from rl_jax.run.policy import PolicyError
+    from rl_jax.errors import PolicyError
 
     root, _ = runs
     with pytest.raises(PolicyError, match=r"--seed 7 is not in this run \(seeds \[0, 1\]\)"):

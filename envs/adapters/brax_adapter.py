@@ -90,7 +90,7 @@ class FromBrax(Environment):
 
 def make_brax(name: str, backend: str = "mjx", max_episode_steps: int = 1000, **kwargs) -> FromBrax:
     """``brax.envs.get_environment(name, backend=...)`` wrapped as an rl_jax env."""
-    from brax import envs as brax_envs
+    from brax import envs as brax_envs  # heavy: loads every brax env; imported on first use
 
     brax_env = brax_envs.get_environment(name, backend=backend, **kwargs)
     return FromBrax(brax_env, max_episode_steps, env_id=f"brax/{name}")

@@ -23,8 +23,8 @@ import os
 import sys
 from types import ModuleType
 
+from envs.adapters.gymnasium_host import register_gymnasium_id
 from envs.core import registry
-from envs.core.registry import UnsupportedEnvError  # noqa: F401  (its earlier home)
 
 GYMNASIUM_PREFIX = "gymnasium:"
 
@@ -32,8 +32,6 @@ GYMNASIUM_PREFIX = "gymnasium:"
 def resolve_external_id(name: str) -> str:
     """Register ``gymnasium:ID`` or ``MODULE:ID`` under the whole ``name``; return ``name``."""
     if name.startswith(GYMNASIUM_PREFIX):
-        from envs.adapters.gymnasium_host import register_gymnasium_id
-
         return register_gymnasium_id(name)
     module_name, _, inner = name.partition(":")
     module = _import(module_name, name)

@@ -85,6 +85,7 @@ from envs.adapters.gymnasium_pool import (
     OUT_TRUNCATED,
     HostPool,
 )
+from envs.core import registry
 from envs.core.core import Array, Environment, EnvParams, EnvState, PRNGKey, TimeStep
 from envs.core.registry import UnknownEnvError, UnsupportedEnvError
 from envs.core.spaces import Box, Discrete, Space
@@ -309,8 +310,6 @@ def register_gymnasium_id(name: str) -> str:
     """Register ``gymnasium:ID`` (for ``envs.make`` and ``--env``) as gymnasium's env ``ID`` and
     return it. The id, its time limit and its spaces are checked now, so that a bad one is one
     line before anything compiles."""
-    from envs.core import registry
-
     env_id = name.removeprefix(ID_PREFIX)
     source = _source_from_id(env_id, None, {})
     observation_space_from(source.first_env.observation_space, env_id)

@@ -45,7 +45,8 @@ Rendering, for the run/render tools:
   * ``Rocket.render(state)`` -> an ``(H, W, 3)`` uint8 frame (numpy only): the track from -2 to
     2, the goal at 0, the rocket at ``x`` and an arrow for its velocity.
   * ``plot_episode(positions, velocities, dt)`` -> the x(t), v(t) plot of a finished episode as an
-    ``(H, W, 3)`` uint8 array (matplotlib's Agg canvas, no pyplot state), optionally saved as PNG.
+    ``(H, W, 3)`` uint8 array (matplotlib's Agg canvas, no pyplot state), optionally saved as PNG;
+    ``Rocket.episode_plot(states, params, path)`` writes it for a rendered episode.
 """
 
 from __future__ import annotations
@@ -176,6 +177,19 @@ class Rocket(Environment[RocketState, RocketParams]):
         params = self.default_params if params is None else params
         return draw_rocket(float(state.x), float(state.v), float(params.bound))
 
+    def episode_plot(
+        self, states: list[RocketState], params: RocketParams, path: str | os.PathLike
+    ) -> None:
+        """The x(t), v(t) plot of a rendered episode (``states`` first to last) as a PNG at
+        ``path``: the episode-plot hook of ``rl_jax.run.render``."""
+        plot_episode(
+            np.array([float(state.x) for state in states]),
+            np.array([float(state.v) for state in states]),
+            dt=float(params.dt),
+            path=path,
+            title="Rocket: the deterministic policy",
+        )
+
 
 class RocketSettle(Rocket):
     """``rl_jax/RocketSettle-v0``: the rocket with a reward for coming to rest at the origin and
@@ -270,6 +284,7 @@ def plot_episode(
     is at time ``i * dt``). With ``path`` the figure is also written there as a PNG. Uses a bare
     ``Figure`` on the Agg canvas, so it works headless and leaves pyplot's state alone.
     """
+    # heavy: matplotlib is imported on first use, not with the env
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure
 

@@ -25,7 +25,7 @@ from step 202 on, and even meets the faithful env's 1e-8 goal there.
 ``simulate(controller, start, steps, env)`` rolls any ``obs -> action`` callable (these, or
 ``rl_jax.load_policy(...)``) through the registered env's own jitted step from an exact start,
 ignoring termination so that staying at the goal is measured too; ``settle_step`` and
-``summarize`` turn a trajectory into the numbers of ``python -m rl_jax.run.rocket_report``.
+``summarize`` turn a trajectory into the numbers of ``envs.classic.rocket_comparison``.
 
 Everything here except ``simulate`` is numpy on plain floats; controllers take one observation
 ``[2]`` or a batch ``[..., 2]`` and return thrust ``[..., 1]``.
@@ -38,7 +38,11 @@ import functools
 from collections.abc import Callable
 from typing import Any
 
+import jax
 import numpy as np
+
+import envs
+from envs.classic.rocket import Rocket
 
 DT = 0.01  # the rocket's seconds per step (RocketParams.dt)
 TOLERANCE = 0.01  # the "come to rest" box |x|, |v| <= TOLERANCE (RocketSettle's goal box)
@@ -193,9 +197,6 @@ class Trajectory:
 
 def _rocket(env: Any) -> Any:
     """The registered rocket env an id (or env, wrapped or not) names."""
-    import envs
-    from envs.classic.rocket import Rocket
-
     env = envs.make(env) if isinstance(env, str) else env
     env = getattr(env, "unwrapped", env)
     if not isinstance(env, Rocket):
@@ -205,8 +206,6 @@ def _rocket(env: Any) -> Any:
 
 @functools.lru_cache(maxsize=8)
 def _jitted_step(env: Any) -> Callable:
-    import jax
-
     key = jax.random.key(0)  # the rocket's step is deterministic
     return jax.jit(lambda state, action, params: env.step(key, state, action, params))
 
@@ -225,8 +224,6 @@ def simulate(
     then stays put is part of what is measured. ``summarize`` still scores the return only up to
     the env's own episode end.
     """
-    import jax
-
     env = _rocket(env)
     params = env.default_params if params is None else params
     step = _jitted_step(env)
@@ -279,7 +276,7 @@ def first_entry_step(positions: Any, velocities: Any, tolerance: float = TOLERAN
 
 @dataclasses.dataclass(frozen=True)
 class Summary:
-    """What a trajectory achieved, as ``rocket_report``'s table shows it."""
+    """What a trajectory achieved, as ``rocket_comparison``'s table shows it."""
 
     settle_step: int | None  # from here on inside the box to the end; None: never settled
     settle_time: float | None  # settle_step * dt, seconds

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
+import gymnasium
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -60,8 +61,6 @@ class Box(Space):
         return jnp.logical_and(x.shape == self.shape, jnp.all((x >= self.low) & (x <= self.high)))
 
     def to_gymnasium(self):
-        import gymnasium
-
         return gymnasium.spaces.Box(self.low, self.high, self.shape, self.dtype)
 
     def __eq__(self, other: object) -> bool:
@@ -100,6 +99,4 @@ class Discrete(Space):
         return jnp.logical_and(x.shape == self.shape, jnp.all((x >= 0) & (x < self.n)))
 
     def to_gymnasium(self):
-        import gymnasium
-
         return gymnasium.spaces.Discrete(self.n)

@@ -8,6 +8,7 @@ import jax
 import jax.numpy as jnp
 import mujoco
 import numpy as np
+from jax.custom_batching import custom_vmap
 from mujoco import mjx
 
 from envs.mujoco.mujoco_backend import (
@@ -82,8 +83,6 @@ class MjxPhysics(Physics):
         return data
 
     def _make_chunked_step(self) -> Any:
-        from jax.custom_batching import custom_vmap
-
         stepper = custom_vmap(lambda state, ctrl: self._step(state, ctrl))
 
         @stepper.def_vmap

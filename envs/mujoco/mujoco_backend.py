@@ -63,18 +63,14 @@ import os
 from pathlib import Path
 from typing import Any, NamedTuple
 
-from envs.mujoco import opengl
+import gymnasium.envs.mujoco as gym_mujoco
+import jax
+import jax.numpy as jnp
+import mujoco
+import numpy as np
 
-# No OpenGL is chosen here: a MUJOCO_GL naming a library this machine cannot load would make
-# `import mujoco` itself fail, and only rendering needs OpenGL (envs.mujoco.opengl).
-opengl.guard_import()
-
-import jax  # noqa: E402
-import jax.numpy as jnp  # noqa: E402
-import mujoco  # noqa: E402
-import numpy as np  # noqa: E402
-
-from envs.core.registry import BackendError  # noqa: E402
+from envs.core.registry import BackendError
+from envs.mujoco import mujoco_ffi_build
 
 Array = jax.Array
 
@@ -120,8 +116,6 @@ def resolve_backend(backend: str | None) -> str:
     """
     name = default_backend() if backend is None else _backend_name(backend)
     if name == "mujoco":
-        from envs.mujoco import mujoco_ffi_build
-
         return "mujoco_ffi" if mujoco_ffi_build.available() else "mujoco_callback"
     return name
 
@@ -133,8 +127,6 @@ def engine(backend: str) -> str:
 
 def gymnasium_asset(xml_file: str) -> Path:
     """Path of an MJCF file shipped with the installed gymnasium package."""
-    import gymnasium.envs.mujoco as gym_mujoco
-
     path = Path(gym_mujoco.__file__).resolve().parent / "assets" / xml_file
     if not path.exists():
         raise FileNotFoundError(f"gymnasium ships no MuJoCo asset {xml_file!r} (looked in {path})")

@@ -10,6 +10,7 @@ from typing import Any
 import jax
 import mujoco
 import numpy as np
+from mujoco import batch as mujoco_batch
 
 from envs.mujoco.float64_bits import bits_to_float64, float64_to_bits
 from envs.mujoco.mujoco_backend import (
@@ -43,8 +44,6 @@ class _Workspace:
     """
 
     def __init__(self, model: mujoco.MjModel, nsim: int, nthread: int, outputs: tuple[str, ...]):
-        from mujoco import batch as mujoco_batch
-
         self.batch = mujoco_batch.Batch(model, nsim, nthread=nthread)
         self.lock = threading.Lock()
         state = self.batch.state

@@ -47,12 +47,12 @@ from typing import Any
 
 import jax
 import jax.numpy as jnp
+import mujoco
 import numpy as np
 from flax import struct
 
 from envs.core.core import Array, Environment, EnvParams, EnvState, PRNGKey, TimeStep, keep_active
 from envs.core.spaces import Box
-from envs.mujoco import opengl
 from envs.mujoco.mujoco_backend import (
     DIVERGENCE_LIMIT,
     Measurement,
@@ -62,6 +62,9 @@ from envs.mujoco.mujoco_backend import (
     load_model,
     resolve_backend,
 )
+from envs.mujoco.mujoco_callback import MujocoCallbackPhysics
+from envs.mujoco.mujoco_ffi import MujocoFfiPhysics
+from envs.mujoco.mujoco_render import SceneRenderer
 
 DIVERGED_KEY = "physics_diverged"
 GYMNASIUM_SOLVER = (100, 50)  # MuJoCo's defaults, which most of gymnasium's models keep
@@ -80,18 +83,13 @@ def make_physics(
     mjx_chunk: int | None = None,
 ) -> Physics:
     """The physics of ``backend`` (a name of ``BACKEND_NAMES``, or None: the default)."""
-    # Imported here, when chosen: MJX, the FFI op and the callback each cost time to load.
     backend = resolve_backend(backend)
     if backend == "mjx":
-        from envs.mujoco.mjx_physics import MjxPhysics
+        from envs.mujoco.mjx_physics import MjxPhysics  # heavy: MJX is imported on first use
 
         return MjxPhysics(model, frame_skip, extras, mjx_chunk)
     if backend == "mujoco_ffi":
-        from envs.mujoco.mujoco_ffi import MujocoFfiPhysics
-
         return MujocoFfiPhysics(model, frame_skip, extras, nthread)
-    from envs.mujoco.mujoco_callback import MujocoCallbackPhysics
-
     return MujocoCallbackPhysics(model, frame_skip, extras, nthread)
 
 
@@ -178,14 +176,12 @@ class MujocoEnv(Environment[MujocoState, Any]):
         self._params = self._make_default_params(param_overrides)
         self._init_qpos = np.array(self.model.qpos0, np.float32)
         self._initial_obs = self._compute_initial_obs()
-        self._renderer = None
+        self._scene: SceneRenderer | None = None
 
     def build_model(self, backend: str, fidelity: str) -> Any:
         """gymnasium's MjModel with this backend's solver limits. MJX implements the CG and
         Newton solvers, not PGS: a PGS model (Humanoid) solves the same constraint problem with
         Newton there, matching gymnasium to the solvers' convergence rather than to rounding."""
-        import mujoco
-
         model = load_model(self.xml_file, *self.solver_limits(backend, fidelity))
         if backend == "mjx" and model.opt.solver == mujoco.mjtSolver.mjSOL_PGS:
             model.opt.solver = mujoco.mjtSolver.mjSOL_NEWTON
@@ -344,8 +340,6 @@ class MujocoEnv(Environment[MujocoState, Any]):
 
     def _compute_initial_obs(self) -> np.ndarray:
         """Observation at the model's default pose (host-side float64 forward pass)."""
-        import mujoco
-
         data = mujoco.MjData(self.model)
         mujoco.mj_forward(self.model, data)
         as32 = lambda x: np.asarray(x, np.float32)
@@ -361,34 +355,10 @@ class MujocoEnv(Environment[MujocoState, Any]):
     # ---- rendering ----------------------------------------------------------------------------
     def render(self, state: MujocoState, params=None, width: int = 320, height: int = 240):
         """RGB frame ``[height, width, 3]`` uint8 of one unbatched state (host side)."""
-        import mujoco
-
         qpos, qvel, _ = self.physics.to_numpy(state.physics)
-        data = mujoco.MjData(self.model)
-        data.qpos[:], data.qvel[:] = qpos, qvel
-        mujoco.mj_forward(self.model, data)
-        renderer = self._renderer
-        if renderer is None or (renderer.width, renderer.height) != (width, height):
-            opengl.prepare_rendering()
-            self._renderer = renderer = mujoco.Renderer(self.model, height=height, width=width)
-        renderer.update_scene(data, self._camera())
-        return renderer.render()
-
-    def _camera(self) -> Any:
-        import mujoco
-
-        if isinstance(self.camera, str):
-            return self.camera
-        camera = mujoco.MjvCamera()
-        mujoco.mjv_defaultFreeCamera(self.model, camera)
-        for name, value in self.camera.items():
-            if name == "lookat":
-                camera.lookat[:] = value
-            else:
-                setattr(camera, name, value)
-        if "trackbodyid" in self.camera:
-            camera.type = mujoco.mjtCamera.mjCAMERA_TRACKING
-        return camera
+        if self._scene is None:
+            self._scene = SceneRenderer(self.model, self.camera)
+        return self._scene.render(qpos, qvel, width, height)
 
     # ---- hooks --------------------------------------------------------------------------------
     #: gymnasium's reset noise on qvel: "normal" (std ``reset_noise_scale``) or "uniform" (in

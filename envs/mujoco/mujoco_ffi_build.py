@@ -27,6 +27,10 @@ import sys
 import threading
 from pathlib import Path
 
+import jax
+import jaxlib
+import mujoco
+
 SOURCE = Path(__file__).with_name("mujoco_ffi.cc")
 STEP_TARGET = "rl_jax_mujoco_step"
 STEP_ACTIVE_TARGET = "rl_jax_mujoco_step_active"
@@ -46,8 +50,6 @@ def cache_dir() -> Path:
 
 def _mujoco_paths() -> tuple[Path, Path]:
     """(include dir, shared library) of the installed mujoco wheel."""
-    import mujoco
-
     package = Path(mujoco.__file__).resolve().parent
     libraries = sorted(package.glob("libmujoco.so*"))
     if not libraries or not (package / "include" / "mujoco" / "mjbatch.h").exists():
@@ -64,8 +66,6 @@ def _compiler() -> str:
 
 
 def compile_command(output: Path) -> list[str]:
-    import jax
-
     mujoco_include, mujoco_library = _mujoco_paths()
     return [
         _compiler(),
@@ -85,10 +85,6 @@ def compile_command(output: Path) -> list[str]:
 
 def library_path() -> Path:
     """Where the library for this source, compiler and these versions lives (built or not)."""
-    import jax
-    import jaxlib
-    import mujoco
-
     compiler = _compiler()
     version = subprocess.run(
         [compiler, "--version"], capture_output=True, text=True, check=False
@@ -129,8 +125,6 @@ def build() -> Path:
 
 
 def _check_versions(library: ctypes.CDLL) -> None:
-    import mujoco
-
     header = library.rl_jax_mujoco_header_version()
     linked = library.rl_jax_mujoco_library_version()
     if not header == linked == mujoco.mj_version():
@@ -165,8 +159,6 @@ def load() -> ctypes.CDLL:
             return _state["library"]
         if "error" in _state:
             raise _state["error"]
-        import jax
-
         if jax.default_backend() != "cpu":  # the handlers are registered for the CPU platform
             _state["error"] = FfiUnavailable(
                 f"the op is a CPU custom call and JAX's default device here is "
@@ -189,8 +181,6 @@ def load() -> ctypes.CDLL:
 
 
 def _register_targets(library: ctypes.CDLL) -> None:
-    import jax
-
     targets = (
         (STEP_TARGET, "RlJaxMujocoStep"),
         (STEP_ACTIVE_TARGET, "RlJaxMujocoStepActive"),

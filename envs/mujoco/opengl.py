@@ -6,10 +6,10 @@ missing or broken, that import itself fails (PyOpenGL raises ``AttributeError`` 
 ``import mujoco``). GPU servers and slim containers often have no libEGL, and nothing but
 rendering needs OpenGL. So:
 
-* ``guard_import()`` runs before our first ``import mujoco``: a ``MUJOCO_GL`` (and matching
-  ``PYOPENGL_PLATFORM``) naming a library that cannot be loaded here is set aside, so that the
-  import, training, evaluation and policy loading work; the request is remembered and reported if
-  something later renders.
+* ``guard_import()`` runs before our first ``import mujoco`` (in ``envs.mujoco``'s
+  ``__init__``): a ``MUJOCO_GL`` (and matching ``PYOPENGL_PLATFORM``) naming a library that
+  cannot be loaded here is set aside, so that the import, training, evaluation and policy loading
+  work; the request is remembered and reported if something later renders.
 * ``prepare_rendering()`` runs before a ``mujoco.Renderer`` is made: it picks the backend (an
   explicit, loadable ``MUJOCO_GL``; a display's default; else headless EGL, else OSMesa) and
   installs its ``GLContext`` into MuJoCo, or raises ``OpenGLUnavailableError`` whose one-line
@@ -103,6 +103,7 @@ def prepare_rendering() -> str:
     backend = choose_backend()
     if backend == "default":
         return backend
+    # Imported only to render: these modules load OpenGL libraries (and only one backend's can)
     from mujoco.rendering.classic import gl_context
 
     context = getattr(gl_context, "GLContext", None)

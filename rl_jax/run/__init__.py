@@ -1,2 +1,2 @@
 """What touches disk, terminal and processes: the command line, the runner, checkpoints, the run
-directory, metrics, plots, progress, policies loaded from runs, rendering and reports."""
+directory, metrics, plots, progress, policies loaded from runs and rendering."""

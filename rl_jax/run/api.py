@@ -23,10 +23,25 @@ work on it. Progress is one line per ``log_interval`` seconds when the output is
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
+import jax
 import numpy as np
+
+import envs
+from rl_jax.run import cli, learners, plots
+from rl_jax.run.learners import for_run
+from rl_jax.run.metrics import METRICS_FILE, read_rows
+from rl_jax.run.policy import LoadedPolicy, load_policy
+from rl_jax.run.render import write_gif
+from rl_jax.run.run_dir import CURVES_FILE, read_run_record
+from rl_jax.run.runner import run
+from rl_jax.run.spec import RunSpec
+from rl_jax.training.episodes import episode_returns
+from rl_jax.training.jax_setup import configure
+from rl_jax.training.params import dataclass_from_dict
 
 
 class Run:
@@ -36,8 +51,6 @@ class Run:
     def __init__(
         self, run_dir: str | Path, results: list[Any] | None = None, algorithm: Any = None
     ):
-        from rl_jax.run.run_dir import read_run_record
-
         self.run_dir = Path(run_dir)
         self.learner = algorithm
         self.record = read_run_record(self.run_dir)
@@ -59,8 +72,6 @@ class Run:
     @property
     def table(self) -> str:
         """The final table as text (what the scripts print at the end)."""
-        from rl_jax.run import plots
-
         results = self.results
         if isinstance(results, list):
             return plots.sweep_table(results)
@@ -68,17 +79,11 @@ class Run:
 
     def policy(self, seed: int | None = None, which: str = "best", config: int | None = None):
         """The numpy ``obs -> action`` callable of ``seed`` (default: the best seed)."""
-        from rl_jax.run.policy import load_policy
-
         return load_policy(self.run_dir, seed, which, config, self.learner)
 
     def evaluate(self, episodes: int = 10, which: str = "best", key: int = 0) -> dict[int, float]:
         """Mean undiscounted return of ``episodes`` fresh episodes of each seed's deterministic
         policy (in the env the run trained on, episodes vmapped in one compiled call)."""
-        import jax
-
-        from rl_jax.run.policy import LoadedPolicy
-
         returns = {}
         for seed in self.seeds:
             loaded = LoadedPolicy(self.run_dir, seed, None, which, self.learner)
@@ -94,23 +99,17 @@ class Run:
         episodes: int = 1,
     ) -> Path:
         """A GIF of the policy (default: ``RUN_DIR/policy.gif`` of the best seed's best)."""
-        from rl_jax.run.render import write_gif
-
         return write_gif(self.run_dir, seed, episodes, path, which=which, algorithm=self.learner)
 
     def plot(self) -> Any:
         """curves.png (redrawn from metrics.jsonl): an inline image in IPython, else its path."""
-        from rl_jax.run import plots
-        from rl_jax.run.metrics import METRICS_FILE, read_rows
-        from rl_jax.run.run_dir import CURVES_FILE
-
         path = self.run_dir / CURVES_FILE
         curves = plots.curves_from_rows(
             read_rows(self.run_dir / METRICS_FILE), tuple(self.record.get("grid_fields", ()))
         )
         plots.plot_curves(curves, path, title=f"{self.algorithm} on {self.env_id}")
         try:
-            from IPython.display import Image
+            from IPython.display import Image  # heavy and optional: only in a notebook
         except ImportError:
             return path
         return Image(filename=str(path))
@@ -141,11 +140,6 @@ def train(
     by name (as the scripts' flags do); ``total_steps`` defaults to the recipe's budget, else
     100,000 env steps per seed.
     """
-    from rl_jax.run import cli, learners
-    from rl_jax.run.runner import run
-    from rl_jax.run.spec import RunSpec
-    from rl_jax.training.jax_setup import configure
-
     configure()
     learner = cli.resolve_algorithm(algorithm)
     chosen = cli.take_recipe(["--recipe", recipe] if recipe else [], learner, env_id)[0]
@@ -181,13 +175,6 @@ def resume(
 ) -> Run:
     """Continue a run (from the scripts or ``train``) from its latest checkpoint.
     ``algorithm``: the run's learner, when it is one of your own (named as for ``train``)."""
-    from rl_jax.run.learners import for_run
-    from rl_jax.run.run_dir import read_run_record
-    from rl_jax.run.runner import run
-    from rl_jax.run.spec import RunSpec
-    from rl_jax.training.jax_setup import configure
-    from rl_jax.training.params import dataclass_from_dict
-
     configure()
     run_dir = Path(run_dir)
     record = read_run_record(run_dir)
@@ -217,21 +204,17 @@ def open_run(run_dir: str | Path, algorithm: str | Any = None) -> Run:
     return Run(run_dir, algorithm=algorithm)
 
 
-def evaluate_policy(env: Any, act: Any, key: Any, episodes: int) -> np.ndarray:
+def evaluate_policy(
+    env: envs.Environment, act: Callable[[jax.Array], jax.Array], key: jax.Array, episodes: int
+) -> np.ndarray:
     """``[episodes]`` undiscounted returns of ``act`` (one observation -> its action) in
     ``env``, all episodes vmapped in one jitted while loop (each stops at termination or the
     env's step limit): ``rl_jax.training.episodes.episode_returns``."""
-    import jax
-
-    from rl_jax.training.episodes import episode_returns
-
     run_all = jax.jit(lambda key: episode_returns(jax.vmap(act), env, key, episodes))
     return np.asarray(run_all(key))
 
 
 def _results_from_metrics(run_dir: Path, record: dict[str, Any]) -> list[Any]:
-    from rl_jax.run import plots
-    from rl_jax.run.metrics import METRICS_FILE, read_rows
 
     rows = read_rows(run_dir / METRICS_FILE)
     curves = plots.curves_from_rows(rows, tuple(record.get("grid_fields", ())))

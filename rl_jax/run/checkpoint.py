@@ -3,7 +3,7 @@
 A checkpoint is one orbax step directory holding two items: ``arrays`` (every array leaf of the
 state, keyed by its position in the flattened tree) and ``meta`` (a JSON dict: the step, whatever
 the caller adds — config hash, algorithm, env id — the library versions, and one record per
-leaf). The record is what lets us work around orbax's quirks:
+leaf, ``rl_jax.run.checkpoint_leaves``). The record is what lets us work around orbax's quirks:
 
 * zero-size arrays cannot be saved (google/orbax#2587): they are kept as a shape/dtype record and
   rebuilt as zeros;
@@ -26,20 +26,32 @@ no longer lists, so nothing is deleted and the step can be saved again.
 from __future__ import annotations
 
 import contextlib
-import json
 import logging
 import os
 import shutil
 import sys
 import time
 from collections.abc import Iterator
+from importlib.metadata import version
 from pathlib import Path
 from typing import Any, NamedTuple
 
+import flax
 import jax
+import jaxlib
 import numpy as np
+import optax
+from flax.typing import ArrayPytree
 
+import rl_jax
 from rl_jax.errors import CheckpointError
+from rl_jax.run.checkpoint_leaves import (
+    first_mismatch,
+    leaf_name,
+    rebuild_leaf,
+    split_state,
+    template_records,
+)
 
 _TMP_MARKER = ".orbax-checkpoint-tmp"
 #: Name prefix of a damaged step directory set aside (``damaged-<step>-<time>``).
@@ -67,129 +79,16 @@ class Skipped(NamedTuple):
 
 def library_versions() -> dict[str, str]:
     """Versions of the libraries a checkpoint's content depends on."""
-    import flax
-    import jaxlib
-    import optax
-
-    import rl_jax
-
     return {
         "rl_jax": rl_jax.__version__,
         "jax": jax.__version__,
         "jaxlib": jaxlib.__version__,
         "flax": flax.__version__,
         "optax": optax.__version__,
-        "orbax-checkpoint": _orbax_version(),
+        # from the package's metadata: importing orbax to ask is left to the first checkpoint
+        "orbax-checkpoint": version("orbax-checkpoint"),
         "numpy": np.__version__,
     }
-
-
-def _orbax_version() -> str:
-    from importlib.metadata import version
-
-    return version("orbax-checkpoint")
-
-
-# ---- leaves <-> (saveable arrays, JSON records) ---------------------------------------------
-
-
-def _is_key(leaf: Any) -> bool:
-    return hasattr(leaf, "dtype") and jax.dtypes.issubdtype(leaf.dtype, jax.dtypes.prng_key)
-
-
-def _leaf_record(path: str, leaf: Any) -> dict[str, Any]:
-    """How a leaf is stored: ``kind`` is array, key, empty (zero-size) or json."""
-    if _is_key(leaf):
-        data = jax.random.key_data(leaf)
-        impl = str(jax.random.key_impl(leaf))
-        return {
-            "path": path,
-            "kind": "key",
-            "shape": list(data.shape),
-            "dtype": str(data.dtype),
-            "impl": impl,
-        }
-    if isinstance(leaf, (np.ndarray, jax.Array, np.generic)):
-        kind = "empty" if leaf.size == 0 else "array"
-        return {"path": path, "kind": kind, "shape": list(leaf.shape), "dtype": str(leaf.dtype)}
-    return {"path": path, "kind": "json", "value": leaf}
-
-
-def _split_state(state: Any) -> tuple[dict[str, Any], list[dict[str, Any]]]:
-    """The saveable arrays (keyed ``leaf_00000``...) and the per-leaf records."""
-    arrays, records = {}, []
-    for index, (path, leaf) in enumerate(jax.tree_util.tree_flatten_with_path(state)[0]):
-        record = _leaf_record(jax.tree_util.keystr(path), leaf)
-        if record["kind"] == "json":
-            try:
-                json.dumps(record["value"])
-            except TypeError as error:
-                message = f"state leaf {record['path']} cannot be saved: {error}"
-                raise CheckpointError(message) from None
-        elif record["kind"] == "key":
-            data = jax.random.key_data(leaf)
-            # Under jax.distributed orbax refuses a process-local jax.Array; host data it takes.
-            arrays[_leaf_name(index)] = np.asarray(data) if jax.process_count() > 1 else data
-        elif record["kind"] == "array":
-            arrays[_leaf_name(index)] = leaf
-        records.append(record)
-    return arrays, records
-
-
-def _leaf_name(index: int) -> str:
-    return f"leaf_{index:05d}"
-
-
-def _template_records(template: Any) -> list[dict[str, Any]]:
-    """Records describing what the caller expects (arrays or ``jax.ShapeDtypeStruct``s)."""
-    records = []
-    for path, leaf in jax.tree_util.tree_flatten_with_path(template)[0]:
-        name = jax.tree_util.keystr(path)
-        if _is_key(leaf):
-            data = jax.eval_shape(jax.random.key_data, leaf)
-            records.append(
-                {"path": name, "kind": "key", "shape": list(data.shape), "dtype": str(data.dtype)}
-            )
-        elif hasattr(leaf, "shape") and hasattr(leaf, "dtype"):
-            kind = "empty" if int(np.prod(leaf.shape)) == 0 else "array"
-            records.append(
-                {
-                    "path": name,
-                    "kind": kind,
-                    "shape": list(leaf.shape),
-                    "dtype": str(np.dtype(leaf.dtype)),
-                }
-            )
-        else:
-            records.append({"path": name, "kind": "json"})
-    return records
-
-
-def _first_mismatch(saved: list[dict], expected: list[dict]) -> str | None:
-    """A one-line description of the first difference, or None if the layouts agree."""
-    if len(saved) != len(expected):
-        return f"it holds {len(saved)} state leaves, this run's state has {len(expected)}"
-    for have, want in zip(saved, expected, strict=True):
-        for field in ("path", "kind", "shape", "dtype"):
-            if field in want and have.get(field) != want[field]:
-                return (
-                    f"state leaf {want['path']} has {field} {have.get(field)} in the checkpoint, "
-                    f"{want[field]} in this run"
-                )
-    return None
-
-
-def _rebuild_leaf(record: dict, arrays: dict[str, Any], index: int, sharding: Any) -> Any:
-    kind = record["kind"]
-    if kind == "json":
-        return record["value"]
-    if kind == "empty":
-        zeros = np.zeros(record["shape"], record["dtype"])
-        return jax.device_put(zeros, sharding) if sharding is not None else jax.numpy.asarray(zeros)
-    array = arrays[_leaf_name(index)]
-    if kind == "key":
-        return jax.random.wrap_key_data(array, impl=record["impl"])
-    return array
 
 
 # ---- the checkpointer -----------------------------------------------------------------------
@@ -208,7 +107,7 @@ class Checkpointer:
             raise CheckpointError(f"no checkpoint directory at {self.directory}")
         # orbax reports routine decisions as absl warnings; a user only needs our errors.
         logging.getLogger("absl").setLevel(logging.ERROR)
-        import orbax.checkpoint as ocp  # imported when needed: 0.6 s
+        import orbax.checkpoint as ocp  # heavy: imported on first use
 
         self._ocp = ocp
         if not read_only:
@@ -254,14 +153,14 @@ class Checkpointer:
             self._manager.delete(s)
         return newer
 
-    def save(self, step: int, state: Any, metadata: dict[str, Any] | None = None) -> None:
+    def save(self, step: int, state: ArrayPytree, metadata: dict[str, Any] | None = None) -> None:
         """Write ``state`` as checkpoint ``step`` (must be newer than the latest)."""
         latest = self.latest_step()
         if latest is not None and step <= latest:
             raise CheckpointError(
                 f"cannot save checkpoint step {step}: {self.directory} already holds step {latest}"
             )
-        arrays, records = _split_state(state)
+        arrays, records = split_state(state)
         meta = {
             **(metadata or {}),
             "step": int(step),
@@ -292,11 +191,11 @@ class Checkpointer:
 
     def restore(
         self,
-        template: Any,
+        template: ArrayPytree,
         step: int | None = None,
         expect: dict[str, Any] | None = None,
-        sharding: Any = None,
-    ) -> tuple[Any, dict[str, Any]]:
+        sharding: jax.sharding.Sharding | None = None,
+    ) -> tuple[ArrayPytree, dict[str, Any]]:
         """Restore ``step`` (default: latest) into the structure of ``template``.
 
         ``template`` is a pytree of arrays or ``jax.ShapeDtypeStruct`` with the run's exact
@@ -307,7 +206,7 @@ class Checkpointer:
         step = self._resolve_step(step)
         meta = self.metadata(step)
         self._check_expected(step, meta, expect or {})
-        mismatch = _first_mismatch(meta["leaves"], _template_records(template))
+        mismatch = first_mismatch(meta["leaves"], template_records(template))
         if mismatch:
             problem = f"does not match this run: {mismatch}"
             raise DamagedCheckpointError(
@@ -315,17 +214,19 @@ class Checkpointer:
             )
         arrays = self._restore_arrays(step, meta["leaves"], sharding)
         leaves = [
-            _rebuild_leaf(record, arrays, index, sharding)
+            rebuild_leaf(record, arrays, index, sharding)
             for index, record in enumerate(meta["leaves"])
         ]
         treedef = jax.tree_util.tree_structure(template)
         return jax.tree_util.tree_unflatten(treedef, leaves), meta
 
-    def _restore_arrays(self, step: int, records: list[dict], sharding: Any) -> dict[str, Any]:
+    def _restore_arrays(
+        self, step: int, records: list[dict], sharding: jax.sharding.Sharding | None
+    ) -> dict[str, jax.Array]:
         if sharding is None:
             sharding = jax.sharding.SingleDeviceSharding(jax.local_devices()[0])
         targets = {
-            _leaf_name(index): jax.ShapeDtypeStruct(
+            leaf_name(index): jax.ShapeDtypeStruct(
                 tuple(record["shape"]), np.dtype(record["dtype"]), sharding=sharding
             )
             for index, record in enumerate(records)
@@ -342,8 +243,11 @@ class Checkpointer:
             raise self._unreadable(step, error) from None
 
     def restore_newest_readable(
-        self, template: Any, expect: dict[str, Any] | None = None, sharding: Any = None
-    ) -> tuple[Any, dict[str, Any], list[Skipped]]:
+        self,
+        template: ArrayPytree,
+        expect: dict[str, Any] | None = None,
+        sharding: jax.sharding.Sharding | None = None,
+    ) -> tuple[ArrayPytree, dict[str, Any], list[Skipped]]:
         """``restore`` of the newest checkpoint that can be restored, with the newer ones that
         cannot (damaged: ``Skipped``, newest first). A checkpoint of another run (``expect``) is
         refused at once, never passed over: it is no damage, and an older one would not be this
@@ -410,7 +314,7 @@ class Checkpointer:
     def __enter__(self) -> Checkpointer:
         return self
 
-    def __exit__(self, *exc_info: Any) -> None:
+    def __exit__(self, *exc_info: object) -> None:
         self.close()
 
 

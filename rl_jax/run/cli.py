@@ -26,6 +26,9 @@ import time
 from pathlib import Path
 from typing import Any, NoReturn
 
+import jax
+
+import envs
 from rl_jax.errors import (
     OneLineParser,
     RunError,
@@ -33,7 +36,6 @@ from rl_jax.errors import (
     exit_now,
     guard,
 )
-from rl_jax.errors import user_errors as user_errors  # cli.user_errors, as before
 from rl_jax.run import learners
 from rl_jax.run.flags import (
     add_dataclass_flags,
@@ -42,9 +44,10 @@ from rl_jax.run.flags import (
     kind_of,
     parse_grid,
 )
-from rl_jax.run.learners import ALGORITHMS as ALGORITHMS  # cli.ALGORITHMS, as before
-from rl_jax.run.learners import register_algorithm as register_algorithm
+from rl_jax.run.learners import ALGORITHMS
 from rl_jax.run.run_dir import read_run_record
+from rl_jax.run.runner import run
+from rl_jax.run.spec import RunSpec
 from rl_jax.training import params
 from rl_jax.training.algorithm import hooks
 from rl_jax.training.jax_setup import configure_jax
@@ -193,8 +196,6 @@ def check_env_fits(algorithm: Any, config: Any, hparams: Any) -> None:
     """The algorithm can act in the env (TD3 needs a bounded Box action space, say): its init,
     traced without running, raises the algorithm's own TypeError or ValueError otherwise, which
     ``--env`` with any gymnasium id makes a user error rather than a bug."""
-    import jax
-
     try:
         jax.eval_shape(lambda key: algorithm.init(key, config, hparams), jax.random.key(0))
     except (TypeError, ValueError) as error:
@@ -256,8 +257,6 @@ def _add_choice_flags(parser: argparse.ArgumentParser) -> None:
 
 def _choose(argv: list[str], algorithm: Any, env_id: str | None) -> tuple[Any, str, bool]:
     """Algorithm and env: fixed by the script, or from --algo/--env (or the resumed run)."""
-    import envs
-
     pre = OneLineParser(add_help=False)
     _add_choice_flags(pre)
     pre.add_argument("--resume", type=Path, default=None)
@@ -346,8 +345,6 @@ def build_spec(
     """The ``RunSpec`` the flags describe (for ``--resume``: the recorded run, then the flags),
     on ``recipe``'s settings (None: the env's default recipe)."""
     recipe = recipe or hooks(algorithm).recipe(env_id)
-    from rl_jax.run.spec import RunSpec
-
     if args.resume is not None and args.out is not None and args.out != args.resume:
         raise UsageError("--out and --resume name different directories; give only --resume")
     resume = args.resume is not None
@@ -420,8 +417,6 @@ def run_experiment(
     args = parser.parse_args(argv)
     names = (config_names, hparam_names)
     spec = build_spec(args, algorithm, env_id, defaults, names, given, recipe)
-    from rl_jax.run.runner import run
-
     result = run(spec)
     print(f"run directory: {result.run_dir}")
     if result.gif_error:

@@ -4,15 +4,17 @@ saved, with one line naming the runs and the likely cause."""
 from __future__ import annotations
 
 import dataclasses
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
 
 import jax
 import jax.numpy as jnp
 import numpy as np
+from flax.typing import ArrayPytree
 
+from rl_jax.errors import RunError
 from rl_jax.run.best import policy_fields, policy_part
-from rl_jax.run.run_dir import RunError
 from rl_jax.run.spec import RunSpec
+from rl_jax.training.algorithm import ChunkMetrics
 
 if TYPE_CHECKING:
     from rl_jax.run.runner import Session
@@ -23,7 +25,7 @@ class DivergenceError(RunError):
 
 
 @jax.jit
-def _all_finite(tree: Any) -> jax.Array:
+def _all_finite(tree: ArrayPytree) -> jax.Array:
     """``[H, S]``: whether every float leaf of each run of ``tree`` is finite."""
     flags = [
         jnp.all(jnp.isfinite(leaf), axis=tuple(range(2, leaf.ndim)))
@@ -33,13 +35,13 @@ def _all_finite(tree: Any) -> jax.Array:
     return jnp.all(jnp.stack(flags), axis=0) if flags else jnp.bool_(True)
 
 
-def finite_runs(state: Any, spec: RunSpec) -> Any:
+def finite_runs(state: ArrayPytree, spec: RunSpec) -> jax.Array:
     """Per run (padded ``[H, S]``), whether its policy part (or whole state) is finite."""
     fields = policy_fields(spec.algorithm, state)
     return _all_finite(policy_part(state, fields) if fields else state)
 
 
-def check_finite(session: Session, metrics: Any, finite_state: np.ndarray) -> None:
+def check_finite(session: Session, metrics: ChunkMetrics, finite_state: np.ndarray) -> None:
     """Stop the run, before its state is saved, when a run's parameters or eval return are no
     longer finite, or a loss overflowed to infinity: one line names the runs, the step and the
     likely cause. (A NaN loss alone is no sign: learners report NaN for "no update here", e.g.
@@ -93,7 +95,7 @@ def check_finite(session: Session, metrics: Any, finite_state: np.ndarray) -> No
     )
 
 
-def _rate_fields(hparams: Any) -> list[str]:
+def _rate_fields(hparams: object) -> list[str]:
     return [
         f.name
         for f in dataclasses.fields(hparams)

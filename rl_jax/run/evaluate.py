@@ -17,9 +17,11 @@ import dataclasses
 from pathlib import Path
 from typing import Any
 
+import jax
 import numpy as np
 
 from rl_jax.errors import OneLineParser, exit_now, guard, positive_int
+from rl_jax.run.api import evaluate_policy as returns_of
 from rl_jax.run.policy import LoadedPolicy, add_run_choice, command_line_learner
 from rl_jax.training.jax_setup import configure
 
@@ -37,10 +39,6 @@ class Evaluation:
 
 def evaluate_policy(loaded: LoadedPolicy, episodes: int, key: int = KEY) -> np.ndarray:
     """Returns ``[episodes]`` of ``loaded``'s deterministic policy in the run's env."""
-    import jax
-
-    from rl_jax.run.api import evaluate_policy as returns_of
-
     return returns_of(loaded.env(), loaded.act(), jax.random.key(key), episodes)
 
 

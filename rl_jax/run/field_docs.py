@@ -16,7 +16,10 @@ import inspect
 import io
 import textwrap
 import tokenize
-from typing import Any
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    from _typeshed import DataclassInstance
 
 
 def _comments(source: str) -> dict[int, str]:
@@ -68,7 +71,7 @@ def field_docs(cls: type) -> dict[str, str]:
     return docs
 
 
-def undocumented_fields(instance: Any) -> list[str]:
+def undocumented_fields(instance: DataclassInstance) -> list[str]:
     """Fields that would get no help text (a test keeps this empty for every algorithm)."""
     docs = field_docs(type(instance))
     return [f.name for f in dataclasses.fields(instance) if not docs.get(f.name)]

@@ -8,10 +8,15 @@ import argparse
 import dataclasses
 from collections.abc import Callable
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
 
 from rl_jax.errors import UsageError, parse_float, parse_int, positive_int
 from rl_jax.run.field_docs import field_docs
+
+if TYPE_CHECKING:
+    from _typeshed import DataclassInstance
 
 #: Config fields that are not flags: the env is chosen by the script (or --env).
 NOT_FLAGS = ("env_id",)
@@ -33,10 +38,12 @@ def non_negative_float(text: str) -> float:
     return value
 
 
-def kind_of(default: Any) -> str:
-    """bool, int, float, str or tuple: how a field's values are parsed."""
-    import numpy as np
+#: A config or hyperparameter field's value: a Python scalar, a tuple (widths) or a 0-d array.
+FieldValue = bool | int | float | str | tuple | np.generic | np.ndarray
 
+
+def kind_of(default: FieldValue) -> str:
+    """bool, int, float, str or tuple: how a field's values are parsed."""
     if isinstance(default, tuple):
         return "tuple"
     if isinstance(default, (bool, np.bool_)):
@@ -50,7 +57,7 @@ def kind_of(default: Any) -> str:
     return "str"
 
 
-def parser_for(default: Any) -> Callable[[str], Any]:
+def parser_for(default: FieldValue) -> Callable[[str], FieldValue]:
     kind = kind_of(default)
     if kind == "tuple":
         # An empty default says nothing of its elements: widths and sizes are whole numbers.
@@ -64,13 +71,13 @@ def parser_for(default: Any) -> Callable[[str], Any]:
     return {"bool": parse_bool, "int": parse_int, "float": parse_float}.get(kind, str)
 
 
-def _metavar(default: Any) -> str:
+def _metavar(default: FieldValue) -> str:
     if kind_of(default) == "tuple":
         return f"{kind_of(default[0]).upper() if default else 'X'},..."
     return kind_of(default).upper()
 
 
-def _describe(default: Any) -> str:
+def _describe(default: FieldValue) -> str:
     if isinstance(default, tuple):
         return ",".join(str(v) for v in default)
     if hasattr(default, "item"):
@@ -89,7 +96,9 @@ def flag_name(field: str) -> str:
     return "--" + field.replace("_", "-")
 
 
-def add_dataclass_flags(parser: argparse.ArgumentParser, instance: Any, title: str) -> list[str]:
+def add_dataclass_flags(
+    parser: argparse.ArgumentParser, instance: DataclassInstance, title: str
+) -> list[str]:
     """One flag per field of ``instance``; absent flags stay absent (explicit ones override)."""
     group = parser.add_argument_group(title)
     docs = field_docs(type(instance))
@@ -211,7 +220,7 @@ def split_grid_spec(spec: str) -> tuple[str, str]:
     return name, values
 
 
-def grid_values(name: str, text: str, default: Any) -> tuple[Any, ...]:
+def grid_values(name: str, text: str, default: FieldValue) -> tuple[FieldValue, ...]:
     """The comma-separated values of one ``--grid``, parsed as ``default``'s kind (tuples, e.g.
     widths, are written 64x64 so that commas can separate values)."""
     kind = kind_of(default)
@@ -226,7 +235,9 @@ def grid_values(name: str, text: str, default: Any) -> tuple[Any, ...]:
         raise UsageError(f"--grid {name} takes {kind} values: {error}") from None
 
 
-def parse_grid(specs: list[str], hparams: Any, config: Any) -> dict[str, list[Any]]:
+def parse_grid(
+    specs: list[str], hparams: DataclassInstance, config: DataclassInstance
+) -> dict[str, list[FieldValue]]:
     """``["lr=1e-4,3e-4", "tau=0.005,0.02"]`` -> ``{"learning_rate": [...], "tau": [...]}``."""
     fields = {f.name: getattr(hparams, f.name) for f in dataclasses.fields(hparams)}
     static = {f.name for f in dataclasses.fields(config)}

@@ -28,7 +28,7 @@ TENSORBOARD_DIR = "tensorboard"
 ID_FIELDS = ("step", "seed", "config", "chunk")
 
 
-def _plain(value: Any) -> Any:
+def _plain(value: object) -> object:
     """A JSON-safe value: numpy scalars unwrapped, NaN/inf as null (strict JSON has neither)."""
     if isinstance(value, (np.generic, np.ndarray)):
         value = value.item() if np.ndim(value) == 0 else np.asarray(value).tolist()
@@ -156,5 +156,5 @@ class MetricsLog:
     def __enter__(self) -> MetricsLog:
         return self
 
-    def __exit__(self, *exc_info: Any) -> None:
+    def __exit__(self, *exc_info: object) -> None:
         self.close()

@@ -126,7 +126,7 @@ def plot_curves(
 
     ``per_seed`` defaults to drawing seed lines only when there is one curve.
     """
-    import matplotlib
+    import matplotlib  # heavy: imported on first use, then set to its headless backend
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt

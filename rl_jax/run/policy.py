@@ -19,13 +19,27 @@ never makes this process import code by itself (``rl_jax.run.learners``).
 
 from __future__ import annotations
 
+import argparse
 from pathlib import Path
 from typing import Any
 
+import jax
+import jax.numpy as jnp
 import numpy as np
+import numpy.typing as npt
+from flax.typing import ArrayPytree
 
-from rl_jax.errors import PolicyError
+from rl_jax.errors import PolicyError, parse_int
+from rl_jax.run.best import BEST_DIR, load_part, policy_fields, with_policy_part
+from rl_jax.run.checkpoint import Checkpointer
+from rl_jax.run.learners import for_run
+from rl_jax.run.metrics import METRICS_FILE, read_rows
+from rl_jax.run.plan import make_plan
+from rl_jax.run.run_dir import CHECKPOINT_DIR, identity_hash, read_run_record
+from rl_jax.run.spec import RunSpec
 from rl_jax.training.algorithm import hooks
+from rl_jax.training.jax_setup import configure
+from rl_jax.training.params import dataclass_from_dict
 
 WHICH = ("best", "latest")
 
@@ -49,8 +63,6 @@ class LoadedPolicy:
         which: str = "best",
         algorithm: Any = None,
     ):
-        from rl_jax.run.run_dir import read_run_record
-
         if which not in WHICH:
             raise PolicyError(f"which must be one of {', '.join(WHICH)}, got {which!r}")
         self.run_dir = Path(run_dir)
@@ -79,14 +91,6 @@ class LoadedPolicy:
         )
 
     def _restore(self) -> tuple[Any, Any, Any, int]:
-        from rl_jax.run.best import BEST_DIR, load_part, policy_fields, with_policy_part
-        from rl_jax.run.checkpoint import Checkpointer
-        from rl_jax.run.learners import for_run
-        from rl_jax.run.plan import make_plan
-        from rl_jax.run.run_dir import CHECKPOINT_DIR, identity_hash
-        from rl_jax.run.spec import RunSpec
-        from rl_jax.training.params import dataclass_from_dict
-
         identity = self.record["identity"]
         algorithm = for_run(self.record, self.run_dir, self._named, how="algorithm=")
         config = dataclass_from_dict(algorithm.default_config(self.env_id), identity["config"])
@@ -148,9 +152,6 @@ class Policy:
     """
 
     def __init__(self, loaded: LoadedPolicy):
-        import jax
-        import jax.numpy as jnp
-
         self.loaded = loaded
         env = loaded.env()
         space = env.observation_space()
@@ -166,7 +167,7 @@ class Policy:
 
         self._act = jax.jit(batched)
 
-    def __call__(self, obs: Any) -> np.ndarray:
+    def __call__(self, obs: npt.ArrayLike) -> np.ndarray:
         obs = np.asarray(obs, dtype=self._dtype)
         single = obs.shape == self.observation_shape
         if not single and obs.shape[1:] != self.observation_shape:
@@ -181,11 +182,9 @@ class Policy:
         return f"<Policy: {self.loaded.describe()} of {self.loaded.run_dir}>"
 
 
-def add_run_choice(parser: Any, seed_help: str) -> None:
+def add_run_choice(parser: argparse.ArgumentParser, seed_help: str) -> None:
     """The ``--seed``, ``--config`` and ``--algo`` options of the commands that load a run's
     policies."""
-    from rl_jax.errors import parse_int
-
     parser.add_argument(
         "--algo",
         default=None,
@@ -227,21 +226,15 @@ def load_policy(
     config index of a sweep (default: the best); ``algorithm``: the run's learner, when it is
     one of your own (as ``--algo`` names it, or the object).
     """
-    from rl_jax.training.jax_setup import configure
-
     configure()
     return Policy(LoadedPolicy(Path(run_dir), seed, config, which, algorithm))
 
 
-def _index(tree: Any, run: tuple[int, int]) -> Any:
-    import jax
-
+def _index(tree: ArrayPytree, run: tuple[int, int]) -> ArrayPytree:
     return jax.tree.map(lambda leaf: leaf[run], tree)
 
 
 def _rows(run_dir: Path) -> list[dict[str, Any]]:
-    from rl_jax.run.metrics import METRICS_FILE, read_rows
-
     return [row for row in read_rows(run_dir / METRICS_FILE) if row.get("eval_return") is not None]
 
 

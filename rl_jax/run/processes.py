@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import jax
 import numpy as np
+from jax.experimental import multihost_utils
 
 
 def count() -> int:
@@ -27,7 +28,6 @@ def agree(*flags: bool) -> tuple[bool, ...]:
     """Each flag ORed over all processes (one small gather; the flags as they are on one)."""
     if count() == 1:
         return tuple(bool(flag) for flag in flags)
-    from jax.experimental import multihost_utils
 
     local = np.asarray(flags, dtype=np.int32)
     gathered = np.asarray(multihost_utils.process_allgather(local))
@@ -37,6 +37,4 @@ def agree(*flags: bool) -> tuple[bool, ...]:
 def barrier(name: str) -> None:
     """Wait until every process reaches ``name`` (nothing on one process)."""
     if count() > 1:
-        from jax.experimental import multihost_utils
-
         multihost_utils.sync_global_devices(name)

@@ -11,9 +11,10 @@ from __future__ import annotations
 import os
 import sys
 import time
-from typing import IO, Any
+from typing import IO
 
 import numpy as np
+import numpy.typing as npt
 from tqdm import tqdm
 
 from rl_jax.run.plots import format_duration
@@ -37,7 +38,7 @@ def _is_terminal(file: IO[str]) -> bool:
         return False
 
 
-def eval_summary(eval_returns: Any) -> str:
+def eval_summary(eval_returns: npt.ArrayLike) -> str:
     """``eval -150.3 [-170.2, -140.1]``: mean and range over seeds (and configs)."""
     values = np.asarray(eval_returns, np.float64).reshape(-1)
     values = values[np.isfinite(values)]
@@ -98,7 +99,7 @@ class Progress:
         else:
             print(message, file=self.file, flush=True)
 
-    def update(self, env_steps: int, updates: int, eval_returns: Any) -> None:
+    def update(self, env_steps: int, updates: int, eval_returns: npt.ArrayLike) -> None:
         """After a chunk: per-seed ``env_steps`` and ``updates`` so far, evals of every run."""
         self._steps, self._updates = env_steps, updates
         status = self.status(eval_returns)
@@ -126,14 +127,14 @@ class Progress:
         elapsed = time.perf_counter() - self._start_time
         return elapsed * max(self.total_steps - self._steps, 0) / done
 
-    def status(self, eval_returns: Any) -> str:
+    def status(self, eval_returns: npt.ArrayLike) -> str:
         steps_per_s, updates_per_s = self.rates()
         return (
             f"{_rate(steps_per_s)} env steps/s | {_rate(updates_per_s)} updates/s | "
             f"{eval_summary(eval_returns)}"
         )
 
-    def line(self, eval_returns: Any) -> str:
+    def line(self, eval_returns: npt.ArrayLike) -> str:
         """The plain-text progress line used when the output is not a terminal."""
         percent = 100.0 * self._steps / max(self.total_steps, 1)
         elapsed = time.perf_counter() - self._start_time
@@ -152,5 +153,5 @@ class Progress:
     def __enter__(self) -> Progress:
         return self
 
-    def __exit__(self, *exc_info: Any) -> None:
+    def __exit__(self, *exc_info: object) -> None:
         self.close()

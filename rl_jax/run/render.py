@@ -11,11 +11,11 @@ Frames come from the environment, through one of two hooks (the first one the en
 * ``env.render_episode(states, params) -> list of (H, W, 3) uint8 frames`` for a whole episode
   (``states`` is the list of unbatched env states, first to last). An env that needs context
   across frames uses it: a MuJoCo env keeps one ``mujoco.Renderer`` open and follows the torso
-  with its tracking camera; the rocket draws its x(t) and v(t) traces next to the moving point.
+  with its tracking camera.
 * ``env.render(state, params) -> frame`` for one state (the ``Environment`` API).
 
-``EPISODE_PLOTS`` maps an env id to a function that writes a plot of the rendered episode next
-to the GIF as ``<name>_episode.png`` (the rocket's x(t), v(t) plot).
+An env with an ``episode_plot(states, params, path)`` hook also gets a plot of the last rendered
+episode next to the GIF, as ``<name>_episode.png`` (the rocket's x(t), v(t) plot).
 
 MuJoCo renders headless through EGL, else OSMesa (``envs.mujoco.opengl`` picks one when the
 first frame is drawn, unless ``MUJOCO_GL`` chose); without an OpenGL backend the command says in
@@ -28,18 +28,18 @@ import contextlib
 import math
 import traceback
 import warnings
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
 
+import imageio.v2 as imageio
+import jax
 import numpy as np
 
+from envs.core.core import Environment
+from envs.core.wrappers import Wrapper
 from rl_jax.errors import OneLineParser, RenderError, exit_now, guard, positive_int
-from rl_jax.run.policy import (  # loading lives there; render.LoadedPolicy stays
-    LoadedPolicy,
-    add_run_choice,
-    command_line_learner,
-)
+from rl_jax.run.policy import LoadedPolicy, add_run_choice, command_line_learner
 from rl_jax.training.jax_setup import configure
 
 NO_OPENGL = (
@@ -53,10 +53,10 @@ _GL_MARKERS = ("OpenGL", "EGL", "GLFW", "glGetError", "mjr_makeContext", "osmesa
 # ---- rollouts and frames --------------------------------------------------------------------
 
 
-def rollout(env: Any, act: Any, key: Any, episodes: int) -> list[dict[str, Any]]:
+def rollout(
+    env: Environment, act: Callable[[jax.Array], jax.Array], key: jax.Array, episodes: int
+) -> list[dict[str, Any]]:
     """``episodes`` episodes of ``act`` in ``env``: per episode the states and total reward."""
-    import jax
-
     params = env.default_params
     reset = jax.jit(lambda key: env.reset(key, params))
     step = jax.jit(lambda key, state, obs: env.step(key, state, act(obs), params))
@@ -76,18 +76,19 @@ def rollout(env: Any, act: Any, key: Any, episodes: int) -> list[dict[str, Any]]
     return results
 
 
-def _innermost(env: Any, states: list[Any]) -> tuple[Any, list[Any]]:
-    """Unwrap wrappers whose state wraps the inner env's state (``.env_state``)."""
-    from envs.core.wrappers import Wrapper
-
-    while isinstance(env, Wrapper) and not _has_own(env, "render_episode"):
+def _innermost(
+    env: Environment, states: list[Any], hook: str = "render_episode"
+) -> tuple[Environment, list[Any]]:
+    """Unwrap wrappers (whose state wraps the inner env's state in ``.env_state``) down to the
+    first env with its own ``hook``, else the innermost env."""
+    while isinstance(env, Wrapper) and not _has_own(env, hook):
         if states and hasattr(states[0], "env_state"):
             states = [state.env_state for state in states]
         env = env.env
     return env, states
 
 
-def _has_own(env: Any, name: str) -> bool:
+def _has_own(env: Environment, name: str) -> bool:
     return any(name in vars(cls) for cls in type(env).__mro__)
 
 
@@ -109,7 +110,7 @@ def opengl_errors() -> Iterator[None]:
         raise
 
 
-def episode_frames(env: Any, states: list[Any]) -> list[np.ndarray]:
+def episode_frames(env: Environment, states: list[Any]) -> list[np.ndarray]:
     """Frames of one episode through the env's hooks (``render_episode`` or ``render``)."""
     inner, inner_states = _innermost(env, states)
     params = inner.default_params
@@ -134,7 +135,7 @@ def _is_gl_failure(error: BaseException) -> bool:
     )
 
 
-def _fps(env: Any) -> float:
+def _fps(env: Environment) -> float:
     """Playback rate: the env's ``render_fps``, else ``1 / params.dt``, else 30."""
     fps = getattr(env, "render_fps", None) or (getattr(env, "metadata", None) or {}).get(
         "render_fps"
@@ -151,29 +152,9 @@ MAX_GIF_FPS = 50.0
 
 def save_gif(frames: list[np.ndarray], path: Path, fps: float, max_frames: int = 600) -> None:
     """Write frames as a looping GIF in real time; long episodes keep every k-th frame."""
-    import imageio.v2 as imageio
-
     every = max(1, math.ceil(len(frames) / max_frames), math.ceil(fps / MAX_GIF_FPS))
     kept = [np.asarray(frame, np.uint8) for frame in frames[::every]]
     imageio.mimsave(path, kept, duration=1000.0 * every / fps, loop=0)
-
-
-def _rocket_episode_plot(states: list[Any], params: Any, path: Path) -> None:
-    from envs.classic.rocket import plot_episode
-
-    positions = np.array([float(state.x) for state in states])
-    velocities = np.array([float(state.v) for state in states])
-    plot_episode(
-        positions,
-        velocities,
-        dt=float(params.dt),
-        path=path,
-        title="Rocket: the deterministic policy",
-    )
-
-
-#: env id -> ``plot(states, params, path)`` writing a plot of one rendered episode.
-EPISODE_PLOTS: dict[str, Any] = {"rl_jax/Rocket-v0": _rocket_episode_plot}
 
 
 def write_gif(
@@ -189,8 +170,6 @@ def write_gif(
     """Render the deterministic policy of (config, seed) of ``run_dir`` to a GIF; its path.
     ``which``: the seed's best evaluated policy ("best") or its latest checkpoint ("latest");
     ``algorithm``: the run's learner, when it is not built in."""
-    import jax
-
     with opengl_errors():  # a MuJoCo env may import mujoco (and fail) while being built
         loaded = LoadedPolicy(Path(run_dir), seed, config_index, which, algorithm)
         env = loaded.env()
@@ -212,13 +191,12 @@ def write_gif(
     return path
 
 
-def _save_episode_plot(env: Any, states: list[Any], gif_path: Path) -> Path | None:
-    plot = EPISODE_PLOTS.get(getattr(env, "id", ""))
-    if plot is None:
+def _save_episode_plot(env: Environment, states: list[Any], gif_path: Path) -> Path | None:
+    inner, inner_states = _innermost(env, states, "episode_plot")
+    if not _has_own(inner, "episode_plot"):
         return None
-    inner, inner_states = _innermost(env, states)
     path = gif_path.with_name(gif_path.stem + "_episode.png")
-    plot(inner_states, inner.default_params, path)
+    inner.episode_plot(inner_states, inner.default_params, path)
     return path
 
 

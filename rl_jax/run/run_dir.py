@@ -25,6 +25,7 @@ from typing import Any
 import jax
 
 from rl_jax.errors import RunError
+from rl_jax.run.checkpoint import library_versions
 from rl_jax.training import params
 
 CONFIG_FILE = "config.json"
@@ -137,8 +138,6 @@ def git_commit() -> str | None:
 
 def environment_record() -> dict[str, Any]:
     """Versions and machine facts needed to reproduce a run."""
-    from rl_jax.run.checkpoint import library_versions
-
     return {
         "versions": {"python": platform.python_version(), **library_versions()},
         "git_commit": git_commit(),

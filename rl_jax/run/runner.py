@@ -36,11 +36,13 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from flax.typing import ArrayPytree
 
+from rl_jax.errors import RunError
 from rl_jax.run import learners, plots, processes
 from rl_jax.run.best import BEST_DIR, BestPolicies, policy_part
 from rl_jax.run.checkpoint import Checkpointer
-from rl_jax.run.divergence import DivergenceError, check_finite, finite_runs
+from rl_jax.run.divergence import check_finite, finite_runs
 from rl_jax.run.metrics import METRICS_FILE, MetricsLog, read_rows
 from rl_jax.run.plan import (
     Plan,
@@ -54,7 +56,6 @@ from rl_jax.run.run_dir import (
     CHECKPOINT_DIR,
     CURVES_FILE,
     RESULTS_FILE,
-    RunError,
     check_out_dir,
     check_resume_dir,
 )
@@ -69,9 +70,8 @@ from rl_jax.run.start import (
     write_run_record,
 )
 from rl_jax.training import params
+from rl_jax.training.algorithm import ChunkMetrics
 from rl_jax.training.validation import check_ranges
-
-__all__ = ["DivergenceError", "RunError", "RunResult", "RunSpec", "make_plan", "run"]
 
 #: Checkpoints a run keeps at the least, whatever ``keep_checkpoints`` asks: with one, a damaged
 #: latest checkpoint has nothing to fall back on and the whole run is lost.
@@ -92,7 +92,11 @@ def grid_values(spec: RunSpec) -> list[dict[str, Any]]:
 
 
 def metric_rows(
-    metrics: Any, spec: RunSpec, chunk: int, wall_clock: float, grid: list[dict[str, Any]]
+    metrics: ChunkMetrics,
+    spec: RunSpec,
+    chunk: int,
+    wall_clock: float,
+    grid: list[dict[str, Any]],
 ) -> list[dict[str, Any]]:
     """One row per (config, seed) from host-side ``ChunkMetrics`` with ``[H, S]`` leaves."""
     rows = []
@@ -175,7 +179,7 @@ class Session:
     def wall_clock(self) -> float:
         return self.earlier_wall_clock + time.perf_counter() - self.started
 
-    def save(self, state: Any, hparams: Any, chunk: int) -> None:
+    def save(self, state: ArrayPytree, hparams: ArrayPytree, chunk: int) -> None:
         """Checkpoint the real ``[configs, seeds]`` runs (no padding: a checkpoint resumes on
         any number of devices)."""
         if self.saved_step == self.step:
@@ -211,7 +215,9 @@ class Session:
             self.best_checkpointer.close()
 
 
-def compile_chunk(plan: Plan, state: Any, hparams: Any, notify: Callable) -> Callable:
+def compile_chunk(
+    plan: Plan, state: ArrayPytree, hparams: ArrayPytree, notify: Callable[[str], None]
+) -> Callable:
     """Compile ahead of the first chunk so compile time is reported as such."""
     notify("compiling the train chunk ...")
     started = time.perf_counter()
@@ -309,7 +315,11 @@ def _render_gif(spec: RunSpec, notify: Callable[[str], None]) -> str | None:
 
 
 def _finish(
-    spec: RunSpec, session: Session, state: Any, stopped: bool, notify: Callable[[str], None]
+    spec: RunSpec,
+    session: Session,
+    state: ArrayPytree,
+    stopped: bool,
+    notify: Callable[[str], None],
 ) -> RunResult:
     """Plots and the results table (or the resume command when stopped), then the GIF; the lead's
     work alone in a distributed run."""

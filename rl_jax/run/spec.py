@@ -4,19 +4,25 @@ from __future__ import annotations
 
 import dataclasses
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
+
+from flax.typing import ArrayPytree
 
 from rl_jax.run import plots
 from rl_jax.run.run_dir import identity
+from rl_jax.training.algorithm import Algorithm
+
+if TYPE_CHECKING:
+    from _typeshed import DataclassInstance
 
 
 @dataclasses.dataclass(frozen=True)
 class RunSpec:
     """Everything a run needs. ``hparams`` holds one ``Hyperparams`` per config of a grid."""
 
-    algorithm: Any
+    algorithm: Algorithm
     env_id: str
-    config: Any
+    config: DataclassInstance
     hparams: tuple[Any, ...]
     out: Path
     seeds: int = 1
@@ -57,7 +63,7 @@ class RunResult:
     run_dir: Path
     step: int  # env steps per seed reached
     stopped: bool  # True when a signal ended the run before total_steps
-    state: Any  # the final train state, leaves [configs, seeds, ...]
+    state: ArrayPytree  # the final train state, leaves [configs, seeds, ...]
     results: list[plots.FinalResult]
     wall_clock: float  # seconds over all sessions of the run, compilation included
     gif_error: str | None = None

@@ -10,7 +10,10 @@ import signal
 import sys
 import time
 from collections.abc import Callable
+from types import FrameType
 from typing import Any
+
+from flax.typing import ArrayPytree
 
 from rl_jax.errors import RunError
 from rl_jax.run import learners
@@ -37,7 +40,7 @@ class GracefulStop:
         self._notify = notify
         self._previous: dict[int, Any] = {}
 
-    def _handle(self, signum: int, frame: Any) -> None:
+    def _handle(self, signum: int, frame: FrameType | None) -> None:
         name = signal.Signals(signum).name
         if self.requested is not None and signum == signal.SIGINT:
             raise KeyboardInterrupt
@@ -53,14 +56,14 @@ class GracefulStop:
                 self._previous[signum] = signal.signal(signum, self._handle)
         return self
 
-    def __exit__(self, *exc_info: Any) -> None:
+    def __exit__(self, *exc_info: object) -> None:
         for signum, handler in self._previous.items():
             signal.signal(signum, handler)
 
 
 @dataclasses.dataclass
 class Start:
-    state: Any
+    state: ArrayPytree
     chunk: int  # first chunk to run
     step: int  # env steps per seed already done
     updates: int

@@ -11,17 +11,32 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import json
 import shlex
 import sys
 import time
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
-from rl_jax.errors import OneLineParser, UsageError, exit_now, guard, parse_int, positive_int
-from rl_jax.run import cli, flags, learners
-from rl_jax.run.run_dir import RunError
+import jax
+
+import envs
+from rl_jax.errors import (
+    OneLineParser,
+    RunError,
+    UsageError,
+    exit_now,
+    guard,
+    parse_int,
+    positive_int,
+)
+from rl_jax.run import cli, flags, learners, plots, processes, runner
+from rl_jax.run.metrics import METRICS_FILE, read_rows
 from rl_jax.training import params
 from rl_jax.training.jax_setup import configure_jax
+
+if TYPE_CHECKING:
+    from _typeshed import DataclassInstance
 
 ALIASES = {
     "lr": ("actor_lr", "critic_lr", "learning_rate"),
@@ -43,7 +58,7 @@ class Axis:
     static: bool  # a config field: one compiled program per value
 
 
-def parse_axis(spec: str, config: Any, hparams: Any) -> Axis:
+def parse_axis(spec: str, config: DataclassInstance, hparams: DataclassInstance) -> Axis:
     name, text = flags.split_grid_spec(spec)
     static = {f.name: getattr(config, f.name) for f in dataclasses.fields(config)}
     dynamic = {f.name: getattr(hparams, f.name) for f in dataclasses.fields(hparams)}
@@ -83,8 +98,6 @@ def parse_args(argv: list[str]) -> tuple[argparse.Namespace, list[str]]:
 
 
 def sweep_record(out: Path) -> dict[str, Any]:
-    import json
-
     path = out / "sweep.json"
     if not path.is_file():
         raise RunError(f"no sweep at {out} (no sweep.json)")
@@ -107,7 +120,6 @@ def build_specs(
         rest = [*saved["argv"], *rest]
     if not sweep_args.algo or not sweep_args.env:
         raise UsageError("--algo and --env are required")
-    import envs
 
     algorithm = algorithm or cli.resolve_algorithm(sweep_args.algo)
     sweep_args.learner = str(learners.origin_of(algorithm))
@@ -180,8 +192,6 @@ def default_out(env_id: str, algorithm_name: str) -> Path:
 
 
 def write_record(out: Path, argv: list[str], sweep_args: argparse.Namespace) -> None:
-    import json
-
     passed = [a for a in argv if a not in ("--resume",)]
     record = {"algo": sweep_args.algo, "env": sweep_args.env, "grid": sweep_args.grid}
     record["learner"] = sweep_args.learner
@@ -208,9 +218,6 @@ def _without_sweep_flags(argv: list[str]) -> list[str]:
 
 def summarize(out: Path, specs: list[Any], labels: list[str], wall_clock: float) -> str:
     """curves.png (one curve per config of every shape) and the ranked results.txt."""
-    from rl_jax.run import plots
-    from rl_jax.run.metrics import METRICS_FILE, read_rows
-
     curves = []
     for spec, label in zip(specs, labels, strict=True):
         for curve in plots.curves_from_rows(read_rows(spec.out / METRICS_FILE), spec.grid_fields):
@@ -227,8 +234,6 @@ def summarize(out: Path, specs: list[Any], labels: list[str], wall_clock: float)
 def run_sweep(argv: list[str], description: str = "") -> int:
     """The sweep of ``argv`` (the script's flags), shape after shape, then its summary. Under
     ``jax.distributed`` every process runs this with the same flags; the lead writes and prints."""
-    from rl_jax.run import processes, runner
-
     started = time.perf_counter()
     specs, labels, out, sweep_args = build_specs(argv, description)
     lead = processes.is_lead()
@@ -259,8 +264,6 @@ def main(description: str, argv: list[str] | None = None) -> None:
     sweep_args, _ = parse_args(argv)
     configure_jax()  # before JAX starts: device count and compilation cache
     if sweep_args.num_processes > 1:
-        import jax
-
         jax.distributed.initialize(
             coordinator_address=sweep_args.coordinator,
             num_processes=sweep_args.num_processes,

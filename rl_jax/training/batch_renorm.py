@@ -23,11 +23,10 @@ they checkpoint) apart from the parameters (which its optimizer steps).
 
 from __future__ import annotations
 
-from typing import Any
-
 import flax.linen as nn
 import jax
 import jax.numpy as jnp
+from jax.typing import DTypeLike
 
 MOMENTUM, EPSILON, R_MAX, D_MAX, WARMUP = 0.99, 1e-3, 3.0, 5.0, 100_000
 
@@ -71,7 +70,7 @@ class BatchRenorm(nn.Module):
     training mode (outside ``init``) the ``batch_stats`` collection must be mutable."""
 
     warmup: int = WARMUP
-    dtype: Any = jnp.float32
+    dtype: DTypeLike = jnp.float32
 
     @nn.compact
     def __call__(self, x: jax.Array, train: bool = False) -> jax.Array:

@@ -9,19 +9,28 @@ from __future__ import annotations
 
 import functools
 from collections.abc import Callable
-from typing import Any
+from typing import Protocol
 
 import jax
 import jax.numpy as jnp
+from flax.typing import ArrayPytree
 
 import envs
 from rl_jax.training.replay import Transition
 
 
+class EnvConfig(Protocol):
+    """What a learner's config offers the env builders (frozen, so hashable: they cache)."""
+
+    num_eval_envs: int
+
+    def make_env(self) -> envs.Environment: ...
+
+
 # Cached: every trace asks for the env, and building one (an MJX model) can be slow. Envs are
 # stateless, so sharing an instance is safe.
 @functools.lru_cache(maxsize=64)
-def make_eval_env(config: Any) -> envs.Environment:
+def make_eval_env(config: EnvConfig) -> envs.Environment:
     """The env as the policy sees it (obs flattened to one axis), without autoreset."""
     # The first call may come while tracing (e.g. under eval_shape): constants an env computes
     # when built (MuJoCo's initial obs, default params) must stay concrete, not leak tracers.
@@ -36,7 +45,7 @@ def make_eval_env(config: Any) -> envs.Environment:
 
 
 @functools.lru_cache(maxsize=64)
-def make_train_env(config: Any) -> envs.Environment:
+def make_train_env(config: EnvConfig) -> envs.Environment:
     """Training stack: statistics outside autoreset so they see the step that ended an episode."""
     return envs.EpisodeStatistics(envs.AutoReset(make_eval_env(config)))
 
@@ -50,7 +59,9 @@ def example_transition(env: envs.Environment) -> Transition:
     return Transition(obs, action, jnp.zeros((), jnp.float32), obs, false, false)
 
 
-def evaluate(act: Callable[..., jax.Array], agent: Any, config: Any, key: jax.Array) -> jax.Array:
+def evaluate(
+    act: Callable[..., jax.Array], agent: ArrayPytree, config: EnvConfig, key: jax.Array
+) -> jax.Array:
     """Mean undiscounted return of ``num_eval_envs`` episodes of the deterministic policy
     ``act(agent, obs [N, ...], config)`` on fresh env copies (no exploration noise, no
     autoreset); [] float32."""

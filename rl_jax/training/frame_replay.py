@@ -34,7 +34,8 @@ import jax.numpy as jnp
 from flax import struct
 
 from rl_jax.training import replay
-from rl_jax.training.replay import Transition
+from rl_jax.training.prioritized import PrioritizedBuffer
+from rl_jax.training.replay import ReplayBuffer, Transition
 
 
 class FrameRow(NamedTuple):
@@ -49,7 +50,7 @@ class FrameRow(NamedTuple):
 
 @struct.dataclass
 class FrameReplay:
-    rows: Any  # ReplayBuffer or PrioritizedBuffer of FrameRow, leaves [R, width, ...]
+    rows: ReplayBuffer | PrioritizedBuffer  # of FrameRow, leaves [R, width, ...]
     frames: jax.Array  # [R + stack - 1, width, H, W] uint8, newest frame of obs by global step
     ended: jax.Array  # [R + stack - 1, width] bool, the step ended its episode
     written: jax.Array  # [] int32, env steps (rows) written so far

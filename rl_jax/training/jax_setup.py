@@ -7,8 +7,12 @@ backend starts.
 
 from __future__ import annotations
 
+import hashlib
 import os
+import platform
 from pathlib import Path
+
+import jax
 
 CACHE_ROOT = Path(os.environ.get("XDG_CACHE_HOME", Path.home() / ".cache")) / "rl_jax" / "jax"
 
@@ -18,9 +22,6 @@ def cpu_tag() -> str:
     (AVX-512 where there is one) but does not key its cache by it: an entry written on one CPU
     and loaded on a lesser one (a home directory shared between machines) may die of SIGILL, and
     JAX warns on every load. One cache directory per tag keeps them apart."""
-    import hashlib
-    import platform
-
     text = platform.machine() + platform.processor()
     try:
         with open("/proc/cpuinfo") as cpuinfo:
@@ -46,7 +47,6 @@ def configure(cpu_devices: int | None = None, cache_dir: str | os.PathLike | Non
         if "xla_force_host_platform_device_count" not in flags:
             flag = f"--xla_force_host_platform_device_count={cpu_devices}"
             os.environ["XLA_FLAGS"] = f"{flags} {flag}".strip()
-    import jax
 
     directory = os.environ.get("JAX_COMPILATION_CACHE_DIR", cache_dir or str(DEFAULT_CACHE_DIR))
     if directory:

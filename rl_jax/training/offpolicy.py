@@ -21,17 +21,21 @@ from __future__ import annotations
 import dataclasses
 import json
 from collections.abc import Callable
-from typing import Any, NamedTuple
+from typing import TYPE_CHECKING, Any, NamedTuple
 
 import jax
 import jax.numpy as jnp
 from flax import struct
+from flax.typing import ArrayPytree
 
 import envs
 from rl_jax.training import replay
 from rl_jax.training.algorithm import ChunkMetrics
 from rl_jax.training.episodes import evaluate, example_transition, make_eval_env, make_train_env
 from rl_jax.training.replay import ReplayBuffer, Transition
+
+if TYPE_CHECKING:
+    from _typeshed import DataclassInstance
 
 PRNGKey = jax.Array
 
@@ -106,9 +110,9 @@ class Clock:
 class TrainState:
     """Everything a run needs to continue; only arrays (checkpointable as is)."""
 
-    agent: Any  # the learner's parameters, targets and optimizer states
+    agent: ArrayPytree  # the learner's parameters, targets and optimizer states
     buffer: ReplayBuffer  # of Transition, leaves [rows, num_envs, ...]
-    env_state: Any  # [num_envs, ...]
+    env_state: ArrayPytree  # [num_envs, ...]
     obs: jax.Array  # [num_envs, *obs_shape], the observation the next action answers
     noise: jax.Array  # [num_envs, *action_shape] float32, exploration state (see Learner)
     key: PRNGKey
@@ -166,7 +170,9 @@ def buffer_nbytes(config: OffPolicyConfig) -> int:
 
 
 # ---- init ---------------------------------------------------------------------------------------
-def init(learner: Learner, key: PRNGKey, config: OffPolicyConfig, hparams: Any) -> TrainState:
+def init(
+    learner: Learner, key: PRNGKey, config: OffPolicyConfig, hparams: DataclassInstance
+) -> TrainState:
     """A fresh state for one seed and one hyperparameter set."""
     env = make_train_env(config)
     agent_key, env_key, key = jax.random.split(key, 3)
@@ -189,7 +195,7 @@ def init(learner: Learner, key: PRNGKey, config: OffPolicyConfig, hparams: Any) 
 
 
 # ---- one iteration -----------------------------------------------------------------------------
-def random_actions(space: Any, key: PRNGKey, count: int) -> jax.Array:
+def random_actions(space: envs.Space, key: PRNGKey, count: int) -> jax.Array:
     return jax.vmap(space.sample)(jax.random.split(key, count))
 
 
@@ -278,7 +284,9 @@ def env_steps_at_update(update_index: jax.Array, config: OffPolicyConfig) -> jax
 
 
 # ---- a chunk ------------------------------------------------------------------------------------
-def train_chunk(learner: Learner, state: TrainState, config: OffPolicyConfig, hparams: Any):
+def train_chunk(
+    learner: Learner, state: TrainState, config: OffPolicyConfig, hparams: DataclassInstance
+):
     """``config.iterations_per_chunk`` iterations, then one evaluation. Pure; jit it outside."""
 
     def body(state, _):

@@ -26,21 +26,30 @@ Usage::
 
 from __future__ import annotations
 
-from collections.abc import Sequence
-from typing import Any
+from collections.abc import Callable, Sequence
+from typing import TYPE_CHECKING, Any
 
 import jax
 import jax.numpy as jnp
 import numpy as np
+from flax.typing import ArrayPytree
+from jax.experimental import multihost_utils
 from jax.sharding import Mesh, NamedSharding, PartitionSpec
 
-from rl_jax.training.algorithm import Algorithm
+from rl_jax.training.algorithm import Algorithm, ChunkMetrics
 from rl_jax.training.device_layout import AXES, plan_layout
-from rl_jax.training.params import stack as stack  # parallel.stack, as before
+
+if TYPE_CHECKING:
+    from _typeshed import DataclassInstance
 
 _PROGRAMS: dict[Any, tuple[Any, Any]] = {}  # see Program._build
 _COMPILED: dict[Any, Any] = {}  # the chunk compiled ahead of time, per program
 SHARED_FIELD = "clock"  # the train-state field kept unbatched and replicated
+
+#: vmap axes of a train state: its structure with 0 at every leaf, ``None`` at the shared clock
+Axes = Any
+#: ``(state, hparams) -> (state, metrics)`` of one run, or of a stack of them
+Chunk = Callable[[ArrayPytree, ArrayPytree], tuple[ArrayPytree, ArrayPytree]]
 
 
 def seed_keys(seeds: Sequence[int]) -> jax.Array:
@@ -48,7 +57,7 @@ def seed_keys(seeds: Sequence[int]) -> jax.Array:
     return jnp.stack([jax.random.key(int(s)) for s in seeds])
 
 
-def state_axes(state: Any) -> Any:
+def state_axes(state: ArrayPytree) -> Axes:
     """vmap axes for a train state: 0 everywhere, ``None`` for the shared ``clock``."""
     axes = jax.tree.map(lambda _: 0, state)
     if hasattr(axes, SHARED_FIELD):
@@ -56,7 +65,7 @@ def state_axes(state: Any) -> Any:
     return axes
 
 
-def select(state: Any, hparam_index: int, seed_index: int) -> Any:
+def select(state: ArrayPytree, hparam_index: int, seed_index: int) -> ArrayPytree:
     """One run's state out of a stacked ``[H, S]`` state."""
     axes = state_axes(state)
     return jax.tree.map(
@@ -67,14 +76,16 @@ def select(state: Any, hparam_index: int, seed_index: int) -> Any:
     )
 
 
-def _specs(axes: Any) -> Any:
+def _specs(axes: Axes) -> Any:
     runs = PartitionSpec(*AXES)
     return jax.tree.map(
         lambda axis: PartitionSpec() if axis is None else runs, axes, is_leaf=lambda x: x is None
     )
 
 
-def map_axes(function: Any, axes: Any, tree: Any) -> Any:
+def map_axes(
+    function: Callable[[int | None, Any], Any], axes: Axes, tree: ArrayPytree
+) -> ArrayPytree:
     """``function(axis, leaf)`` on every leaf of ``tree``; a ``None`` axis (the shared clock)
     covers a whole subtree, so it is handed to each leaf under it."""
     return jax.tree.map(
@@ -85,7 +96,7 @@ def map_axes(function: Any, axes: Any, tree: Any) -> Any:
     )
 
 
-def _is_key(leaf: Any) -> bool:
+def _is_key(leaf: object) -> bool:
     return hasattr(leaf, "dtype") and jax.dtypes.issubdtype(leaf.dtype, jax.dtypes.prng_key)
 
 
@@ -99,14 +110,14 @@ def _pad_edge(array: np.ndarray, sizes: tuple[int, ...]) -> np.ndarray:
     return array
 
 
-def _host(leaf: Any) -> np.ndarray:
+def _host(leaf: jax.Array | np.ndarray) -> np.ndarray:
     """A host copy of a (fully addressable) array; typed keys as their key data."""
     if _is_key(leaf):
         leaf = jax.random.key_data(leaf)
     return np.asarray(leaf)
 
 
-def seed_loop(chunk_one: Any, axes: Any, num_seeds: int) -> Any:
+def seed_loop(chunk_one: Chunk, axes: Axes, num_seeds: int) -> Chunk:
     """``chunk_one(state, hp)`` over the ``num_seeds`` seeds of an ``[S]`` state as an unrolled
     loop in one program: what ``vmap(chunk_one, in_axes=(axes, None), out_axes=(axes, 0))``
     computes, but each seed keeps its own ops instead of one batched op for all. Vmapped, a conv
@@ -115,7 +126,7 @@ def seed_loop(chunk_one: Any, axes: Any, num_seeds: int) -> Any:
     (42x42) and 1.23x (84x84) the vmapped updates/s (``python -m bench pixel_dqn``). Compile time
     grows with the number of seeds."""
 
-    def looped(state: Any, hp: Any) -> tuple[Any, Any]:
+    def looped(state: ArrayPytree, hp: ArrayPytree) -> tuple[ArrayPytree, ArrayPytree]:
         outputs = [
             chunk_one(map_axes(lambda axis, leaf, i=i: _take(axis, leaf, i), axes, state), hp)
             for i in range(num_seeds)
@@ -132,11 +143,11 @@ def seed_loop(chunk_one: Any, axes: Any, num_seeds: int) -> Any:
     return looped
 
 
-def _take(axis: int | None, leaf: Any, index: int) -> Any:
+def _take(axis: int | None, leaf: jax.Array, index: int) -> jax.Array:
     return leaf if axis is None else leaf[index]
 
 
-def _stack(*leaves: Any) -> Any:
+def _stack(*leaves: jax.Array) -> jax.Array:
     return jnp.stack(leaves)
 
 
@@ -152,10 +163,10 @@ class Program:
     def __init__(
         self,
         algorithm: Algorithm,
-        config: Any,
+        config: DataclassInstance,
         num_hparams: int,
         num_seeds: int,
-        devices: Sequence[Any] | None = None,
+        devices: Sequence[jax.Device] | None = None,
         pad: bool = True,
         loop_seeds: bool = False,
     ):
@@ -170,9 +181,9 @@ class Program:
         self._init = None
         self._chunk = None
         self._axes = None
-        self._key_impl: Any = None
-        self._placed_hparams: tuple[Any, Any] | None = None
-        self._program_key: Any = None
+        self._key_impl: str | None = None
+        self._placed_hparams: tuple[ArrayPytree, ArrayPytree] | None = None
+        self._program_key: tuple | None = None
 
     # ---- shapes and placement -------------------------------------------------------------
 
@@ -183,7 +194,7 @@ class Program:
     def sharding(self, spec: PartitionSpec | None = None) -> NamedSharding:
         return NamedSharding(self.mesh, PartitionSpec(*AXES) if spec is None else spec)
 
-    def axes(self, hparams: Any) -> Any:
+    def axes(self, hparams: ArrayPytree) -> Axes:
         """vmap axes of the state (0, or ``None`` for the shared clock)."""
         if self._axes is None:
             one = jax.tree.map(lambda x: jnp.asarray(x[0]), hparams)
@@ -198,7 +209,7 @@ class Program:
             return jax.make_array_from_callback(array.shape, sharding, lambda index: array[index])
         return jax.device_put(array, sharding)
 
-    def _place_leaf(self, axis: int | None, leaf: Any) -> Any:
+    def _place_leaf(self, axis: int | None, leaf: jax.Array | np.ndarray) -> jax.Array:
         key_impl = jax.random.key_impl(leaf) if _is_key(leaf) else None
         array = _host(leaf)
         if axis is None:
@@ -207,17 +218,17 @@ class Program:
             placed = self._put(_pad_edge(array, self.padded), self.sharding())
         return placed if key_impl is None else jax.random.wrap_key_data(placed, impl=key_impl)
 
-    def place(self, state: Any, hparams: Any) -> Any:
+    def place(self, state: ArrayPytree, hparams: ArrayPytree) -> ArrayPytree:
         """An ``[H, S]`` state (host or device arrays) padded and put on the mesh."""
         axes = self.axes(hparams)
         return map_axes(self._place_leaf, axes, state)
 
-    def unpad(self, state: Any, hparams: Any) -> Any:
+    def unpad(self, state: ArrayPytree, hparams: ArrayPytree) -> ArrayPytree:
         """The ``[H, S]`` runs of a device state, as host arrays (typed keys stay keys)."""
         axes = self.axes(hparams)
         real = (slice(0, self.num_hparams), slice(0, self.num_seeds))
 
-        def take(axis: int | None, leaf: Any) -> Any:
+        def take(axis: int | None, leaf: jax.Array) -> jax.Array | np.ndarray:
             key_impl = jax.random.key_impl(leaf) if _is_key(leaf) else None
             array = self._gather_leaf(leaf)
             array = array if axis is None else array[real]
@@ -225,21 +236,19 @@ class Program:
 
         return map_axes(take, axes, state)
 
-    def gather(self, metrics: Any) -> Any:
+    def gather(self, metrics: ChunkMetrics) -> ChunkMetrics:
         """Host copies of ``[H_padded, S_padded]`` outputs (chunk metrics), cut to ``[H, S]``."""
         real = (slice(0, self.num_hparams), slice(0, self.num_seeds))
         return jax.tree.map(lambda leaf: self._gather_leaf(leaf)[real], metrics)
 
-    def _gather_leaf(self, leaf: Any) -> np.ndarray:
+    def _gather_leaf(self, leaf: jax.Array) -> np.ndarray:
         if self.multiprocess and not leaf.is_fully_addressable:
-            from jax.experimental import multihost_utils
-
             if _is_key(leaf):
                 leaf = jax.random.key_data(leaf)
             return np.asarray(multihost_utils.process_allgather(leaf, tiled=True))
         return _host(leaf)
 
-    def template(self, hparams: Any) -> Any:
+    def template(self, hparams: ArrayPytree) -> ArrayPytree:
         """``jax.ShapeDtypeStruct`` tree (with shardings) of the device state: nothing allocated."""
         axes = self.axes(hparams)
         one = jax.tree.map(lambda x: jnp.asarray(x[0]), hparams)
@@ -247,7 +256,7 @@ class Program:
             lambda key: self.algorithm.init(key, self.config, one), jax.random.key(0)
         )
 
-        def grow(axis: int | None, leaf: Any) -> jax.ShapeDtypeStruct:
+        def grow(axis: int | None, leaf: jax.ShapeDtypeStruct) -> jax.ShapeDtypeStruct:
             if axis is None:
                 return jax.ShapeDtypeStruct(
                     leaf.shape, leaf.dtype, sharding=self.sharding(PartitionSpec())
@@ -264,7 +273,7 @@ class Program:
 
     # ---- programs --------------------------------------------------------------------------
 
-    def _wrap(self, function: Any, in_specs: Any, out_specs: Any) -> Any:
+    def _wrap(self, function: Callable, in_specs: Any, out_specs: Any) -> Callable:
         """``shard_map`` over the mesh; on one device the vmapped function as it is (measured:
         an MJX env step under a one-device ``shard_map`` ran many times slower)."""
         if self.layout.devices == 1:
@@ -275,7 +284,7 @@ class Program:
             function, mesh=self.mesh, in_specs=in_specs, out_specs=out_specs, check_vma=False
         )
 
-    def _build(self, hparams: Any) -> None:
+    def _build(self, hparams: ArrayPytree) -> None:
         """The jitted init and chunk, shared by every ``Program`` of the same algorithm, config
         and layout in this process (a resumed or repeated run does not trace again)."""
         if self._key_impl is None:  # a restored state trains before any init: the default
@@ -294,7 +303,7 @@ class Program:
         self._init, self._chunk = _PROGRAMS[key]
         self._program_key = key
 
-    def _programs(self, hparams: Any) -> tuple[Any, Any]:
+    def _programs(self, hparams: ArrayPytree) -> tuple[Callable, Callable]:
         algorithm, config = self.algorithm, self.config
         axes = self.axes(hparams)
         state_specs = _specs(axes)
@@ -334,7 +343,7 @@ class Program:
     def _shardings(self, specs: Any) -> Any:
         return jax.tree.map(self.sharding, specs, is_leaf=lambda x: isinstance(x, PartitionSpec))
 
-    def _placed(self, hparams: Any) -> Any:
+    def _placed(self, hparams: ArrayPytree) -> ArrayPytree:
         """``[H]`` hyperparameters padded and put on the mesh (memoized per object)."""
         if self._placed_hparams is None or self._placed_hparams[0] is not hparams:
             sizes = (self.layout.padded_hparams,)
@@ -345,7 +354,7 @@ class Program:
             self._placed_hparams = (hparams, placed)
         return self._placed_hparams[1]
 
-    def init(self, keys: jax.Array, hparams: Any) -> Any:
+    def init(self, keys: jax.Array, hparams: ArrayPytree) -> ArrayPytree:
         """Fresh device state (``[H_padded, S_padded]`` leaves) from ``[S]`` keys and
         ``[H]``-stacked hyperparameters."""
         self._check(keys.shape[0], hparams)
@@ -356,14 +365,16 @@ class Program:
         placed_keys = self._put(key_data, self.sharding(PartitionSpec(AXES[1])))
         return self._init(placed_keys, self._placed(hparams))
 
-    def train_chunk(self, state: Any, hparams: Any) -> tuple[Any, Any]:
+    def train_chunk(
+        self, state: ArrayPytree, hparams: ArrayPytree
+    ) -> tuple[ArrayPytree, ChunkMetrics]:
         """One chunk for every run (metrics leaves ``[H_padded, S_padded]``; ``gather`` cuts
         them). ``state`` is donated: use the returned one."""
         if self._chunk is None:
             self._build(hparams)
         return self._chunk(state, self._placed(hparams))
 
-    def compile(self, state: Any, hparams: Any) -> Any:
+    def compile(self, state: ArrayPytree, hparams: ArrayPytree) -> Chunk:
         """The chunk compiled ahead of time (to time compilation apart from training):
         ``compiled(state, hparams) -> (state, metrics)``."""
         if self._chunk is None:
@@ -374,19 +385,14 @@ class Program:
         compiled = _COMPILED[self._program_key]
         return lambda state, hparams: compiled(state, self._placed(hparams))
 
-    def select(self, state: Any, hparam_index: int, seed_index: int) -> Any:
+    def select(self, state: ArrayPytree, hparam_index: int, seed_index: int) -> ArrayPytree:
         """One run's state (device or host state)."""
         return select(state, hparam_index, seed_index)
 
-    def _check(self, num_keys: int, hparams: Any) -> None:
+    def _check(self, num_keys: int, hparams: ArrayPytree) -> None:
         sizes = {np.shape(leaf)[0] for leaf in jax.tree.leaves(hparams)}
         if num_keys != self.num_seeds or sizes != {self.num_hparams}:
             raise ValueError(
                 f"expected {self.num_seeds} keys and hyperparameters stacked to "
                 f"{self.num_hparams}, got {num_keys} keys and leading sizes {sorted(sizes)}"
             )
-
-
-#: The old name: ``README``'s earlier library example and BENCHMARKS.md's notes call the program
-#: ``parallel.Runner``; ``rl_jax.run.runner`` is what drives a run.
-Runner = Program

@@ -12,22 +12,29 @@ from __future__ import annotations
 import dataclasses
 import itertools
 from collections.abc import Sequence
-from typing import Any, TypeAlias
+from typing import TYPE_CHECKING, Any, TypeAlias, TypeVar
 
 import jax
 import numpy as np
+import numpy.typing as npt
 
 from rl_jax.errors import RunError
+
+if TYPE_CHECKING:
+    from _typeshed import DataclassInstance
 
 # ---- arrays ---------------------------------------------------------------------------------
 
 _DTYPES = {"f": np.float32, "i": np.int32, "u": np.int32, "b": np.bool_}
 
+T = TypeVar("T")  # hyperparameters, a pytree of them or a dataclass: what goes in comes out
+D = TypeVar("D", bound="DataclassInstance")
+
 #: A hyperparameter's value: a Python number, or an array leaf (stacked: ``[H]``).
 Scalar: TypeAlias = float | jax.Array
 
 
-def _as_array(value: Any, like: Any = None) -> np.ndarray:
+def _as_array(value: npt.ArrayLike, like: npt.ArrayLike | None = None) -> np.ndarray:
     """``value`` as an array of the kind of ``like`` (else its own): float32, int32 or bool."""
     array = np.asarray(value)
     kind = np.asarray(like).dtype.kind if like is not None else array.dtype.kind
@@ -35,7 +42,7 @@ def _as_array(value: Any, like: Any = None) -> np.ndarray:
     return array if dtype is None else array.astype(dtype)
 
 
-def as_arrays(hparams: Any) -> Any:
+def as_arrays(hparams: T) -> T:
     """Every hyperparameter as a numpy array (0-d, or ``[H]`` from a stack's JSON).
 
     The dtype follows the field's default where the field has one (a float default makes 3 and
@@ -50,7 +57,7 @@ def as_arrays(hparams: Any) -> Any:
     return dataclasses.replace(hparams, **values)
 
 
-def stack(hparams_list: Sequence[Any]) -> Any:
+def stack(hparams_list: Sequence[T]) -> T:
     """``[H]``-stacked hyperparameters (each through ``as_arrays``), the leading axis a grid's
     configs: the ``hparams`` input of ``rl_jax.training.parallel.Program``."""
     arrays = [as_arrays(h) for h in hparams_list]
@@ -69,12 +76,12 @@ def product(values: dict[str, Sequence[Any]]) -> list[dict[str, Any]]:
     ]
 
 
-def expand(base: Any, values: dict[str, Sequence[Any]]) -> list[Any]:
+def expand(base: D, values: dict[str, Sequence[Any]]) -> list[D]:
     """``base`` (a dataclass) with each combination of ``product(values)`` replaced in it."""
     return [dataclasses.replace(base, **point) for point in product(values)]
 
 
-def grid(base: Any, **values: Sequence[float]) -> tuple[Any, list[dict[str, Any]]]:
+def grid(base: D, **values: Sequence[float]) -> tuple[D, list[dict[str, Any]]]:
     """The product grid on top of ``base``: ``(stacked pytree [H], [{field: value}, ...])``,
     first field varying slowest."""
     return stack(expand(base, values)), product(values)
@@ -83,7 +90,7 @@ def grid(base: Any, **values: Sequence[float]) -> tuple[Any, list[dict[str, Any]
 # ---- JSON -----------------------------------------------------------------------------------
 
 
-def _json_value(value: Any) -> Any:
+def _json_value(value: object) -> object:
     """Plain JSON for config and hyperparameter values (tuples become lists)."""
     if isinstance(value, (tuple, list)):
         return [_json_value(v) for v in value]
@@ -97,12 +104,12 @@ def _json_value(value: Any) -> Any:
     return value
 
 
-def dataclass_to_dict(instance: Any) -> dict[str, Any]:
+def dataclass_to_dict(instance: DataclassInstance) -> dict[str, Any]:
     """Fields of a (frozen or flax struct) dataclass as JSON-ready values."""
     return {f.name: _json_value(getattr(instance, f.name)) for f in dataclasses.fields(instance)}
 
 
-def dataclass_from_dict(template: Any, values: dict[str, Any]) -> Any:
+def dataclass_from_dict(template: D, values: dict[str, Any]) -> D:
     """``template`` with ``values`` replaced, each converted to the template field's type.
 
     A field the dataclass no longer has is dropped where a run recorded it at the value that
@@ -134,7 +141,7 @@ def _same(recorded: Any, value: Any) -> bool:
     return recorded == value
 
 
-def _like(default: Any, value: Any, name: str) -> Any:
+def _like(default: object, value: object, name: str) -> object:
     """``value`` converted to the type of ``default`` (bool, int, float, str, tuple, array)."""
     if isinstance(default, tuple):
         if not isinstance(value, (list, tuple)):

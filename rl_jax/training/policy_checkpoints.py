@@ -12,11 +12,10 @@ from TD7's one env and deferred updates: ``rl_jax.agents.td7``'s docstring.
 
 from __future__ import annotations
 
-from typing import Any
-
 import jax
 import jax.numpy as jnp
 from flax import struct
+from flax.typing import ArrayPytree
 
 #: TD7's start values: a checkpoint score below any return, an assessment minimum above any.
 NO_SCORE, NO_EPISODE = -1e8, 1e8
@@ -24,8 +23,8 @@ NO_SCORE, NO_EPISODE = -1e8, 1e8
 
 @struct.dataclass
 class PolicyCheckpoint:
-    best: Any  # the checkpoint: what evaluation, best/ and loaded policies use
-    assessed: Any  # the frozen copy acting in the training envs during an assessment
+    best: ArrayPytree  # the checkpoint: what evaluation, best/ and loaded policies use
+    assessed: ArrayPytree  # the frozen copy acting in the training envs during an assessment
     score: jax.Array  # [] float32, the lowest return of the checkpoint's assessment
     lowest: jax.Array  # [] float32, the lowest return so far in this assessment
     episodes: jax.Array  # [] int32, episodes counted so far in this assessment
@@ -44,7 +43,7 @@ def assess_episodes(lowest, episodes, score, returns, counted, required):
     return lowest, episodes, passed, jnp.logical_or(failed, passed)
 
 
-def init(policy: Any, num_envs: int, learning_starts: int) -> PolicyCheckpoint:
+def init(policy: ArrayPytree, num_envs: int, learning_starts: int) -> PolicyCheckpoint:
     """The initial policy as checkpoint and as assessed copy; envs count from their first
     episode that starts after the random warm-up."""
     return PolicyCheckpoint(
@@ -57,12 +56,12 @@ def init(policy: Any, num_envs: int, learning_starts: int) -> PolicyCheckpoint:
     )
 
 
-def _where(flag: jax.Array, a: Any, b: Any) -> Any:
+def _where(flag: jax.Array, a: ArrayPytree, b: ArrayPytree) -> ArrayPytree:
     return jax.tree.map(lambda x, y: jnp.where(flag, x, y), a, b)
 
 
 def assess(
-    ckpt: PolicyCheckpoint, current: Any, episode_return, done, clock, config, reset_weight
+    ckpt: PolicyCheckpoint, current: ArrayPytree, episode_return, done, clock, config, reset_weight
 ) -> PolicyCheckpoint:
     """One env step of TD7's checkpoint schedule: count the episodes that ended, and when an
     assessment ends, keep its copy if it passed and take ``current`` as the new copy. Until an

@@ -12,11 +12,12 @@ The buffer is generic over the stored pytree; off-policy learners store a ``Tran
 from __future__ import annotations
 
 import math
-from typing import Any, NamedTuple
+from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
 from flax import struct
+from flax.typing import ArrayPytree
 
 
 class Transition(NamedTuple):
@@ -33,7 +34,7 @@ class Transition(NamedTuple):
 
 @struct.dataclass
 class ReplayBuffer:
-    data: Any  # pytree, leaves [rows, width, ...]
+    data: ArrayPytree  # leaves [rows, width, ...]
     position: jax.Array  # [] int32, the row ``add`` writes next
     rows_filled: jax.Array  # [] int32, rows holding data (stops growing at ``rows``)
 
@@ -59,7 +60,7 @@ def rows_for(capacity: int, width: int) -> int:
     return max(1, math.ceil(capacity / width))
 
 
-def init(example: Any, capacity: int, width: int) -> ReplayBuffer:
+def init(example: ArrayPytree, capacity: int, width: int) -> ReplayBuffer:
     """An empty buffer for at least ``capacity`` items shaped like ``example`` (one item, no batch
     axis), filled ``width`` items at a time."""
     rows = rows_for(capacity, width)
@@ -69,7 +70,7 @@ def init(example: Any, capacity: int, width: int) -> ReplayBuffer:
     return ReplayBuffer(data=data, position=jnp.int32(0), rows_filled=jnp.int32(0))
 
 
-def nbytes(example: Any, capacity: int, width: int) -> int:
+def nbytes(example: ArrayPytree, capacity: int, width: int) -> int:
     """Memory the buffer's storage takes, computed without allocating it."""
     rows = rows_for(capacity, width)
     per_item = sum(
@@ -78,7 +79,7 @@ def nbytes(example: Any, capacity: int, width: int) -> int:
     return rows * width * per_item
 
 
-def add(buffer: ReplayBuffer, batch: Any) -> ReplayBuffer:
+def add(buffer: ReplayBuffer, batch: ArrayPytree) -> ReplayBuffer:
     """Write one row: ``batch`` has the stored pytree's structure with leaves ``[width, ...]``."""
     data = jax.tree.map(
         lambda stored, new: jax.lax.dynamic_update_index_in_dim(
@@ -102,12 +103,12 @@ def sample_indices(buffer: ReplayBuffer, key: jax.Array, batch_size: int):
     return flat // buffer.width, flat % buffer.width
 
 
-def gather(buffer: ReplayBuffer, rows: jax.Array, columns: jax.Array) -> Any:
+def gather(buffer: ReplayBuffer, rows: jax.Array, columns: jax.Array) -> ArrayPytree:
     """The stored items at ``(rows, columns)``; leaves ``[len(rows), ...]``."""
     return jax.tree.map(lambda stored: stored[rows, columns], buffer.data)
 
 
-def sample(buffer: ReplayBuffer, key: jax.Array, batch_size: int) -> Any:
+def sample(buffer: ReplayBuffer, key: jax.Array, batch_size: int) -> ArrayPytree:
     """A uniform batch of ``batch_size`` stored items."""
     return gather(buffer, *sample_indices(buffer, key, batch_size))
 

@@ -17,12 +17,16 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from typing import Any, NamedTuple
+from collections.abc import Iterable
+from typing import TYPE_CHECKING, NamedTuple
 
 import numpy as np
 
 from rl_jax.errors import RunError
-from rl_jax.training.algorithm import hooks
+from rl_jax.training.algorithm import Algorithm, hooks
+
+if TYPE_CHECKING:
+    from _typeshed import DataclassInstance
 
 
 class RangeError(RunError):
@@ -77,7 +81,7 @@ BY_NAME: dict[str, Range] = {
 }
 
 
-def range_of(name: str, algorithm: Any = None) -> Range | None:
+def range_of(name: str, algorithm: Algorithm | None = None) -> Range | None:
     """The valid range of field ``name`` (None: no numeric range to check)."""
     own = hooks(algorithm).ranges if algorithm is not None else {}
     if name in own:
@@ -93,7 +97,7 @@ def range_of(name: str, algorithm: Any = None) -> Range | None:
     return None
 
 
-def out_of_range(instance: Any, algorithm: Any = None) -> str | None:
+def out_of_range(instance: DataclassInstance, algorithm: Algorithm | None = None) -> str | None:
     """The first field of a ``Config``/``Hyperparams`` dataclass outside its range, as the
     one-line message (flag, range, value), then a buffer too small for the config's batch or
     warm-up (``buffer_too_small``); None when all hold."""
@@ -118,7 +122,7 @@ def out_of_range(instance: Any, algorithm: Any = None) -> str | None:
     return buffer_too_small(instance)
 
 
-def buffer_too_small(config: Any) -> str | None:
+def buffer_too_small(config: DataclassInstance) -> str | None:
     """The one-line message when a config's replay buffer (``buffer_size``) is smaller than a
     batch (``batch_size``) or than the random warm-up (``learning_starts``); None otherwise.
 
@@ -149,7 +153,7 @@ def buffer_too_small(config: Any) -> str | None:
     return f"--buffer-size must be >= {batch} ({why}), got {size}"
 
 
-def _count(config: Any, name: str) -> int | None:
+def _count(config: DataclassInstance, name: str) -> int | None:
     """An integer config field, or None where the config has no such field."""
     value = getattr(config, name, None)
     if isinstance(value, bool) or not isinstance(value, (int, np.integer)):
@@ -157,7 +161,9 @@ def _count(config: Any, name: str) -> int | None:
     return int(value)
 
 
-def check_ranges(algorithm: Any, config: Any, hparams_list: Any) -> None:
+def check_ranges(
+    algorithm: Algorithm, config: DataclassInstance, hparams_list: Iterable[DataclassInstance]
+) -> None:
     """``RangeError`` naming the first value of ``config`` or of any hyperparameter config (a
     grid has several) outside its range."""
     hparams_list = list(hparams_list)

@@ -15,6 +15,7 @@ from run_helpers import leaves_bytes
 
 from rl_jax.agents import dqn as dqn_module
 from rl_jax.agents.dqn import PixelConfig, dqn
+from rl_jax.errors import guard
 from rl_jax.run import cli
 from rl_jax.run.checkpoint import Checkpointer
 from rl_jax.run.plan import make_plan
@@ -231,7 +232,7 @@ def test_a_tiny_dqn_run_on_pixels_trains_and_evaluates(options):
 
 
 def _run(argv: list[str]) -> int:
-    return cli.guard(lambda: cli.run_experiment(dqn, ENV_ID, "", argv))
+    return guard(lambda: cli.run_experiment(dqn, ENV_ID, "", argv))
 
 
 @pytest.mark.parametrize(

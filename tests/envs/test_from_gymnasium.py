@@ -20,6 +20,7 @@ import rl_jax
 from envs.adapters.gymnasium_host import LOST_KEY, HostGymnasiumEnv
 from envs.core.registry import UnsupportedEnvError
 from rl_jax.agents.td3 import RECIPES, td3
+from rl_jax.errors import guard
 from rl_jax.run import cli
 from rl_jax.run.metrics import METRICS_FILE, read_rows
 from rl_jax.training import episodes, parallel
@@ -251,7 +252,7 @@ def test_bad_input_is_one_user_error(make, error, message):
 )
 def test_the_cli_reports_bad_env_ids_in_one_line(env_id, message, capsys, tmp_path):
     argv = ["--algo", "td3", "--env", env_id, "--out", str(tmp_path / "run")]
-    assert cli.guard(lambda: cli.run_experiment(None, None, "", argv)) == 2
+    assert guard(lambda: cli.run_experiment(None, None, "", argv)) == 2
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and err.startswith("error: ") and message in err
     assert not (tmp_path / "run").exists()
@@ -299,7 +300,7 @@ def readme_command_run(tmp_path_factory) -> Path:
     smaller = [*argv, *tiny, "--seeds=2", "--total-steps=200", f"--out={out}"]
     sweep = ["--grid", "tau=0.005,0.02"]  # and a sweep: 2 configs x 2 seeds in one program
     with _xla_flags_kept():  # module-scoped: set up before the autouse fixture saves the flags
-        assert cli.guard(lambda: cli.run_experiment(None, None, "", [*smaller, *sweep])) == 0
+        assert guard(lambda: cli.run_experiment(None, None, "", [*smaller, *sweep])) == 0
     return out
 
 

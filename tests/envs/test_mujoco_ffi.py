@@ -344,12 +344,12 @@ def test_the_ffi_op_skips_the_physics_of_inactive_envs():
 
 def test_an_unknown_backend_in_the_environment_is_one_user_error(monkeypatch):
     from envs.core.registry import BackendError
-    from rl_jax.run import cli
+    from rl_jax.errors import user_errors
 
     monkeypatch.setenv(mujoco_backend.BACKEND_ENV_VAR, "cuda")
     with pytest.raises(BackendError, match=r"unknown MuJoCo backend 'cuda'.*RL_JAX_MUJOCO_BACKEND"):
         envs.make("InvertedPendulum-v5")
-    assert BackendError in cli.user_errors()
+    assert BackendError in user_errors()
 
 
 @pytest.mark.parametrize("backend", ["mujoco_ffi", "mujoco_callback"])

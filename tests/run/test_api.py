@@ -11,9 +11,8 @@ import pytest
 
 import envs
 import rl_jax
+from rl_jax.errors import RunError, UsageError
 from rl_jax.run.api import evaluate_policy
-from rl_jax.run.cli import UsageError
-from rl_jax.run.run_dir import RunError
 
 ENV_ID = "rl_jax/Pendulum-v1"
 # 2 envs x 50 iterations = 100 env steps per chunk; updates from step 100.

@@ -19,12 +19,8 @@ import pytest
 from child_env import python_path
 from run_helpers import snapshot
 
-from rl_jax.run.checkpoint import (
-    Checkpointer,
-    CheckpointError,
-    DamagedCheckpointError,
-    set_aside,
-)
+from rl_jax.errors import CheckpointError
+from rl_jax.run.checkpoint import Checkpointer, DamagedCheckpointError, set_aside
 
 ROOT = Path(__file__).resolve().parents[2]
 

@@ -16,7 +16,8 @@ import pytest
 from child_env import python_path
 from run_helpers import leaves_bytes, snapshot
 
-from rl_jax.run import cli, field_docs, flags
+from rl_jax import errors
+from rl_jax.run import cli, field_docs, flags, learners
 from rl_jax.run.checkpoint import Checkpointer
 from rl_jax.run.plan import make_plan
 from rl_jax.run.run_dir import CHECKPOINT_DIR
@@ -100,12 +101,12 @@ def test_generic_help_without_an_algorithm(capsys):
 
 
 def test_value_parsers():
-    assert flags.parse_int("1e6") == 1_000_000 and flags.parse_int("1_000") == 1000
+    assert errors.parse_int("1e6") == 1_000_000 and errors.parse_int("1_000") == 1000
     assert flags.parse_bool("yes") is True and flags.parse_bool("0") is False
     for parse, text in (
-        (flags.parse_int, "2.5"),
-        (flags.parse_float, "nan"),
-        (flags.parse_float, "x"),
+        (errors.parse_int, "2.5"),
+        (errors.parse_float, "nan"),
+        (errors.parse_float, "x"),
     ):
         with pytest.raises(Exception, match="invalid"):
             parse(text)
@@ -130,7 +131,7 @@ def test_grid_parsing_checks_names_and_types():
         "learning_rate": "expected NAME=V1,V2",
     }
     for spec, message in bad.items():
-        with pytest.raises(cli.UsageError, match=message):
+        with pytest.raises(errors.UsageError, match=message):
             flags.parse_grid([spec], hparams, config)
 
 
@@ -316,7 +317,7 @@ def run_in_process(argv: list[str]) -> tuple[str, str, int]:
     xla_flags = os.environ.get("XLA_FLAGS")
     with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
         try:
-            status = cli.guard(lambda: cli.run_experiment(algorithm, env_id, "", argv, defaults))
+            status = errors.guard(lambda: cli.run_experiment(algorithm, env_id, "", argv, defaults))
         except SystemExit as exit_info:  # argparse errors exit from inside the parser
             status = exit_info.code
     if xla_flags is None:  # run_experiment sets the device count for a process not started yet
@@ -329,7 +330,7 @@ def run_in_process(argv: list[str]) -> tuple[str, str, int]:
 @pytest.fixture(scope="module")
 def bad_input_results(workspace):
     """Every bad input; the runs' files before and after."""
-    cli.register_algorithm("fake", "fake_algorithm")
+    learners.register_algorithm("fake", "fake_algorithm")
     names = ("existing", "foreign_env", "foreign_algorithm", "corrupt")
     before = {name: snapshot(workspace[name]) for name in names}
     formatted = {

@@ -12,7 +12,7 @@ import rl_jax
 from rl_jax.agents.dqn import dqn
 from rl_jax.agents.reinforce import reinforce
 from rl_jax.agents.td3 import td3
-from rl_jax.run.cli import UsageError
+from rl_jax.errors import UsageError
 from rl_jax.run.policy import LoadedPolicy
 from rl_jax.training.params import dataclass_from_dict, dataclass_to_dict
 

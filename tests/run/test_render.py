@@ -18,6 +18,7 @@ from run_helpers import fake_run
 
 from rl_jax.run import render
 from rl_jax.run.metrics import read_rows
+from rl_jax.run.policy import LoadedPolicy
 
 ROOT = Path(__file__).resolve().parents[2]
 ENV = {**os.environ, "PYTHONPATH": python_path(ROOT, ROOT / "tests")}
@@ -39,7 +40,7 @@ def without_repeats(frames):
 
 def test_gif_holds_the_frames_of_the_policy_rollout(run_dir, tmp_path):
     path = render.write_gif(run_dir, seed=1, episodes=2, out=tmp_path / "p.gif")
-    loaded = render.LoadedPolicy(run_dir, seed=1)
+    loaded = LoadedPolicy(run_dir, seed=1)
     assert loaded.seed == 1 and loaded.which == "best"
     env = loaded.env()
     episodes = render.rollout(env, fake.policy(loaded.state, loaded.config), jax.random.key(1), 2)
@@ -56,15 +57,15 @@ def test_default_seed_is_the_best_eval_and_its_best_policy(run_dir):
     rows = read_rows(run_dir / "metrics.jsonl")
     final = [row for row in rows if row["step"] == 60]
     best_final = max(final, key=lambda row: row["eval_return"])["seed"]
-    assert render.LoadedPolicy(run_dir, which="latest").seed == best_final
+    assert LoadedPolicy(run_dir, which="latest").seed == best_final
     best = max(rows, key=lambda row: (row["eval_return"], -row["step"]))
-    loaded = render.LoadedPolicy(run_dir)
+    loaded = LoadedPolicy(run_dir)
     assert (loaded.which, loaded.seed, loaded.step) == ("best", best["seed"], best["step"])
     assert loaded.eval_return == pytest.approx(best["eval_return"], rel=1e-6)
 
 
 def test_episode_return_matches_a_direct_rollout(run_dir):
-    loaded = render.LoadedPolicy(run_dir, seed=0)
+    loaded = LoadedPolicy(run_dir, seed=0)
     act = loaded.algorithm.policy(loaded.state, loaded.config)
     (episode,) = render.rollout(loaded.env(), act, jax.random.key(3), 1)
     positions = np.array([float(s.position) for s in episode["states"][1:]])
@@ -123,7 +124,8 @@ def test_render_command_line(run_dir, tmp_path):
 MUJOCO_RENDER = textwrap.dedent(
     """
     import numpy as np
-    from rl_jax.run import cli, render
+    from rl_jax.errors import guard
+    from rl_jax.run import render
 
     XML = '<mujoco><worldbody><light pos="0 0 3"/><body name="ball" mocap="true">'
     XML += '<geom type="sphere" size="0.2" rgba="1 0 0 1"/></body></worldbody></mujoco>'
@@ -150,7 +152,7 @@ MUJOCO_RENDER = textwrap.dedent(
         print(len(frames), frames[0].shape, int(np.argmax(frames[0][24].sum(-1) > 0)))
         return 0
 
-    raise SystemExit(cli.guard(main))
+    raise SystemExit(guard(main))
     """
 )
 
@@ -188,11 +190,11 @@ def test_missing_opengl_backend_is_one_line_saying_what_to_install():
 def test_episode_plot_hook_and_frame_rate(run_dir, tmp_path, monkeypatch):
     seen = {}
 
-    def plot(states, params, path):
+    def episode_plot(env, states, params, path):
         seen["positions"] = [float(state.position) for state in states]
         path.write_bytes(b"plot")
 
-    monkeypatch.setitem(render.EPISODE_PLOTS, fake.ENV_ID, plot)
+    monkeypatch.setattr(fake.PointEnv, "episode_plot", episode_plot, raising=False)
     path = render.write_gif(run_dir, seed=0, out=tmp_path / "policy.gif")
     assert (tmp_path / "policy_episode.png").read_bytes() == b"plot"
     assert len(seen["positions"]) == 21  # the unwrapped env's states, reset included

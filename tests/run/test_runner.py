@@ -14,12 +14,12 @@ import numpy as np
 import pytest
 from run_helpers import leaves_bytes, snapshot
 
+from rl_jax.errors import CheckpointError, RunError
 from rl_jax.run import runner
 from rl_jax.run.best import load_part
-from rl_jax.run.checkpoint import Checkpointer, CheckpointError
+from rl_jax.run.checkpoint import Checkpointer
 from rl_jax.run.metrics import read_rows
 from rl_jax.run.plan import make_plan
-from rl_jax.run.run_dir import RunError
 from rl_jax.run.runner import run
 from rl_jax.run.spec import RunSpec
 

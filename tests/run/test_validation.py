@@ -16,8 +16,8 @@ from child_env import python_path
 from rl_jax.agents.dqn import dqn
 from rl_jax.agents.reinforce import reinforce
 from rl_jax.agents.td3 import td3
+from rl_jax.errors import RunError, guard
 from rl_jax.run import cli, run_dir, runner
-from rl_jax.run.run_dir import RunError
 from rl_jax.run.spec import RunSpec
 from rl_jax.training import validation
 
@@ -25,7 +25,7 @@ ROOT = Path(__file__).resolve().parents[2]
 
 
 def run_cli(algorithm, env_id, argv) -> int:
-    return cli.guard(lambda: cli.run_experiment(algorithm, env_id, "", argv))
+    return guard(lambda: cli.run_experiment(algorithm, env_id, "", argv))
 
 
 def one_line(capsys, status: int) -> str:

@@ -1,7 +1,7 @@
 """Learned rocket policies next to the controllers control theory gives for the same task.
 
-    python -m rl_jax.run.rocket_report RUN_DIR [RUN_DIR ...] [--out DIR] [--env ID] [--start X V]
-                                   [--latest] [--steps N] [--tolerance T]
+    python experiments/rocket_report.py RUN_DIR [RUN_DIR ...] [--out DIR] [--env ID]
+                                        [--start X V] [--latest] [--steps N] [--tolerance T]
 
 Users asked the rocket to come to rest at the origin "like a classical controller". This tool
 shows how close a run gets: every seed of every run (TD3, DQN, any learner on the rocket),
@@ -13,7 +13,8 @@ time-optimal bang-bang feedback (at rest at t* = 2 s from ``(1, 0)``) and a satu
   goal box ``|x|, |v| <= tolerance`` (shaded);
 * ``rocket_comparison.md`` (also printed): per controller and seed, the step from which the
   state stays inside the box, whether it is still there at the last step, the env's episode
-  return, the final (x, v) and what ended the env's own episode.
+  return, the final (x, v) and what ended the env's own episode
+  (``envs.classic.rocket_comparison`` draws both).
 
 Each seed's best evaluated policy is used (``--latest``: its latest checkpoint's). DQN's index
 actions come back from ``rl_jax.load_policy`` as the thrust they stand for ({-1, 0, +1} with 3
@@ -26,51 +27,33 @@ outside the track) ends with one line on stderr and status 2.
 
 from __future__ import annotations
 
-import dataclasses
-import os
+import argparse
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 
 import envs
 from envs.classic import rocket_control
 from envs.classic.rocket import Rocket
+from envs.classic.rocket_comparison import (
+    Entry,
+    Settings,
+    analytic_entries,
+    entry,
+    headline,
+    markdown_table,
+    write_report,
+)
 from rl_jax.errors import OneLineParser, UsageError, exit_now, guard, parse_float, positive_int
 from rl_jax.run.policy import load_policy
 from rl_jax.run.run_dir import read_run_record
 from rl_jax.training.jax_setup import configure
 
-PLOT_FILE = "rocket_comparison.png"
-TABLE_FILE = "rocket_comparison.md"
 DEFAULT_ENV = "rl_jax/Rocket-v0"
 
 
 class ReportError(UsageError):
     """Input the comparison cannot use (a run on another env, a start off the track)."""
-
-
-@dataclasses.dataclass(frozen=True)
-class Settings:
-    """How every controller is rolled out and judged."""
-
-    env_id: str
-    start: tuple[float, float]
-    steps: int
-    tolerance: float  # half-width of the goal box in x and v
-    dt: float  # the env's seconds per step
-
-
-@dataclasses.dataclass(frozen=True)
-class Entry:
-    """One controller's rollout: an analytic law (``seed`` None) or one seed of a run."""
-
-    controller: str
-    seed: int | None
-    policy: str  # which policy of the run ("best, step 42,500"); "-" for analytic laws
-    trajectory: rocket_control.Trajectory
-    summary: rocket_control.Summary
-    learned: bool
 
 
 # ---- what to compare ---------------------------------------------------------------------------
@@ -123,21 +106,6 @@ def check_start(start: tuple[float, float], env_id: str) -> None:
 # ---- rollouts -----------------------------------------------------------------------------------
 
 
-def analytic_controllers(dt: float) -> dict[str, rocket_control.Controller]:
-    """The reference laws by name: time-optimal bang-bang and the default saturated LQR."""
-    lqr = rocket_control.lqr()
-    gains = f"K = ({lqr.position_gain:.3g}, {lqr.velocity_gain:.3g})"
-    return {"bang-bang (time-optimal)": rocket_control.TimeOptimal(dt), f"LQR, {gains}": lqr}
-
-
-def _entry(name: str, seed: int | None, policy: str, controller: Any, settings: Settings) -> Entry:
-    trajectory = rocket_control.simulate(
-        controller, settings.start, settings.steps, settings.env_id
-    )
-    summary = rocket_control.summarize(trajectory, settings.tolerance)
-    return Entry(name, seed, policy, trajectory, summary, learned=seed is not None)
-
-
 def run_entries(run_dir: Path, which: str, settings: Settings) -> list[Entry]:
     """Every (config, seed) policy of ``run_dir``, rolled out as ``settings`` say."""
 
@@ -159,7 +127,7 @@ def run_entries(run_dir: Path, which: str, settings: Settings) -> list[Entry]:
             policy = load_policy(run_dir, seed, which, config)
             described = f"{policy.loaded.which}, step {policy.loaded.step:,}"
             controller = lambda obs, policy=policy: policy(own_observation(obs))  # noqa: E731
-            entries.append(_entry(name, seed, described, controller, settings))
+            entries.append(entry(name, seed, described, controller, settings))
     return entries
 
 
@@ -183,134 +151,18 @@ def compare(
         tolerance=float(tolerance),
         dt=float(env.default_params.dt),
     )
-    entries = [
-        _entry(name, None, "-", controller, settings)
-        for name, controller in analytic_controllers(settings.dt).items()
-    ]
+    entries = analytic_entries(settings)
     for run_dir in run_dirs:
         entries += run_entries(Path(run_dir), which, settings)
     return entries, settings
 
 
-# ---- table and plot -----------------------------------------------------------------------------
-
-
-def _settled(summary: rocket_control.Summary, dt: float) -> str:
-    if summary.settle_step is None:
-        return "never"
-    return f"{summary.settle_step} ({summary.settle_step * dt:.2f} s)"
-
-
-def _kept(summary: rocket_control.Summary) -> str:
-    if summary.kept:
-        return "yes"
-    if summary.first_entry_step is None:
-        return "no: never inside"
-    return f"no: inside at step {summary.first_entry_step}, then left"
-
-
-def headline(settings: Settings) -> str:
-    """What the table measures, with the time-optimal bound from this start."""
-    x, v = settings.start
-    bound = rocket_control.time_optimal_arrival_time(x, v)
-    return (
-        f"Rocket from (x, v) = ({x:g}, {v:g}) in {settings.env_id}, {settings.steps} steps "
-        f"of {settings.dt:g} s; goal box |x|, |v| <= {settings.tolerance:g}. The fastest "
-        f"any |u| <= 1 law can come to rest: t* = {bound:.2f} s "
-        f"(step {bound / settings.dt:.0f})."
-    )
-
-
-def markdown_table(entries: list[Entry], settings: Settings) -> str:
-    """One row per controller and seed, as ``rocket_comparison.md`` holds it."""
-    steps, dt = settings.steps, settings.dt
-    lines = [
-        f"| controller | seed | policy | in the box from step (time) | kept to step {steps}? "
-        "| return | final (x, v) | env's episode end |",
-        "|---|---|---|---|---|---|---|---|",
-    ]
-    for entry in entries:
-        summary = entry.summary
-        cells = [
-            entry.controller,
-            "-" if entry.seed is None else str(entry.seed),
-            entry.policy,
-            _settled(summary, dt),
-            _kept(summary),
-            f"{summary.episode_return:,.1f}",
-            f"({summary.final_position:+.4f}, {summary.final_velocity:+.4f})",
-            summary.episode_end,
-        ]
-        lines.append("| " + " | ".join(cells) + " |")
-    return "\n".join(lines)
-
-
-_ANALYTIC_STYLES = ({"color": "black", "linestyle": "-"}, {"color": "dimgray", "linestyle": "--"})
-
-
-def _style(entry: Entry, index: int) -> dict[str, Any]:
-    if entry.learned:
-        return {"color": f"C{index % 10}", "linewidth": 1.2, "alpha": 0.9}
-    return {**_ANALYTIC_STYLES[index % len(_ANALYTIC_STYLES)], "linewidth": 2.0}
-
-
-def plot_comparison(entries: list[Entry], settings: Settings, path: str | Path) -> None:
-    """x(t) and v(t) of every entry, full scale (left) and zoomed to the goal box (right).
-
-    A bare ``Figure`` on the Agg canvas, as ``envs.classic.rocket.plot_episode``: headless and
-    leaving pyplot's state alone.
-    """
-    from matplotlib.backends.backend_agg import FigureCanvasAgg
-    from matplotlib.figure import Figure
-
-    tolerance = settings.tolerance
-    figure = Figure(figsize=(12, 7.5), dpi=100)
-    FigureCanvasAgg(figure)
-    axes = figure.subplots(2, 2, sharex=True)
-    counters = {True: 0, False: 0}
-    for entry in entries:
-        style = _style(entry, counters[entry.learned])
-        counters[entry.learned] += 1
-        label = entry.controller + ("" if entry.seed is None else f", seed {entry.seed}")
-        trajectory = entry.trajectory
-        for row, values in enumerate((trajectory.positions, trajectory.velocities)):
-            for column in range(2):
-                axes[row, column].plot(trajectory.times, values, label=label, **style)
-    for row, name in enumerate(("position x", "velocity v")):
-        for column, scale in enumerate(("", f", near the box (±{tolerance:g})")):
-            ax = axes[row, column]
-            ax.axhspan(-tolerance, tolerance, color="green", alpha=0.18, linewidth=0)
-            ax.set_title(name + scale, fontsize="medium")
-            ax.grid(alpha=0.3)
-        axes[row, 1].set_ylim(-5 * tolerance, 5 * tolerance)
-    for column in range(2):
-        axes[1, column].set_xlabel("time [s]")
-    handles, labels = axes[0, 0].get_legend_handles_labels()
-    figure.legend(handles, labels, loc="lower center", ncol=4, fontsize="small", frameon=False)
-    figure.suptitle(headline(settings), fontsize="small")
-    rows = -(-len(labels) // 4)
-    figure.tight_layout(rect=(0, 0.03 + 0.03 * rows, 1, 0.96))
-    figure.savefig(os.fspath(path), format="png")
-
-
-def write_report(entries: list[Entry], settings: Settings, out: Path) -> tuple[Path, Path]:
-    """``rocket_comparison.png`` and ``rocket_comparison.md`` in ``out``; their paths."""
-    try:
-        out.mkdir(parents=True, exist_ok=True)
-        table_path, plot_path = out / TABLE_FILE, out / PLOT_FILE
-        table_path.write_text(f"{headline(settings)}\n\n{markdown_table(entries, settings)}\n")
-        plot_comparison(entries, settings, plot_path)
-    except OSError as error:
-        raise ReportError(f"cannot write the report to {out}: {error.strerror or error}") from None
-    return plot_path, table_path
-
-
 # ---- command line -------------------------------------------------------------------------------
 
 
-def _parser() -> Any:
+def _parser() -> argparse.ArgumentParser:
     parser = OneLineParser(
-        prog="python -m rl_jax.run.rocket_report", description=__doc__.split("\n")[0]
+        prog="python experiments/rocket_report.py", description=__doc__.split("\n")[0]
     )
     parser.add_argument(
         "run_dirs", type=Path, nargs="*", metavar="RUN_DIR", help="run directories of rocket runs"
@@ -370,7 +222,11 @@ def main(argv: list[str] | None = None) -> int:
             args.run_dirs, which, args.env, tuple(args.start), args.steps, args.tolerance
         )
         out = args.out or (args.run_dirs[0] if args.run_dirs else Path("."))
-        plot_path, table_path = write_report(entries, settings, out)
+        try:
+            plot_path, table_path = write_report(entries, settings, out)
+        except OSError as error:
+            reason = error.strerror or error
+            raise ReportError(f"cannot write the report to {out}: {reason}") from None
         print(headline(settings), "", markdown_table(entries, settings), "", sep="\n")
         print(f"wrote {plot_path} and {table_path}")
         return 0
@@ -379,8 +235,4 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    # Run the imported module's main, not this __main__ copy, so that its exception classes are
-    # the ones the guard knows.
-    from rl_jax.run.rocket_report import main as module_main
-
-    exit_now(module_main())
+    exit_now(main())
