@@ -57,7 +57,7 @@ def pytest_collection_finish(session):
 #   test_mujoco_parity's engine and BATCH): one unit, so that the second file finds them in the
 #   compilation cache instead of both processes compiling them at once;
 # - the heaviest units go first, longest first, so that no process is left with a long file at
-#   the end while the other idles. xdist's own order is by number of tests, which put
+#   the end while the other idles. xdist's own order is by number of tests, which put the former
 #   test_td3_options.py (20 tests, 80 s cold) near the end. The rest follow in xdist's order.
 SHARED_UNITS = {
     "tests/envs/test_mujoco_env.py": "tests/envs/test_mujoco_parity.py",
@@ -65,13 +65,16 @@ SHARED_UNITS = {
 # cold seconds of each unit, `--durations=0` of a cold run at the tests' flags (2-core AMD EPYC)
 HEAVIEST_FIRST = (
     "tests/envs/test_mujoco_parity.py",  # with test_mujoco_env.py: ~170 s
-    "tests/agents/test_td3_options.py",  # ~78 s
     "tests/agents/test_dqn_pixels.py",  # ~60 s
     "tests/envs/test_mujoco_ffi.py",  # ~40 s
     "tests/training/test_parallel.py",  # ~39 s
     "tests/agents/test_td3_reference.py",  # ~33 s
+    # The former test_td3_options.py (~78 s) is now this file, test_td7.py and test_crossq.py:
+    # cold at load ~3 they took 52, 41 and 29 s; the quiet figures are estimates from those.
+    "tests/agents/test_td3_network_options.py",  # ~30 s
     "tests/run/test_cli.py",  # ~28 s
     "tests/agents/test_td3_probes.py",  # ~27 s
+    "tests/agents/test_td7.py",  # ~25 s
 )
 
 

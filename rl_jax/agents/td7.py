@@ -42,7 +42,14 @@ from rl_jax.agents.actor_critic import ActorCriticConfig, ActorCriticHyperparams
 from rl_jax.agents.common import linearly_decayed, optimizer_step
 from rl_jax.agents.td7_parts import Encoders, ValueRange
 from rl_jax.agents.td7_recipes import TD7_RECIPES
-from rl_jax.training import episodes, networks, offpolicy, policy_checkpoints, prioritized
+from rl_jax.training import (
+    episodes,
+    networks,
+    offpolicy,
+    policy_checkpoints,
+    prioritized,
+    validation,
+)
 from rl_jax.training.algorithm import ChunkMetrics, RecipeBook
 from rl_jax.training.networks import Params
 from rl_jax.training.offpolicy import Clock, TrainState
@@ -343,6 +350,14 @@ class TD7(RecipeBook):
     name = "td7"
     config_type, hparams_type = Config, Hyperparams
     recipes = TD7_RECIPES
+    ranges = {
+        "lap_alpha": validation.UNIT,
+        "embedding_dim": validation.AT_LEAST_ONE,
+        "target_update_period": validation.AT_LEAST_ONE,
+        "checkpoint_episodes": validation.AT_LEAST_ONE,
+        "checkpoint_episodes_from": validation.NON_NEGATIVE,
+        "checkpoint_reset_weight": validation.NON_NEGATIVE,
+    }
 
     def init(self, key: jax.Array, config: Config, hparams: Hyperparams) -> TrainState:
         return offpolicy.init(LEARNER, key, config, hparams)

@@ -1,4 +1,5 @@
-"""TD3/DDPG losses alone: hand-computed values, gradients, and where gradients may not flow."""
+"""TD3/DDPG losses alone: hand-computed values, gradients, and where gradients may not flow. The
+pure maths is what every deterministic actor-critic shares (``rl_jax.agents.actor_critic``)."""
 
 import jax
 import jax.numpy as jnp
@@ -7,19 +8,18 @@ import pytest
 from jax.test_util import check_grads
 
 from envs.core.spaces import Box
-from rl_jax.agents.common import polyak_update
-from rl_jax.agents.td3 import (
-    Config,
-    Hyperparams,
-    actor_loss_fn,
-    build_networks,
+from rl_jax.agents import actor_critic
+from rl_jax.agents.actor_critic import (
+    CriticBatch,
+    Networks,
     clipped_double_q_target,
     critic_loss,
-    critic_loss_fn,
     deterministic_policy_loss,
     smoothed_target_action,
     target_action,
 )
+from rl_jax.agents.common import polyak_update
+from rl_jax.agents.td3 import Agent, Config, Hyperparams, actor_loss_fn, critic_loss_fn
 from rl_jax.training import networks
 from rl_jax.training.replay import Transition
 
@@ -108,10 +108,20 @@ def test_critic_loss_target_has_no_gradient():
 
 
 # ---- losses on networks -----------------------------------------------------------------------
+def build_networks(config: Config) -> Networks:
+    """TD3's networks for ``config`` as ``td3.make_networks`` builds them, but for
+    ``ACTION_SPACE`` (asymmetric bounds, which no registered env has) instead of the env's."""
+    low, high = actor_critic.bounds(ACTION_SPACE, "TD3/DDPG")
+    dtype, init = jnp.dtype(config.compute_dtype), config.network_init
+    actor = networks.Actor(config.actor_hidden, low, high, init, dtype, config.actor_activation)
+    critic = networks.Critic(config.critic_hidden, init, dtype, config.critic_activation)
+    return Networks(actor, critic, ACTION_SPACE.low.copy(), ACTION_SPACE.high.copy())
+
+
 @pytest.fixture(scope="module")
 def setup():
     config = Config(env_id="unused", actor_hidden=(16, 16), critic_hidden=(16, 16))
-    nets = build_networks(config, ACTION_SPACE)
+    nets = build_networks(config)
     keys = jax.random.split(jax.random.key(1), 8)
     obs = jnp.zeros(OBS_DIM)
     action = jnp.zeros(ACTION_DIM)
@@ -135,9 +145,24 @@ def setup():
     return nets, params, batch, noise
 
 
+def _agent(critics, target_actor, target_critics) -> Agent:
+    """What TD3's critic loss reads of an agent: its target networks (the online critics are
+    the loss's argument; no actor or optimizer state)."""
+    return Agent(
+        actor=None,
+        critics=critics,
+        target_actor=target_actor,
+        target_critics=target_critics,
+        actor_opt=(),
+        critic_opt=(),
+    )
+
+
 def _critic_loss(setup, critics, target_actor, target_critics, hparams=HPARAMS):
     nets, _, batch, noise = setup
-    return critic_loss_fn(critics, target_actor, target_critics, batch, noise, hparams, nets)[0]
+    agent = _agent(critics, target_actor, target_critics)
+    critic_batch = CriticBatch.one_step(batch, hparams.gamma)
+    return critic_loss_fn(critics, agent, critic_batch, noise, hparams, nets)[0]
 
 
 def test_critic_loss_fn_matches_hand_assembled_target(setup):
@@ -172,18 +197,18 @@ def test_target_action_noise_is_relative_to_action_scale_and_clipped(setup):
     nets, p, batch, _ = setup
     mean_action = np.asarray(nets.actor.apply(p["target_actor"], batch.next_obs))
     huge = jnp.full((BATCH, ACTION_DIM), 100.0)
-    got = target_action(p["target_actor"], batch.next_obs, huge, HPARAMS, nets)
+    got = target_action(mean_action, huge, HPARAMS, nets)
     # The clip is 0.5 x half-range = (1.0, 0.25), then the bounds apply.
     expected = np.clip(mean_action + np.array([1.0, 0.25]), ACTION_SPACE.low, ACTION_SPACE.high)
     np.testing.assert_allclose(got, expected, rtol=1e-6)
     small = jnp.full((BATCH, ACTION_DIM), -0.5)
-    got = target_action(p["target_actor"], batch.next_obs, small, HPARAMS, nets)
+    got = target_action(mean_action, small, HPARAMS, nets)
     expected = np.clip(
         mean_action - 0.1 * np.array([2.0, 0.5]), ACTION_SPACE.low, ACTION_SPACE.high
     )
     np.testing.assert_allclose(got, expected, rtol=1e-6, atol=1e-7)
     no_smoothing = HPARAMS.replace(target_noise=jnp.float32(0.0))
-    got = target_action(p["target_actor"], batch.next_obs, huge, no_smoothing, nets)
+    got = target_action(mean_action, huge, no_smoothing, nets)
     np.testing.assert_array_equal(got, mean_action)
 
 
@@ -225,7 +250,7 @@ def test_network_losses_check_grads(setup):
         config = Config(
             env_id="unused", actor_hidden=(8,), critic_hidden=(8,), compute_dtype="float64"
         )
-        nets = build_networks(config, ACTION_SPACE)
+        nets = build_networks(config)
         _, p, batch, noise = setup
         to64 = lambda tree: jax.tree.map(  # noqa: E731
             lambda x: x.astype(jnp.float64) if x.dtype == jnp.float32 else x, tree
@@ -239,10 +264,11 @@ def test_network_losses_check_grads(setup):
         batch, noise = to64(batch), to64(noise)
         hparams = to64(HPARAMS)
 
+        agent = _agent(critics, target_actor, target_critics)
+        critic_batch = CriticBatch.one_step(batch, hparams.gamma)
+
         def critic_objective(critics):
-            return critic_loss_fn(
-                critics, target_actor, target_critics, batch, noise, hparams, nets
-            )[0]
+            return critic_loss_fn(critics, agent, critic_batch, noise, hparams, nets)[0]
 
         check_grads(jax.jit(critic_objective), (critics,), order=1, modes=("rev",), eps=1e-6)
         check_grads(

@@ -30,6 +30,34 @@ def test_config_round_trips_through_json_and_rejects_bad_values():
             td3.default_config(ENV_ID, **bad)
 
 
+def test_settings_that_moved_to_td7_and_crossq_load_from_old_runs_only_when_off():
+    """A run recorded before TD7 and CrossQ became learners of their own has their settings in
+    its config.json: at their "off" values it still loads as TD3 (the path runs load through);
+    with one on, the message says where the setting went."""
+    from rl_jax.errors import RunError
+    from rl_jax.training.params import dataclass_from_dict
+
+    config, hparams = td3.default_config(ENV_ID), td3.default_hyperparams()
+    recorded = {
+        **config.to_dict(),
+        "sale": False,
+        "policy_checkpoints": False,
+        "target_update_period": 0,
+        "embedding_hidden": [256, 256],  # as JSON holds it
+        "target_networks": True,
+        "adam_b1": 0.9,
+    }
+    assert dataclass_from_dict(config, recorded) == config
+    loaded = dataclass_from_dict(hparams, {**hparams.to_dict(), "lap_alpha": 0.4})
+    assert loaded.to_dict() == hparams.to_dict()
+    with pytest.raises(RunError, match="sale, which is now the td7 learner's"):
+        dataclass_from_dict(config, {**recorded, "sale": True})
+    with pytest.raises(RunError, match="target_networks, which is now the crossq learner's"):
+        dataclass_from_dict(config, {**recorded, "target_networks": False})
+    with pytest.raises(RunError, match="lap_alpha, which is now the td7 learner's"):
+        dataclass_from_dict(hparams, {**hparams.to_dict(), "lap_alpha": 0.5})
+
+
 def test_td3_and_ddpg_defaults_are_the_papers():
     hparams = td3.default_hyperparams()
     assert hparams.to_dict() == pytest.approx(
@@ -43,18 +71,16 @@ def test_td3_and_ddpg_defaults_are_the_papers():
             "target_noise": 0.2,
             "target_noise_clip": 0.5,
             "lr_decay_steps": 0.0,
-            "lap_alpha": 0.4,  # used only with lap=True (TD7's value)
-            "encoder_lr": 3e-4,  # used only with sale=True (TD7's value)
-            "checkpoint_reset_weight": 0.9,  # used only with policy_checkpoints=True (TD7's)
         }
     )
-    # An env without a recipe gets the paper's settings (half cheetah has a faster recipe).
+    # An env without a recipe gets the paper's settings (half cheetah has faster recipes).
     config = td3.default_config("rl_jax/InvertedPendulum-v5")
     assert (config.num_critics, config.policy_delay, config.batch_size) == (2, 2, 256)
     assert config.actor_hidden == config.critic_hidden == (256, 256)
     cheetah = td3.default_config("rl_jax/HalfCheetah-v5")
     assert cheetah.updates_per_iteration == cheetah.num_envs  # one update per env step, as paper
-    assert cheetah.critic_hidden == (256, 256)
+    assert cheetah.critic_hidden == (128, 128)  # its default: the CPU recipe's networks
+    assert td3.default_config("rl_jax/HalfCheetah-v5", "paper-width").critic_hidden == (256, 256)
     ddpg_config = ddpg.default_config("rl_jax/InvertedPendulum-v5")
     assert (ddpg_config.num_critics, ddpg_config.policy_delay) == (1, 1)
     assert float(ddpg.default_hyperparams().target_noise) == 0.0
@@ -119,7 +145,7 @@ def test_exploration_noise_is_scaled_gaussian_and_optionally_correlated():
     @jax.jit
     def noise_path(hparams, key):
         def step(noise, key):
-            actions, noise = explore(state.agent, obs, noise, key, config, hparams)
+            actions, noise = explore(state.agent, obs, noise, key, config, hparams, state.clock)
             return noise, actions[:, 0]
 
         return jax.lax.scan(step, jax.numpy.zeros((num_envs, 1)), jax.random.split(key, 60))[1]

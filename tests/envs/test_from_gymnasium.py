@@ -19,7 +19,8 @@ import envs
 import rl_jax
 from envs.adapters.gymnasium_host import LOST_KEY, HostGymnasiumEnv
 from envs.core.registry import UnsupportedEnvError
-from rl_jax.agents.td3 import RECIPES, td3
+from rl_jax.agents.td3 import td3
+from rl_jax.agents.td3_recipes import RECIPES
 from rl_jax.errors import guard
 from rl_jax.run import cli
 from rl_jax.run.metrics import METRICS_FILE, read_rows
@@ -247,7 +248,10 @@ def test_bad_input_is_one_user_error(make, error, message):
         ("gymnasium:NoSuchEnv-v0", "unknown gymnasium environment 'NoSuchEnv-v0'"),
         ("gymnasium:FrozenLake-v1", "observation space Discrete(16) is not supported"),
         ("no_such_module_here:X-v0", "cannot import module 'no_such_module_here'"),
-        ("gymnasium:CartPole-v1", "td3 cannot run gymnasium:CartPole-v1: TD3/DDPG need a"),
+        (
+            "gymnasium:CartPole-v1",
+            "td3 cannot run gymnasium:CartPole-v1: TD3/DDPG needs a bounded 1-D Box action space",
+        ),
     ],
 )
 def test_the_cli_reports_bad_env_ids_in_one_line(env_id, message, capsys, tmp_path):
