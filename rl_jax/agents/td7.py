@@ -131,22 +131,10 @@ def make_networks(config: Config) -> tuple[actor_critic.Networks, networks.State
 
 
 # ---- acting through the embeddings --------------------------------------------------------------
-def embed_state(encoder: networks.StateActionEncoder, params: Params, obs: jax.Array) -> jax.Array:
-    """``z_s = f(obs)`` of a fixed encoder (no gradient into its parameters)."""
-    return encoder.apply(jax.lax.stop_gradient(params), obs, method="embed_state")
-
-
-def embeddings(encoder: networks.StateActionEncoder, params: Params, obs, action) -> jax.Array:
-    """The critics' extra input ``[z_sa, z_s]`` of a fixed encoder."""
-    zs = embed_state(encoder, params, obs)
-    zsa = encoder.apply(jax.lax.stop_gradient(params), zs, action, method="embed_pair")
-    return jnp.concatenate([zsa, zs], axis=-1)
-
-
 def policy_action(config: Config, actor: Params, encoder: Params, obs: jax.Array) -> jax.Array:
     """The deterministic action of actor parameters ``actor`` reading ``z_s`` of ``encoder``."""
     nets, sale = make_networks(config)
-    return nets.actor.apply(actor, obs, embed_state(sale, encoder, obs))
+    return nets.actor.apply(actor, obs, td7_parts.embed_state(sale, encoder, obs))
 
 
 def act(agent: Agent, obs: jax.Array, config: Config) -> jax.Array:
@@ -216,9 +204,9 @@ def critic_loss_fn(critics, agent: Agent, batch: CriticBatch, noise, hparams, co
     fixed, fixed_target = agent.encoders.fixed, agent.encoders.fixed_target
     a_t = policy_action(config, agent.target_actor, fixed_target, batch.next_obs)
     a_t = actor_critic.target_action(a_t, noise, hparams, nets)
-    extra_t = embeddings(sale, fixed_target, batch.next_obs, a_t)
+    extra_t = td7_parts.embeddings(sale, fixed_target, batch.next_obs, a_t)
     q_t = actor_critic.critic_values(nets, agent.target_critics, batch.next_obs, a_t, extra_t)
-    extra_tm1 = embeddings(sale, fixed, batch.obs, batch.action)
+    extra_tm1 = td7_parts.embeddings(sale, fixed, batch.obs, batch.action)
     q_tm1 = actor_critic.critic_values(nets, critics, batch.obs, batch.action, extra_tm1)
     bounds = agent.value_range.low, agent.value_range.high
     target = td7_parts.value_clipped_target(batch.r_t, batch.discount_t, q_t, *bounds)
@@ -231,7 +219,7 @@ def actor_loss_fn(actor, critics, encoder, obs: jax.Array, config: Config) -> ja
     embeddings of the actor's own action (the encoder itself never changes here)."""
     nets, sale = make_networks(config)
     action = policy_action(config, actor, encoder, obs)
-    extra = embeddings(sale, encoder, obs, action)
+    extra = td7_parts.embeddings(sale, encoder, obs, action)
     q = actor_critic.first_critic_value(nets, critics, obs, action, extra)
     return actor_critic.deterministic_policy_loss(q)
 
@@ -323,23 +311,14 @@ def update(agent: Agent, buffer: PrioritizedBuffer, key, config: Config, hparams
     return agent, buffer, {**metrics, "q": jnp.mean(q_tm1)}
 
 
-def init_buffer(example: Transition, config: Config) -> PrioritizedBuffer:
-    return prioritized.init(example, config.buffer_size, config.num_envs)
-
-
-def add_to_buffer(buffer: PrioritizedBuffer, transitions: Transition, config, hparams):
-    """Store one row at the largest priority so far."""
-    return prioritized.add(buffer, transitions, hparams.lap_alpha)
-
-
 LEARNER = offpolicy.Learner(
     init_agent,
     explore,
     act,
     update,
     ("encoder_loss", "critic_loss", "actor_loss", "q"),
-    init_buffer,
-    add_to_buffer,
+    td7_parts.init_buffer,
+    td7_parts.add_to_buffer,
     observe,
 )
 
@@ -350,14 +329,7 @@ class TD7(RecipeBook):
     name = "td7"
     config_type, hparams_type = Config, Hyperparams
     recipes = TD7_RECIPES
-    ranges = {
-        "lap_alpha": validation.UNIT,
-        "embedding_dim": validation.AT_LEAST_ONE,
-        "target_update_period": validation.AT_LEAST_ONE,
-        "checkpoint_episodes": validation.AT_LEAST_ONE,
-        "checkpoint_episodes_from": validation.NON_NEGATIVE,
-        "checkpoint_reset_weight": validation.NON_NEGATIVE,
-    }
+    ranges = {"lap_alpha": validation.UNIT, "checkpoint_reset_weight": validation.NON_NEGATIVE}
 
     def init(self, key: jax.Array, config: Config, hparams: Hyperparams) -> TrainState:
         return offpolicy.init(LEARNER, key, config, hparams)

@@ -1,5 +1,6 @@
 """TD7's parts (Fujimoto et al. 2023, "For SALE: State-Action Learned Embeddings"): the pure maths
-of the ``td7`` learner (``rl_jax.agents.td7``) and the state it keeps beside its networks.
+of the ``td7`` learner (``rl_jax.agents.td7``), the state it keeps beside its networks, SALE's
+embeddings of a fixed encoder and LAP's replay.
 
 * LAP, loss-adjusted prioritized replay (Fujimoto, Meger and Precup 2020, "An Equivalence between
   Loss Functions and Non-Uniform Sampling in Experience Replay"): transitions are drawn with
@@ -33,8 +34,11 @@ import jax.numpy as jnp
 import optax
 from flax import struct
 
-from rl_jax.training import policy_checkpoints
-from rl_jax.training.networks import Params
+from rl_jax.training import policy_checkpoints, prioritized
+from rl_jax.training.networks import Params, StateActionEncoder
+from rl_jax.training.offpolicy import OffPolicyConfig
+from rl_jax.training.prioritized import PrioritizedBuffer
+from rl_jax.training.replay import Transition
 
 #: LAP's floor on priorities, which is also where its loss turns from quadratic to linear.
 LAP_MIN_PRIORITY = 1.0
@@ -114,3 +118,25 @@ class ValueRange:
     def renewed(self) -> ValueRange:
         """At a target update: the bounds become the extremes seen so far."""
         return self.replace(low=self.seen_min, high=self.seen_max)
+
+
+# ---- SALE's embeddings of a fixed encoder, and LAP's replay --------------------------------------
+def embed_state(encoder: StateActionEncoder, params: Params, obs: jax.Array) -> jax.Array:
+    """``z_s = f(obs)`` of a fixed encoder (no gradient into its parameters)."""
+    return encoder.apply(jax.lax.stop_gradient(params), obs, method="embed_state")
+
+
+def embeddings(encoder: StateActionEncoder, params: Params, obs, action) -> jax.Array:
+    """The critics' extra input ``[z_sa, z_s]`` of a fixed encoder."""
+    zs = embed_state(encoder, params, obs)
+    zsa = encoder.apply(jax.lax.stop_gradient(params), zs, action, method="embed_pair")
+    return jnp.concatenate([zsa, zs], axis=-1)
+
+
+def init_buffer(example: Transition, config: OffPolicyConfig) -> PrioritizedBuffer:
+    return prioritized.init(example, config.buffer_size, config.num_envs)
+
+
+def add_to_buffer(buffer: PrioritizedBuffer, transitions: Transition, config, hparams):
+    """Store one row at the largest priority so far."""
+    return prioritized.add(buffer, transitions, hparams.lap_alpha)

@@ -79,7 +79,7 @@ def _filled(config, hparams, rewards, key=3):
     """``(state, buffer)``: a fresh TD7 state and its replay with a row per reward pair."""
     state = td7.td7.init(jax.random.key(key), config, hparams)
     buffer = state.buffer
-    add = jax.jit(td7.add_to_buffer, static_argnums=2)
+    add = jax.jit(td7_parts.add_to_buffer, static_argnums=2)
     for reward in rewards:
         buffer = add(buffer, _transitions(jnp.asarray(reward)), config, hparams)
     return state, buffer
