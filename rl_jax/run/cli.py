@@ -34,6 +34,7 @@ from rl_jax.errors import (
     exit_now,
     guard,
 )
+from rl_jax.run import runner
 from rl_jax.run.flags import (
     add_dataclass_flags,
     add_run_flags,
@@ -43,7 +44,6 @@ from rl_jax.run.flags import (
     take_recipe,
 )
 from rl_jax.run.run_dir import load_algorithm, read_run_record
-from rl_jax.run.runner import run
 from rl_jax.run.spec import RunSpec
 from rl_jax.training import params
 from rl_jax.training.algorithm import hooks
@@ -382,7 +382,7 @@ def run_experiment(
     )
     args = parser.parse_args(argv)
     spec = build_spec(args, algorithm, env_id, defaults, (config_names, hparam_names), given)
-    result = run(spec)
+    result = runner.run(spec)
     print(f"run directory: {result.run_dir}")
     if result.gif_error:
         print(f"error: {result.gif_error}", file=sys.stderr)
