@@ -36,7 +36,7 @@ from rl_jax.errors import (
     exit_now,
     guard,
 )
-from rl_jax.run import learners
+from rl_jax.run import learners, runner
 from rl_jax.run.flags import (
     add_dataclass_flags,
     add_run_flags,
@@ -46,7 +46,6 @@ from rl_jax.run.flags import (
 )
 from rl_jax.run.learners import ALGORITHMS
 from rl_jax.run.run_dir import read_run_record
-from rl_jax.run.runner import run
 from rl_jax.run.spec import RunSpec
 from rl_jax.training import params
 from rl_jax.training.algorithm import hooks
@@ -417,7 +416,7 @@ def run_experiment(
     args = parser.parse_args(argv)
     names = (config_names, hparam_names)
     spec = build_spec(args, algorithm, env_id, defaults, names, given, recipe)
-    result = run(spec)
+    result = runner.run(spec)
     print(f"run directory: {result.run_dir}")
     if result.gif_error:
         print(f"error: {result.gif_error}", file=sys.stderr)
