@@ -263,10 +263,13 @@ def _choose(argv: list[str], algorithm: Any, env_id: str | None) -> tuple[Any, s
     record = read_run_record(known.resume) if known.resume else None
     if algorithm is not None and env_id is not None:
         # a script's run may be another built-in learner's, chosen by its --recipe
-        recorded = record["identity"]["algorithm"] if record else None
-        built_in = record is not None and record.get("learner", "builtin") == "builtin"
-        if built_in and recorded != algorithm.name and isinstance(ALGORITHMS.get(recorded), str):
-            algorithm = resolve_algorithm(recorded)
+        # (when the run's recorded --recipe chose it: any other learner's run is refused)
+        if record is not None and record.get("learner") == "builtin":
+            recorded = shlex.split(record.get("command", ""))
+            env = envs.core.registry.resolve_id(env_id)
+            chosen, _ = learner_of_recipe(recorded, algorithm, env)
+            if chosen.name == record["identity"]["algorithm"]:
+                algorithm = chosen
         return algorithm, envs.core.registry.resolve_id(env_id), False
     env_name = env_id or known.env or (record["identity"]["env_id"] if record else None)
     if {"-h", "--help"} & set(argv) and (algorithm or known.algo or record) is None:
