@@ -1,8 +1,7 @@
 #!/usr/bin/env bash
 # The GPU check (issue item 4) as one script, run ON the device machine from the project root,
-# within 8 minutes, set-up included. Prepare here once, then call the device tool:
-#   bash ../shared/gpu/prepare.sh          # wheels, EGL debs and check.sh into .gpu/ (ignored)
-#   device run: command "bash scripts/gpu_check.sh", carry [".gpu"], timeout_s 600
+# within 8 minutes, set-up included, with .gpu/ (ignored) holding the wheels and EGL packages that
+# machine lacks: `bash scripts/gpu_check.sh`; `DRY=1 OUT=/tmp/out` rehearses it on a CPU.
 # Steps, each with its own time limit (all of them also stop at the 8-minute deadline):
 #   1. tests:      a GPU-path subset of the default suite (MJX envs, TD3/DQN probes) with
 #                  JAX_DEFAULT_MATMUL_PRECISION=highest; junit XML in $OUT/pytest.xml
@@ -12,8 +11,8 @@
 #                  (bench/gpu_recipe.py; $OUT/recipes.md)
 # Compiling is CPU work and the machine has 16 cores, so step 1 runs beside the compiles of steps
 # 2-4 (their programs then load from the persistent cache); steps 2-4 are timed alone.
-# Everything else (each step's log, the recipes' metrics) is in $OUT/logs.tar.gz: the device tool
-# brings back at most 8 files from $OUT.
+# Everything else (each step's log, the recipes' metrics) is in $OUT/logs.tar.gz, so that $OUT
+# holds at most 8 files.
 # Knobs: PARTS="tests throughput updates recipes" (a subset, e.g. for a second call),
 # CANDIDATES=name,name and BASE_SEED=N (bench/gpu_recipe.py: which candidates, which 5 seeds),
 # ENVS=name,name (throughput), PYTEST_ARGS, PYTEST_STOP (default --maxfail=10),
@@ -34,7 +33,7 @@ if [ -n "${DRY:-}" ]; then
   PARALLEL=0  # 2 cores: the compiles of step 1 one after another, not all at once
   export JAX_COMPILATION_CACHE_DIR=$WORK/jaxcache  # fresh: the warm-then-load path really runs
 else
-  [ -f .gpu/check.sh ] || { echo "no .gpu/check.sh: run ../shared/gpu/prepare.sh here first and carry .gpu"; return 2; }
+  [ -f .gpu/check.sh ] || { echo "no .gpu/check.sh: put the GPU set-up (wheels, EGL packages, check.sh) into .gpu first"; return 2; }
   # check.sh's set-up (EGL debs, wheels into /tmp/site, PYTHONPATH, MUJOCO_GL, compilation
   # cache), and none of its steps
   STEPS=: source .gpu/check.sh  # defines its own step(): ours is run_step

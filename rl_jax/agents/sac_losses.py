@@ -22,6 +22,7 @@ from typing import Any, NamedTuple
 import jax
 import jax.numpy as jnp
 
+from rl_jax.agents.actor_critic import CriticBatch
 from rl_jax.agents.sac_networks import (
     Networks,
     actor_outputs,
@@ -30,8 +31,6 @@ from rl_jax.agents.sac_networks import (
     critic_values_train,
     sampled_action,
 )
-from rl_jax.training import replay
-from rl_jax.training.replay import Transition
 
 
 # ---- loss maths (pure; rlax naming: tm1 = the transition's start, t = its end) -----------------
@@ -63,28 +62,6 @@ def temperature_loss(log_alpha, log_pi, target_entropy) -> jax.Array:
     sign and zero; stepping ``log_alpha`` keeps alpha positive, and this form (the authors' own
     code's) scales its step by neither alpha nor its logarithm."""
     return -log_alpha * jax.lax.stop_gradient(jnp.mean(log_pi) + target_entropy)
-
-
-# ---- batches -------------------------------------------------------------------------------------
-class CriticBatch(NamedTuple):
-    """What a critic update reads: the target bootstraps ``discount_t`` x the soft value at
-    ``next_obs`` (one step: ``gamma`` or 0 at termination; n steps: the folded window)."""
-
-    obs: jax.Array
-    action: jax.Array
-    r_t: jax.Array  # [B]
-    discount_t: jax.Array  # [B]
-    next_obs: jax.Array
-
-    @classmethod
-    def one_step(cls, batch: Transition, gamma) -> CriticBatch:
-        discount_t = gamma * (1.0 - batch.terminated.astype(jnp.float32))
-        return cls(batch.obs, batch.action, batch.reward, discount_t, batch.next_obs)
-
-    @classmethod
-    def n_step(cls, batch: replay.NStepBatch) -> CriticBatch:
-        r_t, discount_t = replay.fold_n_step(batch.r_t, batch.discount_t)
-        return cls(batch.obs, batch.action, r_t, discount_t, batch.next_obs)
 
 
 class CriticAux(NamedTuple):

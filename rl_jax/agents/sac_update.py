@@ -15,8 +15,9 @@ import jax
 import jax.numpy as jnp
 import optax
 
+from rl_jax.agents.actor_critic import CriticBatch, gather_batch
 from rl_jax.agents.common import optimizer_step, polyak_update
-from rl_jax.agents.sac_losses import CriticBatch, actor_loss_fn, critic_loss_fn, temperature_loss
+from rl_jax.agents.sac_losses import actor_loss_fn, critic_loss_fn, temperature_loss
 from rl_jax.agents.sac_networks import Networks, make_networks
 from rl_jax.training import normalization, replay, squashed_gaussian
 from rl_jax.training.replay import ReplayBuffer
@@ -31,10 +32,7 @@ _ADAM = optax.inject_hyperparams(optax.adam)(learning_rate=3e-4)
 def sample(buffer: ReplayBuffer, key, config: Config, hparams: Hyperparams) -> CriticBatch:
     """A uniform batch: one-step transitions, or windows of ``n_step`` steps folded."""
     rows, columns = replay.sample_indices(buffer, key, config.batch_size)
-    if config.n_step == 1:
-        return CriticBatch.one_step(replay.gather(buffer, rows, columns), hparams.gamma)
-    window, stored = replay.gather_windows(buffer, rows, columns, config.n_step)
-    return CriticBatch.n_step(replay.n_step_batch(window, stored, hparams.gamma))
+    return gather_batch(buffer, rows, columns, hparams.gamma, config.n_step)
 
 
 def normalized_batch(agent: Agent, batch: CriticBatch) -> CriticBatch:
