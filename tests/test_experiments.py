@@ -231,12 +231,12 @@ def jax_index(tree, seed: int):
 
 
 def test_the_readme_load_policy_section_runs(runs, capsys):
-    """The README's block, as written, on a trained run."""
+    """The usage page's block (docs/usage.md), as written, on a trained run."""
     import re
 
     root, _ = runs
-    readme = (Path(__file__).resolve().parent.parent / "README.md").read_text()
-    section = readme.split("### The trained policy in your own code", 1)[1]
+    page = (Path(__file__).resolve().parent.parent / "docs" / "usage.md").read_text()
+    section = page.split("## The trained policy in your own code", 1)[1]
     (code,) = re.findall(r"```python\n(.*?)```", section, flags=re.S)[:1]
     assert 'load_policy("runs/pendulum")' in code
     exec(code.replace('"runs/pendulum"', repr(str(root / "whole"))), {})

@@ -1,6 +1,7 @@
-"""The README's "Your own environment": its code block is ``examples/hover_rocket.py``, the env it
-defines integrates exactly with RK4 and vmaps over params, and its command line trains TD3 on it
-(with a tiny budget) and resumes in a fresh process that imports the module again."""
+"""The page "Your own environment" (docs/own_env.md): its code block is
+``examples/hover_rocket.py``, the env it defines integrates exactly with RK4 and vmaps over params,
+and its command line trains TD3 on it (with a tiny budget) and resumes in a fresh process that
+imports the module again."""
 
 import json
 import os
@@ -28,8 +29,8 @@ TINY_FLAGS = [
 
 
 def _section() -> str:
-    readme = (ROOT / "README.md").read_text()
-    return readme.split("### Your own environment\n", 1)[1].split("\n### ", 1)[0]
+    page = (ROOT / "docs" / "own_env.md").read_text()
+    return page.split("# Your own environment\n", 1)[1].split("\n## ", 1)[0]
 
 
 @pytest.fixture
@@ -99,7 +100,7 @@ def test_gymnasium_make_runs_it_after_registering_with_gymnasium(hover_rocket):
 
 
 def test_the_readme_command_trains_and_resumes_in_a_fresh_process(tmp_path):
-    """The README's command with a budget of 200 steps, in a fresh process from the repository
+    """The page's command with a budget of 200 steps, in a fresh process from the repository
     root (the module is found in the current directory), then --resume in another one."""
     command = re.findall(r"```bash\n(.*?)```", _section(), flags=re.S)[0].replace("\\\n", " ")
     argv = shlex.split(command)

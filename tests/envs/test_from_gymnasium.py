@@ -287,15 +287,15 @@ GYMNASIUM_SECTION = "Any gymnasium environment"
 
 
 def _readme_section(title: str) -> str:
-    readme = (ROOT / "README.md").read_text()
-    return readme.split(f"### {title}\n", 1)[1].split("\n### ", 1)[0]
+    page = (ROOT / "docs" / "using_envs.md").read_text()
+    return page.split(f"## {title}\n", 1)[1].split("\n## ", 1)[0]
 
 
 @pytest.fixture(scope="module")
 def readme_command_run(tmp_path_factory) -> Path:
-    """The README's command, tiny, as a sweep: TD3 on gymnasium's Pendulum, 2 configs x 2 seeds
-    in one program. Its compiled program steps gymnasium through a host callback, which the
-    persistent cache does not keep, so the tests below share this one run."""
+    """The docs' command (docs/using_envs.md), tiny, as a sweep: TD3 on gymnasium's Pendulum,
+    2 configs x 2 seeds in one program. Its compiled program steps gymnasium through a host
+    callback, which the persistent cache does not keep, so the tests below share this one run."""
     command = re.findall(r"```bash\n(.*?)```", _readme_section(GYMNASIUM_SECTION), flags=re.S)[0]
     argv = command.replace("\\\n", " ").split()[2:]
     assert argv[:4] == ["--algo", "td3", "--env", "gymnasium:Pendulum-v1"]
@@ -331,7 +331,7 @@ def _forget_programs_and_envs() -> None:
 
 
 def test_td3_resumes_without_its_host_state(readme_command_run, tmp_path):
-    """The README's sweep resumed as in a new process (a new adapter and pool: every env's
+    """The docs' sweep resumed as in a new process (a new adapter and pool: every env's
     episode is cut) trains on to finite results. Learning itself: the slow test below."""
     out = tmp_path / "run"
     shutil.copytree(readme_command_run, out)

@@ -1,5 +1,5 @@
 """The Python API (``rl_jax.train`` / ``open_run`` / ``resume`` and the ``Run`` object) on a tiny
-real TD3 run, and the README's notebook block executed as written (with a smaller budget)."""
+real TD3 run, and the usage page's notebook block executed as written (with a smaller budget)."""
 
 import re
 from pathlib import Path
@@ -100,8 +100,8 @@ def test_bad_input_is_one_clear_error(tmp_path):
 
 
 def test_the_readme_notebook_block_runs(tmp_path, monkeypatch, capsys):
-    readme = (ROOT / "README.md").read_text()
-    section = readme.split("### From a notebook", 1)[1]
+    page = (ROOT / "docs" / "usage.md").read_text()
+    section = page.split("## From a notebook", 1)[1]
     code = re.findall(r"```python\n(.*?)```", section, flags=re.S)[0]
     call = 'rl_jax.train("td3", "rl_jax/Pendulum-v1", seeds=5, total_steps=20_000)'
     assert call in code
