@@ -251,8 +251,8 @@ ROWS: dict[str, Row] = {
             "train.py",
             _suite_args(name, "--recipe", "cpu", algo="td7"),
             5,
-            "TD7 paper's table (10 seeds, {}-v4): {:,} ± {} at 300k, {:,} ± {} at 1M; ".format(
-                name, *TD7_TABLE[name][0], *TD7_TABLE[name][1]
+            "TD7's table (v4, 10 seeds): {:,} ± {} at 300k, {:,} ± {} at 1M; ".format(
+                *TD7_TABLE[name][0], *TD7_TABLE[name][1]
             )
             + _paper_curve(name, "td3"),
             Goal(float(TD7_TABLE[name][0][0]), 5, "final", mean=True),
@@ -504,13 +504,30 @@ def _fmt(value: float) -> str:
     return f"{value:,.0f}" if abs(value) >= 100 else f"{value:,.1f}"
 
 
+def per_seed_text(values: list[float], limit: int = 150) -> str:
+    """Each seed's value in seed order, " / "-separated; a list longer than ``limit`` characters
+    (30 seeds) is written with each run of equal values as one ``value (xN)``, so that the table
+    cell stays short and still gives every seed's value."""
+    texts = [_fmt(v) for v in values]
+    plain = " / ".join(texts)
+    if len(plain) <= limit:
+        return plain
+    runs: list[tuple[str, int]] = []
+    for text in texts:
+        if runs and runs[-1][0] == text:
+            runs[-1] = (text, runs[-1][1] + 1)
+        else:
+            runs.append((text, 1))
+    return " / ".join(text if count == 1 else f"{text} (x{count})" for text, count in runs)
+
+
 def row_cells(name: str, row: Row, summary: dict[str, Any], measured: dict[str, Any]) -> str:
     from rl_jax.run.plots import format_duration
 
     wall = measured.get("wall_clock")
     wall_text = format_duration(wall) if wall is not None else "n/a"
     low, high = summary["final_ci"]
-    finals = " / ".join(_fmt(v) for v in summary["final"])
+    finals = per_seed_text(summary["final"])
     final_text = (
         f"{finals}; mean {_fmt(summary['final_mean'])} [{_fmt(low)}, {_fmt(high)}], "
         f"IQM {_fmt(summary['final_iqm'])}"
