@@ -192,6 +192,7 @@ class Trajectory:
 
     @property
     def times(self) -> np.ndarray:
+        """Seconds since the start, one per recorded position."""
         return np.arange(self.positions.shape[0]) * self.dt
 
 

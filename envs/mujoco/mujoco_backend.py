@@ -309,6 +309,7 @@ class Physics:
         raise NotImplementedError
 
     def empty_extras(self, batch_shape: tuple[int, ...] = ()) -> dict[str, Array]:
+        """Zeros shaped like the requested derived fields, with optional leading batch axes."""
         return {
             name: jnp.zeros(batch_shape + shape, jnp.float32)
             for name, shape in self._extra_shapes.items()
