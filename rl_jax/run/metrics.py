@@ -148,6 +148,7 @@ class MetricsLog:
         return self._writers[label]
 
     def close(self) -> None:
+        """Flush the rows and close the metrics file and the TensorBoard writers."""
         self.flush()
         self._file.close()
         for writer in self._writers.values():

@@ -52,6 +52,10 @@ def program_for(spec: RunSpec) -> parallel.Program:
 
 @dataclasses.dataclass
 class Plan:
+    """What a run will compute and hold: chunking of the env steps, the train state's size on the
+    devices and in a checkpoint, and the compiled program.
+    """
+
     steps_per_chunk: int
     chunks: int
     final_steps: int
@@ -149,6 +153,7 @@ def runs_template(spec: RunSpec, hparams: ArrayPytree) -> ArrayPytree:
 
 
 def format_bytes(size: float) -> str:
+    """A byte count in B, KB, MB, GB or TB (powers of 1024)."""
     for unit in ("B", "KB", "MB", "GB", "TB"):
         if abs(size) < 1024 or unit == "TB":
             return f"{size:.0f} {unit}" if unit == "B" else f"{size:.2f} {unit}"
@@ -187,6 +192,9 @@ def check_memory(plan: Plan, buffer_size: int | None = None) -> None:
 
 
 def format_plan(spec: RunSpec, plan: Plan) -> str:
+    """The plan as the lines printed before training: runs, chunks, state size against the memory
+    available, and the time estimate.
+    """
     configs = len(spec.hparams)
     runs = f"{spec.seeds} seed{'s' * (spec.seeds > 1)}"
     if configs > 1:

@@ -177,6 +177,7 @@ class Session:
         )
 
     def wall_clock(self) -> float:
+        """Seconds of the whole run so far: earlier starts' time plus this one's."""
         return self.earlier_wall_clock + time.perf_counter() - self.started
 
     def save(self, state: ArrayPytree, hparams: ArrayPytree, chunk: int) -> None:
@@ -203,10 +204,12 @@ class Session:
         self.saved_step, self.last_save = self.step, time.perf_counter()
 
     def write(self, rows: list[dict[str, Any]]) -> None:
+        """Append metric rows to the run's log (only the lead process has one)."""
         if self.log is not None:
             self.log.write(rows)
 
     def close(self) -> None:
+        """Close the metrics log and the checkpointers, waiting for pending writes."""
         if self.log is not None:
             self.log.close()
         if self.checkpointer is not None:

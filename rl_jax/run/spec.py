@@ -48,6 +48,9 @@ class RunSpec:
 
     @property
     def identity(self) -> dict[str, Any]:
+        """What makes two runs the same run (learner, env, config, hyperparameters, seeds): a
+        resume must match it.
+        """
         return identity(
             self.algorithm.name,
             self.env_id,
@@ -60,6 +63,10 @@ class RunSpec:
 
 @dataclasses.dataclass
 class RunResult:
+    """What a finished (or stopped) run returns: where it is, how far it got, its final state and
+    per config results.
+    """
+
     run_dir: Path
     step: int  # env steps per seed reached
     stopped: bool  # True when a signal ended the run before total_steps

@@ -189,9 +189,13 @@ class Program:
 
     @property
     def padded(self) -> tuple[int, int]:
+        """``(hyperparameter sets, seeds)`` as computed, padding included."""
         return self.layout.padded_hparams, self.layout.padded_seeds
 
     def sharding(self, spec: PartitionSpec | None = None) -> NamedSharding:
+        """The sharding of ``spec`` on the program's mesh (default: runs split over both mesh
+        axes).
+        """
         return NamedSharding(self.mesh, PartitionSpec(*AXES) if spec is None else spec)
 
     def axes(self, hparams: ArrayPytree) -> Axes:
