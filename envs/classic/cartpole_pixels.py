@@ -10,7 +10,7 @@ so thousands of envs render in one compiled call. Each output pixel is the avera
 tested against the shapes of gymnasium's ``rgb_array`` frame (a 600x400 screen, the cart 50x30 on
 a one-pixel track, the pole 10 wide from the axle, the axle a circle of radius 5), painted in
 gymnasium's order. The frame so equals gymnasium's rendering, converted to grayscale (ITU-R 601
-luma) and area-averaged down to ``frame_size x frame_size``, up to sampling error (measured in
+luma) and area-averaged down to ``frame_size x frame_size``, up to sampling error (checked by
 tests/envs/test_cartpole_pixels.py). The screen is squeezed to a square, as Atari frames are.
 """
 

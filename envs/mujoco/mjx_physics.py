@@ -45,10 +45,10 @@ class MjxPhysics(Physics):
     """``mujoco.mjx`` in float32. State: ``(qpos, qvel, qacc_warmstart)``.
 
     ``chunk``: under ``vmap`` over more envs than this, step them ``chunk`` at a time in a loop
-    instead of all at once. On CPU a contact-rich model then keeps its working set in cache
-    (half cheetah, 4,096 envs: ~1.25x faster with chunks of 32-128); the pendulums are fastest
-    unchunked. Implemented as a custom batching rule, so jit, jvp and nested vmaps (seeds x envs:
-    each chunk then holds every seed's share) work as before.
+    instead of all at once. On CPU a contact-rich model then keeps its working set in cache (half
+    cheetah's 70 constraint rows per env); the pendulums run best unchunked. Implemented as a custom
+    batching rule, so jit, jvp and nested vmaps (seeds x envs: each chunk then holds every seed's
+    share) work as before.
     """
 
     name = "mjx"
