@@ -175,6 +175,12 @@ def add_run_flags(parser: argparse.ArgumentParser, seeds: int, total_steps: int)
         help="at the end, write policy.gif of the deterministic policy of the best seed",
     )
     add(
+        "--wandb",
+        action="store_true",
+        help="also log each seed's curves and the config to Weights & Biases, one W&B run per "
+        'seed grouped by run directory (needs wandb: pip install "rl_jax[tracking]")',
+    )
+    add(
         "--base-seed",
         type=parse_int,
         default=argparse.SUPPRESS,

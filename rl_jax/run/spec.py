@@ -34,6 +34,7 @@ class RunSpec:
     keep_checkpoints: int = 3
     log_interval: float = 30.0  # seconds between progress lines when not on a terminal
     gif: bool = False
+    wandb: bool = False  # also log to Weights & Biases (rl_jax.run.tracking), lead process only
     command: str = ""  # the command line, recorded in config.json
     resume_command: str = ""  # printed when stopped
     memory_limit: int | None = None  # bytes the state may use (default: what the OS reports)
