@@ -6,8 +6,8 @@ every 100 updates, epsilon falling from 1 to 0.01 over the first 8,000 env steps
 checkpoints: the greedy policy that evaluation, best/, --gif and load_policy use is the last copy
 of the Q-network that played 20 training episodes (1 before env step 20,000) without one
 scoring below the previous checkpoint's score. Without it the greedy policy keeps collapsing and
-recovering after it first balances. The final policy scores 500 in 29/30 seeds at 60k env steps
-(~40 s for 30 seeds on 2 cores; RESULTS.md). The options are flags: --double, --dueling,
+recovering after it first balances. The default budget is 60k env steps per seed. The options
+are flags: --double, --dueling,
 --n-step N, --prioritized (with --priority-alpha, --priority-beta-start, --priority-beta-steps),
 --norm layer, --no-policy-checkpoints.
 

@@ -6,8 +6,7 @@ policy gradient, so the recipe (rl_jax.agents.reinforce_recipes) uses 32 episode
 own 64x64 torso, standardised observations and returns, and gradients clipped to norm 0.5. The
 learning rate (1.5e-3) decays linearly to 0 over 300 updates, the default budget (9.6M step slots =
 300 updates x 32 episodes x 1,000 slots); with another --total-steps set --lr-decay-updates to
-total_steps / 32,000. Measured (RESULTS.md): 5 seeds, all at 9,349-9,356 at the end, in 10.5 minutes
-on 2 cores; envs whose episode ended wait unstepped for the others (step_active).
+total_steps / 32,000. Envs whose episode ended wait unstepped for the others (step_active).
 
 examples:
   python experiments/reinforce_double_pendulum.py --seeds 3

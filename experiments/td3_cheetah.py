@@ -3,22 +3,19 @@
 The `make train` job. The learner is the TD3 paper's (Fujimoto et al. 2018): twin critics, one
 gradient update per env step, policy delay 2, target smoothing 0.2 (clip 0.5), exploration noise
 0.1. The default recipe is cut for a CPU, where updates cost far more than MuJoCo C env steps, and
-chosen by return against wall-clock (td3's recipe for the env, BENCHMARKS.md "Half cheetah in
-minutes"): 128x128 actor and critics at learning rate 1e-3, batch 128, 4 envs per seed with 4
-updates per iteration, 10,000 random warm-up steps. With 5 seeds on a quiet 2-core CPU the mean
-eval return passed 5,000 at 90,000 env steps, 5 minutes in; the default budget of 150,000 steps
-takes about 9 minutes (RESULTS.md, row td3-cheetah).
+chosen by return against wall-clock (td3's recipe for the env): 128x128 actor and critics at
+learning rate 1e-3, batch 128, 4 envs per seed with 4 updates per iteration, 10,000 random
+warm-up steps. The default budget is 150,000 env steps per seed.
 
 The paper's networks and its whole recipe are --recipe paper-width and --recipe paper (below;
 the TD3 repository's settings since 2019), and --recipe paper-2018 the settings of the paper's
 own runs (400x300 at rate 1e-3, batch 100), which made its published learning curves;
 --recipe td7 is TD7 (Fujimoto et al. 2023) as TD3's options: SALE, LAP, hard target copies,
 value clipping and policy checkpoints on the paper's loop. Its update costs 6.4x
-TD3's arithmetic, about 8 hours for 5 seeds x 300,000 steps on 2 cores; --recipe td7-cpu runs the
-same options in this script's CPU loop at 128 sizes (RESULTS.md, row td7-cpu-cheetah).
+TD3's arithmetic (SALE's encoders), too much for a 2-core CPU; --recipe td7-cpu runs the
+same options in this script's CPU loop at 128 sizes.
 --recipe gpu is for one GPU, where MJX is the default backend: 64 envs per seed, batch 1,024 and
-32 updates per iteration; on one H100, 5 seeds passed a mean of 5,000 after 53 s of training
-(BENCHMARKS.md, "TD3 on a GPU").
+32 updates per iteration.
 
 It prints its plan (envs, steps, memory, devices, estimated time) before it starts, then a
 progress bar (env steps/s, updates/s, ETA, latest eval return over seeds). Ctrl-C or SIGTERM
@@ -36,7 +33,7 @@ examples:
 from rl_jax.agents.td3 import td3
 from rl_jax.run.script import Script
 
-# the budget: ~9 minutes for 5 seeds on a quiet 2-core machine (`make train` passes --seeds 5)
+# the budget of `make train`, which passes --seeds 5
 SCRIPT = Script(td3, "rl_jax/HalfCheetah-v5", seeds=5, total_steps=150_000)
 
 if __name__ == "__main__":

@@ -1,8 +1,8 @@
 """TD3 on rl_jax/Pendulum-v1 (gymnasium's classic swing-up), all seeds as one compiled program.
 
-A couple of minutes on a 2-core CPU: 4 envs stepped together, one gradient update per env step,
-64x64 networks (td3's recipe for the env), otherwise the TD3 paper's settings. A policy that
-swings up and balances scores about -150 per 200-step episode; a random one about -1,200.
+4 envs stepped together, one gradient update per env step, 64x64 networks (td3's recipe for the
+env), otherwise the TD3 paper's settings. A policy that swings up and balances scores about -150 per
+200-step episode; a random one about -1,200.
 
 It prints its plan (envs, steps, memory, devices, estimated time) before it starts, then a
 progress bar (env steps/s, updates/s, ETA, latest eval return over seeds). Ctrl-C or SIGTERM

@@ -68,6 +68,7 @@ def parse_float(text: str) -> float:
 
 
 def positive_int(text: str) -> int:
+    """argparse type: an integer >= 1, else one clear usage error."""
     value = parse_int(text)
     if value < 1:
         raise argparse.ArgumentTypeError(f"must be >= 1, got {value}")
@@ -81,6 +82,7 @@ class OneLineParser(argparse.ArgumentParser):
     """argparse that reports a bad flag in one line (no usage block) and exits with 2."""
 
     def error(self, message: str) -> NoReturn:
+        """Exit with status 2 and one line naming the problem, instead of argparse's usage block."""
         self.exit(2, f"error: {message} (see --help)\n")
 
 

@@ -35,6 +35,8 @@ from envs.core.wrappers import RescaleAction
 
 @struct.dataclass
 class BraxEnvState(EnvState):
+    """Our env state wrapping a brax ``State``."""
+
     brax_state: Any  # brax.envs.base.State
 
 
@@ -58,16 +60,20 @@ class FromBrax(Environment):
 
     @property
     def default_params(self) -> EnvParams:
+        """Empty params: a brax env has no dynamic params of ours."""
         return EnvParams()
 
     def observation_space(self, params=None) -> Box:
+        """An unbounded box shaped like the brax env's observation."""
         return Box(-np.inf, np.inf, self._obs_shape)
 
     def action_space(self, params=None) -> Box:
+        """The box [-1, 1] of the brax env's action size (brax's convention)."""
         size = self.brax_env.action_size
         return Box(-np.ones(size, np.float32), np.ones(size, np.float32), (size,))
 
     def empty_info(self) -> dict[str, Array]:
+        """Zero for each of the brax env's metrics."""
         return {name: jnp.zeros((), jnp.float32) for name in self._metric_names}
 
     def _info(self, brax_state: brax_base.State) -> dict[str, Array]:
@@ -76,11 +82,13 @@ class FromBrax(Environment):
         }
 
     def reset_env(self, key: PRNGKey, params) -> tuple[BraxEnvState, Array]:
+        """brax's ``reset``; the observation is its ``obs``."""
         with jax.numpy_rank_promotion("allow"):
             brax_state = self.brax_env.reset(key)
         return BraxEnvState(time=jnp.zeros((), jnp.int32), brax_state=brax_state), brax_state.obs
 
     def step_env(self, key: PRNGKey, state: BraxEnvState, action: Array, params):
+        """brax's ``step``: its ``done`` becomes ``terminated`` and its metrics the info."""
         with jax.numpy_rank_promotion("allow"):
             brax_state = self.brax_env.step(state.brax_state, action)
         terminated = brax_state.done > 0.5
@@ -106,6 +114,7 @@ class ToBrax(brax_base.Env):
         self.params = env.default_params if params is None else params
 
     def reset(self, rng: jax.Array) -> brax_base.State:
+        """Reset our env; the PRNG key for later steps rides in ``info["rng"]``."""
         key_reset, key_next = jax.random.split(rng)
         state, timestep = self.env.reset(key_reset, self.params)
         return brax_base.State(
@@ -118,6 +127,7 @@ class ToBrax(brax_base.Env):
         )
 
     def step(self, state: brax_base.State, action: jax.Array) -> brax_base.State:
+        """Step our env with the key carried in ``info["rng"]``; ``done`` is our ``terminated``."""
         key_step, key_next = jax.random.split(state.info["rng"])
         next_state, timestep = self.env.step(key_step, state.pipeline_state, action, self.params)
         return state.replace(
@@ -135,12 +145,15 @@ class ToBrax(brax_base.Env):
 
     @property
     def observation_size(self) -> int:
+        """Number of observation values."""
         return int(np.prod(self.env.observation_space().shape))
 
     @property
     def action_size(self) -> int:
+        """Number of action values."""
         return int(np.prod(self.env.action_space().shape))
 
     @property
     def backend(self) -> str:
+        """Our env's physics backend name, or "jax" for a pure-JAX env."""
         return getattr(self.env, "backend", "jax")

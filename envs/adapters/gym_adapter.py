@@ -196,6 +196,7 @@ def take_reset_params(options: dict[str, Any], env: Environment, params: Any, en
 
 
 def check_no_options_left(options: dict[str, Any], env: Environment) -> None:
+    """Raise ``ValueError`` naming any reset option nobody consumed, with the known ones."""
     if options:
         known = ["state", "qpos", "qvel", *getattr(env, "reset_option_params", {})]
         raise ValueError(f"unknown reset option(s) {sorted(options)}; known: {known}")
@@ -259,6 +260,9 @@ class GymnasiumEnv(gymnasium.Env):
         self._jax_state = state
 
     def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None):
+        """gymnasium's ``reset``: ``options`` may hold an exact start (``state``, or
+        ``qpos``/``qvel``) and params overrides; returns ``(obs, info)``.
+        """
         super().reset(seed=seed)
         if seed is not None or self._key is None:
             self._key = key_from_rng(self.np_random)
@@ -281,6 +285,9 @@ class GymnasiumEnv(gymnasium.Env):
             raise ValueError(f"{self.env_id} cannot start from {vector!r}: {error}") from error
 
     def step(self, action: Any):
+        """gymnasium's ``step``: returns ``(obs, reward, terminated, truncated, info)`` as numpy
+        values.
+        """
         if self._jax_state is None:
             raise gymnasium.error.ResetNeeded("call reset() before step()")
         action = _check_action(action, self._jax_action_space)
@@ -301,6 +308,7 @@ class GymnasiumEnv(gymnasium.Env):
         )
 
     def render(self) -> np.ndarray | None:
+        """The current frame in ``rgb_array`` mode; None (with a warning) without a render mode."""
         if self.render_mode is None:
             gymnasium.logger.warn(
                 f"render() without a render mode; use gymnasium.make({self.env_id!r}, "

@@ -83,6 +83,7 @@ class GymnasiumVectorEnv(gymnasium.vector.VectorEnv):
         return self._states
 
     def reset(self, *, seed: int | list[int | None] | None = None, options: dict | None = None):
+        """Reset every env (or those of ``options["reset_mask"]``), optionally from exact states."""
         seeds = self._seed_list(seed)
         if isinstance(seed, int | np.integer):
             super().reset(seed=int(seed))
@@ -149,6 +150,9 @@ class GymnasiumVectorEnv(gymnasium.vector.VectorEnv):
         self._keys = jnp.stack([jnp.asarray(k) for k in fresh])
 
     def step(self, actions: Any):
+        """Step every env in one jitted call; envs that ended last step reset first (gymnasium's
+        next-step autoreset).
+        """
         if self._states is None:
             raise gymnasium.error.ResetNeeded("call reset() before step()")
         actions = self._check_actions(actions)
@@ -181,6 +185,7 @@ class GymnasiumVectorEnv(gymnasium.vector.VectorEnv):
         return array.astype(space.dtype)
 
     def render(self) -> tuple[np.ndarray, ...] | None:
+        """One frame per env in ``rgb_array`` mode; None (with a warning) without a render mode."""
         if self.render_mode is None:
             gymnasium.logger.warn("render() without a render mode; pass render_mode='rgb_array'")
             return None

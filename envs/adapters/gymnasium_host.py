@@ -96,6 +96,8 @@ LOST_KEY = "host_state_lost"
 
 @struct.dataclass
 class HostEnvState(EnvState):
+    """The JAX-side state of an env that lives in a host process pool."""
+
     handle: Array  # [2] uint32: (pool id, episode serial); serial 0: not started on the host yet
     seed: Array  # [] uint32: the gymnasium reset seed of this episode, drawn from the reset key
     obs: Array  # [*obs_shape] float32: the latest observation
@@ -170,18 +172,27 @@ class HostGymnasiumEnv(Environment[HostEnvState, EnvParams]):
 
     @property
     def default_params(self) -> EnvParams:
+        """Empty params: the host env's settings are fixed at construction."""
         return EnvParams()
 
     def observation_space(self, params: EnvParams | None = None) -> Box:
+        """The host env's observation space, as a float32 box."""
         return self._observation_space
 
     def action_space(self, params: EnvParams | None = None) -> Space:
+        """The host env's action space."""
         return self._action_space
 
     def empty_info(self) -> dict[str, Array]:
+        """``host_state_lost=False``: the host still holds the episode (see the module
+        docstring).
+        """
         return {LOST_KEY: jnp.zeros((), jnp.bool_)}
 
     def reset_env(self, key: PRNGKey, params: EnvParams) -> tuple[HostEnvState, Array]:
+        """Draw the episode's reset seed and compute its start observation; the host episode
+        itself starts on the first step.
+        """
         seed = jax.random.bits(key, (), jnp.uint32)
         shape = jax.ShapeDtypeStruct(self._observation_space.shape, jnp.float32)
         obs = jax.pure_callback(
@@ -215,6 +226,7 @@ class HostGymnasiumEnv(Environment[HostEnvState, EnvParams]):
         return new_state, TimeStep(obs, reward, terminated, truncated, info)
 
     def step_env(self, key: PRNGKey, state: HostEnvState, action: Array, params: EnvParams):
+        """Step the episode in the host pool through a callback."""
         new_state, ts = self._host_step(state, action)
         return new_state, ts.obs, ts.reward, ts.terminated, ts.info
 

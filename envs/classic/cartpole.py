@@ -24,6 +24,8 @@ from envs.core.spaces import Box, Discrete
 
 @struct.dataclass
 class CartPoleState(EnvState):
+    """The cart-pole's four state variables, as gymnasium's ``env.unwrapped.state``."""
+
     x: Array  # [] float32, cart position
     x_dot: Array  # [] float32, cart velocity
     theta: Array  # [] float32, pole angle from upright (positive leans right)
@@ -32,6 +34,8 @@ class CartPoleState(EnvState):
 
 @struct.dataclass
 class CartPoleParams(EnvParams):
+    """gymnasium's CartPole constants, as vmappable float32 fields."""
+
     gravity: Array = float32_field(9.8)
     masscart: Array = float32_field(1.0)
     masspole: Array = float32_field(0.1)
@@ -61,9 +65,13 @@ class CartPole(Environment[CartPoleState, CartPoleParams]):
 
     @property
     def default_params(self) -> CartPoleParams:
+        """gymnasium's CartPole-v1 constants."""
         return CartPoleParams()
 
     def reset_env(self, key: PRNGKey, params: CartPoleParams) -> tuple[CartPoleState, Array]:
+        """Every state variable uniform in ``[reset_low, reset_high]``; the observation is the
+        state.
+        """
         values = jax.random.uniform(key, (4,), jnp.float32, params.reset_low, params.reset_high)
         return self._state_and_obs(values)
 
@@ -82,6 +90,12 @@ class CartPole(Environment[CartPoleState, CartPoleParams]):
         return state, values
 
     def step_env(self, key: PRNGKey, state: CartPoleState, action: Array, params: CartPoleParams):
+        """Push the cart left (action 0) or right (1) with ``force_mag`` for ``tau`` seconds.
+
+        Integrates gymnasium's equations of motion (Euler or semi-implicit Euler), pays 1 per step
+        (the terminal step included, as gymnasium does) and terminates when the cart leaves
+        ``x_threshold`` or the pole tips past ``theta_threshold_radians``.
+        """
         force = jnp.where(jnp.reshape(action, ()) == 1, params.force_mag, -params.force_mag)
         x_dot, theta_dot = state.x_dot, state.theta_dot
         x_acc, theta_acc = _accelerations(state.theta, theta_dot, force, params)
@@ -106,6 +120,9 @@ class CartPole(Environment[CartPoleState, CartPoleParams]):
         return new_state, jnp.stack([x, x_dot, theta, theta_dot]), reward, terminated, {}
 
     def observation_space(self, params: CartPoleParams | None = None) -> Box:
+        """gymnasium's observation box: twice the termination thresholds for position and angle,
+        velocities unbounded.
+        """
         params = self.default_params if params is None else params
         high = np.array(
             [2 * params.x_threshold, np.inf, 2 * params.theta_threshold_radians, np.inf], np.float32
@@ -113,6 +130,7 @@ class CartPole(Environment[CartPoleState, CartPoleParams]):
         return Box(-high, high, (4,))
 
     def action_space(self, params: CartPoleParams | None = None) -> Discrete:
+        """Two actions: 0 pushes left, 1 pushes right."""
         return Discrete(2)
 
     def render(self, state: CartPoleState, params: CartPoleParams | None = None) -> np.ndarray:
@@ -137,6 +155,9 @@ def _accelerations(
 
 
 def draw_cartpole(x: float, theta: float, params: CartPoleParams) -> np.ndarray:
+    """A 600x400 RGB frame of the cart at ``x`` with the pole at angle ``theta``, laid out as
+    gymnasium's renderer draws it.
+    """
     width, height = 600, 400
     scale = width / (2 * float(params.x_threshold))
     canvas = Canvas(width, height)

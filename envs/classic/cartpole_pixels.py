@@ -10,7 +10,7 @@ so thousands of envs render in one compiled call. Each output pixel is the avera
 tested against the shapes of gymnasium's ``rgb_array`` frame (a 600x400 screen, the cart 50x30 on
 a one-pixel track, the pole 10 wide from the axle, the axle a circle of radius 5), painted in
 gymnasium's order. The frame so equals gymnasium's rendering, converted to grayscale (ITU-R 601
-luma) and area-averaged down to ``frame_size x frame_size``, up to sampling error (measured in
+luma) and area-averaged down to ``frame_size x frame_size``, up to sampling error (checked by
 tests/envs/test_cartpole_pixels.py). The screen is squeezed to a square, as Atari frames are.
 """
 
@@ -50,6 +50,8 @@ AXLE_GRAY = _luma((129, 132, 203))
 
 @struct.dataclass
 class CartPolePixelsState(EnvState):
+    """The cart-pole's physics plus the stack of its latest frames."""
+
     physics: CartPoleState  # the cart-pole itself, stepped by envs.classic.cartpole
     frames: Array  # [frame_size, frame_size, frame_stack] uint8, the newest frame last
 
@@ -164,6 +166,7 @@ class CartPolePixels(Environment[CartPolePixelsState, CartPoleParams]):
 
     @property
     def default_params(self) -> CartPoleParams:
+        """The underlying CartPole's default params."""
         return self.physics.default_params
 
     def draw(self, physics: CartPoleState, params: CartPoleParams) -> Array:
@@ -180,6 +183,7 @@ class CartPolePixels(Environment[CartPolePixelsState, CartPoleParams]):
         return CartPolePixelsState(time=physics.time, physics=physics, frames=frames), frames
 
     def reset_env(self, key: PRNGKey, params: CartPoleParams):
+        """Reset the cart-pole and fill the frame stack with its first frame."""
         return self._start(self.physics.reset_env(key, params)[0], params)
 
     def state_from_vector(self, vector: Array, params: CartPoleParams | None = None):
@@ -188,9 +192,14 @@ class CartPolePixels(Environment[CartPolePixelsState, CartPoleParams]):
         return self._start(self.physics.state_from_vector(vector, params)[0], params)
 
     def state_to_vector(self, state: CartPolePixelsState) -> Array:
+        """The cart-pole's physical state vector (the frames are derived from it)."""
         return self.physics.state_to_vector(state.physics)
 
     def step_env(self, key: PRNGKey, state: CartPolePixelsState, action: Array, params):
+        """Step the cart-pole, draw the new frame and push it onto the stack (oldest frame out).
+
+        Reward and termination are CartPole's own.
+        """
         physics, _, reward, terminated, info = self.physics.step_env(
             key, state.physics, action, params
         )
@@ -200,10 +209,12 @@ class CartPolePixels(Environment[CartPolePixelsState, CartPoleParams]):
         return new_state, frames, reward, terminated, info
 
     def observation_space(self, params: CartPoleParams | None = None) -> Box:
+        """``frame_stack`` grey ``frame_size x frame_size`` frames, uint8, newest last."""
         shape = (self.frame_size, self.frame_size, self.frame_stack)
         return Box(0, 255, shape, np.dtype(np.uint8))
 
     def action_space(self, params: CartPoleParams | None = None) -> Discrete:
+        """Two actions: 0 pushes left, 1 pushes right."""
         return Discrete(2)
 
     def render(self, state: CartPolePixelsState, params: CartPoleParams | None = None):

@@ -24,10 +24,12 @@ class Canvas:
 
     @property
     def width(self) -> int:
+        """Width in pixels."""
         return self.pixels.shape[1]
 
     @property
     def height(self) -> int:
+        """Height in pixels."""
         return self.pixels.shape[0]
 
     def _window(self, low: Point, high: Point) -> tuple[slice, slice, np.ndarray, np.ndarray]:
@@ -62,9 +64,11 @@ class Canvas:
         self._paint(rows, cols, inside, color)
 
     def rectangle(self, left: float, top: float, right: float, bottom: float, color: Color) -> None:
+        """Fill the axis-aligned rectangle between ``(left, top)`` and ``(right, bottom)``."""
         self.polygon([(left, top), (right, top), (right, bottom), (left, bottom)], color)
 
     def circle(self, center: Point, radius: float, color: Color) -> None:
+        """Fill the disc of ``radius`` pixels around ``center``."""
         cx, cy = center
         rows, cols, xs, ys = self._window((cx - radius, cy - radius), (cx + radius, cy + radius))
         self._paint(rows, cols, (xs - cx) ** 2 + (ys - cy) ** 2 <= radius**2, color)
@@ -87,4 +91,5 @@ class Canvas:
         self._paint(rows, cols, dx**2 + dy**2 <= half**2, color)
 
     def image(self) -> np.ndarray:
+        """A copy of the pixels, ``[height, width, 3]`` uint8."""
         return self.pixels.copy()

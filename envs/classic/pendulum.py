@@ -23,6 +23,8 @@ from envs.core.spaces import Box
 
 @struct.dataclass
 class PendulumState(EnvState):
+    """The pendulum's angle and angular velocity, plus the last torque for drawing."""
+
     theta: Array  # [] float32, angle from upright, not wrapped (as gymnasium's)
     theta_dot: Array  # [] float32
     last_torque: Array  # [] float32, the clipped torque of the last step (for rendering)
@@ -30,6 +32,8 @@ class PendulumState(EnvState):
 
 @struct.dataclass
 class PendulumParams(EnvParams):
+    """gymnasium's Pendulum constants and reset ranges, as vmappable float32 fields."""
+
     max_speed: Array = float32_field(8.0)
     max_torque: Array = float32_field(2.0)
     dt: Array = float32_field(0.05)
@@ -55,9 +59,11 @@ class Pendulum(Environment[PendulumState, PendulumParams]):
 
     @property
     def default_params(self) -> PendulumParams:
+        """gymnasium's Pendulum-v1 constants."""
         return PendulumParams()
 
     def reset_env(self, key: PRNGKey, params: PendulumParams) -> tuple[PendulumState, Array]:
+        """Angle uniform in ``[-x_init, x_init]`` and velocity in ``[-y_init, y_init]``."""
         high = jnp.stack([params.x_init, params.y_init]).astype(jnp.float32)
         values = jax.random.uniform(key, (2,), jnp.float32, -high, high)
         return self._state_and_obs(values[0], values[1], jnp.zeros((), jnp.float32))
@@ -81,6 +87,11 @@ class Pendulum(Environment[PendulumState, PendulumParams]):
         return state, jnp.stack([jnp.cos(theta), jnp.sin(theta), theta_dot])
 
     def step_env(self, key: PRNGKey, state: PendulumState, action: Array, params: PendulumParams):
+        """Apply the clipped torque for ``dt`` seconds, as gymnasium's Pendulum-v1 does.
+
+        The reward is minus the cost ``angle^2 + 0.1 velocity^2 + 0.001 torque^2`` of the state
+        before the step (angle normalised to [-pi, pi]); the pendulum never terminates.
+        """
         torque = jnp.clip(jnp.asarray(action, jnp.float32), -params.max_torque, params.max_torque)
         torque = jnp.reshape(torque, (-1,))[0]
         theta, theta_dot = state.theta, state.theta_dot
@@ -94,11 +105,13 @@ class Pendulum(Environment[PendulumState, PendulumParams]):
         return new_state, obs, -costs, jnp.zeros((), jnp.bool_), {}
 
     def observation_space(self, params: PendulumParams | None = None) -> Box:
+        """``(cos theta, sin theta, theta_dot)``, the velocity bounded by ``max_speed``."""
         params = self.default_params if params is None else params
         high = np.array([1.0, 1.0, params.max_speed], np.float32)
         return Box(-high, high, (3,))
 
     def action_space(self, params: PendulumParams | None = None) -> Box:
+        """One torque in ``[-max_torque, max_torque]``."""
         params = self.default_params if params is None else params
         return Box(-params.max_torque, params.max_torque, (1,))
 
@@ -109,6 +122,9 @@ class Pendulum(Environment[PendulumState, PendulumParams]):
 
 
 def draw_pendulum(theta: float, torque: float, max_torque: float = 2.0) -> np.ndarray:
+    """A 500x500 RGB frame of the pendulum at ``theta``, with a bar showing the applied
+    ``torque``.
+    """
     size = 500
     canvas = Canvas(size, size)
     center = (size / 2, size / 2)

@@ -161,7 +161,7 @@ def lqr(q1: float = LQR_Q1, q2: float = LQR_Q2, r: float = LQR_R) -> LinearFeedb
     Default ``Q = diag(1, 1/4)``, ``R = 1/64``: gains ``(8, 4 sqrt 2)``, a double closed-loop
     pole at ``-2 sqrt 2`` (critically damped: unsaturated, it does not overshoot). From ``(1, 0)``
     it asks for ``u = -8``, so it starts saturated like bang-bang, then slides in without
-    crossing the origin: inside the 0.01 box from step 319 (3.19 s) on. Measured alternatives
+    crossing the origin: inside the 0.01 box from step 319 (3.19 s) on. Simulated alternatives
     from ``(1, 0)``: ``q2 = 0`` (damping 0.71) overshoots to ``x = -0.07`` and settles at step
     341; poles at 2 rad/s (``q1 / r = 16``, critically damped) settle at step 392.
     """
@@ -192,6 +192,7 @@ class Trajectory:
 
     @property
     def times(self) -> np.ndarray:
+        """Seconds since the start, one per recorded position."""
         return np.arange(self.positions.shape[0]) * self.dt
 
 

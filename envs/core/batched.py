@@ -2,11 +2,10 @@
 
 Under ``jax.vmap`` the ``AutoReset`` wrapper computes a reset for every env on every step and
 selects per env (vmap turns a ``cond`` into a ``select``). Sampling a start state hashes PRNG keys,
-which costs far more than a classic env's physics (measured by ``bench/bench_classic.py``: the
-vmapped rocket step alone runs several times faster than with ``AutoReset``). The functions here
-work on the whole batch instead: they gather the (usually few) envs that need a reset, reset only
-those and scatter the results back; on a call where more than ``max_resets`` envs need one they
-reset them all.
+which costs far more than a classic env's physics (``bench/bench_classic.py`` compares the two). The
+functions here work on the whole batch instead: they gather the (usually few) envs that need a
+reset, reset only those and scatter the results back; on a call where more than ``max_resets`` envs
+need one they reset them all.
 
 ``reset_where`` (per-env keys) gives exactly the per-env result; ``autoreset_step`` (one key per
 call) also splits keys only for the envs it resets, which is what makes it cheap.

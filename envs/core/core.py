@@ -77,6 +77,7 @@ class Environment(Generic[StateT, ParamsT]):
     # ---- to implement -------------------------------------------------------------------------
     @property
     def default_params(self) -> ParamsT:
+        """The params pytree used when ``reset``/``step`` get ``params=None``."""
         raise NotImplementedError
 
     def reset_env(self, key: PRNGKey, params: ParamsT) -> tuple[StateT, Array]:
@@ -93,9 +94,11 @@ class Environment(Generic[StateT, ParamsT]):
         raise NotImplementedError
 
     def observation_space(self, params: ParamsT | None = None) -> Space:
+        """The space of one unbatched observation."""
         raise NotImplementedError
 
     def action_space(self, params: ParamsT | None = None) -> Space:
+        """The space of one unbatched action."""
         raise NotImplementedError
 
     # ---- optional -----------------------------------------------------------------------------
@@ -114,6 +117,10 @@ class Environment(Generic[StateT, ParamsT]):
 
     # ---- the public API -----------------------------------------------------------------------
     def reset(self, key: PRNGKey, params: ParamsT | None = None) -> tuple[StateT, TimeStep]:
+        """Start an episode: returns ``(state, timestep)`` with reward 0 and both flags False.
+
+        ``params`` defaults to ``default_params``; the key is consumed by the env's start sampling.
+        """
         params = self.default_params if params is None else params
         state, obs = self.reset_env(key, params)
         return state, self._first_timestep(obs)
@@ -121,6 +128,11 @@ class Environment(Generic[StateT, ParamsT]):
     def step(
         self, key: PRNGKey, state: StateT, action: Array, params: ParamsT | None = None
     ) -> tuple[StateT, TimeStep]:
+        """Advance one agent step: returns ``(state, timestep)``.
+
+        ``timestep.truncated`` is set when ``state.time`` reaches ``max_episode_steps``,
+        independently of ``terminated``. ``params`` defaults to ``default_params``.
+        """
         params = self.default_params if params is None else params
         return self._timestep(*self.step_env(key, state, action, params))
 
@@ -176,6 +188,7 @@ class Environment(Generic[StateT, ParamsT]):
 
     @property
     def name(self) -> str:
+        """The env's registered id, or its class name when it has none."""
         return self.id or type(self).__name__
 
     def __repr__(self) -> str:

@@ -36,11 +36,15 @@ from envs.core.spaces import Box, Discrete, Space
 
 @struct.dataclass
 class ProbeState(EnvState):
+    """A probe's state: its one-dimensional observation value."""
+
     position: Array  # [] float32, the current observation value
 
 
 @struct.dataclass
 class ProbeParams(EnvParams):
+    """Probes have no dynamic parameters."""
+
     pass
 
 
@@ -56,12 +60,15 @@ class Probe(Environment):
 
     @property
     def default_params(self) -> ProbeParams:
+        """The empty params of every probe."""
         return ProbeParams()
 
     def observation_space(self, params=None) -> Space:
+        """One observation value in [-1, 1]."""
         return Box(-1.0, 1.0, (1,))
 
     def action_space(self, params=None) -> Space:
+        """One action in [-1, 1], or ``Discrete(num_actions)`` for a discrete probe."""
         if self.num_actions is None:
             return Box(-1.0, 1.0, (1,))
         return Discrete(self.num_actions)
@@ -74,13 +81,16 @@ class Probe(Environment):
         return grid[jnp.asarray(action, jnp.int32)]
 
     def start_position(self, key: Array) -> Array:
+        """The first observation value of an episode (0 unless a probe overrides it)."""
         return jnp.zeros((), jnp.float32)
 
     def reset_env(self, key, params):
+        """Start at ``start_position``; the observation is that value."""
         position = self.start_position(key)
         return ProbeState(time=jnp.int32(0), position=position), position[None]
 
     def state_from_vector(self, vector, params=None):
+        """Start at the one observation value given in ``vector``."""
         position = jnp.asarray(vector, jnp.float32).reshape(())
         return ProbeState(time=jnp.int32(0), position=position), position[None]
 
@@ -94,6 +104,7 @@ class ConstantReward(Probe):
     """One step, reward 1, terminal. Q(s, a) = 1 for every action."""
 
     def step_env(self, key, state, action, params):
+        """Reward 1, then the episode terminates."""
         return (*self._next(state, 0.0, 1.0, True), {})
 
 
@@ -103,6 +114,7 @@ class ActionReward(Probe):
     best_action = 0.5
 
     def step_env(self, key, state, action, params):
+        """Reward ``1 - (action - best_action)^2``, then the episode terminates."""
         reward = 1.0 - (self.action_value(action) - self.best_action) ** 2
         return (*self._next(state, 0.0, reward, True), {})
 
@@ -113,6 +125,7 @@ class TwoStep(Probe):
     max_episode_steps = 2
 
     def step_env(self, key, state, action, params):
+        """Reward 0 on the first step and 1 on the second, which terminates."""
         at_end = state.position >= 0.5
         return (*self._next(state, 1.0, jnp.where(at_end, 1.0, 0.0), at_end), {})
 
@@ -125,13 +138,21 @@ class Truncation(Probe):
     terminal = False
 
     def start_position(self, key):
+        """0 or 1 with equal chance."""
         return jax.random.bernoulli(key).astype(jnp.float32)
 
     def step_env(self, key, state, action, params):
+        """Flip the position (0 <-> 1) and pay the old one; the episode is terminal only when
+        ``terminal`` is set (``Termination``), otherwise the time limit truncates it.
+        """
         return (*self._next(state, 1.0 - state.position, state.position, self.terminal), {})
 
     @staticmethod
     def true_q(position: float, gamma: float, terminal: bool = False) -> float:
+        """The exact Q-value at ``position`` under discount ``gamma``: bootstrapped through the
+        truncation, or the reward alone when the step is ``terminal``. Tests compare a critic
+        with it.
+        """
         if terminal:
             return float(position)
         return (gamma ** (1.0 - position)) / (1.0 - gamma**2)

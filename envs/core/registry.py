@@ -84,6 +84,7 @@ def register(
 
 
 def registered_ids() -> list[str]:
+    """Every env id ``envs.make`` knows, sorted."""
     return sorted(_ENTRY_POINTS)
 
 

@@ -11,16 +11,23 @@ import numpy as np
 
 
 class Space:
+    """Base of the action and observation spaces: a shape and dtype, sampling and membership."""
+
     shape: tuple[int, ...]
     dtype: np.dtype
 
     def sample(self, key: jax.Array) -> jax.Array:
+        """A uniform random element of the space (inside JAX)."""
         raise NotImplementedError
 
     def contains(self, x: jax.Array) -> jax.Array:
+        """Whether ``x`` has the space's shape and lies within its bounds, as a scalar bool
+        array.
+        """
         raise NotImplementedError
 
     def to_gymnasium(self):
+        """The equivalent ``gymnasium.spaces`` object."""
         raise NotImplementedError
 
 
@@ -45,6 +52,7 @@ class Box(Space):
 
     @property
     def bounded(self) -> bool:
+        """Whether every bound is finite (then ``sample`` is uniform over the box)."""
         return bool(np.all(np.isfinite(self.low)) and np.all(np.isfinite(self.high)))
 
     def sample(self, key: jax.Array) -> jax.Array:
@@ -57,10 +65,12 @@ class Box(Space):
         return jnp.clip(x, self.low, self.high)
 
     def contains(self, x: jax.Array) -> jax.Array:
+        """Whether ``x`` has the box's shape and lies within ``[low, high]`` elementwise."""
         x = jnp.asarray(x)
         return jnp.logical_and(x.shape == self.shape, jnp.all((x >= self.low) & (x <= self.high)))
 
     def to_gymnasium(self):
+        """The same box as a ``gymnasium.spaces.Box``."""
         return gymnasium.spaces.Box(self.low, self.high, self.shape, self.dtype)
 
     def __eq__(self, other: object) -> bool:
@@ -92,11 +102,14 @@ class Discrete(Space):
             raise ValueError(f"Discrete needs n >= 1, got {self.n}")
 
     def sample(self, key: jax.Array) -> jax.Array:
+        """A uniform random action in ``0 .. n - 1``."""
         return jax.random.randint(key, self.shape, 0, self.n, self.dtype)
 
     def contains(self, x: jax.Array) -> jax.Array:
+        """Whether ``x`` has the space's shape and every entry is in ``0 .. n - 1``."""
         x = jnp.asarray(x)
         return jnp.logical_and(x.shape == self.shape, jnp.all((x >= 0) & (x < self.n)))
 
     def to_gymnasium(self):
+        """The same space as a ``gymnasium.spaces.Discrete``."""
         return gymnasium.spaces.Discrete(self.n)

@@ -33,31 +33,40 @@ class Wrapper(Environment):
 
     @property
     def unwrapped(self) -> Environment:
+        """The innermost environment, below every layer of wrappers."""
         return self.env.unwrapped if isinstance(self.env, Wrapper) else self.env
 
     @property
     def default_params(self):
+        """The wrapped env's default params."""
         return self.env.default_params
 
     def observation_space(self, params=None) -> Space:
+        """The wrapped env's observation space (wrappers that change observations override this)."""
         return self.env.observation_space(params)
 
     def action_space(self, params=None) -> Space:
+        """The wrapped env's action space (wrappers that change actions override this)."""
         return self.env.action_space(params)
 
     def empty_info(self) -> dict[str, Array]:
+        """The wrapped env's reset info: same keys, shapes and dtypes as its step info."""
         return self.env.empty_info()
 
     def reset(self, key, params=None):
+        """Reset the wrapped env; returns ``(state, timestep)``."""
         return self.env.reset(key, params)
 
     def step(self, key, state, action, params=None):
+        """Step the wrapped env; returns ``(state, timestep)``."""
         return self.env.step(key, state, action, params)
 
     def reset_to(self, vector, params=None):
+        """Start the wrapped env from an exact state vector (``Environment.reset_to``)."""
         return self.env.reset_to(vector, params)
 
     def render(self, state, params=None):
+        """RGB frame of the wrapped env's state."""
         return self.env.render(state, params)
 
     def __repr__(self) -> str:
@@ -82,19 +91,29 @@ class AutoReset(Wrapper):
     """
 
     def empty_info(self) -> dict[str, Array]:
+        """The wrapped env's info plus ``final_obs``, zeros shaped like an observation."""
         obs_space = self.observation_space()
         final_obs = jnp.zeros(obs_space.shape, obs_space.dtype)
         return {**self.env.empty_info(), "final_obs": final_obs}
 
     def reset(self, key, params=None):
+        """Reset; ``info["final_obs"]`` is the first observation itself."""
         state, ts = self.env.reset(key, params)
         return state, ts._replace(info={**ts.info, "final_obs": ts.obs})
 
     def reset_to(self, vector, params=None):
+        """Start from an exact state; ``info["final_obs"]`` is the first observation itself."""
         state, ts = self.env.reset_to(vector, params)
         return state, ts._replace(info={**ts.info, "final_obs": ts.obs})
 
     def step(self, key, state, action, params=None):
+        """Step, and where the episode ended (terminated or truncated) start a new one at once.
+
+        The returned ``obs`` is then the new episode's first observation, while
+        ``info["final_obs"]`` keeps the last observation of the ended one, which a truncated TD
+        target bootstraps from. The reset is computed on every step and selected where done, so the
+        step stays branch-free under vmap.
+        """
         key_step, key_reset = jax.random.split(key)
         next_state, ts = self.env.step(key_step, state, action, params)
         reset_state, reset_ts = self.env.reset(key_reset, params)
@@ -106,6 +125,10 @@ class AutoReset(Wrapper):
 
 @struct.dataclass
 class StatisticsState:
+    """``EpisodeStatistics``'s state: the wrapped env's state plus running and last-finished
+    episode totals.
+    """
+
     env_state: Any
     episode_return: Array  # [] float32, running return of the current episode
     episode_length: Array  # [] int32
@@ -114,6 +137,7 @@ class StatisticsState:
 
     @property
     def time(self) -> Array:
+        """Steps since the wrapped env's last reset."""
         return self.env_state.time
 
 
@@ -126,6 +150,9 @@ class EpisodeStatistics(Wrapper):
     """
 
     def empty_info(self) -> dict[str, Array]:
+        """The wrapped env's info plus zero ``episode_return``, ``episode_length`` and
+        ``episode_done``.
+        """
         return {
             **self.env.empty_info(),
             "episode_return": jnp.zeros((), jnp.float32),
@@ -140,12 +167,20 @@ class EpisodeStatistics(Wrapper):
         return state, ts._replace(info={**info, "episode_done": jnp.zeros((), jnp.bool_)})
 
     def reset(self, key, params=None):
+        """Reset the wrapped env with zeroed episode totals."""
         return self._wrap(*self.env.reset(key, params))
 
     def reset_to(self, vector, params=None):
+        """Start the wrapped env from an exact state, with zeroed episode totals."""
         return self._wrap(*self.env.reset_to(vector, params))
 
     def step(self, key, state: StatisticsState, action, params=None):
+        """Step and add the reward to the running totals.
+
+        On the step that ends an episode, ``info`` reports its return and length with
+        ``episode_done=True`` and the running totals restart from zero; on other steps it reports
+        the last finished episode's.
+        """
         env_state, ts = self.env.step(key, state.env_state, action, params)
         done = jnp.logical_or(ts.terminated, ts.truncated)
         episode_return = state.episode_return + ts.reward
@@ -166,6 +201,7 @@ class EpisodeStatistics(Wrapper):
         return new_state, ts._replace(info=info)
 
     def render(self, state: StatisticsState, params=None):
+        """RGB frame of the wrapped env's state."""
         return self.env.render(state.env_state, params)
 
 
@@ -185,13 +221,16 @@ class RescaleAction(Wrapper):
         self._high = np.asarray(space.high, np.float32)
 
     def action_space(self, params=None) -> Space:
+        """The box [-1, 1] in every action dimension."""
         shape = self._low.shape
         return Box(-np.ones(shape, np.float32), np.ones(shape, np.float32), shape)
 
     def to_env_action(self, action: Array) -> Array:
+        """Map an action in [-1, 1] linearly onto the wrapped env's ``[low, high]``."""
         return self._low + (jnp.asarray(action, jnp.float32) + 1.0) * 0.5 * (self._high - self._low)
 
     def step(self, key, state, action, params=None):
+        """Step the wrapped env with the action mapped from [-1, 1] onto its bounds."""
         return self.env.step(key, state, self.to_env_action(action), params)
 
 
@@ -227,12 +266,15 @@ class DiscretizeActions(Wrapper):
         return self._table
 
     def action_space(self, params=None) -> Space:
+        """A ``Discrete`` space with one action per row of the action table."""
         return Discrete(self._table.shape[0])
 
     def to_env_action(self, action: Array) -> Array:
+        """The continuous action (row of the table) that a discrete action index stands for."""
         return jnp.asarray(self._table)[jnp.asarray(action, jnp.int32)]
 
     def step(self, key, state, action, params=None):
+        """Step the wrapped env with the continuous action the discrete index stands for."""
         return self.env.step(key, state, self.to_env_action(action), params)
 
 
@@ -240,6 +282,7 @@ class FlattenObservation(Wrapper):
     """Reshapes observations (and ``info["final_obs"]`` if present) to one dimension."""
 
     def observation_space(self, params=None) -> Space:
+        """The wrapped env's observation box flattened to one dimension."""
         space = self.env.observation_space(params)
         return Box(space.low.reshape(-1), space.high.reshape(-1), (int(np.prod(space.shape)),))
 
@@ -250,19 +293,23 @@ class FlattenObservation(Wrapper):
         return ts._replace(obs=ts.obs.reshape(-1), info=info)
 
     def empty_info(self) -> dict[str, Array]:
+        """The wrapped env's reset info, with ``final_obs`` (if any) flattened too."""
         info = dict(self.env.empty_info())
         if "final_obs" in info:
             info["final_obs"] = info["final_obs"].reshape(-1)
         return info
 
     def reset(self, key, params=None):
+        """Reset with a flattened observation."""
         state, ts = self.env.reset(key, params)
         return state, self._flatten(ts)
 
     def reset_to(self, vector, params=None):
+        """Start from an exact state, with a flattened observation."""
         state, ts = self.env.reset_to(vector, params)
         return state, self._flatten(ts)
 
     def step(self, key, state, action, params=None):
+        """Step with a flattened observation (and ``final_obs``)."""
         state, ts = self.env.step(key, state, action, params)
         return state, self._flatten(ts)

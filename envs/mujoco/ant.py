@@ -40,6 +40,8 @@ from envs.mujoco.mujoco_env import (
 
 @struct.dataclass
 class AntParams(MujocoParams):
+    """Ant-v5's reward weights, reset noise and health and contact-force ranges (vmappable)."""
+
     reset_noise_scale: Array = float32_field(0.1)
     forward_reward_weight: Array = float32_field(1.0)
     ctrl_cost_weight: Array = float32_field(0.5)
@@ -53,6 +55,8 @@ class AntParams(MujocoParams):
 
 
 class Ant(MujocoEnv):
+    """gymnasium's Ant-v5; the module docstring gives its observation, reward and termination."""
+
     xml_file = "ant.xml"
     frame_skip = 5
     # Floor contacts. In C, on 40,000 random-policy states (each stepped once), 6 iterations (with
@@ -98,6 +102,9 @@ class Ant(MujocoEnv):
 
     @property
     def main_body(self) -> int:
+        """Index of the body whose displacement is the forward velocity (the torso unless
+        ``main_body`` names another).
+        """
         if isinstance(self.main_body_name, str):
             body = mujoco.mj_name2id(self.model, mujoco.mjtObj.mjOBJ_BODY, self.main_body_name)
             if body < 0:
@@ -107,6 +114,9 @@ class Ant(MujocoEnv):
 
     @property
     def obs_size(self) -> int:
+        """Length of the observation: qpos (without x, y unless asked), qvel and, if included,
+        the clipped contact forces of every body but the world.
+        """
         size = self.observed_qpos_size + self.model.nv
         return size + 6 * (self.model.nbody - 1) * self.include_cfrc_ext
 
@@ -115,6 +125,7 @@ class Ant(MujocoEnv):
         return jnp.clip(forces, params.contact_force_min, params.contact_force_max)
 
     def observe(self, measurement: Measurement) -> Array:
+        """``[qpos, qvel, clipped cfrc_ext]`` as gymnasium's Ant-v5 observes it."""
         qpos = self.observed_qpos(measurement)
         parts = [qpos, measurement.qvel]
         if self.include_cfrc_ext:
@@ -123,9 +134,13 @@ class Ant(MujocoEnv):
         return jnp.concatenate(parts)
 
     def remember(self, measurement: Measurement) -> Array:
+        """The main body's x, y position, which the next step's velocity is measured from."""
         return measurement.extras["xpos"][self.main_body, :2]
 
     def evaluate(self, measurement: Measurement, action: Array, params):
+        """Ant-v5's reward (forward velocity, healthy bonus, control and contact costs), its
+        termination when unhealthy and gymnasium's info terms.
+        """
         velocity = (self.remember(measurement) - measurement.extras[REMEMBERED_KEY]) / self.dt
         state = jnp.concatenate([measurement.qpos, measurement.qvel])
         z = measurement.qpos[2]
@@ -151,4 +166,5 @@ class Ant(MujocoEnv):
         return reward, ~healthy & self.terminate_when_unhealthy, info
 
     def reset_info(self, measurement: Measurement) -> dict[str, Array]:
+        """The torso's planar position and its distance from the origin."""
         return planar_position_info(measurement.qpos)

@@ -21,12 +21,16 @@ from envs.mujoco.mujoco_env import MujocoEnv, MujocoParams
 
 @struct.dataclass
 class HalfCheetahParams(MujocoParams):
+    """HalfCheetah-v5's reward weights and reset noise (vmappable)."""
+
     reset_noise_scale: Array = float32_field(0.1)
     forward_reward_weight: Array = float32_field(1.0)
     ctrl_cost_weight: Array = float32_field(0.1)
 
 
 class HalfCheetah(MujocoEnv):
+    """gymnasium's HalfCheetah-v5; the module docstring gives its observation and reward."""
+
     xml_file = "half_cheetah.xml"
     frame_skip = 5
     # Floor contacts: on the states where gymnasium's solver needs the most iterations, 4/4 left
@@ -43,12 +47,17 @@ class HalfCheetah(MujocoEnv):
 
     @property
     def obs_size(self) -> int:
+        """Length of the observation: qpos (without x unless asked) and qvel."""
         return self.observed_qpos_size + self.model.nv
 
     def observe(self, measurement: Measurement) -> Array:
+        """``[qpos, qvel]``, the root's x left out unless asked."""
         return jnp.concatenate([self.observed_qpos(measurement), measurement.qvel])
 
     def evaluate(self, measurement: Measurement, action: Array, params):
+        """Forward velocity minus the control cost of the raw action; the cheetah never
+        terminates.
+        """
         x_velocity = measurement.qpos_change[0] / self.dt
         forward_reward = params.forward_reward_weight * x_velocity
         ctrl_cost = params.ctrl_cost_weight * jnp.sum(jnp.square(action))
@@ -61,4 +70,5 @@ class HalfCheetah(MujocoEnv):
         return forward_reward - ctrl_cost, jnp.zeros((), jnp.bool_), info
 
     def reset_info(self, measurement: Measurement) -> dict[str, Array]:
+        """The root's x position."""
         return {"x_position": measurement.qpos[0]}

@@ -28,6 +28,8 @@ _VELOCITY_CLIP = 10.0  # gymnasium clips the observed velocities (not those of t
 
 @struct.dataclass
 class HopperParams(MujocoParams):
+    """Hopper-v5's reward weights, reset noise and health ranges (vmappable)."""
+
     reset_noise_scale: Array = float32_field(5e-3)
     forward_reward_weight: Array = float32_field(1.0)
     ctrl_cost_weight: Array = float32_field(1e-3)
@@ -44,6 +46,8 @@ class HopperParams(MujocoParams):
 
 
 class Hopper(MujocoEnv):
+    """gymnasium's Hopper-v5; the module docstring gives its observation, reward and termination."""
+
     xml_file = "hopper.xml"
     frame_skip = 4
     # Floor contacts and the leg's contacts with the torso. In C, on 40,000 random-policy states
@@ -82,13 +86,18 @@ class Hopper(MujocoEnv):
 
     @property
     def obs_size(self) -> int:
+        """Length of the observation: qpos (without x unless asked) and qvel."""
         return self.observed_qpos_size + self.model.nv
 
     def observe(self, measurement: Measurement) -> Array:
+        """``[qpos, clip(qvel, -10, 10)]``, the root's x left out unless asked."""
         qpos = self.observed_qpos(measurement)
         return jnp.concatenate([qpos, jnp.clip(measurement.qvel, -_VELOCITY_CLIP, _VELOCITY_CLIP)])
 
     def is_healthy(self, measurement: Measurement, params) -> Array:
+        """Whether height, torso angle and the rest of the state all lie inside their open
+        healthy ranges.
+        """
         z, angle = measurement.qpos[1], measurement.qpos[2]
         state = jnp.concatenate([measurement.qpos[2:], measurement.qvel])
         healthy_state = jnp.all(
@@ -99,6 +108,9 @@ class Hopper(MujocoEnv):
         return healthy_state & healthy_z & healthy_angle
 
     def evaluate(self, measurement: Measurement, action: Array, params):
+        """Hopper-v5's reward (forward velocity, healthy bonus, control cost), its termination
+        when unhealthy and gymnasium's info terms.
+        """
         x_velocity = measurement.qpos_change[0] / self.dt
         healthy = self.is_healthy(measurement, params)
         forward_reward = params.forward_reward_weight * x_velocity
@@ -115,6 +127,7 @@ class Hopper(MujocoEnv):
         return forward_reward + healthy_reward - ctrl_cost, terminated, info
 
     def reset_info(self, measurement: Measurement) -> dict[str, Array]:
+        """The root's x position and its height change since the default pose."""
         return {
             "x_position": measurement.qpos[0],
             "z_distance_from_origin": measurement.qpos[1] - self._init_qpos[1],

@@ -46,6 +46,10 @@ _INCLUDES = ("cinert", "cvel", "qfrc_actuator", "cfrc_ext")
 
 @struct.dataclass
 class HumanoidParams(MujocoParams):
+    """Humanoid-v5's reward weights, reset noise, contact-cost clip and healthy height range
+    (vmappable).
+    """
+
     reset_noise_scale: Array = float32_field(1e-2)
     forward_reward_weight: Array = float32_field(1.25)
     ctrl_cost_weight: Array = float32_field(0.1)
@@ -59,6 +63,10 @@ class HumanoidParams(MujocoParams):
 
 
 class Humanoid(MujocoEnv):
+    """gymnasium's Humanoid-v5; the module docstring gives its observation, reward and
+    termination.
+    """
+
     xml_file = "humanoid.xml"
     frame_skip = 5
     # Newton (MJX has no PGS), measured in C on 40,000 random-policy states (each stepped once):
@@ -116,6 +124,9 @@ class Humanoid(MujocoEnv):
 
     @property
     def obs_size(self) -> int:
+        """Length of the observation: qpos, qvel and each included derived field (cinert, cvel,
+        qfrc_actuator, cfrc_ext) without the world body.
+        """
         model = self.model
         sizes = {"cinert": 10, "cvel": 6, "cfrc_ext": 6}
         size = self.observed_qpos_size + model.nv
@@ -124,6 +135,9 @@ class Humanoid(MujocoEnv):
         return size
 
     def observe(self, measurement: Measurement) -> Array:
+        """``[qpos, qvel, cinert, cvel, qfrc_actuator, cfrc_ext]`` (those included), as
+        gymnasium's.
+        """
         qpos = self.observed_qpos(measurement)
         parts = [qpos, measurement.qvel]
         for name in self.observed:
@@ -132,11 +146,17 @@ class Humanoid(MujocoEnv):
         return jnp.concatenate(parts)
 
     def remember(self, measurement: Measurement) -> Array:
+        """The x, y position of the centre of mass, which the next step's velocity is measured
+        from.
+        """
         mass = np.asarray(self.model.body_mass, np.float64)
         weights = (mass / mass.sum()).astype(np.float32)
         return jnp.sum(weights[:, None] * measurement.extras["xipos"], axis=0)[:2]
 
     def evaluate(self, measurement: Measurement, action: Array, params):
+        """Humanoid-v5's reward (centre-of-mass velocity, healthy bonus, control and clipped
+        contact costs), its termination when unhealthy and gymnasium's info terms.
+        """
         velocity = (self.remember(measurement) - measurement.extras[REMEMBERED_KEY]) / self.dt
         z = measurement.qpos[2]
         healthy = (params.healthy_z_min < z) & (z < params.healthy_z_max)
@@ -161,4 +181,5 @@ class Humanoid(MujocoEnv):
         return reward, ~healthy & self.terminate_when_unhealthy, info
 
     def reset_info(self, measurement: Measurement) -> dict[str, Array]:
+        """The torso's planar position and its distance from the origin."""
         return planar_position_info(measurement.qpos)

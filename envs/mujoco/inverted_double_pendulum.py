@@ -24,6 +24,8 @@ _CLIP = 10.0  # gymnasium clips velocities and the constraint force in the obser
 
 @struct.dataclass
 class InvertedDoublePendulumParams(MujocoParams):
+    """InvertedDoublePendulum-v5's reward weights, reset noise and tip heights (vmappable)."""
+
     reset_noise_scale: Array = float32_field(0.1)
     healthy_reward: Array = float32_field(10.0)
     #: the episode ends when the tip height drops to this or below
@@ -38,6 +40,10 @@ class InvertedDoublePendulumParams(MujocoParams):
 
 
 class InvertedDoublePendulum(MujocoEnv):
+    """gymnasium's InvertedDoublePendulum-v5; the module docstring gives its observation and
+    reward.
+    """
+
     xml_file = "inverted_double_pendulum.xml"
     frame_skip = 5
     # Only the slider limit can bind (the hinges are unlimited, nothing collides): one Newton step
@@ -51,9 +57,15 @@ class InvertedDoublePendulum(MujocoEnv):
 
     @property
     def obs_size(self) -> int:
+        """9: the cart position, sin and cos of both hinges, three velocities and the slider's
+        constraint force.
+        """
         return 9
 
     def observe(self, measurement: Measurement) -> Array:
+        """``[x, sin(hinges), cos(hinges), qvel, slider force]``, velocities and force clipped to
+        +-10.
+        """
         qpos, qvel = measurement.qpos, measurement.qvel
         force = measurement.extras["qfrc_constraint"][:1]
         return jnp.concatenate(
@@ -67,6 +79,9 @@ class InvertedDoublePendulum(MujocoEnv):
         )
 
     def evaluate(self, measurement: Measurement, action: Array, params):
+        """Alive bonus minus the tip's distance and the hinges' velocity penalties; terminated
+        when the tip drops to ``min_tip_height``.
+        """
         tip = measurement.extras["site_xpos"][0]
         x, y = tip[0], tip[2]
         terminated = y <= params.min_tip_height

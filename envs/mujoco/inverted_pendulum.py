@@ -19,6 +19,8 @@ from envs.mujoco.mujoco_env import MujocoEnv, MujocoParams
 
 @struct.dataclass
 class InvertedPendulumParams(MujocoParams):
+    """InvertedPendulum-v5's reset noise, pole-angle limit and reward per step (vmappable)."""
+
     reset_noise_scale: Array = float32_field(0.01)
     #: the pole is healthy while ``|angle| <= max_pole_angle`` (rad)
     max_pole_angle: Array = float32_field(0.2)
@@ -27,6 +29,8 @@ class InvertedPendulumParams(MujocoParams):
 
 
 class InvertedPendulum(MujocoEnv):
+    """gymnasium's InvertedPendulum-v5; the module docstring gives its observation and reward."""
+
     xml_file = "inverted_pendulum.xml"
     frame_skip = 2
     # Only the slider and hinge limits bind. With both active at once 2 iterations fell short of
@@ -40,12 +44,17 @@ class InvertedPendulum(MujocoEnv):
 
     @property
     def obs_size(self) -> int:
+        """4: cart position, pole angle and their velocities."""
         return 4
 
     def observe(self, measurement: Measurement) -> Array:
+        """``[qpos, qvel]``."""
         return jnp.concatenate([measurement.qpos, measurement.qvel])
 
     def evaluate(self, measurement: Measurement, action: Array, params):
+        """``healthy_reward`` per step while the pole stays within ``max_pole_angle``; 0 and
+        terminated once it leaves.
+        """
         terminated = jnp.abs(measurement.qpos[1]) > params.max_pole_angle
         reward = jnp.where(terminated, 0.0, params.healthy_reward)
         return reward, terminated, {"reward_survive": reward}

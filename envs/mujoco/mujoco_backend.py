@@ -13,10 +13,10 @@ float32 quantities an env needs for its observation, reward and termination.
 ``mujoco``
     MuJoCo C (float64) stepping the whole batch on a thread pool (MuJoCo's batch, ``mjBatch``,
     one thread per core). Not differentiable. The default on CPU: bit-identical to gymnasium,
-    compiles in a second or two (MJX: 10-60 s), and 4-6x faster than MJX on the contact-rich half
-    cheetah; on the two pendulums MJX is about as fast or up to ~1.5x faster from 64 envs on
-    (bench/bench_mujoco.py). The jitted program reaches MuJoCo C in one of two ways, with
-    bit-identical results:
+    compiles far faster than MJX, and steps the contact-rich half cheetah several times faster,
+    where MJX pays for every potential contact; on the two pendulums MJX is about as fast
+    (bench/bench_mujoco.py compares them). The jitted program reaches MuJoCo C in one of two
+    ways, with bit-identical results:
 
     ``mujoco_ffi``
         an XLA FFI custom call (``envs.mujoco.mujoco_ffi``), compiled on first use with the system
@@ -211,8 +211,7 @@ def _small_cho_factor(a, lower=False, overwrite_a=False, check_finite=True):
 
     XLA:CPU runs a batched ``cho_factor`` as one LAPACK call per matrix, whose per-call overhead
     dominates for MJX's 3x3..9x9 mass and Newton matrices; unrolled scalar code is vectorised across
-    the whole batch of envs instead (measured ~7x faster for 1,024 9x9 factorisations). The other
-    triangle is zero, which scipy leaves unspecified.
+    the whole batch of envs instead. The other triangle is zero, which scipy leaves unspecified.
     """
     del overwrite_a, check_finite
     n = a.shape[-1]
@@ -309,6 +308,7 @@ class Physics:
         raise NotImplementedError
 
     def empty_extras(self, batch_shape: tuple[int, ...] = ()) -> dict[str, Array]:
+        """Zeros shaped like the requested derived fields, with optional leading batch axes."""
         return {
             name: jnp.zeros(batch_shape + shape, jnp.float32)
             for name, shape in self._extra_shapes.items()

@@ -69,11 +69,13 @@ class MujocoCPhysics(Physics):
         return bits.reshape(*bits.shape[:-2], 2 * bits.shape[-2])
 
     def to_numpy(self, state: Array) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Host side: ``(qpos, qvel, qacc_warmstart)`` decoded from the state's float64 bits."""
         values = bits_to_float64(np.asarray(state))
         nq, nv = self.nq, self.nv
         return values[..., :nq], values[..., nq : nq + nv], values[..., nq + nv :]
 
     def qpos_qvel(self, state: Array) -> tuple[Array, Array]:
+        """float32 ``(qpos, qvel)`` decoded from the state's float64 bits, inside JAX."""
         values = float64_bits_to_float32(state[..., : 2 * (self.nq + self.nv)])
         return values[..., : self.nq], values[..., self.nq :]
 
@@ -100,10 +102,14 @@ class MujocoCPhysics(Physics):
     def step(
         self, state: Array, ctrl: Array, active: Array | None = None
     ) -> tuple[Array, Measurement]:
+        """``frame_skip`` substeps of MuJoCo C's ``mj_step``; envs where ``active`` is False are
+        skipped.
+        """
         outputs = self._call_step(state, jnp.asarray(ctrl, jnp.float32), active)
         return outputs[0], self._measurement(outputs[1:])
 
     def forward(self, state: Array) -> Measurement:
+        """MuJoCo C's ``mj_forward`` at ``state``, returned as a measurement."""
         return self._measurement(self._call_forward(state))
 
     def _call_step(self, state: Array, ctrl: Array, active: Array | None = None) -> Any:

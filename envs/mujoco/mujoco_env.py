@@ -17,14 +17,13 @@ also be passed to ``reset``/``step`` and vmapped. Structural ones
 (``exclude_current_positions_from_observation``, ``terminate_when_unhealthy``) are constructor
 arguments; gymnasium's ``xml_file``, ``frame_skip`` and ``default_camera_config`` are refused.
 
-Solver fidelity (``fidelity=``). ``"gymnasium"``: gymnasium's constraint-solver limits, the
-model's own (100 iterations, 50 line-search iterations unless its XML sets others).
-``"parity"`` (default): the cheapest limits that still match gymnasium — on the C backend these
-are gymnasium's own (MuJoCo C stops iterating at convergence, so tighter caps measured no faster,
-and the result is bit-identical to gymnasium); on MJX, where every env of a vmapped batch pays the
-full cap, each env's ``mjx_solver`` limits, the fewest that keep
-gymnasium parity including the states where gymnasium's solver works hardest
-(``tests/envs/test_mujoco_parity.py``).
+Solver fidelity (``fidelity=``). ``"gymnasium"``: gymnasium's constraint-solver limits, the model's
+own (100 iterations, 50 line-search iterations unless its XML sets others). ``"parity"`` (default):
+the cheapest limits that still match gymnasium — on the C backend these are gymnasium's own (MuJoCo
+C stops iterating at convergence, so tighter caps would save little, and the result is bit-identical
+to gymnasium); on MJX, where every env of a vmapped batch pays the full cap, each env's
+``mjx_solver`` limits, the fewest that keep gymnasium parity including the states where gymnasium's
+solver works hardest (``tests/envs/test_mujoco_parity.py``).
 
 Exact starts: ``state_from_vector(concatenate([qpos, qvel]))`` (optionally ``qacc_warmstart``
 appended). On the C backend a float64 numpy vector is kept bit for bit; a float32 or traced vector
@@ -95,6 +94,10 @@ def make_physics(
 
 @struct.dataclass
 class MujocoState(EnvState):
+    """A MuJoCo env's state: the backend's physics state, the last observation and what the last
+    step remembered for the next one.
+    """
+
     # backend-specific: float32 (qpos, qvel, qacc_warmstart) for mjx, uint32 float64 bits for C
     physics: Any
     obs: Array  # [obs_size] float32, the last observation, reported again if the physics diverges
@@ -112,6 +115,8 @@ REMEMBERED_KEY = "remembered"  # the extra under which evaluate() finds last ste
 
 @struct.dataclass
 class MujocoParams(EnvParams):
+    """Base of the MuJoCo envs' params; every env scales its reset noise."""
+
     reset_noise_scale: Array
 
 
@@ -203,6 +208,7 @@ class MujocoEnv(Environment[MujocoState, Any]):
 
     @property
     def default_params(self):
+        """The params built from the class defaults and the constructor's keyword overrides."""
         return self._params
 
     @property
@@ -213,26 +219,32 @@ class MujocoEnv(Environment[MujocoState, Any]):
     # ---- spaces -------------------------------------------------------------------------------
     @property
     def obs_size(self) -> int:
+        """Length of the observation vector (each env defines it)."""
         raise NotImplementedError
 
     def observation_space(self, params=None) -> Box:
+        """An unbounded box of ``obs_size`` values, as gymnasium's."""
         return Box(-np.inf, np.inf, (self.obs_size,))
 
     def action_space(self, params=None) -> Box:
+        """The actuators' control ranges from the model."""
         low, high = np.asarray(self.model.actuator_ctrlrange, np.float32).T
         return Box(low, high, low.shape)
 
     def empty_info(self) -> dict[str, Array]:
+        """Zero for each of ``info_keys`` and ``physics_diverged=False``."""
         info = {key: jnp.zeros((), jnp.float32) for key in self.info_keys}
         return {**info, DIVERGED_KEY: jnp.zeros((), jnp.bool_)}
 
     # ---- reset --------------------------------------------------------------------------------
     def reset(self, key: PRNGKey, params=None) -> tuple[MujocoState, TimeStep]:
+        """Start an episode from ``sample_start``'s random ``(qpos, qvel)``."""
         params = self.default_params if params is None else params
         qpos, qvel = self.sample_start(key, params)
         return self.start_from_physics(self.physics.from_qpos_qvel(qpos, qvel), params)
 
     def reset_env(self, key: PRNGKey, params) -> tuple[MujocoState, Array]:
+        """``reset``'s state and first observation."""
         state, timestep = self.reset(key, params)
         return state, timestep.obs
 
@@ -260,6 +272,7 @@ class MujocoEnv(Environment[MujocoState, Any]):
         return start(physics)
 
     def state_from_vector(self, vector: Any, params=None) -> tuple[MujocoState, Array]:
+        """``reset_to``'s state and first observation, from ``[qpos, qvel(, qacc_warmstart)]``."""
         state, timestep = self.reset_to(vector, params)
         return state, timestep.obs
 
@@ -294,6 +307,9 @@ class MujocoEnv(Environment[MujocoState, Any]):
     def step_env(
         self, key: PRNGKey, state: MujocoState, action: Array, params
     ) -> tuple[MujocoState, Array, Array, Array, dict[str, Array]]:
+        """Apply the action for ``frame_skip`` substeps; reward, termination and info from
+        ``evaluate``, or the divergence handling of the module docstring.
+        """
         return self._step_env(state, action, params)
 
     def step_active(self, key, state, action, active, params=None):
@@ -384,9 +400,11 @@ class MujocoEnv(Environment[MujocoState, Any]):
 
     @property
     def observed_qpos_size(self) -> int:
+        """How many qpos entries the observation holds."""
         return self.model.nq - (self.current_positions if self.exclude_current_positions else 0)
 
     def observe(self, measurement: Measurement) -> Array:
+        """The observation of a measurement, as gymnasium's ``_get_obs`` (each env defines it)."""
         raise NotImplementedError
 
     def evaluate(

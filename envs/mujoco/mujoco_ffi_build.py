@@ -44,6 +44,7 @@ class FfiUnavailable(RuntimeError):
 
 
 def cache_dir() -> Path:
+    """Where the compiled MuJoCo FFI library is cached: ``$XDG_CACHE_HOME/rl_jax/mujoco_ffi``."""
     base = Path(os.environ.get("XDG_CACHE_HOME", Path.home() / ".cache"))
     return base / "rl_jax" / "mujoco_ffi"
 
@@ -66,6 +67,9 @@ def _compiler() -> str:
 
 
 def compile_command(output: Path) -> list[str]:
+    """The compiler command line that builds the FFI step into ``output``, against the installed
+    mujoco and jax headers.
+    """
     mujoco_include, mujoco_library = _mujoco_paths()
     return [
         _compiler(),

@@ -25,6 +25,9 @@ class SceneRenderer:
         self._renderer: mujoco.Renderer | None = None
 
     def render(self, qpos: np.ndarray, qvel: np.ndarray, width: int, height: int) -> np.ndarray:
+        """RGB frame ``[height, width, 3]`` uint8 of the model at ``(qpos, qvel)``, after
+        ``mj_forward``.
+        """
         data = mujoco.MjData(self.model)
         data.qpos[:], data.qvel[:] = qpos, qvel
         mujoco.mj_forward(self.model, data)

@@ -31,6 +31,8 @@ _GOAL_CANDIDATES = 16
 
 @struct.dataclass
 class ReacherParams(EnvParams):
+    """Reacher-v5's reward weights (vmappable)."""
+
     reward_dist_weight: Array = float32_field(1.0)
     reward_control_weight: Array = float32_field(1.0)
 
@@ -47,6 +49,8 @@ def sample_goal(key: PRNGKey) -> Array:
 
 
 class Reacher(MujocoEnv):
+    """gymnasium's Reacher-v5; the module docstring gives its observation and reward."""
+
     xml_file = "reacher.xml"
     frame_skip = 2
     max_episode_steps = 50
@@ -65,6 +69,9 @@ class Reacher(MujocoEnv):
 
     @property
     def obs_size(self) -> int:
+        """10: cos and sin of both arm joints, the target position, two joint velocities and the
+        fingertip-to-target vector.
+        """
         return 10
 
     def _fingertip_to_target(self, measurement: Measurement) -> Array:
@@ -72,6 +79,9 @@ class Reacher(MujocoEnv):
         return xpos[self.model.body("fingertip").id] - xpos[self.model.body("target").id]
 
     def observe(self, measurement: Measurement) -> Array:
+        """``[cos, sin of the arm, target, arm velocities, fingertip - target (x, y)]``, as
+        gymnasium's.
+        """
         extras = measurement.extras
         return jnp.concatenate(
             [
@@ -84,6 +94,7 @@ class Reacher(MujocoEnv):
         )
 
     def evaluate(self, measurement: Measurement, action: Array, params):
+        """Minus the fingertip's distance to the target minus the control cost; never terminates."""
         distance = jnp.linalg.norm(self._fingertip_to_target(measurement))
         reward_dist = -distance * params.reward_dist_weight
         reward_ctrl = -jnp.sum(jnp.square(action)) * params.reward_control_weight
@@ -91,6 +102,9 @@ class Reacher(MujocoEnv):
         return reward_dist + reward_ctrl, jnp.zeros((), jnp.bool_), info
 
     def sample_start(self, key: PRNGKey, params) -> tuple[Array, Array]:
+        """Arm joints uniform around the default pose, a target drawn in the disc of radius 0.2,
+        and small uniform arm velocities (the target's are 0), as gymnasium's ``reset_model``.
+        """
         key_qpos, key_goal, key_qvel = jax.random.split(key, 3)
         nq, nv = self._init_qpos.shape[0], self.model.nv
         noise = jax.random.uniform(key_qpos, (nq,), jnp.float32, -_ARM_QPOS_NOISE, _ARM_QPOS_NOISE)

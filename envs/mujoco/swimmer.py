@@ -20,12 +20,16 @@ from envs.mujoco.mujoco_env import MujocoEnv, MujocoParams, planar_position_info
 
 @struct.dataclass
 class SwimmerParams(MujocoParams):
+    """Swimmer-v5's reward weights and reset noise (vmappable)."""
+
     reset_noise_scale: Array = float32_field(0.1)
     forward_reward_weight: Array = float32_field(1.0)
     ctrl_cost_weight: Array = float32_field(1e-4)
 
 
 class Swimmer(MujocoEnv):
+    """gymnasium's Swimmer-v5; the module docstring gives its observation and reward."""
+
     xml_file = "swimmer.xml"
     frame_skip = 4
     # Nothing collides (every geom has contype 0); only the two hinge limits (+-100 degrees) can
@@ -50,12 +54,15 @@ class Swimmer(MujocoEnv):
 
     @property
     def obs_size(self) -> int:
+        """Length of the observation: qpos (without x, y unless asked) and qvel."""
         return self.observed_qpos_size + self.model.nv
 
     def observe(self, measurement: Measurement) -> Array:
+        """``[qpos, qvel]``, the root's x, y left out unless asked."""
         return jnp.concatenate([self.observed_qpos(measurement), measurement.qvel])
 
     def evaluate(self, measurement: Measurement, action: Array, params):
+        """Forward velocity minus the control cost; the swimmer never terminates."""
         x_velocity, y_velocity = measurement.qpos_change[:2] / self.dt
         forward_reward = params.forward_reward_weight * x_velocity
         ctrl_cost = params.ctrl_cost_weight * jnp.sum(jnp.square(action))
@@ -69,4 +76,5 @@ class Swimmer(MujocoEnv):
         return forward_reward - ctrl_cost, jnp.zeros((), jnp.bool_), info
 
     def reset_info(self, measurement: Measurement) -> dict[str, Array]:
+        """The root's planar position and its distance from the origin."""
         return planar_position_info(measurement.qpos)

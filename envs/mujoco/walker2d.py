@@ -24,6 +24,8 @@ from envs.mujoco.mujoco_env import MujocoParams
 
 @struct.dataclass
 class Walker2dParams(MujocoParams):
+    """Walker2d-v5's reward weights, reset noise and health ranges (vmappable)."""
+
     reset_noise_scale: Array = float32_field(5e-3)
     forward_reward_weight: Array = float32_field(1.0)
     ctrl_cost_weight: Array = float32_field(1e-3)
@@ -55,6 +57,7 @@ class Walker2d(Hopper):
     }
 
     def is_healthy(self, measurement: Measurement, params) -> Array:
+        """Whether height and torso angle both lie inside their open healthy ranges."""
         z, angle = measurement.qpos[1], measurement.qpos[2]
         healthy_z = (params.healthy_z_min < z) & (z < params.healthy_z_max)
         healthy_angle = (params.healthy_angle_min < angle) & (angle < params.healthy_angle_max)

@@ -77,18 +77,19 @@ class PixelConfig(Config):
     frame_stack: int = 4  # the last frame_stack frames are the observation's channels
     conv_layers: tuple[int, ...] = (16, 8, 4, 32, 4, 2)  # (features, kernel, stride) per layer
     # Seeds as an unrolled loop in the one program (training.parallel.seed_loop), not a vmap:
-    # with the conv torso, 3 looped seeds update faster than 3 vmapped (BENCHMARKS.md).
+    # XLA's CPU backend runs the conv torso's batched (vmapped) gradients slower than a loop of
+    # unbatched ones.
     loop_seeds: bool = True
     # The torso sees only the rows the env ever draws on (its ``drawn_rows``; CartPole: 31 of 84,
     # grown to 36 that the conv stack reads whole). The other rows are white in every frame, so
-    # the network loses nothing, and an update costs a third as much (BENCHMARKS.md). Off by
-    # default: runs saved before it existed see the whole frame.
+    # the network loses nothing while its convolutions cost 36/84 as much. Off by default: runs
+    # saved before it existed see the whole frame.
     crop_drawn_rows: bool = False
     # DrQ's random shifts (rl_jax.training.augment): every sampled stack, obs and next_obs
     # apart, is moved by up to augment_shift pixels in each axis (edges repeated) before the
     # Q-networks see it, in the loss only; acting and evaluation see the frames as they are.
     # DrQ used 4 at 84x84. 0: off (the update is then the same program as before it existed).
-    # On CartPole's frames 4 stopped learning altogether (RESULTS.md, "DQN from pixels").
+    # On CartPole's frames 4 stopped learning altogether.
     augment_shift: int = 0
 
     def __post_init__(self) -> None:

@@ -1,6 +1,5 @@
 """DQN's recipes (``rl_jax.training.recipes``): each env's default on top of the ``Config`` and
-``Hyperparams`` defaults (CleanRL's classic-control DQN). How each was chosen is in RESULTS.md:
-"DQN on CartPole", "DQN from pixels" and the rocket rows.
+``Hyperparams`` defaults (CleanRL's classic-control DQN), each with the reason it was chosen.
 """
 
 from __future__ import annotations
@@ -22,7 +21,7 @@ _CLASSIC = {
     "target_update_period": 100,
 }
 # CartPole: the policy a run ends with is TD7's checkpoint, since the greedy policy alone keeps
-# collapsing and recovering after it first scores 500 (RESULTS.md, "DQN on CartPole").
+# collapsing and recovering after it first scores 500.
 _CARTPOLE = {
     **_CLASSIC,
     "hidden": (64, 64),  # enough here, at a fraction of 256x256's cost
@@ -34,7 +33,7 @@ _CARTPOLE = {
 _CONFIGS: dict[str, dict[str, Any]] = {
     "rl_jax/CartPole-v1": _CARTPOLE,
     # Pixels: with CartPole's own settings the Q-values climbed towards 1 / (1 - gamma) while
-    # episodes stayed at the random ~20 steps (RESULTS.md, "DQN from pixels").
+    # episodes stayed at the random ~20 steps.
     "rl_jax/CartPolePixels-v1": {
         **_CLASSIC,
         "hidden": (256,),
@@ -50,7 +49,7 @@ _CONFIGS: dict[str, dict[str, Any]] = {
     "rl_jax/InvertedPendulum-v5": _CLASSIC,
     "rl_jax/Rocket-v0": {**_CLASSIC, "action_bins": 3},
     # The settle variant: thrust {-1, -0.5, 0, 0.5, 1}, with which (and LayerNorm) every seed
-    # came to rest from (1, 0), where {-1, 0, +1} left most short of it (RESULTS.md).
+    # came to rest from (1, 0), where {-1, 0, +1} left most short of it.
     "rl_jax/RocketSettle-v0": {**_CLASSIC, "action_bins": 5, "norm": "layer"},
 }
 _FAST_DECAY = {"learning_rate": 1e-3, "epsilon_decay_steps": 8000.0, "epsilon_end": 0.04}
@@ -59,7 +58,7 @@ _HPARAMS: dict[str, dict[str, float]] = {
     # that the training episodes that assess a copy are nearly its greedy policy's.
     "rl_jax/CartPole-v1": {**_FAST_DECAY, "learning_rate": 3e-3, "epsilon_end": 0.01},
     # The rate falls to 0 over the script's 200k steps, so that the policy the run ends with is a
-    # settled one: at a constant rate it kept collapsing and recovering (RESULTS.md).
+    # settled one: at a constant rate it kept collapsing and recovering.
     "rl_jax/CartPolePixels-v1": {**_FAST_DECAY, "learning_rate": 5e-4, "lr_decay_steps": 200_000.0},
     "rl_jax/InvertedPendulum-v5": _FAST_DECAY,
     "rl_jax/Rocket-v0": {"learning_rate": 1e-3, "epsilon_decay_steps": 50_000.0},
@@ -78,7 +77,7 @@ _ABOUT = {
     "rl_jax/Rocket-v0": "the classic-control base, thrust {-1, 0, +1}",
     "rl_jax/RocketSettle-v0": "thrust {-1, -0.5, 0, 0.5, 1}, LayerNorm, gamma 0.995",
 }
-# (env steps/s per seed, seeds) of the pixel recipe's run of record (RESULTS.md), for run plans
+# (env steps/s per seed, seeds) of the pixel recipe's run of record, for run plans' estimates
 _THROUGHPUT = {"rl_jax/CartPolePixels-v1": (117.0, 3)}
 RECIPES = Recipes(
     *(

@@ -1,6 +1,5 @@
 """REINFORCE's recipes (``rl_jax.training.recipes``): each env's default on top of the ``Config``
-and ``Hyperparams`` defaults (gymnasium's REINFORCE tutorial). How each was chosen is in
-RESULTS.md, "REINFORCE's recipes: how they were chosen".
+and ``Hyperparams`` defaults (gymnasium's REINFORCE tutorial), each with the reason it was chosen.
 """
 
 from __future__ import annotations

@@ -55,7 +55,7 @@ MUJOCO_CONFIG: dict[str, Any] = {
     "critic_hidden": (256, 256),
 }
 # Humanoid's raw contact forces (up to ~1,900 beside joint angles of ~1) saturate an actor that
-# reads them raw (RESULTS.md, TD3's Humanoid row): standardised here too.
+# reads them raw (as TD3's did): standardised here too.
 HUMANOID_CONFIG: dict[str, Any] = {**MUJOCO_CONFIG, "normalize_obs": True}
 
 # The paper's settings (Haarnoja et al. 2018, "Soft Actor-Critic Algorithms and Applications",

@@ -1,6 +1,6 @@
 """TD3's and DDPG's recipes (``rl_jax.training.recipes``): each env's default on top of the
 paper's settings (the ``Config``/``Hyperparams`` defaults), and named alternatives, each with the
-measurements that chose it (RESULTS.md, BENCHMARKS.md).
+reason it was chosen. The runs that chose them are in the results and benchmarks pages.
 """
 
 from __future__ import annotations
@@ -9,9 +9,9 @@ from typing import Any
 
 from rl_jax.training.recipes import Recipe, Recipes
 
-# Per-env recipes on top of the paper's defaults (measured: see the slow tests). Small networks
+# Per-env recipes on top of the paper's defaults (the slow tests check they learn). Small networks
 # and 4 envs with 4 updates per iteration (one update per env step, as in the paper) suffice for
-# the classic envs and train ~16x faster than 256 x 256.
+# the classic envs, at a small fraction of a 256 x 256 update's FLOPs.
 RECIPES: dict[str, dict[str, Any]] = {
     "rl_jax/Pendulum-v1": {
         "num_envs": 4,
@@ -40,9 +40,7 @@ HPARAM_RECIPES: dict[str, dict[str, float]] = {
         "gamma": 0.995,
         # dt = 0.01 s: independent noise of std 0.1 barely moves the velocity before it averages
         # out. AR(1) noise with rho 0.98 (~0.5 s memory) at std 0.5 pushes for long enough to
-        # visit overshoots and reversals. Measured, 3 seeds, 15k-30k steps: rho 0.95 at std 0.3
-        # reached eval returns ~500-700 where independent noise of std 0.1 was still at ~-150-500
-        # (gamma 0.99); rho 0.98 at std 0.5 scored a little higher again (gamma 0.995).
+        # visit overshoots and reversals.
         "exploration_correlation": 0.98,
         "exploration_noise": 0.5,
     },
@@ -53,14 +51,9 @@ HPARAM_RECIPES["rl_jax/RocketSettle-v0"] = HPARAM_RECIPES["rl_jax/Rocket-v0"]
 # * batch 128 instead of 256 halves every update's FLOPs (0.21 vs 0.41 GFLOP; the original TD3
 #   paper trained with batch 100);
 # * 4 envs per seed with 4 updates per iteration keeps one update per env step but crosses into
-#   the MuJoCo C callback 4x less often (~0.5 ms per crossing on this machine, more under load);
+#   the MuJoCo C callback 4x less often, and each crossing has a fixed cost;
 # * learning starts after 10k random steps instead of 25k.
 # ``Config(env_id=...)`` without this entry is the paper recipe (1 env, batch 256, 25k).
-# Measured (BENCHMARKS.md, "Half cheetah recipe"; python -m bench.cheetah_recipe): 1.6x
-# the paper recipe's updates/s in the training loop with 5 seeds; after 5k updates the mean return
-# matched the PyTorch paper-recipe baseline's. `td3_cheetah.py --recipe paper-width` (5 seeds,
-# 150k steps, one device, load 1.5-2.1): mean eval first >= 5,000 at 125k steps (21 min), final
-# mean 5,278 (95% CI 4,807-5,749) in 26 minutes (RESULTS.md).
 RECIPES["rl_jax/HalfCheetah-v5"] = {
     "num_envs": 4,
     "updates_per_iteration": 4,
@@ -69,24 +62,23 @@ RECIPES["rl_jax/HalfCheetah-v5"] = {
     "learning_starts": 10_000,
 }
 # experiments/td3_cheetah.py's default on top of that loop: 128 x 128 networks at rate 1e-3
-# (the original TD3 code's rate). Chosen by `experiments/sweep.py` (3 seeds, 100k steps, 128 x
-# 128): final mean 4,877 at rate 1e-3, 3,934 at 3e-4; 3-step returns 3,083 / 2,712. Then 5 seeds:
-# mean eval >= 5,000 from 90k steps, 5 minutes on 2 cores (BENCHMARKS.md, "Half cheetah in
-# minutes"); the 256 x 256 recipe above takes 125k steps and 21 minutes.
+# (the original TD3 code's rate), chosen by return against wall-clock with `experiments/sweep.py`
+# over rates and n-step returns: a quarter of the 256 x 256 update's FLOPs, and at these widths
+# rate 1e-3 learned faster than 3e-4.
 FAST_CHEETAH_CONFIG: dict[str, Any] = {"actor_hidden": (128, 128), "critic_hidden": (128, 128)}
 FAST_CHEETAH_HPARAMS: dict[str, Any] = {"actor_lr": 1e-3, "critic_lr": 1e-3}
 # The rest of the MuJoCo suite starts from the half-cheetah CPU loop with its 128 x 128 networks
-# at rate 1e-3, unchanged, so that each row of RESULTS.md says what that one recipe does on
-# another task (`experiments/train.py --algo td3 --env rl_jax/Hopper-v5`).
+# at rate 1e-3, unchanged, so that the suite's results say what that one recipe does on each
+# task (`experiments/train.py --algo td3 --env rl_jax/Hopper-v5`).
 MUJOCO_SUITE = tuple(
     f"rl_jax/{name}-v5" for name in ("Hopper", "Walker2d", "Ant", "Reacher", "Swimmer", "Humanoid")
 )
 for _env_id in MUJOCO_SUITE:
     RECIPES[_env_id] = {**RECIPES["rl_jax/HalfCheetah-v5"], **FAST_CHEETAH_CONFIG}
     HPARAM_RECIPES[_env_id] = dict(FAST_CHEETAH_HPARAMS)
-# Humanoid's observation carries raw contact forces (up to ~1,900) beside joint angles of ~1: with
-# them raw, every one of the actor's 17 outputs saturated and 3 of 5 seeds stopped learning at
-# 15k steps (RESULTS.md). Standardised, 5 seeds x 50k steps ended at 306 against 121.
+# Humanoid's observation carries raw contact forces (up to ~1,900) beside joint angles of ~1: fed
+# raw, they saturate the actor's tanh outputs, which then pass no gradient. Standardised by running
+# statistics, the inputs share one scale.
 RECIPES["rl_jax/Humanoid-v5"]["normalize_obs"] = True
 # The TD3 paper's own loop: one env, one update per env step, batch 256, 25k warm-up steps.
 PAPER_CONFIG: dict[str, Any] = {
@@ -105,7 +97,7 @@ PAPER_RECIPE_CONFIG: dict[str, Any] = {
 }
 PAPER_HPARAMS: dict[str, Any] = {"actor_lr": 3e-4, "critic_lr": 3e-4}
 # The settings of the TD3 paper's own runs (2018), which made the learning curves its repository
-# publishes and RESULTS.md compares with: 400 x 300 actor and critics, Adam at its default rate
+# publishes and our results compare with: 400 x 300 actor and critics, Adam at its default rate
 # 1e-3, batch 100, one env with one update per env step, and 1,000 random steps before learning
 # (10,000 on HalfCheetah and Ant: NAMED_RECIPE_ENVS). Read from github.com/sfujim/TD3 at its
 # "Camera-ready cleanup" commit (bc98e62, June 2018): TD3.py, main.py and run_experiments.sh; the
@@ -121,10 +113,8 @@ PAPER_2018_CONFIG: dict[str, Any] = {
 }
 PAPER_2018_HPARAMS: dict[str, Any] = {"actor_lr": 1e-3, "critic_lr": 1e-3}
 # Half cheetah on one GPU (MJX), chosen by return against wall-clock among bench/gpu_recipe.py's
-# candidates: a GPU runs a batch of 1,024 as fast as one of 128, and one MJX step of 320 envs
-# about as fast as one of 20, so more envs per seed and larger batches, at half an update per env
-# step. On one H100 (jax 0.11.2): 5 seeds reached a mean eval of 5,180 at 172k steps per seed,
-# 53 s of training after a 54 s compile (BENCHMARKS.md, "TD3 on a GPU").
+# candidates: on a GPU a larger batch or more envs per MJX step cost little more time than small
+# ones, so more envs per seed and larger batches, at half an update per env step.
 GPU_CHEETAH_CONFIG: dict[str, Any] = {
     **FAST_CHEETAH_CONFIG,
     "num_envs": 64,

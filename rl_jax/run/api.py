@@ -129,6 +129,7 @@ def train(
     log_interval: float = 30.0,
     quiet: bool = False,
     recipe: str | None = None,
+    wandb: bool = False,
 ) -> Run:
     """Train ``algorithm`` ("td3", "ddpg", "dqn", "reinforce"; a learner of your own as
     "my_package.my_module:learner" or "path/to/file.py:learner", or the learner object) on
@@ -138,7 +139,8 @@ def train(
     The settings are the learner's ``recipe`` for the env (None: its default; the names are
     those of ``--recipe`` in the scripts), then ``config`` / ``hparams``, which override fields
     by name (as the scripts' flags do); ``total_steps`` defaults to the recipe's budget, else
-    100,000 env steps per seed.
+    100,000 env steps per seed. ``wandb=True`` also logs every seed to Weights & Biases, as
+    ``--wandb`` does (``rl_jax.run.tracking``).
     """
     configure()
     learner = cli.resolve_algorithm(algorithm)
@@ -160,6 +162,7 @@ def train(
         seeds=seeds,
         total_steps=100_000 if total_steps is None else int(total_steps),
         log_interval=log_interval,
+        wandb=wandb,
         command=f"rl_jax.train({named!r}, {env_id!r}, seeds={seeds}, ...)",
         resume_command=f"rl_jax.resume({str(run_dir)!r}{learners.python_hint(learner)})",
     )
@@ -172,9 +175,11 @@ def resume(
     total_steps: int | None = None,
     quiet: bool = False,
     algorithm: str | Any = None,
+    wandb: bool = False,
 ) -> Run:
     """Continue a run (from the scripts or ``train``) from its latest checkpoint.
-    ``algorithm``: the run's learner, when it is one of your own (named as for ``train``)."""
+    ``algorithm``: the run's learner, when it is one of your own (named as for ``train``);
+    ``wandb``: log to Weights & Biases, continuing the W&B runs of the run's earlier starts."""
     configure()
     run_dir = Path(run_dir)
     record = read_run_record(run_dir)
@@ -193,6 +198,7 @@ def resume(
         total_steps=record.get("total_steps", 0) if total_steps is None else int(total_steps),
         resume=True,
         grid_fields=tuple(record.get("grid_fields", ())),
+        wandb=wandb,
     )
     result = run(spec, notify=(lambda message: None) if quiet else print)
     return Run(result.run_dir, result.results or None, learner)

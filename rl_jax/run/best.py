@@ -39,6 +39,7 @@ def policy_fields(algorithm: Algorithm, state: ArrayPytree) -> tuple[str, ...]:
 
 
 def policy_part(state: ArrayPytree, fields: tuple[str, ...]) -> dict[str, ArrayPytree]:
+    """The fields of the train state the policy reads, by name."""
     return {name: getattr(state, name) for name in fields}
 
 
@@ -61,6 +62,7 @@ class BestPolicies:
 
     @property
     def enabled(self) -> bool:
+        """Whether the learner names policy fields, so that best policies are tracked at all."""
         return bool(self.fields)
 
     def observe(
@@ -91,6 +93,7 @@ class BestPolicies:
         return improved
 
     def metadata(self) -> dict[str, Any]:
+        """Best eval return and its env step per run, as JSON-ready nested lists ``[H][S]``."""
         return {
             "best_returns": [[_json_float(r) for r in row] for row in self.returns.tolist()],
             "best_steps": self.steps.tolist(),

@@ -142,6 +142,7 @@ class Checkpointer:
             return sorted(self._manager.all_steps())
 
     def latest_step(self) -> int | None:
+        """The newest saved step, or None when nothing is saved yet."""
         steps = self.steps()
         return steps[-1] if steps else None
 
@@ -309,6 +310,7 @@ class Checkpointer:
         return DamagedCheckpointError(message, step, problem)
 
     def close(self) -> None:
+        """Wait for pending writes and release the checkpoint manager."""
         self._manager.close()
 
     def __enter__(self) -> Checkpointer:

@@ -19,6 +19,7 @@ from rl_jax.errors import CheckpointError
 
 
 def is_key(leaf: object) -> bool:
+    """Whether ``leaf`` is a typed PRNG key array (saved as its key data)."""
     return hasattr(leaf, "dtype") and jax.dtypes.issubdtype(leaf.dtype, jax.dtypes.prng_key)
 
 
@@ -62,6 +63,7 @@ def split_state(state: ArrayPytree) -> tuple[dict[str, jax.Array], list[dict[str
 
 
 def leaf_name(index: int) -> str:
+    """The name under which the ``index``-th leaf's array is saved."""
     return f"leaf_{index:05d}"
 
 
@@ -107,6 +109,9 @@ def first_mismatch(saved: list[dict], expected: list[dict]) -> str | None:
 def rebuild_leaf(
     record: dict, arrays: dict[str, jax.Array], index: int, sharding: jax.sharding.Sharding | None
 ) -> object:
+    """The ``index``-th leaf from its record and the restored arrays: JSON values as saved,
+    zero-size arrays as zeros (placed by ``sharding``), keys re-wrapped from their data.
+    """
     kind = record["kind"]
     if kind == "json":
         return record["value"]

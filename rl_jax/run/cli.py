@@ -387,6 +387,7 @@ def build_spec(
         keep_checkpoints=args.keep_checkpoints,
         log_interval=args.log_interval,
         gif=args.gif,
+        wandb=args.wandb,
         command=shlex.join([Path(sys.executable).name, sys.argv[0], *argv]),
         resume_command=f"{script} --resume {shlex.quote(str(out))} {named}".strip(),
         # The recipe's measured throughput holds for its own config only.

@@ -30,6 +30,8 @@ KEY = 20_251_125  # evaluation episodes' key: none of a run's own evaluations dr
 
 @dataclasses.dataclass(frozen=True)
 class Evaluation:
+    """One policy's returns on fresh episodes, beside the run's own evaluation of it."""
+
     seed: int
     which: str  # "best" or "latest" (what was loaded)
     step: int  # env step of the policy
@@ -65,6 +67,9 @@ def evaluate_run(
 
 
 def table(evaluations: list[Evaluation]) -> str:
+    """The evaluations as a text table: per policy its step, the run's eval and the fresh
+    episodes' mean, std, min and max.
+    """
     episodes = len(evaluations[0].returns)
     lines = [
         f"each policy on {episodes} fresh episodes",
@@ -87,6 +92,9 @@ def table(evaluations: list[Evaluation]) -> str:
 
 
 def main(argv: list[str] | None = None) -> int:
+    """``python -m rl_jax.run.evaluate RUN_DIR``: run each seed's best (and with ``--latest``
+    latest) policy on fresh episodes and print the table. Returns the exit status.
+    """
     parser = OneLineParser(prog="python -m rl_jax.run.evaluate", description=__doc__.split("\n")[0])
     parser.add_argument("run_dir", type=Path, help="a run directory (holds config.json)")
     parser.add_argument(

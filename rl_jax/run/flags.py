@@ -23,6 +23,7 @@ NOT_FLAGS = ("env_id",)
 
 
 def parse_bool(text: str) -> bool:
+    """argparse type: 1/true/yes/on or 0/false/no/off, in any case."""
     lowered = text.strip().lower()
     if lowered in ("1", "true", "yes", "on"):
         return True
@@ -32,6 +33,7 @@ def parse_bool(text: str) -> bool:
 
 
 def non_negative_float(text: str) -> float:
+    """argparse type: a float >= 0."""
     value = parse_float(text)
     if value < 0:
         raise argparse.ArgumentTypeError(f"must be >= 0, got {value}")
@@ -58,6 +60,9 @@ def kind_of(default: FieldValue) -> str:
 
 
 def parser_for(default: FieldValue) -> Callable[[str], FieldValue]:
+    """The argparse type that parses a value of ``default``'s kind: bool, int, float, a
+    comma-separated tuple, or a string.
+    """
     kind = kind_of(default)
     if kind == "tuple":
         # An empty default says nothing of its elements: widths and sizes are whole numbers.
@@ -93,6 +98,7 @@ def _describe(default: FieldValue) -> str:
 
 
 def flag_name(field: str) -> str:
+    """The command-line flag of a config field: ``batch_size`` -> ``--batch-size``."""
     return "--" + field.replace("_", "-")
 
 
@@ -167,6 +173,12 @@ def add_run_flags(parser: argparse.ArgumentParser, seeds: int, total_steps: int)
         "--gif",
         action="store_true",
         help="at the end, write policy.gif of the deterministic policy of the best seed",
+    )
+    add(
+        "--wandb",
+        action="store_true",
+        help="also log each seed's curves and the config to Weights & Biases, one W&B run per "
+        'seed grouped by run directory (needs wandb: pip install "rl_jax[tracking]")',
     )
     add(
         "--base-seed",

@@ -103,6 +103,9 @@ class Origin:
         return f"{self.where}:{self.attribute}" if self.attribute else self.where
 
     def describe(self, name: str) -> str:
+        """How messages name the learner ``name`` of this origin: built-in, or the file or module
+        it came from.
+        """
         return f"the built-in {name}" if self.kind == BUILTIN else f"the learner {self}"
 
 

@@ -18,7 +18,7 @@ import math
 import os
 import sys
 from pathlib import Path
-from typing import Any
+from typing import Any, Protocol
 
 import numpy as np
 
@@ -95,14 +95,26 @@ def _summary_writer_class() -> type:
     return SummaryWriter
 
 
+class RowSink(Protocol):
+    """Another destination of the rows (``rl_jax.run.tracking.WandbRuns``)."""
+
+    def write(self, label: str, row: dict[str, Any]) -> None:
+        """Take one JSON-safe row of the run named ``label`` (its TensorBoard run name)."""
+
+    def close(self) -> None:
+        """Finish: no more rows come."""
+
+
 class MetricsLog:
-    """Appends rows to ``metrics.jsonl`` and TensorBoard; ``resume_step`` drops later rows."""
+    """Appends rows to ``metrics.jsonl`` and TensorBoard, and to ``tracker`` when given;
+    ``resume_step`` drops later rows."""
 
     def __init__(
         self,
         run_dir: str | Path,
         resume_step: int | None = None,
         grid_fields: tuple[str, ...] = (),
+        tracker: RowSink | None = None,
     ):
         self.run_dir = Path(run_dir)
         self.path = self.run_dir / METRICS_FILE
@@ -116,18 +128,22 @@ class MetricsLog:
         self._summary_writer = _summary_writer_class()  # imported here, not in the timed loop
         self._writers: dict[str, Any] = {}
         self._file = open(self.path, "a")  # noqa: SIM115 (kept open for the run)
+        self.tracker = tracker
 
     def write(self, rows: list[dict[str, Any]]) -> None:
         """Append rows (one JSON line each) and log their numeric fields to TensorBoard."""
         for row in rows:
             row = {key: _plain(value) for key, value in row.items()}
             self._file.write(json.dumps(row, allow_nan=False) + "\n")
-            writer = self._writer(run_label(row, self.grid_fields))
+            label = run_label(row, self.grid_fields)
+            writer = self._writer(label)
             for name, value in row.items():
                 if name in ID_FIELDS or name in self.grid_fields:
                     continue
                 if isinstance(value, (int, float)) and not isinstance(value, bool):
                     writer.add_scalar(name, value, global_step=row["step"])
+            if self.tracker is not None:
+                self.tracker.write(label, row)
         self._file.flush()  # visible to readers at once; durable at the next checkpoint
 
     def flush(self) -> None:
@@ -148,10 +164,13 @@ class MetricsLog:
         return self._writers[label]
 
     def close(self) -> None:
+        """Flush the rows and close the metrics file, the TensorBoard writers and the tracker."""
         self.flush()
         self._file.close()
         for writer in self._writers.values():
             writer.close()
+        if self.tracker is not None:
+            self.tracker.close()
 
     def __enter__(self) -> MetricsLog:
         return self

@@ -27,13 +27,10 @@ def program_for(spec: RunSpec) -> parallel.Program:
     runs evenly (``training.device_layout.mesh_shape``): 5 seeds on 2 cores run on one device.
 
     Not padded by default: on CPU one device's matmuls and env steps already use every core's
-    threads, so a padded run costs its full share. Measured (load 1-2): REINFORCE on the double
-    pendulum, 5 seeds, 20 updates took 119 s on 1 device against 142 s padded to 3 + 3 on 2
-    devices (the 6/5 of the padded seed); TD3 at 256 x 256, 5 seeds: 519-530 updates/s on one
-    device, 498-513 as 3 + 3. An algorithm whose config runs small ops says so
-    (``spread_runs``: TD3 with networks of width <= 64, 1.3x faster as 3 + 3 than as 5 on one
-    device); its runs then spread over every device, padded, when there are at least as many
-    runs as devices.
+    threads, so a padded run pays for its padding copies and gains nothing. An algorithm whose
+    config runs small ops, too small to use every core from one device, says so (``spread_runs``:
+    TD3 with networks of width <= 64); its runs then spread over every device, padded, when there
+    are at least as many runs as devices.
 
     A config with ``loop_seeds`` set (DQN on frames) runs its seeds as an unrolled loop instead
     of a vmap (``rl_jax.training.parallel.seed_loop``): faster for conv nets on CPU."""
@@ -52,6 +49,10 @@ def program_for(spec: RunSpec) -> parallel.Program:
 
 @dataclasses.dataclass
 class Plan:
+    """What a run will compute and hold: chunking of the env steps, the train state's size on the
+    devices and in a checkpoint, and the compiled program.
+    """
+
     steps_per_chunk: int
     chunks: int
     final_steps: int
@@ -149,6 +150,7 @@ def runs_template(spec: RunSpec, hparams: ArrayPytree) -> ArrayPytree:
 
 
 def format_bytes(size: float) -> str:
+    """A byte count in B, KB, MB, GB or TB (powers of 1024)."""
     for unit in ("B", "KB", "MB", "GB", "TB"):
         if abs(size) < 1024 or unit == "TB":
             return f"{size:.0f} {unit}" if unit == "B" else f"{size:.2f} {unit}"
@@ -187,6 +189,9 @@ def check_memory(plan: Plan, buffer_size: int | None = None) -> None:
 
 
 def format_plan(spec: RunSpec, plan: Plan) -> str:
+    """The plan as the lines printed before training: runs, chunks, state size against the memory
+    available, and the time estimate.
+    """
     configs = len(spec.hparams)
     runs = f"{spec.seeds} seed{'s' * (spec.seeds > 1)}"
     if configs > 1:

@@ -181,6 +181,7 @@ class FinalResult:
 
     @property
     def best_mean(self) -> float:
+        """Mean over seeds of the best eval returns (NaN when there are none)."""
         return float(np.mean(self.best)) if self.best is not None else math.nan
 
 
@@ -228,6 +229,7 @@ def _number(value: float) -> str:
 
 
 def format_duration(seconds: float) -> str:
+    """Seconds as ``H:MM:SS``."""
     seconds = int(round(seconds))
     return f"{seconds // 3600}:{seconds % 3600 // 60:02d}:{seconds % 60:02d}"
 

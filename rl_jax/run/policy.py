@@ -136,6 +136,7 @@ class LoadedPolicy:
         return self.algorithm.policy(self.state, self.config)
 
     def describe(self) -> str:
+        """One phrase naming the policy: best or latest, seed, config, step and eval return."""
         value = "" if self.eval_return is None else f", eval return {self.eval_return:.1f}"
         return (
             f"the {self.which} policy of seed {self.seed} "

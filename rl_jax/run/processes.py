@@ -16,6 +16,7 @@ from jax.experimental import multihost_utils
 
 
 def count() -> int:
+    """Number of processes in the ``jax.distributed`` job (1 when not distributed)."""
     return jax.process_count()
 
 

@@ -128,6 +128,9 @@ class Progress:
         return elapsed * max(self.total_steps - self._steps, 0) / done
 
     def status(self, eval_returns: npt.ArrayLike) -> str:
+        """The status line: env steps/s and updates/s so far, and the latest eval returns over
+        seeds.
+        """
         steps_per_s, updates_per_s = self.rates()
         return (
             f"{_rate(steps_per_s)} env steps/s | {_rate(updates_per_s)} updates/s | "
@@ -146,6 +149,7 @@ class Progress:
         )
 
     def close(self) -> None:
+        """Close the progress bar, if one is shown."""
         if self._bar is not None:
             self._bar.close()
             self._bar = None

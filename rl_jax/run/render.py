@@ -201,6 +201,9 @@ def _save_episode_plot(env: Environment, states: list[Any], gif_path: Path) -> P
 
 
 def main(argv: list[str] | None = None) -> int:
+    """``python -m rl_jax.run.render RUN_DIR``: render a seed's policy to a GIF. Returns the exit
+    status.
+    """
     parser = OneLineParser(prog="python -m rl_jax.run.render", description=__doc__.split("\n")[0])
     parser.add_argument("run_dir", type=Path, help="a run directory (holds config.json)")
     add_run_choice(parser, "seed to render (default: the one with the best eval return)")

@@ -69,6 +69,7 @@ from rl_jax.run.start import (
     set_aside_damaged,
     write_run_record,
 )
+from rl_jax.run.tracking import WandbRuns, import_wandb
 from rl_jax.training import params
 from rl_jax.training.algorithm import ChunkMetrics
 from rl_jax.training.validation import check_ranges
@@ -151,7 +152,8 @@ class Session:
             raise RunError(f"cannot write the run directory {spec.out}: {reason}") from None
         # On a resume, rows after the restored step (or all rows, if there was no checkpoint
         # yet) belong to the interrupted session and will be written again.
-        log = MetricsLog(spec.out, start.step if spec.resume else None, spec.grid_fields)
+        tracker = WandbRuns(spec) if spec.wandb else None
+        log = MetricsLog(spec.out, start.step if spec.resume else None, spec.grid_fields, tracker)
         # best/ keeps as many as checkpoints/: its saves are a subset of the checkpoints' steps,
         # so it then still holds the best policies as of any checkpoint a resume falls back to.
         keep = max(MIN_KEEP_CHECKPOINTS, spec.keep_checkpoints)
@@ -177,6 +179,7 @@ class Session:
         )
 
     def wall_clock(self) -> float:
+        """Seconds of the whole run so far: earlier starts' time plus this one's."""
         return self.earlier_wall_clock + time.perf_counter() - self.started
 
     def save(self, state: ArrayPytree, hparams: ArrayPytree, chunk: int) -> None:
@@ -203,10 +206,12 @@ class Session:
         self.saved_step, self.last_save = self.step, time.perf_counter()
 
     def write(self, rows: list[dict[str, Any]]) -> None:
+        """Append metric rows to the run's log (only the lead process has one)."""
         if self.log is not None:
             self.log.write(rows)
 
     def close(self) -> None:
+        """Close the metrics log and the checkpointers, waiting for pending writes."""
         if self.log is not None:
             self.log.close()
         if self.checkpointer is not None:
@@ -355,6 +360,8 @@ def prepare(spec: RunSpec) -> tuple[Plan, Start]:
     if not spec.hparams:
         raise RunError("no hyperparameter config to run")
     check_ranges(spec.algorithm, spec.config, spec.hparams)  # scripts, grids and the API alike
+    if spec.wandb:
+        import_wandb()  # a missing package is one line before anything compiles, in every process
     if spec.resume:
         learners.check_same(check_resume_dir(spec.out, spec.identity), spec.algorithm, spec.out)
     else:

@@ -29,6 +29,9 @@ class Script:
     total_steps: int = 100_000
 
     def main(self, description: str | None, argv: list[str] | None = None) -> NoReturn:
+        """Run the script's command line (``argv`` defaults to ``sys.argv[1:]``) with its
+        learner, env and defaults; exits with the run's status.
+        """
         cli.main(
             self.algorithm,
             self.env_id,

@@ -34,6 +34,7 @@ class RunSpec:
     keep_checkpoints: int = 3
     log_interval: float = 30.0  # seconds between progress lines when not on a terminal
     gif: bool = False
+    wandb: bool = False  # also log to Weights & Biases (rl_jax.run.tracking), lead process only
     command: str = ""  # the command line, recorded in config.json
     resume_command: str = ""  # printed when stopped
     memory_limit: int | None = None  # bytes the state may use (default: what the OS reports)
@@ -48,6 +49,9 @@ class RunSpec:
 
     @property
     def identity(self) -> dict[str, Any]:
+        """What makes two runs the same run (learner, env, config, hyperparameters, seeds): a
+        resume must match it.
+        """
         return identity(
             self.algorithm.name,
             self.env_id,
@@ -60,6 +64,10 @@ class RunSpec:
 
 @dataclasses.dataclass
 class RunResult:
+    """What a finished (or stopped) run returns: where it is, how far it got, its final state and
+    per config results.
+    """
+
     run_dir: Path
     step: int  # env steps per seed reached
     stopped: bool  # True when a signal ended the run before total_steps

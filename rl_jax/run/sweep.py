@@ -59,6 +59,9 @@ class Axis:
 
 
 def parse_axis(spec: str, config: DataclassInstance, hparams: DataclassInstance) -> Axis:
+    """One ``--grid NAME=V1,V2`` as an axis: the config or hyperparameter fields the name sets
+    (an alias may set several) and the parsed values.
+    """
     name, text = flags.split_grid_spec(spec)
     static = {f.name: getattr(config, f.name) for f in dataclasses.fields(config)}
     dynamic = {f.name: getattr(hparams, f.name) for f in dataclasses.fields(hparams)}
@@ -78,6 +81,9 @@ def combos(axes: list[Axis]) -> list[dict[str, Any]]:
 
 
 def shape_label(point: dict[str, Any], axes: list[Axis]) -> str:
+    """A point of the static axes as ``name=value,...`` (``base`` when there are none), which
+    names its run directory.
+    """
     parts = []
     for axis in axes:
         value = point[axis.fields[0]]
@@ -87,6 +93,7 @@ def shape_label(point: dict[str, Any], axes: list[Axis]) -> str:
 
 
 def parse_args(argv: list[str]) -> tuple[argparse.Namespace, list[str]]:
+    """The sweep's own flags, and every other argument for the runs it starts."""
     parser = OneLineParser(add_help=False)
     parser.add_argument("--algo")
     parser.add_argument("--env")
@@ -98,6 +105,7 @@ def parse_args(argv: list[str]) -> tuple[argparse.Namespace, list[str]]:
 
 
 def sweep_record(out: Path) -> dict[str, Any]:
+    """The ``sweep.json`` of a sweep directory, or a ``RunError`` when there is none."""
     path = out / "sweep.json"
     if not path.is_file():
         raise RunError(f"no sweep at {out} (no sweep.json)")
@@ -188,10 +196,14 @@ def _resumed_learner(saved: dict[str, Any], named: str | None, out: Path) -> Any
 
 
 def default_out(env_id: str, algorithm_name: str) -> Path:
+    """The default directory of a sweep: ``runs/<env>__<algo>-sweep__<time>/``."""
     return cli.default_run_dir(env_id, f"{algorithm_name}-sweep")
 
 
 def write_record(out: Path, argv: list[str], sweep_args: argparse.Namespace) -> None:
+    """Write ``sweep.json`` (learner, env, grid and the runs' arguments) unless it exists, so a
+    resume repeats the same sweep.
+    """
     passed = [a for a in argv if a not in ("--resume",)]
     record = {"algo": sweep_args.algo, "env": sweep_args.env, "grid": sweep_args.grid}
     record["learner"] = sweep_args.learner

@@ -96,9 +96,8 @@ class MatmulConv(nn.Module):
 
     Why not ``nn.Conv``: on XLA's CPU backend a convolution's gradient inside a loop body (the
     training chunk's ``scan``) runs several times slower than the same convolution outside one
-    (jax-ml/jax#12868; measured here 35 ms against 6-8 ms per pixel-DQN update), and vmapped
-    over seeds each conv with per-seed weights becomes one slow grouped conv. Matmuls have
-    neither problem.
+    (jax-ml/jax#12868), and vmapped over seeds each conv with per-seed weights becomes one slow
+    grouped conv. Matmuls have neither problem.
 
     How: the input is cut to the rows and columns the conv reads and rearranged space-to-depth by
     the stride (``[bh, bw, s*s*C]`` blocks of ``s x s`` pixels), so a ``k x k`` kernel with

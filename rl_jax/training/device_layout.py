@@ -46,18 +46,22 @@ class Layout:
 
     @property
     def padded_hparams(self) -> int:
+        """Hyperparameter sets after padding to a multiple of ``hparam_split``."""
         return -(-self.num_hparams // self.hparam_split) * self.hparam_split
 
     @property
     def padded_seeds(self) -> int:
+        """Seeds after padding to a multiple of ``seed_split``."""
         return -(-self.num_seeds // self.seed_split) * self.seed_split
 
     @property
     def devices(self) -> int:
+        """Devices of the mesh."""
         return self.hparam_split * self.seed_split
 
     @property
     def runs_per_device(self) -> int:
+        """Runs (padding included) each device computes."""
         return self.padded_hparams * self.padded_seeds // self.devices
 
     @property

@@ -74,6 +74,7 @@ class OffPolicyConfig:
 
     @property
     def env_steps_per_chunk(self) -> int:
+        """Env steps (over all envs) one compiled chunk takes."""
         return self.num_envs * self.iterations_per_chunk
 
     def make_env(self) -> envs.Environment:
@@ -82,9 +83,11 @@ class OffPolicyConfig:
         return envs.make(self.env_id, **envs.parse_keywords(self.env_kwargs))
 
     def to_dict(self) -> dict[str, Any]:
+        """The config's fields as a dict."""
         return dataclasses.asdict(self)
 
     def to_json(self) -> str:
+        """The config as one JSON string with sorted keys."""
         return json.dumps(self.to_dict(), sort_keys=True)
 
     @classmethod

@@ -122,9 +122,8 @@ def seed_loop(chunk_one: Chunk, axes: Axes, num_seeds: int) -> Chunk:
     loop in one program: what ``vmap(chunk_one, in_axes=(axes, None), out_axes=(axes, 0))``
     computes, but each seed keeps its own ops instead of one batched op for all. Vmapped, a conv
     with per-seed weights becomes one grouped conv (slow on XLA's CPU backend) and the conv
-    torso's matmuls become batched matmuls; for pixel DQN with 3 seeds the loop ran 1.32x
-    (42x42) and 1.23x (84x84) the vmapped updates/s (``python -m bench pixel_dqn``). Compile time
-    grows with the number of seeds."""
+    torso's matmuls become batched matmuls; ``python -m bench pixel_dqn`` compares the two.
+    Compile time grows with the number of seeds."""
 
     def looped(state: ArrayPytree, hp: ArrayPytree) -> tuple[ArrayPytree, ArrayPytree]:
         outputs = [
@@ -189,9 +188,13 @@ class Program:
 
     @property
     def padded(self) -> tuple[int, int]:
+        """``(hyperparameter sets, seeds)`` as computed, padding included."""
         return self.layout.padded_hparams, self.layout.padded_seeds
 
     def sharding(self, spec: PartitionSpec | None = None) -> NamedSharding:
+        """The sharding of ``spec`` on the program's mesh (default: runs split over both mesh
+        axes).
+        """
         return NamedSharding(self.mesh, PartitionSpec(*AXES) if spec is None else spec)
 
     def axes(self, hparams: ArrayPytree) -> Axes:
@@ -274,8 +277,8 @@ class Program:
     # ---- programs --------------------------------------------------------------------------
 
     def _wrap(self, function: Callable, in_specs: Any, out_specs: Any) -> Callable:
-        """``shard_map`` over the mesh; on one device the vmapped function as it is (measured:
-        an MJX env step under a one-device ``shard_map`` ran many times slower)."""
+        """``shard_map`` over the mesh; on one device the vmapped function as it is (an MJX env
+        step under a one-device ``shard_map`` runs many times slower)."""
         if self.layout.devices == 1:
             return function
         # check_vma=False: each device's block is an independent program; the replication check

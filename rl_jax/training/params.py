@@ -175,8 +175,10 @@ class HyperparamsMethods:
         return as_arrays(self)
 
     def to_dict(self) -> dict[str, Any]:
+        """Fields as plain Python values (JSON-ready)."""
         return dataclass_to_dict(self)
 
     @classmethod
     def from_dict(cls, values: dict[str, Any]):
+        """Inverse of ``to_dict``: the hyperparameters with every field as an array."""
         return cls(**values).as_arrays()

@@ -32,6 +32,10 @@ from rl_jax.training.replay import ReplayBuffer
 
 @struct.dataclass
 class PrioritizedBuffer:
+    """A replay buffer with a sum tree and a min tree over the priorities, for proportional
+    prioritized sampling.
+    """
+
     buffer: ReplayBuffer  # the transitions, leaves [rows, width, ...]
     sums: jax.Array  # [2 * leaves] float32: p^alpha at leaves, subtree sums above (node 0 unused)
     mins: jax.Array  # [2 * leaves] float32: subtree minima of p^alpha, +inf where nothing stored
@@ -39,10 +43,12 @@ class PrioritizedBuffer:
 
     @property
     def leaves(self) -> int:
+        """Leaves of the trees: the buffer's capacity rounded up to a power of two."""
         return self.sums.shape[0] // 2
 
     @property
     def depth(self) -> int:
+        """Levels below the root of the trees."""
         return self.leaves.bit_length() - 1
 
     def total(self) -> jax.Array:

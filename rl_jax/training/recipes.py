@@ -41,6 +41,7 @@ class Recipe:
     throughput: tuple[float, int] | None = None
 
     def is_for(self, env_id: str) -> bool:
+        """Whether the recipe applies to ``env_id`` (a recipe with no envs applies to all)."""
         return not self.envs or env_id in self.envs
 
 

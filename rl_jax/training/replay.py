@@ -40,14 +40,17 @@ class ReplayBuffer:
 
     @property
     def rows(self) -> int:
+        """Rows of the ring buffer; each holds one transition per env."""
         return jax.tree.leaves(self.data)[0].shape[0]
 
     @property
     def width(self) -> int:
+        """Transitions per row: the number of envs that write together."""
         return jax.tree.leaves(self.data)[0].shape[1]
 
     @property
     def capacity(self) -> int:
+        """Transitions the buffer holds when full (rows x width)."""
         return self.rows * self.width
 
     def size(self) -> jax.Array:

@@ -34,12 +34,17 @@ class RangeError(RunError):
 
 
 class Range(NamedTuple):
+    """An allowed interval of a setting, closed or open at either end, for one-line error
+    messages.
+    """
+
     low: float
     high: float = math.inf
     low_open: bool = False  # True: low itself is not allowed
     high_open: bool = False
 
     def holds(self, value: float) -> bool:
+        """Whether ``value`` lies inside the interval."""
         above = value > self.low if self.low_open else value >= self.low
         below = value < self.high if self.high_open else value <= self.high
         return above and below
