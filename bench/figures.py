@@ -106,18 +106,31 @@ def read_manifest(path: Path) -> dict[str, dict[str, dict[str, Any]]]:
 # ---- one figure per kind ------------------------------------------------------------------
 
 
-def _runs(entry: dict[str, Any]) -> list[Any]:
+def _runs(entry: dict[str, Any]) -> tuple[list[Any], str]:
+    """The entry's runs that exist, and a note naming those left out because they are missing
+    (all missing: ``FigureError``, and the figure is skipped)."""
     if not entry["runs"] or isinstance(entry["runs"], str):
         raise FigureError("its runs must be a non-empty list of run directories")
     labels = entry.get("labels") or [None] * len(entry["runs"])
     if len(labels) != len(entry["runs"]):
         raise FigureError(f"{len(labels)} labels for {len(entry['runs'])} runs")
-    return [read_run(run_dir, label) for run_dir, label in zip(entry["runs"], labels, strict=True)]
+    runs, missing = [], []
+    for run_dir, label in zip(entry["runs"], labels, strict=True):
+        if not resolve(run_dir).is_dir():
+            missing.append(str(run_dir))
+            continue
+        runs.append(read_run(run_dir, label))
+    if not runs:
+        listed = "run directory" if len(missing) == 1 else "run directories"
+        raise FigureError(
+            f"{listed} {', '.join(missing)} {'is' if len(missing) == 1 else 'are'} missing"
+        )
+    return runs, (f" (left out, missing: {', '.join(missing)})" if missing else "")
 
 
 def make_curves(entry: dict[str, Any], path: Path) -> str:
     """A learning-curve figure of one env; a note on what it holds."""
-    runs = _runs(entry)
+    runs, left_out = _runs(entry)
     env_ids = sorted({run.env_id for run in runs})
     if len(env_ids) != 1:
         raise FigureError(f"its runs are on different envs: {env_ids}")
@@ -138,7 +151,7 @@ def make_curves(entry: dict[str, Any], path: Path) -> str:
         (float(line[0]), str(line[1])) if line else None,
     )
     against = f" against {', '.join(r.name for r in references)}" if references else ""
-    return f"{len(runs)} runs on {env_id}{against}, {size / 1024:.0f} KB"
+    return f"{len(runs)} runs on {env_id}{against}, {size / 1024:.0f} KB{left_out}"
 
 
 def _covers(reference: str, env_id: str) -> bool:
@@ -164,7 +177,7 @@ def _scale(env_id: str, spec: dict[str, Any]) -> tuple[float, float, str]:
 
 def make_aggregate(entry: dict[str, Any], path: Path) -> str:
     """The IQM and performance-profile figure over a suite; a note with the IQMs."""
-    runs = _runs(entry)
+    runs, left_out = _runs(entry)
     scales = {}
     for run in runs:
         if run.env_id not in entry["normalize"]:
@@ -182,7 +195,8 @@ def make_aggregate(entry: dict[str, Any], path: Path) -> str:
     values = ", ".join(
         f"{label} IQM {c:.2f} [{lo:.2f}, {hi:.2f}]" for label, (c, lo, hi) in iqms.items()
     )
-    return f"{values}; scales: {'; '.join(s[2] for s in scales.values())}, {size / 1024:.0f} KB"
+    scale_notes = "; ".join(s[2] for s in scales.values())
+    return f"{values}; scales: {scale_notes}, {size / 1024:.0f} KB{left_out}"
 
 
 def make_speed(entry: dict[str, Any], path: Path) -> str:

@@ -153,8 +153,8 @@ def test_figures_from_a_manifest_with_a_missing_run_skipped_in_one_line(runs, tm
         tmp_path / "manifest.toml",
         f"""
 [curves.cheetah]
-runs = ["{runs["cheetah_td3"]}", "{runs["cheetah_sac"]}"]
-reference = "td3_paper"
+runs = ["{runs["cheetah_td3"]}", "{runs["cheetah_sac"]}", "{tmp_path / "not_yet"}"]
+reference = ["td3_paper", "sac_simbav2"]
 [curves.gone]
 runs = ["{tmp_path / "no_such_run"}"]
 [aggregate.suite]
@@ -180,7 +180,9 @@ log = true
     made = sorted(p.name for p in out.iterdir())
     assert made == ["aggregate_suite.png", "curves_cheetah.png", "speed_bench.png"]
     assert all(0 < (out / name).stat().st_size <= figure_plots.MAX_BYTES for name in made)
-    assert any("against TD3 paper" in line for line in printed)
+    cheetah = next(line for line in printed if "curves_cheetah.png" in line)
+    assert "against TD3 paper, SAC (SimbaV2 baseline)" in cheetah
+    assert cheetah.endswith(f"(left out, missing: {tmp_path / 'not_yet'})")
     assert any(line.startswith("wrote") and "TD3 IQM" in line for line in printed)
 
 
