@@ -287,14 +287,20 @@ def make_all(
                 continue
             try:
                 note = MAKERS[kind](entry, out / target)
-            except (FigureError, TypeError, ValueError, KeyError) as error:
-                reason = error if isinstance(error, FigureError) else f"malformed entry ({error!r})"
+            except (FigureError, OSError, TypeError, ValueError, KeyError) as error:
+                reason = error if isinstance(error, FigureError) else _reason(error)
                 skipped.append(f"skipped {target}: {reason}")
                 print(skipped[-1], flush=True)
                 continue
             written.append(out / target)
             print(f"wrote {_shown(out / target)}: {note}", flush=True)
     return written, skipped
+
+
+def _reason(error: Exception) -> str:
+    if isinstance(error, OSError):
+        return f"cannot read or write {error.filename or ''}: {error.strerror or error}"
+    return f"malformed entry ({error!r})"
 
 
 def _shown(path: Path) -> str:
@@ -320,6 +326,13 @@ def main(argv: list[str] | None = None) -> int:
     if unknown:
         print(
             f"error: no figure {unknown[0]!r} in {args.manifest}; it has {known}", file=sys.stderr
+        )
+        return 2
+    try:
+        args.out.mkdir(parents=True, exist_ok=True)
+    except OSError as error:
+        print(
+            f"error: cannot write to --out {args.out}: {error.strerror or error}", file=sys.stderr
         )
         return 2
     written, skipped = make_all(manifest, args.out, args.only)

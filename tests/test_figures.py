@@ -219,6 +219,13 @@ def test_a_malformed_entry_is_skipped_in_one_line(tmp_path, capsys):
     assert "skipped curves_x.png: malformed entry" in capsys.readouterr().out
 
 
+def test_an_out_that_cannot_be_a_folder_is_one_line(tmp_path, capsys):
+    manifest = _manifest(tmp_path / "m.toml", "[curves.x]\nruns = []\n")
+    (tmp_path / "a_file").write_text("")
+    assert figures.main(["--manifest", str(manifest), "--out", str(tmp_path / "a_file")]) == 2
+    assert capsys.readouterr().err.startswith("error: cannot write to --out")
+
+
 def test_an_unknown_figure_name_is_one_line(tmp_path, capsys):
     manifest = _manifest(tmp_path / "m.toml", "[curves.x]\nruns = []\n")
     assert figures.main(["--manifest", str(manifest), "--only", "curves_y"]) == 2
