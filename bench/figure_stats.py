@@ -14,8 +14,8 @@ These follow Agarwal et al., "Deep RL at the Edge of the Statistical Precipice" 
   every env in every resample; the 95% interval is the 2.5 and 97.5 percentiles of the
   statistic over resamples. The RNG is fixed: the same scores always give the same figure.
 
-``tests/test_figures.py`` checks them on cases with known answers, and against ``rliable`` where
-it is installed.
+``tests/test_bench_figures.py`` checks them on cases with known answers, and against
+``rliable`` where it is installed.
 """
 
 from __future__ import annotations
