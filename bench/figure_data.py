@@ -95,6 +95,7 @@ class Reference:
 
     @property
     def label(self) -> str:
+        """The legend's text: name, seed count and the env it was measured on."""
         return f"{self.name} ({self.returns.shape[0]} seeds, {self.source_env})"
 
     def mean_at(self, step: int) -> float:

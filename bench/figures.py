@@ -308,6 +308,7 @@ def _shown(path: Path) -> str:
 
 
 def main(argv: list[str] | None = None) -> int:
+    """The command: make the figures; 0, or 2 after one line on a bad manifest or flag."""
     parser = OneLineParser(prog="python -m bench.figures", description=__doc__.split("\n")[0])
     parser.add_argument("run_dirs", nargs="*", type=Path, help="runs to plot (default: manifest)")
     parser.add_argument("--manifest", type=Path, default=MANIFEST, help="figures -> sources")
