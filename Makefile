@@ -22,7 +22,7 @@ LATEST_VENV := .venv-latest
 # Headless MuJoCo rendering picks EGL, else OSMesa, when a frame is first drawn
 # (envs/mujoco/opengl.py); nothing else needs OpenGL, so MUJOCO_GL is not set here.
 
-.PHONY: install test test-slow test-latest lint typecheck format bench results train lock \
+.PHONY: install test test-slow test-latest lint typecheck format bench results figures train lock \
 	lock-gpu system-deps clean help
 
 help:
@@ -94,6 +94,9 @@ bench: install ## run the benchmarks and print the tables (see BENCHMARKS.md)
 
 results: install ## regenerate every row of RESULTS.md, one long training run at a time
 	$(BIN)/python -m bench.results all
+
+figures: install ## redraw docs/figures/ from the runs named in docs/figures/manifest.toml
+	$(BIN)/python -m bench.figures
 
 train: install ## train TD3 on half cheetah, 5 seeds in one compiled program
 	$(BIN)/python experiments/td3_cheetah.py --seeds 5
