@@ -213,10 +213,10 @@ def test_a_bad_manifest_is_one_line_and_status_2(tmp_path, capsys, text, message
     assert error.count("\n") == 1 and message in error, error
 
 
-def test_a_malformed_entry_is_skipped_in_one_line(tmp_path, capsys):
+def test_a_malformed_entry_is_one_line(tmp_path, capsys):
     manifest = _manifest(tmp_path / "m.toml", "[curves.x]\nruns = [1]\n")
-    assert figures.main(["--manifest", str(manifest), "--out", str(tmp_path / "o")]) == 0
-    assert "skipped curves_x.png: malformed entry" in capsys.readouterr().out
+    assert figures.main(["--manifest", str(manifest), "--out", str(tmp_path / "o")]) == 2
+    assert "[curves.x] runs must be a list of paths" in capsys.readouterr().err
 
 
 def test_an_out_that_cannot_be_a_folder_is_one_line(tmp_path, capsys):
