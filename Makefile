@@ -1,6 +1,7 @@
 # rl_jax — every set-up step lives here so that a fresh machine needs only Python 3.11 and pip.
 #   make train   install, then train TD3 on half cheetah with 5 seeds
-#   make test    install, then run the test suite (CI runs make lint, make typecheck, then this)
+#   make test    install, then run the test suite (CI runs make lint, make typecheck, make docs,
+#                then this)
 #   make install GPU=1        also the CUDA 12 build of the pinned jaxlib (requirements-gpu.lock)
 #   make test-latest          the default suite against the newest releases, in .venv-latest
 PYTHON ?= python3.11
@@ -85,6 +86,12 @@ lint: install ## ruff lint + format check
 typecheck: install ## mypy against its baseline of known errors, which may only shrink
 	$(BIN)/python scripts/typecheck.py
 
+# The documentation site (docs/: MyST pages; conf.py; _ext/ writes the tables of options, recipes
+# and envs from the code). Warnings are errors, and so is a local link or image that resolves to
+# nothing. Every docs/*.md page joins the site through index.md's glob toctree.
+docs: install ## build the documentation site into docs/_build/html (warnings are errors)
+	$(BIN)/python -m sphinx -W --keep-going -q -j auto -b html docs docs/_build/html
+
 format: install ## apply ruff formatting and safe fixes
 	$(BIN)/ruff format .
 	$(BIN)/ruff check --fix .
@@ -117,4 +124,4 @@ lock-gpu: ## regenerate requirements-gpu.lock (the CUDA plugin of the pinned jax
 		--no-emit-find-links -c requirements.lock -o requirements-gpu.lock requirements-gpu.in
 
 clean: ## remove the venvs and caches (runs/ is kept)
-	rm -rf $(VENV) $(LATEST_VENV) .pytest_cache .ruff_cache .mypy_cache
+	rm -rf $(VENV) $(LATEST_VENV) .pytest_cache .ruff_cache .mypy_cache docs/_build

@@ -1,0 +1,413 @@
+"""Sphinx directives that write the site's tables from the code, so that they never go stale.
+
+``learner-options NAME``
+    the learner's ``Config`` and ``Hyperparams`` fields: flag, default, meaning (the same
+    comments ``--help`` reads). ``:compare: OTHER`` adds the fields whose defaults differ in the
+    learner ``OTHER`` (DDPG against TD3); ``:variant: module:Class`` adds the fields a config
+    variant adds or changes (DQN's ``PixelConfig``).
+``learner-recipes NAME``
+    the learner's recipes (``rl_jax.training.recipes``): name, envs, summary, budget.
+``learner-figures NAME [NAME ...]``
+    every image under ``docs/figures/`` whose file name holds one of the names as a word
+    (``halfcheetah_td3.png``, ``td3-hopper.gif``), or one line saying there is none yet.
+``env-table``
+    every registered env id with its observation and action spaces and episode limit (built
+    from ``envs.make``); the directive's content gives each id's parity line as ``ID: text``.
+    An id registered but not described, or described but not registered, fails the build.
+
+After the HTML is written, ``check_output`` reads every page: a local link (``href``) or image
+(``src``) whose file or ``#anchor`` does not exist is a warning, so ``-W`` fails the build.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import html.parser
+import importlib
+import inspect
+import re
+from pathlib import Path
+from typing import Any
+from urllib.parse import unquote, urlsplit
+
+from docutils import nodes
+from docutils.parsers.rst import directives
+from sphinx.application import Sphinx
+from sphinx.util import logging
+from sphinx.util.docutils import SphinxDirective
+
+logger = logging.getLogger(__name__)
+
+IMAGE_SUFFIXES = (".png", ".gif", ".svg", ".jpg", ".jpeg", ".webp")
+FIGURES = "figures"
+
+
+# ---- building blocks --------------------------------------------------------------------------
+
+_CODE = re.compile(r"``(.+?)``|`(.+?)`")
+
+
+def inline(text: str) -> list[nodes.Node]:
+    """``text`` as docutils nodes, its ``code`` and ```code``` spans as literals."""
+    parts: list[nodes.Node] = []
+    position = 0
+    for match in _CODE.finditer(text):
+        if match.start() > position:
+            parts.append(nodes.Text(text[position : match.start()]))
+        code = match.group(1) or match.group(2)
+        parts.append(nodes.literal(code, code))
+        position = match.end()
+    if position < len(text):
+        parts.append(nodes.Text(text[position:]))
+    return parts
+
+
+Cell = str | nodes.Node
+
+
+def table(headers: list[str], rows: list[list[Cell]], widths: list[int]) -> nodes.table:
+    """A docutils table; a ``str`` cell is text with its code spans as literals."""
+    group = nodes.tgroup(cols=len(headers))
+    for width in widths:
+        group += nodes.colspec(colwidth=width)
+
+    def row_of(cells: list[Cell]) -> nodes.row:
+        row = nodes.row()
+        for cell in cells:
+            entry = nodes.entry()
+            entry += nodes.paragraph("", "", *inline(cell)) if isinstance(cell, str) else cell
+            row += entry
+        return row
+
+    head = nodes.thead()
+    head += row_of(list(headers))
+    body = nodes.tbody()
+    for cells in rows:
+        body += row_of(cells)
+    group += head
+    group += body
+    result = nodes.table(classes=["rl-jax-generated"])
+    result += group
+    return result
+
+
+def literal(text: str) -> nodes.paragraph:
+    """A table cell of one code span."""
+    return nodes.paragraph("", "", nodes.literal(text, text))
+
+
+def describe(value: Any) -> str:
+    """A default as a flag would take it: ``256,256`` for a tuple, 7 digits of a float."""
+    if isinstance(value, tuple):
+        return ",".join(str(v) for v in value) or "(empty)"
+    if hasattr(value, "item"):
+        value = value.item()
+    if isinstance(value, float):
+        return f"{value:.7g}"
+    return str(value)
+
+
+def learner(name: str) -> Any:
+    """A learner object by its ``--algo`` name."""
+    from rl_jax.run.learners import resolve
+
+    return resolve(name)
+
+
+def imported(reference: str) -> Any:
+    """``module:attribute`` imported."""
+    module, _, attribute = reference.partition(":")
+    return getattr(importlib.import_module(module), attribute)
+
+
+# ---- learner options ----------------------------------------------------------------------------
+
+
+def field_defaults(cls: type) -> dict[str, Any]:
+    """Each field's default in the class itself, before any recipe (flags only)."""
+    from rl_jax.run.flags import NOT_FLAGS
+
+    defaults = {}
+    for field in dataclasses.fields(cls):
+        if field.name in NOT_FLAGS:
+            continue
+        if field.default is not dataclasses.MISSING:
+            defaults[field.name] = field.default
+        elif field.default_factory is not dataclasses.MISSING:
+            defaults[field.name] = field.default_factory()
+    return defaults
+
+
+def options_rows(cls: type, only: set[str] | None = None) -> list[list[Cell]]:
+    """One row per field of ``cls`` (or of ``only``): flag, default, meaning."""
+    from rl_jax.run.field_docs import field_docs
+    from rl_jax.run.flags import flag_name
+
+    docs = field_docs(cls)
+    rows: list[list[Cell]] = []
+    for name, default in field_defaults(cls).items():
+        if only is not None and name not in only:
+            continue
+        rows.append([literal(flag_name(name)), literal(describe(default)), docs.get(name, "")])
+    return rows
+
+
+def changed_fields(base: type, other: type) -> set[str]:
+    """Fields of ``other`` that ``base`` lacks or whose defaults differ."""
+    mine, theirs = field_defaults(base), field_defaults(other)
+    return {n for n, v in theirs.items() if n not in mine or describe(mine[n]) != describe(v)}
+
+
+def section(title: str, intro: str, body: nodes.Node) -> list[nodes.Node]:
+    """A titled table with a line of introduction."""
+    return [nodes.rubric(title, title), nodes.paragraph("", "", *inline(intro)), body]
+
+
+OPTION_HEADERS = ["flag", "default", "meaning"]
+OPTION_WIDTHS = [26, 14, 60]
+
+
+class LearnerOptions(SphinxDirective):
+    """The option tables of one learner (see the module docstring)."""
+
+    required_arguments = 1
+    option_spec = {"compare": directives.unchanged, "variant": directives.unchanged}
+
+    def run(self) -> list[nodes.Node]:
+        self.env.note_reread()  # generated from the code: re-read on every build
+        algorithm = learner(self.arguments[0])
+        config, hparams = algorithm.config_type, algorithm.hparams_type
+        out = section(
+            f"Config: static settings of {algorithm.name}",
+            "Shapes, loop counts and sizes: a change compiles another program. Each is a "
+            "flag of the scripts and a keyword of ``rl_jax.train``. The defaults are the "
+            "learner's own: a recipe (below) may set others for its envs, and a script's "
+            "``--help`` shows the values it would run with.",
+            table(OPTION_HEADERS, options_rows(config), OPTION_WIDTHS),
+        )
+        out += section(
+            f"Hyperparams: what a sweep of {algorithm.name} may vary",
+            "Array leaves of the train state: ``--grid NAME=a,b`` trains every value in one "
+            "compiled program.",
+            table(OPTION_HEADERS, options_rows(hparams), OPTION_WIDTHS),
+        )
+        if "compare" in self.options:
+            other = learner(self.options["compare"])
+            for mine, theirs, kind in (
+                (config, other.config_type, "Config"),
+                (hparams, other.hparams_type, "Hyperparams"),
+            ):
+                changed = changed_fields(mine, theirs)
+                if changed:
+                    out += section(
+                        f"{other.name}: its {kind} defaults where they differ",
+                        f"``{other.name}`` is the same learner with these defaults.",
+                        table(OPTION_HEADERS, options_rows(theirs, changed), OPTION_WIDTHS),
+                    )
+        if "variant" in self.options:
+            variant = imported(self.options["variant"])
+            changed = changed_fields(config, variant)
+            out += section(
+                f"{variant.__name__}: what it adds or changes",
+                inspect.cleandoc(variant.__doc__ or "").split("\n\n")[0].replace("\n", " "),
+                table(OPTION_HEADERS, options_rows(variant, changed), OPTION_WIDTHS),
+            )
+        return out
+
+
+# ---- recipes ----------------------------------------------------------------------------------
+
+
+class LearnerRecipes(SphinxDirective):
+    """The recipes of one learner (see the module docstring)."""
+
+    required_arguments = 1
+
+    def run(self) -> list[nodes.Node]:
+        self.env.note_reread()
+        algorithm = learner(self.arguments[0])
+        rows: list[list[Cell]] = []
+        for recipe in algorithm.recipes:
+            envs_cell = ", ".join(f"``{e}``" for e in recipe.envs) if recipe.envs else "any env"
+            budget = f"{recipe.total_steps:,}" if recipe.total_steps else ""
+            rows.append([literal(recipe.name), envs_cell, recipe.about, budget])
+        if not rows:
+            return [nodes.paragraph("", "", *inline("No recipes: the defaults above."))]
+        return [table(["recipe", "for", "what it is", "steps per seed"], rows, [14, 30, 44, 12])]
+
+
+# ---- figures ----------------------------------------------------------------------------------
+
+
+def figure_files(figures_dir: Path, names: list[str]) -> list[Path]:
+    """Images whose file name holds one of ``names`` as a word (split at ``_ - . _ _``)."""
+    if not figures_dir.is_dir():
+        return []
+    wanted = {n.lower() for n in names}
+    found = []
+    for path in sorted(figures_dir.rglob("*")):
+        words = set(re.split(r"[_\-.\s]+", path.stem.lower()))
+        if path.suffix.lower() in IMAGE_SUFFIXES and words & wanted:
+            found.append(path)
+    return found
+
+
+class LearnerFigures(SphinxDirective):
+    """The learner's figures from ``docs/figures/`` (see the module docstring)."""
+
+    required_arguments = 1
+    optional_arguments = 8
+
+    def run(self) -> list[nodes.Node]:
+        self.env.note_reread()
+        srcdir = Path(self.env.srcdir)
+        files = figure_files(srcdir / FIGURES, self.arguments)
+        if not files:
+            text = "No figure of this learner yet: the results page has its numbers."
+            return [nodes.paragraph("", "", nodes.emphasis(text, text))]
+        out: list[nodes.Node] = []
+        for path in files:
+            self.env.note_dependency(str(path))
+            uri = "/" + path.relative_to(srcdir).as_posix()  # to Sphinx: from the source folder
+            figure = nodes.figure()
+            figure += nodes.image(uri=uri, alt=path.stem)
+            caption = path.stem.replace("_", " ")
+            figure += nodes.caption(caption, caption)
+            out.append(figure)
+        return out
+
+
+# ---- environments -----------------------------------------------------------------------------
+
+
+def space_text(space: Any) -> str:
+    """``Box (17,)``, ``Box (84, 84, 4) uint8`` or ``Discrete 2``."""
+    kind = type(space).__name__
+    if hasattr(space, "n"):
+        return f"{kind} {int(space.n)}"
+    shape = tuple(int(d) for d in space.shape)
+    dtype = str(getattr(space, "dtype", "float32"))
+    return f"{kind} {shape}" + ("" if dtype == "float32" else f" {dtype}")
+
+
+def env_rows() -> dict[str, tuple[str, str, int]]:
+    """Every registered id: observation space, action space, episode limit. MuJoCo envs are
+    built on the host-callback backend, which needs no compiled op (the spaces are the same)."""
+    import envs
+    from envs.core import registry
+
+    rows = {}
+    for env_id in envs.registered_ids():
+        factory = registry.factory(env_id)
+        kwargs = {}
+        if "backend" in inspect.signature(factory).parameters:
+            kwargs["backend"] = "mujoco_callback"
+        env = factory(**kwargs)
+        params = env.default_params
+        rows[env_id] = (
+            space_text(env.observation_space(params)),
+            space_text(env.action_space(params)),
+            int(env.max_episode_steps),
+        )
+    return rows
+
+
+class EnvTable(SphinxDirective):
+    """The table of registered envs (see the module docstring)."""
+
+    has_content = True
+
+    def run(self) -> list[nodes.Node]:
+        self.env.note_reread()
+        parity: dict[str, str] = {}
+        for line in self.content:
+            if line.strip():
+                env_id, _, text = line.partition(": ")
+                parity[env_id.strip()] = text.strip()
+        rows = env_rows()
+        where = self.get_location()
+        for env_id in sorted(set(rows) - set(parity)):
+            logger.warning(f"env-table: {env_id} is registered but has no line", location=where)
+        for env_id in sorted(set(parity) - set(rows)):
+            logger.warning(f"env-table: {env_id} is not a registered env", location=where)
+        cells: list[list[Cell]] = [
+            [literal(env_id), literal(obs), literal(act), f"{steps:,}", parity.get(env_id, "")]
+            for env_id, (obs, act, steps) in rows.items()
+        ]
+        headers = ["id", "observation", "action", "episode steps", "matches"]
+        return [table(headers, cells, [24, 16, 12, 8, 40])]
+
+
+# ---- the written site: every local link and image resolves --------------------------------------
+
+
+class _Collector(html.parser.HTMLParser):
+    """The ids, local links and image sources of one HTML page."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.ids: set[str] = set()
+        self.links: list[str] = []
+        self.images: list[str] = []
+
+    def handle_starttag(self, tag: str, attrs: list[tuple[str, str | None]]) -> None:
+        values = dict(attrs)
+        if values.get("id"):
+            self.ids.add(values["id"] or "")
+        if tag == "a" and values.get("name"):
+            self.ids.add(values["name"] or "")
+        if tag == "a" and values.get("href"):
+            self.links.append(values["href"] or "")
+        if tag == "img" and values.get("src"):
+            self.images.append(values["src"] or "")
+
+
+def _is_local(url: str) -> bool:
+    parts = urlsplit(url)
+    return not parts.scheme and not parts.netloc and not url.startswith("mailto:")
+
+
+def broken_references(outdir: Path) -> list[str]:
+    """``page: what`` for each local link or image of the HTML under ``outdir`` that points at a
+    missing file or a missing ``#anchor``."""
+    pages: dict[Path, _Collector] = {}
+    for page in sorted(outdir.rglob("*.html")):
+        collector = _Collector()
+        collector.feed(page.read_text(encoding="utf-8"))
+        pages[page] = collector
+    problems = []
+    for page, collector in pages.items():
+        name = page.relative_to(outdir).as_posix()
+        for kind, urls in (("link", collector.links), ("image", collector.images)):
+            for url in urls:
+                if not _is_local(url) or url.startswith("data:"):
+                    continue
+                parts = urlsplit(url)
+                target = (page.parent / unquote(parts.path)).resolve() if parts.path else page
+                if target.is_dir():
+                    target = target / "index.html"
+                if not target.exists():
+                    problems.append(f"{name}: {kind} {url} points at no file")
+                    continue
+                if parts.fragment and target.suffix == ".html":
+                    ids = pages[target].ids if target in pages else set()
+                    if unquote(parts.fragment) not in ids:
+                        problems.append(f"{name}: {kind} {url} points at no anchor")
+    return problems
+
+
+def check_output(app: Sphinx, exception: Exception | None) -> None:
+    """After a successful HTML build: a warning for each broken local link or image."""
+    if exception is None and app.builder.format == "html":
+        for problem in broken_references(Path(app.outdir)):
+            logger.warning(problem)
+
+
+def setup(app: Sphinx) -> dict[str, Any]:
+    """Sphinx's entry point: the directives and the output check."""
+    app.add_directive("learner-options", LearnerOptions)
+    app.add_directive("learner-recipes", LearnerRecipes)
+    app.add_directive("learner-figures", LearnerFigures)
+    app.add_directive("env-table", EnvTable)
+    app.connect("build-finished", check_output)
+    return {"version": "1", "parallel_read_safe": True, "parallel_write_safe": True}

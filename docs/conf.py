@@ -1,0 +1,65 @@
+"""Sphinx configuration of the rl_jax documentation site (``make docs``).
+
+Pages are Markdown (MyST). Every ``docs/*.md`` page joins the site through the glob toctree of
+``index.md``; the tables of learner options, recipes and environments are generated from the code
+at build time by ``_ext/rl_jax_docs.py``, so they cannot go stale.
+"""
+
+import os
+import sys
+from pathlib import Path
+
+# The generated tables build envs and learners: JAX's CPU backend is all they need.
+os.environ.setdefault("JAX_PLATFORMS", "cpu")
+
+DOCS = Path(__file__).resolve().parent
+ROOT = DOCS.parent
+sys.path[:0] = [str(DOCS / "_ext"), str(ROOT)]
+
+project = "rl_jax"
+author = "the rl_jax authors"
+copyright = "the rl_jax authors, Apache-2.0"
+
+extensions = [
+    "myst_parser",
+    "sphinx.ext.autodoc",
+    "sphinx.ext.mathjax",
+    "rl_jax_docs",
+]
+
+source_suffix = {".md": "markdown", ".rst": "restructuredtext"}
+root_doc = "index"
+exclude_patterns = ["_build", "Thumbs.db", ".DS_Store"]
+
+# MyST: $...$ and $$...$$ maths, ::: fences, heading anchors for links like page.md#a-heading.
+myst_enable_extensions = ["dollarmath", "colon_fence", "deflist"]
+myst_heading_anchors = 3
+
+# The API reference: signatures as written, type hints in the description, members in source
+# order. Docstrings are reST prose with ``literals``, not Google or NumPy sections, so napoleon is
+# left out: it would read a property's first line "The results: a ..." as a type.
+autodoc_member_order = "bysource"
+autodoc_typehints = "description"
+autodoc_typehints_format = "short"
+autodoc_preserve_defaults = True
+
+# Warnings are errors (``make docs`` passes -W); nitpicky checks every cross-reference, except
+# those to other projects' types (the site has no network for intersphinx) and type aliases that
+# autodoc cannot link.
+nitpicky = True
+nitpick_ignore_regex = [
+    (r"py:.*", r"(jax|jaxlib|flax|optax|orbax|numpy|np|matplotlib|gymnasium|mujoco)(\..*)?"),
+    (r"py:.*", r"(pathlib|collections|typing|typing_extensions|argparse|types)\..*"),
+    (r"py:.*", r"(Path|Any|Callable|Array|PRNGKey|Self|TypeAlias|NamedTuple|Protocol)"),
+    # type variables, and the internal classes behind a public function's return value
+    (r"py:class", r"envs\.core\.core\.(StateT|ParamsT)"),
+    (r"py:class", r"(rl_jax\.run\.policy\.)?LoadedPolicy"),
+    (r"py:class", r"envs\.adapters\.gymnasium_host\.HostGymnasiumEnv"),
+]
+# RESULTS.md and BENCHMARKS.md, included as they are, skip heading levels here and there.
+suppress_warnings = ["myst.header"]
+
+html_theme = "furo"
+html_title = "rl_jax"
+html_static_path: list[str] = []
+html_show_sourcelink = False
