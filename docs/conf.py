@@ -35,13 +35,12 @@ exclude_patterns = ["_build", "Thumbs.db", ".DS_Store"]
 myst_enable_extensions = ["dollarmath", "colon_fence", "deflist"]
 myst_heading_anchors = 3
 
-# The API reference: signatures as written, type hints in the description, members in source
+# The API reference: signatures with their type hints and defaults as written, members in source
 # order. Docstrings are reST prose with ``literals``, not Google or NumPy sections, so napoleon is
 # left out: it would read a property's first line "The results: a ..." as a type.
 autodoc_member_order = "bysource"
-autodoc_typehints = "description"
+autodoc_typehints = "signature"
 autodoc_typehints_format = "short"
-autodoc_preserve_defaults = True
 
 # Warnings are errors (``make docs`` passes -W); nitpicky checks every cross-reference, except
 # those to other projects' types (the site has no network for intersphinx) and type aliases that
@@ -51,6 +50,8 @@ nitpick_ignore_regex = [
     (r"py:.*", r"(jax|jaxlib|flax|optax|orbax|numpy|np|matplotlib|gymnasium|mujoco)(\..*)?"),
     (r"py:.*", r"(pathlib|collections|typing|typing_extensions|argparse|types)\..*"),
     (r"py:.*", r"(Path|Any|Callable|Array|PRNGKey|Self|TypeAlias|NamedTuple|Protocol)"),
+    # pieces of a dataclass signature that Sphinx splits at its commas (``tuple[int, ...]``)
+    (r"py:class", r"(tuple|list|dict)\[.*"),
     # type variables, and the internal classes behind a public function's return value
     (r"py:class", r"envs\.core\.core\.(StateT|ParamsT)"),
     (r"py:class", r"(rl_jax\.run\.policy\.)?LoadedPolicy"),
