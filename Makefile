@@ -89,6 +89,7 @@ typecheck: install ## mypy against its baseline of known errors, which may only 
 # The documentation site (docs/: MyST pages; conf.py; _ext/ writes the tables of options, recipes
 # and envs from the code). Warnings are errors, and so is a local link or image that resolves to
 # nothing. Every docs/*.md page joins the site through index.md's glob toctree.
+.PHONY: docs
 docs: install ## build the documentation site into docs/_build/html (warnings are errors)
 	$(BIN)/python -m sphinx -W --keep-going -q -j auto -b html docs docs/_build/html
 
