@@ -49,10 +49,28 @@ def test_broken_references_finds_missing_files_anchors_and_images(tmp_path):
 
 
 def test_learner_figures_match_the_name_as_a_word(tmp_path):
-    for name in ("halfcheetah_td3.png", "td3-hopper.gif", "td7_ant.png", "notes_td3.txt"):
+    names = ("halfcheetah_td3.png", "td3-hopper.gif", "td7_ant.png", "notes_td3.txt")
+    names += ("curves_hopper.png", "curves_pendulum.png", "policy_ant.gif", "speed_x.png")
+    for name in names:
         write(tmp_path / name, "")
-    found = [p.name for p in rl_jax_docs.figure_files(tmp_path, ["td3", "ddpg"])]
-    assert found == ["halfcheetah_td3.png", "td3-hopper.gif"]
+    write(
+        tmp_path / "manifest.toml",
+        '[curves.hopper]\ntitle = "Hopper-v5"\nruns = ["runs/results/td3-hopper"]\n'
+        '[curves.pendulum]\ntitle = "Pendulum-v1: SAC"\nlabels = ["SAC", "TD3"]\n'
+        '[gifs.ant]\nrun = "runs/sac_ant"\n[speed.x]\ntitle = "TD3 updates/s"\n',
+    )
+    found = rl_jax_docs.figure_files(tmp_path, ["td3", "ddpg"])
+    assert [(path.name, caption) for path, caption in found] == [
+        ("curves_hopper.png", "Hopper-v5"),
+        ("curves_pendulum.png", "Pendulum-v1: SAC"),
+        ("halfcheetah_td3.png", "halfcheetah td3"),
+        ("speed_x.png", "TD3 updates/s"),
+        ("td3-hopper.gif", "td3-hopper"),
+    ]
+    assert [p.name for p, _ in rl_jax_docs.figure_files(tmp_path, ["sac"])] == [
+        "curves_pendulum.png",
+        "policy_ant.gif",
+    ]
     assert rl_jax_docs.figure_files(tmp_path / "absent", ["td3"]) == []
 
 

@@ -8,8 +8,9 @@
 ``learner-recipes NAME``
     the learner's recipes (``rl_jax.training.recipes``): name, envs, summary, budget.
 ``learner-figures NAME [NAME ...]``
-    every image under ``docs/figures/`` whose file name holds one of the names as a word
-    (``halfcheetah_td3.png``, ``td3-hopper.gif``), or one line saying there is none yet.
+    every image under ``docs/figures/`` that shows one of the learners: the name is a word of
+    the file name (``halfcheetah_td3.png``) or of what ``docs/figures/manifest.toml`` says the
+    image is drawn from (its title, labels, run directories); or one line saying there is none.
 ``env-table``
     every registered env id with its observation and action spaces and episode limit (built
     from ``envs.make``); the directive's content gives each id's parity line as ``ID: text``.
@@ -26,6 +27,7 @@ import html.parser
 import importlib
 import inspect
 import re
+import tomllib
 from pathlib import Path
 from typing import Any
 from urllib.parse import unquote, urlsplit
@@ -239,16 +241,46 @@ class LearnerRecipes(SphinxDirective):
 # ---- figures ----------------------------------------------------------------------------------
 
 
-def figure_files(figures_dir: Path, names: list[str]) -> list[Path]:
-    """Images whose file name holds one of ``names`` as a word (split at ``_ - . _ _``)."""
+#: Image name prefix -> the table of docs/figures/manifest.toml (``make figures``) that says what
+#: the image ``PREFIX_KEY.png`` is drawn from: ``[curves.KEY]``, ``[gifs.KEY]``, ``[speed.KEY]``.
+#: (The aggregate over the suite names every learner's runs: it belongs to no one learner.)
+MANIFEST_TABLES = {"curves": "curves", "policy": "gifs", "speed": "speed"}
+
+
+def manifest_entry(manifest: dict[str, Any], path: Path) -> dict[str, Any]:
+    """The manifest's entry of the image ``path`` (``{}`` when it has none)."""
+    prefix, _, key = path.stem.partition("_")
+    entry = manifest.get(MANIFEST_TABLES.get(prefix, ""), {}).get(key, {})
+    return entry if isinstance(entry, dict) else {}
+
+
+def _words(*texts: Any) -> set[str]:
+    words: set[str] = set()
+    for text in texts:
+        if isinstance(text, list | tuple):
+            words |= _words(*text)
+        elif isinstance(text, str):
+            words |= set(re.split(r"[^a-z0-9]+", text.lower()))
+    return words
+
+
+def figure_files(figures_dir: Path, names: list[str]) -> list[tuple[Path, str]]:
+    """``(image, caption)`` of the images that show one of the learners ``names``: the name is a
+    word of the file name, or of its manifest entry's title, labels or run directories."""
     if not figures_dir.is_dir():
         return []
+    manifest: dict[str, Any] = {}
+    if (figures_dir / "manifest.toml").is_file():
+        manifest = tomllib.loads((figures_dir / "manifest.toml").read_text(encoding="utf-8"))
     wanted = {n.lower() for n in names}
     found = []
     for path in sorted(figures_dir.rglob("*")):
-        words = set(re.split(r"[_\-.\s]+", path.stem.lower()))
-        if path.suffix.lower() in IMAGE_SUFFIXES and words & wanted:
-            found.append(path)
+        if path.suffix.lower() not in IMAGE_SUFFIXES:
+            continue
+        entry = manifest_entry(manifest, path)
+        words = _words(path.stem, *(entry.get(k) for k in ("title", "labels", "runs", "run")))
+        if words & wanted:
+            found.append((path, str(entry.get("title") or path.stem.replace("_", " "))))
     return found
 
 
@@ -266,12 +298,11 @@ class LearnerFigures(SphinxDirective):
             text = "No figure of this learner yet: the results page has its numbers."
             return [nodes.paragraph("", "", nodes.emphasis(text, text))]
         out: list[nodes.Node] = []
-        for path in files:
+        for path, caption in files:
             self.env.note_dependency(str(path))
             uri = "/" + path.relative_to(srcdir).as_posix()  # to Sphinx: from the source folder
             figure = nodes.figure()
-            figure += nodes.image(uri=uri, alt=path.stem)
-            caption = path.stem.replace("_", " ")
+            figure += nodes.image(uri=uri, alt=caption)
             figure += nodes.caption(caption, caption)
             out.append(figure)
         return out
