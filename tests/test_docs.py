@@ -74,6 +74,15 @@ def test_learner_figures_match_the_name_as_a_word(tmp_path):
     assert rl_jax_docs.figure_files(tmp_path / "absent", ["td3"]) == []
 
 
+def test_env_gifs_are_found_by_the_env_name(tmp_path):
+    for name in ("policy_halfcheetah.gif", "policy_rocket_settle.gif", "curves_hopper.png"):
+        write(tmp_path / name, "")
+    gifs = rl_jax_docs.policy_gifs(tmp_path)
+    assert gifs[rl_jax_docs.env_key("rl_jax/HalfCheetah-v5")].name == "policy_halfcheetah.gif"
+    assert gifs[rl_jax_docs.env_key("rl_jax/RocketSettle-v0")].name == "policy_rocket_settle.gif"
+    assert len(gifs) == 2
+
+
 def test_env_table_describes_every_registered_env():
     import envs
 

@@ -13,7 +13,8 @@
     image is drawn from (its title, labels, run directories); or one line saying there is none.
 ``env-table``
     every registered env id with its observation and action spaces and episode limit (built
-    from ``envs.make``); the directive's content gives each id's parity line as ``ID: text``.
+    from ``envs.make``), and its policy GIF where ``docs/figures/policy_NAME.gif`` exists; the
+    directive's content gives each id's parity line as ``ID: text``.
     An id registered but not described, or described but not registered, fails the build.
 
 After the HTML is written, ``check_output`` reads every page: a local link (``href``) or image
@@ -366,7 +367,34 @@ class EnvTable(SphinxDirective):
             for env_id, (obs, act, steps) in rows.items()
         ]
         headers = ["id", "observation", "action", "episode steps", "matches"]
-        return [table(headers, cells, [24, 16, 12, 8, 40])]
+        widths = [24, 16, 12, 8, 40]
+        srcdir = Path(self.env.srcdir)
+        gifs = policy_gifs(srcdir / FIGURES)
+        if gifs:  # a column of trained policies, once make figures has drawn some
+            headers, widths = [*headers, "a trained policy"], [*widths, 20]
+            for row, env_id in zip(cells, rows, strict=True):
+                gif = gifs.get(env_key(env_id))
+                if gif is None:
+                    row.append("")
+                    continue
+                self.env.note_dependency(str(gif))
+                uri = "/" + gif.relative_to(srcdir).as_posix()
+                row.append(nodes.image(uri=uri, alt=f"{env_id}, a trained policy", width="160px"))
+        return [table(headers, cells, widths)]
+
+
+def env_key(env_id: str) -> str:
+    """``rl_jax/HalfCheetah-v5`` -> ``halfcheetah``: the name without namespace, version or
+    punctuation, as the GIFs of ``make figures`` are named (``policy_half_cheetah.gif`` too)."""
+    name = re.sub(r"-v\d+$", "", env_id.rsplit("/", 1)[-1])
+    return re.sub(r"[^a-z0-9]", "", name.lower())
+
+
+def policy_gifs(figures_dir: Path) -> dict[str, Path]:
+    """``env_key`` -> ``figures/policy_KEY.gif``, for each that exists."""
+    if not figures_dir.is_dir():
+        return {}
+    return {env_key(p.stem.removeprefix("policy_")): p for p in figures_dir.glob("policy_*.gif")}
 
 
 # ---- the written site: every local link and image resolves --------------------------------------
