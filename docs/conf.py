@@ -31,9 +31,10 @@ source_suffix = {".md": "markdown", ".rst": "restructuredtext"}
 root_doc = "index"
 exclude_patterns = ["_build", "Thumbs.db", ".DS_Store"]
 
-# MyST: $...$ and $$...$$ maths, ::: fences, heading anchors for links like page.md#a-heading.
+# MyST: $...$ and $$...$$ maths, ::: fences, and an anchor for every heading level as GitHub
+# makes them, so links like page.md#a-heading (and RESULTS.md's own #a-heading) resolve.
 myst_enable_extensions = ["dollarmath", "colon_fence", "deflist"]
-myst_heading_anchors = 3
+myst_heading_anchors = 6
 
 # The API reference: signatures with their type hints and defaults as written, members in source
 # order. Docstrings are reST prose with ``literals``, not Google or NumPy sections, so napoleon is
