@@ -31,7 +31,9 @@ import jax
 import numpy as np
 
 import envs
+from rl_jax.errors import RunError
 from rl_jax.run import cli, learners, plots
+from rl_jax.run import distributed as joining
 from rl_jax.run.learners import for_run
 from rl_jax.run.metrics import METRICS_FILE, read_rows
 from rl_jax.run.policy import LoadedPolicy, load_policy
@@ -130,6 +132,10 @@ def train(
     quiet: bool = False,
     recipe: str | None = None,
     wandb: bool = False,
+    distributed: bool = False,
+    coordinator: str | None = None,
+    num_processes: int | None = None,
+    process_id: int | None = None,
 ) -> Run:
     """Train ``algorithm`` ("td3", "ddpg", "dqn", "reinforce"; a learner of your own as
     "my_package.my_module:learner" or "path/to/file.py:learner", or the learner object) on
@@ -141,8 +147,19 @@ def train(
     by name (as the scripts' flags do); ``total_steps`` defaults to the recipe's budget, else
     100,000 env steps per seed. ``wandb=True`` also logs every seed to Weights & Biases, as
     ``--wandb`` does (``rl_jax.run.tracking``).
+
+    Over several processes (``docs/cluster.md``), every process calls ``train`` alike, before
+    any other JAX work: ``distributed=True`` under SLURM or Open MPI, or ``coordinator="HOST:PORT",
+    num_processes=N, process_id=I`` anywhere; process 0 writes the run directory and prints.
     """
+    join = joining.Options(distributed, coordinator, num_processes, process_id)
+    cluster = joining.resolve(join)
     configure()
+    if cluster is not None:
+        try:
+            joining.initialize(cluster, join.timeout)
+        except RuntimeError as error:
+            raise RunError(f"cannot join the other processes: {error}") from None
     learner = cli.resolve_algorithm(algorithm)
     chosen = cli.take_recipe(["--recipe", recipe] if recipe else [], learner, env_id)[0]
     base_config, base_hparams = cli.recipe_settings(learner, env_id, chosen)

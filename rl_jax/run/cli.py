@@ -34,9 +34,8 @@ from rl_jax.errors import (
     RunError,
     UsageError,
     exit_now,
-    guard,
 )
-from rl_jax.run import learners, runner
+from rl_jax.run import distributed, learners, processes, runner
 from rl_jax.run.flags import (
     add_dataclass_flags,
     add_run_flags,
@@ -49,7 +48,6 @@ from rl_jax.run.run_dir import read_run_record
 from rl_jax.run.spec import RunSpec
 from rl_jax.training import params
 from rl_jax.training.algorithm import hooks
-from rl_jax.training.jax_setup import configure_jax
 from rl_jax.training.params import dataclass_from_dict
 from rl_jax.training.recipes import PLAIN, Recipe
 from rl_jax.training.validation import out_of_range
@@ -228,6 +226,7 @@ def build_parser(
         "start from: " + "; ".join(f"{name}: {about}" for name, about in recipes.items()) + others,
     )
     config, hparams = recipe_settings(algorithm, env_id, recipe)
+    distributed.add_flags(parser)  # taken out of argv before parsing (distributed.start)
     config_names = add_dataclass_flags(parser, config, f"{algorithm.name} config (static)")
     hparam_names = add_dataclass_flags(parser, hparams, f"{algorithm.name} hyperparameters")
     return parser, config_names, hparam_names
@@ -403,14 +402,14 @@ def run_experiment(
     defaults: Defaults | None = None,
 ) -> int:
     """Parse flags, run, print the outcome. Returns the exit status."""
-    configure_jax()
-    argv = list(sys.argv[1:] if argv is None else argv)
+    typed = list(sys.argv[1:] if argv is None else argv)
+    argv = distributed.start(typed)  # JAX's settings, and the processes joined if asked
     defaults = defaults or Defaults()
     description = (description or "").strip() or None
     algorithm, env_id, choose = _choose(argv, algorithm, env_id)
     if algorithm is None:
         return _help_without_algorithm(description or "", defaults)
-    given = list(argv)  # the run records the command as typed, --recipe included
+    given = typed  # the run records the command as typed, --recipe included
     if not choose:
         algorithm, argv = learner_of_recipe(argv, algorithm, env_id)
     recipe, argv = take_recipe(argv, algorithm, env_id)
@@ -421,6 +420,8 @@ def run_experiment(
     names = (config_names, hparam_names)
     spec = build_spec(args, algorithm, env_id, defaults, names, given, recipe)
     result = runner.run(spec)
+    if not processes.is_lead():
+        return 0
     print(f"run directory: {result.run_dir}")
     if result.gif_error:
         print(f"error: {result.gif_error}", file=sys.stderr)
@@ -440,4 +441,5 @@ def main(
     """Entry point of an experiment script: parse, run, exit with the right status. The
     settings are the learner's recipe for the env (``--recipe NAME``, else its default)."""
     defaults = Defaults(seeds, total_steps)
-    exit_now(guard(lambda: run_experiment(algorithm, env_id, description, argv, defaults)))
+    run = lambda: run_experiment(algorithm, env_id, description, argv, defaults)  # noqa: E731
+    exit_now(distributed.guarded(run))

@@ -14,6 +14,7 @@ import importlib
 import json
 import os
 import platform
+import shlex
 import subprocess
 import sys
 import tempfile
@@ -208,6 +209,34 @@ def _check_out_dir(out: Path, run_identity: dict[str, Any]) -> None:
             "choose another --out"
         )
     raise RunError(f"--out {out} is not empty; choose another --out")
+
+
+def same_command_again(out: Path, run_identity: dict[str, Any], command: str) -> bool:
+    """Whether ``out`` holds this very run, created by this same ``command``: a requeued job (or
+    the same command after a crash) then continues it instead of being refused. The flags that
+    only place the processes (``rl_jax.run.distributed``) may differ, and so may the name of
+    the Python executable."""
+    if not command or not (out / CONFIG_FILE).is_file():
+        return False
+    try:
+        record = read_run_record(out)
+    except RunError:
+        return False  # check_out_dir says what is wrong with it
+    saved = with_newer_fields(record["identity"], run_identity)
+    recorded = record.get("command", "")
+    return (
+        saved == run_identity and bool(recorded) and _comparable(recorded) == _comparable(command)
+    )
+
+
+def _comparable(command: str) -> list[str]:
+    from rl_jax.run.distributed import without_flags
+
+    try:
+        words = shlex.split(command)
+    except ValueError:
+        return [command]
+    return without_flags(words[1:])
 
 
 def _probe_creatable(out: Path) -> None:

@@ -35,11 +35,12 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
+import jax
 import numpy as np
 from flax.typing import ArrayPytree
 
 from rl_jax.errors import RunError
-from rl_jax.run import learners, plots, processes
+from rl_jax.run import distributed, learners, plots, processes
 from rl_jax.run.best import BEST_DIR, BestPolicies, policy_part
 from rl_jax.run.checkpoint import Checkpointer
 from rl_jax.run.divergence import check_finite, finite_runs
@@ -58,9 +59,11 @@ from rl_jax.run.run_dir import (
     RESULTS_FILE,
     check_out_dir,
     check_resume_dir,
+    same_command_again,
 )
 from rl_jax.run.spec import RunResult, RunSpec
 from rl_jax.run.start import (
+    REQUEUE_SIGNAL,
     GracefulStop,
     Start,
     checkpoint_expectation,
@@ -187,7 +190,8 @@ class Session:
         any number of devices)."""
         if self.saved_step == self.step:
             return
-        runs = self.plan.program.unpad(state, hparams)  # every process takes part
+        with processes.waiting("a checkpoint"):
+            runs = self.plan.program.unpad(state, hparams)  # every process takes part
         if self.checkpointer is None:  # not the lead
             self.saved_step, self.last_save = self.step, time.perf_counter()
             return
@@ -247,17 +251,19 @@ def _train(session: Session, start: Start, stop: GracefulStop, progress: Progres
             break
         chunk_started = time.perf_counter()
         state, metrics = chunk_fn(state, hparams)
-        metrics = plan.program.gather(metrics)
+        # This process's share first: the wait under a time limit is for the others alone.
+        jax.block_until_ready(metrics)
+        with processes.waiting("the end of a chunk"):
+            metrics = plan.program.gather(metrics)
+            finite = plan.program.gather(finite_runs(state, spec))
         chunk_seconds = time.perf_counter() - chunk_started
         prior_updates = session.updates
         session.step = int(np.max(metrics.env_steps))
         session.updates = int(np.max(metrics.updates))
         session.write(metric_rows(metrics, spec, chunk, session.wall_clock(), grid))
-        check_finite(session, metrics, plan.program.gather(finite_runs(state, spec)))
+        check_finite(session, metrics, finite)
         session.best.observe(
-            metrics.eval_return,
-            metrics.env_steps,
-            lambda state=state: plan.program.gather(policy_part(state, session.best.fields)),
+            metrics.eval_return, metrics.env_steps, lambda state=state: _best(plan, state, session)
         )
         progress.update(session.step, session.updates, metrics.eval_return)
         if not estimated and chunk + 1 < plan.chunks:
@@ -275,11 +281,21 @@ def _train(session: Session, start: Start, stop: GracefulStop, progress: Progres
     return state
 
 
+def _best(plan: Plan, state: ArrayPytree, session: Session) -> ArrayPytree:
+    """The policy parts of every run, for the best policies (a gather: every process)."""
+    with processes.waiting("the best policies"):
+        return plan.program.gather(policy_part(state, session.best.fields))
+
+
 def _stopping(stop: GracefulStop, due: bool = False) -> bool:
     """Whether any process was asked to stop (or finds a checkpoint ``due``): the processes of a
-    distributed run stop and save together, since saving gathers the state from all of them."""
-    due, requested = processes.agree(due, stop.requested is not None)
-    if requested and stop.requested is None:
+    distributed run stop and save together, since saving gathers the state from all of them.
+    SIGUSR1 on any of them (the scheduler's time limit is near) reaches the lead as such."""
+    asked = stop.requested is not None
+    due, requested, requeue = processes.agree(due, asked, stop.requested == REQUEUE_SIGNAL)
+    if requeue:
+        stop.requested = REQUEUE_SIGNAL
+    elif requested and stop.requested is None:
         stop.requested = "another process"
     return due or requested
 
@@ -381,6 +397,10 @@ def run(spec: RunSpec, notify: Callable[[str], None] = print) -> RunResult:
     spec = dataclasses.replace(spec, out=Path(spec.out))
     if not processes.is_lead():
         notify = _silent
+    if not spec.resume and same_command_again(spec.out, spec.identity, spec.command):
+        # a requeued job, or the same command after a crash: it continues the run
+        notify(f"{spec.out} holds this run, started by this same command: continuing it")
+        spec = dataclasses.replace(spec, resume=True)
     plan, start = prepare(spec)
     notify(format_plan(spec, plan))
     session = Session.open(spec, plan, start, started)  # after the lines on damaged checkpoints
@@ -399,12 +419,16 @@ def run(spec: RunSpec, notify: Callable[[str], None] = print) -> RunResult:
     try:
         with GracefulStop(progress.write) as stop:
             state = _train(session, start, stop, progress)
-            state = plan.program.unpad(state, params.stack(list(spec.hparams)))
+            with processes.waiting("the end of the run"):
+                state = plan.program.unpad(state, params.stack(list(spec.hparams)))
     finally:
         progress.close()
         session.close()
     stopped = stop.requested is not None and session.step < plan.final_steps
-    return _finish(spec, session, state, stopped, notify)
+    result = _finish(spec, session, state, stopped, notify)
+    if stopped and stop.requested == REQUEUE_SIGNAL and processes.is_lead():
+        distributed.slurm_requeue(notify)
+    return result
 
 
 def _silent(message: str) -> None:

@@ -1,6 +1,6 @@
 """Where a run starts: fresh, or from the newest readable checkpoint of a resumed run (damaged
 newer ones are set aside once the run is known to start); the run record (``config.json``) each
-session writes; and stopping on signals after the current chunk."""
+session writes; and stopping on signals (SIGINT, SIGTERM, SIGUSR1) after the current chunk."""
 
 from __future__ import annotations
 
@@ -31,9 +31,15 @@ from rl_jax.run.run_dir import (
 from rl_jax.run.spec import RunSpec
 from rl_jax.training import parallel, params
 
+#: The signal that asks to stop and come back: SLURM sends it before the time limit when the job
+#: asks (``--signal=USR1@90``); the run then checkpoints and, under SLURM, requeues its job.
+REQUEUE_SIGNAL = "SIGUSR1"
+STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM, signal.SIGUSR1)
+
 
 class GracefulStop:
-    """The first SIGINT/SIGTERM asks to stop after the current chunk; a second SIGINT aborts."""
+    """The first SIGINT, SIGTERM or SIGUSR1 asks to stop after the current chunk; a second
+    SIGINT aborts."""
 
     def __init__(self, notify: Callable[[str], None] = print):
         self.requested: str | None = None
@@ -44,13 +50,15 @@ class GracefulStop:
         name = signal.Signals(signum).name
         if self.requested is not None and signum == signal.SIGINT:
             raise KeyboardInterrupt
+        if self.requested is not None:
+            return  # asked already (a scheduler may signal a step's processes more than once)
         self.requested = name
         self._notify(
             f"{name}: stopping after this chunk (a checkpoint follows; Ctrl-C again aborts)"
         )
 
     def __enter__(self) -> GracefulStop:
-        for signum in (signal.SIGINT, signal.SIGTERM):
+        for signum in STOP_SIGNALS:
             # Outside the main thread signals cannot be caught: they stay with the caller.
             with contextlib.suppress(ValueError):
                 self._previous[signum] = signal.signal(signum, self._handle)

@@ -18,8 +18,6 @@ import time
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-import jax
-
 import envs
 from rl_jax.errors import (
     OneLineParser,
@@ -27,13 +25,10 @@ from rl_jax.errors import (
     UsageError,
     exit_now,
     guard,
-    parse_int,
-    positive_int,
 )
-from rl_jax.run import cli, flags, learners, plots, processes, runner
+from rl_jax.run import cli, distributed, flags, learners, plots, processes, runner
 from rl_jax.run.metrics import METRICS_FILE, read_rows
 from rl_jax.training import params
-from rl_jax.training.jax_setup import configure_jax
 
 if TYPE_CHECKING:
     from _typeshed import DataclassInstance
@@ -45,7 +40,7 @@ ALIASES = {
     "buffer": ("buffer_size",),
 }
 BUILTIN_NAMES = tuple(learners.ALGORITHMS)  # before any name is registered
-SWEEP_FLAGS = ("--algo", "--env", "--grid", "--coordinator", "--num-processes", "--process-id")
+SWEEP_FLAGS = ("--algo", "--env", "--grid", *distributed.VALUE_FLAGS)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -98,9 +93,7 @@ def parse_args(argv: list[str]) -> tuple[argparse.Namespace, list[str]]:
     parser.add_argument("--algo")
     parser.add_argument("--env")
     parser.add_argument("--grid", action="append", default=[])
-    parser.add_argument("--coordinator")
-    parser.add_argument("--num-processes", type=positive_int, default=1)
-    parser.add_argument("--process-id", type=parse_int, default=0)
+    distributed.add_flags(parser)  # read by distributed.start; recorded in no sweep.json
     return parser.parse_known_args(argv)
 
 
@@ -222,7 +215,7 @@ def _without_sweep_flags(argv: list[str]) -> list[str]:
         if arg in (*SWEEP_FLAGS, "--out"):
             skip = True
             continue
-        if arg.split("=")[0] in (*SWEEP_FLAGS, "--out"):
+        if arg.split("=")[0] in (*SWEEP_FLAGS, *distributed.SWITCH_FLAGS, "--out"):
             continue
         kept.append(arg)
     return kept
@@ -268,17 +261,14 @@ def _silent(message: str) -> None:
 
 
 def main(description: str, argv: list[str] | None = None) -> None:
-    """A sweep script's whole body: ``--help`` shows ``description`` and the flags; with
-    ``--num-processes`` > 1, ``jax.distributed`` starts first; user errors are one line."""
+    """A sweep script's whole body: ``--help`` shows ``description`` and the flags; over several
+    processes (``rl_jax.run.distributed``'s flags) they join first; user errors are one line."""
     argv = sys.argv[1:] if argv is None else argv
     if {"-h", "--help"} & set(argv):
         exit_now(guard(lambda: cli.run_experiment(None, None, description, argv)))
-    sweep_args, _ = parse_args(argv)
-    configure_jax()  # before JAX starts: device count and compilation cache
-    if sweep_args.num_processes > 1:
-        jax.distributed.initialize(
-            coordinator_address=sweep_args.coordinator,
-            num_processes=sweep_args.num_processes,
-            process_id=sweep_args.process_id,
-        )
-    exit_now(guard(lambda: run_sweep(argv, description)))
+
+    def sweep() -> int:
+        distributed.start(argv)  # before JAX starts: device count, cache, the processes
+        return run_sweep(argv, description)
+
+    exit_now(distributed.guarded(sweep))

@@ -1,0 +1,340 @@
+"""One run over several processes through ``jax.distributed``: the flags every entry point takes,
+the checks that turn a bad cluster set-up into one line, and a time limit on every wait for the
+other processes.
+
+Every entry point (the experiment scripts, ``experiments/sweep.py``, ``rl-jax train|sweep``,
+``rl_jax.train(distributed=...)``) starts the same way::
+
+    argv = distributed.start(argv)   # takes the flags below out of argv, joins the processes
+
+- ``--distributed``: under SLURM (``srun``) or Open MPI (``mpirun``) each process learns its rank,
+  the process count and the coordinator from the scheduler, as ``jax.distributed.initialize()``
+  reads them (jax's own cluster detection).
+- ``--coordinator HOST:PORT --num-processes N --process-id I``: anywhere else (or to override
+  the scheduler's coordinator address).
+- ``--collective-timeout SECONDS``: the longest any process waits for the others: to join at
+  the start, at each exchange between chunks, and at exit. A process that waited longer ends
+  with one line, and so does one whose peer was killed (its connection drops at the next
+  exchange): no process hangs on a dead one.
+
+Every process computes its devices' share of the runs; process 0 alone writes the run
+directory, prints and renders (``rl_jax.run.processes``). The run directory must be on a file
+system every process sees (resuming reads its checkpoints in every process).
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import os
+import socket
+import sys
+import threading
+from collections.abc import Callable, Mapping
+
+from rl_jax.errors import OneLineParser, UsageError, parse_float, parse_int, positive_int
+
+#: Seconds a process waits for the others by default (joining, each exchange, exit).
+DEFAULT_TIMEOUT = 600.0
+#: The flags of this module that take a value, and the one that takes none.
+VALUE_FLAGS = ("--coordinator", "--num-processes", "--process-id", "--collective-timeout")
+SWITCH_FLAGS = ("--distributed",)
+#: What a collective's error says when a peer's connection dropped (gloo on CPU, the
+#: coordination service, NCCL on GPU).
+LOST_PEER_SIGNS = (
+    *("gloo", "connection reset", "connection closed", "connection refused", "socket closed"),
+    *("unavailable", "heartbeat", "nccl"),
+)
+
+
+@dataclasses.dataclass(frozen=True)
+class Cluster:
+    """Where this process stands: the coordinator, how many processes, which one this is, and
+    who said so (``"slurm"``, ``"ompi"`` or ``"flags"``)."""
+
+    coordinator: str | None  # None: the scheduler's own (jax derives it)
+    num_processes: int
+    process_id: int
+    source: str
+
+
+@dataclasses.dataclass(frozen=True)
+class Options:
+    """The distribution flags as given (``None``: not given)."""
+
+    distributed: bool = False
+    coordinator: str | None = None
+    num_processes: int | None = None
+    process_id: int | None = None
+    timeout: float = DEFAULT_TIMEOUT
+
+
+def positive_seconds(text: str) -> float:
+    value = parse_float(text)
+    if value <= 0:
+        raise argparse.ArgumentTypeError(f"must be > 0, got {value}")
+    return value
+
+
+def add_flags(parser: argparse.ArgumentParser) -> None:
+    """The distribution flags, in their own ``--help`` group."""
+    group = parser.add_argument_group("several processes (jax.distributed; docs/cluster.md)")
+    group.add_argument(
+        "--distributed",
+        action="store_true",
+        help="one run over the processes that SLURM (srun) or Open MPI (mpirun) started: rank, "
+        "process count and coordinator come from the scheduler",
+    )
+    group.add_argument(
+        "--coordinator",
+        metavar="HOST:PORT",
+        help="process 0's address and a free port, the same on every process",
+    )
+    group.add_argument(
+        "--num-processes", type=positive_int, metavar="N", help="processes in the run"
+    )
+    group.add_argument("--process-id", type=parse_int, metavar="I", help="this one: 0 .. N-1")
+    group.add_argument(
+        "--collective-timeout",
+        type=positive_seconds,
+        default=DEFAULT_TIMEOUT,
+        metavar="SECONDS",
+        help="the longest a process waits for the others (to join, between chunks, at exit) "
+        f"before it stops with an error (default: {DEFAULT_TIMEOUT:.0f})",
+    )
+
+
+def take(argv: list[str]) -> tuple[Options, list[str]]:
+    """The distribution flags of ``argv``, and ``argv`` without them."""
+    parser = OneLineParser(add_help=False)
+    add_flags(parser)
+    known, rest = parser.parse_known_args(argv)
+    options = Options(
+        known.distributed,
+        known.coordinator,
+        known.num_processes,
+        known.process_id,
+        known.collective_timeout,
+    )
+    return options, rest
+
+
+def without_flags(argv: list[str]) -> list[str]:
+    """``argv`` less the distribution flags (with their values): two launches of one run may
+    differ in them (another port, another rank) and still be the same command."""
+    kept, skip = [], False
+    for arg in argv:
+        if skip:
+            skip = False
+        elif arg in VALUE_FLAGS:
+            skip = True
+        elif arg not in SWITCH_FLAGS and arg.split("=")[0] not in VALUE_FLAGS:
+            kept.append(arg)
+    return kept
+
+
+# ---- who is who -----------------------------------------------------------------------------
+
+
+def scheduler(environ: Mapping[str, str]) -> tuple[str, int, int] | None:
+    """``(name, process count, this rank)`` from SLURM's or Open MPI's variables, as jax's own
+    detection (``jax._src.clusters``) reads them; None outside both."""
+    slurm = ("SLURM_JOB_ID", "SLURM_STEP_NODELIST", "SLURM_NTASKS", "SLURM_PROCID")
+    if all(name in environ for name in slurm):
+        return "slurm", int(environ["SLURM_NTASKS"]), int(environ["SLURM_PROCID"])
+    if "OMPI_MCA_orte_hnp_uri" in environ:
+        size = environ.get("OMPI_COMM_WORLD_SIZE", "1")
+        return "ompi", int(size), int(environ.get("OMPI_COMM_WORLD_RANK", "0"))
+    return None
+
+
+def resolve(options: Options, environ: Mapping[str, str] = os.environ) -> Cluster | None:
+    """The cluster the flags (and the scheduler, with ``--distributed``) describe; None for one
+    process. ``UsageError`` for flags that contradict each other or the scheduler."""
+    if options.distributed:
+        found = scheduler(environ)
+        if found is None:
+            if options.coordinator is None or options.num_processes is None:
+                raise UsageError(
+                    "--distributed found no SLURM or Open MPI job here (no SLURM_PROCID or "
+                    "OMPI_MCA_orte_hnp_uri); start it with srun or mpirun, or give "
+                    "--coordinator HOST:PORT --num-processes N --process-id I"
+                )
+            return _from_flags(options)
+        name, count, rank = found
+        if options.num_processes is not None and options.num_processes != count:
+            raise UsageError(
+                f"--num-processes {options.num_processes} does not match the {name} job's "
+                f"{count} processes; leave it out under --distributed"
+            )
+        if options.process_id is not None and options.process_id != rank:
+            raise UsageError(
+                f"--process-id {options.process_id} does not match this process's {name} rank "
+                f"{rank}; leave it out under --distributed"
+            )
+        return Cluster(options.coordinator, count, rank, name)
+    if options.coordinator is None and options.num_processes in (None, 1):
+        if options.process_id not in (None, 0):
+            raise UsageError(f"--process-id {options.process_id} needs --num-processes > it")
+        return None
+    return _from_flags(options)
+
+
+def _from_flags(options: Options) -> Cluster | None:
+    count, rank = options.num_processes, options.process_id
+    if options.coordinator is None or count is None or rank is None:
+        raise UsageError(
+            "several processes need all of --coordinator HOST:PORT, --num-processes N and "
+            "--process-id I (or --distributed under SLURM or Open MPI)"
+        )
+    host, colon, port = options.coordinator.rpartition(":")
+    if not colon or not host or not port.isdigit():
+        raise UsageError(f"--coordinator {options.coordinator}: expected HOST:PORT")
+    if not 0 <= rank < count:
+        raise UsageError(f"--process-id {rank} must be in 0 .. {count - 1} (--num-processes)")
+    return None if count == 1 else Cluster(options.coordinator, count, rank, "flags")
+
+
+# ---- joining --------------------------------------------------------------------------------
+
+
+def start(argv: list[str]) -> list[str]:
+    """Take the distribution flags out of ``argv`` and, if they ask for several processes, join
+    them (before JAX starts: device count and compilation cache first). Returns the rest."""
+    from rl_jax.training.jax_setup import configure_jax
+
+    options, rest = take(argv)
+    cluster = resolve(options)
+    configure_jax()
+    if cluster is not None:
+        initialize(cluster, options.timeout)
+    return rest
+
+
+def initialize(cluster: Cluster, timeout: float = DEFAULT_TIMEOUT) -> None:
+    """``jax.distributed.initialize`` for ``cluster``, given ``timeout`` seconds for every
+    process to join. jax ends a process that cannot join with a fatal log and a stack trace;
+    a watchdog ends it a little earlier with one line instead."""
+    import jax
+
+    from rl_jax.run import processes
+
+    if jax.distributed.is_initialized():
+        return
+    limit = int(timeout)
+    watchdog = Watchdog(timeout, lambda: _join_failed(cluster, timeout))
+    with watchdog:
+        jax.distributed.initialize(
+            coordinator_address=cluster.coordinator,
+            num_processes=cluster.num_processes,
+            process_id=cluster.process_id,
+            # jax's own limits come after ours, so that ours speak first
+            initialization_timeout=limit + 30,
+            heartbeat_timeout_seconds=limit + 60,
+            shutdown_timeout_seconds=limit + 30,
+        )
+    processes.set_wait_limit(timeout)
+
+
+def _join_failed(cluster: Cluster, timeout: float) -> str:
+    address = cluster.coordinator or os.environ.get("JAX_COORDINATOR_ADDRESS", "")
+    how = f"--process-id 0 .. {cluster.num_processes - 1} with the same --coordinator"
+    if cluster.source != "flags":
+        how = f"the {cluster.source} job's tasks"
+    if cluster.process_id != 0 and address and not reachable(address):
+        return (
+            f"cannot reach the coordinator {address} within {timeout:g} s (process 0 must be "
+            "running there, and the port open)"
+        )
+    return (
+        f"the {cluster.num_processes} processes did not all join within {timeout:g} s "
+        f"(coordinator {address or 'of the scheduler'}); start all of them: {how}"
+    )
+
+
+def reachable(address: str) -> bool:
+    """Whether something accepts connections at ``HOST:PORT``."""
+    host, _, port = address.rpartition(":")
+    try:
+        with socket.create_connection((host.strip("[]"), int(port)), timeout=2):
+            return True
+    except (OSError, ValueError):
+        return False
+
+
+class Watchdog:
+    """A time limit on native code that waits for other processes: after ``seconds`` inside the
+    ``with``, ``message()`` as one error line and exit status 1 (a process stuck there could only
+    end by aborting)."""
+
+    def __init__(self, seconds: float, message: Callable[[], str]):
+        self._timer = threading.Timer(seconds, self._fire)
+        self._timer.daemon = True
+        self._message = message
+
+    def _fire(self) -> None:
+        give_up(self._message())
+
+    def __enter__(self) -> Watchdog:
+        self._timer.start()
+        return self
+
+    def __exit__(self, *exc_info: object) -> None:
+        self._timer.cancel()
+
+
+def give_up(message: str) -> None:
+    """One error line, then exit status 1 at once (no clean-up: another process is gone, and
+    jax's own shutdown would wait for it)."""
+    sys.stdout.flush()
+    print(f"error: {message}", file=sys.stderr, flush=True)
+    os._exit(1)
+
+
+# ---- running --------------------------------------------------------------------------------
+
+
+def is_lost_peer(error: BaseException) -> bool:
+    """Whether ``error`` is a collective that failed because another process went away."""
+    text = str(error).lower()
+    return any(sign in text for sign in LOST_PEER_SIGNS)
+
+
+def guarded(function: Callable[[], int]) -> int:
+    """``rl_jax.errors.guard(function)``, and in a run over several processes a collective that
+    failed because another process stopped is one line and status 1 too (every process stops;
+    the run's latest checkpoint is kept, and the same command continues it)."""
+    from rl_jax.errors import guard
+
+    try:
+        return guard(function)
+    except Exception as error:
+        import jax
+
+        if not (jax.distributed.is_initialized() and is_lost_peer(error)):
+            raise
+        first = str(error).strip().splitlines()[0] if str(error).strip() else type(error).__name__
+        print(
+            f"error: process {jax.process_index()} lost contact with another process of the run "
+            f"({first[:160]}); stopping. The latest checkpoint is kept: start all processes "
+            "again with the same command to continue",
+            file=sys.stderr,
+            flush=True,
+        )
+        return 1
+
+
+def slurm_requeue(notify: Callable[[str], None] = print) -> None:
+    """Put this SLURM job back in the queue (``scontrol requeue``): its command then continues
+    the run when it starts again. Not under submitit, which requeues its own jobs."""
+    import subprocess
+
+    job = os.environ.get("SLURM_JOB_ID")
+    if not job or os.environ.get("SUBMITIT_EXECUTOR"):
+        return
+    try:
+        subprocess.run(["scontrol", "requeue", job], check=True, capture_output=True, timeout=60)
+    except (OSError, subprocess.SubprocessError) as error:
+        print(f"warning: could not requeue SLURM job {job}: {error}", file=sys.stderr, flush=True)
+        return
+    notify(f"requeued SLURM job {job}: the same command continues this run when it starts again")

@@ -1,0 +1,262 @@
+"""Start an experiment script's command over several processes: on this machine, or as a SLURM job
+through submitit. Each process runs the same command and they join through ``jax.distributed``
+(``rl_jax.run.distributed``): one run whose process 0 writes the run directory.
+
+  python -m rl_jax.run.launch --local 2 experiments/td3_pendulum.py --seeds 4 --out runs/p
+  python -m rl_jax.run.launch --slurm --nodes 2 --tasks-per-node 4 --gpus-per-node 4 \\
+      --time 240 --partition gpu experiments/td3_cheetah.py --seeds 16 --out runs/cheetah
+
+``--local N`` starts N processes here with ``--coordinator``, ``--num-processes`` and
+``--process-id`` added (and ``RL_JAX_CPU_DEVICES`` set to share the cores between them, unless
+it is set), shows process 0's output, passes Ctrl-C, SIGTERM and SIGUSR1 on to all of them, and
+stops them all when one fails. ``--slurm`` submits the command with ``--distributed`` added:
+each task learns its rank from SLURM. SLURM sends SIGUSR1 90 s before the time limit; the run
+checkpoints and submitit requeues the job, whose same command then continues the run. submitit
+is an optional dependency: ``pip install 'rl_jax[cluster]'``. docs/cluster.md has the details
+and sbatch templates for the same jobs without submitit.
+
+A COMMAND that starts with a ``.py`` file runs under this Python.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import os
+import signal
+import socket
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+from typing import IO, Any
+
+from rl_jax.errors import OneLineParser, UsageError, exit_now, guard, positive_int
+
+#: What the runs print to stderr that says what went wrong (one line each).
+ERROR_PREFIX = "error: "
+FORWARDED = (signal.SIGINT, signal.SIGTERM, signal.SIGUSR1)
+
+
+def parse(argv: list[str]) -> tuple[argparse.Namespace, list[str]]:
+    """The launcher's flags, and the command after them."""
+    parser = OneLineParser(
+        prog="python -m rl_jax.run.launch",
+        description=__doc__,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    where = parser.add_mutually_exclusive_group(required=True)
+    where.add_argument("--local", type=positive_int, metavar="N", help="N processes here")
+    where.add_argument("--slurm", action="store_true", help="a SLURM job through submitit")
+    slurm = parser.add_argument_group("SLURM (--slurm)")
+    slurm.add_argument("--nodes", type=positive_int, default=1, metavar="N")
+    slurm.add_argument("--tasks-per-node", type=positive_int, default=1, metavar="N")
+    slurm.add_argument("--cpus-per-task", type=positive_int, default=None, metavar="N")
+    slurm.add_argument("--gpus-per-node", type=positive_int, default=None, metavar="N")
+    slurm.add_argument("--time", type=positive_int, default=60, metavar="MINUTES")
+    slurm.add_argument("--partition", default=None)
+    slurm.add_argument("--job-name", default="rl_jax")
+    slurm.add_argument(
+        "--logs", type=Path, default=Path("slurm_logs"), metavar="DIR", help="submitit's folder"
+    )
+    parser.add_argument("command", nargs=argparse.REMAINDER, help="the script and its flags")
+    args = parser.parse_args(argv)
+    command = args.command[1:] if args.command[:1] == ["--"] else args.command
+    if not command:
+        raise UsageError("give the command to run: python -m rl_jax.run.launch --local 2 SCRIPT")
+    if command[0].endswith(".py"):
+        command = [sys.executable, *command]
+    return args, command
+
+
+def free_port() -> int:
+    """A TCP port nothing listens on now (the coordinator's)."""
+    with socket.socket() as probe:
+        probe.bind(("localhost", 0))
+        return probe.getsockname()[1]
+
+
+# ---- local processes ------------------------------------------------------------------------
+
+
+class LocalJob:
+    """N processes of one command on this machine, joined through ``--coordinator``."""
+
+    def __init__(self, command: list[str], count: int, port: int | None = None):
+        self.command, self.count = command, count
+        self.port = port or free_port()
+        self.processes: list[subprocess.Popen] = []
+        self.errors: list[list[str]] = [[] for _ in range(count)]
+        self._readers: list[threading.Thread] = []
+
+    def environment(self) -> dict[str, str]:
+        env = dict(os.environ)
+        if "RL_JAX_CPU_DEVICES" not in env:  # the cores shared out, one device each at least
+            from rl_jax.training.jax_setup import cpu_count
+
+            env["RL_JAX_CPU_DEVICES"] = str(max(1, cpu_count() // self.count))
+        return env
+
+    def start(self) -> None:
+        coordinator = f"localhost:{self.port}"
+        for rank in range(self.count):
+            flags = ["--coordinator", coordinator, "--num-processes", str(self.count)]
+            process = subprocess.Popen(
+                [*self.command, *flags, "--process-id", str(rank)],
+                env=self.environment(),
+                # process 0's output is the run's; the others' stdout holds library chatter
+                stdout=None if rank == 0 else subprocess.DEVNULL,
+                stderr=subprocess.PIPE,
+                text=True,
+                start_new_session=True,  # Ctrl-C reaches them once, through forward()
+            )
+            self.processes.append(process)
+            reader = threading.Thread(target=self._read, args=(rank, process.stderr), daemon=True)
+            reader.start()
+            self._readers.append(reader)
+
+    def _read(self, rank: int, stream: IO[str] | None) -> None:
+        """Process 0's stderr goes on to ours as it comes; every process's error lines are kept."""
+        for line in stream or ():
+            if rank == 0:
+                sys.stderr.write(line)
+                sys.stderr.flush()
+            if line.startswith(ERROR_PREFIX):
+                self.errors[rank].append(line.rstrip("\n"))
+
+    def forward(self, signum: int, frame: Any = None) -> None:
+        """Pass a signal on to every process still running."""
+        for process in self.processes:
+            if process.poll() is None:
+                process.send_signal(signum)
+
+    def wait(self, grace: float = 30.0) -> int:
+        """Until all have ended; once one fails, the others are stopped (SIGTERM, then SIGKILL
+        after ``grace`` seconds). The exit status: the first failure's, else 0."""
+        failed: int | None = None
+        deadline = None
+        while any(process.poll() is None for process in self.processes):
+            for rank, process in enumerate(self.processes):
+                if failed is None and process.poll() not in (None, 0):
+                    failed, deadline = rank, time.monotonic() + grace
+                    self.forward(signal.SIGTERM)
+            if deadline is not None and time.monotonic() > deadline:
+                self.forward(signal.SIGKILL)
+            time.sleep(0.1)
+        for reader in self._readers:
+            reader.join(timeout=5)
+        if failed is None:
+            failed = next((r for r, p in enumerate(self.processes) if p.returncode), None)
+        if failed is None:
+            return 0
+        self._explain(failed)
+        return _status(self.processes[failed].returncode)
+
+    def _explain(self, failed: int) -> None:
+        """One line on what failed, unless process 0 already said it."""
+        if self.errors[0]:
+            return
+        said = self.errors[failed] or next((lines for lines in self.errors if lines), [])
+        if said:
+            print(said[-1], file=sys.stderr)
+            return
+        status = self.processes[failed].returncode
+        how = f"was killed by {signal.Signals(-status).name}" if status < 0 else f"exited {status}"
+        print(f"error: process {failed} of {self.count} {how}; stopped the others", file=sys.stderr)
+
+
+def _status(returncode: int) -> int:
+    return returncode if returncode > 0 else 128 - returncode
+
+
+def run_local(command: list[str], count: int) -> int:
+    """``command`` as ``count`` processes here; returns the job's exit status."""
+    job = LocalJob(command, count)
+    previous = {signum: signal.signal(signum, job.forward) for signum in FORWARDED}
+    try:
+        job.start()
+        return job.wait()
+    finally:
+        for signum, handler in previous.items():
+            signal.signal(signum, handler)
+
+
+# ---- SLURM through submitit -----------------------------------------------------------------
+
+
+class ClusterCommand:
+    """What submitit runs in every task of the job: the command as a child process. On SLURM's
+    warning signal (``checkpoint``, rank 0) it passes SIGUSR1 on to the run, waits for its
+    checkpoint, and hands submitit the same command to requeue."""
+
+    def __init__(self, command: list[str]):
+        self.command = command
+        self._child: subprocess.Popen | None = None
+
+    def __call__(self) -> int:
+        self._child = subprocess.Popen(self.command)
+        while self._child.poll() is None:  # not wait(): checkpoint() may run meanwhile
+            time.sleep(1.0)
+        if self._child.returncode != 0:
+            raise RuntimeError(f"{self.command[0]} exited with status {self._child.returncode}")
+        return 0
+
+    def checkpoint(self, *args: Any, **kwargs: Any) -> Any:
+        """Stop the run after its chunk (it checkpoints), then requeue the same command."""
+        submitit = importlib.import_module("submitit")
+        child = self._child
+        if child is not None and child.poll() is None:
+            child.send_signal(signal.SIGUSR1)
+            while child.poll() is None:
+                time.sleep(1.0)
+        return submitit.helpers.DelayedSubmission(ClusterCommand(self.command))
+
+    def __getstate__(self) -> dict[str, Any]:
+        return {"command": self.command, "_child": None}
+
+
+def submit(command: list[str], args: argparse.Namespace) -> int:
+    """Submit ``command --distributed`` as a SLURM job of ``args.nodes`` x
+    ``args.tasks_per_node`` tasks; prints the job id and where its logs go."""
+    # submitit's warning signal: the one the run checkpoints on (read when submitit is imported)
+    os.environ.setdefault("SUBMITIT_PREEMPT_SIGNAL", "USR1")
+    try:
+        submitit = importlib.import_module("submitit")  # optional: the cluster extra
+    except ImportError:
+        raise UsageError(
+            "--slurm needs submitit, which is not installed: pip install 'rl_jax[cluster]'"
+        ) from None
+    executor = submitit.AutoExecutor(folder=str(args.logs))
+    parameters: dict[str, Any] = {
+        "nodes": args.nodes,
+        "tasks_per_node": args.tasks_per_node,
+        "timeout_min": args.time,
+        "name": args.job_name,
+        "slurm_signal_delay_s": 90,
+    }
+    if args.cpus_per_task:
+        parameters["cpus_per_task"] = args.cpus_per_task
+    if args.gpus_per_node:
+        parameters["gpus_per_node"] = args.gpus_per_node
+    if args.partition:
+        parameters["slurm_partition"] = args.partition
+    executor.update_parameters(**parameters)
+    job = executor.submit(ClusterCommand([*command, "--distributed"]))
+    print(
+        f"submitted SLURM job {job.job_id}: {args.nodes * args.tasks_per_node} processes; "
+        f"logs in {args.logs}/"
+    )
+    return 0
+
+
+def main(argv: list[str] | None = None) -> int:
+    """``python -m rl_jax.run.launch``: parse, then run here or submit."""
+    args, command = parse(list(sys.argv[1:] if argv is None else argv))
+    if args.slurm:
+        return submit(command, args)
+    return run_local(command, args.local)
+
+
+if __name__ == "__main__":
+    exit_now(guard(main))

@@ -1,0 +1,275 @@
+"""One run over several processes (``rl_jax.run.distributed``, ``rl_jax.run.launch``): the
+set-up checks, a same command that continues its run, and, through the launcher's local mode,
+two processes of one CPU device each against one process with two devices, a requeue, and a
+killed process."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import fake_algorithm as fake
+import psutil
+import pytest
+from child_env import python_path
+from run_helpers import leaves_bytes
+
+from rl_jax.errors import RunError, UsageError
+from rl_jax.run import distributed, launch
+from rl_jax.run.checkpoint import Checkpointer
+from rl_jax.run.plan import make_plan
+from rl_jax.run.run_dir import CHECKPOINT_DIR
+from rl_jax.run.runner import run
+from rl_jax.run.spec import RunSpec
+from rl_jax.run.start import GracefulStop
+
+ROOT = Path(__file__).resolve().parents[2]
+SCRIPT = ROOT / "tests" / "fake_experiment.py"
+ENV = {
+    **{key: value for key, value in os.environ.items() if key not in ("TF_CPP_MIN_LOG_LEVEL",)},
+    "PYTHONPATH": python_path(ROOT),
+}
+ENV.pop("XLA_FLAGS", None)  # the device count is the launcher's (RL_JAX_CPU_DEVICES)
+SLURM = {
+    "SLURM_JOB_ID": "4242",
+    "SLURM_STEP_NODELIST": "node[001-002]",
+    "SLURM_NTASKS": "2",
+    "SLURM_PROCID": "1",
+    "SLURM_LOCALID": "0",
+}
+
+
+# ---- the set-up, in process ------------------------------------------------------------------
+
+
+def options(**given) -> distributed.Options:
+    return distributed.Options(**given)
+
+
+def test_one_process_needs_no_flags_and_several_need_all_three():
+    assert distributed.resolve(options(), {}) is None
+    assert distributed.resolve(options(num_processes=1), {}) is None
+    cluster = distributed.resolve(
+        options(coordinator="host:1234", num_processes=2, process_id=1), {}
+    )
+    assert cluster == distributed.Cluster("host:1234", 2, 1, "flags")
+    with pytest.raises(UsageError, match="need all of --coordinator"):
+        distributed.resolve(options(num_processes=2, process_id=0), {})
+    with pytest.raises(UsageError, match="expected HOST:PORT"):
+        distributed.resolve(options(coordinator="host", num_processes=2, process_id=0), {})
+    with pytest.raises(UsageError, match=r"--process-id 2 must be in 0 \.\. 1"):
+        distributed.resolve(options(coordinator="h:1", num_processes=2, process_id=2), {})
+
+
+def test_distributed_reads_the_scheduler_and_refuses_what_contradicts_it():
+    with pytest.raises(UsageError, match="--distributed found no SLURM or Open MPI job here"):
+        distributed.resolve(options(distributed=True), {})
+    assert distributed.resolve(options(distributed=True), SLURM) == distributed.Cluster(
+        None, 2, 1, "slurm"
+    )
+    with pytest.raises(UsageError, match="--num-processes 4 does not match the slurm job's 2"):
+        distributed.resolve(options(distributed=True, num_processes=4), SLURM)
+    with pytest.raises(UsageError, match="--process-id 0 does not match"):
+        distributed.resolve(options(distributed=True, process_id=0), SLURM)
+    ompi = {"OMPI_MCA_orte_hnp_uri": "1;tcp://10.0.0.1:1", "OMPI_COMM_WORLD_SIZE": "3"}
+    assert distributed.resolve(options(distributed=True), ompi).num_processes == 3
+
+
+def test_flags_are_taken_out_and_left_out_of_the_compared_command():
+    argv = ["--seeds", "2", "--distributed", "--coordinator", "h:1", "--process-id=1", "--gif"]
+    taken, rest = distributed.take(argv)
+    assert taken.distributed and taken.coordinator == "h:1" and taken.process_id == 1
+    assert rest == ["--seeds", "2", "--gif"]
+    assert distributed.without_flags(argv) == ["--seeds", "2", "--gif"]
+
+
+def test_sigusr1_asks_to_stop_after_the_chunk():
+    said = []
+    with GracefulStop(said.append) as stop:
+        os.kill(os.getpid(), signal.SIGUSR1)
+        time.sleep(0.1)
+        os.kill(os.getpid(), signal.SIGTERM)  # asked already: no second line
+        time.sleep(0.1)
+    assert stop.requested == "SIGUSR1" and len(said) == 1 and said[0].startswith("SIGUSR1: stop")
+
+
+def test_the_launcher_needs_a_command_and_says_when_submitit_is_missing(monkeypatch):
+    with pytest.raises(UsageError, match="give the command to run"):
+        launch.parse(["--local", "2"])
+    args, command = launch.parse(["--local", "2", "x.py", "--seeds", "3"])
+    assert args.local == 2 and command == [sys.executable, "x.py", "--seeds", "3"]
+    monkeypatch.setitem(sys.modules, "submitit", None)  # import fails, as when not installed
+    args, command = launch.parse(["--slurm", "x.py"])
+    with pytest.raises(UsageError, match=r"pip install 'rl_jax\[cluster\]'"):
+        launch.submit(command, args)
+
+
+def spec_for(out: Path, command: str, **changes) -> RunSpec:
+    config = dataclasses.replace(fake.default_config(), iterations_per_chunk=5)
+    spec = RunSpec(
+        fake,
+        fake.ENV_ID,
+        config,
+        (fake.default_hyperparams(),),
+        out,
+        seeds=2,
+        total_steps=40,
+        log_interval=1e9,
+        command=command,
+    )
+    return dataclasses.replace(spec, **changes)
+
+
+def test_the_same_command_continues_its_run_and_another_is_refused(tmp_path):
+    command = "python run.py --seeds 2 --out run --coordinator h:1 --process-id 0"
+    said: list[str] = []
+    run(spec_for(tmp_path / "run", command, total_steps=20), notify=said.append)
+    assert not any("continuing" in line for line in said)
+    # a requeued job: the same command (another port, another Python name), a longer budget
+    # written in the same flags would be another command: refused below
+    again = "python3 run.py --seeds 2 --out run --coordinator h:2 --process-id 0"
+    said.clear()
+    result = run(spec_for(tmp_path / "run", again, total_steps=20), notify=said.append)
+    continuing = f"{tmp_path / 'run'} holds this run, started by this same command: continuing it"
+    assert said[0] == continuing
+    assert result.step == 20 and "resuming from the checkpoint at step 20 (chunk 1)" in said
+    with pytest.raises(RunError, match="already holds this run; continue it with --resume"):
+        run(spec_for(tmp_path / "run", command + " --total-steps 40"), notify=said.append)
+    record = json.loads((tmp_path / "run" / "config.json").read_text())
+    assert len(record["sessions"]) == 2
+
+
+def test_an_unreachable_coordinator_is_one_line_within_the_time_limit(tmp_path):
+    port = launch.free_port()
+    flags = ["--coordinator", f"localhost:{port}", "--num-processes", "2", "--process-id", "1"]
+    started = time.monotonic()
+    done = subprocess.run(
+        [sys.executable, str(SCRIPT), *flags, "--collective-timeout", "2"],
+        cwd=tmp_path,
+        env=ENV,
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
+    assert done.returncode == 1
+    lines = done.stderr.strip().splitlines()
+    assert len(lines) == 1, done.stderr
+    assert lines[0] == f"error: cannot reach the coordinator localhost:{port} within 2 s (" + (
+        "process 0 must be running there, and the port open)"
+    )
+    assert time.monotonic() - started < 120
+    assert not any(tmp_path.iterdir())
+
+
+# ---- several processes, through the launcher ---------------------------------------------------
+
+TINY = ["--seeds", "2", "--total-steps", "300", "--iterations-per-chunk", "5"]
+TINY += ["--log-interval", "0", "--checkpoint-interval", "0"]
+
+
+def launched(args: list[str], cwd: Path, processes: int = 2) -> subprocess.Popen:
+    return subprocess.Popen(
+        [sys.executable, "-m", "rl_jax.run.launch", "--local", str(processes), str(SCRIPT), *args],
+        cwd=cwd,
+        env={**ENV, "RL_JAX_CPU_DEVICES": "1"},
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+
+
+def one_process(args: list[str], cwd: Path) -> None:
+    """The reference: one process with two CPU devices."""
+    done = subprocess.run(
+        [sys.executable, str(SCRIPT), *args],
+        cwd=cwd,
+        env={**ENV, "RL_JAX_CPU_DEVICES": "2"},
+        capture_output=True,
+        text=True,
+        timeout=900,
+    )
+    assert done.returncode == 0, done.stderr
+
+
+def rows(run_dir: Path) -> list[dict]:
+    """Metrics rows without the wall-clock time."""
+    lines = (run_dir / "metrics.jsonl").read_text().splitlines()
+    return [{k: v for k, v in json.loads(line).items() if k != "wall_time"} for line in lines]
+
+
+def final_state(run_dir: Path, step: int) -> list[bytes]:
+    config = dataclasses.replace(fake.default_config(), iterations_per_chunk=5)
+    spec = RunSpec(fake, fake.ENV_ID, config, (fake.default_hyperparams(),), run_dir, seeds=2)
+    with Checkpointer(run_dir / CHECKPOINT_DIR, read_only=True) as checkpointer:
+        assert checkpointer.latest_step() == step
+        return leaves_bytes(checkpointer.restore(make_plan(spec).template)[0])
+
+
+def wait_for_training(process: subprocess.Popen) -> list[str]:
+    """Process 0's lines up to its first progress line (training has started)."""
+    seen = []
+    for line in process.stdout:
+        seen.append(line)
+        if line.startswith("step "):
+            return seen
+    raise AssertionError("the run ended before training: " + "".join(seen))
+
+
+@pytest.fixture(scope="module")
+def reference(tmp_path_factory):
+    root = tmp_path_factory.mktemp("distributed")
+    one_process([*TINY, "--out", "single"], root)
+    return root
+
+
+@pytest.mark.slow
+def test_two_processes_stopped_and_requeued_equal_one_process_on_two_devices(reference):
+    """Bit for bit: each run's seeds compute on their own device in both layouts (no
+    communication inside a chunk), and the gathers only copy."""
+    root = reference
+    args = [*TINY, "--out", "requeued"]
+    first = launched(args, root)
+    wait_for_training(first)
+    first.send_signal(signal.SIGTERM)  # the launcher passes it on to both processes
+    out, err = first.communicate(timeout=900)
+    assert first.returncode == 0, err
+    assert "SIGTERM: stopping after this chunk" in out and "stopped at step" in out
+    again = launched(args, root)  # the requeued job: the same command
+    out, err = again.communicate(timeout=900)
+    assert again.returncode == 0, err
+    assert "requeued holds this run, started by this same command: continuing it" in out
+    assert "resuming from the checkpoint at step" in out
+    assert "devices: TFRT_CPU_0, TFRT_CPU_" in out  # one device of each process
+    assert rows(root / "requeued") == rows(root / "single")
+    assert final_state(root / "requeued", 300) == final_state(root / "single", 300)
+
+
+@pytest.mark.slow
+def test_a_killed_process_stops_the_other_with_one_line_and_the_run_continues(reference):
+    root = reference
+    args = [*TINY, "--out", "killed"]
+    job = launched(args, root)
+    wait_for_training(job)
+    children = psutil.Process(job.pid).children()
+    victim = next(c for c in children if c.cmdline()[-2:] == ["--process-id", "1"])
+    started = time.monotonic()
+    victim.kill()
+    out, err = job.communicate(timeout=300)
+    assert time.monotonic() - started < 120
+    assert job.returncode == 1, err
+    lines = err.strip().splitlines()
+    assert len(lines) == 1 and "Traceback" not in err, err
+    assert lines[0].startswith("error: process 0 lost contact with another process of the run")
+    # SIGKILL kept the last checkpoint: the same command continues from it to the same end
+    again = launched(args, root)
+    out, err = again.communicate(timeout=900)
+    assert again.returncode == 0, err
+    assert "killed holds this run, started by this same command: continuing it" in out
+    assert rows(root / "killed") == rows(root / "single")
+    assert final_state(root / "killed", 300) == final_state(root / "single", 300)
