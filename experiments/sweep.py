@@ -15,19 +15,19 @@ metrics.jsonl, checkpoints, ... as every experiment script), plus curves.png wit
 config and results.txt ranking all configs by final eval return with 95% bootstrap CIs.
 --resume OUT continues every shape from its latest checkpoint.
 
-Several hosts (or processes) through jax.distributed: start the same command on every process,
-adding --coordinator HOST:PORT (process 0's address, any free port), --num-processes N and
+Several hosts (or processes) through jax.distributed: under SLURM or Open MPI add --distributed
+(srun/mpirun start the processes); elsewhere start the same command on every process, adding
+--coordinator HOST:PORT (process 0's address, any free port), --num-processes N and
 --process-id I (0 .. N-1). The grid x seeds is then sharded over the devices of all processes;
 each process computes its share and process 0 alone writes OUT and prints the progress. The
 checkpoints are the same as on one process: to resume, start the same processes again with
---resume OUT in place of the grid flags (Ctrl-C or SIGTERM to any process stops them all after
-the chunk, with a checkpoint). On one machine:
+--resume OUT in place of the grid flags (Ctrl-C, SIGTERM or SIGUSR1 to any process stops them
+all after the chunk, with a checkpoint). On one machine, 2 processes:
 
-  for i in 0 1; do
-    RL_JAX_CPU_DEVICES=1 python experiments/sweep.py --algo td3 --env rl_jax/Pendulum-v1 \
-        --grid lr=1e-4,1e-3 --seeds 2 --coordinator localhost:12355 --num-processes 2 \
-        --process-id $i --out runs/distributed &
-  done; wait
+  python -m rl_jax.run.launch --local 2 experiments/sweep.py --algo td3 \
+      --env rl_jax/Pendulum-v1 --grid lr=1e-4,1e-3 --seeds 2 --out runs/distributed
+
+docs/cluster.md has sbatch templates, requeue and the launcher's SLURM mode.
 """
 
 from rl_jax.run import sweep

@@ -31,7 +31,9 @@ through envs.from_gymnasium; or MODULE:ID, which imports MODULE (searched on the
 in the current directory) so that its envs.register(ID, ...) runs first. Algorithms without a
 recipe for an env start from their own defaults (the TD3 paper's for td3: 25,000 random steps
 first), so small budgets need flags such as --learning-starts. --recipe NAME puts one of the
-algorithm's whole named recipes on top of the env's.
+algorithm's whole named recipes on top of the env's. Several processes (SLURM, Open MPI, or
+hosts of your own): --distributed, or --coordinator/--num-processes/--process-id
+(docs/cluster.md).
 """
 
 SWEEP_DOC = """Sweep a grid of hyperparameters x seeds as one compiled program, sharded over all
@@ -49,7 +51,8 @@ shape compiles once and runs its whole hyperparameter grid in its own program.
 OUT (default runs/<env>__<algo>-sweep__<time>/) holds one run directory per shape, plus
 curves.png with one curve per config and results.txt ranking all configs by final eval return.
 --resume OUT continues every shape from its latest checkpoint. Several processes or hosts:
---coordinator HOST:PORT, --num-processes N and --process-id I on each (jax.distributed).
+--distributed under SLURM or Open MPI, else --coordinator HOST:PORT, --num-processes N and
+--process-id I on each (jax.distributed; docs/cluster.md).
 """
 
 

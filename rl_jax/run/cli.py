@@ -290,6 +290,7 @@ def _help_without_algorithm(description: str, defaults: Defaults) -> int:
     )
     _add_choice_flags(parser)
     add_run_flags(parser, defaults.seeds, defaults.total_steps)
+    distributed.add_flags(parser)
     parser.epilog = "Give --algo and --env to list the algorithm's config and hyperparameter flags."
     parser.print_help()
     return 0

@@ -154,6 +154,11 @@ def resolve(options: Options, environ: Mapping[str, str] = os.environ) -> Cluste
     if options.distributed:
         found = scheduler(environ)
         if found is None:
+            if "SLURM_JOB_ID" in environ and options.coordinator is None:
+                raise UsageError(
+                    "--distributed inside a SLURM job but outside a job step: start the "
+                    "processes with srun (srun python ... --distributed)"
+                )
             if options.coordinator is None or options.num_processes is None:
                 raise UsageError(
                     "--distributed found no SLURM or Open MPI job here (no SLURM_PROCID or "
@@ -172,7 +177,7 @@ def resolve(options: Options, environ: Mapping[str, str] = os.environ) -> Cluste
                 f"--process-id {options.process_id} does not match this process's {name} rank "
                 f"{rank}; leave it out under --distributed"
             )
-        return Cluster(options.coordinator, count, rank, name)
+        return None if count == 1 else Cluster(options.coordinator, count, rank, name)
     if options.coordinator is None and options.num_processes in (None, 1):
         if options.process_id not in (None, 0):
             raise UsageError(f"--process-id {options.process_id} needs --num-processes > it")
