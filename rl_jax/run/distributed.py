@@ -70,6 +70,7 @@ class Options:
 
 
 def positive_seconds(text: str) -> float:
+    """A number of seconds > 0 (``--collective-timeout``)."""
     value = parse_float(text)
     if value <= 0:
         raise argparse.ArgumentTypeError(f"must be > 0, got {value}")

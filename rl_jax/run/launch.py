@@ -91,6 +91,7 @@ class LocalJob:
         self._readers: list[threading.Thread] = []
 
     def environment(self) -> dict[str, str]:
+        """Ours, with the CPU devices each process makes of the cores."""
         env = dict(os.environ)
         if "RL_JAX_CPU_DEVICES" not in env:  # the cores shared out, one device each at least
             from rl_jax.training.jax_setup import cpu_count
@@ -99,6 +100,7 @@ class LocalJob:
         return env
 
     def start(self) -> None:
+        """Start every process, with its rank's flags added to the command."""
         coordinator = f"localhost:{self.port}"
         for rank in range(self.count):
             flags = ["--coordinator", coordinator, "--num-processes", str(self.count)]
