@@ -312,3 +312,24 @@ def test_submitit_warning_stops_the_run_and_requeues_the_same_command(monkeypatc
     thread.join(timeout=30)
     assert done == [0]  # the run ended by itself, with status 0
     assert [again.command for again in requeued] == [command.command]
+
+
+def test_sigusr1_under_slurm_requeues_the_job_once_checkpointed(monkeypatch, tmp_path):
+    """What the lead does after a SIGUSR1 stop: ``scontrol requeue JOB`` (a stand-in here), and
+    nothing under submitit, which requeues its own jobs."""
+    calls = tmp_path / "calls"
+    scontrol = tmp_path / "scontrol"
+    scontrol.write_text(f'#!/bin/sh\necho "$@" >> {calls}\n')
+    scontrol.chmod(0o755)
+    monkeypatch.setenv("PATH", f"{tmp_path}{os.pathsep}{os.environ['PATH']}")
+    monkeypatch.setenv("SLURM_JOB_ID", "77")
+    monkeypatch.delenv("SUBMITIT_EXECUTOR", raising=False)
+    said: list[str] = []
+    distributed.slurm_requeue(said.append)
+    assert calls.read_text() == "requeue 77\n"
+    assert said == [
+        "requeued SLURM job 77: the same command continues this run when it starts again"
+    ]
+    monkeypatch.setenv("SUBMITIT_EXECUTOR", "slurm")
+    distributed.slurm_requeue(said.append)
+    assert calls.read_text() == "requeue 77\n" and len(said) == 1
