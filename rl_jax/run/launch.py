@@ -50,11 +50,15 @@ def parse(argv: list[str]) -> tuple[argparse.Namespace, list[str]]:
     where.add_argument("--local", type=positive_int, metavar="N", help="N processes here")
     where.add_argument("--slurm", action="store_true", help="a SLURM job through submitit")
     slurm = parser.add_argument_group("SLURM (--slurm)")
-    slurm.add_argument("--nodes", type=positive_int, default=1, metavar="N")
-    slurm.add_argument("--tasks-per-node", type=positive_int, default=1, metavar="N")
+    slurm.add_argument("--nodes", type=positive_int, default=1, metavar="N", help="default: 1")
+    slurm.add_argument(
+        "--tasks-per-node", type=positive_int, default=1, metavar="N", help="processes per node"
+    )
     slurm.add_argument("--cpus-per-task", type=positive_int, default=None, metavar="N")
     slurm.add_argument("--gpus-per-node", type=positive_int, default=None, metavar="N")
-    slurm.add_argument("--time", type=positive_int, default=60, metavar="MINUTES")
+    slurm.add_argument(
+        "--time", type=positive_int, default=60, metavar="MINUTES", help="time limit (60)"
+    )
     slurm.add_argument("--partition", default=None)
     slurm.add_argument("--job-name", default="rl_jax")
     slurm.add_argument(
