@@ -339,15 +339,15 @@ def test_sigusr1_under_slurm_requeues_the_job_once_checkpointed(monkeypatch, tmp
 def test_a_hung_process_stops_the_other_at_the_time_limit(reference):
     """A process that stops answering (SIGSTOP) without closing its connections: the other
     waits no longer than --collective-timeout, then ends with one line."""
-    job = launched([*TINY, "--out", "hung", "--collective-timeout", "20"], reference)
+    job = launched([*TINY, "--out", "hung", "--collective-timeout", "60"], reference)
     wait_for_training(job)
     children = psutil.Process(job.pid).children()
     victim = next(c for c in children if c.cmdline()[-2:] == ["--process-id", "1"])
     started = time.monotonic()
     victim.suspend()
     out, err = job.communicate(timeout=300)
-    assert 20 <= time.monotonic() - started < 150
+    assert 60 <= time.monotonic() - started < 200
     assert job.returncode == 1, err
     lines = err.strip().splitlines()
     assert len(lines) == 1, err
-    assert lines[0].startswith("error: process 0 waited over 20 s for the other processes at ")
+    assert lines[0].startswith("error: process 0 waited over 60 s for the other processes at ")
