@@ -63,6 +63,23 @@ def resolve_algorithm(name: str | Any) -> Any:
     return learners.resolve(name)
 
 
+def program(argv0: str | None = None) -> list[str]:
+    """The words that start this program again, for the run's recorded commands:
+    ``python SCRIPT`` for a script, ``rl-jax COMMAND`` for the console command and
+    ``python -m rl_jax COMMAND`` for the package run as a module. ``rl_jax.__main__`` sets
+    ``sys.argv[0]`` to ``"rl-jax COMMAND"`` in both of the latter cases (for argparse's
+    usage lines); only the ``__main__`` module tells them apart."""
+    argv0 = sys.argv[0] if argv0 is None else argv0
+    python = Path(sys.executable).name
+    if not argv0.startswith("rl-jax "):
+        return [python, argv0]
+    words = argv0.split()
+    spec = getattr(sys.modules.get("__main__"), "__spec__", None)
+    if spec is not None and spec.name == "rl_jax.__main__":
+        return [python, "-m", "rl_jax", *words[1:]]
+    return words
+
+
 # ---- building the run -----------------------------------------------------------------------
 
 
@@ -369,7 +386,7 @@ def build_spec(
     validate_settings(algorithm, config, hparams)
     check_env_fits(algorithm, config, hparams[0])
     out = args.resume if resume else (args.out or default_run_dir(env_id, algorithm.name))
-    script = shlex.join([Path(sys.executable).name, sys.argv[0]])
+    script = shlex.join(program())
     # A learner of the user's own is named again on resume (never imported from the record).
     named = shlex.join(learners.cli_args(algorithm)) if hasattr(args, "algo") else ""
     return RunSpec(
@@ -387,7 +404,7 @@ def build_spec(
         keep_checkpoints=args.keep_checkpoints,
         log_interval=args.log_interval,
         gif=args.gif,
-        command=shlex.join([Path(sys.executable).name, sys.argv[0], *argv]),
+        command=shlex.join([*program(), *argv]),
         resume_command=f"{script} --resume {shlex.quote(str(out))} {named}".strip(),
         # The recipe's measured throughput holds for its own config only.
         throughput=None if resume or args.grid or _explicit(args, names[0]) else recipe.throughput,

@@ -132,7 +132,7 @@ def build_specs(
     args = parser.parse_args(rest)
     out = args.resume or args.out or default_out(env_id, algorithm.name)
     args.resume, args.out = None, None
-    named = [shlex.quote(arg) for arg in learners.cli_args(algorithm)]
+    named = learners.cli_args(algorithm)
     names = (config_names, hparam_names)
     base = cli.build_spec(args, algorithm, env_id, cli.Defaults(), names, [], recipe)
     axes = [parse_axis(spec, base.config, base.hparams[0]) for spec in sweep_args.grid]
@@ -154,8 +154,8 @@ def build_specs(
                 out=Path(out) / label,
                 resume=resume and (Path(out) / label / "config.json").is_file(),
                 grid_fields=tuple(axis.fields[0] for axis in dynamic),
-                command=" ".join([Path(sys.executable).name, *sys.argv]),
-                resume_command=" ".join(["python experiments/sweep.py --resume", str(out), *named]),
+                command=shlex.join([*cli.program(), *sys.argv[1:]]),
+                resume_command=shlex.join([*cli.program(), "--resume", str(out), *named]),
                 throughput=None,
             )
         )
