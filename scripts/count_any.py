@@ -79,10 +79,10 @@ class Module:
                 for alias in node.names:
                     self.module_aliases[alias.asname or alias.name] = alias.name
         for node in self.tree.body:
-            if isinstance(node, ast.Assign) and len(node.targets) == 1:
-                target = node.targets[0]
-                if isinstance(target, ast.Name):
-                    self.assigned[target.id] = node.value
+            if isinstance(node, ast.Assign):  # ``X = Y = value`` binds both
+                for target in node.targets:
+                    if isinstance(target, ast.Name):
+                        self.assigned[target.id] = node.value
             elif (
                 isinstance(node, ast.AnnAssign)
                 and node.value is not None
