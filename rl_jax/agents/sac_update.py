@@ -9,20 +9,17 @@ critics, then the temperature from the log-densities of the actions the actor st
 
 from __future__ import annotations
 
-from typing import Any
-
 import jax
 import jax.numpy as jnp
 import optax
 
 from rl_jax.agents.actor_critic import CriticBatch, gather_batch
 from rl_jax.agents.common import optimizer_step, polyak_update
+from rl_jax.agents.sac_config import Agent, Config, Hyperparams
 from rl_jax.agents.sac_losses import actor_loss_fn, critic_loss_fn, temperature_loss
 from rl_jax.agents.sac_networks import Networks, make_networks
 from rl_jax.training import normalization, replay, squashed_gaussian
 from rl_jax.training.replay import ReplayBuffer
-
-Config = Hyperparams = Agent = Any  # sac's (sac imports this module)
 
 # Every numeric argument of Adam (b1 too) sits in each injected state from its init; the step
 # reads them there, so one transformation serves actor, critics and temperature.
