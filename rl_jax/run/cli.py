@@ -48,7 +48,7 @@ from rl_jax.run.learners import ALGORITHMS
 from rl_jax.run.run_dir import read_run_record
 from rl_jax.run.spec import RunSpec
 from rl_jax.training import params
-from rl_jax.training.algorithm import hooks
+from rl_jax.training.algorithm import Algorithm, Config, Hyperparams, hooks
 from rl_jax.training.jax_setup import configure_jax
 from rl_jax.training.params import dataclass_from_dict
 from rl_jax.training.recipes import PLAIN, Recipe
@@ -57,7 +57,7 @@ from rl_jax.training.validation import out_of_range
 RUNS_ROOT = Path("runs")
 
 
-def resolve_algorithm(name: str | Any) -> Any:
+def resolve_algorithm(name: str | object) -> Algorithm:
     """The learner ``name`` names: a built-in or registered name, ``MODULE:NAME``,
     ``path/to/file.py:NAME`` or the learner object (``rl_jax.run.learners``)."""
     return learners.resolve(name)
@@ -115,7 +115,7 @@ class Defaults:
     total_steps: int = 100_000
 
 
-def take_recipe(argv: list[str], algorithm: Any, env_id: str) -> tuple[Recipe, list[str]]:
+def take_recipe(argv: list[str], algorithm: Algorithm, env_id: str) -> tuple[Recipe, list[str]]:
     """``--recipe NAME`` of ``algorithm``'s recipes for ``env_id`` (else its ``"default"``),
     taken out of ``argv``. ``UsageError`` for an unknown name or with ``--resume`` (a resumed
     run keeps the settings it recorded)."""
@@ -143,7 +143,9 @@ def take_recipe(argv: list[str], algorithm: Any, env_id: str) -> tuple[Recipe, l
         ) from None
 
 
-def learner_of_recipe(argv: list[str], algorithm: Any, env_id: str) -> tuple[Any, list[str]]:
+def learner_of_recipe(
+    argv: list[str], algorithm: Algorithm, env_id: str
+) -> tuple[Algorithm, list[str]]:
     """A script's ``--recipe NAME`` may name another built-in learner's recipe for its env:
     ``td7`` (that learner's default) or ``td7-cpu`` (its ``cpu``). ``(the learner to run, argv
     with the recipe's own name)``; the script's learner and ``argv`` where NAME is its own."""
@@ -160,7 +162,7 @@ def learner_of_recipe(argv: list[str], algorithm: Any, env_id: str) -> tuple[Any
     return other, [*rest, "--recipe", own or "default"]
 
 
-def _other_learners_recipes(algorithm: Any, env_id: str) -> str:
+def _other_learners_recipes(algorithm: Algorithm, env_id: str) -> str:
     """``--help``'s list of the other built-in learners' recipes written for ``env_id`` or for
     any env, by the names ``learner_of_recipe`` takes."""
     names = []
@@ -175,7 +177,9 @@ def _other_learners_recipes(algorithm: Any, env_id: str) -> str:
     )
 
 
-def recipe_settings(algorithm: Any, env_id: str, recipe: Recipe) -> tuple[Any, Any]:
+def recipe_settings(
+    algorithm: Algorithm, env_id: str, recipe: Recipe
+) -> tuple[Config, Hyperparams]:
     """The algorithm's settings under ``recipe`` for ``env_id`` (a learner without recipes
     only ever has its defaults)."""
     named = {} if recipe is PLAIN else {"recipe": recipe.name}
@@ -187,7 +191,9 @@ def recipe_settings(algorithm: Any, env_id: str, recipe: Recipe) -> tuple[Any, A
     return config, hparams
 
 
-def validate_settings(algorithm: Any, config: Any, hparams_list: list[Any]) -> None:
+def validate_settings(
+    algorithm: Algorithm, config: Config, hparams_list: list[Hyperparams]
+) -> None:
     """Ranges (``rl_jax.training.validation``), then the algorithm's own ``validate(config,
     hparams)`` when it has one: before anything compiles, for every config of a grid."""
 
@@ -208,7 +214,7 @@ def validate_settings(algorithm: Any, config: Any, hparams_list: list[Any]) -> N
             raise UsageError(str(error)) from None
 
 
-def check_env_fits(algorithm: Any, config: Any, hparams: Any) -> None:
+def check_env_fits(algorithm: Algorithm, config: Config, hparams: Hyperparams) -> None:
     """The algorithm can act in the env (TD3 needs a bounded Box action space, say): its init,
     traced without running, raises the algorithm's own TypeError or ValueError otherwise, which
     ``--env`` with any gymnasium id makes a user error rather than a bug."""
@@ -219,7 +225,7 @@ def check_env_fits(algorithm: Any, config: Any, hparams: Any) -> None:
 
 
 def build_parser(
-    algorithm: Any,
+    algorithm: Algorithm,
     env_id: str,
     description: str,
     defaults: Defaults,
@@ -271,7 +277,9 @@ def _add_choice_flags(parser: argparse.ArgumentParser) -> None:
     )
 
 
-def _choose(argv: list[str], algorithm: Any, env_id: str | None) -> tuple[Any, str, bool]:
+def _choose(
+    argv: list[str], algorithm: Algorithm | None, env_id: str | None
+) -> tuple[Algorithm | None, str, bool]:
     """Algorithm and env: fixed by the script, or from --algo/--env (or the resumed run)."""
     pre = OneLineParser(add_help=False)
     _add_choice_flags(pre)
@@ -313,7 +321,9 @@ def _help_without_algorithm(description: str, defaults: Defaults) -> int:
     return 0
 
 
-def _resumed_settings(args: argparse.Namespace, algorithm: Any, env_id: str) -> dict[str, Any]:
+def _resumed_settings(
+    args: argparse.Namespace, algorithm: Algorithm, env_id: str
+) -> dict[str, Any]:
     """Config, hyperparameters, seeds and steps recorded by the run being resumed."""
 
     record = read_run_record(args.resume)
@@ -338,7 +348,7 @@ def _resumed_settings(args: argparse.Namespace, algorithm: Any, env_id: str) -> 
 
 
 def _fresh_settings(
-    algorithm: Any, env_id: str, defaults: Defaults, recipe: Recipe
+    algorithm: Algorithm, env_id: str, defaults: Defaults, recipe: Recipe
 ) -> dict[str, Any]:
     """The script's defaults under ``recipe`` for a new run (flags are applied on top)."""
     config, hparams = recipe_settings(algorithm, env_id, recipe)
@@ -354,13 +364,13 @@ def _fresh_settings(
 
 def build_spec(
     args: argparse.Namespace,
-    algorithm: Any,
+    algorithm: Algorithm,
     env_id: str,
     defaults: Defaults,
     names: tuple[list[str], list[str]],
     argv: list[str],
     recipe: Recipe | None = None,
-) -> Any:
+) -> RunSpec:
     """The ``RunSpec`` the flags describe (for ``--resume``: the recorded run, then the flags),
     on ``recipe``'s settings (None: the env's default recipe)."""
     recipe = recipe or hooks(algorithm).recipe(env_id)
@@ -412,7 +422,7 @@ def build_spec(
 
 
 def run_experiment(
-    algorithm: Any = None,
+    algorithm: Algorithm | None = None,
     env_id: str | None = None,
     description: str | None = None,
     argv: list[str] | None = None,
@@ -445,7 +455,7 @@ def run_experiment(
 
 
 def main(
-    algorithm: Any = None,
+    algorithm: Algorithm | None = None,
     env_id: str | None = None,
     description: str | None = None,
     *,

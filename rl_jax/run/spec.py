@@ -4,16 +4,13 @@ from __future__ import annotations
 
 import dataclasses
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 from flax.typing import ArrayPytree
 
 from rl_jax.run import plots
 from rl_jax.run.run_dir import identity
-from rl_jax.training.algorithm import Algorithm
-
-if TYPE_CHECKING:
-    from _typeshed import DataclassInstance
+from rl_jax.training.algorithm import Algorithm, Config, Hyperparams
 
 
 @dataclasses.dataclass(frozen=True)
@@ -22,8 +19,8 @@ class RunSpec:
 
     algorithm: Algorithm
     env_id: str
-    config: DataclassInstance
-    hparams: tuple[Any, ...]
+    config: Config
+    hparams: tuple[Hyperparams, ...]
     out: Path
     seeds: int = 1
     total_steps: int = 100_000

@@ -22,8 +22,9 @@ delayed updates) with real branches under vmap; every other leaf gains the ``[H,
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Callable
-from typing import Any, NamedTuple, Protocol, Self, TypeAlias
+from typing import Any, ClassVar, NamedTuple, Protocol, Self, TypeAlias
 
 import jax
 
@@ -49,6 +50,7 @@ class ChunkMetrics(NamedTuple):
 class Config(Protocol):
     """What the run machinery reads of any learner's static ``Config`` (a frozen dataclass)."""
 
+    __dataclass_fields__: ClassVar[dict[str, dataclasses.Field[Any]]]  # a dataclass: its fields
     env_id: str
     num_envs: int
     iterations_per_chunk: int
@@ -57,13 +59,21 @@ class Config(Protocol):
 class Hyperparams(Protocol):
     """What it asks of any learner's ``Hyperparams`` (a ``flax.struct`` dataclass of arrays)."""
 
+    __dataclass_fields__: ClassVar[dict[str, dataclasses.Field[Any]]]  # a dataclass: its fields
+
     def as_arrays(self) -> Self: ...
 
     def to_dict(self) -> dict[str, Any]: ...
 
 
-#: The pytree a learner keeps everything of one run in (``init`` makes it).
-TrainState: TypeAlias = Any
+class TrainState(Protocol):
+    """The pytree a learner keeps everything of one run in (``init`` makes it): a dataclass
+    (``flax.struct.dataclass``) whose fields the run machinery does not read, except an optional
+    ``clock`` (see above) and the ``policy_fields`` of the best-policy checkpoint."""
+
+    __dataclass_fields__: ClassVar[dict[str, dataclasses.Field[Any]]]
+
+
 #: ``obs -> action`` of a deterministic policy.
 PolicyFn: TypeAlias = Callable[[jax.Array], jax.Array]
 
