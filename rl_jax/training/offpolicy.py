@@ -29,6 +29,7 @@ from flax import struct
 from flax.typing import ArrayPytree
 
 import envs
+from envs.core.wrappers import StatisticsState
 from rl_jax.training import replay
 from rl_jax.training.algorithm import ChunkMetrics
 from rl_jax.training.episodes import evaluate, example_transition, make_eval_env, make_train_env
@@ -112,7 +113,7 @@ class TrainState:
 
     agent: ArrayPytree  # the learner's parameters, targets and optimizer states
     buffer: ReplayBuffer  # of Transition, leaves [rows, num_envs, ...]
-    env_state: ArrayPytree  # [num_envs, ...]
+    env_state: StatisticsState  # [num_envs, ...] of the train env (make_train_env)
     obs: jax.Array  # [num_envs, *obs_shape], the observation the next action answers
     noise: jax.Array  # [num_envs, *action_shape] float32, exploration state (see Learner)
     key: PRNGKey
