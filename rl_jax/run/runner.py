@@ -36,7 +36,6 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from flax.typing import ArrayPytree
 
 from rl_jax.errors import RunError
 from rl_jax.run import learners, plots, processes
@@ -70,7 +69,7 @@ from rl_jax.run.start import (
     write_run_record,
 )
 from rl_jax.training import params
-from rl_jax.training.algorithm import ChunkMetrics
+from rl_jax.training.algorithm import ChunkMetrics, Hyperparams, TrainState
 from rl_jax.training.validation import check_ranges
 
 #: Checkpoints a run keeps at the least, whatever ``keep_checkpoints`` asks: with one, a damaged
@@ -179,7 +178,7 @@ class Session:
     def wall_clock(self) -> float:
         return self.earlier_wall_clock + time.perf_counter() - self.started
 
-    def save(self, state: ArrayPytree, hparams: ArrayPytree, chunk: int) -> None:
+    def save(self, state: TrainState, hparams: Hyperparams, chunk: int) -> None:
         """Checkpoint the real ``[configs, seeds]`` runs (no padding: a checkpoint resumes on
         any number of devices)."""
         if self.saved_step == self.step:
@@ -216,7 +215,7 @@ class Session:
 
 
 def compile_chunk(
-    plan: Plan, state: ArrayPytree, hparams: ArrayPytree, notify: Callable[[str], None]
+    plan: Plan, state: TrainState, hparams: Hyperparams, notify: Callable[[str], None]
 ) -> Callable:
     """Compile ahead of the first chunk so compile time is reported as such."""
     notify("compiling the train chunk ...")
@@ -226,7 +225,7 @@ def compile_chunk(
     return compiled
 
 
-def _train(session: Session, start: Start, stop: GracefulStop, progress: Progress) -> Any:
+def _train(session: Session, start: Start, stop: GracefulStop, progress: Progress) -> TrainState:
     """The chunk loop; returns the last state (checkpointed)."""
     spec, plan, state = session.spec, session.plan, start.state
     if start.chunk >= plan.chunks:
@@ -317,7 +316,7 @@ def _render_gif(spec: RunSpec, notify: Callable[[str], None]) -> str | None:
 def _finish(
     spec: RunSpec,
     session: Session,
-    state: ArrayPytree,
+    state: TrainState,
     stopped: bool,
     notify: Callable[[str], None],
 ) -> RunResult:

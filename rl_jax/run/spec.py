@@ -6,11 +6,9 @@ import dataclasses
 from pathlib import Path
 from typing import Any
 
-from flax.typing import ArrayPytree
-
 from rl_jax.run import plots
 from rl_jax.run.run_dir import identity
-from rl_jax.training.algorithm import Algorithm, Config, Hyperparams
+from rl_jax.training.algorithm import Algorithm, Config, Hyperparams, TrainState
 
 
 @dataclasses.dataclass(frozen=True)
@@ -60,7 +58,7 @@ class RunResult:
     run_dir: Path
     step: int  # env steps per seed reached
     stopped: bool  # True when a signal ended the run before total_steps
-    state: ArrayPytree  # the final train state, leaves [configs, seeds, ...]
+    state: TrainState  # the final train state, leaves [configs, seeds, ...]
     results: list[plots.FinalResult]
     wall_clock: float  # seconds over all sessions of the run, compilation included
     gif_error: str | None = None

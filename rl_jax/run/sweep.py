@@ -33,6 +33,7 @@ from rl_jax.errors import (
 from rl_jax.run import cli, flags, learners, plots, processes, runner
 from rl_jax.run.metrics import METRICS_FILE, read_rows
 from rl_jax.training import params
+from rl_jax.training.algorithm import Algorithm
 from rl_jax.training.jax_setup import configure_jax
 
 if TYPE_CHECKING:
@@ -163,7 +164,7 @@ def build_specs(
     return specs, labels, Path(out), sweep_args
 
 
-def _resumed_learner(saved: dict[str, Any], named: str | None, out: Path) -> Any:
+def _resumed_learner(saved: dict[str, Any], named: str | None, out: Path) -> Algorithm:
     """The learner of a resumed sweep: ``--algo`` if given (checked against the sweep's), else
     the sweep's own if it is built in; a learner of the user's own is never imported from the
     record (``rl_jax.run.learners``). Each shape's run directory is checked again on resume."""

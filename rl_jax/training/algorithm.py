@@ -66,14 +66,16 @@ class Hyperparams(Protocol):
     def to_dict(self) -> dict[str, Any]: ...
 
 
-class TrainState(Protocol):
-    """The pytree a learner keeps everything of one run in (``init`` makes it): a dataclass
-    (``flax.struct.dataclass``) whose fields the run machinery does not read, except an optional
-    ``clock`` (see above) and the ``policy_fields`` of the best-policy checkpoint."""
+class DataclassState(Protocol):
+    """A train state that is a dataclass (``flax.struct.dataclass``)."""
 
     __dataclass_fields__: ClassVar[dict[str, dataclasses.Field[Any]]]
 
 
+#: The pytree a learner keeps everything of one run in (``init`` makes it): a dataclass or a
+#: NamedTuple of arrays. The run machinery does not read its fields, except an optional
+#: ``clock`` (dataclass states; see above) and the ``policy_fields`` of the best policy.
+TrainState: TypeAlias = DataclassState | tuple[object, ...]
 #: ``obs -> action`` of a deterministic policy.
 PolicyFn: TypeAlias = Callable[[jax.Array], jax.Array]
 

@@ -234,8 +234,9 @@ class Program:
 
         return map_axes(take, axes, state)
 
-    def gather(self, metrics: ChunkMetrics) -> ChunkMetrics:
-        """Host copies of ``[H_padded, S_padded]`` outputs (chunk metrics), cut to ``[H, S]``."""
+    def gather(self, metrics: Tree) -> Tree:
+        """Host copies of ``[H_padded, S_padded]`` outputs (chunk metrics, or any tree of such
+        leaves), cut to ``[H, S]``."""
         real = (slice(0, self.num_hparams), slice(0, self.num_seeds))
         return jax.tree.map(lambda leaf: self._gather_leaf(leaf)[real], metrics)
 
