@@ -142,7 +142,9 @@ class CriticBatch(NamedTuple):
         return cls(batch.obs, batch.action, r_t, discount_t, batch.next_obs)
 
 
-def gather_batch(storage: ReplayBuffer, rows, columns, gamma, n_step: int = 1) -> CriticBatch:
+def gather_batch(
+    storage: ReplayBuffer[Transition], rows, columns, gamma, n_step: int = 1
+) -> CriticBatch:
     """The ``CriticBatch`` of stored transitions ``(rows, columns)``: one step each, or windows
     of ``n_step`` consecutive steps of one env (cut at an episode's end)."""
     if n_step == 1:

@@ -39,7 +39,7 @@ from rl_jax.training.networks import Params
 from rl_jax.training.offpolicy import Clock, TrainState
 from rl_jax.training.params import Scalar
 from rl_jax.training.recipes import Recipe, Recipes
-from rl_jax.training.replay import ReplayBuffer
+from rl_jax.training.replay import ReplayBuffer, Transition
 
 
 @dataclasses.dataclass(frozen=True, kw_only=True)
@@ -186,7 +186,9 @@ def actor_step(agent: Agent, obs, hparams, config: Config, rate: Callable):
     return agent.replace(actor=actor, actor_opt=opt), loss
 
 
-def update(agent: Agent, buffer: ReplayBuffer, key, config: Config, hparams, update_index):
+def update(
+    agent: Agent, buffer: ReplayBuffer[Transition], key, config: Config, hparams, update_index
+):
     """One critic update; every ``policy_delay``-th also an actor update."""
     sample_key, noise_key = jax.random.split(key)
     rows, columns = replay.sample_indices(buffer, sample_key, config.batch_size)

@@ -19,14 +19,16 @@ from rl_jax.agents.sac_config import Agent, Config, Hyperparams
 from rl_jax.agents.sac_losses import actor_loss_fn, critic_loss_fn, temperature_loss
 from rl_jax.agents.sac_networks import Networks, make_networks
 from rl_jax.training import normalization, replay, squashed_gaussian
-from rl_jax.training.replay import ReplayBuffer
+from rl_jax.training.replay import ReplayBuffer, Transition
 
 # Every numeric argument of Adam (b1 too) sits in each injected state from its init; the step
 # reads them there, so one transformation serves actor, critics and temperature.
 _ADAM = optax.inject_hyperparams(optax.adam)(learning_rate=3e-4)
 
 
-def sample(buffer: ReplayBuffer, key, config: Config, hparams: Hyperparams) -> CriticBatch:
+def sample(
+    buffer: ReplayBuffer[Transition], key, config: Config, hparams: Hyperparams
+) -> CriticBatch:
     """A uniform batch: one-step transitions, or windows of ``n_step`` steps folded."""
     rows, columns = replay.sample_indices(buffer, key, config.batch_size)
     return gather_batch(buffer, rows, columns, hparams.gamma, config.n_step)
@@ -97,7 +99,7 @@ def actor_and_temperature_step(agent: Agent, obs, key, config, hparams: Hyperpar
 
 def update(
     agent: Agent,
-    buffer: ReplayBuffer,
+    buffer: ReplayBuffer[Transition],
     key,
     config: Config,
     hparams: Hyperparams,

@@ -261,7 +261,9 @@ def actor_step(agent: Agent, obs, hparams, nets: Networks, rate: Callable):
     return agent, loss
 
 
-def update(agent: Agent, buffer: ReplayBuffer, key, config: Config, hparams, update_index):
+def update(
+    agent: Agent, buffer: ReplayBuffer[Transition], key, config: Config, hparams, update_index
+):
     """One critic update; every ``policy_delay``-th also an actor and target update."""
     nets = make_networks(config)
     sample_key, noise_key = jax.random.split(key)

@@ -122,11 +122,13 @@ class TrainState:
     #                           that ended any (NaN until one does)
 
 
-def uniform_buffer(example: Transition, config: OffPolicyConfig) -> ReplayBuffer:
+def uniform_buffer(example: Transition, config: OffPolicyConfig) -> ReplayBuffer[Transition]:
     return replay.init(example, config.buffer_size, config.num_envs)
 
 
-def add_uniform(buffer: ReplayBuffer, transitions: Transition, config, hparams) -> ReplayBuffer:
+def add_uniform(
+    buffer: ReplayBuffer[Transition], transitions: Transition, config, hparams
+) -> ReplayBuffer[Transition]:
     return replay.add(buffer, transitions)
 
 
