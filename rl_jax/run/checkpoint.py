@@ -343,7 +343,7 @@ def _ignore_closed_loop_reports() -> None:
     if getattr(previous, "ignores_closed_loop", False):
         return
 
-    def hook(unraisable: Any) -> None:
+    def hook(unraisable: sys.UnraisableHookArgs) -> None:
         error = unraisable.exc_value
         if isinstance(error, RuntimeError) and str(error) == "Event loop is closed":
             return

@@ -50,7 +50,7 @@ from rl_jax.run.spec import RunSpec
 from rl_jax.training import params
 from rl_jax.training.algorithm import Algorithm, Config, Hyperparams, hooks
 from rl_jax.training.jax_setup import configure_jax
-from rl_jax.training.params import dataclass_from_dict
+from rl_jax.training.params import D, dataclass_from_dict
 from rl_jax.training.recipes import PLAIN, Recipe
 from rl_jax.training.validation import out_of_range
 
@@ -99,7 +99,7 @@ def _explicit(args: argparse.Namespace, names: list[str]) -> dict[str, Any]:
     return {name: getattr(args, name) for name in names if hasattr(args, name)}
 
 
-def replace_fields(instance: Any, values: dict[str, Any], what: str) -> Any:
+def replace_fields(instance: D, values: dict[str, Any], what: str) -> D:
     try:
         return dataclasses.replace(instance, **values)
     except (TypeError, ValueError) as error:

@@ -27,12 +27,11 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import numpy.typing as npt
-from flax.typing import ArrayPytree
 
 from envs import Environment
 from rl_jax.errors import PolicyError, parse_int
 from rl_jax.run.best import BEST_DIR, load_part, policy_fields, with_policy_part
-from rl_jax.run.checkpoint import Checkpointer
+from rl_jax.run.checkpoint import Checkpointer, Tree
 from rl_jax.run.learners import for_run
 from rl_jax.run.metrics import METRICS_FILE, read_rows
 from rl_jax.run.plan import make_plan
@@ -231,7 +230,7 @@ def load_policy(
     return Policy(LoadedPolicy(Path(run_dir), seed, config, which, algorithm))
 
 
-def _index(tree: ArrayPytree, run: tuple[int, int]) -> ArrayPytree:
+def _index(tree: Tree, run: tuple[int, int]) -> Tree:
     return jax.tree.map(lambda leaf: leaf[run], tree)
 
 

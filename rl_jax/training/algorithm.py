@@ -29,7 +29,7 @@ from typing import Any, ClassVar, NamedTuple, Protocol, Self, TypeAlias
 import jax
 
 import envs
-from rl_jax.training.recipes import Recipe, Recipes
+from rl_jax.training.recipes import Recipe, Recipes, Setting
 
 PRNGKey = jax.Array
 
@@ -192,12 +192,14 @@ class RecipeBook(OptionalHooks):
     config_type: type
     hparams_type: type
 
-    def default_config(self, env_id: str, recipe: str | None = None, **overrides: Any) -> Config:
+    def default_config(
+        self, env_id: str, recipe: str | None = None, **overrides: Setting
+    ) -> Config:
         values = {**self.recipe(env_id, recipe).config, **overrides}
         return self.config_type(env_id=env_id, **values)
 
     def default_hyperparams(
-        self, env_id: str | None = None, recipe: str | None = None, **overrides: Any
+        self, env_id: str | None = None, recipe: str | None = None, **overrides: Setting
     ) -> Hyperparams:
         values = self.recipe(env_id, recipe).hparams if env_id else {}
         return self.hparams_type(**{**values, **overrides}).as_arrays()

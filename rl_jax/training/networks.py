@@ -34,7 +34,7 @@ appended and the usual MLP follows.
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from typing import Any, TypeAlias
 
 import flax.linen as nn
@@ -365,7 +365,7 @@ class StochasticPolicy(nn.Module):
             out["value"] = head(1)(x)[..., 0]
         return out
 
-    def _std(self, x: jax.Array, head: Any) -> jax.Array:
+    def _std(self, x: jax.Array, head: Callable[[int], nn.Module]) -> jax.Array:
         if self.std_mode == "state":
             return nn.softplus(head(self.action_dim)(x)) + self.std_floor
         if self.std_mode != "param":

@@ -272,7 +272,7 @@ class Program:
 
     # ---- programs --------------------------------------------------------------------------
 
-    def _wrap(self, function: Callable, in_specs: Any, out_specs: Any) -> Callable:
+    def _wrap(self, function: Callable, in_specs: object, out_specs: object) -> Callable:
         """``shard_map`` over the mesh; on one device the vmapped function as it is (measured:
         an MJX env step under a one-device ``shard_map`` ran many times slower)."""
         if self.layout.devices == 1:
