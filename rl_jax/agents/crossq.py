@@ -34,9 +34,8 @@ from rl_jax.agents.actor_critic import (
 )
 from rl_jax.agents.common import linearly_decayed, optimizer_step
 from rl_jax.training import episodes, networks, offpolicy, replay, validation
-from rl_jax.training.algorithm import ChunkMetrics, RecipeBook
 from rl_jax.training.networks import Params
-from rl_jax.training.offpolicy import Clock, TrainState
+from rl_jax.training.offpolicy import Clock
 from rl_jax.training.params import Scalar
 from rl_jax.training.recipes import Recipe, Recipes
 from rl_jax.training.replay import ReplayBuffer, Transition
@@ -233,29 +232,17 @@ RECIPES = Recipes(
 )
 
 
-class CrossQ(RecipeBook):
+class CrossQ(offpolicy.OffPolicyAlgorithm[Config]):
     """CrossQ as an ``rl_jax.training.algorithm.Algorithm``."""
 
     name = "crossq"
     config_type, hparams_type = Config, Hyperparams
     recipes = RECIPES
+    learner = LEARNER
     ranges = {
         "renorm_warmup": validation.NON_NEGATIVE,
         "adam_b1": validation.Range(0.0, 1.0, high_open=True),
     }
-
-    def init(self, key: jax.Array, config: Config, hparams: Hyperparams) -> TrainState:
-        return offpolicy.init(LEARNER, key, config, hparams)
-
-    def train_chunk(
-        self, state: TrainState, config: Config, hparams: Hyperparams
-    ) -> tuple[TrainState, ChunkMetrics]:
-        return offpolicy.train_chunk(LEARNER, state, config, hparams)
-
-    def policy(self, state: TrainState, config: Config) -> Callable[[jax.Array], jax.Array]:
-        """``obs -> action`` (env units) of the deterministic policy of one seed's state."""
-        agent = state.agent
-        return lambda obs: act(agent, obs, config)
 
 
 crossq = CrossQ()

@@ -38,8 +38,6 @@ from rl_jax.agents.sac_networks import (
 from rl_jax.agents.sac_recipes import RECIPES
 from rl_jax.agents.sac_update import metric_names, update
 from rl_jax.training import networks, normalization, offpolicy, validation
-from rl_jax.training.algorithm import RecipeBook
-from rl_jax.training.offpolicy import TrainState
 from rl_jax.training.replay import Transition
 
 
@@ -102,34 +100,24 @@ LEARNER = offpolicy.Learner(init_agent, explore, act, update, metric_names, obse
 
 
 # ---- the Algorithm object -------------------------------------------------------------------
-class SAC(RecipeBook):
+class SAC(offpolicy.OffPolicyAlgorithm[Config]):
     """SAC as an ``rl_jax.training.algorithm.Algorithm``."""
 
     name = "sac"
     config_type = Config
     hparams_type = Hyperparams
     recipes = RECIPES
+    learner = LEARNER
     ranges = {
         "renorm_warmup": validation.NON_NEGATIVE,
         "adam_b1": validation.Range(0.0, 1.0, high_open=True),
         "initial_alpha": validation.POSITIVE,
     }
 
-    def init(self, key: jax.Array, config: Config, hparams: Hyperparams) -> TrainState:
-        return offpolicy.init(LEARNER, key, config, hparams)
-
-    def train_chunk(self, state: TrainState, config: Config, hparams: Hyperparams):
-        return offpolicy.train_chunk(LEARNER, state, config, hparams)
-
     def spread_runs(self, config: Config) -> bool:
         """Small networks (width <= 64) spread over every device, as TD3's do: their programs
         of small ops run on one core per device."""
         return max((*config.actor_hidden, *config.critic_hidden)) <= 64
-
-    def policy(self, state: TrainState, config: Config):
-        """``obs -> action`` (env units) of the deterministic policy of one seed's state."""
-        agent = state.agent
-        return lambda obs: act(agent, obs, config)
 
 
 sac = SAC()

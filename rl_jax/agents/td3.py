@@ -43,10 +43,9 @@ from rl_jax.agents.actor_critic import (
 from rl_jax.agents.common import linearly_decayed, optimizer_step, polyak_update
 from rl_jax.agents.td3_recipes import TD3_RECIPES
 from rl_jax.training import episodes, networks, normalization, offpolicy, replay
-from rl_jax.training.algorithm import ChunkMetrics, RecipeBook
 from rl_jax.training.networks import Params
 from rl_jax.training.normalization import RunningStats
-from rl_jax.training.offpolicy import Clock, TrainState
+from rl_jax.training.offpolicy import Clock
 from rl_jax.training.params import Scalar
 from rl_jax.training.replay import ReplayBuffer, Transition
 
@@ -294,33 +293,21 @@ LEARNER = offpolicy.Learner(
 
 
 # ---- the Algorithm objects ----------------------------------------------------------------------
-class TD3Family(RecipeBook):
+class TD3Family(offpolicy.OffPolicyAlgorithm[Config]):
     """TD3 or DDPG as an ``rl_jax.training.algorithm.Algorithm``; the two differ only in their
     settings' defaults."""
 
     recipes = TD3_RECIPES
+    learner = LEARNER
 
     def __init__(self, name: str, config_type: type[Config], hparams_type: type[Hyperparams]):
         self.name = name
         self.config_type, self.hparams_type = config_type, hparams_type
 
-    def init(self, key: jax.Array, config: Config, hparams: Hyperparams) -> TrainState:
-        return offpolicy.init(LEARNER, key, config, hparams)
-
-    def train_chunk(
-        self, state: TrainState, config: Config, hparams: Hyperparams
-    ) -> tuple[TrainState, ChunkMetrics]:
-        return offpolicy.train_chunk(LEARNER, state, config, hparams)
-
     def spread_runs(self, config: Config) -> bool:
         """Networks of width <= 64 (small ops, one core each) spread over every device, padded
         if need be; wider ones run on one device, whose large matmuls use every core."""
         return max((*config.actor_hidden, *config.critic_hidden)) <= 64
-
-    def policy(self, state: TrainState, config: Config) -> Callable[[jax.Array], jax.Array]:
-        """``obs -> action`` (env units) of the deterministic policy of one seed's state."""
-        agent = state.agent
-        return lambda obs: act(agent, obs, config)
 
 
 @dataclasses.dataclass(frozen=True, kw_only=True)

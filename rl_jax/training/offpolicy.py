@@ -21,7 +21,7 @@ from __future__ import annotations
 import dataclasses
 import json
 from collections.abc import Callable
-from typing import TYPE_CHECKING, Any, NamedTuple
+from typing import TYPE_CHECKING, Any, Generic, NamedTuple, TypeVar
 
 import jax
 import jax.numpy as jnp
@@ -31,7 +31,7 @@ from flax.typing import ArrayPytree
 import envs
 from envs.core.wrappers import StatisticsState
 from rl_jax.training import replay
-from rl_jax.training.algorithm import ChunkMetrics
+from rl_jax.training.algorithm import ChunkMetrics, Hyperparams, PolicyFn, RecipeBook
 from rl_jax.training.episodes import evaluate, example_transition, make_eval_env, make_train_env
 from rl_jax.training.replay import ReplayBuffer, Transition
 
@@ -313,3 +313,33 @@ def train_chunk(
         extra=jax.tree.map(jnp.nanmean, metrics),
     )
     return state, chunk_metrics
+
+
+# ---- the Algorithm object -----------------------------------------------------------------------
+#: the learner's own Config
+ConfigT = TypeVar("ConfigT", bound=OffPolicyConfig)
+
+
+class OffPolicyAlgorithm(RecipeBook, Generic[ConfigT]):
+    """What every learner on this loop offers the run machinery beyond its settings: ``init``,
+    ``train_chunk`` and a ``policy`` that acts with ``learner.act`` on a seed's agent.
+
+    ``ConfigT`` is the learner's ``Config``. Subclasses set ``learner`` besides ``RecipeBook``'s
+    ``name``, ``config_type``, ``hparams_type`` and ``recipes``."""
+
+    learner: Learner
+
+    def init(self, key: PRNGKey, config: ConfigT, hparams: Hyperparams) -> TrainState:
+        """A fresh ``TrainState`` for one seed and one hyperparameter set."""
+        return init(self.learner, key, config, hparams)
+
+    def train_chunk(
+        self, state: TrainState, config: ConfigT, hparams: Hyperparams
+    ) -> tuple[TrainState, ChunkMetrics]:
+        """``config.iterations_per_chunk`` iterations, then one evaluation. Pure."""
+        return train_chunk(self.learner, state, config, hparams)
+
+    def policy(self, state: TrainState, config: ConfigT) -> PolicyFn:
+        """``obs -> action`` (env units) of the deterministic policy of one seed's state."""
+        agent, act = state.agent, self.learner.act
+        return lambda obs: act(agent, obs, config)
