@@ -13,7 +13,7 @@ import jax
 import jax.numpy as jnp
 import optax
 
-from rl_jax.agents.actor_critic import CriticBatch, gather_batch
+from rl_jax.agents.actor_critic import CriticBatch, every_policy_delay, gather_batch
 from rl_jax.agents.common import optimizer_step, polyak_update
 from rl_jax.agents.sac_config import Agent, Config, Hyperparams
 from rl_jax.agents.sac_losses import actor_loss_fn, critic_loss_fn, temperature_loss
@@ -110,14 +110,12 @@ def update(
     sample_key, critic_key, actor_key = jax.random.split(key, 3)
     batch = normalized_batch(agent, sample(buffer, sample_key, config, hparams))
     agent, critic_loss, aux = critic_step(agent, batch, critic_key, hparams, nets)
-    nan = jnp.full((), jnp.nan, jnp.float32)
-    delayed = (update_index + 1) % config.policy_delay == 0
 
     def policy_step(agent):
         return actor_and_temperature_step(agent, batch.obs, actor_key, config, hparams, nets)
 
-    agent, (actor_loss, alpha_loss, entropy) = jax.lax.cond(
-        delayed, policy_step, lambda agent: (agent, (nan, nan, nan)), agent
+    agent, (actor_loss, alpha_loss, entropy) = every_policy_delay(
+        update_index, config.policy_delay, policy_step, agent
     )
     metrics = {
         "critic_loss": critic_loss,

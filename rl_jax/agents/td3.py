@@ -277,11 +277,10 @@ def update(
         return linearly_decayed(value, env_steps, hparams.lr_decay_steps)
 
     agent, critic_loss, q_tm1 = critic_step(agent, batch, noise_key, hparams, nets, rate)
-    delayed = (update_index + 1) % config.policy_delay == 0
-    agent, actor_loss = jax.lax.cond(
-        delayed,
+    agent, actor_loss = actor_critic.every_policy_delay(
+        update_index,
+        config.policy_delay,
         lambda agent: actor_step(agent, batch.obs, hparams, nets, rate),
-        lambda agent: (agent, jnp.full((), jnp.nan, jnp.float32)),
         agent,
     )
     return agent, buffer, {"critic_loss": critic_loss, "actor_loss": actor_loss, "q": q_tm1.mean()}

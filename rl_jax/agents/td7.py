@@ -295,11 +295,10 @@ def update(agent: Agent, buffer: PrioritizedBuffer, key, config: Config, hparams
     agent, critic_loss, q_tm1, td_tm1 = critic_step(agent, batch, noise_key, hparams, config, rate)
     priorities = td7_parts.lap_priorities(td_tm1)
     buffer = prioritized.update_priorities(buffer, rows, columns, priorities, hparams.lap_alpha)
-    delayed = (update_index + 1) % config.policy_delay == 0
-    agent, actor_loss = jax.lax.cond(
-        delayed,
+    agent, actor_loss = actor_critic.every_policy_delay(
+        update_index,
+        config.policy_delay,
         lambda agent: actor_step(agent, batch.obs, hparams, config, rate),
-        lambda agent: (agent, jnp.full((), jnp.nan, jnp.float32)),
         agent,
     )
     due = (update_index + 1) % config.target_update_period == 0
