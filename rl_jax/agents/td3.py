@@ -91,15 +91,8 @@ class Config(ActorCriticConfig):
         for name in ("critic_norm", "actor_norm"):
             if getattr(self, name) not in ("none", "layer"):
                 raise ValueError(f"{name} must be one of ('none', 'layer')")
-        if self.network not in networks.ARCHITECTURES:
-            raise ValueError(f"network must be one of {networks.ARCHITECTURES}")
-        if self.network == "simba":
-            for name in ("actor_hidden", "critic_hidden"):
-                widths = getattr(self, name)
-                if not widths or len(set(widths)) != 1:
-                    raise ValueError(f"network='simba' needs {name} of one width (w, w, ...)")
-            if self.critic_norm != "none" or self.actor_norm != "none":
-                raise ValueError("network='simba' has its own LayerNorms: leave the norms 'none'")
+        hidden = {"actor_hidden": self.actor_hidden, "critic_hidden": self.critic_hidden}
+        networks.check_architecture(self.network, hidden, (self.critic_norm, self.actor_norm))
 
     # Settings TD3 had before TD7 and CrossQ became learners of their own: the value a run
     # recorded when the setting was off (such runs load as TD3 runs), and where it went.

@@ -56,6 +56,22 @@ NORMS = ("none", "layer", "batch_renorm")
 ARCHITECTURES = ("mlp", "simba")
 
 
+def check_architecture(
+    network: str, hidden: Mapping[str, tuple[int, ...]], norms: tuple[str, ...]
+) -> None:
+    """``ValueError`` unless ``network`` is one of ``ARCHITECTURES``. SimBa's residual blocks
+    keep one width, so each of ``hidden`` (setting name -> hidden widths) must have one, and
+    bring their own LayerNorms, so each of ``norms`` must be "none"."""
+    if network not in ARCHITECTURES:
+        raise ValueError(f"network must be one of {ARCHITECTURES}")
+    if network == "simba":
+        for name, widths in hidden.items():
+            if not widths or len(set(widths)) != 1:
+                raise ValueError(f"network='simba' needs {name} of one width (w, w, ...)")
+        if any(norm != "none" for norm in norms):
+            raise ValueError("network='simba' has its own LayerNorms: leave the norms 'none'")
+
+
 def dense(features: int, fan_in: int, initializer: str, gain: float, dtype: DTypeLike) -> nn.Dense:
     """A linear layer initialised by the named scheme (``gain`` only matters for orthogonal)."""
     if initializer == "fan_in_uniform":
