@@ -199,7 +199,10 @@ class RecipeBook(OptionalHooks):
         return self.config_type(env_id=env_id, **values)
 
     def default_hyperparams(
-        self, env_id: str | None = None, recipe: str | None = None, **overrides: Setting
+        self,
+        env_id: str | None = None,
+        recipe: str | None = None,
+        **overrides: Setting | jax.Array,
     ) -> Hyperparams:
         values = self.recipe(env_id, recipe).hparams if env_id else {}
         return self.hparams_type(**{**values, **overrides}).as_arrays()
