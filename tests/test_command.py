@@ -2,7 +2,10 @@
 reaching the scripts' entry points. tests/test_install.py runs it from an installed wheel."""
 
 import importlib
+import shlex
+import sys
 import tomllib
+import types
 from pathlib import Path
 
 import pytest
@@ -41,3 +44,36 @@ def test_train_help_names_the_command(capsys, monkeypatch):
     assert exit_.value.code == 0
     out = capsys.readouterr().out
     assert out.startswith("usage: rl-jax train ") and "--algo NAME" in out
+
+
+@pytest.mark.parametrize(
+    ("main_module", "program"),
+    [(None, ["rl-jax", "train"]), ("rl_jax.__main__", ["PYTHON", "-m", "rl_jax", "train"])],
+)
+def test_a_train_run_records_commands_that_start_it_again(
+    main_module, program, monkeypatch, tmp_path
+):
+    """Started as ``rl-jax train`` (or ``python -m rl_jax train``), a run records its command and
+    its resume command as that program, never as ``python 'rl-jax train'``."""
+    from rl_jax.run import cli, runner
+
+    specs = []
+
+    def capture(spec):
+        specs.append(spec)
+        return types.SimpleNamespace(run_dir=spec.out, gif_error=None)
+
+    spec = None if main_module is None else types.SimpleNamespace(name=main_module)
+    monkeypatch.setitem(sys.modules, "__main__", types.SimpleNamespace(__spec__=spec))
+    monkeypatch.setattr("sys.argv", ["rl-jax"])  # the command replaces it; restored after
+    monkeypatch.setattr(runner, "run", capture)
+    out = str(tmp_path / "my run")
+    argv = ["--algo", "td3", "--env", "rl_jax/Pendulum-v1", "--seeds", "2", "--out", out]
+    with pytest.raises(SystemExit) as exit_:
+        command.main(["train", *argv])
+    assert exit_.value.code == 0
+    python = Path(sys.executable).name
+    program = [python if word == "PYTHON" else word for word in program]
+    assert shlex.split(specs[0].command) == [*program, *argv]
+    assert shlex.split(specs[0].resume_command) == [*program, "--resume", out]
+    assert cli.program("experiments/train.py") == [python, "experiments/train.py"]

@@ -10,7 +10,8 @@ code scales them by ``max_action``.
 from __future__ import annotations
 
 import dataclasses
-from typing import NamedTuple
+from collections.abc import Callable
+from typing import NamedTuple, TypeVar
 
 import jax
 import jax.numpy as jnp
@@ -142,7 +143,9 @@ class CriticBatch(NamedTuple):
         return cls(batch.obs, batch.action, r_t, discount_t, batch.next_obs)
 
 
-def gather_batch(storage: ReplayBuffer, rows, columns, gamma, n_step: int = 1) -> CriticBatch:
+def gather_batch(
+    storage: ReplayBuffer[Transition], rows, columns, gamma, n_step: int = 1
+) -> CriticBatch:
     """The ``CriticBatch`` of stored transitions ``(rows, columns)``: one step each, or windows
     of ``n_step`` consecutive steps of one env (cut at an episode's end)."""
     if n_step == 1:
@@ -152,6 +155,26 @@ def gather_batch(storage: ReplayBuffer, rows, columns, gamma, n_step: int = 1) -
 
 
 # ---- loss maths (pure) -------------------------------------------------------------------------
+AgentT = TypeVar("AgentT")
+Outputs = TypeVar("Outputs")
+
+
+def every_policy_delay(
+    update_index: jax.Array,
+    policy_delay: int,
+    step: Callable[[AgentT], tuple[AgentT, Outputs]],
+    agent: AgentT,
+) -> tuple[AgentT, Outputs]:
+    """``step(agent)`` at every ``policy_delay``-th update (``update_index`` counts the updates
+    before this one), the delayed actor update of TD3 and its kin; otherwise ``agent`` as it is,
+    with NaN for each of ``step``'s outputs (metrics of an update not made)."""
+    skipped = jax.tree.map(
+        lambda out: jnp.full(out.shape, jnp.nan, out.dtype), jax.eval_shape(step, agent)[1]
+    )
+    delayed = (update_index + 1) % policy_delay == 0
+    return jax.lax.cond(delayed, step, lambda agent: (agent, skipped), agent)
+
+
 def smoothed_target_action(a_t, noise, noise_clip, low, high) -> jax.Array:
     """Target policy smoothing: ``clip(a_t + clip(noise, -noise_clip, noise_clip), low, high)``."""
     return jnp.clip(a_t + jnp.clip(noise, -noise_clip, noise_clip), low, high)

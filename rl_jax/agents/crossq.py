@@ -34,12 +34,11 @@ from rl_jax.agents.actor_critic import (
 )
 from rl_jax.agents.common import linearly_decayed, optimizer_step
 from rl_jax.training import episodes, networks, offpolicy, replay, validation
-from rl_jax.training.algorithm import ChunkMetrics, RecipeBook
 from rl_jax.training.networks import Params
-from rl_jax.training.offpolicy import Clock, TrainState
+from rl_jax.training.offpolicy import Clock
 from rl_jax.training.params import Scalar
 from rl_jax.training.recipes import Recipe, Recipes
-from rl_jax.training.replay import ReplayBuffer
+from rl_jax.training.replay import ReplayBuffer, Transition
 
 
 @dataclasses.dataclass(frozen=True, kw_only=True)
@@ -186,7 +185,9 @@ def actor_step(agent: Agent, obs, hparams, config: Config, rate: Callable):
     return agent.replace(actor=actor, actor_opt=opt), loss
 
 
-def update(agent: Agent, buffer: ReplayBuffer, key, config: Config, hparams, update_index):
+def update(
+    agent: Agent, buffer: ReplayBuffer[Transition], key, config: Config, hparams, update_index
+):
     """One critic update; every ``policy_delay``-th also an actor update."""
     sample_key, noise_key = jax.random.split(key)
     rows, columns = replay.sample_indices(buffer, sample_key, config.batch_size)
@@ -197,11 +198,10 @@ def update(agent: Agent, buffer: ReplayBuffer, key, config: Config, hparams, upd
         return linearly_decayed(value, env_steps, hparams.lr_decay_steps)
 
     agent, critic_loss, q_tm1 = critic_step(agent, batch, noise_key, hparams, config, rate)
-    delayed = (update_index + 1) % config.policy_delay == 0
-    agent, actor_loss = jax.lax.cond(
-        delayed,
+    agent, actor_loss = actor_critic.every_policy_delay(
+        update_index,
+        config.policy_delay,
         lambda agent: actor_step(agent, batch.obs, hparams, config, rate),
-        lambda agent: (agent, jnp.full((), jnp.nan, jnp.float32)),
         agent,
     )
     return agent, buffer, {"critic_loss": critic_loss, "actor_loss": actor_loss, "q": q_tm1.mean()}
@@ -231,29 +231,17 @@ RECIPES = Recipes(
 )
 
 
-class CrossQ(RecipeBook):
+class CrossQ(offpolicy.OffPolicyAlgorithm[Config]):
     """CrossQ as an ``rl_jax.training.algorithm.Algorithm``."""
 
     name = "crossq"
     config_type, hparams_type = Config, Hyperparams
     recipes = RECIPES
+    learner = LEARNER
     ranges = {
         "renorm_warmup": validation.NON_NEGATIVE,
         "adam_b1": validation.Range(0.0, 1.0, high_open=True),
     }
-
-    def init(self, key: jax.Array, config: Config, hparams: Hyperparams) -> TrainState:
-        return offpolicy.init(LEARNER, key, config, hparams)
-
-    def train_chunk(
-        self, state: TrainState, config: Config, hparams: Hyperparams
-    ) -> tuple[TrainState, ChunkMetrics]:
-        return offpolicy.train_chunk(LEARNER, state, config, hparams)
-
-    def policy(self, state: TrainState, config: Config) -> Callable[[jax.Array], jax.Array]:
-        """``obs -> action`` (env units) of the deterministic policy of one seed's state."""
-        agent = state.agent
-        return lambda obs: act(agent, obs, config)
 
 
 crossq = CrossQ()

@@ -52,7 +52,6 @@ from rl_jax.agents.q_learning import (
     q_learning_loss,
 )
 from rl_jax.training import augment, episodes, networks, offpolicy, policy_checkpoints, validation
-from rl_jax.training.algorithm import ChunkMetrics, RecipeBook
 from rl_jax.training.offpolicy import Clock, TrainState
 from rl_jax.training.policy_checkpoints import PolicyCheckpoint
 from rl_jax.training.replay import NStepBatch, Transition
@@ -273,12 +272,13 @@ LEARNER = offpolicy.Learner(
 
 
 # ---- the Algorithm object -----------------------------------------------------------------------
-class DQN(RecipeBook):
+class DQN(offpolicy.OffPolicyAlgorithm[Config]):
     """DQN as an ``rl_jax.training.algorithm.Algorithm``."""
 
     name = "dqn"
     config_type, hparams_type = Config, Hyperparams
     recipes = RECIPES
+    learner = LEARNER
     # Gradients are always clipped here: a norm of 0 would zero them (REINFORCE's 0 means off).
     ranges = {"max_grad_norm": validation.POSITIVE}
 
@@ -288,14 +288,6 @@ class DQN(RecipeBook):
             return super().default_config(env_id, recipe, **overrides)
         values = {**self.recipe(env_id, recipe).config, **overrides}
         return PixelConfig(env_id=env_id, **values)
-
-    def init(self, key: jax.Array, config: Config, hparams: Hyperparams) -> TrainState:
-        return offpolicy.init(LEARNER, key, config, hparams)
-
-    def train_chunk(
-        self, state: TrainState, config: Config, hparams: Hyperparams
-    ) -> tuple[TrainState, ChunkMetrics]:
-        return offpolicy.train_chunk(LEARNER, state, config, hparams)
 
     def policy(self, state: TrainState, config: Config) -> Callable[[jax.Array], jax.Array]:
         """``obs -> action index`` of the greedy policy of one seed's state (with

@@ -4,13 +4,11 @@
 
 from __future__ import annotations
 
-from typing import Any
-
-from rl_jax.training.recipes import Recipe, Recipes
+from rl_jax.training.recipes import Recipe, Recipes, Setting
 
 # The classic-control base: wider layers, a faster rate and a short epsilon decay (as in
 # rl-baselines3-zoo's tuned DQN), with 4 envs and one update per 2 env steps.
-_CLASSIC = {
+_CLASSIC: dict[str, Setting] = {
     "num_envs": 4,
     "updates_per_iteration": 2,
     "iterations_per_chunk": 1000,
@@ -22,7 +20,7 @@ _CLASSIC = {
 }
 # CartPole: the policy a run ends with is TD7's checkpoint, since the greedy policy alone keeps
 # collapsing and recovering after it first scores 500.
-_CARTPOLE = {
+_CARTPOLE: dict[str, Setting] = {
     **_CLASSIC,
     "hidden": (64, 64),  # enough here, at a fraction of 256x256's cost
     "n_step": 3,  # with rate 3e-3, reaches 500 within the budget in every tuning seed
@@ -30,7 +28,7 @@ _CARTPOLE = {
     "checkpoint_episodes": 20,  # TD7's; with 10, checkpoints scoring 461-494 got through
     "checkpoint_episodes_from": 20_000,
 }
-_CONFIGS: dict[str, dict[str, Any]] = {
+_CONFIGS: dict[str, dict[str, Setting]] = {
     "rl_jax/CartPole-v1": _CARTPOLE,
     # Pixels: with CartPole's own settings the Q-values climbed towards 1 / (1 - gamma) while
     # episodes stayed at the random ~20 steps.

@@ -32,6 +32,7 @@ import optax
 from flax import struct
 
 import envs
+from envs.core.wrappers import StatisticsState
 from rl_jax.agents import ppo_losses as losses
 from rl_jax.agents.common import clip_by_global_norm, linearly_decayed, optimizer_step
 from rl_jax.agents.policy_gradient import entropy, log_prob
@@ -47,15 +48,17 @@ from rl_jax.agents.ppo_networks import (
 from rl_jax.agents.ppo_recipes import RECIPES
 from rl_jax.training import episodes, normalization, validation
 from rl_jax.training.algorithm import ChunkMetrics, RecipeBook
+from rl_jax.training.networks import Params
+from rl_jax.training.normalization import RunningStats
 
 __all__ = ["PIXEL_ENVS", "Config", "Hyperparams", "PixelConfig", "ppo"]
 
 
 @struct.dataclass
 class Agent:
-    params: Any  # actor-critic parameters
-    opt_state: Any  # optax inject_hyperparams(adam) state: holds the rate in use
-    obs_stats: Any = None  # normalization.RunningStats with normalize_obs, else None
+    params: Params  # actor-critic parameters
+    opt_state: optax.OptState  # optax inject_hyperparams(adam) state: holds the rate in use
+    obs_stats: RunningStats | None = None  # with normalize_obs, else None
 
 
 @struct.dataclass
@@ -70,13 +73,17 @@ class Clock:
 @struct.dataclass
 class TrainState:
     agent: Agent
-    env_state: Any  # [num_envs, ...]
+    env_state: StatisticsState  # [num_envs, ...] of the train env (episodes.make_train_env)
     obs: jax.Array  # [num_envs, *obs_shape], the observation the next action answers
     key: jax.Array
     clock: Clock
     train_return: jax.Array  # [] float32, mean return of the episodes ended in the last chunk
-    return_stats: Any = None  # normalize_rewards: RunningStats of discounted returns, [1]
-    discounted_return: Any = None  # normalize_rewards: [num_envs], each env's running return
+    return_stats: RunningStats | None = (
+        None  # normalize_rewards: RunningStats of discounted returns, [1]
+    )
+    discounted_return: jax.Array | None = (
+        None  # normalize_rewards: [num_envs], each env's running return
+    )
 
 
 class Rollout(NamedTuple):
@@ -172,6 +179,7 @@ def targets(rollout: Rollout, state: TrainState, hparams: Hyperparams, config: C
     r_t = rollout.r_t
     if config.normalize_rewards:
         g_t, carry = losses.discounted_returns(r_t, ended, state.discounted_return, hparams.gamma)
+        assert state.return_stats is not None  # kept with normalize_rewards
         r_t, stats = losses.scale_rewards(r_t, g_t, state.return_stats, hparams.reward_clip)
         state = state.replace(return_stats=stats, discounted_return=carry)
     discount_t = hparams.gamma * (1.0 - rollout.terminated.astype(jnp.float32))

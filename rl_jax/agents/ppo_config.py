@@ -6,12 +6,12 @@ control, except for the counts, which the recipes (``ppo_recipes``) set per env.
 from __future__ import annotations
 
 import dataclasses
-from typing import Any
 
 from flax import struct
 
 import envs
 from rl_jax.training import conv, networks, params
+from rl_jax.training.params import Scalar
 
 
 @dataclasses.dataclass(frozen=True, kw_only=True)
@@ -121,16 +121,16 @@ class PixelConfig(Config):
 class Hyperparams(params.HyperparamsMethods):
     """What a sweep may vary without recompiling."""
 
-    learning_rate: Any = 2.5e-4  # Adam step size at the start
-    lr_decay_steps: Any = (
+    learning_rate: Scalar = 2.5e-4  # Adam step size at the start
+    lr_decay_steps: Scalar = (
         0.0  # env steps (one seed, all envs) over which it falls to 0 (0: constant)
     )
-    gamma: Any = 0.99  # discount
-    gae_lambda: Any = 0.95  # GAE's lambda: 0 one-step TD errors, 1 Monte-Carlo returns
-    clip_eps: Any = 0.2  # the surrogate's ratio is clipped to [1 - clip_eps, 1 + clip_eps]
-    value_clip_eps: Any = 0.2  # clip_value_loss: how far a value may move from its old value
-    vf_coef: Any = 0.5  # weight of the value loss
-    ent_coef: Any = 0.01  # weight of the policy's mean entropy, subtracted from the loss
-    max_grad_norm: Any = 0.5  # clip the gradient's global norm to this (0: no clipping)
-    adam_eps: Any = 1e-5  # Adam's epsilon (PPO implementations use 1e-5, not optax's 1e-8)
-    reward_clip: Any = 10.0  # normalize_rewards: scaled rewards are clipped to +-this (0: not)
+    gamma: Scalar = 0.99  # discount
+    gae_lambda: Scalar = 0.95  # GAE's lambda: 0 one-step TD errors, 1 Monte-Carlo returns
+    clip_eps: Scalar = 0.2  # the surrogate's ratio is clipped to [1 - clip_eps, 1 + clip_eps]
+    value_clip_eps: Scalar = 0.2  # clip_value_loss: how far a value may move from its old value
+    vf_coef: Scalar = 0.5  # weight of the value loss
+    ent_coef: Scalar = 0.01  # weight of the policy's mean entropy, subtracted from the loss
+    max_grad_norm: Scalar = 0.5  # clip the gradient's global norm to this (0: no clipping)
+    adam_eps: Scalar = 1e-5  # Adam's epsilon (PPO implementations use 1e-5, not optax's 1e-8)
+    reward_clip: Scalar = 10.0  # normalize_rewards: scaled rewards are clipped to +-this (0: not)

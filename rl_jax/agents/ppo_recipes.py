@@ -4,9 +4,7 @@ of ``ppo_config``. Envs without a recipe of their own train on those defaults.
 
 from __future__ import annotations
 
-from typing import Any
-
-from rl_jax.training.recipes import Recipe, Recipes
+from rl_jax.training.recipes import Recipe, Recipes, Setting
 
 MUJOCO = tuple(
     f"rl_jax/{name}-v5"
@@ -29,7 +27,7 @@ MUJOCO = tuple(
 # 0.5, no entropy bonus, gradients clipped to norm 0.5, 64x64 tanh actor and critic apart,
 # orthogonal init, a state-independent log-std starting at 0 (std 1), observations standardised
 # (clipped to +-10) and rewards scaled by the std of discounted returns (clipped to +-10).
-CLEANRL_CONFIG: dict[str, Any] = {
+CLEANRL_CONFIG: dict[str, Setting] = {
     "num_envs": 1,
     "num_steps": 2048,
     "num_epochs": 10,
@@ -43,7 +41,7 @@ CLEANRL_CONFIG: dict[str, Any] = {
     "normalize_advantages": True,
     "clip_value_loss": True,
 }
-CLEANRL_HPARAMS: dict[str, Any] = {
+CLEANRL_HPARAMS: dict[str, Setting] = {
     "learning_rate": 3e-4,
     "lr_decay_steps": 1_000_000.0,
     "gamma": 0.99,
@@ -60,7 +58,7 @@ CLEANRL_HPARAMS: dict[str, Any] = {
 # Vectorised: 32 envs x 64 steps make the same 2,048-step batch from 32 shorter rollouts (one
 # compiled step advances 32 envs), and 8 minibatches of 256 cost a quarter of the gradient steps
 # of 32 of 64. Untuned.
-MUJOCO_CONFIG: dict[str, Any] = {
+MUJOCO_CONFIG: dict[str, Setting] = {
     **CLEANRL_CONFIG,
     "num_envs": 32,
     "num_steps": 64,
@@ -75,7 +73,7 @@ MUJOCO_CONFIG: dict[str, Any] = {
 # 2.5e-4, gamma 0.99, lambda 0.95, entropy 0.01, 4 epochs x 4 minibatches, value clipping) on the
 # same envs ended at 500 in 3 of 30 (mean 433). Tried and not kept: 32 envs x 16 steps with 6
 # epochs over 80k steps (4 of 30 at 500) and 1 minibatch at rate 2e-3 (24 of 30).
-CARTPOLE_CONFIG: dict[str, Any] = {
+CARTPOLE_CONFIG: dict[str, Setting] = {
     "num_envs": 16,
     "num_steps": 32,
     "num_epochs": 10,
@@ -83,7 +81,7 @@ CARTPOLE_CONFIG: dict[str, Any] = {
     "iterations_per_chunk": 10,  # evaluated every 5,120 env steps
     "clip_value_loss": False,
 }
-CARTPOLE_HPARAMS: dict[str, Any] = {
+CARTPOLE_HPARAMS: dict[str, Setting] = {
     "learning_rate": 1e-3,
     "lr_decay_steps": 100_000.0,
     "gamma": 0.98,
@@ -92,14 +90,14 @@ CARTPOLE_HPARAMS: dict[str, Any] = {
 }
 
 # Frames: CartPole's pixels through DQN's conv torso. Untuned.
-PIXELS_CONFIG: dict[str, Any] = {
+PIXELS_CONFIG: dict[str, Setting] = {
     "num_envs": 8,
     "num_steps": 128,
     "num_epochs": 4,
     "num_minibatches": 4,
     "iterations_per_chunk": 5,
 }
-PIXELS_HPARAMS: dict[str, Any] = {"learning_rate": 2.5e-4, "lr_decay_steps": 500_000.0}
+PIXELS_HPARAMS: dict[str, Setting] = {"learning_rate": 2.5e-4, "lr_decay_steps": 500_000.0}
 
 RECIPES = Recipes(
     Recipe(

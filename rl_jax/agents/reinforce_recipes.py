@@ -4,11 +4,9 @@ and ``Hyperparams`` defaults (gymnasium's REINFORCE tutorial), each with the rea
 
 from __future__ import annotations
 
-from typing import Any
+from rl_jax.training.recipes import Recipe, Recipes, Setting
 
-from rl_jax.training.recipes import Recipe, Recipes
-
-_CONFIGS: dict[str, dict[str, Any]] = {
+_CONFIGS: dict[str, dict[str, Setting]] = {
     # The tutorial's network, with 16 episodes per update and normalised returns (and a 10x
     # larger rate, below)
     "rl_jax/InvertedPendulum-v5": {"num_envs": 16, "normalize_returns": True},

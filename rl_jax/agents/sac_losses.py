@@ -17,7 +17,7 @@ policies, so today's ``log pi`` of them is not what those steps earned).
 
 from __future__ import annotations
 
-from typing import Any, NamedTuple
+from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
@@ -31,6 +31,7 @@ from rl_jax.agents.sac_networks import (
     critic_values_train,
     sampled_action,
 )
+from rl_jax.training.networks import Params
 
 
 # ---- loss maths (pure; rlax naming: tm1 = the transition's start, t = its end) -----------------
@@ -69,20 +70,20 @@ class CriticAux(NamedTuple):
 
     q_tm1: jax.Array  # [C, B] the online critics' values
     log_pi_t: jax.Array  # [B] log-densities of the bootstrap actions
-    stats: Any = None  # batch renormalisation: the critics' statistics after this batch
+    stats: Params | None = None  # batch renormalisation: the critics' statistics after this batch
 
 
 # ---- losses on networks --------------------------------------------------------------------------
 def critic_loss_fn(
-    critics: Any,
-    target_critics: Any,
-    actor: Any,
+    critics: Params,
+    target_critics: Params | None,
+    actor: Params,
     batch: CriticBatch,
     key: jax.Array,
     alpha: jax.Array,
     nets: Networks,
-    critic_stats: Any = None,
-    actor_stats: Any = None,
+    critic_stats: Params | None = None,
+    actor_stats: Params | None = None,
 ):
     """``(loss, CriticAux)`` of the soft TD error. ``a' ~ pi(.|s')`` is drawn with ``key`` from
     the actor (evaluation mode) and enters as data. ``target_critics`` None (CrossQ): no target
@@ -100,7 +101,9 @@ def critic_loss_fn(
     return loss, CriticAux(q_tm1, log_pi_t, stats)
 
 
-def joint_values(nets: Networks, critics: Any, stats: Any, batch: CriticBatch, a_t: jax.Array):
+def joint_values(
+    nets: Networks, critics: Params, stats: Params | None, batch: CriticBatch, a_t: jax.Array
+):
     """CrossQ: ``(q_tm1, q_t, new stats)`` from one training-mode pass over the batch's
     ``(s, a)`` and ``(s', a')`` stacked, ``[C, B]`` each."""
     obs = jnp.concatenate([batch.obs, batch.next_obs], axis=0)
@@ -111,14 +114,14 @@ def joint_values(nets: Networks, critics: Any, stats: Any, batch: CriticBatch, a
 
 
 def actor_loss_fn(
-    actor: Any,
-    critics: Any,
+    actor: Params,
+    critics: Params,
     obs: jax.Array,
     key: jax.Array,
     alpha: jax.Array,
     nets: Networks,
-    actor_stats: Any = None,
-    critic_stats: Any = None,
+    actor_stats: Params | None = None,
+    critic_stats: Params | None = None,
 ):
     """``(loss, (log_pi [B], new actor stats))``: the soft policy loss at actions drawn with
     ``key``, through every critic (their min; evaluation mode, as CrossQ). Under batch

@@ -10,14 +10,16 @@ the others evaluation mode (running statistics).
 from __future__ import annotations
 
 import functools
-from typing import Any, NamedTuple
+from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 
 from envs.core.spaces import Box
+from rl_jax.agents.sac_config import Config
 from rl_jax.training import episodes, networks, squashed_gaussian
+from rl_jax.training.networks import Params
 from rl_jax.training.squashed_gaussian import GaussianActor
 
 
@@ -26,10 +28,10 @@ class Networks(NamedTuple):
     critic: networks.Critic
     low: np.ndarray  # [action_dim] action bounds
     high: np.ndarray
-    config: Any  # the sac.Config whose options the losses follow
+    config: Config  # the sac.Config whose options the losses follow
 
 
-def build_networks(config: Any, action_space: Box) -> Networks:
+def build_networks(config: Config, action_space: Box) -> Networks:
     """Actor and critic modules for a bounded 1-D Box action space."""
     if (
         not isinstance(action_space, Box)
@@ -63,23 +65,23 @@ def build_networks(config: Any, action_space: Box) -> Networks:
 
 
 @functools.lru_cache(maxsize=64)
-def make_networks(config: Any) -> Networks:
+def make_networks(config: Config) -> Networks:
     """The networks for ``config.env_id`` (cached: called at every trace)."""
     return build_networks(config, episodes.make_eval_env(config).action_space())
 
 
-def _variables(params: Any, stats: Any) -> Any:
+def _variables(params: Params, stats: Params | None) -> Params:
     """Parameters with batch renormalisation's statistics beside them (if any)."""
     return params if stats is None else {**params, "batch_stats": stats}
 
 
 # ---- the actor -----------------------------------------------------------------------------------
-def actor_outputs(nets: Networks, actor: Any, stats: Any, obs: jax.Array):
+def actor_outputs(nets: Networks, actor: Params, stats: Params | None, obs: jax.Array):
     """``(mean, log_std)`` pre-tanh, evaluation mode."""
     return nets.actor.apply(_variables(actor, stats), obs)
 
 
-def actor_outputs_train(nets: Networks, actor: Any, stats: Any, obs: jax.Array):
+def actor_outputs_train(nets: Networks, actor: Params, stats: Params | None, obs: jax.Array):
     """``((mean, log_std), new stats)``: training mode under batch renormalisation (else the
     same as ``actor_outputs``, statistics None)."""
     if stats is None:
@@ -95,7 +97,9 @@ def env_action(nets: Networks, a: jax.Array) -> jax.Array:
     return squashed_gaussian.rescale(a, nets.low, nets.high)
 
 
-def deterministic_action(nets: Networks, actor: Any, stats: Any, obs: jax.Array) -> jax.Array:
+def deterministic_action(
+    nets: Networks, actor: Params, stats: Params | None, obs: jax.Array
+) -> jax.Array:
     """``tanh(mean)`` in the env's units: the policy that is evaluated and exported."""
     mean, _ = actor_outputs(nets, actor, stats, obs)
     return env_action(nets, jnp.tanh(mean))
@@ -108,12 +112,12 @@ def sampled_action(nets: Networks, key: jax.Array, mean: jax.Array, log_std: jax
 
 
 # ---- the critics ---------------------------------------------------------------------------------
-def critic_values(nets: Networks, critics: Any, stats: Any, obs, action) -> jax.Array:
+def critic_values(nets: Networks, critics: Params, stats: Params | None, obs, action) -> jax.Array:
     """``[num_critics, B]``: every stacked critic at ``(obs, action)``, evaluation mode."""
     return networks.apply_stacked(nets.critic, _variables(critics, stats), obs, action)
 
 
-def critic_values_train(nets: Networks, critics: Any, stats: Any, obs, action):
+def critic_values_train(nets: Networks, critics: Params, stats: Params | None, obs, action):
     """``(q [num_critics, B], new stats)``: training mode under batch renormalisation (else
     ``critic_values`` and None)."""
     if stats is None:

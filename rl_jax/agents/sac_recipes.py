@@ -5,9 +5,7 @@ CrossQ's settings on SAC.
 
 from __future__ import annotations
 
-from typing import Any
-
-from rl_jax.training.recipes import Recipe, Recipes
+from rl_jax.training.recipes import Recipe, Recipes, Setting
 
 PENDULUM = "rl_jax/Pendulum-v1"
 HUMANOID = "rl_jax/Humanoid-v5"
@@ -28,7 +26,7 @@ MUJOCO = tuple(
 
 # Pendulum: small networks, 4 envs with 4 updates per iteration (one update per env step),
 # learning after 1,000 random steps, evaluation every 1,000 env steps per seed.
-PENDULUM_CONFIG: dict[str, Any] = {
+PENDULUM_CONFIG: dict[str, Setting] = {
     "num_envs": 4,
     "updates_per_iteration": 4,
     "iterations_per_chunk": 250,
@@ -36,34 +34,34 @@ PENDULUM_CONFIG: dict[str, Any] = {
     "actor_hidden": (64, 64),
     "critic_hidden": (64, 64),
 }
-PENDULUM_HPARAMS: dict[str, Any] = {"actor_lr": 1e-3, "critic_lr": 1e-3, "alpha_lr": 1e-3}
+PENDULUM_HPARAMS: dict[str, Setting] = {"actor_lr": 1e-3, "critic_lr": 1e-3, "alpha_lr": 1e-3}
 
 # The CPU loop of TD3's half-cheetah recipe: 4 envs per seed with 4 updates per iteration (one
 # update per env step, 4x fewer crossings into the MuJoCo C step), batch 128 (half the FLOPs of
 # the paper's 256), 10,000 random steps, evaluation every 5,000 env steps. The paper's networks
 # and rates in it; not yet chosen by measurement.
-CPU_LOOP: dict[str, Any] = {
+CPU_LOOP: dict[str, Setting] = {
     "num_envs": 4,
     "updates_per_iteration": 4,
     "iterations_per_chunk": 1_250,
     "batch_size": 128,
     "learning_starts": 10_000,
 }
-MUJOCO_CONFIG: dict[str, Any] = {
+MUJOCO_CONFIG: dict[str, Setting] = {
     **CPU_LOOP,
     "actor_hidden": (256, 256),
     "critic_hidden": (256, 256),
 }
 # Humanoid's raw contact forces (up to ~1,900 beside joint angles of ~1) saturate an actor that
 # reads them raw (as TD3's did): standardised here too.
-HUMANOID_CONFIG: dict[str, Any] = {**MUJOCO_CONFIG, "normalize_obs": True}
+HUMANOID_CONFIG: dict[str, Setting] = {**MUJOCO_CONFIG, "normalize_obs": True}
 
 # The paper's settings (Haarnoja et al. 2018, "Soft Actor-Critic Algorithms and Applications",
 # Table 1): 256 x 256 ReLU networks, Adam at 3e-4 for actor, critics and temperature, batch 256,
 # one gradient step per env step in one env, a 10^6 replay, tau 0.005, gamma 0.99, target
 # entropy -|A|. The 10,000 uniformly random steps first are the authors' code's (softlearning's
 # development variants: 10 episodes of 1,000 steps); evaluation every 5,000 steps.
-SAC_PAPER_CONFIG: dict[str, Any] = {
+SAC_PAPER_CONFIG: dict[str, Setting] = {
     "num_envs": 1,
     "updates_per_iteration": 1,
     "iterations_per_chunk": 5_000,
@@ -73,7 +71,7 @@ SAC_PAPER_CONFIG: dict[str, Any] = {
     "actor_hidden": (256, 256),
     "critic_hidden": (256, 256),
 }
-SAC_PAPER_HPARAMS: dict[str, Any] = {
+SAC_PAPER_HPARAMS: dict[str, Setting] = {
     "actor_lr": 3e-4,
     "critic_lr": 3e-4,
     "alpha_lr": 3e-4,
@@ -90,7 +88,7 @@ SAC_PAPER_HPARAMS: dict[str, Any] = {
 # actor, Adam with b1 0.5 for actor and critics at rate 1e-3 (the temperature's Adam too, with
 # its default b1), actor and temperature updated every 3rd critic update, one update per env
 # step in one env, batch 256, 5,000 random steps first.
-CROSSQ_OPTIONS: dict[str, Any] = {
+CROSSQ_OPTIONS: dict[str, Setting] = {
     "critic_norm": "batch_renorm",
     "actor_norm": "batch_renorm",
     "renorm_warmup": 100_000,
@@ -99,16 +97,16 @@ CROSSQ_OPTIONS: dict[str, Any] = {
     "policy_delay": 3,
     "actor_hidden": (256, 256),
 }
-CROSSQ_CONFIG: dict[str, Any] = {
+CROSSQ_CONFIG: dict[str, Setting] = {
     **SAC_PAPER_CONFIG,
     **CROSSQ_OPTIONS,
     "learning_starts": 5_000,
     "critic_hidden": (2048, 2048),
 }
-CROSSQ_HPARAMS: dict[str, Any] = {"actor_lr": 1e-3, "critic_lr": 1e-3, "alpha_lr": 1e-3}
+CROSSQ_HPARAMS: dict[str, Setting] = {"actor_lr": 1e-3, "critic_lr": 1e-3, "alpha_lr": 1e-3}
 # The same in the CPU loop (4 envs x 4 updates per iteration) at a CPU size: 256-wide critics,
 # CrossQ's batch of 256 kept (batch statistics of 128 would be noisier than CrossQ's).
-CROSSQ_CPU_CONFIG: dict[str, Any] = {
+CROSSQ_CPU_CONFIG: dict[str, Setting] = {
     **CROSSQ_CONFIG,
     **CPU_LOOP,
     "batch_size": 256,

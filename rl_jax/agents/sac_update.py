@@ -9,27 +9,26 @@ critics, then the temperature from the log-densities of the actions the actor st
 
 from __future__ import annotations
 
-from typing import Any
-
 import jax
 import jax.numpy as jnp
 import optax
 
-from rl_jax.agents.actor_critic import CriticBatch, gather_batch
+from rl_jax.agents.actor_critic import CriticBatch, every_policy_delay, gather_batch
 from rl_jax.agents.common import optimizer_step, polyak_update
+from rl_jax.agents.sac_config import Agent, Config, Hyperparams
 from rl_jax.agents.sac_losses import actor_loss_fn, critic_loss_fn, temperature_loss
 from rl_jax.agents.sac_networks import Networks, make_networks
 from rl_jax.training import normalization, replay, squashed_gaussian
-from rl_jax.training.replay import ReplayBuffer
-
-Config = Hyperparams = Agent = Any  # sac's (sac imports this module)
+from rl_jax.training.replay import ReplayBuffer, Transition
 
 # Every numeric argument of Adam (b1 too) sits in each injected state from its init; the step
 # reads them there, so one transformation serves actor, critics and temperature.
 _ADAM = optax.inject_hyperparams(optax.adam)(learning_rate=3e-4)
 
 
-def sample(buffer: ReplayBuffer, key, config: Config, hparams: Hyperparams) -> CriticBatch:
+def sample(
+    buffer: ReplayBuffer[Transition], key, config: Config, hparams: Hyperparams
+) -> CriticBatch:
     """A uniform batch: one-step transitions, or windows of ``n_step`` steps folded."""
     rows, columns = replay.sample_indices(buffer, key, config.batch_size)
     return gather_batch(buffer, rows, columns, hparams.gamma, config.n_step)
@@ -100,7 +99,7 @@ def actor_and_temperature_step(agent: Agent, obs, key, config, hparams: Hyperpar
 
 def update(
     agent: Agent,
-    buffer: ReplayBuffer,
+    buffer: ReplayBuffer[Transition],
     key,
     config: Config,
     hparams: Hyperparams,
@@ -111,14 +110,12 @@ def update(
     sample_key, critic_key, actor_key = jax.random.split(key, 3)
     batch = normalized_batch(agent, sample(buffer, sample_key, config, hparams))
     agent, critic_loss, aux = critic_step(agent, batch, critic_key, hparams, nets)
-    nan = jnp.full((), jnp.nan, jnp.float32)
-    delayed = (update_index + 1) % config.policy_delay == 0
 
     def policy_step(agent):
         return actor_and_temperature_step(agent, batch.obs, actor_key, config, hparams, nets)
 
-    agent, (actor_loss, alpha_loss, entropy) = jax.lax.cond(
-        delayed, policy_step, lambda agent: (agent, (nan, nan, nan)), agent
+    agent, (actor_loss, alpha_loss, entropy) = every_policy_delay(
+        update_index, config.policy_delay, policy_step, agent
     )
     metrics = {
         "critic_loss": critic_loss,

@@ -43,10 +43,9 @@ from rl_jax.agents.actor_critic import (
 from rl_jax.agents.common import linearly_decayed, optimizer_step, polyak_update
 from rl_jax.agents.td3_recipes import TD3_RECIPES
 from rl_jax.training import episodes, networks, normalization, offpolicy, replay
-from rl_jax.training.algorithm import ChunkMetrics, RecipeBook
 from rl_jax.training.networks import Params
 from rl_jax.training.normalization import RunningStats
-from rl_jax.training.offpolicy import Clock, TrainState
+from rl_jax.training.offpolicy import Clock
 from rl_jax.training.params import Scalar
 from rl_jax.training.replay import ReplayBuffer, Transition
 
@@ -92,15 +91,8 @@ class Config(ActorCriticConfig):
         for name in ("critic_norm", "actor_norm"):
             if getattr(self, name) not in ("none", "layer"):
                 raise ValueError(f"{name} must be one of ('none', 'layer')")
-        if self.network not in networks.ARCHITECTURES:
-            raise ValueError(f"network must be one of {networks.ARCHITECTURES}")
-        if self.network == "simba":
-            for name in ("actor_hidden", "critic_hidden"):
-                widths = getattr(self, name)
-                if not widths or len(set(widths)) != 1:
-                    raise ValueError(f"network='simba' needs {name} of one width (w, w, ...)")
-            if self.critic_norm != "none" or self.actor_norm != "none":
-                raise ValueError("network='simba' has its own LayerNorms: leave the norms 'none'")
+        hidden = {"actor_hidden": self.actor_hidden, "critic_hidden": self.critic_hidden}
+        networks.check_architecture(self.network, hidden, (self.critic_norm, self.actor_norm))
 
     # Settings TD3 had before TD7 and CrossQ became learners of their own: the value a run
     # recorded when the setting was off (such runs load as TD3 runs), and where it went.
@@ -261,7 +253,9 @@ def actor_step(agent: Agent, obs, hparams, nets: Networks, rate: Callable):
     return agent, loss
 
 
-def update(agent: Agent, buffer: ReplayBuffer, key, config: Config, hparams, update_index):
+def update(
+    agent: Agent, buffer: ReplayBuffer[Transition], key, config: Config, hparams, update_index
+):
     """One critic update; every ``policy_delay``-th also an actor and target update."""
     nets = make_networks(config)
     sample_key, noise_key = jax.random.split(key)
@@ -276,11 +270,10 @@ def update(agent: Agent, buffer: ReplayBuffer, key, config: Config, hparams, upd
         return linearly_decayed(value, env_steps, hparams.lr_decay_steps)
 
     agent, critic_loss, q_tm1 = critic_step(agent, batch, noise_key, hparams, nets, rate)
-    delayed = (update_index + 1) % config.policy_delay == 0
-    agent, actor_loss = jax.lax.cond(
-        delayed,
+    agent, actor_loss = actor_critic.every_policy_delay(
+        update_index,
+        config.policy_delay,
         lambda agent: actor_step(agent, batch.obs, hparams, nets, rate),
-        lambda agent: (agent, jnp.full((), jnp.nan, jnp.float32)),
         agent,
     )
     return agent, buffer, {"critic_loss": critic_loss, "actor_loss": actor_loss, "q": q_tm1.mean()}
@@ -292,33 +285,21 @@ LEARNER = offpolicy.Learner(
 
 
 # ---- the Algorithm objects ----------------------------------------------------------------------
-class TD3Family(RecipeBook):
+class TD3Family(offpolicy.OffPolicyAlgorithm[Config]):
     """TD3 or DDPG as an ``rl_jax.training.algorithm.Algorithm``; the two differ only in their
     settings' defaults."""
 
     recipes = TD3_RECIPES
+    learner = LEARNER
 
     def __init__(self, name: str, config_type: type[Config], hparams_type: type[Hyperparams]):
         self.name = name
         self.config_type, self.hparams_type = config_type, hparams_type
 
-    def init(self, key: jax.Array, config: Config, hparams: Hyperparams) -> TrainState:
-        return offpolicy.init(LEARNER, key, config, hparams)
-
-    def train_chunk(
-        self, state: TrainState, config: Config, hparams: Hyperparams
-    ) -> tuple[TrainState, ChunkMetrics]:
-        return offpolicy.train_chunk(LEARNER, state, config, hparams)
-
     def spread_runs(self, config: Config) -> bool:
         """Networks of width <= 64 (small ops, one core each) spread over every device, padded
         if need be; wider ones run on one device, whose large matmuls use every core."""
         return max((*config.actor_hidden, *config.critic_hidden)) <= 64
-
-    def policy(self, state: TrainState, config: Config) -> Callable[[jax.Array], jax.Array]:
-        """``obs -> action`` (env units) of the deterministic policy of one seed's state."""
-        agent = state.agent
-        return lambda obs: act(agent, obs, config)
 
 
 @dataclasses.dataclass(frozen=True, kw_only=True)

@@ -5,14 +5,12 @@ reason it was chosen. The runs that chose them are in the results and benchmarks
 
 from __future__ import annotations
 
-from typing import Any
-
-from rl_jax.training.recipes import Recipe, Recipes
+from rl_jax.training.recipes import Recipe, Recipes, Setting
 
 # Per-env recipes on top of the paper's defaults (the slow tests check they learn). Small networks
 # and 4 envs with 4 updates per iteration (one update per env step, as in the paper) suffice for
 # the classic envs, at a small fraction of a 256 x 256 update's FLOPs.
-RECIPES: dict[str, dict[str, Any]] = {
+RECIPES: dict[str, dict[str, Setting]] = {
     "rl_jax/Pendulum-v1": {
         "num_envs": 4,
         "updates_per_iteration": 4,
@@ -65,8 +63,8 @@ RECIPES["rl_jax/HalfCheetah-v5"] = {
 # (the original TD3 code's rate), chosen by return against wall-clock with `experiments/sweep.py`
 # over rates and n-step returns: a quarter of the 256 x 256 update's FLOPs, and at these widths
 # rate 1e-3 learned faster than 3e-4.
-FAST_CHEETAH_CONFIG: dict[str, Any] = {"actor_hidden": (128, 128), "critic_hidden": (128, 128)}
-FAST_CHEETAH_HPARAMS: dict[str, Any] = {"actor_lr": 1e-3, "critic_lr": 1e-3}
+FAST_CHEETAH_CONFIG: dict[str, Setting] = {"actor_hidden": (128, 128), "critic_hidden": (128, 128)}
+FAST_CHEETAH_HPARAMS: dict[str, float] = {"actor_lr": 1e-3, "critic_lr": 1e-3}
 # The rest of the MuJoCo suite starts from the half-cheetah CPU loop with its 128 x 128 networks
 # at rate 1e-3, unchanged, so that the suite's results say what that one recipe does on each
 # task (`experiments/train.py --algo td3 --env rl_jax/Hopper-v5`).
@@ -81,7 +79,7 @@ for _env_id in MUJOCO_SUITE:
 # statistics, the inputs share one scale.
 RECIPES["rl_jax/Humanoid-v5"]["normalize_obs"] = True
 # The TD3 paper's own loop: one env, one update per env step, batch 256, 25k warm-up steps.
-PAPER_CONFIG: dict[str, Any] = {
+PAPER_CONFIG: dict[str, Setting] = {
     "num_envs": 1,
     "updates_per_iteration": 1,
     "iterations_per_chunk": 5000,
@@ -90,12 +88,12 @@ PAPER_CONFIG: dict[str, Any] = {
 }
 # The TD3 paper's whole recipe on any env: its loop above, its 256 x 256 networks and its rates
 # (the Config and Hyperparams defaults, restated because the MuJoCo suite's recipes change them).
-PAPER_RECIPE_CONFIG: dict[str, Any] = {
+PAPER_RECIPE_CONFIG: dict[str, Setting] = {
     **PAPER_CONFIG,
     "actor_hidden": (256, 256),
     "critic_hidden": (256, 256),
 }
-PAPER_HPARAMS: dict[str, Any] = {"actor_lr": 3e-4, "critic_lr": 3e-4}
+PAPER_HPARAMS: dict[str, Setting] = {"actor_lr": 3e-4, "critic_lr": 3e-4}
 # The settings of the TD3 paper's own runs (2018), which made the learning curves its repository
 # publishes and our results compare with: 400 x 300 actor and critics, Adam at its default rate
 # 1e-3, batch 100, one env with one update per env step, and 1,000 random steps before learning
@@ -104,18 +102,18 @@ PAPER_HPARAMS: dict[str, Any] = {"actor_lr": 3e-4, "critic_lr": 3e-4}
 # repository's defaults changed in 2019 to what PAPER_RECIPE_CONFIG above restates (256 x 256,
 # 3e-4, batch 256, 25,000 random steps). One difference stays: the 2018 loop ran an episode's
 # updates in one burst at its end, this loop one after each env step (as the 2019 code does).
-PAPER_2018_CONFIG: dict[str, Any] = {
+PAPER_2018_CONFIG: dict[str, Setting] = {
     **PAPER_CONFIG,
     "batch_size": 100,
     "learning_starts": 1_000,
     "actor_hidden": (400, 300),
     "critic_hidden": (400, 300),
 }
-PAPER_2018_HPARAMS: dict[str, Any] = {"actor_lr": 1e-3, "critic_lr": 1e-3}
+PAPER_2018_HPARAMS: dict[str, Setting] = {"actor_lr": 1e-3, "critic_lr": 1e-3}
 # Half cheetah on one GPU (MJX), chosen by return against wall-clock among bench/gpu_recipe.py's
 # candidates: on a GPU a larger batch or more envs per MJX step cost little more time than small
 # ones, so more envs per seed and larger batches, at half an update per env step.
-GPU_CHEETAH_CONFIG: dict[str, Any] = {
+GPU_CHEETAH_CONFIG: dict[str, Setting] = {
     **FAST_CHEETAH_CONFIG,
     "num_envs": 64,
     "batch_size": 1024,

@@ -50,9 +50,8 @@ from rl_jax.training import (
     prioritized,
     validation,
 )
-from rl_jax.training.algorithm import ChunkMetrics, RecipeBook
 from rl_jax.training.networks import Params
-from rl_jax.training.offpolicy import Clock, TrainState
+from rl_jax.training.offpolicy import Clock
 from rl_jax.training.params import Scalar
 from rl_jax.training.policy_checkpoints import PolicyCheckpoint
 from rl_jax.training.prioritized import PrioritizedBuffer
@@ -296,11 +295,10 @@ def update(agent: Agent, buffer: PrioritizedBuffer, key, config: Config, hparams
     agent, critic_loss, q_tm1, td_tm1 = critic_step(agent, batch, noise_key, hparams, config, rate)
     priorities = td7_parts.lap_priorities(td_tm1)
     buffer = prioritized.update_priorities(buffer, rows, columns, priorities, hparams.lap_alpha)
-    delayed = (update_index + 1) % config.policy_delay == 0
-    agent, actor_loss = jax.lax.cond(
-        delayed,
+    agent, actor_loss = actor_critic.every_policy_delay(
+        update_index,
+        config.policy_delay,
         lambda agent: actor_step(agent, batch.obs, hparams, config, rate),
-        lambda agent: (agent, jnp.full((), jnp.nan, jnp.float32)),
         agent,
     )
     due = (update_index + 1) % config.target_update_period == 0
@@ -323,26 +321,15 @@ LEARNER = offpolicy.Learner(
 )
 
 
-class TD7(RecipeBook):
-    """TD7 as an ``rl_jax.training.algorithm.Algorithm``."""
+class TD7(offpolicy.OffPolicyAlgorithm[Config]):
+    """TD7 as an ``rl_jax.training.algorithm.Algorithm``; its policy acts with the checkpoint
+    (``act``)."""
 
     name = "td7"
     config_type, hparams_type = Config, Hyperparams
     recipes = TD7_RECIPES
+    learner = LEARNER
     ranges = {"lap_alpha": validation.UNIT, "checkpoint_reset_weight": validation.NON_NEGATIVE}
-
-    def init(self, key: jax.Array, config: Config, hparams: Hyperparams) -> TrainState:
-        return offpolicy.init(LEARNER, key, config, hparams)
-
-    def train_chunk(
-        self, state: TrainState, config: Config, hparams: Hyperparams
-    ) -> tuple[TrainState, ChunkMetrics]:
-        return offpolicy.train_chunk(LEARNER, state, config, hparams)
-
-    def policy(self, state: TrainState, config: Config) -> Callable[[jax.Array], jax.Array]:
-        """``obs -> action`` (env units) of the checkpoint of one seed's state."""
-        agent = state.agent
-        return lambda obs: act(agent, obs, config)
 
 
 td7 = TD7()

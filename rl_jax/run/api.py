@@ -41,6 +41,7 @@ from rl_jax.run.render import write_gif
 from rl_jax.run.run_dir import CURVES_FILE, read_run_record
 from rl_jax.run.runner import run
 from rl_jax.run.spec import RunSpec
+from rl_jax.training.algorithm import Algorithm
 from rl_jax.training.episodes import episode_returns
 from rl_jax.training.jax_setup import configure
 from rl_jax.training.params import dataclass_from_dict
@@ -51,7 +52,10 @@ class Run:
     ``learner``: the run's learner as named (None: the run's built-in one)."""
 
     def __init__(
-        self, run_dir: str | Path, results: list[Any] | None = None, algorithm: Any = None
+        self,
+        run_dir: str | Path,
+        results: list[plots.FinalResult] | None = None,
+        algorithm: str | Algorithm | None = None,
     ):
         self.run_dir = Path(run_dir)
         self.learner = algorithm
@@ -63,7 +67,7 @@ class Run:
         self._results = results
 
     @property
-    def results(self) -> Any:
+    def results(self) -> plots.FinalResult | list[plots.FinalResult]:
         """The final results: a ``plots.FinalResult`` (per seed ``returns``, ``best``, ``mean``,
         ``ci_low``/``ci_high``, ``iqm``), or a list of them for a sweep. Printing gives the
         table."""
@@ -121,7 +125,7 @@ class Run:
 
 
 def train(
-    algorithm: str | Any,
+    algorithm: str | Algorithm,
     env_id: str,
     seeds: int = 1,
     total_steps: int | None = None,
@@ -191,7 +195,7 @@ def resume(
     run_dir: str | Path,
     total_steps: int | None = None,
     quiet: bool = False,
-    algorithm: str | Any = None,
+    algorithm: str | Algorithm | None = None,
     wandb: bool = False,
 ) -> Run:
     """Continue a run (from the scripts or ``train``) from its latest checkpoint.
@@ -221,7 +225,7 @@ def resume(
     return Run(result.run_dir, result.results or None, learner)
 
 
-def open_run(run_dir: str | Path, algorithm: str | Any = None) -> Run:
+def open_run(run_dir: str | Path, algorithm: str | Algorithm | None = None) -> Run:
     """The ``Run`` of an existing run directory; ``algorithm`` names its learner when it is one
     of your own (its policies, evaluation and GIFs need it)."""
     return Run(run_dir, algorithm=algorithm)
@@ -237,7 +241,7 @@ def evaluate_policy(
     return np.asarray(run_all(key))
 
 
-def _results_from_metrics(run_dir: Path, record: dict[str, Any]) -> list[Any]:
+def _results_from_metrics(run_dir: Path, record: dict[str, Any]) -> list[plots.FinalResult]:
 
     rows = read_rows(run_dir / METRICS_FILE)
     curves = plots.curves_from_rows(rows, tuple(record.get("grid_fields", ())))

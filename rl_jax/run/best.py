@@ -22,15 +22,14 @@ from typing import Any
 
 import jax
 import numpy as np
-from flax.typing import ArrayPytree
 
 from rl_jax.run.checkpoint import Checkpointer
-from rl_jax.training.algorithm import Algorithm, hooks
+from rl_jax.training.algorithm import Algorithm, TrainState, hooks
 
 BEST_DIR = "best"
 
 
-def policy_fields(algorithm: Algorithm, state: ArrayPytree) -> tuple[str, ...]:
+def policy_fields(algorithm: Algorithm, state: TrainState) -> tuple[str, ...]:
     """The train-state fields the deterministic policy reads (empty: no best tracking)."""
     fields = hooks(algorithm).policy_fields
     if fields is None:
@@ -38,15 +37,16 @@ def policy_fields(algorithm: Algorithm, state: ArrayPytree) -> tuple[str, ...]:
     return tuple(fields)
 
 
-def policy_part(state: ArrayPytree, fields: tuple[str, ...]) -> dict[str, ArrayPytree]:
+def policy_part(state: TrainState, fields: tuple[str, ...]) -> dict[str, object]:
     """The fields of the train state the policy reads, by name."""
     return {name: getattr(state, name) for name in fields}
 
 
-def with_policy_part(state: ArrayPytree, part: dict[str, ArrayPytree]) -> ArrayPytree:
+def with_policy_part(state: TrainState, part: dict[str, object]) -> TrainState:
     """``state`` with the fields of ``part`` replaced (NamedTuple or dataclass states)."""
     if hasattr(state, "_replace"):
         return state._replace(**part)
+    assert not isinstance(state, tuple)  # a NamedTuple has _replace
     return dataclasses.replace(state, **part)
 
 
@@ -57,7 +57,7 @@ class BestPolicies:
         self.fields = fields
         self.returns = np.full(runs, -np.inf)
         self.steps = np.full(runs, -1, dtype=np.int64)
-        self.part: dict[str, ArrayPytree] | None = None  # host arrays with leading [H, S]
+        self.part: dict[str, object] | None = None  # host arrays with leading [H, S]
         self.changed = False  # since the last save
 
     @property
@@ -69,7 +69,7 @@ class BestPolicies:
         self,
         eval_return: np.ndarray,
         env_steps: np.ndarray,
-        fetch: Callable[[], dict[str, ArrayPytree]],
+        fetch: Callable[[], dict[str, object]],
     ) -> np.ndarray:
         """Take the runs whose finite eval return beats their best; ``fetch()`` gives the
         ``[H, S]`` host copy of the policy part, called only when one improved. Returns the
@@ -111,7 +111,7 @@ class BestPolicies:
         cls,
         directory: Path,
         fields: tuple[str, ...],
-        template: ArrayPytree,
+        template: TrainState,
         at_most: int,
         expect: dict[str, Any],
     ) -> BestPolicies:
@@ -136,8 +136,8 @@ class BestPolicies:
 
 
 def load_part(
-    directory: Path, fields: tuple[str, ...], template: ArrayPytree, expect: dict[str, Any]
-) -> tuple[dict[str, ArrayPytree], dict[str, Any]] | None:
+    directory: Path, fields: tuple[str, ...], template: TrainState, expect: dict[str, Any]
+) -> tuple[dict[str, object], dict[str, Any]] | None:
     """``(part, metadata)`` of the latest best-policy checkpoint, or None if there is none."""
     if not Path(directory).is_dir():
         return None
@@ -147,7 +147,7 @@ def load_part(
         return checkpointer.restore(policy_part(template, fields), expect=expect)
 
 
-def _runs(template: ArrayPytree, fields: tuple[str, ...]) -> tuple[int, int]:
+def _runs(template: TrainState, fields: tuple[str, ...]) -> tuple[int, int]:
     leaves = jax.tree.leaves(policy_part(template, fields))
     return tuple(leaves[0].shape[:2]) if leaves else (0, 0)
 

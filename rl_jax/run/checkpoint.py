@@ -34,14 +34,13 @@ import time
 from collections.abc import Iterator
 from importlib.metadata import version
 from pathlib import Path
-from typing import Any, NamedTuple
+from typing import Any, NamedTuple, TypeVar
 
 import flax
 import jax
 import jaxlib
 import numpy as np
 import optax
-from flax.typing import ArrayPytree
 
 import rl_jax
 from rl_jax.errors import CheckpointError
@@ -52,6 +51,9 @@ from rl_jax.run.checkpoint_leaves import (
     split_state,
     template_records,
 )
+
+#: a pytree restored into the structure of its template
+Tree = TypeVar("Tree")
 
 _TMP_MARKER = ".orbax-checkpoint-tmp"
 #: Name prefix of a damaged step directory set aside (``damaged-<step>-<time>``).
@@ -154,7 +156,7 @@ class Checkpointer:
             self._manager.delete(s)
         return newer
 
-    def save(self, step: int, state: ArrayPytree, metadata: dict[str, Any] | None = None) -> None:
+    def save(self, step: int, state: object, metadata: dict[str, Any] | None = None) -> None:
         """Write ``state`` as checkpoint ``step`` (must be newer than the latest)."""
         latest = self.latest_step()
         if latest is not None and step <= latest:
@@ -192,11 +194,11 @@ class Checkpointer:
 
     def restore(
         self,
-        template: ArrayPytree,
+        template: Tree,
         step: int | None = None,
         expect: dict[str, Any] | None = None,
         sharding: jax.sharding.Sharding | None = None,
-    ) -> tuple[ArrayPytree, dict[str, Any]]:
+    ) -> tuple[Tree, dict[str, Any]]:
         """Restore ``step`` (default: latest) into the structure of ``template``.
 
         ``template`` is a pytree of arrays or ``jax.ShapeDtypeStruct`` with the run's exact
@@ -245,10 +247,10 @@ class Checkpointer:
 
     def restore_newest_readable(
         self,
-        template: ArrayPytree,
+        template: Tree,
         expect: dict[str, Any] | None = None,
         sharding: jax.sharding.Sharding | None = None,
-    ) -> tuple[ArrayPytree, dict[str, Any], list[Skipped]]:
+    ) -> tuple[Tree, dict[str, Any], list[Skipped]]:
         """``restore`` of the newest checkpoint that can be restored, with the newer ones that
         cannot (damaged: ``Skipped``, newest first). A checkpoint of another run (``expect``) is
         refused at once, never passed over: it is no damage, and an older one would not be this
@@ -343,7 +345,7 @@ def _ignore_closed_loop_reports() -> None:
     if getattr(previous, "ignores_closed_loop", False):
         return
 
-    def hook(unraisable: Any) -> None:
+    def hook(unraisable: sys.UnraisableHookArgs) -> None:
         error = unraisable.exc_value
         if isinstance(error, RuntimeError) and str(error) == "Event loop is closed":
             return

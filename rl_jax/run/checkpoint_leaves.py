@@ -13,7 +13,6 @@ from typing import Any
 
 import jax
 import numpy as np
-from flax.typing import ArrayPytree
 
 from rl_jax.errors import CheckpointError
 
@@ -41,7 +40,7 @@ def leaf_record(path: str, leaf: object) -> dict[str, Any]:
     return {"path": path, "kind": "json", "value": leaf}
 
 
-def split_state(state: ArrayPytree) -> tuple[dict[str, jax.Array], list[dict[str, Any]]]:
+def split_state(state: object) -> tuple[dict[str, jax.Array], list[dict[str, Any]]]:
     """The saveable arrays (keyed ``leaf_00000``...) and the per-leaf records."""
     arrays, records = {}, []
     for index, (path, leaf) in enumerate(jax.tree_util.tree_flatten_with_path(state)[0]):
@@ -67,7 +66,7 @@ def leaf_name(index: int) -> str:
     return f"leaf_{index:05d}"
 
 
-def template_records(template: ArrayPytree) -> list[dict[str, Any]]:
+def template_records(template: object) -> list[dict[str, Any]]:
     """Records describing what the caller expects (arrays or ``jax.ShapeDtypeStruct``s)."""
     records = []
     for path, leaf in jax.tree_util.tree_flatten_with_path(template)[0]:

@@ -47,18 +47,35 @@ from rl_jax.run.learners import ALGORITHMS
 from rl_jax.run.run_dir import read_run_record
 from rl_jax.run.spec import RunSpec
 from rl_jax.training import params
-from rl_jax.training.algorithm import hooks
-from rl_jax.training.params import dataclass_from_dict
+from rl_jax.training.algorithm import Algorithm, Config, Hyperparams, hooks
+from rl_jax.training.params import D, dataclass_from_dict
 from rl_jax.training.recipes import PLAIN, Recipe
 from rl_jax.training.validation import out_of_range
 
 RUNS_ROOT = Path("runs")
 
 
-def resolve_algorithm(name: str | Any) -> Any:
+def resolve_algorithm(name: str | object) -> Algorithm:
     """The learner ``name`` names: a built-in or registered name, ``MODULE:NAME``,
     ``path/to/file.py:NAME`` or the learner object (``rl_jax.run.learners``)."""
     return learners.resolve(name)
+
+
+def program(argv0: str | None = None) -> list[str]:
+    """The words that start this program again, for the run's recorded commands:
+    ``python SCRIPT`` for a script, ``rl-jax COMMAND`` for the console command and
+    ``python -m rl_jax COMMAND`` for the package run as a module. ``rl_jax.__main__`` sets
+    ``sys.argv[0]`` to ``"rl-jax COMMAND"`` in both of the latter cases (for argparse's
+    usage lines); only the ``__main__`` module tells them apart."""
+    argv0 = sys.argv[0] if argv0 is None else argv0
+    python = Path(sys.executable).name
+    if not argv0.startswith("rl-jax "):
+        return [python, argv0]
+    words = argv0.split()
+    spec = getattr(sys.modules.get("__main__"), "__spec__", None)
+    if spec is not None and spec.name == "rl_jax.__main__":
+        return [python, "-m", "rl_jax", *words[1:]]
+    return words
 
 
 # ---- building the run -----------------------------------------------------------------------
@@ -80,7 +97,7 @@ def _explicit(args: argparse.Namespace, names: list[str]) -> dict[str, Any]:
     return {name: getattr(args, name) for name in names if hasattr(args, name)}
 
 
-def replace_fields(instance: Any, values: dict[str, Any], what: str) -> Any:
+def replace_fields(instance: D, values: dict[str, Any], what: str) -> D:
     try:
         return dataclasses.replace(instance, **values)
     except (TypeError, ValueError) as error:
@@ -96,7 +113,7 @@ class Defaults:
     total_steps: int = 100_000
 
 
-def take_recipe(argv: list[str], algorithm: Any, env_id: str) -> tuple[Recipe, list[str]]:
+def take_recipe(argv: list[str], algorithm: Algorithm, env_id: str) -> tuple[Recipe, list[str]]:
     """``--recipe NAME`` of ``algorithm``'s recipes for ``env_id`` (else its ``"default"``),
     taken out of ``argv``. ``UsageError`` for an unknown name or with ``--resume`` (a resumed
     run keeps the settings it recorded)."""
@@ -124,7 +141,9 @@ def take_recipe(argv: list[str], algorithm: Any, env_id: str) -> tuple[Recipe, l
         ) from None
 
 
-def learner_of_recipe(argv: list[str], algorithm: Any, env_id: str) -> tuple[Any, list[str]]:
+def learner_of_recipe(
+    argv: list[str], algorithm: Algorithm, env_id: str
+) -> tuple[Algorithm, list[str]]:
     """A script's ``--recipe NAME`` may name another built-in learner's recipe for its env:
     ``td7`` (that learner's default) or ``td7-cpu`` (its ``cpu``). ``(the learner to run, argv
     with the recipe's own name)``; the script's learner and ``argv`` where NAME is its own."""
@@ -141,7 +160,7 @@ def learner_of_recipe(argv: list[str], algorithm: Any, env_id: str) -> tuple[Any
     return other, [*rest, "--recipe", own or "default"]
 
 
-def _other_learners_recipes(algorithm: Any, env_id: str) -> str:
+def _other_learners_recipes(algorithm: Algorithm, env_id: str) -> str:
     """``--help``'s list of the other built-in learners' recipes written for ``env_id`` or for
     any env, by the names ``learner_of_recipe`` takes."""
     names = []
@@ -156,7 +175,9 @@ def _other_learners_recipes(algorithm: Any, env_id: str) -> str:
     )
 
 
-def recipe_settings(algorithm: Any, env_id: str, recipe: Recipe) -> tuple[Any, Any]:
+def recipe_settings(
+    algorithm: Algorithm, env_id: str, recipe: Recipe
+) -> tuple[Config, Hyperparams]:
     """The algorithm's settings under ``recipe`` for ``env_id`` (a learner without recipes
     only ever has its defaults)."""
     named = {} if recipe is PLAIN else {"recipe": recipe.name}
@@ -168,7 +189,9 @@ def recipe_settings(algorithm: Any, env_id: str, recipe: Recipe) -> tuple[Any, A
     return config, hparams
 
 
-def validate_settings(algorithm: Any, config: Any, hparams_list: list[Any]) -> None:
+def validate_settings(
+    algorithm: Algorithm, config: Config, hparams_list: list[Hyperparams]
+) -> None:
     """Ranges (``rl_jax.training.validation``), then the algorithm's own ``validate(config,
     hparams)`` when it has one: before anything compiles, for every config of a grid."""
 
@@ -189,7 +212,7 @@ def validate_settings(algorithm: Any, config: Any, hparams_list: list[Any]) -> N
             raise UsageError(str(error)) from None
 
 
-def check_env_fits(algorithm: Any, config: Any, hparams: Any) -> None:
+def check_env_fits(algorithm: Algorithm, config: Config, hparams: Hyperparams) -> None:
     """The algorithm can act in the env (TD3 needs a bounded Box action space, say): its init,
     traced without running, raises the algorithm's own TypeError or ValueError otherwise, which
     ``--env`` with any gymnasium id makes a user error rather than a bug."""
@@ -200,7 +223,7 @@ def check_env_fits(algorithm: Any, config: Any, hparams: Any) -> None:
 
 
 def build_parser(
-    algorithm: Any,
+    algorithm: Algorithm,
     env_id: str,
     description: str,
     defaults: Defaults,
@@ -253,7 +276,9 @@ def _add_choice_flags(parser: argparse.ArgumentParser) -> None:
     )
 
 
-def _choose(argv: list[str], algorithm: Any, env_id: str | None) -> tuple[Any, str, bool]:
+def _choose(
+    argv: list[str], algorithm: Algorithm | None, env_id: str | None
+) -> tuple[Algorithm | None, str, bool]:
     """Algorithm and env: fixed by the script, or from --algo/--env (or the resumed run)."""
     pre = OneLineParser(add_help=False)
     _add_choice_flags(pre)
@@ -296,7 +321,9 @@ def _help_without_algorithm(description: str, defaults: Defaults) -> int:
     return 0
 
 
-def _resumed_settings(args: argparse.Namespace, algorithm: Any, env_id: str) -> dict[str, Any]:
+def _resumed_settings(
+    args: argparse.Namespace, algorithm: Algorithm, env_id: str
+) -> dict[str, Any]:
     """Config, hyperparameters, seeds and steps recorded by the run being resumed."""
 
     record = read_run_record(args.resume)
@@ -321,7 +348,7 @@ def _resumed_settings(args: argparse.Namespace, algorithm: Any, env_id: str) -> 
 
 
 def _fresh_settings(
-    algorithm: Any, env_id: str, defaults: Defaults, recipe: Recipe
+    algorithm: Algorithm, env_id: str, defaults: Defaults, recipe: Recipe
 ) -> dict[str, Any]:
     """The script's defaults under ``recipe`` for a new run (flags are applied on top)."""
     config, hparams = recipe_settings(algorithm, env_id, recipe)
@@ -337,13 +364,13 @@ def _fresh_settings(
 
 def build_spec(
     args: argparse.Namespace,
-    algorithm: Any,
+    algorithm: Algorithm,
     env_id: str,
     defaults: Defaults,
     names: tuple[list[str], list[str]],
     argv: list[str],
     recipe: Recipe | None = None,
-) -> Any:
+) -> RunSpec:
     """The ``RunSpec`` the flags describe (for ``--resume``: the recorded run, then the flags),
     on ``recipe``'s settings (None: the env's default recipe)."""
     recipe = recipe or hooks(algorithm).recipe(env_id)
@@ -369,7 +396,7 @@ def build_spec(
     validate_settings(algorithm, config, hparams)
     check_env_fits(algorithm, config, hparams[0])
     out = args.resume if resume else (args.out or default_run_dir(env_id, algorithm.name))
-    script = shlex.join([Path(sys.executable).name, sys.argv[0]])
+    script = shlex.join(program())
     # A learner of the user's own is named again on resume (never imported from the record).
     named = shlex.join(learners.cli_args(algorithm)) if hasattr(args, "algo") else ""
     return RunSpec(
@@ -388,7 +415,7 @@ def build_spec(
         log_interval=args.log_interval,
         gif=args.gif,
         wandb=args.wandb,
-        command=shlex.join([Path(sys.executable).name, sys.argv[0], *argv]),
+        command=shlex.join([*program(), *argv]),
         resume_command=f"{script} --resume {shlex.quote(str(out))} {named}".strip(),
         # The recipe's measured throughput holds for its own config only.
         throughput=None if resume or args.grid or _explicit(args, names[0]) else recipe.throughput,
@@ -396,7 +423,7 @@ def build_spec(
 
 
 def run_experiment(
-    algorithm: Any = None,
+    algorithm: Algorithm | None = None,
     env_id: str | None = None,
     description: str | None = None,
     argv: list[str] | None = None,
@@ -431,7 +458,7 @@ def run_experiment(
 
 
 def main(
-    algorithm: Any = None,
+    algorithm: Algorithm | None = None,
     env_id: str | None = None,
     description: str | None = None,
     *,

@@ -9,12 +9,11 @@ from typing import TYPE_CHECKING
 import jax
 import jax.numpy as jnp
 import numpy as np
-from flax.typing import ArrayPytree
 
 from rl_jax.errors import RunError
 from rl_jax.run.best import policy_fields, policy_part
 from rl_jax.run.spec import RunSpec
-from rl_jax.training.algorithm import ChunkMetrics
+from rl_jax.training.algorithm import ChunkMetrics, TrainState
 
 if TYPE_CHECKING:
     from rl_jax.run.runner import Session
@@ -25,7 +24,7 @@ class DivergenceError(RunError):
 
 
 @jax.jit
-def _all_finite(tree: ArrayPytree) -> jax.Array:
+def _all_finite(tree: object) -> jax.Array:
     """``[H, S]``: whether every float leaf of each run of ``tree`` is finite."""
     flags = [
         jnp.all(jnp.isfinite(leaf), axis=tuple(range(2, leaf.ndim)))
@@ -35,7 +34,7 @@ def _all_finite(tree: ArrayPytree) -> jax.Array:
     return jnp.all(jnp.stack(flags), axis=0) if flags else jnp.bool_(True)
 
 
-def finite_runs(state: ArrayPytree, spec: RunSpec) -> jax.Array:
+def finite_runs(state: TrainState, spec: RunSpec) -> jax.Array:
     """Per run (padded ``[H, S]``), whether its policy part (or whole state) is finite."""
     fields = policy_fields(spec.algorithm, state)
     return _all_finite(policy_part(state, fields) if fields else state)

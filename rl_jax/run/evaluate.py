@@ -15,7 +15,6 @@ from __future__ import annotations
 
 import dataclasses
 from pathlib import Path
-from typing import Any
 
 import jax
 import numpy as np
@@ -23,6 +22,7 @@ import numpy as np
 from rl_jax.errors import OneLineParser, exit_now, guard, positive_int
 from rl_jax.run.api import evaluate_policy as returns_of
 from rl_jax.run.policy import LoadedPolicy, add_run_choice, command_line_learner
+from rl_jax.training.algorithm import Algorithm
 from rl_jax.training.jax_setup import configure
 
 KEY = 20_251_125  # evaluation episodes' key: none of a run's own evaluations draws it
@@ -50,7 +50,7 @@ def evaluate_run(
     seeds: list[int] | None = None,
     config_index: int | None = None,
     latest: bool = False,
-    algorithm: Any = None,
+    algorithm: str | Algorithm | None = None,
 ) -> list[Evaluation]:
     """Every seed's best policy (and its latest, with ``latest``) on ``episodes`` episodes;
     ``algorithm`` names the run's learner when it is not built in."""

@@ -39,7 +39,7 @@ import shlex
 import sys
 import types
 from pathlib import Path
-from typing import Any
+from typing import Any, cast
 
 from rl_jax.errors import RunError, UsageError
 from rl_jax.run.run_dir import MOVED_MODULES, load_algorithm
@@ -47,7 +47,7 @@ from rl_jax.training.algorithm import Algorithm
 
 #: Name -> where the learner lives (``module``, ``module:attribute``, ``file.py[:attribute]``)
 #: or the learner object: the built-in learners and those given to ``register_algorithm``.
-ALGORITHMS: dict[str, Any] = {
+ALGORITHMS: dict[str, str | Algorithm] = {
     "td3": "rl_jax.agents.td3:td3",
     "ddpg": "rl_jax.agents.td3:ddpg",
     "td7": "rl_jax.agents.td7:td7",
@@ -112,13 +112,13 @@ class Origin:
 # ---- naming a learner -----------------------------------------------------------------------
 
 
-def register_algorithm(name: str, learner: Any) -> None:
+def register_algorithm(name: str, learner: str | Algorithm) -> None:
     """Make ``name`` a name of ``learner``: a reference as ``--algo`` takes it (``module``,
     ``module:attribute``, ``file.py:attribute``; imported when first used) or the object."""
     ALGORITHMS[name] = learner
 
 
-def resolve(learner: str | Any) -> Algorithm:
+def resolve(learner: str | object) -> Algorithm:
     """The learner that ``learner`` names (see the module docstring), checked against the
     interface; ``UsageError`` in one line if there is none."""
     if not isinstance(learner, str):
@@ -141,7 +141,7 @@ def resolve(learner: str | Any) -> Algorithm:
     return _checked(_import(learner), learner)
 
 
-def check_interface(learner: Any, label: str) -> None:
+def check_interface(learner: object, label: str) -> None:
     """``UsageError`` naming the first part of the ``Algorithm`` interface ``learner`` lacks."""
     name = getattr(learner, "name", None)
     if not isinstance(name, str) or not name.strip():
@@ -151,7 +151,7 @@ def check_interface(learner: Any, label: str) -> None:
             raise UsageError(f"{label} has no {signature}")
 
 
-def _checked(learner: Any, label: str) -> Algorithm:
+def _checked(learner: object, label: str) -> Algorithm:
     try:
         check_interface(learner, label)
     except UsageError as error:
@@ -162,8 +162,9 @@ def _checked(learner: Any, label: str) -> Algorithm:
             raise
         named = ", ".join(f"{label}:{name}" for name in found)
         raise UsageError(f"{error}; the learners in it: {named}") from None
-    origin_of(learner)  # a learner whose origin cannot be recorded fails here, before any run
-    return learner
+    checked = cast(Algorithm, learner)  # it has the interface's name and methods
+    origin_of(checked)  # a learner whose origin cannot be recorded fails here, before any run
+    return checked
 
 
 def _is_reference(text: str) -> bool:
@@ -193,7 +194,7 @@ def _split_reference(text: str) -> tuple[str, str | None]:
     return (where, attribute or None) if colon else (text, None)
 
 
-def _import(reference: str) -> Any:
+def _import(reference: str) -> object:
     where, attribute = _split_reference(reference)
     module = _import_file(where, reference) if _is_file(where) else _import_module(where, reference)
     if attribute is None:
@@ -205,7 +206,7 @@ def _import(reference: str) -> Any:
     return getattr(module, attribute)
 
 
-def _looks_like_a_learner(value: Any) -> bool:
+def _looks_like_a_learner(value: object) -> bool:
     """An object (not a class) with the whole interface: what an error may suggest."""
     if isinstance(value, type) or not isinstance(getattr(value, "name", None), str):
         return False
@@ -269,10 +270,10 @@ def _reason(error: BaseException) -> str:
 # ---- where a learner came from --------------------------------------------------------------
 
 #: id -> (learner, origin) of every learner this process named or trained with.
-_SEEN: dict[int, tuple[Any, Origin]] = {}
+_SEEN: dict[int, tuple[Algorithm, Origin]] = {}
 
 
-def origin_of(learner: Any) -> Origin:
+def origin_of(learner: Algorithm) -> Origin:
     """Where ``learner`` lives: a module, or a module-level attribute (looked up in the module
     of its type, then in ``__main__``, then in every module). Remembered: this process has
     named it."""
@@ -285,7 +286,7 @@ def origin_of(learner: Any) -> Origin:
     return origin
 
 
-def _locate(learner: Any) -> tuple[types.ModuleType, str | None]:
+def _locate(learner: Algorithm) -> tuple[types.ModuleType, str | None]:
     if isinstance(learner, types.ModuleType):
         return learner, None
     first = [sys.modules.get(type(learner).__module__), sys.modules.get("__main__")]
@@ -314,7 +315,7 @@ def _origin(module: types.ModuleType, attribute: str | None) -> Origin:
     return Origin("module", name, attribute)
 
 
-def reference(learner: Any) -> str:
+def reference(learner: Algorithm) -> str:
     """The run record's ``algorithm_module``: ``module:attribute`` for a learner that is
     imported by module name, else its origin."""
     origin = origin_of(learner)
@@ -324,7 +325,7 @@ def reference(learner: Any) -> str:
     return f"{module.__name__}:{attribute}" if attribute else module.__name__
 
 
-def record_fields(learner: Any) -> dict[str, str]:
+def record_fields(learner: Algorithm) -> dict[str, str]:
     """What a new run's record says of its learner."""
     return {"algorithm_module": reference(learner), "learner": str(origin_of(learner))}
 
@@ -345,7 +346,10 @@ def recorded_origin(record: dict[str, Any]) -> Origin:
 
 
 def for_run(
-    record: dict[str, Any], run_dir: Path | str, named: str | Any = None, how: str = "--algo"
+    record: dict[str, Any],
+    run_dir: Path | str,
+    named: str | Algorithm | None = None,
+    how: str = "--algo",
 ) -> Algorithm:
     """The learner to open the run of ``record`` with: ``named`` (checked to be the recorded
     one), else the recorded one if it is built in or this process has named it; else
@@ -369,7 +373,7 @@ def for_run(
     )
 
 
-def check_same(record: dict[str, Any], learner: Any, run_dir: Path | str) -> None:
+def check_same(record: dict[str, Any], learner: Algorithm, run_dir: Path | str) -> None:
     """``RunError`` unless ``learner`` is the one the run of ``record`` was trained with."""
     name = record["identity"]["algorithm"]
     recorded, given = recorded_origin(record), origin_of(learner)
@@ -382,13 +386,13 @@ def check_same(record: dict[str, Any], learner: Any, run_dir: Path | str) -> Non
         raise RunError(f"{run_dir} is a {name} run, not a {learner.name} run")
 
 
-def cli_args(learner: Any) -> list[str]:
+def cli_args(learner: Algorithm) -> list[str]:
     """``--algo SPELLING`` for a command that opens a run of ``learner`` (none when built in)."""
     origin = origin_of(learner)
     return [] if origin.kind == BUILTIN else ["--algo", origin.spelling(learner.name)]
 
 
-def python_hint(learner: Any) -> str:
+def python_hint(learner: Algorithm) -> str:
     """``, algorithm=...`` for ``rl_jax.resume``'s line when ``learner`` is not built in."""
     origin = origin_of(learner)
     if origin.kind == BUILTIN:
@@ -410,10 +414,10 @@ def _builtin(record: dict[str, Any], name: str) -> Algorithm:
     if learner is None or getattr(learner, "name", None) != name:
         raise RunError(f"the run record's built-in learner {reference!r} is not its {name}")
     check_interface(learner, reference)
-    return learner
+    return cast(Algorithm, learner)  # it has the interface's name and methods
 
 
-def _named_here(origin: Origin) -> Any:
+def _named_here(origin: Origin) -> Algorithm | None:
     """A learner of ``origin`` that this process trained with or named, or registered."""
     for learner, seen in _SEEN.values():
         if seen == origin:

@@ -18,9 +18,12 @@ import math
 import os
 import sys
 from pathlib import Path
-from typing import Any, Protocol
+from typing import TYPE_CHECKING, Any, Protocol
 
 import numpy as np
+
+if TYPE_CHECKING:
+    from tensorboardX import SummaryWriter
 
 METRICS_FILE = "metrics.jsonl"
 TENSORBOARD_DIR = "tensorboard"
@@ -78,7 +81,7 @@ def run_label(row: dict[str, Any], grid_fields: tuple[str, ...] = ()) -> str:
     return f"{values or 'config_' + str(row['config'])}/{seed}"
 
 
-def _summary_writer_class() -> type:
+def _summary_writer_class() -> type[SummaryWriter]:
     """tensorboardX's ``SummaryWriter``, imported without torch.
 
     tensorboardX imports torch whenever it is installed (4 s and hundreds of MB here, where the
@@ -126,7 +129,7 @@ class MetricsLog:
         # never overwrite) an earlier one's file, whose rows up to resume_step are kept.
         self._file_suffix = f".from{max(resume_step or 0, 0):012d}"
         self._summary_writer = _summary_writer_class()  # imported here, not in the timed loop
-        self._writers: dict[str, Any] = {}
+        self._writers: dict[str, SummaryWriter] = {}
         self._file = open(self.path, "a")  # noqa: SIM115 (kept open for the run)
         self.tracker = tracker
 
@@ -153,7 +156,7 @@ class MetricsLog:
         for writer in self._writers.values():
             writer.flush()
 
-    def _writer(self, label: str) -> Any:
+    def _writer(self, label: str) -> SummaryWriter:
         if label not in self._writers:
             self._writers[label] = self._summary_writer(
                 str(self.run_dir / TENSORBOARD_DIR / label),

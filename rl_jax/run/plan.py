@@ -12,14 +12,13 @@ from pathlib import Path
 import jax
 import jax.numpy as jnp
 import numpy as np
-from flax.typing import ArrayPytree
 
 from rl_jax.errors import RunError
 from rl_jax.run import plots
 from rl_jax.run.progress import Progress
 from rl_jax.run.spec import RunSpec
 from rl_jax.training import parallel, params
-from rl_jax.training.algorithm import hooks
+from rl_jax.training.algorithm import Hyperparams, TrainState, hooks
 
 
 def program_for(spec: RunSpec) -> parallel.Program:
@@ -59,7 +58,7 @@ class Plan:
     state_bytes: int  # device_bytes + checkpoint_bytes
     breakdown: list[tuple[str, int]]  # (top-level field of the state, bytes), largest first
     available_bytes: int
-    template: ArrayPytree  # ShapeDtypeStruct tree of the [configs, seeds] state, as checkpointed
+    template: TrainState  # ShapeDtypeStruct tree of the [configs, seeds] state, as checkpointed
     program: parallel.Program  # the compiled init/chunk of all runs
     device_bytes: int = 0  # the state on the devices, padding copies included
     checkpoint_bytes: int = 0  # the host copy of the real runs a checkpoint write takes
@@ -71,7 +70,7 @@ def _leaf_bytes(leaf: jax.Array | jax.ShapeDtypeStruct) -> int:
     return int(np.prod(leaf.shape)) * np.dtype(leaf.dtype).itemsize
 
 
-def memory_breakdown(template: ArrayPytree) -> list[tuple[str, int]]:
+def memory_breakdown(template: TrainState) -> list[tuple[str, int]]:
     """Bytes of the state per top-level field, largest first."""
     totals: dict[str, int] = {}
     for path, leaf in jax.tree_util.tree_flatten_with_path(template)[0]:
@@ -132,7 +131,7 @@ def make_plan(spec: RunSpec) -> Plan:
     )
 
 
-def runs_template(spec: RunSpec, hparams: ArrayPytree) -> ArrayPytree:
+def runs_template(spec: RunSpec, hparams: Hyperparams) -> TrainState:
     """Shapes and dtypes of the ``[configs, seeds]`` state (the shared clock unstacked), without
     allocating: what a checkpoint holds, whatever the device layout."""
     one = jax.tree.map(lambda x: jnp.asarray(x[0]), hparams)

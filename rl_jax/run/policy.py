@@ -27,17 +27,17 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import numpy.typing as npt
-from flax.typing import ArrayPytree
 
+from envs import Environment
 from rl_jax.errors import PolicyError, parse_int
 from rl_jax.run.best import BEST_DIR, load_part, policy_fields, with_policy_part
-from rl_jax.run.checkpoint import Checkpointer
+from rl_jax.run.checkpoint import Checkpointer, Tree
 from rl_jax.run.learners import for_run
 from rl_jax.run.metrics import METRICS_FILE, read_rows
 from rl_jax.run.plan import make_plan
 from rl_jax.run.run_dir import CHECKPOINT_DIR, identity_hash, read_run_record
 from rl_jax.run.spec import RunSpec
-from rl_jax.training.algorithm import hooks
+from rl_jax.training.algorithm import Algorithm, Config, PolicyFn, TrainState, hooks
 from rl_jax.training.jax_setup import configure
 from rl_jax.training.params import dataclass_from_dict
 
@@ -61,7 +61,7 @@ class LoadedPolicy:
         seed: int | None = None,
         config_index: int | None = None,
         which: str = "best",
-        algorithm: Any = None,
+        algorithm: str | Algorithm | None = None,
     ):
         if which not in WHICH:
             raise PolicyError(f"which must be one of {', '.join(WHICH)}, got {which!r}")
@@ -90,7 +90,7 @@ class LoadedPolicy:
             seed if seed is not None else best[1] if best[1] is not None else self.seeds[0],
         )
 
-    def _restore(self) -> tuple[Any, Any, Any, int]:
+    def _restore(self) -> tuple[Algorithm, Config, TrainState, int]:
         identity = self.record["identity"]
         algorithm = for_run(self.record, self.run_dir, self._named, how="algorithm=")
         config = dataclass_from_dict(algorithm.default_config(self.env_id), identity["config"])
@@ -123,15 +123,15 @@ class LoadedPolicy:
             self.note = "the run kept no best policy for this seed; using its latest checkpoint"
         with Checkpointer(self.run_dir / CHECKPOINT_DIR, read_only=True) as checkpointer:
             state, meta = checkpointer.restore(plan.template, expect=expect)
-        one = plan.program.select(state, *run)
+        selected = plan.program.select(state, *run)
         self.eval_return = _final_eval(self.run_dir, self.config_index, self.seed, meta["step"])
-        return algorithm, config, one, meta["step"]
+        return algorithm, config, selected, meta["step"]
 
-    def env(self) -> Any:
+    def env(self) -> Environment:
         """The env the policy acts in (``algorithm.make_env(config)``, by default the run's env)."""
         return hooks(self.algorithm).make_env(self.config)
 
-    def act(self) -> Any:
+    def act(self) -> PolicyFn:
         """The pure ``obs -> action`` JAX function (actions as the env of ``env()`` takes)."""
         return self.algorithm.policy(self.state, self.config)
 
@@ -204,7 +204,7 @@ def add_run_choice(parser: argparse.ArgumentParser, seed_help: str) -> None:
     )
 
 
-def command_line_learner(run_dir: Path, named: str | None) -> Any:
+def command_line_learner(run_dir: Path, named: str | None) -> Algorithm:
     """The learner a command that opens ``run_dir`` uses (``--algo``, or the run's built-in
     one); its errors say to give ``--algo``."""
     from rl_jax.run.learners import for_run
@@ -218,7 +218,7 @@ def load_policy(
     seed: int | None = None,
     which: str = "best",
     config: int | None = None,
-    algorithm: Any = None,
+    algorithm: str | Algorithm | None = None,
 ) -> Policy:
     """The trained policy of a run as a numpy ``obs -> action`` callable.
 
@@ -231,7 +231,7 @@ def load_policy(
     return Policy(LoadedPolicy(Path(run_dir), seed, config, which, algorithm))
 
 
-def _index(tree: ArrayPytree, run: tuple[int, int]) -> ArrayPytree:
+def _index(tree: Tree, run: tuple[int, int]) -> Tree:
     return jax.tree.map(lambda leaf: leaf[run], tree)
 
 

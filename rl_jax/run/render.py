@@ -40,6 +40,7 @@ from envs.core.core import Environment
 from envs.core.wrappers import Wrapper
 from rl_jax.errors import OneLineParser, RenderError, exit_now, guard, positive_int
 from rl_jax.run.policy import LoadedPolicy, add_run_choice, command_line_learner
+from rl_jax.training.algorithm import Algorithm
 from rl_jax.training.jax_setup import configure
 
 NO_OPENGL = (
@@ -165,7 +166,7 @@ def write_gif(
     config_index: int | None = None,
     max_frames: int = 600,
     which: str = "best",
-    algorithm: Any = None,
+    algorithm: str | Algorithm | None = None,
 ) -> Path:
     """Render the deterministic policy of (config, seed) of ``run_dir`` to a GIF; its path.
     ``which``: the seed's best evaluated policy ("best") or its latest checkpoint ("latest");

@@ -37,7 +37,6 @@ from typing import Any
 
 import jax
 import numpy as np
-from flax.typing import ArrayPytree
 
 from rl_jax.errors import RunError
 from rl_jax.run import distributed, learners, plots, processes
@@ -74,7 +73,7 @@ from rl_jax.run.start import (
 )
 from rl_jax.run.tracking import WandbRuns, import_wandb
 from rl_jax.training import params
-from rl_jax.training.algorithm import ChunkMetrics
+from rl_jax.training.algorithm import ChunkMetrics, Hyperparams, TrainState
 from rl_jax.training.validation import check_ranges
 
 #: Checkpoints a run keeps at the least, whatever ``keep_checkpoints`` asks: with one, a damaged
@@ -185,7 +184,7 @@ class Session:
         """Seconds of the whole run so far: earlier starts' time plus this one's."""
         return self.earlier_wall_clock + time.perf_counter() - self.started
 
-    def save(self, state: ArrayPytree, hparams: ArrayPytree, chunk: int) -> None:
+    def save(self, state: TrainState, hparams: Hyperparams, chunk: int) -> None:
         """Checkpoint the real ``[configs, seeds]`` runs (no padding: a checkpoint resumes on
         any number of devices)."""
         if self.saved_step == self.step:
@@ -225,7 +224,7 @@ class Session:
 
 
 def compile_chunk(
-    plan: Plan, state: ArrayPytree, hparams: ArrayPytree, notify: Callable[[str], None]
+    plan: Plan, state: TrainState, hparams: Hyperparams, notify: Callable[[str], None]
 ) -> Callable:
     """Compile ahead of the first chunk so compile time is reported as such."""
     notify("compiling the train chunk ...")
@@ -235,7 +234,7 @@ def compile_chunk(
     return compiled
 
 
-def _train(session: Session, start: Start, stop: GracefulStop, progress: Progress) -> Any:
+def _train(session: Session, start: Start, stop: GracefulStop, progress: Progress) -> TrainState:
     """The chunk loop; returns the last state (checkpointed)."""
     spec, plan, state = session.spec, session.plan, start.state
     if start.chunk >= plan.chunks:
@@ -281,7 +280,7 @@ def _train(session: Session, start: Start, stop: GracefulStop, progress: Progres
     return state
 
 
-def _best(plan: Plan, state: ArrayPytree, session: Session) -> ArrayPytree:
+def _best(plan: Plan, state: TrainState, session: Session) -> dict[str, object]:
     """The policy parts of every run, for the best policies (a gather: every process)."""
     with processes.waiting("the best policies"):
         return plan.program.gather(policy_part(state, session.best.fields))
@@ -338,7 +337,7 @@ def _render_gif(spec: RunSpec, notify: Callable[[str], None]) -> str | None:
 def _finish(
     spec: RunSpec,
     session: Session,
-    state: ArrayPytree,
+    state: TrainState,
     stopped: bool,
     notify: Callable[[str], None],
 ) -> RunResult:

@@ -4,16 +4,11 @@ from __future__ import annotations
 
 import dataclasses
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
-
-from flax.typing import ArrayPytree
+from typing import Any
 
 from rl_jax.run import plots
 from rl_jax.run.run_dir import identity
-from rl_jax.training.algorithm import Algorithm
-
-if TYPE_CHECKING:
-    from _typeshed import DataclassInstance
+from rl_jax.training.algorithm import Algorithm, Config, Hyperparams, TrainState
 
 
 @dataclasses.dataclass(frozen=True)
@@ -22,8 +17,8 @@ class RunSpec:
 
     algorithm: Algorithm
     env_id: str
-    config: DataclassInstance
-    hparams: tuple[Any, ...]
+    config: Config
+    hparams: tuple[Hyperparams, ...]
     out: Path
     seeds: int = 1
     total_steps: int = 100_000
@@ -71,7 +66,7 @@ class RunResult:
     run_dir: Path
     step: int  # env steps per seed reached
     stopped: bool  # True when a signal ended the run before total_steps
-    state: ArrayPytree  # the final train state, leaves [configs, seeds, ...]
+    state: TrainState  # the final train state, leaves [configs, seeds, ...]
     results: list[plots.FinalResult]
     wall_clock: float  # seconds over all sessions of the run, compilation included
     gif_error: str | None = None

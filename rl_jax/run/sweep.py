@@ -29,6 +29,7 @@ from rl_jax.errors import (
 from rl_jax.run import cli, distributed, flags, learners, plots, processes, runner
 from rl_jax.run.metrics import METRICS_FILE, read_rows
 from rl_jax.training import params
+from rl_jax.training.algorithm import Algorithm
 
 if TYPE_CHECKING:
     from _typeshed import DataclassInstance
@@ -133,7 +134,7 @@ def build_specs(
     args = parser.parse_args(rest)
     out = args.resume or args.out or default_out(env_id, algorithm.name)
     args.resume, args.out = None, None
-    named = [shlex.quote(arg) for arg in learners.cli_args(algorithm)]
+    named = learners.cli_args(algorithm)
     names = (config_names, hparam_names)
     base = cli.build_spec(args, algorithm, env_id, cli.Defaults(), names, [], recipe)
     axes = [parse_axis(spec, base.config, base.hparams[0]) for spec in sweep_args.grid]
@@ -155,8 +156,8 @@ def build_specs(
                 out=Path(out) / label,
                 resume=resume and (Path(out) / label / "config.json").is_file(),
                 grid_fields=tuple(axis.fields[0] for axis in dynamic),
-                command=" ".join([Path(sys.executable).name, *sys.argv]),
-                resume_command=" ".join(["python experiments/sweep.py --resume", str(out), *named]),
+                command=shlex.join([*cli.program(), *sys.argv[1:]]),
+                resume_command=shlex.join([*cli.program(), "--resume", str(out), *named]),
                 throughput=None,
             )
         )
@@ -164,7 +165,7 @@ def build_specs(
     return specs, labels, Path(out), sweep_args
 
 
-def _resumed_learner(saved: dict[str, Any], named: str | None, out: Path) -> Any:
+def _resumed_learner(saved: dict[str, Any], named: str | None, out: Path) -> Algorithm:
     """The learner of a resumed sweep: ``--algo`` if given (checked against the sweep's), else
     the sweep's own if it is built in; a learner of the user's own is never imported from the
     record (``rl_jax.run.learners``). Each shape's run directory is checked again on resume."""

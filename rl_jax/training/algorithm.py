@@ -22,13 +22,14 @@ delayed updates) with real branches under vmap; every other leaf gains the ``[H,
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Callable
-from typing import Any, NamedTuple, Protocol, Self, TypeAlias
+from typing import Any, ClassVar, NamedTuple, Protocol, Self, TypeAlias
 
 import jax
 
 import envs
-from rl_jax.training.recipes import Recipe, Recipes
+from rl_jax.training.recipes import Recipe, Recipes, Setting
 
 PRNGKey = jax.Array
 
@@ -49,6 +50,7 @@ class ChunkMetrics(NamedTuple):
 class Config(Protocol):
     """What the run machinery reads of any learner's static ``Config`` (a frozen dataclass)."""
 
+    __dataclass_fields__: ClassVar[dict[str, dataclasses.Field[Any]]]  # a dataclass: its fields
     env_id: str
     num_envs: int
     iterations_per_chunk: int
@@ -57,13 +59,23 @@ class Config(Protocol):
 class Hyperparams(Protocol):
     """What it asks of any learner's ``Hyperparams`` (a ``flax.struct`` dataclass of arrays)."""
 
+    __dataclass_fields__: ClassVar[dict[str, dataclasses.Field[Any]]]  # a dataclass: its fields
+
     def as_arrays(self) -> Self: ...
 
     def to_dict(self) -> dict[str, Any]: ...
 
 
-#: The pytree a learner keeps everything of one run in (``init`` makes it).
-TrainState: TypeAlias = Any
+class DataclassState(Protocol):
+    """A train state that is a dataclass (``flax.struct.dataclass``)."""
+
+    __dataclass_fields__: ClassVar[dict[str, dataclasses.Field[Any]]]
+
+
+#: The pytree a learner keeps everything of one run in (``init`` makes it): a dataclass or a
+#: NamedTuple of arrays. The run machinery does not read its fields, except an optional
+#: ``clock`` (dataclass states; see above) and the ``policy_fields`` of the best policy.
+TrainState: TypeAlias = DataclassState | tuple[object, ...]
 #: ``obs -> action`` of a deterministic policy.
 PolicyFn: TypeAlias = Callable[[jax.Array], jax.Array]
 
@@ -180,12 +192,17 @@ class RecipeBook(OptionalHooks):
     config_type: type
     hparams_type: type
 
-    def default_config(self, env_id: str, recipe: str | None = None, **overrides: Any) -> Config:
+    def default_config(
+        self, env_id: str, recipe: str | None = None, **overrides: Setting
+    ) -> Config:
         values = {**self.recipe(env_id, recipe).config, **overrides}
         return self.config_type(env_id=env_id, **values)
 
     def default_hyperparams(
-        self, env_id: str | None = None, recipe: str | None = None, **overrides: Any
+        self,
+        env_id: str | None = None,
+        recipe: str | None = None,
+        **overrides: Setting | jax.Array,
     ) -> Hyperparams:
         values = self.recipe(env_id, recipe).hparams if env_id else {}
         return self.hparams_type(**{**values, **overrides}).as_arrays()

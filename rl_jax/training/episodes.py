@@ -13,7 +13,6 @@ from typing import Protocol
 
 import jax
 import jax.numpy as jnp
-from flax.typing import ArrayPytree
 
 import envs
 from rl_jax.training.replay import Transition
@@ -60,7 +59,7 @@ def example_transition(env: envs.Environment) -> Transition:
 
 
 def evaluate(
-    act: Callable[..., jax.Array], agent: ArrayPytree, config: EnvConfig, key: jax.Array
+    act: Callable[..., jax.Array], agent: object, config: EnvConfig, key: jax.Array
 ) -> jax.Array:
     """Mean undiscounted return of ``num_eval_envs`` episodes of the deterministic policy
     ``act(agent, obs [N, ...], config)`` on fresh env copies (no exploration noise, no

@@ -34,7 +34,7 @@ appended and the usual MLP follows.
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from typing import Any, TypeAlias
 
 import flax.linen as nn
@@ -54,6 +54,22 @@ ACTIVATIONS = {"relu": (nn.relu, 2.0**0.5), "tanh": (nn.tanh, 5.0 / 3.0), "elu":
 NORMS = ("none", "layer", "batch_renorm")
 #: the torso of actor and critic: plain MLP or SimBa's residual blocks
 ARCHITECTURES = ("mlp", "simba")
+
+
+def check_architecture(
+    network: str, hidden: Mapping[str, tuple[int, ...]], norms: tuple[str, ...]
+) -> None:
+    """``ValueError`` unless ``network`` is one of ``ARCHITECTURES``. SimBa's residual blocks
+    keep one width, so each of ``hidden`` (setting name -> hidden widths) must have one, and
+    bring their own LayerNorms, so each of ``norms`` must be "none"."""
+    if network not in ARCHITECTURES:
+        raise ValueError(f"network must be one of {ARCHITECTURES}")
+    if network == "simba":
+        for name, widths in hidden.items():
+            if not widths or len(set(widths)) != 1:
+                raise ValueError(f"network='simba' needs {name} of one width (w, w, ...)")
+        if any(norm != "none" for norm in norms):
+            raise ValueError("network='simba' has its own LayerNorms: leave the norms 'none'")
 
 
 def dense(features: int, fan_in: int, initializer: str, gain: float, dtype: DTypeLike) -> nn.Dense:
@@ -365,7 +381,7 @@ class StochasticPolicy(nn.Module):
             out["value"] = head(1)(x)[..., 0]
         return out
 
-    def _std(self, x: jax.Array, head: Any) -> jax.Array:
+    def _std(self, x: jax.Array, head: Callable[[int], nn.Module]) -> jax.Array:
         if self.std_mode == "state":
             return nn.softplus(head(self.action_dim)(x)) + self.std_floor
         if self.std_mode != "param":

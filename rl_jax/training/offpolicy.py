@@ -21,7 +21,7 @@ from __future__ import annotations
 import dataclasses
 import json
 from collections.abc import Callable
-from typing import TYPE_CHECKING, Any, NamedTuple
+from typing import TYPE_CHECKING, Any, Generic, NamedTuple, TypeVar
 
 import jax
 import jax.numpy as jnp
@@ -29,8 +29,9 @@ from flax import struct
 from flax.typing import ArrayPytree
 
 import envs
+from envs.core.wrappers import StatisticsState
 from rl_jax.training import replay
-from rl_jax.training.algorithm import ChunkMetrics
+from rl_jax.training.algorithm import ChunkMetrics, Hyperparams, PolicyFn, RecipeBook
 from rl_jax.training.episodes import evaluate, example_transition, make_eval_env, make_train_env
 from rl_jax.training.replay import ReplayBuffer, Transition
 
@@ -115,7 +116,7 @@ class TrainState:
 
     agent: ArrayPytree  # the learner's parameters, targets and optimizer states
     buffer: ReplayBuffer  # of Transition, leaves [rows, num_envs, ...]
-    env_state: ArrayPytree  # [num_envs, ...]
+    env_state: StatisticsState  # [num_envs, ...] of the train env (make_train_env)
     obs: jax.Array  # [num_envs, *obs_shape], the observation the next action answers
     noise: jax.Array  # [num_envs, *action_shape] float32, exploration state (see Learner)
     key: PRNGKey
@@ -124,11 +125,13 @@ class TrainState:
     #                           that ended any (NaN until one does)
 
 
-def uniform_buffer(example: Transition, config: OffPolicyConfig) -> ReplayBuffer:
+def uniform_buffer(example: Transition, config: OffPolicyConfig) -> ReplayBuffer[Transition]:
     return replay.init(example, config.buffer_size, config.num_envs)
 
 
-def add_uniform(buffer: ReplayBuffer, transitions: Transition, config, hparams) -> ReplayBuffer:
+def add_uniform(
+    buffer: ReplayBuffer[Transition], transitions: Transition, config, hparams
+) -> ReplayBuffer[Transition]:
     return replay.add(buffer, transitions)
 
 
@@ -313,3 +316,33 @@ def train_chunk(
         extra=jax.tree.map(jnp.nanmean, metrics),
     )
     return state, chunk_metrics
+
+
+# ---- the Algorithm object -----------------------------------------------------------------------
+#: the learner's own Config
+ConfigT = TypeVar("ConfigT", bound=OffPolicyConfig)
+
+
+class OffPolicyAlgorithm(RecipeBook, Generic[ConfigT]):
+    """What every learner on this loop offers the run machinery beyond its settings: ``init``,
+    ``train_chunk`` and a ``policy`` that acts with ``learner.act`` on a seed's agent.
+
+    ``ConfigT`` is the learner's ``Config``. Subclasses set ``learner`` besides ``RecipeBook``'s
+    ``name``, ``config_type``, ``hparams_type`` and ``recipes``."""
+
+    learner: Learner
+
+    def init(self, key: PRNGKey, config: ConfigT, hparams: Hyperparams) -> TrainState:
+        """A fresh ``TrainState`` for one seed and one hyperparameter set."""
+        return init(self.learner, key, config, hparams)
+
+    def train_chunk(
+        self, state: TrainState, config: ConfigT, hparams: Hyperparams
+    ) -> tuple[TrainState, ChunkMetrics]:
+        """``config.iterations_per_chunk`` iterations, then one evaluation. Pure."""
+        return train_chunk(self.learner, state, config, hparams)
+
+    def policy(self, state: TrainState, config: ConfigT) -> PolicyFn:
+        """``obs -> action`` (env units) of the deterministic policy of one seed's state."""
+        agent, act = state.agent, self.learner.act
+        return lambda obs: act(agent, obs, config)

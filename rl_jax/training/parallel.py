@@ -26,30 +26,30 @@ Usage::
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Callable, Sequence
-from typing import TYPE_CHECKING, Any
+from typing import Any, TypeAlias, TypeVar
 
 import jax
 import jax.numpy as jnp
 import numpy as np
-from flax.typing import ArrayPytree
 from jax.experimental import multihost_utils
 from jax.sharding import Mesh, NamedSharding, PartitionSpec
 
-from rl_jax.training.algorithm import Algorithm, ChunkMetrics
+from rl_jax.training.algorithm import Algorithm, ChunkMetrics, Config, Hyperparams, TrainState
 from rl_jax.training.device_layout import AXES, plan_layout
 
-if TYPE_CHECKING:
-    from _typeshed import DataclassInstance
-
-_PROGRAMS: dict[Any, tuple[Any, Any]] = {}  # see Program._build
-_COMPILED: dict[Any, Any] = {}  # the chunk compiled ahead of time, per program
+_PROGRAMS: dict[tuple, tuple[jax.stages.Wrapped, jax.stages.Wrapped]] = {}  # see Program._build
+_COMPILED: dict[tuple, jax.stages.Compiled] = {}  # the chunk compiled ahead of time, per program
 SHARED_FIELD = "clock"  # the train-state field kept unbatched and replicated
 
-#: vmap axes of a train state: its structure with 0 at every leaf, ``None`` at the shared clock
-Axes = Any
+#: vmap axes of a train state: the state's own dataclass with 0 at every leaf, ``None`` at the
+#: shared clock
+Axes: TypeAlias = TrainState
+#: a pytree mapped leaf by leaf into one of the same structure
+Tree = TypeVar("Tree")
 #: ``(state, hparams) -> (state, metrics)`` of one run, or of a stack of them
-Chunk = Callable[[ArrayPytree, ArrayPytree], tuple[ArrayPytree, ArrayPytree]]
+Chunk = Callable[[TrainState, Hyperparams], tuple[TrainState, ChunkMetrics]]
 
 
 def seed_keys(seeds: Sequence[int]) -> jax.Array:
@@ -57,15 +57,15 @@ def seed_keys(seeds: Sequence[int]) -> jax.Array:
     return jnp.stack([jax.random.key(int(s)) for s in seeds])
 
 
-def state_axes(state: ArrayPytree) -> Axes:
+def state_axes(state: TrainState) -> Axes:
     """vmap axes for a train state: 0 everywhere, ``None`` for the shared ``clock``."""
     axes = jax.tree.map(lambda _: 0, state)
     if hasattr(axes, SHARED_FIELD):
-        axes = axes.replace(**{SHARED_FIELD: None})
+        axes = dataclasses.replace(axes, **{SHARED_FIELD: None})
     return axes
 
 
-def select(state: ArrayPytree, hparam_index: int, seed_index: int) -> ArrayPytree:
+def select(state: TrainState, hparam_index: int, seed_index: int) -> TrainState:
     """One run's state out of a stacked ``[H, S]`` state."""
     axes = state_axes(state)
     return jax.tree.map(
@@ -76,16 +76,14 @@ def select(state: ArrayPytree, hparam_index: int, seed_index: int) -> ArrayPytre
     )
 
 
-def _specs(axes: Axes) -> Any:
+def _specs(axes: Axes) -> TrainState:
     runs = PartitionSpec(*AXES)
     return jax.tree.map(
         lambda axis: PartitionSpec() if axis is None else runs, axes, is_leaf=lambda x: x is None
     )
 
 
-def map_axes(
-    function: Callable[[int | None, Any], Any], axes: Axes, tree: ArrayPytree
-) -> ArrayPytree:
+def map_axes(function: Callable[[int | None, Any], Any], axes: Axes, tree: Tree) -> Tree:
     """``function(axis, leaf)`` on every leaf of ``tree``; a ``None`` axis (the shared clock)
     covers a whole subtree, so it is handed to each leaf under it."""
     return jax.tree.map(
@@ -125,7 +123,7 @@ def seed_loop(chunk_one: Chunk, axes: Axes, num_seeds: int) -> Chunk:
     torso's matmuls become batched matmuls; ``python -m bench pixel_dqn`` compares the two.
     Compile time grows with the number of seeds."""
 
-    def looped(state: ArrayPytree, hp: ArrayPytree) -> tuple[ArrayPytree, ArrayPytree]:
+    def looped(state: TrainState, hp: Hyperparams) -> tuple[TrainState, ChunkMetrics]:
         outputs = [
             chunk_one(map_axes(lambda axis, leaf, i=i: _take(axis, leaf, i), axes, state), hp)
             for i in range(num_seeds)
@@ -162,7 +160,7 @@ class Program:
     def __init__(
         self,
         algorithm: Algorithm,
-        config: DataclassInstance,
+        config: Config,
         num_hparams: int,
         num_seeds: int,
         devices: Sequence[jax.Device] | None = None,
@@ -177,11 +175,11 @@ class Program:
         used = np.array(devices[: self.layout.devices])
         self.mesh = Mesh(used.reshape(self.layout.hparam_split, self.layout.seed_split), AXES)
         self.multiprocess = any(d.process_index != jax.process_index() for d in used)
-        self._init = None
-        self._chunk = None
-        self._axes = None
+        self._init: jax.stages.Wrapped | None = None
+        self._chunk: jax.stages.Wrapped | None = None
+        self._axes: Axes | None = None
         self._key_impl: str | None = None
-        self._placed_hparams: tuple[ArrayPytree, ArrayPytree] | None = None
+        self._placed_hparams: tuple[Hyperparams, Hyperparams] | None = None
         self._program_key: tuple | None = None
 
     # ---- shapes and placement -------------------------------------------------------------
@@ -197,7 +195,7 @@ class Program:
         """
         return NamedSharding(self.mesh, PartitionSpec(*AXES) if spec is None else spec)
 
-    def axes(self, hparams: ArrayPytree) -> Axes:
+    def axes(self, hparams: Hyperparams) -> Axes:
         """vmap axes of the state (0, or ``None`` for the shared clock)."""
         if self._axes is None:
             one = jax.tree.map(lambda x: jnp.asarray(x[0]), hparams)
@@ -221,12 +219,12 @@ class Program:
             placed = self._put(_pad_edge(array, self.padded), self.sharding())
         return placed if key_impl is None else jax.random.wrap_key_data(placed, impl=key_impl)
 
-    def place(self, state: ArrayPytree, hparams: ArrayPytree) -> ArrayPytree:
+    def place(self, state: TrainState, hparams: Hyperparams) -> TrainState:
         """An ``[H, S]`` state (host or device arrays) padded and put on the mesh."""
         axes = self.axes(hparams)
         return map_axes(self._place_leaf, axes, state)
 
-    def unpad(self, state: ArrayPytree, hparams: ArrayPytree) -> ArrayPytree:
+    def unpad(self, state: TrainState, hparams: Hyperparams) -> TrainState:
         """The ``[H, S]`` runs of a device state, as host arrays (typed keys stay keys)."""
         axes = self.axes(hparams)
         real = (slice(0, self.num_hparams), slice(0, self.num_seeds))
@@ -239,8 +237,9 @@ class Program:
 
         return map_axes(take, axes, state)
 
-    def gather(self, metrics: ChunkMetrics) -> ChunkMetrics:
-        """Host copies of ``[H_padded, S_padded]`` outputs (chunk metrics), cut to ``[H, S]``."""
+    def gather(self, metrics: Tree) -> Tree:
+        """Host copies of ``[H_padded, S_padded]`` outputs (chunk metrics, or any tree of such
+        leaves), cut to ``[H, S]``."""
         real = (slice(0, self.num_hparams), slice(0, self.num_seeds))
         return jax.tree.map(lambda leaf: self._gather_leaf(leaf)[real], metrics)
 
@@ -251,7 +250,7 @@ class Program:
             return np.asarray(multihost_utils.process_allgather(leaf, tiled=True))
         return _host(leaf)
 
-    def template(self, hparams: ArrayPytree) -> ArrayPytree:
+    def template(self, hparams: Hyperparams) -> TrainState:
         """``jax.ShapeDtypeStruct`` tree (with shardings) of the device state: nothing allocated."""
         axes = self.axes(hparams)
         one = jax.tree.map(lambda x: jnp.asarray(x[0]), hparams)
@@ -276,7 +275,7 @@ class Program:
 
     # ---- programs --------------------------------------------------------------------------
 
-    def _wrap(self, function: Callable, in_specs: Any, out_specs: Any) -> Callable:
+    def _wrap(self, function: Callable, in_specs: object, out_specs: object) -> Callable:
         """``shard_map`` over the mesh; on one device the vmapped function as it is (an MJX env
         step under a one-device ``shard_map`` runs many times slower)."""
         if self.layout.devices == 1:
@@ -287,7 +286,7 @@ class Program:
             function, mesh=self.mesh, in_specs=in_specs, out_specs=out_specs, check_vma=False
         )
 
-    def _build(self, hparams: ArrayPytree) -> None:
+    def _build(self, hparams: Hyperparams) -> None:
         """The jitted init and chunk, shared by every ``Program`` of the same algorithm, config
         and layout in this process (a resumed or repeated run does not trace again)."""
         if self._key_impl is None:  # a restored state trains before any init: the default
@@ -306,7 +305,7 @@ class Program:
         self._init, self._chunk = _PROGRAMS[key]
         self._program_key = key
 
-    def _programs(self, hparams: ArrayPytree) -> tuple[Callable, Callable]:
+    def _programs(self, hparams: Hyperparams) -> tuple[jax.stages.Wrapped, jax.stages.Wrapped]:
         algorithm, config = self.algorithm, self.config
         axes = self.axes(hparams)
         state_specs = _specs(axes)
@@ -343,10 +342,10 @@ class Program:
         out_shardings = (self._shardings(state_specs), self.sharding(runs))
         return init, jax.jit(chunk, donate_argnums=0, out_shardings=out_shardings)
 
-    def _shardings(self, specs: Any) -> Any:
+    def _shardings(self, specs: TrainState) -> TrainState:
         return jax.tree.map(self.sharding, specs, is_leaf=lambda x: isinstance(x, PartitionSpec))
 
-    def _placed(self, hparams: ArrayPytree) -> ArrayPytree:
+    def _placed(self, hparams: Hyperparams) -> Hyperparams:
         """``[H]`` hyperparameters padded and put on the mesh (memoized per object)."""
         if self._placed_hparams is None or self._placed_hparams[0] is not hparams:
             sizes = (self.layout.padded_hparams,)
@@ -357,7 +356,7 @@ class Program:
             self._placed_hparams = (hparams, placed)
         return self._placed_hparams[1]
 
-    def init(self, keys: jax.Array, hparams: ArrayPytree) -> ArrayPytree:
+    def init(self, keys: jax.Array, hparams: Hyperparams) -> TrainState:
         """Fresh device state (``[H_padded, S_padded]`` leaves) from ``[S]`` keys and
         ``[H]``-stacked hyperparameters."""
         self._check(keys.shape[0], hparams)
@@ -369,30 +368,32 @@ class Program:
         return self._init(placed_keys, self._placed(hparams))
 
     def train_chunk(
-        self, state: ArrayPytree, hparams: ArrayPytree
-    ) -> tuple[ArrayPytree, ChunkMetrics]:
+        self, state: TrainState, hparams: Hyperparams
+    ) -> tuple[TrainState, ChunkMetrics]:
         """One chunk for every run (metrics leaves ``[H_padded, S_padded]``; ``gather`` cuts
         them). ``state`` is donated: use the returned one."""
         if self._chunk is None:
             self._build(hparams)
         return self._chunk(state, self._placed(hparams))
 
-    def compile(self, state: ArrayPytree, hparams: ArrayPytree) -> Chunk:
+    def compile(self, state: TrainState, hparams: Hyperparams) -> Chunk:
         """The chunk compiled ahead of time (to time compilation apart from training):
         ``compiled(state, hparams) -> (state, metrics)``."""
         if self._chunk is None:
             self._build(hparams)
-        if self._program_key not in _COMPILED:
+        key = self._program_key
+        assert key is not None  # set by _build
+        if key not in _COMPILED:
             lowered = self._chunk.lower(state, self._placed(hparams))
-            _COMPILED[self._program_key] = lowered.compile()
-        compiled = _COMPILED[self._program_key]
+            _COMPILED[key] = lowered.compile()
+        compiled = _COMPILED[key]
         return lambda state, hparams: compiled(state, self._placed(hparams))
 
-    def select(self, state: ArrayPytree, hparam_index: int, seed_index: int) -> ArrayPytree:
+    def select(self, state: TrainState, hparam_index: int, seed_index: int) -> TrainState:
         """One run's state (device or host state)."""
         return select(state, hparam_index, seed_index)
 
-    def _check(self, num_keys: int, hparams: ArrayPytree) -> None:
+    def _check(self, num_keys: int, hparams: Hyperparams) -> None:
         sizes = {np.shape(leaf)[0] for leaf in jax.tree.leaves(hparams)}
         if num_keys != self.num_seeds or sizes != {self.num_hparams}:
             raise ValueError(

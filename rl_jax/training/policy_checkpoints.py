@@ -12,19 +12,23 @@ from TD7's one env and deferred updates: ``rl_jax.agents.td7``'s docstring.
 
 from __future__ import annotations
 
+from typing import Generic, TypeVar
+
 import jax
 import jax.numpy as jnp
 from flax import struct
-from flax.typing import ArrayPytree
 
 #: TD7's start values: a checkpoint score below any return, an assessment minimum above any.
 NO_SCORE, NO_EPISODE = -1e8, 1e8
 
+#: the parameters the policy acts with (DQN's network; TD7's actor and encoder)
+PolicyT = TypeVar("PolicyT")
+
 
 @struct.dataclass
-class PolicyCheckpoint:
-    best: ArrayPytree  # the checkpoint: what evaluation, best/ and loaded policies use
-    assessed: ArrayPytree  # the frozen copy acting in the training envs during an assessment
+class PolicyCheckpoint(Generic[PolicyT]):
+    best: PolicyT  # the checkpoint: what evaluation, best/ and loaded policies use
+    assessed: PolicyT  # the frozen copy acting in the training envs during an assessment
     score: jax.Array  # [] float32, the lowest return of the checkpoint's assessment
     lowest: jax.Array  # [] float32, the lowest return so far in this assessment
     episodes: jax.Array  # [] int32, episodes counted so far in this assessment
@@ -43,7 +47,7 @@ def assess_episodes(lowest, episodes, score, returns, counted, required):
     return lowest, episodes, passed, jnp.logical_or(failed, passed)
 
 
-def init(policy: ArrayPytree, num_envs: int, learning_starts: int) -> PolicyCheckpoint:
+def init(policy: PolicyT, num_envs: int, learning_starts: int) -> PolicyCheckpoint[PolicyT]:
     """The initial policy as checkpoint and as assessed copy; envs count from their first
     episode that starts after the random warm-up."""
     return PolicyCheckpoint(
@@ -56,13 +60,19 @@ def init(policy: ArrayPytree, num_envs: int, learning_starts: int) -> PolicyChec
     )
 
 
-def _where(flag: jax.Array, a: ArrayPytree, b: ArrayPytree) -> ArrayPytree:
+def _where(flag: jax.Array, a: PolicyT, b: PolicyT) -> PolicyT:
     return jax.tree.map(lambda x, y: jnp.where(flag, x, y), a, b)
 
 
 def assess(
-    ckpt: PolicyCheckpoint, current: ArrayPytree, episode_return, done, clock, config, reset_weight
-) -> PolicyCheckpoint:
+    ckpt: PolicyCheckpoint[PolicyT],
+    current: PolicyT,
+    episode_return,
+    done,
+    clock,
+    config,
+    reset_weight,
+) -> PolicyCheckpoint[PolicyT]:
     """One env step of TD7's checkpoint schedule: count the episodes that ended, and when an
     assessment ends, keep its copy if it passed and take ``current`` as the new copy. Until an
     assessment's first episode begins (no env counting: after the warm-up, or while every env

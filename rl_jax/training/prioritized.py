@@ -20,23 +20,23 @@ update, which dominates with buffers of 10^5-10^6 transitions.
 from __future__ import annotations
 
 from collections.abc import Callable
+from typing import Generic
 
 import jax
 import jax.numpy as jnp
 from flax import struct
-from flax.typing import ArrayPytree
 
 from rl_jax.training import replay
-from rl_jax.training.replay import ReplayBuffer
+from rl_jax.training.replay import Item, ReplayBuffer
 
 
 @struct.dataclass
-class PrioritizedBuffer:
+class PrioritizedBuffer(Generic[Item]):
     """A replay buffer with a sum tree and a min tree over the priorities, for proportional
     prioritized sampling.
     """
 
-    buffer: ReplayBuffer  # the transitions, leaves [rows, width, ...]
+    buffer: ReplayBuffer[Item]  # the transitions, leaves [rows, width, ...]
     sums: jax.Array  # [2 * leaves] float32: p^alpha at leaves, subtree sums above (node 0 unused)
     mins: jax.Array  # [2 * leaves] float32: subtree minima of p^alpha, +inf where nothing stored
     max_priority: jax.Array  # [] float32, the largest priority (before ^alpha) given so far
@@ -61,7 +61,7 @@ def tree_leaves(capacity: int) -> int:
     return 1 << max(0, capacity - 1).bit_length()
 
 
-def init(example: ArrayPytree, capacity: int, width: int) -> PrioritizedBuffer:
+def init(example: Item, capacity: int, width: int) -> PrioritizedBuffer[Item]:
     """An empty prioritized buffer (see ``rl_jax.training.replay.init`` for ``example`` and
     ``width``)."""
     buffer = replay.init(example, capacity, width)
@@ -136,7 +136,7 @@ def _set_priorities(prioritized: PrioritizedBuffer, slots, powered) -> Prioritiz
     )
 
 
-def add(prioritized: PrioritizedBuffer, batch: ArrayPytree, alpha) -> PrioritizedBuffer:
+def add(prioritized: PrioritizedBuffer[Item], batch: Item, alpha) -> PrioritizedBuffer[Item]:
     """Write one row (``rl_jax.training.replay.add``) with the largest priority so far."""
     slots = _row_slots(prioritized, prioritized.buffer.position)
     prioritized = prioritized.replace(buffer=replay.add(prioritized.buffer, batch))
@@ -184,7 +184,7 @@ def reset_max_priority(prioritized: PrioritizedBuffer, alpha) -> PrioritizedBuff
     return prioritized.replace(max_priority=powered ** (1.0 / alpha))
 
 
-def nbytes(example: ArrayPytree, capacity: int, width: int) -> int:
+def nbytes(example: object, capacity: int, width: int) -> int:
     """Memory of the transitions and both trees, computed without allocating them."""
     leaves = tree_leaves(replay.rows_for(capacity, width) * width)
     return replay.nbytes(example, capacity, width) + 2 * 2 * leaves * 4 + 4

@@ -22,9 +22,12 @@ from __future__ import annotations
 
 import dataclasses
 from collections.abc import Mapping
-from typing import Any
+from typing import TypeAlias
 
 DEFAULT = "default"
+
+#: What a recipe sets a config field or a hyperparameter to.
+Setting: TypeAlias = "bool | int | float | str | None | tuple[Setting, ...]"
 
 
 @dataclasses.dataclass(frozen=True)
@@ -33,8 +36,8 @@ class Recipe:
 
     name: str
     about: str  # one line, for --help and the docs
-    config: Mapping[str, Any] = dataclasses.field(default_factory=dict)
-    hparams: Mapping[str, Any] = dataclasses.field(default_factory=dict)
+    config: Mapping[str, Setting] = dataclasses.field(default_factory=dict)
+    hparams: Mapping[str, Setting] = dataclasses.field(default_factory=dict)
     envs: tuple[str, ...] = ()  # the envs it is written for; () any env
     total_steps: int | None = None  # a script's default budget (env steps per seed) under it
     # (env steps/s per seed, seeds) measured with it, for a run plan's time estimate

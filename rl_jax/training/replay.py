@@ -12,12 +12,11 @@ The buffer is generic over the stored pytree; off-policy learners store a ``Tran
 from __future__ import annotations
 
 import math
-from typing import NamedTuple
+from typing import Generic, NamedTuple, TypeVar
 
 import jax
 import jax.numpy as jnp
 from flax import struct
-from flax.typing import ArrayPytree
 
 
 class Transition(NamedTuple):
@@ -32,9 +31,13 @@ class Transition(NamedTuple):
     truncated: jax.Array  # [] bool: the time limit cut the episode; next_obs still has a value
 
 
+#: the stored pytree (one item, no batch axis): a ``Transition`` for the off-policy learners
+Item = TypeVar("Item")
+
+
 @struct.dataclass
-class ReplayBuffer:
-    data: ArrayPytree  # leaves [rows, width, ...]
+class ReplayBuffer(Generic[Item]):
+    data: Item  # leaves [rows, width, ...]
     position: jax.Array  # [] int32, the row ``add`` writes next
     rows_filled: jax.Array  # [] int32, rows holding data (stops growing at ``rows``)
 
@@ -63,7 +66,7 @@ def rows_for(capacity: int, width: int) -> int:
     return max(1, math.ceil(capacity / width))
 
 
-def init(example: ArrayPytree, capacity: int, width: int) -> ReplayBuffer:
+def init(example: Item, capacity: int, width: int) -> ReplayBuffer[Item]:
     """An empty buffer for at least ``capacity`` items shaped like ``example`` (one item, no batch
     axis), filled ``width`` items at a time."""
     rows = rows_for(capacity, width)
@@ -73,7 +76,7 @@ def init(example: ArrayPytree, capacity: int, width: int) -> ReplayBuffer:
     return ReplayBuffer(data=data, position=jnp.int32(0), rows_filled=jnp.int32(0))
 
 
-def nbytes(example: ArrayPytree, capacity: int, width: int) -> int:
+def nbytes(example: object, capacity: int, width: int) -> int:
     """Memory the buffer's storage takes, computed without allocating it."""
     rows = rows_for(capacity, width)
     per_item = sum(
@@ -82,7 +85,7 @@ def nbytes(example: ArrayPytree, capacity: int, width: int) -> int:
     return rows * width * per_item
 
 
-def add(buffer: ReplayBuffer, batch: ArrayPytree) -> ReplayBuffer:
+def add(buffer: ReplayBuffer[Item], batch: Item) -> ReplayBuffer[Item]:
     """Write one row: ``batch`` has the stored pytree's structure with leaves ``[width, ...]``."""
     data = jax.tree.map(
         lambda stored, new: jax.lax.dynamic_update_index_in_dim(
@@ -106,12 +109,12 @@ def sample_indices(buffer: ReplayBuffer, key: jax.Array, batch_size: int):
     return flat // buffer.width, flat % buffer.width
 
 
-def gather(buffer: ReplayBuffer, rows: jax.Array, columns: jax.Array) -> ArrayPytree:
+def gather(buffer: ReplayBuffer[Item], rows: jax.Array, columns: jax.Array) -> Item:
     """The stored items at ``(rows, columns)``; leaves ``[len(rows), ...]``."""
     return jax.tree.map(lambda stored: stored[rows, columns], buffer.data)
 
 
-def sample(buffer: ReplayBuffer, key: jax.Array, batch_size: int) -> ArrayPytree:
+def sample(buffer: ReplayBuffer[Item], key: jax.Array, batch_size: int) -> Item:
     """A uniform batch of ``batch_size`` stored items."""
     return gather(buffer, *sample_indices(buffer, key, batch_size))
 

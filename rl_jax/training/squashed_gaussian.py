@@ -18,11 +18,11 @@ target entropy ``-|A|`` is stated for actions in (-1, 1). The deterministic poli
 from __future__ import annotations
 
 import math
-from typing import Any
 
 import flax.linen as nn
 import jax
 import jax.numpy as jnp
+from jax.typing import ArrayLike, DTypeLike
 
 from rl_jax.training import networks
 
@@ -67,7 +67,7 @@ def entropy_estimate(log_pi: jax.Array) -> jax.Array:
     return -jnp.mean(log_pi)
 
 
-def rescale(a: jax.Array, low: Any, high: Any) -> jax.Array:
+def rescale(a: jax.Array, low: ArrayLike, high: ArrayLike) -> jax.Array:
     """``a [..., A]`` in [-1, 1] stretched onto ``[low, high]`` (each ``[A]``)."""
     shape = (1,) * (a.ndim - 1) + (-1,)
     low = jnp.reshape(jnp.asarray(low, a.dtype), shape)
@@ -85,7 +85,7 @@ class GaussianActor(nn.Module):
     hidden: tuple[int, ...]
     action_dim: int
     initializer: str = "fan_in_uniform"
-    dtype: Any = jnp.float32
+    dtype: DTypeLike = jnp.float32
     activation: str = "relu"
     norm: str = "none"  # see networks.MLP
     architecture: str = "mlp"  # or "simba"
