@@ -29,8 +29,9 @@ import subprocess
 import sys
 import threading
 import time
+import types
 from pathlib import Path
-from typing import IO, Any
+from typing import IO
 
 from rl_jax.errors import OneLineParser, UsageError, exit_now, guard, positive_int
 
@@ -131,7 +132,7 @@ class LocalJob:
             if line.startswith(ERROR_PREFIX):
                 self.errors[rank].append(line.rstrip("\n"))
 
-    def forward(self, signum: int, frame: Any = None) -> None:
+    def forward(self, signum: int, frame: types.FrameType | None = None) -> None:
         """Pass a signal on to every process still running."""
         for process in self.processes:
             if process.poll() is None:
@@ -208,7 +209,7 @@ class ClusterCommand:
             raise RuntimeError(f"{self.command[0]} exited with status {self._child.returncode}")
         return 0
 
-    def checkpoint(self, *args: Any, **kwargs: Any) -> Any:
+    def checkpoint(self, *args: object, **kwargs: object) -> object:
         """Stop the run after its chunk (it checkpoints), then requeue the same command."""
         submitit = importlib.import_module("submitit")
         child = self._child
@@ -218,7 +219,7 @@ class ClusterCommand:
                 time.sleep(1.0)
         return submitit.helpers.DelayedSubmission(ClusterCommand(self.command))
 
-    def __getstate__(self) -> dict[str, Any]:
+    def __getstate__(self) -> dict[str, object]:
         return {"command": self.command, "_child": None}
 
 
@@ -234,7 +235,7 @@ def submit(command: list[str], args: argparse.Namespace) -> int:
             "--slurm needs submitit, which is not installed: pip install 'rl_jax[cluster]'"
         ) from None
     executor = submitit.AutoExecutor(folder=str(args.logs))
-    parameters: dict[str, Any] = {
+    parameters: dict[str, int | str] = {
         "nodes": args.nodes,
         "tasks_per_node": args.tasks_per_node,
         "timeout_min": args.time,

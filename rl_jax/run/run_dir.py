@@ -20,6 +20,7 @@ import sys
 import tempfile
 import time
 import types
+from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -28,6 +29,7 @@ import jax
 from rl_jax.errors import RunError
 from rl_jax.run.checkpoint import library_versions
 from rl_jax.training import params
+from rl_jax.training.algorithm import Config, Hyperparams
 
 CONFIG_FILE = "config.json"
 CHECKPOINT_DIR = "checkpoints"
@@ -38,7 +40,7 @@ RESULTS_FILE = "results.txt"
 # ---- identity -------------------------------------------------------------------------------
 
 
-def algorithm_reference(algorithm: Any) -> str:
+def algorithm_reference(algorithm: object) -> str:
     """An importable reference to the algorithm: ``module`` or ``module:attribute``."""
     if isinstance(algorithm, types.ModuleType):
         return algorithm.__name__
@@ -58,7 +60,9 @@ MOVED_MODULES = {
 }
 
 
-def load_algorithm(reference: str) -> Any:
+def load_algorithm(reference: str) -> object:
+    """The module or module-level object that ``reference`` names; ``RunError`` if it cannot be
+    imported."""
     module_name, _, attribute = reference.partition(":")
     module_name = MOVED_MODULES.get(module_name, module_name)
     try:
@@ -71,8 +75,8 @@ def load_algorithm(reference: str) -> Any:
 def identity(
     algorithm_name: str,
     env_id: str,
-    config: Any,
-    hparams_list: list[Any],
+    config: Config,
+    hparams_list: Sequence[Hyperparams],
     seeds: int,
     base_seed: int,
 ) -> dict[str, Any]:
@@ -88,7 +92,7 @@ def identity(
     }
 
 
-def identity_hash(run_identity: dict[str, Any]) -> str:
+def identity_hash(run_identity: Mapping[str, object]) -> str:
     canonical = json.dumps(run_identity, sort_keys=True, separators=(",", ":"))
     return hashlib.sha256(canonical.encode()).hexdigest()[:16]
 
@@ -137,7 +141,7 @@ def git_commit() -> str | None:
     return (commit + ("+dirty" if dirty else "")) or None
 
 
-def environment_record() -> dict[str, Any]:
+def environment_record() -> dict[str, object]:
     """Versions and machine facts needed to reproduce a run."""
     return {
         "versions": {"python": platform.python_version(), **library_versions()},
@@ -148,7 +152,7 @@ def environment_record() -> dict[str, Any]:
     }
 
 
-def write_json_atomic(path: Path, payload: dict[str, Any]) -> None:
+def write_json_atomic(path: Path, payload: Mapping[str, object]) -> None:
     """Write JSON through a temporary file and a rename, so a crash never leaves half a file."""
     temporary = path.with_name(path.name + ".tmp")
     temporary.write_text(json.dumps(payload, indent=2, sort_keys=False) + "\n")
