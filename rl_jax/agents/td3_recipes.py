@@ -7,43 +7,36 @@ from __future__ import annotations
 
 from rl_jax.training.recipes import Recipe, Recipes, Setting
 
-# Per-env recipes on top of the paper's defaults (the slow tests check they learn). Small networks
-# and 4 envs with 4 updates per iteration (one update per env step, as in the paper) suffice for
-# the classic envs, at a small fraction of a 256 x 256 update's FLOPs.
-RECIPES: dict[str, dict[str, Setting]] = {
-    "rl_jax/Pendulum-v1": {
-        "num_envs": 4,
-        "updates_per_iteration": 4,
-        "iterations_per_chunk": 250,
-        "learning_starts": 1000,
-        "actor_hidden": (64, 64),
-        "critic_hidden": (64, 64),
-    },
+# Small networks and 4 envs with 4 updates per iteration (one update per env step, as in the
+# paper) suffice for the classic envs, at a small fraction of a 256 x 256 update's FLOPs.
+PENDULUM_CONFIG: dict[str, Setting] = {
+    "num_envs": 4,
+    "updates_per_iteration": 4,
+    "iterations_per_chunk": 250,
+    "learning_starts": 1000,
+    "actor_hidden": (64, 64),
+    "critic_hidden": (64, 64),
 }
-# The rocket: the Pendulum loop with 5,000-step chunks (10 episodes) and a short warm-up.
-RECIPES["rl_jax/Rocket-v0"] = {
-    **RECIPES["rl_jax/Pendulum-v1"],
+# The rocket: the Pendulum loop with 5,000-step chunks (10 episodes) and a short warm-up. The
+# settle variant (same dynamics, reward for resting inside the 0.01 box) starts from the same loop
+# and exploration.
+ROCKET_CONFIG: dict[str, Setting] = {
+    **PENDULUM_CONFIG,
     "iterations_per_chunk": 1250,
     "learning_starts": 2000,
 }
-# The settle variant (same dynamics, reward for resting inside the 0.01 box) starts from the same
-# loop and exploration.
-RECIPES["rl_jax/RocketSettle-v0"] = RECIPES["rl_jax/Rocket-v0"]
-HPARAM_RECIPES: dict[str, dict[str, float]] = {
-    "rl_jax/Rocket-v0": {
-        # The reward pays 1 / (v^2 + 1) while approaching, so creeping in is almost as good as
-        # arriving. Scoring clipped PD laws u = -kp x - kd v from (1, 0) by discounted return:
-        # at gamma 0.99 the best (kp 5, kd 10) never gets inside |x|, |v| < 0.05 in 500 steps;
-        # at 0.995 the best (kp 10, kd 10) is inside from step 323 and slow gains lose ~1%.
-        "gamma": 0.995,
-        # dt = 0.01 s: independent noise of std 0.1 barely moves the velocity before it averages
-        # out. AR(1) noise with rho 0.98 (~0.5 s memory) at std 0.5 pushes for long enough to
-        # visit overshoots and reversals.
-        "exploration_correlation": 0.98,
-        "exploration_noise": 0.5,
-    },
+ROCKET_HPARAMS: dict[str, float] = {
+    # The reward pays 1 / (v^2 + 1) while approaching, so creeping in is almost as good as
+    # arriving. Scoring clipped PD laws u = -kp x - kd v from (1, 0) by discounted return:
+    # at gamma 0.99 the best (kp 5, kd 10) never gets inside |x|, |v| < 0.05 in 500 steps;
+    # at 0.995 the best (kp 10, kd 10) is inside from step 323 and slow gains lose ~1%.
+    "gamma": 0.995,
+    # dt = 0.01 s: independent noise of std 0.1 barely moves the velocity before it averages
+    # out. AR(1) noise with rho 0.98 (~0.5 s memory) at std 0.5 pushes for long enough to
+    # visit overshoots and reversals.
+    "exploration_correlation": 0.98,
+    "exploration_noise": 0.5,
 }
-HPARAM_RECIPES["rl_jax/RocketSettle-v0"] = HPARAM_RECIPES["rl_jax/Rocket-v0"]
 # Half cheetah: the TD3 paper's networks (256 x 256) and one update per env step, cut to fewer
 # FLOPs per unit of progress for a CPU, where updates (not env steps) are the cost:
 # * batch 128 instead of 256 halves every update's FLOPs (0.21 vs 0.41 GFLOP; the original TD3
@@ -51,8 +44,8 @@ HPARAM_RECIPES["rl_jax/RocketSettle-v0"] = HPARAM_RECIPES["rl_jax/Rocket-v0"]
 # * 4 envs per seed with 4 updates per iteration keeps one update per env step but crosses into
 #   the MuJoCo C callback 4x less often, and each crossing has a fixed cost;
 # * learning starts after 10k random steps instead of 25k.
-# ``Config(env_id=...)`` without this entry is the paper recipe (1 env, batch 256, 25k).
-RECIPES["rl_jax/HalfCheetah-v5"] = {
+# ``Config(env_id=...)`` without a recipe is the paper recipe (1 env, batch 256, 25k).
+CHEETAH_LOOP: dict[str, Setting] = {
     "num_envs": 4,
     "updates_per_iteration": 4,
     "iterations_per_chunk": 1250,  # eval every 5,000 env steps per seed
@@ -65,19 +58,26 @@ RECIPES["rl_jax/HalfCheetah-v5"] = {
 # rate 1e-3 learned faster than 3e-4.
 FAST_CHEETAH_CONFIG: dict[str, Setting] = {"actor_hidden": (128, 128), "critic_hidden": (128, 128)}
 FAST_CHEETAH_HPARAMS: dict[str, float] = {"actor_lr": 1e-3, "critic_lr": 1e-3}
-# The rest of the MuJoCo suite starts from the half-cheetah CPU loop with its 128 x 128 networks
-# at rate 1e-3, unchanged, so that the suite's results say what that one recipe does on each
-# task (`experiments/train.py --algo td3 --env rl_jax/Hopper-v5`).
+# The half-cheetah CPU loop at 128 x 128 and rate 1e-3. The rest of the MuJoCo suite starts from
+# it, unchanged, so that the suite's results say what that one recipe does on each task
+# (`experiments/train.py --algo td3 --env rl_jax/Hopper-v5`).
+CHEETAH_CPU_CONFIG: dict[str, Setting] = {**CHEETAH_LOOP, **FAST_CHEETAH_CONFIG}
 MUJOCO_SUITE = tuple(
     f"rl_jax/{name}-v5" for name in ("Hopper", "Walker2d", "Ant", "Reacher", "Swimmer", "Humanoid")
 )
-for _env_id in MUJOCO_SUITE:
-    RECIPES[_env_id] = {**RECIPES["rl_jax/HalfCheetah-v5"], **FAST_CHEETAH_CONFIG}
-    HPARAM_RECIPES[_env_id] = dict(FAST_CHEETAH_HPARAMS)
 # Humanoid's observation carries raw contact forces (up to ~1,900) beside joint angles of ~1: fed
 # raw, they saturate the actor's tanh outputs, which then pass no gradient. Standardised by running
 # statistics, the inputs share one scale.
-RECIPES["rl_jax/Humanoid-v5"]["normalize_obs"] = True
+HUMANOID_CONFIG: dict[str, Setting] = {**CHEETAH_CPU_CONFIG, "normalize_obs": True}
+#: The per-env config settings above, by env id (what each env's ``default`` recipe starts from).
+RECIPES: dict[str, dict[str, Setting]] = {
+    "rl_jax/Pendulum-v1": PENDULUM_CONFIG,
+    "rl_jax/Rocket-v0": ROCKET_CONFIG,
+    "rl_jax/RocketSettle-v0": ROCKET_CONFIG,
+    "rl_jax/HalfCheetah-v5": CHEETAH_LOOP,
+    **{env_id: CHEETAH_CPU_CONFIG for env_id in MUJOCO_SUITE if env_id != "rl_jax/Humanoid-v5"},
+    "rl_jax/Humanoid-v5": HUMANOID_CONFIG,
+}
 # The TD3 paper's own loop: one env, one update per env step, batch 256, 25k warm-up steps.
 PAPER_CONFIG: dict[str, Setting] = {
     "num_envs": 1,
@@ -123,8 +123,6 @@ GPU_CHEETAH_CONFIG: dict[str, Setting] = {
 }
 PAPER_2018_LONG_WARMUP = ("rl_jax/HalfCheetah-v5", "rl_jax/Ant-v5")
 CHEETAH = "rl_jax/HalfCheetah-v5"
-# The half-cheetah CPU loop at 128 x 128 and rate 1e-3, the suite's starting point.
-_CHEETAH_CPU = {**RECIPES[CHEETAH], **FAST_CHEETAH_CONFIG}
 # The inverted double pendulum: one update per env step in 4 envs, the paper's evaluation interval.
 _DOUBLE_PENDULUM = {
     "num_envs": 4,
@@ -139,7 +137,7 @@ TD3_RECIPES = Recipes(
     Recipe(
         "default",
         "64x64 networks, 4 envs x 4 updates per iteration",
-        RECIPES["rl_jax/Pendulum-v1"],
+        PENDULUM_CONFIG,
         envs=("rl_jax/Pendulum-v1",),
         # seeds spread as 3 + 3 over both cores of a quiet 2-core machine
         throughput=(830.0, 5),
@@ -147,8 +145,8 @@ TD3_RECIPES = Recipes(
     Recipe(
         "default",
         "the Pendulum loop, gamma 0.995, AR(1) exploration noise (rho 0.98, std 0.5)",
-        {**RECIPES["rl_jax/Rocket-v0"], "iterations_per_chunk": 625},
-        HPARAM_RECIPES["rl_jax/Rocket-v0"],
+        {**ROCKET_CONFIG, "iterations_per_chunk": 625},
+        ROCKET_HPARAMS,
         envs=("rl_jax/Rocket-v0", "rl_jax/RocketSettle-v0"),
     ),
     Recipe(
@@ -160,7 +158,7 @@ TD3_RECIPES = Recipes(
     Recipe(
         "default",
         "128x128 at rate 1e-3, batch 128, 4 envs x 4 updates, 10,000 warm-up steps",
-        _CHEETAH_CPU,
+        CHEETAH_CPU_CONFIG,
         FAST_CHEETAH_HPARAMS,
         envs=(CHEETAH,),
         throughput=(280.0, 5),
@@ -168,21 +166,21 @@ TD3_RECIPES = Recipes(
     Recipe(
         "default",
         "half cheetah's CPU recipe: 128x128 at rate 1e-3, batch 128, 4 envs x 4 updates",
-        _CHEETAH_CPU,
+        CHEETAH_CPU_CONFIG,
         FAST_CHEETAH_HPARAMS,
         envs=tuple(env_id for env_id in MUJOCO_SUITE if env_id != "rl_jax/Humanoid-v5"),
     ),
     Recipe(
         "default",
         "half cheetah's CPU recipe, observations standardised by running statistics",
-        RECIPES["rl_jax/Humanoid-v5"],
+        HUMANOID_CONFIG,
         FAST_CHEETAH_HPARAMS,
         envs=("rl_jax/Humanoid-v5",),
     ),
     Recipe(
         "paper-width",
         "the paper's 256x256 networks at rate 3e-4 in the CPU loop",
-        RECIPES[CHEETAH],
+        CHEETAH_LOOP,
         envs=(CHEETAH,),
         throughput=(96.0, 5),
     ),
@@ -211,7 +209,7 @@ TD3_RECIPES = Recipes(
     Recipe(
         "gpu",
         "for one GPU (MJX): 64 envs per seed, batch 1,024, 32 updates per iteration",
-        {**RECIPES[CHEETAH], **GPU_CHEETAH_CONFIG},
+        {**CHEETAH_LOOP, **GPU_CHEETAH_CONFIG},
         FAST_CHEETAH_HPARAMS,
         envs=(CHEETAH,),
         total_steps=250_000,
