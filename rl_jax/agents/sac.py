@@ -231,11 +231,6 @@ class SAC(RecipeBook):
     def train_chunk(self, state: TrainState, config: Config, hparams: Hyperparams):
         return offpolicy.train_chunk(LEARNER, state, config, hparams)
 
-    def spread_runs(self, config: Config) -> bool:
-        """Small networks (width <= 64) spread over every device, as TD3's do: their programs
-        of small ops run on one core per device."""
-        return max((*config.actor_hidden, *config.critic_hidden)) <= 64
-
     def policy(self, state: TrainState, config: Config):
         """``obs -> action`` (env units) of the deterministic policy of one seed's state."""
         agent = state.agent

@@ -310,11 +310,6 @@ class TD3Family(RecipeBook):
     ) -> tuple[TrainState, ChunkMetrics]:
         return offpolicy.train_chunk(LEARNER, state, config, hparams)
 
-    def spread_runs(self, config: Config) -> bool:
-        """Networks of width <= 64 (small ops, one core each) spread over every device, padded
-        if need be; wider ones run on one device, whose large matmuls use every core."""
-        return max((*config.actor_hidden, *config.critic_hidden)) <= 64
-
     def policy(self, state: TrainState, config: Config) -> Callable[[jax.Array], jax.Array]:
         """``obs -> action`` (env units) of the deterministic policy of one seed's state."""
         agent = state.agent

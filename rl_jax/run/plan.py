@@ -15,7 +15,7 @@ import numpy as np
 from flax.typing import ArrayPytree
 
 from rl_jax.errors import RunError
-from rl_jax.run import plots
+from rl_jax.run import plots, processes
 from rl_jax.run.progress import Progress
 from rl_jax.run.spec import RunSpec
 from rl_jax.training import parallel, params
@@ -23,29 +23,38 @@ from rl_jax.training.algorithm import hooks
 
 
 def program_for(spec: RunSpec) -> parallel.Program:
-    """All configs x seeds of ``spec`` as one program over the most local devices that split the
-    runs evenly (``training.device_layout.mesh_shape``): 5 seeds on 2 cores run on one device.
+    """All configs x seeds of ``spec`` as one program spread over every device (those of every
+    process under ``jax.distributed``, or this process's own within ``processes.alone``).
 
-    Not padded by default: on CPU one device's matmuls and env steps already use every core's
-    threads, so a padded run costs its full share. Measured (load 1-2): REINFORCE on the double
-    pendulum, 5 seeds, 20 updates took 119 s on 1 device against 142 s padded to 3 + 3 on 2
-    devices (the 6/5 of the padded seed); TD3 at 256 x 256, 5 seeds: 519-530 updates/s on one
-    device, 498-513 as 3 + 3. An algorithm whose config runs small ops says so
-    (``spread_runs``: TD3 with networks of width <= 64, 1.3x faster as 3 + 3 than as 5 on one
-    device); its runs then spread over every device, padded, when there are at least as many
-    runs as devices.
+    Runs that do not divide over the devices are padded with copies of the first seed (or
+    config), computed and dropped (``training.device_layout.plan_layout``): 5 seeds on 2
+    devices run as 3 + 3; 5 seeds on 4 devices as 2 + 2 + 2 on three of them (as fast as
+    2 + 2 + 2 + 2, one copy fewer). Padding rather than an uneven split (3 + 2), because:
+
+    - the wall-clock of a chunk is the busiest device's, which holds as many runs either way;
+    - padding keeps one program with one block shape on every device: one compilation, one
+      ``shard_map``. An uneven split needs a program per block shape (two compilations for 3 +
+      2, each up to tens of seconds for an MJX env), and across processes every gather of the
+      state or metrics needs equal blocks anyway;
+    - what padding costs is the copies' memory (in the plan's estimate) and, where devices
+      share compute (CPU devices of one process split the same cores), the copies' share of it:
+      5 seeds over 2 CPU devices cost as 6. ``python -m bench uneven_devices`` measures both
+      layouts against the even count.
+
+    The copies never reach anything saved: metrics, checkpoints, best policies and curves hold
+    the real ``[configs, seeds]`` runs only (``Program.unpad``/``gather``), so a run resumes on
+    any number of devices; each run computes the same as on one device. A single run stays on
+    one device.
 
     A config with ``loop_seeds`` set (DQN on frames) runs its seeds as an unrolled loop instead
     of a vmap (``rl_jax.training.parallel.seed_loop``): faster for conv nets on CPU."""
     loop_seeds = bool(getattr(spec.config, "loop_seeds", False))
-    runs = len(spec.hparams) * spec.seeds
-    spread = hooks(spec.algorithm).spread_runs(spec.config) and runs >= len(jax.devices())
     return parallel.Program(
         spec.algorithm,
         spec.config,
         len(spec.hparams),
         spec.seeds,
-        pad=spread,
+        devices=processes.devices(),
         loop_seeds=loop_seeds,
     )
 

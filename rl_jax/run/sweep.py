@@ -15,6 +15,7 @@ import json
 import shlex
 import sys
 import time
+from collections.abc import Callable
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -30,7 +31,7 @@ from rl_jax.errors import (
     parse_int,
     positive_int,
 )
-from rl_jax.run import cli, flags, learners, plots, processes, runner
+from rl_jax.run import cli, flags, learners, plots, processes, runner, sweep_shapes
 from rl_jax.run.metrics import METRICS_FILE, read_rows
 from rl_jax.training import params
 from rl_jax.training.jax_setup import configure_jax
@@ -233,22 +234,36 @@ def summarize(out: Path, specs: list[Any], labels: list[str], wall_clock: float)
 
 def run_sweep(argv: list[str], description: str = "") -> int:
     """The sweep of ``argv`` (the script's flags), shape after shape, then its summary. Under
-    ``jax.distributed`` every process runs this with the same flags; the lead writes and prints."""
+    ``jax.distributed`` every process runs this with the same flags; the lead writes and prints,
+    and the shapes are shared out between the processes where that is faster
+    (``rl_jax.run.sweep_shapes``)."""
     started = time.perf_counter()
     specs, labels, out, sweep_args = build_specs(argv, description)
     lead = processes.is_lead()
     notify = print if lead else _silent
     if lead:
         write_record(out, argv, sweep_args)
-    for index, spec in enumerate(specs, 1):
-        notify(f"== shape {index}/{len(specs)}: {labels[index - 1]}")
-        result = runner.run(spec, notify)
-        if result.stopped:
-            return 0
+    sizes = (len(specs[0].hparams), specs[0].seeds, processes.count(), jax.local_device_count())
+    owner = sweep_shapes.owners(len(specs), *sizes)
+    if owner is None:
+        stopped = _run_in_turn(specs, labels, notify)
+    else:  # each process its own shapes
+        stopped = sweep_shapes.run_own(specs, labels, owner, notify)
+    if stopped:
+        return 0
     if lead:
         print(summarize(out, specs, labels, time.perf_counter() - started))
         print(f"sweep directory: {out}")
     return 0
+
+
+def _run_in_turn(specs: list[Any], labels: list[str], notify: Callable[[str], None]) -> bool:
+    """Every shape over every process's devices, one after another; whether one was stopped."""
+    for index, spec in enumerate(specs, 1):
+        notify(f"== shape {index}/{len(specs)}: {labels[index - 1]}")
+        if runner.run(spec, notify).stopped:
+            return True
+    return False
 
 
 def _silent(message: str) -> None:
