@@ -28,6 +28,11 @@ the chunk, with a checkpoint). On one machine:
         --grid lr=1e-4,1e-3 --seeds 2 --coordinator localhost:12355 --num-processes 2 \
         --process-id $i --out runs/distributed &
   done; wait
+
+With several processes, the shapes of a grid are shared out instead, where that is faster than
+running each over all of them in turn (rl_jax/run/sweep_shapes.py): each process compiles and
+trains only its own shapes and writes their run directories, so OUT must be a directory that
+every process sees (a shared file system on a cluster).
 """
 
 from rl_jax.run import sweep

@@ -1,6 +1,6 @@
 """sweep.py: a grid over a hyperparameter and a shape, ranked; and the same sweep run by two
-processes through jax.distributed, stopped and resumed from its checkpoints, equals the
-one-process run on as many devices."""
+processes through jax.distributed (each training one shape of its own), stopped and resumed from
+its checkpoints, equals the one-process run on as many devices."""
 
 import json
 import os
@@ -114,6 +114,8 @@ def test_two_processes_equal_one_process_on_as_many_devices(sweeps):
         assert len(single) == 3 * 2 * 2  # chunks x configs x seeds
         assert (root / "distributed" / f"batch={batch}" / "checkpoints").is_dir()
     assert "sweep directory: distributed" in first[0] and "sweep directory" not in first[1]
+    # Each process trained one shape of its own (rl_jax.run.sweep_shapes), compiling only it.
+    assert "== shape 2/2: batch=16 (process 1)" in first[0] and first[0].count("compiled in") == 1
     assert "resuming from the checkpoint at step 100" in lead
     # Only the lead prints (the other's stdout holds the collectives library's own lines).
     assert "== shape" in lead and "plan:" in lead and "step 150" in lead

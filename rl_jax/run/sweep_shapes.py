@@ -30,7 +30,7 @@ from typing import Any
 import jax
 
 from rl_jax.errors import RunError
-from rl_jax.run import processes, runner
+from rl_jax.run import checkpoint, processes, runner
 from rl_jax.training.device_layout import plan_layout
 
 
@@ -58,7 +58,7 @@ def run_own(
     for index, (label, process) in enumerate(zip(labels, owner, strict=True), 1):
         notify(f"== shape {index}/{len(specs)}: {label} (process {process})")
     stopped = False
-    with processes.alone():
+    with processes.alone(), checkpoint.writing_alone():
         for spec, process in zip(specs, owner, strict=True):
             if process == me:
                 stopped = runner.run(spec, notify).stopped
