@@ -29,7 +29,7 @@ from typing import Any
 
 import jax
 
-from rl_jax.errors import RunError
+from rl_jax.errors import RunError, user_errors
 from rl_jax.run import checkpoint, processes, runner
 from rl_jax.training.device_layout import plan_layout
 
@@ -53,17 +53,23 @@ def run_own(
     specs: Sequence[Any], labels: Sequence[str], owner: Sequence[int], notify: Callable[[str], None]
 ) -> bool:
     """Train this process's shapes alone, then wait for every process to finish its own.
-    Returns whether any process was stopped (a signal) before finishing."""
+    Returns whether any process was stopped (a signal) before finishing. A user error in one
+    process's shape (a refused resume, memory) still lets it reach the wait, so that every
+    process ends with one line rather than waiting for it."""
     me = jax.process_index()
     for index, (label, process) in enumerate(zip(labels, owner, strict=True), 1):
         notify(f"== shape {index}/{len(specs)}: {label} (process {process})")
-    stopped = False
+    stopped, failure = False, None
     with processes.alone(), checkpoint.writing_alone():
         for spec, process in zip(specs, owner, strict=True):
-            if process == me:
+            if process != me:
+                continue
+            try:
                 stopped = runner.run(spec, notify).stopped
-                if stopped:
-                    break
+            except user_errors() as error:
+                failure = error
+            if stopped or failure is not None:
+                break
     try:
         processes.wait_for_all(f"rl_jax sweep shapes trained {specs[0].out.parent}")
     except Exception as error:  # the coordinator's report: the first line says which process
@@ -71,4 +77,9 @@ def run_own(
         raise RunError(
             f"another process of the sweep ended before its shapes did: {reason}"
         ) from None
-    return any(processes.agree(stopped))
+    stopped_any, failed_any = processes.agree(stopped, failure is not None)
+    if failure is not None:
+        raise failure
+    if failed_any:
+        raise RunError("a shape of another process failed (its error is on that process's stderr)")
+    return stopped_any

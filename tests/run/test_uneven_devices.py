@@ -8,6 +8,7 @@ Bit for bit holds because each device runs the same vmapped program on its block
 flags, and by the slow test at XLA's defaults).
 """
 
+import dataclasses
 import json
 import os
 import socket
@@ -22,12 +23,13 @@ from child_env import python_path
 from run_helpers import leaves_bytes
 from uneven_specs import SEEDS, spec_for
 
+from rl_jax.errors import RunError
 from rl_jax.run import processes
 from rl_jax.run.best import BEST_DIR, BestPolicies, policy_fields
 from rl_jax.run.checkpoint import Checkpointer
 from rl_jax.run.metrics import read_rows
 from rl_jax.run.plan import make_plan
-from rl_jax.run.sweep_shapes import owners
+from rl_jax.run.sweep_shapes import owners, run_own
 from rl_jax.training.device_layout import plan_layout
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -197,3 +199,15 @@ def test_a_process_alone_runs_on_its_own_devices_and_writes_itself():
         assert processes.agree(True, False) == (True, False)
     assert processes.count() == jax.process_count()
     processes.wait_for_all("nothing to wait for on one process")
+
+
+def test_own_shapes_run_alone_and_an_error_in_one_is_one_line(tmp_path):
+    """``run_own`` on one process: its shapes run in turn, each writing its own directory; a
+    user error in one still comes after the wait for the others, as the error it was."""
+    specs = [spec_for("fake", tmp_path / name, FAKE_CHUNK) for name in ("a", "b")]
+    assert run_own(specs, ["a", "b"], [0, 0], notify=lambda message: None) is False
+    assert all((spec.out / "checkpoints").is_dir() for spec in specs)
+    # Another run into a's directory: refused, a untouched.
+    refused = dataclasses.replace(spec_for("fake", tmp_path / "a", FAKE_CHUNK), seeds=3)
+    with pytest.raises(RunError, match="already holds a different run"):
+        run_own([refused], ["a"], [0], notify=lambda message: None)
