@@ -74,8 +74,8 @@ def plan_layout(
     Without padding: ``mesh_shape``. With padding: the fewest runs per device (the wall-clock of
     a chunk), then the fewest padded runs (memory), then the fewest devices, then seeds split
     before hyperparameters. A single run stays on one device, unless ``min_devices`` asks for
-    more: a mesh over several processes uses every device, so that every process holds a block
-    (a process without one could not take part in the program), padding where it must.
+    more: a mesh over several processes uses every device, so that no process's devices sit
+    idle while it takes part in every call, padding where it must.
     """
     if not pad:
         return Layout(num_hparams, num_seeds, *mesh_shape(num_hparams, num_seeds, num_devices))
