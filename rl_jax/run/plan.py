@@ -43,8 +43,10 @@ def program_for(spec: RunSpec) -> parallel.Program:
 
     The copies never reach anything saved: metrics, checkpoints, best policies and curves hold
     the real ``[configs, seeds]`` runs only (``Program.unpad``/``gather``), so a run resumes on
-    any number of devices; each run computes the same as on one device. A single run stays on
-    one device.
+    any number of devices. Each run computes what it computes on one device, bit for bit where
+    XLA compiles each device's block to the same kernels (5 seeds as 3 + 3 against 5 on one
+    device do); a block of a single seed may round differently. A single run stays on one
+    device.
 
     A config with ``loop_seeds`` set (DQN on frames) runs its seeds as an unrolled loop instead
     of a vmap (``rl_jax.training.parallel.seed_loop``): faster for conv nets on CPU."""

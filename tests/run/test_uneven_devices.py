@@ -3,9 +3,10 @@ padded with copies of seed 0 that are computed and dropped, and give bit for bit
 one device give: the same metrics rows and the same checkpoints. The copies never reach a saved
 file, so a run resumes on another device count. Plus the layout and shape-sharing maths.
 
-Bit for bit holds because each device runs the same vmapped program on its block: a batch of
-3 runs and a batch of 5 compute each run with the same kernels (checked here at the tests' XLA
-flags, and by the slow test at XLA's defaults).
+Bit for bit holds because each device runs the same vmapped program on its block, and a batch
+of 3 runs and a batch of 5 compute each run with the same kernels (checked here at the tests' XLA
+flags, and by the slow test for TD3 at XLA's defaults). A block of one seed need not: see
+tests/test_sweep.py.
 """
 
 import dataclasses
