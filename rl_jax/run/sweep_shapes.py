@@ -18,7 +18,9 @@ another.
 Each process writes the run directories of its own shapes, so ``OUT`` must be one directory that
 every process sees (a cluster's shared file system; on one machine it is). Process 0 prints the
 plan and the progress of its own shapes, waits for the others (``processes.wait_for_all``) and
-writes the sweep's summary from every shape's metrics.
+writes the sweep's summary from every shape's metrics. A signal stops the process it reaches
+after its chunk, with a checkpoint (a scheduler signals every process); the others finish their
+own shapes first, and the sweep ends as stopped, to be resumed.
 """
 
 from __future__ import annotations
