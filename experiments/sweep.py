@@ -27,7 +27,11 @@ all after the chunk, with a checkpoint). On one machine, 2 processes:
   python -m rl_jax.run.launch --local 2 experiments/sweep.py --algo td3 \
       --env rl_jax/Pendulum-v1 --grid lr=1e-4,1e-3 --seeds 2 --out runs/distributed
 
-docs/cluster.md has sbatch templates, requeue and the launcher's SLURM mode.
+With several processes, the shapes of a grid are shared out instead, where that is faster than
+running each over all of them in turn (rl_jax/run/sweep_shapes.py): each process compiles and
+trains only its own shapes and writes their run directories, so OUT must be a directory that
+every process sees (a shared file system on a cluster). docs/cluster.md has sbatch templates,
+requeue and the launcher's SLURM mode.
 """
 
 from rl_jax.run import sweep

@@ -114,10 +114,5 @@ class SAC(offpolicy.OffPolicyAlgorithm[Config]):
         "initial_alpha": validation.POSITIVE,
     }
 
-    def spread_runs(self, config: Config) -> bool:
-        """Small networks (width <= 64) spread over every device, as TD3's do: their programs
-        of small ops run on one core per device."""
-        return max((*config.actor_hidden, *config.critic_hidden)) <= 64
-
 
 sac = SAC()

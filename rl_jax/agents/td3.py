@@ -296,11 +296,6 @@ class TD3Family(offpolicy.OffPolicyAlgorithm[Config]):
         self.name = name
         self.config_type, self.hparams_type = config_type, hparams_type
 
-    def spread_runs(self, config: Config) -> bool:
-        """Networks of width <= 64 (small ops, one core each) spread over every device, padded
-        if need be; wider ones run on one device, whose large matmuls use every core."""
-        return max((*config.actor_hidden, *config.critic_hidden)) <= 64
-
 
 @dataclasses.dataclass(frozen=True, kw_only=True)
 class DDPGConfig(Config):

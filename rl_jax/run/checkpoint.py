@@ -120,8 +120,9 @@ class Checkpointer:
             # Each process reads and writes on its own: under jax.distributed only the lead
             # writes (rl_jax.run.processes), so orbax must not wait for the others. (orbax then
             # leaves creating the directory to us.)
+            me = _orbax_multihost().process_index()  # 0 within ``writing_alone``
             multiprocess["multiprocessing_options"] = ocp.options.MultiprocessingOptions(
-                primary_host=jax.process_index(), active_processes={jax.process_index()}
+                primary_host=me, active_processes={me}
             )
             if not read_only:
                 self.directory.mkdir(parents=True, exist_ok=True)
@@ -320,6 +321,31 @@ class Checkpointer:
 
     def __exit__(self, *exc_info: object) -> None:
         self.close()
+
+
+def _orbax_multihost() -> Any:
+    from orbax.checkpoint._src.multihost import multihost
+
+    return multihost
+
+
+@contextlib.contextmanager
+def writing_alone() -> Iterator[None]:
+    """Within: this process writes and reads the checkpoints of runs of its own (a sweep's
+    shape, ``rl_jax.run.processes.alone``) as the process 0 of a job of one, whatever its index
+    under ``jax.distributed``. orbax writes arrays and JSON only from the process it takes for
+    process 0 (its handlers test ``multihost.process_index() == 0``): process 1 would otherwise
+    save checkpoints without their data. Nothing changes on process 0."""
+    if jax.process_index() == 0:
+        yield
+        return
+    multihost = _orbax_multihost()
+    original = multihost.process_index
+    multihost.process_index = lambda: 0
+    try:
+        yield
+    finally:
+        multihost.process_index = original
 
 
 @contextlib.contextmanager

@@ -14,7 +14,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from rl_jax.errors import RunError
-from rl_jax.run import plots
+from rl_jax.run import plots, processes
 from rl_jax.run.progress import Progress
 from rl_jax.run.spec import RunSpec
 from rl_jax.training import parallel, params
@@ -22,26 +22,40 @@ from rl_jax.training.algorithm import Hyperparams, TrainState, hooks
 
 
 def program_for(spec: RunSpec) -> parallel.Program:
-    """All configs x seeds of ``spec`` as one program over the most local devices that split the
-    runs evenly (``training.device_layout.mesh_shape``): 5 seeds on 2 cores run on one device.
+    """All configs x seeds of ``spec`` as one program spread over every device (those of every
+    process under ``jax.distributed``, or this process's own within ``processes.alone``).
 
-    Not padded by default: on CPU one device's matmuls and env steps already use every core's
-    threads, so a padded run pays for its padding copies and gains nothing. An algorithm whose
-    config runs small ops, too small to use every core from one device, says so (``spread_runs``:
-    TD3 with networks of width <= 64); its runs then spread over every device, padded, when there
-    are at least as many runs as devices.
+    Runs that do not divide over the devices are padded with copies of the first seed (or
+    config), computed and dropped (``training.device_layout.plan_layout``): 5 seeds on 2
+    devices run as 3 + 3; 5 seeds on 4 devices as 2 + 2 + 2 on three of them (as fast as
+    2 + 2 + 2 + 2, one copy fewer). Padding rather than an uneven split (3 + 2), because:
+
+    - the wall-clock of a chunk is the busiest device's, which holds as many runs either way;
+    - padding keeps one program with one block shape on every device: one compilation, one
+      ``shard_map``. An uneven split needs a program per block shape (two compilations for 3 +
+      2, each up to tens of seconds for an MJX env), and across processes every gather of the
+      state or metrics needs equal blocks anyway;
+    - what padding costs is the copies' memory (in the plan's estimate) and, where devices
+      share compute (CPU devices of one process split the same cores), the copies' share of it:
+      5 seeds over 2 CPU devices cost as 6. ``python -m bench uneven_devices`` measures both
+      layouts against the even count.
+
+    The copies never reach anything saved: metrics, checkpoints, best policies and curves hold
+    the real ``[configs, seeds]`` runs only (``Program.unpad``/``gather``), so a run resumes on
+    any number of devices. Each run computes what it computes on one device, bit for bit where
+    XLA compiles each device's block to the same kernels (5 seeds as 3 + 3 against 5 on one
+    device do); a block of a single seed may round differently. A single run stays on one
+    device.
 
     A config with ``loop_seeds`` set (DQN on frames) runs its seeds as an unrolled loop instead
     of a vmap (``rl_jax.training.parallel.seed_loop``): faster for conv nets on CPU."""
     loop_seeds = bool(getattr(spec.config, "loop_seeds", False))
-    runs = len(spec.hparams) * spec.seeds
-    spread = hooks(spec.algorithm).spread_runs(spec.config) and runs >= len(jax.devices())
     return parallel.Program(
         spec.algorithm,
         spec.config,
         len(spec.hparams),
         spec.seeds,
-        pad=spread,
+        devices=processes.devices(),
         loop_seeds=loop_seeds,
     )
 

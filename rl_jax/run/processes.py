@@ -10,6 +10,10 @@ metrics, which are equal everywhere. On one process these are no-ops.
 Every wait for the other processes runs under ``waiting``: past the limit that
 ``rl_jax.run.distributed`` sets (``--collective-timeout``), the process ends with one line
 rather than hang on a peer that stopped.
+
+A process may also run a run of its own, on its local devices only (``alone``: a sweep gives
+each process shapes of its own). Within ``alone`` it writes that run's directory itself, takes
+no part in other processes' collectives and decides alone; only process 0 still prints.
 """
 
 from __future__ import annotations
@@ -22,15 +26,38 @@ import numpy as np
 from jax.experimental import multihost_utils
 
 _WAIT_LIMIT: list[float] = []  # seconds; empty: no limit (one process, or set by no one)
+_alone = [False]  # inside ``alone()``: this process runs a run of its own
+
+#: The longest ``wait_for_all`` waits for the slowest process: one of a sweep's shapes may train
+#: for days. A process that dies ends the wait sooner (the coordinator misses its heartbeats).
+LONGEST_WAIT_MS = 2**31 - 1
+
+
+@contextlib.contextmanager
+def alone() -> Iterator[None]:
+    """Within: this process runs its runs by itself, as if it were the only process (its local
+    devices, its own writes and decisions, no collectives)."""
+    previous, _alone[0] = _alone[0], True
+    try:
+        yield
+    finally:
+        _alone[0] = previous
 
 
 def count() -> int:
-    """Number of processes in the ``jax.distributed`` job (1 when not distributed)."""
-    return jax.process_count()
+    """Number of processes in the ``jax.distributed`` job (1 when not distributed, or inside
+    ``alone``)."""
+    return 1 if _alone[0] else jax.process_count()
 
 
 def is_lead() -> bool:
-    """Whether this process writes the run directory (always so without ``jax.distributed``)."""
+    """Whether this process writes the run directory (always so without ``jax.distributed``, and
+    within ``alone``)."""
+    return _alone[0] or jax.process_index() == 0
+
+
+def speaks() -> bool:
+    """Whether this process prints: process 0 alone, whatever it runs."""
     return jax.process_index() == 0
 
 
@@ -58,6 +85,12 @@ def waiting(what: str) -> Iterator[None]:
         yield
 
 
+def devices() -> list[jax.Device]:
+    """The devices a run spreads over: every process's, or this process's own within
+    ``alone``."""
+    return jax.local_devices() if _alone[0] else jax.devices()
+
+
 def agree(*flags: bool) -> tuple[bool, ...]:
     """Each flag ORed over all processes (one small gather; the flags as they are on one)."""
     if count() == 1:
@@ -74,3 +107,19 @@ def barrier(name: str) -> None:
     if count() > 1:
         with waiting(name):
             multihost_utils.sync_global_devices(name)
+
+
+def wait_for_all(name: str) -> None:
+    """Wait until every process reaches ``name``, however long the slowest takes (each process
+    of a sweep trains shapes of its own, of different lengths): at the coordinator of
+    ``jax.distributed``, with a time limit of our own, rather than in a collective over the
+    devices. Nothing on one process."""
+    if jax.process_count() == 1:
+        return
+    from jax._src import distributed  # the coordinator's client: no public handle in jax 0.9
+
+    client = distributed.global_state.client
+    if client is None:
+        multihost_utils.sync_global_devices(name)
+        return
+    client.wait_at_barrier(name, LONGEST_WAIT_MS)

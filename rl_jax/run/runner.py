@@ -394,7 +394,7 @@ def run(spec: RunSpec, notify: Callable[[str], None] = print) -> RunResult:
     """Train ``spec`` to ``total_steps`` (or until a signal), leaving a complete run directory."""
     started = time.perf_counter()
     spec = dataclasses.replace(spec, out=Path(spec.out))
-    if not processes.is_lead():
+    if not processes.speaks():
         notify = _silent
     if not spec.resume and same_command_again(spec.out, spec.identity, spec.command):
         # a requeued job, or the same command after a crash: it continues the run
@@ -411,8 +411,8 @@ def run(spec: RunSpec, notify: Callable[[str], None] = print) -> RunResult:
         start.step,
         start.updates,
         runs,
-        file=None if processes.is_lead() else io.StringIO(),
-        tty=None if processes.is_lead() else False,
+        file=None if processes.speaks() else io.StringIO(),
+        tty=None if processes.speaks() else False,
         log_interval=spec.log_interval,
     )
     try:

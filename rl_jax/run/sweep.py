@@ -15,8 +15,11 @@ import json
 import shlex
 import sys
 import time
+from collections.abc import Callable
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
+
+import jax
 
 import envs
 from rl_jax.errors import (
@@ -26,13 +29,15 @@ from rl_jax.errors import (
     exit_now,
     guard,
 )
-from rl_jax.run import cli, distributed, flags, learners, plots, processes, runner
+from rl_jax.run import cli, distributed, flags, learners, plots, processes, runner, sweep_shapes
 from rl_jax.run.metrics import METRICS_FILE, read_rows
 from rl_jax.training import params
 from rl_jax.training.algorithm import Algorithm
 
 if TYPE_CHECKING:
     from _typeshed import DataclassInstance
+
+    from rl_jax.run.spec import RunSpec
 
 ALIASES = {
     "lr": ("actor_lr", "critic_lr", "learning_rate"),
@@ -108,7 +113,7 @@ def sweep_record(out: Path) -> dict[str, Any]:
 
 def build_specs(
     argv: list[str], description: str
-) -> tuple[list[Any], list[str], Path, argparse.Namespace]:
+) -> tuple[list[RunSpec], list[str], Path, argparse.Namespace]:
     """One RunSpec per shape of the grid, with its hyperparameter grid inside."""
     sweep_args, rest = parse_args(argv)
     resume = "--resume" in rest
@@ -222,7 +227,7 @@ def _without_sweep_flags(argv: list[str]) -> list[str]:
     return kept
 
 
-def summarize(out: Path, specs: list[Any], labels: list[str], wall_clock: float) -> str:
+def summarize(out: Path, specs: list[RunSpec], labels: list[str], wall_clock: float) -> str:
     """curves.png (one curve per config of every shape) and the ranked results.txt."""
     curves = []
     for spec, label in zip(specs, labels, strict=True):
@@ -239,22 +244,36 @@ def summarize(out: Path, specs: list[Any], labels: list[str], wall_clock: float)
 
 def run_sweep(argv: list[str], description: str = "") -> int:
     """The sweep of ``argv`` (the script's flags), shape after shape, then its summary. Under
-    ``jax.distributed`` every process runs this with the same flags; the lead writes and prints."""
+    ``jax.distributed`` every process runs this with the same flags; the lead writes and prints,
+    and the shapes are shared out between the processes where that is faster
+    (``rl_jax.run.sweep_shapes``)."""
     started = time.perf_counter()
     specs, labels, out, sweep_args = build_specs(argv, description)
     lead = processes.is_lead()
     notify = print if lead else _silent
     if lead:
         write_record(out, argv, sweep_args)
-    for index, spec in enumerate(specs, 1):
-        notify(f"== shape {index}/{len(specs)}: {labels[index - 1]}")
-        result = runner.run(spec, notify)
-        if result.stopped:
-            return 0
+    sizes = (len(specs[0].hparams), specs[0].seeds, processes.count(), jax.local_device_count())
+    owner = sweep_shapes.owners(len(specs), *sizes)
+    if owner is None:
+        stopped = _run_in_turn(specs, labels, notify)
+    else:  # each process its own shapes
+        stopped = sweep_shapes.run_own(specs, labels, owner, notify)
+    if stopped:
+        return 0
     if lead:
         print(summarize(out, specs, labels, time.perf_counter() - started))
         print(f"sweep directory: {out}")
     return 0
+
+
+def _run_in_turn(specs: list[RunSpec], labels: list[str], notify: Callable[[str], None]) -> bool:
+    """Every shape over every process's devices, one after another; whether one was stopped."""
+    for index, spec in enumerate(specs, 1):
+        notify(f"== shape {index}/{len(specs)}: {labels[index - 1]}")
+        if runner.run(spec, notify).stopped:
+            return True
+    return False
 
 
 def _silent(message: str) -> None:

@@ -85,7 +85,7 @@ class Algorithm(Protocol):
 
     Beyond the methods below, an algorithm may define the hooks of ``OptionalHooks``
     (``policy_fields``, ``ranges``, ``recipes``, ``env_steps_per_chunk``, ``validate``,
-    ``make_env``, ``spread_runs``); callers reach them through ``hooks(algorithm)``, which
+    ``make_env``); callers reach them through ``hooks(algorithm)``, which
     supplies the defaults."""
 
     name: str  # "td3", "ddpg", "td7", "crossq", "dqn", "reinforce", or a learner of your own
@@ -144,13 +144,6 @@ class OptionalHooks:
         make = getattr(config, "make_env", None)
         return make() if make is not None else envs.make(config.env_id)
 
-    def spread_runs(self, config: Config) -> bool:
-        """Whether a run's seeds should spread over every CPU device even when they do not split
-        evenly (padded with copies that are computed and dropped). Default no: one device's
-        large matmuls already use every core. Programs of small ops run on one core per device,
-        so two devices can be worth a wasted run (``rl_jax.run.plan.program_for``)."""
-        return False
-
 
 HOOKS = (
     "policy_fields",
@@ -159,7 +152,6 @@ HOOKS = (
     "env_steps_per_chunk",
     "validate",
     "make_env",
-    "spread_runs",
 )
 
 

@@ -70,17 +70,21 @@ class Layout:
         return self.padded_hparams * self.padded_seeds - self.num_hparams * self.num_seeds
 
 
-def plan_layout(num_hparams: int, num_seeds: int, num_devices: int, pad: bool = True) -> Layout:
+def plan_layout(
+    num_hparams: int, num_seeds: int, num_devices: int, pad: bool = True, min_devices: int = 1
+) -> Layout:
     """The mesh for ``[H, S]`` runs on up to ``num_devices`` devices.
 
     Without padding: ``mesh_shape``. With padding: the fewest runs per device (the wall-clock of
     a chunk), then the fewest padded runs (memory), then the fewest devices, then seeds split
-    before hyperparameters. A single run stays on one device.
+    before hyperparameters. A single run stays on one device, unless ``min_devices`` asks for
+    more: a mesh over several processes uses every device, so that no process's devices sit
+    idle while it takes part in every call, padding where it must.
     """
     if not pad:
         return Layout(num_hparams, num_seeds, *mesh_shape(num_hparams, num_seeds, num_devices))
     candidates = []
-    for used in range(1, num_devices + 1):
+    for used in range(min(max(min_devices, 1), num_devices), num_devices + 1):
         for seed_split in range(1, used + 1):
             if used % seed_split:
                 continue

@@ -171,7 +171,9 @@ class Program:
         self.loop_seeds = loop_seeds
         self.num_hparams, self.num_seeds = num_hparams, num_seeds
         devices = list(jax.devices() if devices is None else devices)
-        self.layout = plan_layout(num_hparams, num_seeds, len(devices), pad)
+        self.multiprocess = any(d.process_index != jax.process_index() for d in devices)
+        whole = len(devices) if self.multiprocess else 1  # every process holds a block
+        self.layout = plan_layout(num_hparams, num_seeds, len(devices), pad, min_devices=whole)
         used = np.array(devices[: self.layout.devices])
         self.mesh = Mesh(used.reshape(self.layout.hparam_split, self.layout.seed_split), AXES)
         self.multiprocess = any(d.process_index != jax.process_index() for d in used)

@@ -255,13 +255,9 @@ print(json.dumps([
 """
 
 
-def test_small_networks_spread_over_both_devices_and_large_ones_stay_on_one():
-    """``spread_runs``: TD3 with 64 x 64 networks pads 5 seeds to 3 + 3 (1.3x faster here than 5
-    on one device), one seed stays whole; 256 x 256 and algorithms without the hook keep the
-    unpadded layout (5 seeds cannot split in two, so one device)."""
-    assert td3.spread_runs(td3.default_config("rl_jax/Pendulum-v1")) and not td3.spread_runs(
-        td3.default_config("rl_jax/HalfCheetah-v5")
-    )
+def test_every_learner_spreads_uneven_runs_over_both_devices():
+    """``program_for``: 5 seeds pad to 3 + 3 whatever the learner and network width (one
+    compiled program, the copy dropped); one seed stays whole."""
     # the CPU's layout, on a GPU too
     env = {**os.environ, "XLA_FLAGS": compile_level.subprocess_flags(), "JAX_PLATFORMS": "cpu"}
     result = subprocess.run(
@@ -269,4 +265,4 @@ def test_small_networks_spread_over_both_devices_and_large_ones_stay_on_one():
     )
     assert result.returncode == 0, result.stderr[-3000:]
     layouts = json.loads(result.stdout.strip().splitlines()[-1])
-    assert layouts == [[2, 6], [1, 1], [1, 5], [1, 5]]
+    assert layouts == [[2, 6], [1, 1], [2, 6], [2, 6]]

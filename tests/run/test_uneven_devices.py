@@ -1,0 +1,214 @@
+"""Every device busy: 5 seeds, which divide over neither 2 nor 4 devices, spread over all of them
+padded with copies of seed 0 that are computed and dropped, and give bit for bit what 5 seeds on
+one device give: the same metrics rows and the same checkpoints. The copies never reach a saved
+file, so a run resumes on another device count. Plus the layout and shape-sharing maths.
+
+Bit for bit holds because each device runs the same vmapped program on its block, and a batch
+of 3 runs and a batch of 5 compute each run with the same kernels (checked here at the tests' XLA
+flags, and by the slow test for TD3 at XLA's defaults). A block of one seed need not: see
+tests/test_sweep.py.
+"""
+
+import dataclasses
+import json
+import os
+import socket
+import subprocess
+import sys
+from pathlib import Path
+
+import compile_level
+import jax
+import pytest
+from child_env import python_path
+from run_helpers import leaves_bytes
+from uneven_specs import SEEDS, spec_for
+
+from rl_jax.errors import RunError
+from rl_jax.run import processes
+from rl_jax.run.best import BEST_DIR, BestPolicies, policy_fields
+from rl_jax.run.checkpoint import Checkpointer
+from rl_jax.run.metrics import read_rows
+from rl_jax.run.plan import make_plan
+from rl_jax.run.sweep_shapes import owners, run_own
+from rl_jax.training.device_layout import plan_layout
+
+ROOT = Path(__file__).resolve().parents[2]
+CHILD = Path(__file__).with_name("uneven_child.py")
+FAKE_CHUNK = 20  # the fake learner's env steps per chunk (4 envs x 5 iterations)
+FAKE_TOTAL = 4 * FAKE_CHUNK
+TD3_TOTAL = 150  # 3 chunks of 50 env steps, updates from step 50
+
+cpu_only = pytest.mark.skipif(
+    jax.default_backend() != "cpu", reason="compares runs on forced CPU devices"
+)
+
+
+def start(devices: int, jobs: list[dict], env: dict | None = None) -> subprocess.Popen:
+    """The child on ``devices`` CPU devices, running ``jobs`` one after another."""
+    env = {
+        **os.environ,
+        "PYTHONPATH": python_path(ROOT, ROOT / "tests"),
+        "XLA_FLAGS": compile_level.subprocess_flags(),
+        "JAX_PLATFORMS": "cpu",
+        **(env or {}),
+    }
+    command = [sys.executable, str(CHILD), str(devices), json.dumps(jobs)]
+    return subprocess.Popen(
+        command, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True
+    )
+
+
+def finish(process: subprocess.Popen) -> list:
+    out, err = process.communicate(timeout=900)
+    assert process.returncode == 0, err[-3000:]
+    return json.loads(out.strip().splitlines()[-1])
+
+
+def job(out: Path, total: int, learner: str = "fake", resume: bool = False) -> dict:
+    return {"out": str(out), "total": total, "resume": resume, "learner": learner}
+
+
+def rows(out: Path) -> list[dict]:
+    return [
+        {k: v for k, v in row.items() if k != "wall_time"}
+        for row in read_rows(out / "metrics.jsonl")
+    ]
+
+
+def checkpoint(out: Path, learner: str, total: int) -> list[bytes]:
+    """The latest checkpoint, restored into the template of the real 5 runs (a checkpoint with
+    padding copies would not match it)."""
+    plan = make_plan(spec_for(learner, out, total))
+    with Checkpointer(out / "checkpoints", read_only=True) as checkpointer:
+        state, meta = checkpointer.restore(plan.template)
+    assert meta["step"] == total
+    return leaves_bytes(state)
+
+
+def assert_same_runs(outs: list[Path], learner: str, total: int) -> None:
+    expected_rows, expected_state = rows(outs[0]), checkpoint(outs[0], learner, total)
+    chunks = total // (FAKE_CHUNK if learner == "fake" else 50)
+    assert len(expected_rows) == chunks * SEEDS
+    assert sorted({row["seed"] for row in expected_rows}) == list(range(SEEDS))  # no copies
+    for out in outs[1:]:
+        assert rows(out) == expected_rows, out
+        assert checkpoint(out, learner, total) == expected_state, out
+
+
+@cpu_only
+def test_five_seeds_on_two_devices_equal_one_device_and_resume_on_one(tmp_path):
+    """5 seeds to the end on 2 devices (3 + 3) and on 1; and 5 seeds stopped halfway on 2
+    devices, resumed on 1. All three are the same runs, bit for bit. (The other way, 1 device
+    resumed on 2: the slow TD3 test.)"""
+    two = start(2, [job(tmp_path / "two", FAKE_TOTAL), job(tmp_path / "half", FAKE_TOTAL // 2)])
+    assert finish(two) == [[2, 6]] * 2  # 3 + 3: one copy of seed 0, dropped
+    one = start(
+        1, [job(tmp_path / "one", FAKE_TOTAL), job(tmp_path / "half", FAKE_TOTAL, resume=True)]
+    )
+    assert finish(one) == [[1, 5]] * 2
+    names = ("one", "two", "half")
+    assert_same_runs([tmp_path / name for name in names], "fake", FAKE_TOTAL)
+    # Nothing saved is padded: the metrics hold 5 seeds per chunk, every checkpoint restores
+    # into the real runs' shapes (above), and so do the best policies.
+    for name in names:
+        best = best_policies(tmp_path / name, "fake", FAKE_TOTAL)
+        assert best.returns.shape == (1, SEEDS) and best.steps.shape == (1, SEEDS)
+
+
+def best_policies(out: Path, learner: str, total: int) -> BestPolicies:
+    spec = spec_for(learner, out, total)
+    template = make_plan(spec).template
+    fields = policy_fields(spec.algorithm, template)
+    return BestPolicies.restore(out / BEST_DIR, fields, template, at_most=total, expect={})
+
+
+@pytest.mark.slow
+@cpu_only
+def test_td3_on_two_devices_equals_one_device_at_default_flags(tmp_path):
+    """The same for TD3 (matmuls, Adam, replay) at XLA's default flags: bit for bit."""
+    env = {"XLA_FLAGS": "", "TEST_XLA_OPT": "default"}
+    one = start(
+        1, [job(tmp_path / "one", TD3_TOTAL, "td3"), job(tmp_path / "half", 100, "td3")], env
+    )
+    two = start(2, [job(tmp_path / "two", TD3_TOTAL, "td3")], env)
+    assert finish(one) == [[1, 5], [1, 5]] and finish(two) == [[2, 6]]
+    resumed = start(2, [job(tmp_path / "half", TD3_TOTAL, "td3", resume=True)], env)
+    assert finish(resumed) == [[2, 6]]
+    assert_same_runs([tmp_path / name for name in ("one", "two", "half")], "td3", TD3_TOTAL)
+
+
+def free_port() -> int:
+    with socket.socket() as probe:
+        probe.bind(("localhost", 0))
+        return probe.getsockname()[1]
+
+
+@pytest.mark.slow
+@cpu_only
+def test_four_processes_with_five_seeds_equal_one_process(tmp_path):
+    """4 processes of one device each (jax.distributed on localhost): 5 seeds padded to 2 per
+    device, every process holding a block; the lead alone writes, and the run equals the
+    one-process one."""
+    port = free_port()
+    workers = [
+        start(
+            1,
+            [job(tmp_path / "four", FAKE_TOTAL)],
+            {"COORDINATOR": f"localhost:{port}", "NUM_PROCESSES": "4", "PROCESS_ID": str(i)},
+        )
+        for i in range(4)
+    ]
+    alone = start(1, [job(tmp_path / "one", FAKE_TOTAL)])
+    assert [finish(worker) for worker in workers] == [[[4, 8]]] * 4
+    assert finish(alone) == [[1, 5]]
+    assert_same_runs([tmp_path / "one", tmp_path / "four"], "fake", FAKE_TOTAL)
+
+
+def test_layout_pads_onto_every_device_it_needs():
+    five = plan_layout(1, SEEDS, num_devices=2)
+    assert (five.devices, five.padded_seeds, five.runs_per_device, five.padding) == (2, 6, 3, 1)
+    # On 4 devices: 2 + 2 + 2 on three is as fast as 2 x 4 and pads one copy, not three.
+    four = plan_layout(1, SEEDS, num_devices=4)
+    assert (four.devices, four.runs_per_device, four.padding) == (3, 2, 1)
+    # Over 4 processes every device holds a block.
+    spread = plan_layout(1, SEEDS, num_devices=4, min_devices=4)
+    assert (spread.devices, spread.padded_seeds, spread.runs_per_device) == (4, 8, 2)
+    assert plan_layout(1, 1, num_devices=2).devices == 1  # one run stays whole
+    assert plan_layout(1, 1, num_devices=2, min_devices=2).padded_seeds == 2
+    grid = plan_layout(3, SEEDS, num_devices=2)  # 15 runs: seeds split, 3 x 3 per device
+    assert (grid.seed_split, grid.runs_per_device, grid.padding) == (2, 9, 3)
+    assert plan_layout(2, 3, num_devices=2).padding == 0  # divides: configs split
+
+
+def test_shapes_go_to_processes_where_that_is_faster():
+    assert owners(4, 1, SEEDS, num_processes=1, local_devices=2) is None  # one process
+    assert owners(1, 1, SEEDS, num_processes=2, local_devices=1) is None  # one shape
+    # 2 shapes x 5 seeds on 2 processes: 5 runs per device each alone against 2 x 3 together.
+    assert owners(2, 1, SEEDS, num_processes=2, local_devices=1) == [0, 1]
+    # 3 shapes: 2 x 5 alone against 3 x 3 together.
+    assert owners(3, 1, SEEDS, num_processes=2, local_devices=1) is None
+    assert owners(4, 2, 2, num_processes=2, local_devices=1) == [0, 1, 0, 1]  # a tie: alone
+    assert owners(3, 1, 4, num_processes=4, local_devices=2) == [0, 1, 2]
+
+
+def test_a_process_alone_runs_on_its_own_devices_and_writes_itself():
+    assert processes.devices() == jax.devices()
+    with processes.alone():
+        assert processes.count() == 1 and processes.is_lead()
+        assert processes.devices() == jax.local_devices()
+        assert processes.agree(True, False) == (True, False)
+    assert processes.count() == jax.process_count()
+    processes.wait_for_all("nothing to wait for on one process")
+
+
+def test_own_shapes_run_alone_and_an_error_in_one_is_one_line(tmp_path):
+    """``run_own`` on one process: its shapes run in turn, each writing its own directory; a
+    user error in one still comes after the wait for the others, as the error it was."""
+    specs = [spec_for("fake", tmp_path / name, FAKE_CHUNK) for name in ("a", "b")]
+    assert run_own(specs, ["a", "b"], [0, 0], notify=lambda message: None) is False
+    assert all((spec.out / "checkpoints").is_dir() for spec in specs)
+    # Another run into a's directory: refused, a untouched.
+    refused = dataclasses.replace(spec_for("fake", tmp_path / "a", FAKE_CHUNK), seeds=3)
+    with pytest.raises(RunError, match="already holds a different run"):
+        run_own([refused], ["a"], [0], notify=lambda message: None)
