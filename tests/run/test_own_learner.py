@@ -18,7 +18,7 @@ import pytest
 from child_env import python_path
 
 import rl_jax
-from rl_jax.errors import RunError, UsageError
+from rl_jax.errors import RunError, UsageError, guard
 from rl_jax.run import cli, evaluate, learners, render, sweep
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -79,7 +79,7 @@ def in_process(argv: list[str]) -> tuple[str, str, int]:
     os.chdir(ROOT)
     try:
         with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
-            status = cli.guard(lambda: cli.run_experiment(None, None, "", argv))
+            status = guard(lambda: cli.run_experiment(None, None, "", argv))
     finally:
         os.chdir(cwd)
         if xla_flags is None:  # run_experiment sets the device count for a fresh process
@@ -256,7 +256,7 @@ def test_opening_a_run_never_imports_the_learner_its_record_names(runs, tmp_path
     for main in (evaluate.main, render.main):
         status = main([str(run_dir)])
         one_line(capsys.readouterr().err, status, named)
-    status = cli.guard(lambda: sweep.run_sweep(["--resume", str(sweep_dir)]))
+    status = guard(lambda: sweep.run_sweep(["--resume", str(sweep_dir)]))
     one_line(capsys.readouterr().err, status, named)
     in_python = f"name it again: algorithm='{planted}:learner'"
     for open_it in (
