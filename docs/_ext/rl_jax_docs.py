@@ -100,14 +100,10 @@ def literal(text: str) -> nodes.paragraph:
 
 
 def describe(value: Any) -> str:
-    """A default as a flag would take it: ``256,256`` for a tuple, 7 digits of a float."""
-    if isinstance(value, tuple):
-        return ",".join(str(v) for v in value) or "(empty)"
-    if hasattr(value, "item"):
-        value = value.item()
-    if isinstance(value, float):
-        return f"{value:.7g}"
-    return str(value)
+    """A default as a flag would take it (``rl_jax.run.flags``), ``(empty)`` for an empty tuple."""
+    from rl_jax.run.flags import describe_default
+
+    return describe_default(value) or "(empty)"
 
 
 def learner(name: str) -> Any:

@@ -17,13 +17,11 @@ also be passed to ``reset``/``step`` and vmapped. Structural ones
 (``exclude_current_positions_from_observation``, ``terminate_when_unhealthy``) are constructor
 arguments; gymnasium's ``xml_file``, ``frame_skip`` and ``default_camera_config`` are refused.
 
-Solver fidelity (``fidelity=``). ``"gymnasium"``: gymnasium's constraint-solver limits, the model's
-own (100 iterations, 50 line-search iterations unless its XML sets others). ``"parity"`` (default):
-the cheapest limits that still match gymnasium — on the C backend these are gymnasium's own (MuJoCo
-C stops iterating at convergence, so tighter caps would save little, and the result is bit-identical
-to gymnasium); on MJX, where every env of a vmapped batch pays the full cap, each env's
-``mjx_solver`` limits, the fewest that keep gymnasium parity including the states where gymnasium's
-solver works hardest (``tests/envs/test_mujoco_parity.py``).
+Solver fidelity (``fidelity=``): ``"gymnasium"`` keeps the model's own solver limits (100
+iterations, 50 line-search ones unless its XML sets others); ``"parity"`` (default) the cheapest
+that still match gymnasium: gymnasium's own on the C backend (it stops at convergence, and is
+bit-identical to gymnasium), each env's ``mjx_solver`` limits on MJX, where every env of a vmapped
+batch pays the full cap (``tests/envs/test_mujoco_parity.py`` checks the hardest states).
 
 Exact starts: ``state_from_vector(concatenate([qpos, qvel]))`` (optionally ``qacc_warmstart``
 appended). On the C backend a float64 numpy vector is kept bit for bit; a float32 or traced vector
@@ -94,9 +92,7 @@ def make_physics(
 
 @struct.dataclass
 class MujocoState(EnvState):
-    """A MuJoCo env's state: the backend's physics state, the last observation and what the last
-    step remembered for the next one.
-    """
+    """A MuJoCo env's state: the backend's physics, the last observation, what a step remembers."""
 
     # backend-specific: float32 (qpos, qvel, qacc_warmstart) for mjx, uint32 float64 bits for C
     physics: Any

@@ -32,7 +32,7 @@ import numpy as np
 
 import envs
 from rl_jax.errors import RunError
-from rl_jax.run import cli, learners, plots
+from rl_jax.run import cli, learners, plots, recipe_choice
 from rl_jax.run import distributed as joining
 from rl_jax.run.learners import for_run
 from rl_jax.run.metrics import METRICS_FILE, read_rows
@@ -165,8 +165,8 @@ def train(
         except RuntimeError as error:
             raise RunError(f"cannot join the other processes: {error}") from None
     learner = cli.resolve_algorithm(algorithm)
-    chosen = cli.take_recipe(["--recipe", recipe] if recipe else [], learner, env_id)[0]
-    base_config, base_hparams = cli.recipe_settings(learner, env_id, chosen)
+    chosen = recipe_choice.take_recipe(["--recipe", recipe] if recipe else [], learner, env_id)[0]
+    base_config, base_hparams = recipe_choice.recipe_settings(learner, env_id, chosen)
     total_steps = total_steps or chosen.total_steps
     chosen_config = cli.replace_fields(base_config, dict(config or {}), "config")
     chosen_hparams = cli.replace_fields(base_hparams, dict(hparams or {}), "hyperparameters")

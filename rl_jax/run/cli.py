@@ -35,7 +35,7 @@ from rl_jax.errors import (
     UsageError,
     exit_now,
 )
-from rl_jax.run import distributed, learners, processes, runner
+from rl_jax.run import distributed, learners, processes, recipe_choice, runner
 from rl_jax.run.flags import (
     add_dataclass_flags,
     add_run_flags,
@@ -49,7 +49,7 @@ from rl_jax.run.spec import RunSpec
 from rl_jax.training import params
 from rl_jax.training.algorithm import Algorithm, Config, Hyperparams, hooks
 from rl_jax.training.params import D, dataclass_from_dict
-from rl_jax.training.recipes import PLAIN, Recipe
+from rl_jax.training.recipes import Recipe
 from rl_jax.training.validation import out_of_range
 
 RUNS_ROOT = Path("runs")
@@ -113,82 +113,6 @@ class Defaults:
     total_steps: int = 100_000
 
 
-def take_recipe(argv: list[str], algorithm: Algorithm, env_id: str) -> tuple[Recipe, list[str]]:
-    """``--recipe NAME`` of ``algorithm``'s recipes for ``env_id`` (else its ``"default"``),
-    taken out of ``argv``. ``UsageError`` for an unknown name or with ``--resume`` (a resumed
-    run keeps the settings it recorded)."""
-    pre = argparse.ArgumentParser(add_help=False)
-    pre.add_argument("--recipe", default=None)
-    known, rest = pre.parse_known_args(argv)
-    book = hooks(algorithm)
-    if known.recipe is None:
-        return book.recipe(env_id), rest
-    if any(arg == "--resume" or arg.startswith("--resume=") for arg in rest):
-        raise UsageError(
-            "--recipe starts a new run; --resume continues a run with the settings it recorded"
-        )
-    try:
-        return book.recipe(env_id, known.recipe), rest
-    except KeyError:
-        names = ", ".join(book.recipes.names(env_id))
-        learner, _, own = known.recipe.partition("-")
-        hint = ""
-        if learner in ALGORITHMS and learner != algorithm.name:
-            hint = f" ({known.recipe} is {learner}'s: --algo {learner} --recipe {own or 'default'})"
-        raise UsageError(
-            f"--recipe {known.recipe}: {algorithm.name} has no such recipe for {env_id}{hint}; "
-            f"known: {names}"
-        ) from None
-
-
-def learner_of_recipe(
-    argv: list[str], algorithm: Algorithm, env_id: str
-) -> tuple[Algorithm, list[str]]:
-    """A script's ``--recipe NAME`` may name another built-in learner's recipe for its env:
-    ``td7`` (that learner's default) or ``td7-cpu`` (its ``cpu``). ``(the learner to run, argv
-    with the recipe's own name)``; the script's learner and ``argv`` where NAME is its own."""
-    pre = argparse.ArgumentParser(add_help=False)
-    pre.add_argument("--recipe", default=None)
-    known, rest = pre.parse_known_args(argv)
-    name = known.recipe
-    if name is None or name in hooks(algorithm).recipes.names(env_id):
-        return algorithm, argv
-    learner, _, own = name.partition("-")
-    if learner not in ALGORITHMS or learner == algorithm.name:
-        return algorithm, argv
-    other = resolve_algorithm(learner)
-    return other, [*rest, "--recipe", own or "default"]
-
-
-def _other_learners_recipes(algorithm: Algorithm, env_id: str) -> str:
-    """``--help``'s list of the other built-in learners' recipes written for ``env_id`` or for
-    any env, by the names ``learner_of_recipe`` takes."""
-    names = []
-    for learner, where in ALGORITHMS.items():
-        if learner == algorithm.name or not str(where).startswith("rl_jax."):
-            continue
-        book = hooks(resolve_algorithm(learner)).recipes
-        for name in book.names(env_id) if any(r.is_for(env_id) for r in book) else ():
-            names.append(learner if name == "default" else f"{learner}-{name}")
-    return (
-        f". Other learners' recipes (the run is then theirs): {', '.join(names)}" if names else ""
-    )
-
-
-def recipe_settings(
-    algorithm: Algorithm, env_id: str, recipe: Recipe
-) -> tuple[Config, Hyperparams]:
-    """The algorithm's settings under ``recipe`` for ``env_id`` (a learner without recipes
-    only ever has its defaults)."""
-    named = {} if recipe is PLAIN else {"recipe": recipe.name}
-    try:
-        config = algorithm.default_config(env_id, **named)
-        hparams = algorithm.default_hyperparams(env_id, **named)
-    except (ValueError, TypeError, KeyError) as error:
-        raise UsageError(f"{algorithm.name} cannot run {env_id}: {error}") from None
-    return config, hparams
-
-
 def validate_settings(
     algorithm: Algorithm, config: Config, hparams_list: list[Hyperparams]
 ) -> None:
@@ -239,7 +163,7 @@ def build_parser(
         _add_choice_flags(parser)
     add_run_flags(parser, defaults.seeds, recipe.total_steps or defaults.total_steps)
     recipes = hooks(algorithm).recipes.names(env_id)
-    others = "" if choose else _other_learners_recipes(algorithm, env_id)
+    others = "" if choose else recipe_choice.other_learners_recipes(algorithm, env_id)
     # taken out of argv before parsing (take_recipe); here for --help
     parser.add_argument(
         "--recipe",
@@ -248,7 +172,7 @@ def build_parser(
         help=f"the whole set of {algorithm.name}'s settings for {env_id} that the flags below "
         "start from: " + "; ".join(f"{name}: {about}" for name, about in recipes.items()) + others,
     )
-    config, hparams = recipe_settings(algorithm, env_id, recipe)
+    config, hparams = recipe_choice.recipe_settings(algorithm, env_id, recipe)
     distributed.add_flags(parser)  # taken out of argv before parsing (distributed.start)
     config_names = add_dataclass_flags(parser, config, f"{algorithm.name} config (static)")
     hparam_names = add_dataclass_flags(parser, hparams, f"{algorithm.name} hyperparameters")
@@ -291,7 +215,7 @@ def _choose(
         if record is not None and record.get("learner") == "builtin":
             recorded = shlex.split(record.get("command", ""))
             env = envs.core.registry.resolve_id(env_id)
-            chosen, _ = learner_of_recipe(recorded, algorithm, env)
+            chosen, _ = recipe_choice.learner_of_recipe(recorded, algorithm, env)
             if chosen.name == record["identity"]["algorithm"]:
                 algorithm = chosen
         return algorithm, envs.core.registry.resolve_id(env_id), False
@@ -351,7 +275,7 @@ def _fresh_settings(
     algorithm: Algorithm, env_id: str, defaults: Defaults, recipe: Recipe
 ) -> dict[str, Any]:
     """The script's defaults under ``recipe`` for a new run (flags are applied on top)."""
-    config, hparams = recipe_settings(algorithm, env_id, recipe)
+    config, hparams = recipe_choice.recipe_settings(algorithm, env_id, recipe)
     return {
         "config": config,
         "hparams": [hparams],
@@ -439,8 +363,8 @@ def run_experiment(
         return _help_without_algorithm(description or "", defaults)
     given = typed  # the run records the command as typed, --recipe included
     if not choose:
-        algorithm, argv = learner_of_recipe(argv, algorithm, env_id)
-    recipe, argv = take_recipe(argv, algorithm, env_id)
+        algorithm, argv = recipe_choice.learner_of_recipe(argv, algorithm, env_id)
+    recipe, argv = recipe_choice.take_recipe(argv, algorithm, env_id)
     parser, config_names, hparam_names = build_parser(
         algorithm, env_id, description or "", defaults, choose, recipe
     )

@@ -82,7 +82,8 @@ def _metavar(default: FieldValue) -> str:
     return kind_of(default).upper()
 
 
-def _describe(default: FieldValue) -> str:
+def describe_default(default: FieldValue) -> str:
+    """A default as its flag would take it: ``256,256`` for a tuple, 7 digits of a float."""
     if isinstance(default, tuple):
         return ",".join(str(v) for v in default)
     if hasattr(default, "item"):
@@ -114,7 +115,7 @@ def add_dataclass_flags(
             continue
         default = getattr(instance, field.name)
         doc = docs.get(field.name) or f"{type(instance).__name__}.{field.name}"
-        help_text = f"{doc} (default: {_describe(default)})".replace("%", "%%")
+        help_text = f"{doc} (default: {describe_default(default)})".replace("%", "%%")
         if kind_of(default) == "bool":
             group.add_argument(
                 flag_name(field.name),

@@ -29,7 +29,17 @@ from rl_jax.errors import (
     exit_now,
     guard,
 )
-from rl_jax.run import cli, distributed, flags, learners, plots, processes, runner, sweep_shapes
+from rl_jax.run import (
+    cli,
+    distributed,
+    flags,
+    learners,
+    plots,
+    processes,
+    recipe_choice,
+    runner,
+    sweep_shapes,
+)
 from rl_jax.run.metrics import METRICS_FILE, read_rows
 from rl_jax.training import params
 from rl_jax.training.algorithm import Algorithm
@@ -132,7 +142,7 @@ def build_specs(
     sweep_args.learner = str(learners.origin_of(algorithm))
     sweep_args.algo = learners.origin_of(algorithm).spelling(algorithm.name)
     env_id = envs.core.registry.resolve_id(sweep_args.env)
-    recipe, rest = cli.take_recipe(rest, algorithm, env_id)
+    recipe, rest = recipe_choice.take_recipe(rest, algorithm, env_id)
     parser, config_names, hparam_names = cli.build_parser(
         algorithm, env_id, description, cli.Defaults(), choose=False, recipe=recipe
     )

@@ -17,7 +17,7 @@ from child_env import python_path
 from run_helpers import leaves_bytes, snapshot
 
 from rl_jax import errors
-from rl_jax.run import cli, field_docs, flags, learners
+from rl_jax.run import cli, field_docs, flags, learners, recipe_choice
 from rl_jax.run.checkpoint import Checkpointer
 from rl_jax.run.plan import make_plan
 from rl_jax.run.run_dir import CHECKPOINT_DIR
@@ -255,17 +255,17 @@ def test_a_recipe_is_whole_and_an_unknown_one_is_one_error():
     from rl_jax.agents.td3 import td3
 
     cheetah = "rl_jax/HalfCheetah-v5"
-    recipe, rest = cli.take_recipe(["--recipe", "gpu", "--seeds", "2"], td3, cheetah)
+    recipe, rest = recipe_choice.take_recipe(["--recipe", "gpu", "--seeds", "2"], td3, cheetah)
     assert (recipe.name, recipe.total_steps, rest) == ("gpu", 250_000, ["--seeds", "2"])
-    default, rest = cli.take_recipe(["--seeds", "2"], td3, cheetah)
+    default, rest = recipe_choice.take_recipe(["--seeds", "2"], td3, cheetah)
     assert default.name == "default" and default.throughput == (280.0, 5)
-    assert cli.take_recipe(["--recipe=default"], td3, cheetah)[0] is default
+    assert recipe_choice.take_recipe(["--recipe=default"], td3, cheetah)[0] is default
     with pytest.raises(cli.UsageError, match="--recipe short: td3 has no such recipe for rl_jax/"):
-        cli.take_recipe(["--recipe", "short"], td3, cheetah)
+        recipe_choice.take_recipe(["--recipe", "short"], td3, cheetah)
     # a learner without recipes has only its defaults
-    assert cli.take_recipe([], fake, fake.ENV_ID)[0].name == "default"
+    assert recipe_choice.take_recipe([], fake, fake.ENV_ID)[0].name == "default"
     with pytest.raises(cli.UsageError, match="known: default$"):
-        cli.take_recipe(["--recipe", "paper"], fake, fake.ENV_ID)
+        recipe_choice.take_recipe(["--recipe", "paper"], fake, fake.ENV_ID)
 
 
 def test_a_recipe_is_recorded_in_the_runs_command(monkeypatch, tmp_path):
@@ -481,9 +481,9 @@ def test_train_py_offers_the_learners_recipes_as_whole_recipes():
     from rl_jax.agents.td3 import ddpg, td3
 
     hopper, cheetah = "rl_jax/Hopper-v5", "rl_jax/HalfCheetah-v5"
-    chosen, rest = cli.take_recipe(["--recipe", "paper", "--seeds", "2"], td3, hopper)
+    chosen, rest = recipe_choice.take_recipe(["--recipe", "paper", "--seeds", "2"], td3, hopper)
     assert rest == ["--seeds", "2"] and chosen.throughput is None
-    config, hparams = cli.recipe_settings(td3, hopper, chosen)
+    config, hparams = recipe_choice.recipe_settings(td3, hopper, chosen)
     rates = hparams.to_dict()
     # the TD3 paper's loop, networks and rates, where Hopper's own recipe is the CPU one
     loop = (config.num_envs, config.updates_per_iteration, config.batch_size)
@@ -506,7 +506,7 @@ def test_train_py_offers_the_learners_recipes_as_whole_recipes():
     assert (ddpg_config.num_critics, ddpg_config.policy_delay, ddpg_config.num_envs) == (1, 1, 1)
     assert float(ddpg.default_hyperparams(hopper, "paper").target_noise) == 0.0
     with pytest.raises(cli.UsageError, match="starts a new run"):
-        cli.take_recipe(["--recipe", "paper", "--resume", "runs/x"], td3, hopper)
+        recipe_choice.take_recipe(["--recipe", "paper", "--resume", "runs/x"], td3, hopper)
     # --help lists them with their summaries
     parser, _, _ = cli.build_parser(td3, hopper, "", cli.Defaults(), True)
     text = " ".join(parser.format_help().split())
