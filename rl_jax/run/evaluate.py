@@ -8,24 +8,35 @@ training evaluation used), and prints per seed the run's own figure beside the m
 range of the new episodes. ``--latest`` adds each seed's latest checkpoint. A run of a learner
 of your own needs ``--algo`` naming it again, as it was trained with.
 
+``--gymnasium`` plays the same policies in gymnasium's own env instead (``gymnasium.make`` of the
+run's env: ``HalfCheetah-v5`` for ``rl_jax/HalfCheetah-v5``, ``ID`` for ``gymnasium:ID``, with
+the run's env keywords), stepped on the host one episode at a time, seeded ``KEY + episode``:
+evidence, from code we did not write, that the policy learned the task and not a quirk of our
+copy of the env.
+
     python -m rl_jax.run.evaluate runs/results/dqn-cartpole-pixels --episodes 100 --latest
+    python -m rl_jax.run.evaluate runs/ppo_hopper --gymnasium --episodes 20
 """
 
 from __future__ import annotations
 
 import dataclasses
+from collections.abc import Callable
 from pathlib import Path
 
 import jax
 import numpy as np
 
-from rl_jax.errors import OneLineParser, exit_now, guard, positive_int
+import envs
+from rl_jax.errors import OneLineParser, UsageError, exit_now, guard, positive_int
 from rl_jax.run.api import evaluate_policy as returns_of
-from rl_jax.run.policy import LoadedPolicy, add_run_choice, command_line_learner
+from rl_jax.run.policy import LoadedPolicy, Policy, add_run_choice, command_line_learner
 from rl_jax.training.algorithm import Algorithm
 from rl_jax.training.jax_setup import configure
 
 KEY = 20_251_125  # evaluation episodes' key: none of a run's own evaluations draws it
+# Keywords of our envs' constructors that gymnasium's do not take: how we simulate, not what.
+OWN_KEYWORDS = frozenset({"backend", "fidelity", "nthread"})
 
 
 @dataclasses.dataclass(frozen=True)
@@ -37,11 +48,68 @@ class Evaluation:
     step: int  # env step of the policy
     run_eval: float | None  # the run's own evaluation of it
     returns: np.ndarray  # [episodes]
+    env: str = ""  # where the episodes were played: "" for the run's env, else gymnasium's id
 
 
 def evaluate_policy(loaded: LoadedPolicy, episodes: int, key: int = KEY) -> np.ndarray:
     """Returns ``[episodes]`` of ``loaded``'s deterministic policy in the run's env."""
     return returns_of(loaded.env(), loaded.act(), jax.random.key(key), episodes)
+
+
+def gymnasium_id(env_id: str) -> str:
+    """gymnasium's id of a run's env: ``ID`` of ``gymnasium:ID``; ``NAME`` of ``rl_jax/NAME``
+    where gymnasium registers ``NAME`` (the MuJoCo v5 suite, CartPole, Pendulum)."""
+    import gymnasium
+
+    if env_id.startswith("gymnasium:"):
+        return env_id.split(":", 1)[1]
+    name = env_id.split(":")[-1].removeprefix("rl_jax/")
+    if name == env_id or name not in gymnasium.registry:
+        raise UsageError(f"{env_id} has no twin registered in gymnasium to replay its policies in")
+    return name
+
+
+def gymnasium_returns(
+    policy: Callable[[np.ndarray], np.ndarray],
+    env_id: str,
+    episodes: int,
+    keywords: dict[str, object] | None = None,
+    key: int = KEY,
+) -> np.ndarray:
+    """Returns ``[episodes]`` of ``policy`` in ``gymnasium.make(env_id, **keywords)``, episode
+    ``i`` reset with seed ``key + i`` and played to termination or truncation."""
+    import gymnasium
+
+    env = gymnasium.make(env_id, **(keywords or {}))
+    returns = np.zeros(episodes)
+    try:
+        for episode in range(episodes):
+            obs, _ = env.reset(seed=key + episode)
+            done = False
+            while not done:
+                obs, reward, terminated, truncated, _ = env.step(policy(obs))
+                returns[episode] += float(reward)
+                done = bool(terminated or truncated)
+    finally:
+        env.close()
+    return returns
+
+
+def _in_gymnasium(loaded: LoadedPolicy, episodes: int) -> tuple[str, np.ndarray]:
+    """``loaded``'s policy in gymnasium's twin of the run's env: its id and the returns."""
+    import gymnasium
+
+    env_id = gymnasium_id(loaded.env_id)
+    keywords = envs.parse_keywords(getattr(loaded.config, "env_kwargs", ""))
+    keywords = {name: value for name, value in keywords.items() if name not in OWN_KEYWORDS}
+    policy = Policy(loaded)
+    space = gymnasium.make(env_id, **keywords).observation_space
+    if tuple(space.shape or ()) != policy.observation_shape:
+        raise UsageError(
+            f"gymnasium's {env_id} observes shape {space.shape}, the run's policy "
+            f"{policy.observation_shape}: its episodes cannot be replayed there"
+        )
+    return env_id, gymnasium_returns(policy, env_id, episodes, keywords)
 
 
 def evaluate_run(
@@ -51,17 +119,23 @@ def evaluate_run(
     config_index: int | None = None,
     latest: bool = False,
     algorithm: str | Algorithm | None = None,
+    gymnasium: bool = False,
 ) -> list[Evaluation]:
-    """Every seed's best policy (and its latest, with ``latest``) on ``episodes`` episodes;
-    ``algorithm`` names the run's learner when it is not built in."""
+    """Every seed's best policy (and its latest, with ``latest``) on ``episodes`` episodes of
+    the run's env, or with ``gymnasium`` of gymnasium's own; ``algorithm`` names the run's
+    learner when it is not built in."""
     first = LoadedPolicy(run_dir, None, config_index, "latest", algorithm)
     evaluations = []
     for seed in first.seeds if seeds is None else seeds:
         for which in ("best", "latest") if latest else ("best",):
             loaded = LoadedPolicy(run_dir, seed, first.config_index, which, first.algorithm)
-            returns = evaluate_policy(loaded, episodes)
+            env, returns = (
+                _in_gymnasium(loaded, episodes)
+                if gymnasium
+                else ("", evaluate_policy(loaded, episodes))
+            )
             evaluations.append(
-                Evaluation(seed, loaded.which, loaded.step, loaded.eval_return, returns)
+                Evaluation(seed, loaded.which, loaded.step, loaded.eval_return, returns, env)
             )
     return evaluations
 
@@ -71,8 +145,9 @@ def table(evaluations: list[Evaluation]) -> str:
     episodes' mean, std, min and max.
     """
     episodes = len(evaluations[0].returns)
+    where = evaluations[0].env and f" of gymnasium's {evaluations[0].env}"
     lines = [
-        f"each policy on {episodes} fresh episodes",
+        f"each policy on {episodes} fresh episodes{where}",
         "",
         "  seed  policy        step   run's eval      mean      std       min       max",
         "  ----  ------  ----------   ----------  --------  -------  --------  --------",
@@ -104,6 +179,12 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument(
         "--latest", action="store_true", help="also each seed's latest checkpoint's policy"
     )
+    parser.add_argument(
+        "--gymnasium",
+        action="store_true",
+        help="play the episodes in gymnasium's own env (HalfCheetah-v5 for "
+        "rl_jax/HalfCheetah-v5), stepped on the host",
+    )
     args = parser.parse_args(argv)
 
     def run() -> int:
@@ -111,7 +192,13 @@ def main(argv: list[str] | None = None) -> int:
         seeds = None if args.seed is None else [args.seed]
         learner = command_line_learner(args.run_dir, args.algo)
         evaluations = evaluate_run(
-            args.run_dir, args.episodes, seeds, args.config_index, args.latest, learner
+            args.run_dir,
+            args.episodes,
+            seeds,
+            args.config_index,
+            args.latest,
+            learner,
+            args.gymnasium,
         )
         print(table(evaluations))
         return 0

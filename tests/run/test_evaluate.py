@@ -12,6 +12,7 @@ import pytest
 from child_env import python_path
 from run_helpers import fake_run
 
+from rl_jax.errors import UsageError
 from rl_jax.run import evaluate
 from rl_jax.run.policy import LoadedPolicy
 from rl_jax.training.episodes import episode_returns
@@ -75,7 +76,35 @@ def test_command_line_prints_the_table_or_one_error_line(run_dir):
         ((run_dir, "--seed", "9", "--algo", "fake_algorithm"), "--seed 9 is not in this run"),
         ((run_dir,), "name it again: --algo fake_algorithm"),
         ((run_dir, "--episodes", "0"), "--episodes"),
+        ((run_dir, "--gymnasium", "--algo", "fake_algorithm"), "no twin registered in gymnasium"),
     ]:
         done = command(*args)
         lines = done.stderr.strip().splitlines()
         assert done.returncode != 0 and len(lines) == 1 and expected in lines[0], done.stderr
+
+
+def test_gymnasium_twins_are_named_by_the_runs_env_id():
+    assert evaluate.gymnasium_id("rl_jax/HalfCheetah-v5") == "HalfCheetah-v5"
+    assert evaluate.gymnasium_id("rl_jax/CartPole-v1") == "CartPole-v1"
+    assert evaluate.gymnasium_id("gymnasium:Pendulum-v1") == "Pendulum-v1"
+    for foreign in ("rl_jax/Rocket-v0", "examples.hover_rocket:examples/HoverRocket-v0"):
+        with pytest.raises(UsageError, match="no twin registered in gymnasium"):
+            evaluate.gymnasium_id(foreign)
+
+
+def test_gymnasium_episodes_are_seeded_and_played_to_their_end():
+    import gymnasium
+
+    def push_right(obs):
+        return 1
+
+    returns = evaluate.gymnasium_returns(push_right, "CartPole-v1", episodes=3, key=11)
+    for episode, expected in enumerate(returns):
+        env = gymnasium.make("CartPole-v1")
+        env.reset(seed=11 + episode)
+        total, done = 0.0, False
+        while not done:
+            _, reward, terminated, truncated, _ = env.step(1)
+            total, done = total + reward, terminated or truncated
+        assert expected == total
+    assert np.all((returns > 5) & (returns < 100))  # pushing one way topples the pole early
