@@ -1,7 +1,7 @@
 """What TD3's network options, TD7 and CrossQ cost: updates/s per seed of the half-cheetah
 training program with 5 seeds in one program, side by side with plain TD3.
 
-``python -m bench td3_options`` (about 18 minutes on 2 cores; run it alone). Two loops:
+``python -m bench td3_options`` (long on a CPU: run it alone). Two loops:
 
 * **TD7's loop** (the TD3 paper's: 1 env per seed, 1 update per env step, batch 256, 256 x 256
   actor and critics), where TD7's published settings live: plain TD3, each network option,

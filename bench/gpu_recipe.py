@@ -40,9 +40,8 @@ GOAL = 5000.0
 CHUNK_STEPS = 24_576
 #: name: (num_envs, batch_size, updates_per_iteration), in the order ``run`` tries them.
 #: Updates per env step = updates_per_iteration / num_envs; the CPU recipe makes 1 at batch 128.
-#: The first reached the goal on one H100 (5,180 at 172k steps, 53 s of training; BENCHMARKS.md)
-#: and is ``td3_cheetah.py --recipe gpu`` (td3's recipe "gpu"); the deadline came before
-#: the others were timed.
+#: The first reached the goal on one H100 (BENCHMARKS.md has its run) and is
+#: ``td3_cheetah.py --recipe gpu`` (td3's recipe "gpu"); the others were not timed.
 CANDIDATES = {
     "e64-b1024-u32": (64, 1024, 32),  # 0.5 update per env step
     "e64-b4096-u16": (64, 4096, 16),  # 0.25, 4x the batch

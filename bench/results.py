@@ -227,7 +227,7 @@ ROWS: dict[str, Row] = {
     ),
     # TD7's options (Fujimoto et al. 2023) in the CPU loop at its sizes (td7's recipe "cpu"): the
     # issue's goal, a mean of 12,000 at 300k steps. TD7's own sizes (--recipe td7) cost 6x more
-    # per update: ~8 hours here, so not a row (RESULTS.md).
+    # per update: hours on a 2-core CPU, so not a row (RESULTS.md).
     "td7-cpu-cheetah": _td7_cpu_cheetah(
         300_000,
         "15,031 at 300k, 17,434 at 1M; CrossQ 10,012, SimbaV2 9,892 at 300k; TD3 paper's curves "
@@ -235,7 +235,7 @@ ROWS: dict[str, Row] = {
         12000.0,
     ),
     # The same run to 1M steps, the issue's second goal (>= 15,000 there "where the compute
-    # fits"): ~4.5 hours here, so it is made in sittings, each resumed from the run's checkpoint
+    # fits"): hours on 2 cores, so it is made in sittings, each resumed from the run's checkpoint
     # (`td3_cheetah.py --resume runs/results/td7-cpu-cheetah-1m`; then `--from-run`).
     "td7-cpu-cheetah-1m": _td7_cpu_cheetah(
         1_000_000,
@@ -289,10 +289,10 @@ ROWS: dict[str, Row] = {
         5,
         _paper_curve("Ant", "td3"),
     ),
-    # Humanoid: the issue asks for the budget that fits 60 minutes for 5 seeds. Measured on the
-    # CPU recipe (AMD EPYC, 2 cores): a 5,000-step chunk of 5 seeds took 45.5 s, so 300k steps
-    # (the other rows' budget) need ~46 minutes. A buffer of 300k holds every transition of the
-    # run (the default 1M would need 26.6 GB for 5 seeds: 348 numbers per observation).
+    # Humanoid: the issue asks for the budget that fits 60 minutes for 5 seeds; the other rows'
+    # 300k steps fit (RESULTS.md, "Humanoid", has the timing). A buffer of 300k holds every
+    # transition of the run (the default 1M would need 26.6 GB for 5 seeds: 348 numbers per
+    # observation).
     "td3-humanoid": Row(
         "TD3, `rl_jax/Humanoid-v5`",
         "train.py",
@@ -313,7 +313,7 @@ ROWS: dict[str, Row] = {
     ),
     # The TD3 repository's whole recipe since 2019 (1 env, 1 update per step, batch 256, 25k random
     # steps, 256 x 256 at rate 3e-4) on a second task beside the CPU recipe's td3-hopper row: what
-    # the recipe changes. Its goal is the return's; it runs 4-5x longer than the CPU recipe here.
+    # the recipe changes. Its goal is the return's; it runs several times as long as the CPU one.
     "td3-hopper-paper": Row(
         "TD3, the TD3 repository's recipe (`--recipe paper`), `rl_jax/Hopper-v5`",
         "train.py",

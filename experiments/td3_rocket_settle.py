@@ -8,7 +8,7 @@ earns +2 (the episode goes on), plus a sharp peak at the scale of that box; half
 start near the goal, and it observes (x, v) with zoomed copies tanh(x / 0.03), tanh(v / 0.03)
 (envs/classic/rocket.py). Same TD3 recipe as the faithful rocket: AR(1) exploration noise
 (correlation 0.98, std 0.5), gamma 0.995, 64x64 networks, one update per env step; 200,000 env
-steps per seed, where 5/5 seeds came to rest in the box from (1, 0) (3/5 at 100,000).
+steps per seed (RESULTS.md, "The rocket": how many seeds come to rest in the box from (1, 0)).
 
 Compare the learned policy with the time-optimal bang-bang controller (at rest at t = 2.0 s from
 (1, 0)) and an LQR law:

@@ -4,11 +4,9 @@ A cold run of the suite is mostly XLA compiling hundreds of small training progr
 a few hundred steps, and most of that time is code generation. The tests compile at LLVM -O0
 (``--xla_backend_optimization_level=0``) and, on the jaxlib it was measured on, with XLA's older
 elemental emitters (``--xla_cpu_use_fusion_emitters=false``): the same HLO programs, whose results
-differ from the defaults' only by rounding in the last bits. Measured on a 2-core AMD EPYC
-(2026-11-28): half cheetah's MJX step compiles in 14.3 s at the defaults, 8.1 s at -O0 and 5.3 s
-with both; a tiny TD3 chunk in 5.5 s, 2.2 s and 1.2 s; a cold suite ran 7:14 of tests against
-15:43-19:07. Scripts and users keep XLA's defaults; the persistent compilation cache keys entries
-by their XLA flags, so the two never share an entry.
+differ from the defaults' only by rounding in the last bits, and that compile several times
+faster (docs/testing.md has the measurements). Scripts and users keep XLA's defaults; the
+persistent compilation cache keys entries by their XLA flags, so the two never share an entry.
 
 ``apply()`` must run before JAX starts its backend (conftest's ``pytest_configure`` does);
 subprocesses inherit the flags. A run that selects the slow tests (``-m slow``, ``make test-slow``)
@@ -23,9 +21,9 @@ import os
 import pkgutil
 
 FLAG = "--xla_backend_optimization_level=0"
-# XLA's older elemental emitters compile a fusion faster than its newer MLIR fusion emitters
-# (half cheetah's MJX step at -O0: 8.1 s -> 5.3 s). The flag is XLA's own and may go away: an
-# unknown flag aborts the process, so it is only given to the jaxlib it was measured on.
+# XLA's older elemental emitters compile a fusion faster than its newer MLIR fusion emitters.
+# The flag is XLA's own and may go away: an unknown flag aborts the process, so it is only given
+# to the jaxlib it was measured on.
 EMITTER_FLAG = "--xla_cpu_use_fusion_emitters=false"
 EMITTER_FLAG_JAXLIB = ("0.9.",)
 
@@ -56,8 +54,7 @@ def apply(markexpr: str = "") -> None:
     ``TEST_XLA_OPT=default``, by a level already given, or because ``markexpr`` selects slow
     tests. Those train RESULTS.md's rows, in this process or in scripts that inherit the flags,
     and the rows' wall-clock goals and seed paths were measured at XLA's defaults: at these flags
-    the half-cheetah row ran 2.2x slower (18:24 against 8:33 on one Intel machine, and other
-    returns)."""
+    a row runs slower and its seeds take other paths."""
     flags = os.environ.get("XLA_FLAGS", "")
     if os.environ.get("TEST_XLA_OPT") == "default" or "xla_backend_optimization_level" in flags:
         return

@@ -21,14 +21,13 @@ configure()
 jax.config.update("jax_numpy_rank_promotion", "raise")
 # Cache every compiled program, not only those that took 0.5 s (configure's choice for scripts):
 # the suite compiles hundreds of small programs, eager ops and test-only jits, and a warm cache
-# makes a rerun of such files 2-3x faster here (test_dqn_losses 22 s -> 8 s, test_vmap 9 s -> 3 s).
+# makes a rerun of such files several times faster.
 jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.0)
 
 # Python's cyclic garbage collector, at its default thresholds, runs every 700 allocations and
 # walks every live object in its older generations: tracing a program allocates millions of small
 # objects, and a test process holds many. Collecting less often, with what exists after collection
-# frozen out of the walks, makes tracing and lowering ~25% faster (an MJX half-cheetah step: 5.8 s
-# -> 4.2 s here). Garbage is still collected, later.
+# frozen out of the walks, makes tracing and lowering faster. Garbage is still collected, later.
 gc.set_threshold(50_000, 20, 20)
 
 
@@ -52,29 +51,28 @@ def pytest_collection_finish(session):
 
 # ---- spreading the files over the test processes (`make test`: -n 2 --dist loadfile) -----------
 # Each file runs whole in one process, so that its tests share their compiled programs. Two
-# changes to xdist's file scheduling, both for a cold run (measured on 2 cores):
+# changes to xdist's file scheduling, both for a cold run:
 # - the MJX env files compile the same MJX step programs (test_mujoco_env imports
 #   test_mujoco_parity's engine and BATCH): one unit, so that the second file finds them in the
 #   compilation cache instead of both processes compiling them at once;
 # - the heaviest units go first, longest first, so that no process is left with a long file at
-#   the end while the other idles. xdist's own order is by number of tests, which put the former
-#   test_td3_options.py (20 tests, 80 s cold) near the end. The rest follow in xdist's order.
+#   the end while the other idles. xdist's own order is by number of tests, which can put a long
+#   file of few tests near the end. The rest follow in xdist's order.
 SHARED_UNITS = {
     "tests/envs/test_mujoco_env.py": "tests/envs/test_mujoco_parity.py",
 }
-# cold seconds of each unit, `--durations=0` of a cold run at the tests' flags (2-core AMD EPYC)
+# the slowest units of a cold run (`--durations=0` at the tests' flags), the slowest first; their
+# times are in docs/testing.md
 HEAVIEST_FIRST = (
-    "tests/envs/test_mujoco_parity.py",  # with test_mujoco_env.py: ~170 s
-    "tests/agents/test_dqn_pixels.py",  # ~60 s
-    "tests/envs/test_mujoco_ffi.py",  # ~40 s
-    "tests/training/test_parallel.py",  # ~39 s
-    "tests/agents/test_td3_reference.py",  # ~33 s
-    # The former test_td3_options.py (~78 s) is now this file, test_td7.py and test_crossq.py:
-    # cold at load ~3 they took 52, 41 and 29 s; the quiet figures are estimates from those.
-    "tests/agents/test_td3_network_options.py",  # ~30 s
-    "tests/run/test_cli.py",  # ~28 s
-    "tests/agents/test_td3_probes.py",  # ~27 s
-    "tests/agents/test_td7.py",  # ~25 s
+    "tests/envs/test_mujoco_parity.py",  # with test_mujoco_env.py
+    "tests/agents/test_dqn_pixels.py",
+    "tests/envs/test_mujoco_ffi.py",
+    "tests/training/test_parallel.py",
+    "tests/agents/test_td3_reference.py",
+    "tests/agents/test_td3_network_options.py",
+    "tests/run/test_cli.py",
+    "tests/agents/test_td3_probes.py",
+    "tests/agents/test_td7.py",
 )
 
 

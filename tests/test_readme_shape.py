@@ -1,6 +1,6 @@
 """The front pages stay readable: README.md fits about one screen, no Markdown table cell of
-README.md, RESULTS.md or BENCHMARKS.md is an essay, and every relative link of those pages (and
-of the docs pages) points at a file and a heading that exist."""
+README.md, RESULTS.md, BENCHMARKS.md or a docs page is an essay, and every relative link of those
+pages (and of the docs pages) points at a file and a heading that exist."""
 
 import re
 from pathlib import Path
@@ -11,6 +11,11 @@ from bench import results
 
 ROOT = Path(__file__).resolve().parent.parent
 FRONT_PAGES = ["README.md", "RESULTS.md", "BENCHMARKS.md"]
+DOCS_PAGES = sorted(
+    str(page.relative_to(ROOT))
+    for page in (ROOT / "docs").rglob("*.md")
+    if "_build" not in page.relative_to(ROOT).parts
+)
 MAX_README_LINES = 200
 MAX_CELL = 200
 LINK = re.compile(r"\[[^\]]*\]\(([^)\s]+)\)")
@@ -75,7 +80,7 @@ def test_the_readme_fits_about_one_screen():
     assert len(lines) <= MAX_README_LINES, f"README.md has {len(lines)} lines"
 
 
-@pytest.mark.parametrize("name", FRONT_PAGES)
+@pytest.mark.parametrize("name", FRONT_PAGES + DOCS_PAGES)
 def test_no_table_cell_is_an_essay(name):
     long_cells = [
         f"{name}:{line}: {len(cell)} characters: {cell[:60]}..."

@@ -35,8 +35,8 @@ def _pixel_run():
 @pytest.mark.slow
 def test_pixel_final_policies_score_450_on_100_fresh_episodes():
     """Issue's goal for pixel DQN: the policy each seed ends with (its latest checkpoint), on 100
-    fresh episodes, a mean >= 450 in each of the 3 seeds. Measured on the row of RESULTS.md:
-    474.7 / 493.0 / 500.0."""
+    fresh episodes, a mean >= 450 in each of the 3 seeds (RESULTS.md's row holds the measured
+    means)."""
     import jax
 
     from rl_jax.run.api import evaluate_policy
@@ -55,7 +55,7 @@ def test_pixel_final_policies_score_450_on_100_fresh_episodes():
 def test_pixel_policies_balance_on_gymnasiums_own_frames():
     """The pixel row's final policies, trained on the frames we draw in JAX, driven by
     gymnasium's own CartPole-v1 rendering (pygame, preprocessed in numpy): they balance there
-    too. Measured on the row of RESULTS.md: every seed at 500 in 5 of 5 episodes."""
+    too (RESULTS.md's pixel section holds the measured returns)."""
     run = _pixel_run()
     means = [
         np.mean(play_cartpole(load_policy(run, seed=s, which="latest"), 5, seed=1000))

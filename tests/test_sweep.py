@@ -17,7 +17,7 @@ from pathlib import Path
 import pytest
 from child_env import python_path
 
-# Three sweeps compile in three processes: ~1.5 min on a quiet 2-core machine, over 4 under load.
+# Three sweeps compile in three processes, each a program of its own: slow.
 pytestmark = pytest.mark.slow
 
 ROOT = Path(__file__).resolve().parent.parent

@@ -107,7 +107,7 @@ def build() -> Path:
         return path
     path.parent.mkdir(parents=True, exist_ok=True)
     partial = path.with_suffix(f".{os.getpid()}.tmp")  # renamed into place: builds may race
-    # One line, so that the first use's pause (about 20 s of g++) is not a silent hang.
+    # One line, so that the first use's pause (g++ compiling the op) is not a silent hang.
     print(f"rl_jax: building the MuJoCo FFI op (once) into {path.parent} ...", file=sys.stderr)
     try:
         result = subprocess.run(

@@ -84,7 +84,7 @@ def run_label(row: dict[str, Any], grid_fields: tuple[str, ...] = ()) -> str:
 def _summary_writer_class() -> type[SummaryWriter]:
     """tensorboardX's ``SummaryWriter``, imported without torch.
 
-    tensorboardX imports torch whenever it is installed (4 s and hundreds of MB here, where the
+    tensorboardX imports torch whenever it is installed (seconds and hundreds of MB, where the
     PyTorch baseline of bench/ is installed) only to accept torch tensors, which we never log.
     """
     hide_torch = "torch" not in sys.modules

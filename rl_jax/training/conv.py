@@ -105,8 +105,8 @@ class MatmulConv(nn.Module):
     is zero-padded to ``m*s`` when ``s`` does not divide ``k``). One matmul gives every block's
     product with all ``m*m`` taps' weights at once (``[bh, bw, m, m, F]``), and the output is the
     sum of the ``m*m`` shifted tap slices. Summing small outputs instead of concatenating
-    ``m*m`` shifted copies of the input into patches moves ~4x less memory: a pixel-DQN update
-    took 15-25% less time (bench/bench_pixel_dqn.py)."""
+    ``m*m`` shifted copies of the input into patches moves ~4x less memory, and so takes less
+    time (BENCHMARKS.md, "Pixel DQN")."""
 
     features: int
     kernel: int

@@ -72,7 +72,7 @@ def test_reinforce_balances_the_inverted_pendulum_for_1000_steps_in_every_seed(s
 @pytest.mark.slow
 def test_dqn_settles_the_rocket_from_one_zero_in_every_seed(tmp_path):
     """RESULTS.md's DQN row of rl_jax/RocketSettle-v0: the recipe (thrust in {-1, -0.5, 0, 0.5,
-    1}, LayerNorm in the Q-network) for 200k env steps, 5 seeds in one program (~6 minutes); the
+    1}, LayerNorm in the Q-network) for 200k env steps, 5 seeds in one program; the
     latest policy of every seed, rolled from (1, 0) by ``rocket_report``, enters |x|, |v| <= 0.01
     and stays inside to step 500."""
     import subprocess

@@ -143,8 +143,8 @@ def run(name: str) -> list:
     return chunks
 
 
-# The default suite runs one short run per learner (and TD3's network options); the rest, each
-# 10-60 s at the suite's flags, run with the slow tests.
+# The default suite runs one short run per learner (and TD3's network options); the rest, longer
+# each, run with the slow tests.
 DEFAULT = ("td7-cpu", "crossq-cpu", "td3-simba", "dqn-cartpole", "reinforce-cartpole")
 
 

@@ -214,7 +214,7 @@ def test_target_action_noise_is_relative_to_action_scale_and_clipped(setup):
 
 def test_critic_loss_has_exactly_zero_gradient_wrt_target_networks(setup):
     _, p, _, _ = setup
-    # Jitted (as in training) rather than dispatched op by op: ~2x faster, the same zeros.
+    # Jitted (as in training) rather than dispatched op by op: faster, the same zeros.
     grads = jax.jit(jax.grad(lambda *args: _critic_loss(setup, *args), argnums=(0, 1, 2)))(
         p["critics"], p["target_actor"], p["target_critics"]
     )

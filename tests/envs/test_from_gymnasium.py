@@ -345,7 +345,7 @@ def test_td3_resumes_without_its_host_state(readme_command_run, tmp_path):
     assert adapter.pool.cut_episodes == 2 * 2 * TINY["num_envs"]  # configs x seeds x envs
 
 
-@pytest.mark.slow  # ~30 s of training; the resume path is test_td3_resumes_without_its_host_state
+@pytest.mark.slow  # it trains; the resume path is test_td3_resumes_without_its_host_state
 def test_td3_learns_gymnasium_pendulum_and_resumes_without_its_host_state(tmp_path):
     """TD3's Pendulum recipe (3 seeds) on gymnasium's own Pendulum-v1: after 6,000 env steps per
     seed the deterministic policy scores far above the untrained one evaluated at step 1,000.

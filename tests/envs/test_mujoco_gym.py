@@ -12,7 +12,7 @@ from test_mujoco_parity import ENV_IDS, POSITION_ULPS, _tracked_position
 import envs  # noqa: F401  (registers the rl_jax ids with gymnasium)
 
 # The MuJoCo C backend, named: on a GPU the default is MJX (float32 physics, and one compile of
-# each env's step, minutes under load), which test_mujoco_parity.py checks against C on its own.
+# each env's step, a long one), which test_mujoco_parity.py checks against C on its own.
 C = {"backend": "mujoco"}
 
 

@@ -93,14 +93,13 @@ WALKERS = ["Hopper-v5", "Walker2d-v5"]  # terminated by gymnasium's health range
 # gymnasium reads as MuJoCo left it at the previous step, so our envs remember it (Ant: the main
 # body's xpos; Humanoid: the bodies' mass centre, from xipos); terminated by the torso's height.
 FREE_BODIES = ["Ant-v5", "Humanoid-v5"]
-# Seconds to compile and run the 256-env MJX step of these envs on this 2-core CPU with a cold
-# compilation cache, measured while other jobs kept the load at 3-4 (30-50 s of CPU time each):
-# their MJX tests are marked slow.
-SLOW_MJX = {"Hopper-v5": 61, "Walker2d-v5": 106, "Swimmer-v5": 81, "Reacher-v5": 80}
+# Envs whose 256-env MJX step is slow to compile and run on a CPU with a cold compilation cache
+# (docs/testing.md has the times): their MJX tests are marked slow.
+SLOW_MJX = ("Hopper-v5", "Walker2d-v5", "Swimmer-v5", "Reacher-v5")
 # Ant and Humanoid on MJX differ from gymnasium by more than float32 rounding, for reasons outside
-# our envs: they have an MJX test of their own (test_mjx_free_body_one_step_is_close_to_gymnasium)
-# whose compile and run took these seconds here (cold cache, load 2-4).
-SLOW_FREE_BODY_MJX = {"Ant-v5": 89, "Humanoid-v5": 133}
+# our envs: they have an MJX test of their own (test_mjx_free_body_one_step_is_close_to_gymnasium),
+# slow to compile and run too.
+SLOW_FREE_BODY_MJX = ("Ant-v5", "Humanoid-v5")
 MJX_ENV_IDS = [
     pytest.param(env_id, marks=pytest.mark.slow) if env_id in SLOW_MJX else env_id
     for env_id in ENV_IDS
@@ -112,7 +111,7 @@ N_RANDOM = 200
 N_HARDEST = 24
 POOL_EPISODES, POOL_EPISODE_STEPS = 100, 100
 # Smaller pools where gymnasium's steps are dear: (episodes, random states). An Ant or Humanoid step
-# (5 RK4 substeps of a 3-D body) takes ~0.6 ms here, 5-10x the others'; Humanoid's 17 limited
+# (5 RK4 substeps of a 3-D body) costs several times the others'; Humanoid's 17 limited
 # joints give 68 joint-limit states, so it draws 150 random ones to stay within BATCH.
 SMALL_POOLS = {"Ant-v5": (30, N_RANDOM), "Humanoid-v5": (20, 150)}
 TRAJECTORY_STEPS = 50
