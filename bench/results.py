@@ -114,6 +114,16 @@ TD7_TABLE = {
 }
 
 
+# CleanRL's ppo_continuous_action.py on gymnasium's MuJoCo v4 envs at its 1M steps
+# (docs.cleanrl.dev, PPO page, the table tagged pr-424: mean ± std over 3 seeds of the episodic
+# returns at the end of training, with its stochastic policy).
+CLEANRL_PPO = {
+    "HalfCheetah": (1442.64, 46.03),
+    "Hopper": (2382.86, 271.74),
+    "Walker2d": (2287.95, 571.78),
+}
+
+
 def _paper_curve(name: str, algo: str) -> str:
     curve = TD3_PAPER_CURVES[name]
     at = lambda steps: "{:,.4g} [{:,.4g}, {:,.4g}]".format(*curve[steps])
@@ -335,6 +345,33 @@ ROWS: dict[str, Row] = {
             Goal(TD3_PAPER_CURVES[name][300_000][1], 5, "final", mean=True),
         )
         for name in ("Hopper", "Ant")
+    },
+    # PPO at CleanRL's ppo_continuous_action.py settings (our `cleanrl` recipe) for its 1M steps,
+    # against CleanRL's own figure for that script (CLEANRL_PPO): the goal is to match it.
+    **{
+        f"ppo-cleanrl-{name.lower()}": Row(
+            f"PPO, CleanRL's settings (`--recipe cleanrl`), `rl_jax/{name}-v5`",
+            "train.py",
+            (
+                "--algo",
+                "ppo",
+                "--env",
+                f"rl_jax/{name}-v5",
+                "--recipe",
+                "cleanrl",
+                "--total-steps",
+                "1000000",
+            ),
+            5,
+            (
+                f"CleanRL's ppo_continuous_action.py, {name}-v4 at 1M: "
+                "{:,.0f} ± {:,.0f} (3 seeds)".format(*CLEANRL_PPO[name])
+                if name in CLEANRL_PPO
+                else "CleanRL's tables give no Ant figure for ppo_continuous_action.py"
+            ),
+            Goal(CLEANRL_PPO[name][0], 5, "final", mean=True) if name in CLEANRL_PPO else None,
+        )
+        for name in ("HalfCheetah", "Hopper", "Walker2d", "Ant")
     },
     "td3-rocket": Row(
         "TD3, `rl_jax/Rocket-v0`",
