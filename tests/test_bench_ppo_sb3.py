@@ -69,15 +69,16 @@ def test_table_compares_the_slower_of_ours_with_the_faster_sb3():
     results = {
         "ours": _side(2.0, jax="0.9.2", cores=2, breakdown_s=breakdown),
         "ours_again": _side(2.5, jax="0.9.2", cores=2),
-        "sb3": [
-            _side(30.0, threads=1, stable_baselines3="2.9.2", torch="2.13.0"),
-            _side(40.0, threads=2, stable_baselines3="2.9.2", torch="2.13.0"),
+        "sb3_probes": [
+            _side(3.0, 2048, threads=1, stable_baselines3="2.9.2", torch="2.13.0"),
+            _side(4.0, 2048, threads=2, stable_baselines3="2.9.2", torch="2.13.0"),
         ],
+        "sb3": [_side(30.0, threads=1, stable_baselines3="2.9.2", torch="2.13.0")],
     }
     text = "\n".join(bench.table(results))
     assert "**12.00x**" in text  # 30 / 2.5
     assert "| ours again | 4,096 | 12.0 | 2.5 | 1,638 | XLA over 2 cores | 1.5 |" in text
-    assert "torch 2 |" in text
+    assert "| SB3, choosing its thread count | 2,048 | 12.0 | 4.0 | 512 | torch 2 | 1.5 |" in text
     assert "| the update alone: 10 epochs x 32 minibatches of 64 | 100.0 | 50% |" in text
     assert "| the rest (whole - rollout - update) | 20.0 | 10% |" in text
 
@@ -110,3 +111,21 @@ def test_the_module_runs_as_a_script_with_help():
         cwd=bench.ROOT,
     )
     assert done.returncode == 0 and "--sb3-threads" in done.stdout
+
+
+def test_sb3_runs_the_whole_budget_at_its_faster_probed_thread_count(monkeypatch):
+    calls = []
+
+    def fake_sb3(python, steps, threads):
+        calls.append((steps, threads))
+        return {"seconds": steps / (100.0 if threads == 2 else 50.0), "threads": threads}
+
+    monkeypatch.setattr(bench, "_sb3", fake_sb3)
+    monkeypatch.setattr(bench, "_ours_child", lambda steps, breakdown: {"steps": steps})
+    big = bench.round_steps(100_000)
+    results = bench.measure(None, big, [1, 2], 0)
+    assert calls == [(bench.PROBE_STEPS, 1), (bench.PROBE_STEPS, 2), (big, 2)]
+    assert [r["threads"] for r in results["sb3"]] == [2]
+    calls.clear()
+    bench.measure(None, 4096, [1, 2], 0)  # a budget within the probe's: each count runs it
+    assert calls == [(4096, 1), (4096, 2)]
