@@ -129,3 +129,31 @@ def test_sb3_runs_the_whole_budget_at_its_faster_probed_thread_count(monkeypatch
     calls.clear()
     bench.measure(None, 4096, [1, 2], 0)  # a budget within the probe's: each count runs it
     assert calls == [(4096, 1), (4096, 2)]
+
+
+def test_run_gives_a_section_with_its_command_and_tables(monkeypatch, tmp_path):
+    seen = {}
+
+    def fake_measure(python, steps, threads, breakdown_iterations):
+        seen.update(steps=steps, threads=threads, breakdown=breakdown_iterations)
+        return {
+            "ours": _side(2.0, steps, jax="0.9.2", cores=2),
+            "ours_again": _side(2.0, steps, jax="0.9.2", cores=2),
+            "sb3": [_side(30.0, steps, threads=1, stable_baselines3="2.9.2", torch="2.13.0")],
+        }
+
+    monkeypatch.setattr(bench, "measure", fake_measure)
+    monkeypatch.setattr(peers, "ensure", lambda: tmp_path / "python")
+    monkeypatch.setattr(bench, "__file__", str(tmp_path / "bench_ppo_sb3.py"))  # results there
+    text = bench.run(quick=True)
+    assert seen == {"steps": bench.QUICK_STEPS, "threads": bench.default_threads(), "breakdown": 3}
+    assert "`python -m bench ppo_sb3 --quick`" in text and "**15.00x**" in text
+    assert json.loads((tmp_path / "results" / "ppo_sb3.json").read_text())["sb3"][0]["threads"] == 1
+
+
+def test_run_says_why_when_the_peers_venv_cannot_be_built(monkeypatch):
+    def unavailable():
+        raise peers.PeersUnavailable("could not create the venv: no network")
+
+    monkeypatch.setattr(peers, "ensure", unavailable)
+    assert "not measured: could not create the venv: no network" in bench.run(quick=True)
