@@ -113,3 +113,24 @@ def test_sbx_sac_runs_and_prints_its_rate():
     assert done.returncode == 0, done.stderr[-2000:]
     result = json.loads(done.stdout.strip().splitlines()[-1])
     assert result["algo"] == "SAC" and result["updates"] == 20 and result["updates_per_s"] > 0
+
+
+def test_peers_sac_reports_every_case_against_sbx_alone(monkeypatch, tmp_path):
+    from bench import bench_peers_sac
+
+    measured = []
+
+    def fake_measure(case, python, quick, algo):
+        measured.append((case, quick, algo))
+        return _case(bench_peers.PEERS[algo])
+
+    monkeypatch.setattr(bench_peers, "measure_case", fake_measure)
+    monkeypatch.setattr(peers, "ensure", lambda: tmp_path / "python")
+    monkeypatch.setattr(bench_peers, "__file__", str(tmp_path / "bench_peers.py"))
+    text = bench_peers_sac.run(quick=True)
+    assert measured == [(case, True, "sac") for case in bench_peers.CASES]
+    assert text.startswith(f"## {bench_peers_sac.TITLE}")
+    assert "`python -m bench peers_sac --quick`" in text and "PyTorch" not in text
+    assert set(json.loads((tmp_path / "results" / "peers_sac.json").read_text())) == set(
+        bench_peers.CASES
+    )
