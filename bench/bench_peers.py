@@ -15,6 +15,9 @@ same 2 cores (``python -m bench peers``).
 
 Order per case: ours, SBX, PyTorch, ours again; both of our timings are reported, so a change of
 load during the case shows. Ratios are ours (the better layout) over the peer's two processes.
+
+``bench_peers_sac`` runs the same cases for SAC through this module's ``report``: ours against
+SBX's SAC (``bench/sbx_sac.py``; there is no PyTorch SAC script).
 """
 
 from __future__ import annotations
@@ -39,16 +42,32 @@ QUICK_UPDATES = 300
 
 
 # ---- ours (a child process: the device count is set before JAX starts) ---------------------
-def ours(case: str, devices: int, quick: bool) -> dict[str, Any]:
+def learner_parts(algo: str) -> tuple[Any, Any, Any]:
+    """``(learner, update_flops, update_dots)`` of ``algo`` ("td3" or "sac"): the learner and the
+    functions that count its update's matmul FLOPs and list its products."""
+    if algo == "td3":
+        from bench import td3_programs
+        from rl_jax.agents.td3 import td3
+
+        return td3, td3_programs.update_flops, td3_programs.update_dots
+    if algo == "sac":
+        from bench import sac_programs
+        from rl_jax.agents.sac import sac
+
+        return sac, sac_programs.update_flops, sac_programs.update_dots
+    raise ValueError(f"unknown learner {algo!r}: td3 or sac")
+
+
+def ours(case: str, devices: int, quick: bool, algo: str = "td3") -> dict[str, Any]:
     import jax
 
-    from bench.td3_programs import best_seconds, dots_program, matmul_program, update_flops
-    from rl_jax.agents.td3 import td3
+    from bench.td3_programs import best_seconds, dots_program, matmul_program
     from rl_jax.training import episodes, parallel, params
 
+    learner, update_flops, update_dots = learner_parts(algo)
     env_id, _, width, batch, _ = CASES[case]
     iterations = 50 if quick else 250
-    config = td3.default_config(
+    config = learner.default_config(
         env_id,
         actor_hidden=(width, width),
         critic_hidden=(width, width),
@@ -61,8 +80,8 @@ def ours(case: str, devices: int, quick: bool) -> dict[str, Any]:
         num_eval_envs=1,
     )
     episodes.make_train_env(config)  # built outside any trace (see bench.cheetah_recipe)
-    hparams = params.stack([td3.default_hyperparams(env_id)])
-    runner = parallel.Program(td3, config, 1, SEEDS, devices=jax.devices()[:devices])
+    hparams = params.stack([learner.default_hyperparams(env_id)])
+    runner = parallel.Program(learner, config, 1, SEEDS, devices=jax.devices()[:devices])
     state = runner.init(parallel.seed_keys(range(SEEDS)), hparams)
     state, metrics = runner.train_chunk(state, hparams)  # compile and fill the buffer a little
     jax.block_until_ready(metrics)
@@ -82,7 +101,7 @@ def ours(case: str, devices: int, quick: bool) -> dict[str, Any]:
         "load": round(os.getloadavg()[0], 2),
     }
     # The roofline: the update's own matmuls alone, at their shapes, in the same layout.
-    call, dot_flops = dots_program(config, SEEDS, 10 if quick else 50, devices)
+    call, dot_flops = dots_program(config, SEEDS, 10 if quick else 50, devices, update_dots)
     call()
     result["dots_alone_updates_per_s"] = round(dot_flops / best_seconds(call, 3) / flops, 1)
     if devices == 1:
@@ -92,9 +111,9 @@ def ours(case: str, devices: int, quick: bool) -> dict[str, Any]:
     return result
 
 
-def _ours_child(case: str, devices: int, quick: bool) -> dict[str, Any]:
+def _ours_child(case: str, devices: int, quick: bool, algo: str = "td3") -> dict[str, Any]:
     command = [sys.executable, "-m", "bench.bench_peers", "--worker", case, str(devices)]
-    command += ["--quick"] if quick else []
+    command += ["--algo", algo, *(["--quick"] if quick else [])]
     environment = {**os.environ, "PYTHONPATH": str(ROOT), "TF_CPP_MIN_LOG_LEVEL": "3"}
     done = subprocess.run(command, cwd=ROOT, env=environment, capture_output=True, text=True)
     lines = [x for x in done.stdout.splitlines() if x.startswith("RESULT ")]
@@ -104,11 +123,13 @@ def _ours_child(case: str, devices: int, quick: bool) -> dict[str, Any]:
 
 
 # ---- the peers: two processes at once -------------------------------------------------------
-def _peer_commands(peer: str, python: Path, case: str, quick: bool) -> list[list[str]]:
+def _peer_commands(
+    peer: str, python: Path, case: str, quick: bool, algo: str = "td3"
+) -> list[list[str]]:
     _, gym_id, width, batch, updates = CASES[case]
     updates = QUICK_UPDATES if quick else updates
     if peer == "sbx":
-        base = [str(python), str(ROOT / "bench" / "sbx_td3.py"), "--env-id", gym_id]
+        base = [str(python), str(ROOT / "bench" / f"sbx_{algo}.py"), "--env-id", gym_id]
         base += ["--hidden", f"{width},{width}", "--batch-size", str(batch)]
         base += ["--updates", str(updates)]
     else:
@@ -144,24 +165,35 @@ def _peer_rate(runs: list[dict[str, Any]]) -> float:
 
 
 # ---- the driver -----------------------------------------------------------------------------
-def measure_case(case: str, python: Path, quick: bool) -> dict[str, Any]:
-    first = {d: _ours_child(case, d, quick) for d in (1, 2)}
-    sbx = _two_processes(_peer_commands("sbx", python, case, quick))
-    torch = _two_processes(_peer_commands("torch", python, case, quick))
-    again = {d: _ours_child(case, d, quick) for d in (1, 2)}
-    return {"ours": first, "ours_again": again, "sbx": sbx, "torch": torch}
+#: The peers each learner is set beside (the PyTorch script is a TD3).
+PEERS = {"td3": ("sbx", "torch"), "sac": ("sbx",)}
+
+
+def measure_case(case: str, python: Path, quick: bool, algo: str = "td3") -> dict[str, Any]:
+    first = {d: _ours_child(case, d, quick, algo) for d in (1, 2)}
+    measured: dict[str, Any] = {"ours": first}
+    for peer in PEERS[algo]:
+        measured[peer] = _two_processes(_peer_commands(peer, python, case, quick, algo))
+    measured["ours_again"] = {d: _ours_child(case, d, quick, algo) for d in (1, 2)}
+    return measured
 
 
 def run(quick: bool = False) -> str:
+    return report(quick, "td3", "Ours beside SBX and the PyTorch script at equal work", "peers")
+
+
+def report(quick: bool, algo: str, title: str, name: str) -> str:
+    """The Markdown section of ``python -m bench NAME``: every case of ``algo`` measured beside
+    its peers; the raw numbers go to ``bench/results/NAME.json``."""
     from bench import peers
     from bench.machine import describe
 
     lines = [
-        "## Ours beside SBX and the PyTorch script at equal work",
+        f"## {title}",
         "",
         describe(),
         "",
-        "`python -m bench peers" + (" --quick`" if quick else "`"),
+        f"`python -m bench {name}" + (" --quick`" if quick else "`"),
         "",
     ]
     try:
@@ -171,25 +203,33 @@ def run(quick: bool = False) -> str:
     started = time.strftime("%H:%M")
     results = {}
     for case in CASES:
-        results[case] = measure_case(case, python, quick)
+        results[case] = measure_case(case, python, quick, algo)
     raw = Path(__file__).resolve().parent / "results"
     raw.mkdir(exist_ok=True)
-    (raw / "peers.json").write_text(json.dumps(results, indent=1))
+    (raw / f"{name}.json").write_text(json.dumps(results, indent=1))
     lines += table(results)
     lines.append(f"\nStarted {started}, finished {time.strftime('%H:%M')} (UTC).")
     return "\n".join([*lines, ""])
 
 
+PEER_NAMES = {"sbx": "SBX", "torch": "PyTorch"}
+
+
 def table(results: dict[str, Any]) -> list[str]:
+    """The Markdown tables of ``results`` (case -> ``measure_case``'s dict): rates and ratios,
+    then each case's roofline. A peer's columns appear when the cases measured it."""
+    names = [p for p in PEER_NAMES if all(p in r for r in results.values())]
+    peer_headers = "".join(f" {PEER_NAMES[p]} x2 |" for p in names)
+    ratio_headers = "".join(f" ours / {PEER_NAMES[p]} |" for p in names)
     lines = [
         "Updates/s summed over each side's seeds or processes (one update per env step for all); "
         "GFLOP/s = updates/s x the update's matmul FLOPs. Ours: 5 seeds in one program, measured "
         "before and after the peers, on 1 device / on 2 devices (3 + 3, one run padded). Peers: "
         "2 processes at once.",
         "",
-        "| case | MFLOP/update | ours 1 dev (before, after) | ours 2 dev (before, after) | "
-        "SBX x2 | PyTorch x2 | ours / SBX | ours / PyTorch | ours GFLOP/s | load |",
-        "|---|---:|---|---|---:|---:|---:|---:|---:|---|",
+        "| case | MFLOP/update | ours 1 dev (before, after) | ours 2 dev (before, after) |"
+        f"{peer_headers}{ratio_headers} ours GFLOP/s | load |",
+        "|---|---:|---|---|" + "---:|" * (2 * len(names) + 1) + "---|",
     ]
     roofs = []
     for case, r in results.items():
@@ -198,13 +238,14 @@ def table(results: dict[str, Any]) -> list[str]:
             d: (r["ours"][d]["updates_per_s"], r["ours_again"][d]["updates_per_s"]) for d in (1, 2)
         }
         best = max(min(pair) for pair in rate.values())  # the better layout, its worse timing
-        sbx, torch = _peer_rate(r["sbx"]), _peer_rate(r["torch"])
+        peer = {p: _peer_rate(r[p]) for p in names}
         loads = [r["ours"][1]["load"], *(x["load"] for x in r["sbx"]), r["ours_again"][2]["load"]]
         lines.append(
             f"| {case} | {flops / 1e6:.1f} | {rate[1][0]:.0f}, {rate[1][1]:.0f} | "
-            f"{rate[2][0]:.0f}, {rate[2][1]:.0f} | {sbx:.0f} | {torch:.0f} | "
-            f"{best / sbx:.2f}x | {best / torch:.2f}x | {best * flops / 1e9:.1f} | "
-            f"{min(loads):.1f}-{max(loads):.1f} |"
+            f"{rate[2][0]:.0f}, {rate[2][1]:.0f} |"
+            + "".join(f" {peer[p]:.0f} |" for p in names)
+            + "".join(f" {best / peer[p]:.2f}x |" for p in names)
+            + f" {best * flops / 1e9:.1f} | {min(loads):.1f}-{max(loads):.1f} |"
         )
         roof = {
             d: max(r[when][d]["dots_alone_updates_per_s"] for when in ("ours", "ours_again"))
@@ -212,6 +253,7 @@ def table(results: dict[str, Any]) -> list[str]:
         }
         top = max(roof.values())  # the faster layout's roofline bounds any of our loops
         matmul = r["ours"][1]["matmul_1024_gflops"]
+        sbx = peer["sbx"]
         roofs.append(
             f"| {case} | {roof[1]:.0f} ({roof[1] * flops / 1e9:.0f} GFLOP/s) | "
             f"{roof[2]:.0f} ({roof[2] * flops / 1e9:.0f} GFLOP/s) | {matmul:.0f} | "
@@ -242,10 +284,11 @@ def main(argv: list[str] | None = None) -> None:
     if args[:1] != ["--worker"]:
         raise SystemExit("usage: python -m bench peers (this module's --worker is internal)")
     case, devices, quick = args[1], int(args[2]), "--quick" in args
+    algo = args[args.index("--algo") + 1] if "--algo" in args else "td3"
     from rl_jax.training.jax_setup import configure
 
     configure(cpu_devices=devices)
-    print("RESULT " + json.dumps(ours(case, devices, quick)), flush=True)
+    print("RESULT " + json.dumps(ours(case, devices, quick, algo)), flush=True)
 
 
 if __name__ == "__main__":

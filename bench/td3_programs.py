@@ -149,15 +149,21 @@ def _dot_equations(jaxpr: Any) -> list[Any]:
 
 
 def dots_program(
-    config: td3_module.Config, seeds: int, updates: int, devices: int = 1
+    config: Any,
+    seeds: int,
+    updates: int,
+    devices: int = 1,
+    dots_of: Callable[[Any, int], list[tuple[Any, float]]] = update_dots,
 ) -> tuple[Callable, float]:
     """The update's matrix products alone, at their exact shapes and layouts, ``updates`` times
     in one ``lax.scan``: the rate the training loop would reach if everything but its matmuls
     were free (its roofline on this CPU). On several devices each runs the products of its share
     of the seeds (padded to equal shares, as the training program lays them out) independently.
-    Returns the call and the FLOPs per call of the ``seeds`` seeds (padding left out)."""
+    ``dots_of(config, seeds)`` lists the update's products (TD3's by default; SAC's:
+    ``bench.sac_programs.update_dots``). Returns the call and the FLOPs per call of the
+    ``seeds`` seeds (padding left out)."""
     per_device = -(-seeds // devices)
-    dots = update_dots(config, per_device)
+    dots = dots_of(config, per_device)
     key = jax.random.key(3)
     operands = []
     for index, (equation, _) in enumerate(dots):
