@@ -23,6 +23,7 @@ from __future__ import annotations
 import dataclasses
 from collections.abc import Callable
 from pathlib import Path
+from typing import Any
 
 import jax
 import numpy as np
@@ -73,7 +74,7 @@ def gymnasium_returns(
     policy: Callable[[np.ndarray], np.ndarray],
     env_id: str,
     episodes: int,
-    keywords: dict[str, object] | None = None,
+    keywords: dict[str, Any] | None = None,  # gymnasium.make's, values of any type
     key: int = KEY,
 ) -> np.ndarray:
     """Returns ``[episodes]`` of ``policy`` in ``gymnasium.make(env_id, **keywords)``, episode
