@@ -104,11 +104,12 @@ def test_random_shift_moves_each_image_by_one_offset_with_its_edges_repeated():
 
 
 def test_the_augmented_update_sees_shifted_frames_and_acting_does_not():
-    config = dqn.default_config(ENV_ID, **TINY, augment_shift=3)
+    # The tiny run's config with the shifts (its chunk program, compiled once for both tests).
+    config = dqn.default_config(ENV_ID, **TINY, **SHIFTED_WHOLE_FRAME)
     plain = dataclasses.replace(config, augment_shift=0)
     hparams = dqn.default_hyperparams(ENV_ID)
-    state = dqn.init(jax.random.key(0), plain, hparams)
-    state, _ = jax.jit(dqn.train_chunk, static_argnums=1)(state, plain, hparams)
+    state = dqn.init(jax.random.key(0), config, hparams)
+    state, _ = jax.jit(dqn.train_chunk, static_argnums=1)(state, config, hparams)
     args = (state.agent, state.buffer, jax.random.key(3))
     update = jax.jit(dqn_module.update, static_argnums=3)
     shifted, _, shifted_metrics = update(*args, config, hparams, 200)
@@ -154,19 +155,21 @@ def test_pixels_are_scaled_to_unit_range_inside_the_network():
 def test_matmul_conv_equals_flax_conv_and_its_gradients(kernel, stride, size):
     """MatmulConv (space-to-depth, then one matmul) against nn.Conv with the same parameters:
     outputs, parameter gradients and input gradients, strides that divide the kernel or not."""
+    # Each side's forward pass and gradients as one jitted program: run op by op, every one of
+    # their many primitives would compile a program of its own for each of these shapes.
     x = jax.random.normal(jax.random.key(1), (2, 3, size, size, 5))
     layer = conv.MatmulConv(7, kernel, stride)
-    params = layer.init(jax.random.key(0), x)
+    params = jax.jit(layer.init)(jax.random.key(0), x)
     reference = nn.Conv(7, (kernel, kernel), (stride, stride), "VALID")
     np.testing.assert_allclose(
-        layer.apply(params, x), reference.apply(params, x), rtol=1e-5, atol=1e-5
+        jax.jit(layer.apply)(params, x), jax.jit(reference.apply)(params, x), rtol=1e-5, atol=1e-5
     )
 
     def grads(module):
         def objective(params, x):
             return jnp.sum(jnp.sin(module.apply(params, x)))
 
-        return jax.grad(objective, argnums=(0, 1))(params, x)
+        return jax.jit(jax.grad(objective, argnums=(0, 1)))(params, x)
 
     for got, expected in zip(
         jax.tree.leaves(grads(layer)), jax.tree.leaves(grads(reference)), strict=True
@@ -201,6 +204,10 @@ TINY = {
     "num_eval_envs": 2,
     "target_update_period": 10,
 }
+# The torso over the whole frame (the recipe crops) and DrQ's random shifts in the loss: two
+# options apart from the recipe that touch different parts (the torso's input, the loss's
+# frames), trained together in one compiled program.
+SHIFTED_WHOLE_FRAME = {"crop_drawn_rows": False, "augment_shift": 2}
 
 
 @pytest.mark.parametrize(
@@ -208,8 +215,7 @@ TINY = {
     [
         {"double": False, "n_step": 1},  # plain DQN (the pixel recipe is Double with 3 steps)
         {"double": True, "dueling": True, "n_step": 3, "prioritized": True},
-        {"crop_drawn_rows": False},  # the torso over the whole frame (the recipe crops)
-        {"augment_shift": 2},  # DrQ's random shifts in the loss
+        SHIFTED_WHOLE_FRAME,
     ],
 )
 def test_a_tiny_dqn_run_on_pixels_trains_and_evaluates(options):

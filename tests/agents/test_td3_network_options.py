@@ -8,6 +8,7 @@ their learners with the helpers here.
 """
 
 import dataclasses
+import functools
 
 import jax
 import numpy as np
@@ -85,8 +86,25 @@ def assert_resumes_bit_identical(algorithm: Algorithm, tmp_path, **config_overri
     assert np.all(np.isfinite(policy(np.zeros(3, np.float32))))
 
 
+# LayerNorm in both networks and standardised MLP inputs: they compose (the statistics
+# standardise what enters the first layer, LayerNorm sits inside each hidden one), so one run, one
+# compiled program, serves the tests of both, each asserting its own part.
+LAYER_NORM_STANDARDISED = {
+    "critic_norm": "layer",
+    "actor_norm": "layer",
+    "critic_activation": "elu",
+    "normalize_obs": True,
+}
+
+
+@functools.cache
+def layer_norm_standardised_run():
+    """``train()`` of LAYER_NORM_STANDARDISED, made once for the tests that read it."""
+    return train(**LAYER_NORM_STANDARDISED)
+
+
 def test_layer_norm_critics_and_actor_train():
-    states, history = train(critic_norm="layer", actor_norm="layer", critic_activation="elu")
+    states, history = layer_norm_standardised_run()
     state = states[-1]
     assert "LayerNorm_1" in state.agent.critics["params"]["MLP_0"]
     assert "LayerNorm_0" in state.agent.actor["params"]["MLP_0"]
@@ -149,7 +167,7 @@ def test_simba_policy_reads_standardised_observations():
 
 
 def test_normalize_obs_standardises_the_mlps_inputs_with_the_same_statistics():
-    states, history = train(normalize_obs=True)
+    states, history = layer_norm_standardised_run()
     state = states[-1]
     stats = state.agent.obs_stats
     np.testing.assert_allclose(stats.count, 1e-4 + 400, rtol=1e-6)  # every obs acted on
@@ -157,7 +175,7 @@ def test_normalize_obs_standardises_the_mlps_inputs_with_the_same_statistics():
     assert "Simba_0" not in state.agent.actor["params"]  # the paper's MLP
     assert_trained_and_finite(state, history)
     # the exported policy reads standardised observations
-    config = td3.default_config(ENV_ID, **{**TINY, "normalize_obs": True})
+    config = td3.default_config(ENV_ID, **{**TINY, **LAYER_NORM_STANDARDISED})
     fresh = td3.init(jax.random.key(0), config, td3.default_hyperparams())
     stats = jax.tree.map(lambda leaf: leaf[0, 0], stats)  # seed 0's, after 400 env steps
     agent = fresh.agent.replace(obs_stats=stats)

@@ -41,6 +41,13 @@ def c_functions(env_id: str, backend: str = "mujoco"):
     return jax.jit(jax.vmap(env.reset)), jax.jit(jax.vmap(env.step))
 
 
+@functools.cache
+def mjx_reset(env_id: str):
+    """The batched reset of test_mujoco_parity.py's MJX env, compiled once (for BATCH keys) for
+    the tests that sample MJX resets."""
+    return jax.jit(jax.vmap(engine(env_id, "mjx")[0].reset))
+
+
 # ---- construction -----------------------------------------------------------------------------
 def test_backend_choice(monkeypatch):
     monkeypatch.delenv(mujoco_backend.BACKEND_ENV_VAR, raising=False)
@@ -372,7 +379,7 @@ def test_mjx_backend_under_outer_vmap_matches_flat_batch():
     env, _, flat_step = engine("InvertedPendulum-v5", "mjx")
     seeds, per_seed = 2, BATCH // 2
     keys = jax.random.split(jax.random.PRNGKey(11), BATCH)
-    state, _ = jax.jit(jax.vmap(env.reset))(keys)
+    state, _ = mjx_reset("InvertedPendulum-v5")(keys)
     actions = jax.random.uniform(jax.random.PRNGKey(12), (BATCH, 1), minval=-3, maxval=3)
     _, flat = flat_step(keys, state, actions)
     split = lambda tree: jax.tree.map(lambda x: x.reshape(seeds, per_seed, *x.shape[1:]), tree)
@@ -385,9 +392,8 @@ def test_mjx_backend_under_outer_vmap_matches_flat_batch():
 @pytest.mark.parametrize("env_id", ["InvertedPendulum-v5", "HalfCheetah-v5"])
 def test_backends_sample_the_same_resets(env_id):
     """Reset sampling is backend-independent: same keys, same start (float32 values)."""
-    keys = jax.random.split(jax.random.PRNGKey(13), 16)
-    mjx_env = envs.make("rl_jax/" + env_id, backend="mjx")
-    mjx_state, mjx_ts = jax.jit(jax.vmap(mjx_env.reset))(keys)
+    keys = jax.random.split(jax.random.PRNGKey(13), BATCH)
+    mjx_state, mjx_ts = mjx_reset(env_id)(keys)
     c_state, c_ts = c_functions(env_id)[0](keys)
     # Equal to the last bit on the pinned jax; jax 0.12 compiles the two programs' noise scaling
     # differently and one velocity in 272 moves by 1 ulp. A different draw would differ by ~0.1.

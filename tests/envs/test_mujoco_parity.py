@@ -191,7 +191,10 @@ def _has_contact_without_normal(env) -> bool:
     """
     model, data = env.model, env.data
     body_jacobians = [np.zeros((3, model.nv)), np.zeros((3, model.nv))]
-    for contact in data.contact[: data.ncon]:
+    # Indexed one by one: iterating a slice of ``data.contact`` is slow even when it is empty, and
+    # every gymnasium reference step calls this.
+    for index in range(data.ncon):
+        contact = data.contact[index]
         for jacobian, geom in zip(body_jacobians, (contact.geom1, contact.geom2), strict=True):
             mujoco.mj_jac(model, data, jacobian, None, contact.pos, model.geom_bodyid[geom])
         if not np.any(contact.frame[:3] @ (body_jacobians[1] - body_jacobians[0])):

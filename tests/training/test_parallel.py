@@ -119,33 +119,78 @@ def test_two_by_two_hyperparameter_grid_equals_four_single_runs(grid_run):
     assert all(not np.allclose(finals[0], other) for other in finals[1:])
 
 
-SHARDED_SCRIPT = textwrap.dedent(
+# One child process with two CPU devices for both tests below that need them (each fresh
+# interpreter imports JAX and the package again): the sharded grid and padded seeds, unless this
+# process computes on another backend and so has no one-device runs to compare them with; then
+# the device layouts that ``program_for`` picks for each learner.
+TWO_DEVICE_SCRIPT = textwrap.dedent(
     """
-    import sys
+    import json, sys
+    from pathlib import Path
     from rl_jax.training.jax_setup import configure
     configure(cpu_devices=2)  # before JAX starts
     import jax, numpy as np
     sys.path[:0] = [{tests!r}, {helpers!r}]
     from test_parallel import ENV_ID, GRID, _leaves, _run_parallel
     from probe_runs import probe_config, probe_hparams
-    from rl_jax.training import parallel, params
+    from rl_jax.agents.dqn import dqn
     from rl_jax.agents.td3 import td3
+    from rl_jax.run.plan import program_for
+    from rl_jax.run.spec import RunSpec
+    from rl_jax.training import parallel, params
     assert len(jax.devices()) == 2
-    hparams, _ = params.grid(probe_hparams(), **GRID)
-    _, state, history = _run_parallel(4, hparams, [0])
-    devices = {{d.id for d in state.agent.critics["params"]["MLP_0"]["Dense_0"]["kernel"]
-               .sharding.device_set}}
-    np.savez({out!r}, *_leaves((state, history)))
-    # 3 seeds on 2 devices: padded to 2 + 2 (a copy of seed 0 computed and dropped).
-    runner = parallel.Program(td3, probe_config(ENV_ID), num_hparams=1, num_seeds=3)
-    assert (runner.layout.seed_split, runner.layout.padded_seeds) == (2, 4)
-    one = params.stack([probe_hparams()])
-    padded = runner.init(parallel.seed_keys([0, 1, 2]), one)
-    padded, metrics = runner.train_chunk(padded, one)
-    np.savez({padded_out!r}, *_leaves((runner.unpad(padded, one), runner.gather(metrics))))
-    print(len(devices))
+    result = {{}}
+    if {sharded!r}:
+        hparams, _ = params.grid(probe_hparams(), **GRID)
+        _, state, history = _run_parallel(4, hparams, [0])
+        devices = {{d.id for d in state.agent.critics["params"]["MLP_0"]["Dense_0"]["kernel"]
+                   .sharding.device_set}}
+        np.savez({out!r}, *_leaves((state, history)))
+        # 3 seeds on 2 devices: padded to 2 + 2 (a copy of seed 0 computed and dropped).
+        runner = parallel.Program(td3, probe_config(ENV_ID), num_hparams=1, num_seeds=3)
+        assert (runner.layout.seed_split, runner.layout.padded_seeds) == (2, 4)
+        one = params.stack([probe_hparams()])
+        padded = runner.init(parallel.seed_keys([0, 1, 2]), one)
+        padded, metrics = runner.train_chunk(padded, one)
+        np.savez({padded_out!r}, *_leaves((runner.unpad(padded, one), runner.gather(metrics))))
+        result["devices"] = len(devices)
+
+    def layout(algorithm, env_id, seeds):
+        config, hparams = algorithm.default_config(env_id), algorithm.default_hyperparams(env_id)
+        spec = RunSpec(algorithm, env_id, config, (hparams,), Path("unused"), seeds=seeds)
+        program = program_for(spec)
+        return [program.layout.devices, program.layout.padded_seeds]
+
+    result["layouts"] = [
+        layout(td3, "rl_jax/Pendulum-v1", 5),
+        layout(td3, "rl_jax/Pendulum-v1", 1),
+        layout(td3, "rl_jax/HalfCheetah-v5", 5),
+        layout(dqn, "rl_jax/CartPole-v1", 5),
+    ]
+    print(json.dumps(result))
     """
 )
+ON_CPU = jax.default_backend() == "cpu"
+
+
+@pytest.fixture(scope="module")
+def two_device_child(tmp_path_factory):
+    """``(the child's JSON result, the sharded run's files)``; the child on the CPU, with this
+    process's compile flags only (its own device count)."""
+    folder = tmp_path_factory.mktemp("two_devices")
+    files = {"out": folder / "sharded.npz", "padded_out": folder / "padded.npz"}
+    script = TWO_DEVICE_SCRIPT.format(
+        tests=str(Path(__file__).parent),
+        helpers=str(Path(__file__).resolve().parents[1]),
+        sharded=ON_CPU,
+        **{name: str(path) for name, path in files.items()},
+    )
+    env = {**os.environ, "XLA_FLAGS": compile_level.subprocess_flags(), "JAX_PLATFORMS": "cpu"}
+    result = subprocess.run(
+        [sys.executable, "-c", script], env=env, capture_output=True, text=True, timeout=600
+    )
+    assert result.returncode == 0, result.stderr[-3000:]
+    return json.loads(result.stdout.strip().splitlines()[-1]), files
 
 
 @pytest.fixture(scope="module")
@@ -178,28 +223,19 @@ def _assert_leaves_close(got: list[np.ndarray], expected: list[np.ndarray]) -> N
 
 
 @pytest.mark.skipif(
-    jax.default_backend() != "cpu",
+    not ON_CPU,
     reason="compares a run on two CPU devices with this process's runs, which are not on the CPU",
 )
-def test_sharded_over_two_cpu_devices_equals_one_device(grid_run, three_seeds_run, tmp_path: Path):
-    out, padded_out = tmp_path / "sharded.npz", tmp_path / "padded.npz"
-    script = SHARDED_SCRIPT.format(
-        tests=str(Path(__file__).parent),
-        helpers=str(Path(__file__).resolve().parents[1]),
-        out=str(out),
-        padded_out=str(padded_out),
-    )
-    env = {**os.environ, "XLA_FLAGS": compile_level.subprocess_flags()}
-    result = subprocess.run(
-        [sys.executable, "-c", script], env=env, capture_output=True, text=True, timeout=600
-    )
-    assert result.returncode == 0, result.stderr[-3000:]
-    assert json.loads(result.stdout.strip().splitlines()[-1]) == 2  # both devices held runs
+def test_sharded_over_two_cpu_devices_equals_one_device(
+    grid_run, three_seeds_run, two_device_child
+):
+    result, files = two_device_child
+    assert result["devices"] == 2  # both devices held runs
     _, (_, state, history) = grid_run
-    _assert_leaves_close(_load(out), _leaves((state, history)))
+    _assert_leaves_close(_load(files["out"]), _leaves((state, history)))
     # The padded 3-seed run returns exactly the 3 real seeds, equal to the one-device run.
     _, state, history = three_seeds_run
-    _assert_leaves_close(_load(padded_out), _leaves((state, history[0])))
+    _assert_leaves_close(_load(files["padded_out"]), _leaves((state, history[0])))
 
 
 def test_mesh_splits_runs_evenly_and_select_keeps_the_shared_clock():
@@ -230,39 +266,8 @@ def test_layout_pads_uneven_runs_to_use_every_device():
     np.testing.assert_array_equal(edge, [[0, 1, 2, 0], [3, 4, 5, 3], [0, 1, 2, 0]])
 
 
-LAYOUT_SCRIPT = """
-import json
-from pathlib import Path
-from rl_jax.training.jax_setup import configure
-configure(cpu_devices=2)
-from rl_jax.agents.dqn import dqn
-from rl_jax.agents.td3 import td3
-from rl_jax.run.plan import program_for
-from rl_jax.run.spec import RunSpec
-
-def layout(algorithm, env_id, seeds):
-    config, hparams = algorithm.default_config(env_id), algorithm.default_hyperparams(env_id)
-    spec = RunSpec(algorithm, env_id, config, (hparams,), Path("unused"), seeds=seeds)
-    program = program_for(spec)
-    return [program.layout.devices, program.layout.padded_seeds]
-
-print(json.dumps([
-    layout(td3, "rl_jax/Pendulum-v1", 5),
-    layout(td3, "rl_jax/Pendulum-v1", 1),
-    layout(td3, "rl_jax/HalfCheetah-v5", 5),
-    layout(dqn, "rl_jax/CartPole-v1", 5),
-]))
-"""
-
-
-def test_every_learner_spreads_uneven_runs_over_both_devices():
+def test_every_learner_spreads_uneven_runs_over_both_devices(two_device_child):
     """``program_for``: 5 seeds pad to 3 + 3 whatever the learner and network width (one
-    compiled program, the copy dropped); one seed stays whole."""
-    # the CPU's layout, on a GPU too
-    env = {**os.environ, "XLA_FLAGS": compile_level.subprocess_flags(), "JAX_PLATFORMS": "cpu"}
-    result = subprocess.run(
-        [sys.executable, "-c", LAYOUT_SCRIPT], env=env, capture_output=True, text=True, timeout=300
-    )
-    assert result.returncode == 0, result.stderr[-3000:]
-    layouts = json.loads(result.stdout.strip().splitlines()[-1])
-    assert layouts == [[2, 6], [1, 1], [2, 6], [2, 6]]
+    compiled program, the copy dropped); one seed stays whole. (The CPU's layout, on a GPU
+    too.)"""
+    assert two_device_child[0]["layouts"] == [[2, 6], [1, 1], [2, 6], [2, 6]]
