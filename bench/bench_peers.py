@@ -30,6 +30,8 @@ import time
 from pathlib import Path
 from typing import Any
 
+from bench.machine import worker_result
+
 ROOT = Path(__file__).resolve().parent.parent
 SEEDS = 5
 # name: (our env id, gymnasium id, hidden width, batch size, timed updates per peer process)
@@ -114,12 +116,7 @@ def ours(case: str, devices: int, quick: bool, algo: str = "td3") -> dict[str, A
 def _ours_child(case: str, devices: int, quick: bool, algo: str = "td3") -> dict[str, Any]:
     command = [sys.executable, "-m", "bench.bench_peers", "--worker", case, str(devices)]
     command += ["--algo", algo, *(["--quick"] if quick else [])]
-    environment = {**os.environ, "PYTHONPATH": str(ROOT), "TF_CPP_MIN_LOG_LEVEL": "3"}
-    done = subprocess.run(command, cwd=ROOT, env=environment, capture_output=True, text=True)
-    lines = [x for x in done.stdout.splitlines() if x.startswith("RESULT ")]
-    if done.returncode or not lines:
-        raise RuntimeError(f"our worker for {case!r} failed:\n{done.stderr[-3000:]}")
-    return json.loads(lines[-1].removeprefix("RESULT "))
+    return worker_result(command, f"our worker for {case!r}")
 
 
 # ---- the peers: two processes at once -------------------------------------------------------

@@ -45,6 +45,8 @@ import time
 from pathlib import Path
 from typing import Any
 
+from bench.machine import worker_result
+
 ROOT = Path(__file__).resolve().parent.parent
 ENV_ID = "rl_jax/HalfCheetah-v5"
 GYM_ID = "HalfCheetah-v5"
@@ -193,13 +195,8 @@ def _seconds_per_call(part: Any, state: Any, calls: int, rounds: int = 3) -> flo
 def _ours_child(steps: int, breakdown_iterations: int) -> dict[str, Any]:
     command = [sys.executable, "-m", "bench.bench_ppo_sb3", "--worker", "--steps", str(steps)]
     command += ["--breakdown", str(breakdown_iterations)]
-    environment = {**os.environ, "PYTHONPATH": str(ROOT), "TF_CPP_MIN_LOG_LEVEL": "3"}
-    environment.pop("XLA_FLAGS", None)  # one device over all cores, as a run of one seed
-    done = subprocess.run(command, cwd=ROOT, env=environment, capture_output=True, text=True)
-    lines = [x for x in done.stdout.splitlines() if x.startswith("RESULT ")]
-    if done.returncode or not lines:
-        raise RuntimeError(f"our PPO worker failed:\n{done.stderr[-3000:]}")
-    return json.loads(lines[-1].removeprefix("RESULT "))
+    # One device over all cores, as a run of one seed: no XLA_FLAGS inherited.
+    return worker_result(command, "our PPO worker", {"XLA_FLAGS": None})
 
 
 # ---- SB3 (the peers' venv) ----------------------------------------------------------------------

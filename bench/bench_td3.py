@@ -22,14 +22,14 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
 import statistics
-import subprocess
 import sys
 import tempfile
 import time
 from pathlib import Path
 from typing import Any
+
+from bench.machine import worker_result
 
 ROOT = Path(__file__).resolve().parent.parent
 RAW = ROOT / "bench" / "results"  # the measured numbers behind each section, as JSON
@@ -109,12 +109,7 @@ def worker_main(part: str, quick: bool, devices: int) -> None:
 def _child(part: str, quick: bool, devices: int = 2, env: dict | None = None) -> dict[str, Any]:
     command = [sys.executable, "-m", "bench.bench_td3", "--worker", part, "--devices", str(devices)]
     command += ["--quick"] if quick else []
-    environment = {**os.environ, "PYTHONPATH": str(ROOT), **(env or {})}
-    done = subprocess.run(command, cwd=ROOT, env=environment, capture_output=True, text=True)
-    lines = [x for x in done.stdout.splitlines() if x.startswith("RESULT ")]
-    if done.returncode or not lines:
-        raise RuntimeError(f"bench_td3 worker {part} failed:\n{done.stderr[-3000:]}")
-    return json.loads(lines[-1].removeprefix("RESULT "))
+    return worker_result(command, f"bench_td3 worker {part}", dict(env or {}))
 
 
 def run(quick: bool) -> str:

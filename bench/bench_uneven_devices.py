@@ -26,11 +26,12 @@ import argparse
 import dataclasses
 import json
 import os
-import subprocess
 import sys
 import time
 from pathlib import Path
 from typing import Any
+
+from bench.machine import worker_result
 
 ROOT = Path(__file__).resolve().parent.parent
 ENV_ID = "rl_jax/HalfCheetah-v5"
@@ -151,16 +152,12 @@ def worker(devices: int, size: str) -> dict[str, Any]:
 def _worker_child(devices: int, size: str) -> dict[str, Any]:
     command = [sys.executable, "-m", "bench.bench_uneven_devices", "--worker", str(devices)]
     command += ["--size", size]
-    environment = {**os.environ, "PYTHONPATH": str(ROOT), "TF_CPP_MIN_LOG_LEVEL": "3"}
     flags = [f"--xla_force_host_platform_device_count={devices}"]
     if size == "tiny":  # a smoke test: compile fast (LLVM -O0), the times mean nothing anyway
         flags.append("--xla_backend_optimization_level=0")
-    environment["XLA_FLAGS"] = " ".join(flags)
-    done = subprocess.run(command, cwd=ROOT, env=environment, capture_output=True, text=True)
-    lines = [x for x in done.stdout.splitlines() if x.startswith("RESULT ")]
-    if done.returncode or not lines:
-        raise RuntimeError(f"the worker on {devices} devices failed:\n{done.stderr[-3000:]}")
-    return json.loads(lines[-1].removeprefix("RESULT "))
+    return worker_result(
+        command, f"the worker on {devices} devices", {"XLA_FLAGS": " ".join(flags)}
+    )
 
 
 def table(result: dict[str, Any]) -> list[str]:

@@ -1,10 +1,17 @@
-"""One line describing the machine and its load, printed above every benchmark table."""
+"""One line describing the machine and its load, printed above every benchmark table; and the
+child-process worker every benchmark that needs its own JAX (device count, flags) runs."""
 
 from __future__ import annotations
 
+import json
 import os
 import platform
+import subprocess
 import time
+from pathlib import Path
+from typing import Any
+
+ROOT = Path(__file__).resolve().parent.parent
 
 
 def describe() -> str:
@@ -24,6 +31,30 @@ def describe() -> str:
         f"{time.strftime('%Y-%m-%d')} · {cpu} · {os.cpu_count()} cores · "
         f"load avg {load:.2f} at start · jax {jax.__version__} · {platform.python_version()}"
     )
+
+
+def worker_result(
+    command: list[str], what: str, env: dict[str, str | None] | None = None
+) -> dict[str, Any]:
+    """Run a benchmark's worker (``python -m bench.NAME --worker ...``, which prints its result
+    as a ``RESULT {json}`` line) from the repository root and return that JSON. ``env`` sets
+    variables of the child's environment, or removes those given as None. A failed worker
+    raises ``RuntimeError`` naming ``what``, with the end of its stderr."""
+    environment: dict[str, str] = {
+        **os.environ,
+        "PYTHONPATH": str(ROOT),
+        "TF_CPP_MIN_LOG_LEVEL": "3",
+    }
+    for name, value in (env or {}).items():
+        if value is None:
+            environment.pop(name, None)
+        else:
+            environment[name] = value
+    done = subprocess.run(command, cwd=ROOT, env=environment, capture_output=True, text=True)
+    lines = [x for x in done.stdout.splitlines() if x.startswith("RESULT ")]
+    if done.returncode or not lines:
+        raise RuntimeError(f"{what} failed:\n{done.stderr[-3000:]}")
+    return json.loads(lines[-1].removeprefix("RESULT "))
 
 
 def timeit(fn, *, min_time: float = 1.0, warmup: int = 1) -> float:
