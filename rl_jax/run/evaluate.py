@@ -23,7 +23,7 @@ from __future__ import annotations
 import dataclasses
 from collections.abc import Callable
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import jax
 import numpy as np
@@ -34,6 +34,9 @@ from rl_jax.run.api import evaluate_policy as returns_of
 from rl_jax.run.policy import LoadedPolicy, Policy, add_run_choice, command_line_learner
 from rl_jax.training.algorithm import Algorithm
 from rl_jax.training.jax_setup import configure
+
+if TYPE_CHECKING:
+    import gymnasium
 
 KEY = 20_251_125  # evaluation episodes' key: none of a run's own evaluations draws it
 # Keywords of our envs' constructors that gymnasium's do not take: how we simulate, not what.
@@ -82,17 +85,24 @@ def gymnasium_returns(
     import gymnasium
 
     env = gymnasium.make(env_id, **(keywords or {}))
-    returns = np.zeros(episodes)
     try:
-        for episode in range(episodes):
-            obs, _ = env.reset(seed=key + episode)
-            done = False
-            while not done:
-                obs, reward, terminated, truncated, _ = env.step(policy(obs))
-                returns[episode] += float(reward)
-                done = bool(terminated or truncated)
+        return _play(env, policy, episodes, key)
     finally:
         env.close()
+
+
+def _play(
+    env: gymnasium.Env, policy: Callable[[np.ndarray], np.ndarray], episodes: int, key: int
+) -> np.ndarray:
+    """``gymnasium_returns`` on an env already made."""
+    returns = np.zeros(episodes)
+    for episode in range(episodes):
+        obs, _ = env.reset(seed=key + episode)
+        done = False
+        while not done:
+            obs, reward, terminated, truncated, _ = env.step(policy(obs))
+            returns[episode] += float(reward)
+            done = bool(terminated or truncated)
     return returns
 
 
@@ -104,13 +114,17 @@ def _in_gymnasium(loaded: LoadedPolicy, episodes: int) -> tuple[str, np.ndarray]
     keywords = envs.parse_keywords(getattr(loaded.config, "env_kwargs", ""))
     keywords = {name: value for name, value in keywords.items() if name not in OWN_KEYWORDS}
     policy = Policy(loaded)
-    space = gymnasium.make(env_id, **keywords).observation_space
-    if tuple(space.shape or ()) != policy.observation_shape:
-        raise UsageError(
-            f"gymnasium's {env_id} observes shape {space.shape}, the run's policy "
-            f"{policy.observation_shape}: its episodes cannot be replayed there"
-        )
-    return env_id, gymnasium_returns(policy, env_id, episodes, keywords)
+    env = gymnasium.make(env_id, **keywords)
+    try:
+        shape = tuple(env.observation_space.shape or ())
+        if shape != policy.observation_shape:
+            raise UsageError(
+                f"gymnasium's {env_id} observes shape {shape}, the run's policy "
+                f"{policy.observation_shape}: its episodes cannot be replayed there"
+            )
+        return env_id, _play(env, policy, episodes, KEY)
+    finally:
+        env.close()
 
 
 def evaluate_run(
