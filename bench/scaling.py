@@ -19,10 +19,9 @@ from __future__ import annotations
 from typing import NamedTuple
 
 import jax
-import numpy as np
 
 from rl_jax.run.best import policy_fields
-from rl_jax.run.plan import format_bytes
+from rl_jax.run.plan import format_bytes, leaf_bytes
 from rl_jax.run.recipe_choice import recipe_settings
 from rl_jax.training.algorithm import hooks
 
@@ -45,12 +44,7 @@ class RunBytes(NamedTuple):
 
 def tree_bytes(tree: object) -> int:
     """Bytes of every leaf of a tree of arrays or ``jax.ShapeDtypeStruct`` (keys as key data)."""
-    total = 0
-    for leaf in jax.tree.leaves(tree):
-        if jax.dtypes.issubdtype(leaf.dtype, jax.dtypes.prng_key):
-            leaf = jax.eval_shape(jax.random.key_data, leaf)
-        total += int(np.prod(leaf.shape)) * np.dtype(leaf.dtype).itemsize
-    return total
+    return sum(leaf_bytes(leaf) for leaf in jax.tree.leaves(tree))
 
 
 def run_bytes(name: str, algorithm_name: str, env_id: str, recipe: str | None = None) -> RunBytes:

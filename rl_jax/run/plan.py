@@ -78,7 +78,8 @@ class Plan:
     checkpoint_bytes: int = 0  # the host copy of the real runs a checkpoint write takes
 
 
-def _leaf_bytes(leaf: jax.Array | jax.ShapeDtypeStruct) -> int:
+def leaf_bytes(leaf: jax.Array | jax.ShapeDtypeStruct) -> int:
+    """Bytes of one array or shape (PRNG keys counted as their key data)."""
     if jax.dtypes.issubdtype(leaf.dtype, jax.dtypes.prng_key):
         leaf = jax.eval_shape(jax.random.key_data, leaf)
     return int(np.prod(leaf.shape)) * np.dtype(leaf.dtype).itemsize
@@ -89,7 +90,7 @@ def memory_breakdown(template: TrainState) -> list[tuple[str, int]]:
     totals: dict[str, int] = {}
     for path, leaf in jax.tree_util.tree_flatten_with_path(template)[0]:
         name = jax.tree_util.keystr(path[:1]).strip(".[]'\"") or "state"
-        totals[name] = totals.get(name, 0) + _leaf_bytes(leaf)
+        totals[name] = totals.get(name, 0) + leaf_bytes(leaf)
     return sorted(totals.items(), key=lambda item: -item[1])
 
 
