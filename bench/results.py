@@ -32,6 +32,8 @@ from typing import Any
 
 import numpy as np
 
+from bench.figure_data import read_reference
+
 ROOT = Path(__file__).resolve().parent.parent
 RESULTS_FILE = ROOT / "RESULTS.md"
 RUNS = ROOT / "runs" / "results"
@@ -121,6 +123,15 @@ CLEANRL_PPO = {
     "HalfCheetah": (1442.64, 46.03),
     "Hopper": (2382.86, 271.74),
     "Walker2d": (2287.95, 571.78),
+}
+
+
+# SAC with the learned temperature on gymnasium's MuJoCo v4 envs: the mean over the 10 runs of
+# SimbaV2's SAC baseline (bench/reference_curves/sac_simbav2.json, its source named there) at its
+# evaluation nearest 300k env steps (299,988).
+SAC_CURVE_300K = {
+    name: read_reference("sac_simbav2", f"rl_jax/{name}-v5").mean_at(300_000)
+    for name in ("HalfCheetah", "Hopper", "Walker2d", "Ant")
 }
 
 
@@ -345,6 +356,20 @@ ROWS: dict[str, Row] = {
             Goal(TD3_PAPER_CURVES[name][300_000][1], 5, "final", mean=True),
         )
         for name in ("Hopper", "Ant")
+    },
+    # SAC's default (CPU) recipe at the suite's 300k steps, against the published SAC curve
+    # (SimbaV2's SAC baseline runs, SAC_CURVE_300K): the goal is its mean at 300k, in 30 minutes.
+    **{
+        f"sac-{name.lower()}": Row(
+            f"SAC, its CPU recipe, `rl_jax/{name}-v5`",
+            "train.py",
+            _suite_args(name, algo="sac"),
+            5,
+            f"SAC's curve at 300k (SimbaV2's SAC runs, {name}-v4, 10 seeds): "
+            f"{SAC_CURVE_300K[name]:,.0f}",
+            Goal(SAC_CURVE_300K[name], 5, "final", minutes=30, mean=True),
+        )
+        for name in ("HalfCheetah", "Hopper", "Walker2d", "Ant")
     },
     # PPO at CleanRL's ppo_continuous_action.py settings (our `cleanrl` recipe) for its 1M steps,
     # against CleanRL's own figure for that script (CLEANRL_PPO): the goal is to match it.
