@@ -33,7 +33,7 @@ install: $(STAMP) $(if $(GPU),$(GPU_STAMP)) system-deps ## create .venv and inst
 
 # Re-installs only when the lock or pyproject changed; `pip install -r` of a hashed lock is exact.
 # --no-compile, then compileall over every core: pip compiles the packages' bytecode one file at a
-# time (the lock: 43 s here); this way 19 s of install and 11 s of compiling on 2 cores.
+# time, compileall on all cores at once, beside the build of the MuJoCo C step op.
 $(STAMP): requirements.lock pyproject.toml
 	@command -v $(PYTHON) >/dev/null || { echo "error: $(PYTHON) not found; install Python 3.11 or run 'make PYTHON=python3 ...'" >&2; exit 1; }
 	@test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
