@@ -33,7 +33,7 @@ install: $(STAMP) $(if $(GPU),$(GPU_STAMP)) system-deps ## create .venv and inst
 
 # Re-installs only when the lock or pyproject changed; `pip install -r` of a hashed lock is exact.
 # --no-compile, then compileall over every core: pip compiles the packages' bytecode one file at a
-# time (the lock: 43 s here); this way 19 s of install and 11 s of compiling on 2 cores.
+# time, compileall on all cores at once, beside the build of the MuJoCo C step op.
 $(STAMP): requirements.lock pyproject.toml
 	@command -v $(PYTHON) >/dev/null || { echo "error: $(PYTHON) not found; install Python 3.11 or run 'make PYTHON=python3 ...'" >&2; exit 1; }
 	@test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
@@ -109,15 +109,15 @@ figures: install ## redraw docs/figures/ from the runs named in docs/figures/man
 train: install ## train TD3 on half cheetah, 5 seeds in one compiled program
 	$(BIN)/python experiments/td3_cheetah.py --seeds 5
 
-# The lock holds the library and its test, dev and docs extras. pip-compile keeps every pin in
-# requirements.lock that pyproject.toml still admits (adding, dropping or moving only what changed);
-# UPGRADE=1 takes the newest release of everything inside pyproject.toml's ranges instead.
+# The lock holds the library and its test, dev, docs and tracking extras. pip-compile keeps every
+# pin in requirements.lock that pyproject.toml still admits (adding, dropping or moving only what
+# changed); UPGRADE=1 takes the newest release of everything inside pyproject.toml's ranges instead.
 UPGRADE ?=
 lock: ## regenerate requirements.lock from pyproject.toml (needs network; UPGRADE=1: newest in range)
 	@test -x $(BIN)/pip-compile || $(MAKE) install
-	$(BIN)/pip-compile --quiet --extra test --extra dev --extra docs --strip-extras --generate-hashes \
-		--allow-unsafe --no-emit-index-url --no-emit-find-links $(if $(UPGRADE),--upgrade) \
-		-o requirements.lock pyproject.toml
+	$(BIN)/pip-compile --quiet --extra test --extra dev --extra docs --extra tracking --strip-extras \
+		--generate-hashes --allow-unsafe --no-emit-index-url --no-emit-find-links \
+		$(if $(UPGRADE),--upgrade) -o requirements.lock pyproject.toml
 
 lock-gpu: ## regenerate requirements-gpu.lock (the CUDA plugin of the pinned jaxlib; needs network)
 	@test -x $(BIN)/pip-compile || $(MAKE) install
