@@ -457,7 +457,9 @@ def test_recipes_build_valid_configs():
     assert (paper.num_envs, paper.updates_per_iteration, paper.batch_size) == (1, 1, 256)
     crossq = sac.default_config("rl_jax/Hopper-v5", recipe="crossq")
     assert crossq.critic_hidden == (2048, 2048) and crossq.policy_delay == 3
-    assert "untuned" in sac.recipe("rl_jax/HalfCheetah-v5").about
+    cpu = sac.default_config("rl_jax/HalfCheetah-v5")
+    assert cpu.critic_hidden == cpu.actor_hidden == (128, 128) and cpu.batch_size == 128
+    assert float(sac.default_hyperparams("rl_jax/HalfCheetah-v5").critic_lr) == pytest.approx(1e-3)
     assert sac.default_config("rl_jax/Humanoid-v5").normalize_obs
     assert float(Hyperparams().as_arrays().target_entropy_per_dim) == -1.0
     # every field is a documented flag (env_id is the script's)
