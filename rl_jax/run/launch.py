@@ -7,8 +7,11 @@ through submitit. Each process runs the same command and they join through ``jax
       --time 240 --partition gpu experiments/td3_cheetah.py --seeds 16 --out runs/cheetah
 
 ``--local N`` starts N processes here with ``--coordinator``, ``--num-processes`` and
-``--process-id`` added (and ``RL_JAX_CPU_DEVICES`` set to share the cores between them, unless
-it is set), shows process 0's output, passes Ctrl-C, SIGTERM and SIGUSR1 on to all of them, and
+``--process-id`` added. Each process is pinned to its own block of the cores the launcher may
+use, as SLURM's ``--cpu-bind`` does, and makes one CPU device per core of its block
+(``RL_JAX_CPU_DEVICES``, unless it is set); ``--no-pin`` lets them all share every core, as
+they also do with fewer cores than processes or where the system cannot pin (macOS). The
+launcher shows process 0's output, passes Ctrl-C, SIGTERM and SIGUSR1 on to all of them, and
 stops them all when one fails. ``--slurm`` submits the command with ``--distributed`` added:
 each task learns its rank from SLURM. SLURM sends SIGUSR1 90 s before the time limit; the run
 checkpoints and submitit requeues the job, whose same command then continues the run. submitit
@@ -30,6 +33,7 @@ import sys
 import threading
 import time
 import types
+from collections.abc import Callable, Iterable
 from pathlib import Path
 from typing import IO
 
@@ -50,6 +54,12 @@ def parse(argv: list[str]) -> tuple[argparse.Namespace, list[str]]:
     where = parser.add_mutually_exclusive_group(required=True)
     where.add_argument("--local", type=positive_int, metavar="N", help="N processes here")
     where.add_argument("--slurm", action="store_true", help="a SLURM job through submitit")
+    parser.add_argument(
+        "--no-pin",
+        dest="pin",
+        action="store_false",
+        help="--local: let every process run on all the cores, not only its own block",
+    )
     slurm = parser.add_argument_group("SLURM (--slurm)")
     slurm.add_argument("--nodes", type=positive_int, default=1, metavar="N", help="default: 1")
     slurm.add_argument(
@@ -85,20 +95,46 @@ def free_port() -> int:
 # ---- local processes ------------------------------------------------------------------------
 
 
+def core_blocks(count: int, cores: Iterable[int] | None = None) -> list[set[int]] | None:
+    """Disjoint blocks of ``cores`` (default: those this process may use), one per process:
+    rank r gets the r-th run of ``len(cores) // count`` of them in order, the rest stay unused.
+    None when they cannot be pinned: fewer cores than processes, or a system without
+    ``os.sched_setaffinity`` (macOS)."""
+    if not hasattr(os, "sched_setaffinity"):
+        return None
+    ordered = sorted(os.sched_getaffinity(0) if cores is None else cores)
+    size = len(ordered) // count
+    if size == 0:
+        return None
+    return [set(ordered[rank * size : (rank + 1) * size]) for rank in range(count)]
+
+
+def _pin_to(cores: set[int]) -> Callable[[], None]:
+    """What the child runs between fork and exec: keep to ``cores``, so that the processes'
+    XLA CPU thread pools, which spin before they sleep, do not compete for the same cores. It
+    makes one system call and takes no lock the launcher's reader threads could hold."""
+    return lambda: os.sched_setaffinity(0, cores)
+
+
 class LocalJob:
     """N processes of one command on this machine, joined through ``--coordinator``."""
 
-    def __init__(self, command: list[str], count: int, port: int | None = None):
+    def __init__(self, command: list[str], count: int, port: int | None = None, pin: bool = True):
         self.command, self.count = command, count
         self.port = port or free_port()
+        self.blocks = core_blocks(count) if pin else None
         self.processes: list[subprocess.Popen] = []
         self.errors: list[list[str]] = [[] for _ in range(count)]
         self._readers: list[threading.Thread] = []
 
-    def environment(self) -> dict[str, str]:
-        """Ours, with the CPU devices each process makes of the cores."""
+    def environment(self, rank: int) -> dict[str, str]:
+        """Ours, with the CPU devices process ``rank`` makes of its cores."""
         env = dict(os.environ)
-        if "RL_JAX_CPU_DEVICES" not in env:  # the cores shared out, one device each at least
+        if "RL_JAX_CPU_DEVICES" in env:
+            return env
+        if self.blocks is not None:  # one device per core of its block
+            env["RL_JAX_CPU_DEVICES"] = str(len(self.blocks[rank]))
+        else:  # the cores shared out, one device each at least
             from rl_jax.training.jax_setup import cpu_count
 
             env["RL_JAX_CPU_DEVICES"] = str(max(1, cpu_count() // self.count))
@@ -111,7 +147,8 @@ class LocalJob:
             flags = ["--coordinator", coordinator, "--num-processes", str(self.count)]
             process = subprocess.Popen(
                 [*self.command, *flags, "--process-id", str(rank)],
-                env=self.environment(),
+                env=self.environment(rank),
+                preexec_fn=None if self.blocks is None else _pin_to(self.blocks[rank]),
                 # process 0's output is the run's; the others' stdout holds library chatter
                 stdout=None if rank == 0 else subprocess.DEVNULL,
                 stderr=subprocess.PIPE,
@@ -177,9 +214,10 @@ def _status(returncode: int) -> int:
     return returncode if returncode > 0 else 128 - returncode
 
 
-def run_local(command: list[str], count: int) -> int:
-    """``command`` as ``count`` processes here; returns the job's exit status."""
-    job = LocalJob(command, count)
+def run_local(command: list[str], count: int, pin: bool = True) -> int:
+    """``command`` as ``count`` processes here, each on its own cores unless ``pin`` is False;
+    returns the job's exit status."""
+    job = LocalJob(command, count, pin=pin)
     previous = {signum: signal.signal(signum, job.forward) for signum in FORWARDED}
     try:
         job.start()
@@ -262,7 +300,7 @@ def main(argv: list[str] | None = None) -> int:
     args, command = parse(list(sys.argv[1:] if argv is None else argv))
     if args.slurm:
         return submit(command, args)
-    return run_local(command, args.local)
+    return run_local(command, args.local, pin=args.pin)
 
 
 if __name__ == "__main__":

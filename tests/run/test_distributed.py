@@ -123,6 +123,67 @@ def test_the_launcher_needs_a_command_and_says_when_submitit_is_missing(monkeypa
         launch.submit(command, args)
 
 
+def test_cores_are_split_into_disjoint_blocks_when_there_are_enough():
+    blocks = launch.core_blocks(2, [7, 0, 3, 5, 1])
+    if blocks is None:
+        pytest.skip("this system cannot pin processes to cores")
+    assert blocks == [{0, 1}, {3, 5}]  # in order; the odd core stays unused
+    assert launch.core_blocks(3, [0, 1]) is None  # fewer cores than processes: no pinning
+    assert launch.parse(["--local", "2", "x.py"])[0].pin
+    args, command = launch.parse(["--local", "2", "--no-pin", "x.py", "--no-pin"])
+    assert not args.pin and command == [sys.executable, "x.py", "--no-pin"]
+
+
+#: Writes, per rank, the cores it may use and its device count; ignores the launcher's flags.
+AFFINITY_SCRIPT = """
+import json, os, sys
+rank = sys.argv[sys.argv.index("--process-id") + 1]
+seen = {"cores": sorted(os.sched_getaffinity(0)), "devices": os.environ["RL_JAX_CPU_DEVICES"]}
+with open(f"rank{rank}.json", "w") as out:
+    json.dump(seen, out)
+"""
+
+
+def launched_affinities(tmp_path: Path, *flags: str) -> list[dict]:
+    script = tmp_path / "affinity.py"
+    script.write_text(AFFINITY_SCRIPT)
+    done = subprocess.run(
+        [sys.executable, "-m", "rl_jax.run.launch", "--local", "2", *flags, str(script)],
+        cwd=tmp_path,
+        env={k: v for k, v in ENV.items() if k != "RL_JAX_CPU_DEVICES"},
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
+    assert done.returncode == 0, done.stderr
+    return [json.loads((tmp_path / f"rank{rank}.json").read_text()) for rank in range(2)]
+
+
+needs_two_cores = pytest.mark.skipif(
+    not hasattr(os, "sched_setaffinity") or len(os.sched_getaffinity(0)) < 2,
+    reason="pinning needs os.sched_setaffinity and at least 2 cores",
+)
+
+
+@needs_two_cores
+def test_local_processes_are_pinned_to_disjoint_blocks_of_cores(tmp_path):
+    cores = os.sched_getaffinity(0)
+    size = len(cores) // 2
+    first, second = launched_affinities(tmp_path)
+    assert len(first["cores"]) == len(second["cores"]) == size
+    assert not set(first["cores"]) & set(second["cores"])
+    assert set(first["cores"]) | set(second["cores"]) <= cores
+    assert first["devices"] == second["devices"] == str(size)  # one device per core of its block
+
+
+@needs_two_cores
+def test_no_pin_leaves_local_processes_on_all_cores(tmp_path):
+    cores = sorted(os.sched_getaffinity(0))
+    first, second = launched_affinities(tmp_path, "--no-pin")
+    assert first["cores"] == second["cores"] == cores
+    assert first["devices"] == second["devices"] == str(max(1, len(cores) // 2))
+
+
 def spec_for(out: Path, command: str, **changes) -> RunSpec:
     config = dataclasses.replace(fake.default_config(), iterations_per_chunk=5)
     spec = RunSpec(
