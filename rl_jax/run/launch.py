@@ -7,11 +7,13 @@ through submitit. Each process runs the same command and they join through ``jax
       --time 240 --partition gpu experiments/td3_cheetah.py --seeds 16 --out runs/cheetah
 
 ``--local N`` starts N processes here with ``--coordinator``, ``--num-processes`` and
-``--process-id`` added. Each process is pinned to its own block of the cores the launcher may
-use, as SLURM's ``--cpu-bind`` does, and makes one CPU device per core of its block
-(``RL_JAX_CPU_DEVICES``, unless it is set); ``--no-pin`` lets them all share every core, as
-they also do with fewer cores than processes or where the system cannot pin (macOS). The
-launcher shows process 0's output, passes Ctrl-C, SIGTERM and SIGUSR1 on to all of them, and
+``--process-id`` added, each making its share of the cores into CPU devices
+(``RL_JAX_CPU_DEVICES``, unless it is set). ``--pin`` keeps each process to its own block of
+the cores, as SLURM's ``--cpu-bind`` does, so that their XLA thread pools do not compete; a
+pinned process runs a smaller thread pool, whose matmuls sum in another order, so its results
+are not bit for bit those of one process over the same devices (unpinned, they are). Nothing is
+pinned with fewer cores than processes or where the system cannot pin (macOS). The launcher
+shows process 0's output, passes Ctrl-C, SIGTERM and SIGUSR1 on to all of them, and
 stops them all when one fails. ``--slurm`` submits the command with ``--distributed`` added:
 each task learns its rank from SLURM. SLURM sends SIGUSR1 90 s before the time limit; the run
 checkpoints and submitit requeues the job, whose same command then continues the run. submitit
@@ -55,10 +57,10 @@ def parse(argv: list[str]) -> tuple[argparse.Namespace, list[str]]:
     where.add_argument("--local", type=positive_int, metavar="N", help="N processes here")
     where.add_argument("--slurm", action="store_true", help="a SLURM job through submitit")
     parser.add_argument(
-        "--no-pin",
-        dest="pin",
-        action="store_false",
-        help="--local: let every process run on all the cores, not only its own block",
+        "--pin",
+        action="store_true",
+        help="--local: keep each process to its own block of the cores (faster where the "
+        "processes share a machine; other floating-point sums than one process makes)",
     )
     slurm = parser.add_argument_group("SLURM (--slurm)")
     slurm.add_argument("--nodes", type=positive_int, default=1, metavar="N", help="default: 1")
@@ -119,7 +121,7 @@ def _pin_to(cores: set[int]) -> Callable[[], None]:
 class LocalJob:
     """N processes of one command on this machine, joined through ``--coordinator``."""
 
-    def __init__(self, command: list[str], count: int, port: int | None = None, pin: bool = True):
+    def __init__(self, command: list[str], count: int, port: int | None = None, pin: bool = False):
         self.command, self.count = command, count
         self.port = port or free_port()
         self.blocks = core_blocks(count) if pin else None
@@ -214,9 +216,9 @@ def _status(returncode: int) -> int:
     return returncode if returncode > 0 else 128 - returncode
 
 
-def run_local(command: list[str], count: int, pin: bool = True) -> int:
-    """``command`` as ``count`` processes here, each on its own cores unless ``pin`` is False;
-    returns the job's exit status."""
+def run_local(command: list[str], count: int, pin: bool = False) -> int:
+    """``command`` as ``count`` processes here, each on its own cores with ``pin``; returns the
+    job's exit status."""
     job = LocalJob(command, count, pin=pin)
     previous = {signum: signal.signal(signum, job.forward) for signum in FORWARDED}
     try:

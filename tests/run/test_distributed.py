@@ -129,9 +129,9 @@ def test_cores_are_split_into_disjoint_blocks_when_there_are_enough():
         pytest.skip("this system cannot pin processes to cores")
     assert blocks == [{0, 1}, {3, 5}]  # in order; the odd core stays unused
     assert launch.core_blocks(3, [0, 1]) is None  # fewer cores than processes: no pinning
-    assert launch.parse(["--local", "2", "x.py"])[0].pin
-    args, command = launch.parse(["--local", "2", "--no-pin", "x.py", "--no-pin"])
-    assert not args.pin and command == [sys.executable, "x.py", "--no-pin"]
+    assert not launch.parse(["--local", "2", "x.py"])[0].pin
+    args, command = launch.parse(["--local", "2", "--pin", "x.py", "--pin"])
+    assert args.pin and command == [sys.executable, "x.py", "--pin"]
 
 
 #: Writes, per rank, the cores it may use and its device count; ignores the launcher's flags.
@@ -169,7 +169,7 @@ needs_two_cores = pytest.mark.skipif(
 def test_local_processes_are_pinned_to_disjoint_blocks_of_cores(tmp_path):
     cores = os.sched_getaffinity(0)
     size = len(cores) // 2
-    first, second = launched_affinities(tmp_path)
+    first, second = launched_affinities(tmp_path, "--pin")
     assert len(first["cores"]) == len(second["cores"]) == size
     assert not set(first["cores"]) & set(second["cores"])
     assert set(first["cores"]) | set(second["cores"]) <= cores
@@ -177,9 +177,9 @@ def test_local_processes_are_pinned_to_disjoint_blocks_of_cores(tmp_path):
 
 
 @needs_two_cores
-def test_no_pin_leaves_local_processes_on_all_cores(tmp_path):
+def test_unpinned_local_processes_share_all_cores(tmp_path):
     cores = sorted(os.sched_getaffinity(0))
-    first, second = launched_affinities(tmp_path, "--no-pin")
+    first, second = launched_affinities(tmp_path)
     assert first["cores"] == second["cores"] == cores
     assert first["devices"] == second["devices"] == str(max(1, len(cores) // 2))
 
