@@ -129,14 +129,11 @@ class LocalJob:
         self.errors: list[list[str]] = [[] for _ in range(count)]
         self._readers: list[threading.Thread] = []
 
-    def environment(self, rank: int) -> dict[str, str]:
-        """Ours, with the CPU devices process ``rank`` makes of its cores."""
+    def environment(self) -> dict[str, str]:
+        """Ours, with the CPU devices each process makes of its share of the cores (a pinned
+        block has that many cores: ``core_blocks`` cuts the same share)."""
         env = dict(os.environ)
-        if "RL_JAX_CPU_DEVICES" in env:
-            return env
-        if self.blocks is not None:  # one device per core of its block
-            env["RL_JAX_CPU_DEVICES"] = str(len(self.blocks[rank]))
-        else:  # the cores shared out, one device each at least
+        if "RL_JAX_CPU_DEVICES" not in env:  # the cores shared out, one device each at least
             from rl_jax.training.jax_setup import cpu_count
 
             env["RL_JAX_CPU_DEVICES"] = str(max(1, cpu_count() // self.count))
@@ -149,7 +146,7 @@ class LocalJob:
             flags = ["--coordinator", coordinator, "--num-processes", str(self.count)]
             process = subprocess.Popen(
                 [*self.command, *flags, "--process-id", str(rank)],
-                env=self.environment(rank),
+                env=self.environment(),
                 preexec_fn=None if self.blocks is None else _pin_to(self.blocks[rank]),
                 # process 0's output is the run's; the others' stdout holds library chatter
                 stdout=None if rank == 0 else subprocess.DEVNULL,
