@@ -60,7 +60,7 @@ system-deps: ## install the system libraries for headless rendering (EGL), where
 TEST_WORKERS ?= 2
 
 test: install ## run the default (fast) test suite
-	$(BIN)/python -m pytest -q -n $(TEST_WORKERS) --dist loadfile
+	$(BIN)/python -m pytest -q -n $(TEST_WORKERS) --dist loadfile --durations=20
 
 test-latest: ## the default suite against the newest jax, flax, optax, orbax, mujoco, gymnasium (.venv-latest)
 	@test -x $(LATEST_VENV)/bin/python || $(LATEST_PYTHON) -m venv $(LATEST_VENV)

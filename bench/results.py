@@ -398,6 +398,24 @@ ROWS: dict[str, Row] = {
         )
         for name in ("HalfCheetah", "Hopper", "Walker2d", "Ant")
     },
+    # PPO's CartPole recipe over 30 seeds in one program: >= 29 of them end at the maximum, and
+    # the whole command (start-up and compilation included) takes at most a minute on 2 cores.
+    "ppo-cartpole": Row(
+        "PPO, `rl_jax/CartPole-v1`",
+        "train.py",
+        ("--algo", "ppo", "--env", "rl_jax/CartPole-v1", "--total-steps", "100000"),
+        30,
+        "500 is the maximum; its goal: 29 of 30 seeds there, all 30 in one program in a minute",
+        Goal(500.0, 29, "final", 1.0),
+    ),
+    # PPO from CartPole's frames through DQN's conv torso: reported, without a goal.
+    "ppo-cartpole-pixels": Row(
+        "PPO from pixels, `rl_jax/CartPolePixels-v1`",
+        "train.py",
+        ("--algo", "ppo", "--env", "rl_jax/CartPolePixels-v1", "--total-steps", "200000"),
+        5,
+        "DQN from pixels' row (3 seeds, 200k): 474.7-500 on 100 episodes; 500 is the maximum",
+    ),
     "td3-rocket": Row(
         "TD3, `rl_jax/Rocket-v0`",
         "td3_rocket.py",
