@@ -83,6 +83,18 @@ def test_env_gifs_are_found_by_the_env_name(tmp_path):
     assert len(gifs) == 2
 
 
+def test_an_env_without_its_own_gif_shows_a_learners_in_the_preferred_order(tmp_path):
+    names = ("policy_ppo_hopper.gif", "policy_sac_hopper.gif", "policy_ppo_walker2d.gif")
+    for name in (*names, "policy_ant.gif", "policy_sac_ant.gif"):
+        write(tmp_path / name, "")
+    gifs = {key: path.name for key, path in rl_jax_docs.policy_gifs(tmp_path).items()}
+    assert gifs == {
+        "hopper": "policy_sac_hopper.gif",  # SAC before PPO (GIF_LEARNERS)
+        "walker2d": "policy_ppo_walker2d.gif",
+        "ant": "policy_ant.gif",  # a GIF named by the env alone comes first
+    }
+
+
 def test_env_table_describes_every_registered_env():
     # The library's own registry, read in a fresh process: test modules register envs of their
     # own in this one.

@@ -386,11 +386,27 @@ def env_key(env_id: str) -> str:
     return re.sub(r"[^a-z0-9]", "", name.lower())
 
 
+#: Learners whose name may lead a GIF's (``policy_sac_hopper.gif``), in the order the env table
+#: prefers them when an env has no GIF without one.
+GIF_LEARNERS = ("td3", "sac", "td7", "crossq", "ppo", "ddpg", "dqn", "reinforce")
+
+
 def policy_gifs(figures_dir: Path) -> dict[str, Path]:
-    """``env_key`` -> ``figures/policy_KEY.gif``, for each that exists."""
+    """``env_key`` -> ``figures/policy_KEY.gif`` or, where that is missing,
+    ``figures/policy_LEARNER_KEY.gif`` of the first learner of ``GIF_LEARNERS`` that has one."""
     if not figures_dir.is_dir():
         return {}
-    return {env_key(p.stem.removeprefix("policy_")): p for p in figures_dir.glob("policy_*.gif")}
+    ranked: dict[str, tuple[int, Path]] = {}
+    for path in sorted(figures_dir.glob("policy_*.gif")):
+        name, rank = path.stem.removeprefix("policy_"), 0
+        for index, learner in enumerate(GIF_LEARNERS, start=1):
+            if name.startswith(f"{learner}_"):
+                name, rank = name.removeprefix(f"{learner}_"), index
+                break
+        key = env_key(name)
+        if key not in ranked or rank < ranked[key][0]:
+            ranked[key] = (rank, path)
+    return {key: path for key, (_, path) in ranked.items()}
 
 
 # ---- the written site: every local link and image resolves --------------------------------------
