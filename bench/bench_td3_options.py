@@ -111,7 +111,8 @@ def update_gflop(config: Any, learner_name: str = "td3") -> float:
     learner = resolve_algorithm(learner_name)
     module = importlib.import_module(type(learner).__module__)
     hparams = learner.default_hyperparams(config.env_id)
-    state = learner.init(jax.random.key(0), config, hparams)
+    # shapes are all the tracing needs (an eager init would compile each of its ops)
+    state = jax.eval_shape(lambda key: learner.init(key, config, hparams), jax.random.key(0))
     traced = jax.make_jaxpr(
         lambda agent, buffer, key, index: module.update(agent, buffer, key, config, hparams, index)
     )(state.agent, state.buffer, jax.random.key(1), jnp.int32(0))

@@ -47,7 +47,8 @@ def update_flops(config: Config) -> dict[str, float]:
     critics forward, twin critics forward and backward), the actor-and-temperature step (actor
     forward, twin critics forward, backward through both), and their sum per update (the actor
     step every ``policy_delay`` updates)."""
-    agent, batch = _state_and_batch(config, jax.random.key(0))
+    # shapes are all the tracing needs (an eager init would compile each of its ops)
+    agent, batch = jax.eval_shape(lambda key: _state_and_batch(config, key), jax.random.key(0))
     critic, actor = _steps(config)
     key = jax.random.key(2)
     critic_flops = jaxpr_matmul_flops(jax.make_jaxpr(critic)(agent, batch, key).jaxpr)
@@ -63,8 +64,9 @@ def update_dots(config: Config, seeds: int) -> list[tuple[Any, float]]:
     """Every matrix product of one SAC update of ``seeds`` seeds vmapped: ``(dot_general
     equation, runs per update)``, as ``bench.td3_programs.update_dots`` gives TD3's (the
     argument ``dots_program`` takes)."""
-    agents, batches = jax.vmap(lambda key: _state_and_batch(config, key))(
-        jax.random.split(jax.random.key(0), seeds)
+    agents, batches = jax.eval_shape(
+        jax.vmap(lambda key: _state_and_batch(config, key)),
+        jax.random.split(jax.random.key(0), seeds),
     )
     critic, actor = _steps(config)
     keys = jax.random.split(jax.random.key(2), seeds)

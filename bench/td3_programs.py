@@ -84,20 +84,23 @@ def update_flops(config: td3_module.Config) -> dict[str, float]:
     forward, backward through both; it runs every ``policy_delay`` updates) and their average
     per update."""
     hparams = td3.default_hyperparams()
-    state = td3.init(jax.random.key(0), config, hparams)
     nets = td3_module.make_networks(config)
-    stored = replay.sample(state.buffer, jax.random.key(1), config.batch_size)
-    batch = CriticBatch.one_step(stored, hparams.gamma)
+
+    def agent_and_batch():
+        state = td3.init(jax.random.key(0), config, hparams)
+        stored = replay.sample(state.buffer, jax.random.key(1), config.batch_size)
+        return state.agent, CriticBatch.one_step(stored, hparams.gamma)
 
     def constant(rate):  # the learning-rate schedule: no decay
         return rate
 
+    agent, batch = jax.eval_shape(agent_and_batch)  # shapes are all the tracing needs
     critic = jax.make_jaxpr(
-        lambda agent, key: td3_module.critic_step(agent, batch, key, hparams, nets, constant)
-    )(state.agent, jax.random.key(2))
+        lambda agent, batch, key: td3_module.critic_step(agent, batch, key, hparams, nets, constant)
+    )(agent, batch, jax.random.key(2))
     actor = jax.make_jaxpr(
-        lambda agent: td3_module.actor_step(agent, batch.obs, hparams, nets, constant)
-    )(state.agent)
+        lambda agent, obs: td3_module.actor_step(agent, obs, hparams, nets, constant)
+    )(agent, batch.obs)
     critic_flops = jaxpr_matmul_flops(critic.jaxpr)
     actor_flops = jaxpr_matmul_flops(actor.jaxpr)
     return {
@@ -112,13 +115,16 @@ def update_dots(config: td3_module.Config, seeds: int) -> list[tuple[Any, float]
     runs it): ``(dot_general equation, runs per update)``; the actor step's products run every
     ``policy_delay`` updates."""
     hparams = td3.default_hyperparams()
-    state = jax.vmap(lambda key: td3.init(key, config, hparams))(
-        jax.random.split(jax.random.key(0), seeds)
-    )
     nets = td3_module.make_networks(config)
-    batch = jax.vmap(
-        lambda b, k: CriticBatch.one_step(replay.sample(b, k, config.batch_size), hparams.gamma)
-    )(state.buffer, jax.random.split(jax.random.key(1), seeds))
+
+    def agent_and_batch(key):
+        state = td3.init(key, config, hparams)
+        stored = replay.sample(state.buffer, jax.random.fold_in(key, 1), config.batch_size)
+        return state.agent, CriticBatch.one_step(stored, hparams.gamma)
+
+    agents, batch = jax.eval_shape(  # shapes are all the tracing needs
+        jax.vmap(agent_and_batch), jax.random.split(jax.random.key(0), seeds)
+    )
 
     def constant(rate):
         return rate
@@ -131,8 +137,8 @@ def update_dots(config: td3_module.Config, seeds: int) -> list[tuple[Any, float]
 
     keys = jax.random.split(jax.random.key(2), seeds)
     traced = [
-        (jax.make_jaxpr(jax.vmap(critic))(state.agent, batch, keys), 1.0),
-        (jax.make_jaxpr(jax.vmap(actor))(state.agent, batch), 1.0 / config.policy_delay),
+        (jax.make_jaxpr(jax.vmap(critic))(agents, batch, keys), 1.0),
+        (jax.make_jaxpr(jax.vmap(actor))(agents, batch), 1.0 / config.policy_delay),
     ]
     return [(eqn, weight) for jaxpr, weight in traced for eqn in _dot_equations(jaxpr.jaxpr)]
 
