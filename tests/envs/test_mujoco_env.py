@@ -17,7 +17,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 from scipy import stats
-from test_mujoco_parity import BATCH, C_BACKENDS, engine
+from test_mujoco_parity import BATCH, C_BACKENDS, engine, mjx_params
 
 import envs
 from envs.mujoco import mujoco_backend, mujoco_ffi_build
@@ -248,7 +248,7 @@ def test_c_backend_non_finite_physics_ends_the_episode(env_id, backend):
     assert not np.asarray(ts.info["physics_diverged"]).any()
 
 
-@pytest.mark.parametrize("env_id", ENV_IDS)
+@pytest.mark.parametrize("env_id", mjx_params(ENV_IDS))
 def test_mjx_backend_non_finite_physics_ends_the_episode(env_id):
     env, start, step = engine(env_id, "mjx")
     vectors, actions, rows = diverging_starts(env, BATCH)

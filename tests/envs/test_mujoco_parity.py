@@ -94,17 +94,25 @@ WALKERS = ["Hopper-v5", "Walker2d-v5"]  # terminated by gymnasium's health range
 # body's xpos; Humanoid: the bodies' mass centre, from xipos); terminated by the torso's height.
 FREE_BODIES = ["Ant-v5", "Humanoid-v5"]
 # Envs whose 256-env MJX step is slow to compile and run on a CPU with a cold compilation cache
-# (docs/testing.md has the times): their MJX tests are marked slow.
-SLOW_MJX = ("Hopper-v5", "Walker2d-v5", "Swimmer-v5", "Reacher-v5")
+# (docs/testing.md has the times): their MJX tests are marked slow. The default suite steps MJX on
+# the inverted pendulum (one hinge) and half cheetah (contacts, joint limits); the double pendulum
+# runs on MJX with the slow tests, and on the C backends in every run.
+SLOW_MJX = ("InvertedDoublePendulum-v5", "Hopper-v5", "Walker2d-v5", "Swimmer-v5", "Reacher-v5")
 # Ant and Humanoid on MJX differ from gymnasium by more than float32 rounding, for reasons outside
 # our envs: they have an MJX test of their own (test_mjx_free_body_one_step_is_close_to_gymnasium),
 # slow to compile and run too.
 SLOW_FREE_BODY_MJX = ("Ant-v5", "Humanoid-v5")
-MJX_ENV_IDS = [
-    pytest.param(env_id, marks=pytest.mark.slow) if env_id in SLOW_MJX else env_id
-    for env_id in ENV_IDS
-    if env_id not in FREE_BODIES
-]
+
+
+def mjx_params(env_ids) -> list:
+    """``env_ids`` as test parameters, those of ``SLOW_MJX`` marked slow."""
+    return [
+        pytest.param(env_id, marks=pytest.mark.slow) if env_id in SLOW_MJX else env_id
+        for env_id in env_ids
+    ]
+
+
+MJX_ENV_IDS = mjx_params(env_id for env_id in ENV_IDS if env_id not in FREE_BODIES)
 C_BACKENDS = ["mujoco_ffi", "mujoco_callback"]
 BATCH = 256  # every check of one env/backend runs through one compiled program of this size
 N_RANDOM = 200
@@ -932,7 +940,7 @@ def test_c_backend_free_body_trajectories_match_gymnasium(env_id, backend):
     assert not off[:, 0].any() and off[:, 1:].mean() > 0.95, off[:, 1:].mean()
 
 
-@pytest.mark.parametrize("env_id", PENDULUMS)
+@pytest.mark.parametrize("env_id", mjx_params(PENDULUMS))
 def test_mjx_backend_trajectories_match_gymnasium(env_id):
     cases, ours = trajectory_cases(env_id), trajectory_outputs(env_id, "mjx")
     # compare each trajectory up to the first step float32 cannot predict (see module docstring)
