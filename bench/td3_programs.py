@@ -78,31 +78,42 @@ def _inner_jaxprs(equation: Any) -> list[Any]:
     return found
 
 
+def _agent_and_batch(config: td3_module.Config, key: jax.Array):
+    """One seed's agent and a sampled critic batch: traced for their shapes only."""
+    hparams = td3.default_hyperparams()
+    state = td3.init(key, config, hparams)
+    stored = replay.sample(state.buffer, jax.random.fold_in(key, 1), config.batch_size)
+    return state.agent, CriticBatch.one_step(stored, hparams.gamma)
+
+
+def _steps(config: td3_module.Config):
+    """``(critic(agent, batch, key), actor(agent, batch))``: one seed's two steps, at a constant
+    learning rate."""
+    hparams = td3.default_hyperparams()
+    nets = td3_module.make_networks(config)
+
+    def constant(rate):  # the learning-rate schedule: no decay
+        return rate
+
+    def critic(agent, batch, key):
+        return td3_module.critic_step(agent, batch, key, hparams, nets, constant)
+
+    def actor(agent, batch):
+        return td3_module.actor_step(agent, batch.obs, hparams, nets, constant)
+
+    return critic, actor
+
+
 def update_flops(config: td3_module.Config) -> dict[str, float]:
     """Matmul FLOPs of one seed's TD3 update: the critic step (target actor and twin target
     critics forward, twin critics forward and backward), the actor step (actor and first critic
     forward, backward through both; it runs every ``policy_delay`` updates) and their average
     per update."""
-    hparams = td3.default_hyperparams()
-    nets = td3_module.make_networks(config)
-
-    def agent_and_batch():
-        state = td3.init(jax.random.key(0), config, hparams)
-        stored = replay.sample(state.buffer, jax.random.key(1), config.batch_size)
-        return state.agent, CriticBatch.one_step(stored, hparams.gamma)
-
-    def constant(rate):  # the learning-rate schedule: no decay
-        return rate
-
-    agent, batch = jax.eval_shape(agent_and_batch)  # shapes are all the tracing needs
-    critic = jax.make_jaxpr(
-        lambda agent, batch, key: td3_module.critic_step(agent, batch, key, hparams, nets, constant)
-    )(agent, batch, jax.random.key(2))
-    actor = jax.make_jaxpr(
-        lambda agent, obs: td3_module.actor_step(agent, obs, hparams, nets, constant)
-    )(agent, batch.obs)
-    critic_flops = jaxpr_matmul_flops(critic.jaxpr)
-    actor_flops = jaxpr_matmul_flops(actor.jaxpr)
+    # shapes are all the tracing needs (an eager init would compile each of its ops)
+    agent, batch = jax.eval_shape(lambda key: _agent_and_batch(config, key), jax.random.key(0))
+    critic, actor = _steps(config)
+    critic_flops = jaxpr_matmul_flops(jax.make_jaxpr(critic)(agent, batch, jax.random.key(2)).jaxpr)
+    actor_flops = jaxpr_matmul_flops(jax.make_jaxpr(actor)(agent, batch).jaxpr)
     return {
         "critic_step": critic_flops,
         "actor_step": actor_flops,
@@ -114,27 +125,11 @@ def update_dots(config: td3_module.Config, seeds: int) -> list[tuple[Any, float]
     """Every matrix product of one TD3 update of ``seeds`` seeds vmapped (as the training program
     runs it): ``(dot_general equation, runs per update)``; the actor step's products run every
     ``policy_delay`` updates."""
-    hparams = td3.default_hyperparams()
-    nets = td3_module.make_networks(config)
-
-    def agent_and_batch(key):
-        state = td3.init(key, config, hparams)
-        stored = replay.sample(state.buffer, jax.random.fold_in(key, 1), config.batch_size)
-        return state.agent, CriticBatch.one_step(stored, hparams.gamma)
-
-    agents, batch = jax.eval_shape(  # shapes are all the tracing needs
-        jax.vmap(agent_and_batch), jax.random.split(jax.random.key(0), seeds)
+    agents, batch = jax.eval_shape(
+        jax.vmap(lambda key: _agent_and_batch(config, key)),
+        jax.random.split(jax.random.key(0), seeds),
     )
-
-    def constant(rate):
-        return rate
-
-    def critic(agent, batch, key):
-        return td3_module.critic_step(agent, batch, key, hparams, nets, constant)
-
-    def actor(agent, batch):
-        return td3_module.actor_step(agent, batch.obs, hparams, nets, constant)
-
+    critic, actor = _steps(config)
     keys = jax.random.split(jax.random.key(2), seeds)
     traced = [
         (jax.make_jaxpr(jax.vmap(critic))(agents, batch, keys), 1.0),
