@@ -472,15 +472,25 @@ def unfinished(out: Path, row: Row) -> tuple[int, int] | None:
     ``None`` otherwise (no run, a finished one, one without a checkpoint, or another budget)."""
     from rl_jax.run.run_dir import CHECKPOINT_DIR
 
+    total = _total_steps(out)
     try:
-        total = int(json.loads((out / "config.json").read_text())["total_steps"])
         steps = [int(p.name) for p in (out / CHECKPOINT_DIR).iterdir() if p.name.isdigit()]
-    except (OSError, ValueError, KeyError, TypeError):
+    except OSError:
+        return None
+    if total is None:
         return None
     asked = row.args[row.args.index("--total-steps") + 1] if "--total-steps" in row.args else None
     if not steps or max(steps) >= total or (asked is not None and int(asked) != total):
         return None
     return max(steps), total
+
+
+def _total_steps(out: Path) -> int | None:
+    """The env steps per seed the run in ``out`` was started for (its config.json)."""
+    try:
+        return int(json.loads((out / "config.json").read_text())["total_steps"])
+    except (OSError, ValueError, KeyError, TypeError):
+        return None
 
 
 def set_aside(out: Path) -> Path:
@@ -681,6 +691,13 @@ def regenerate(
         if load:
             measured["load"] = load
     summary = summarize(out)
+    total = _total_steps(out)
+    if total is not None and summary["env_steps"] < total:
+        # A run stopped early (SIGTERM checkpoints and exits 0): its returns are not the row's.
+        raise SystemExit(
+            f"{out} stopped at step {summary['env_steps']:,} of {total:,}; no row written: "
+            f"`python -m bench.results {name}` continues it"
+        )
     if measured.get("wall_clock") is None:
         measured["wall_clock"] = summary["wall_clock_logged"]
     line = row_cells(name, row, summary, measured)

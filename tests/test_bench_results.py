@@ -1,0 +1,46 @@
+"""``bench.results`` summarises a row's run into RESULTS.md only once the run has ended: a run
+stopped early (SIGTERM checkpoints and exits 0, and a long row is made in sittings) writes no
+row, and says how to continue it."""
+
+import json
+
+import pytest
+
+from bench import results
+
+
+def _run(directory, total_steps, last_step, seeds=5):
+    directory.mkdir()
+    (directory / "config.json").write_text(json.dumps({"total_steps": total_steps}))
+    lines = [
+        json.dumps({"step": step, "seed": seed, "eval_return": step + seed, "wall_time": 1.0})
+        for step in range(5_000, last_step + 1, 5_000)
+        for seed in range(seeds)
+    ]
+    (directory / "metrics.jsonl").write_text("\n".join(lines) + "\n")
+    return directory
+
+
+@pytest.fixture
+def runs(tmp_path, monkeypatch):
+    monkeypatch.setattr(results, "RUNS", tmp_path / "results")
+    return tmp_path
+
+
+def test_a_run_stopped_early_writes_no_row_and_says_how_to_continue(runs):
+    run = _run(runs / "td3-humanoid", total_steps=300_000, last_step=35_000)
+    with pytest.raises(SystemExit) as stopped:
+        results.regenerate("td3-humanoid", from_run=run, write=False)
+    message = str(stopped.value)
+    assert "stopped at step 35,000 of 300,000" in message
+    assert "python -m bench.results td3-humanoid" in message
+    assert not (results.RUNS / "td3-humanoid.json").exists()
+
+
+def test_a_finished_run_is_summarised_and_judged(runs):
+    run = _run(runs / "td3-humanoid", total_steps=10_000, last_step=10_000)
+    record = results.regenerate("td3-humanoid", from_run=run, write=False)
+    assert record["summary"]["env_steps"] == 10_000
+    assert record["summary"]["final"] == [10_000.0 + seed for seed in range(5)]
+    assert record["goal_met"]  # Humanoid's goal is on time alone; the logged time is 1 s
+    assert json.loads((results.RUNS / "td3-humanoid.json").read_text())["row"] == "td3-humanoid"
