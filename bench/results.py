@@ -698,9 +698,15 @@ def regenerate(
     total = _total_steps(out)
     if total is not None and summary["env_steps"] < total:
         # A run stopped early (SIGTERM checkpoints and exits 0): its returns are not the row's.
+        own = out.resolve() == (RUNS / name).resolve()
+        again = (
+            f"python -m bench.results {name}"
+            if own
+            else f"python experiments/{row.script} --resume {out}"
+        )
         raise SystemExit(
             f"{out} stopped at step {summary['env_steps']:,} of {total:,}; no row written: "
-            f"`python -m bench.results {name}` continues it"
+            f"`{again}` continues it"
         )
     if measured.get("wall_clock") is None:
         measured["wall_clock"] = summary["wall_clock_logged"]

@@ -27,13 +27,19 @@ def runs(tmp_path, monkeypatch):
     return tmp_path
 
 
-def test_a_run_stopped_early_writes_no_row_and_says_how_to_continue(runs):
-    run = _run(runs / "td3-humanoid", total_steps=300_000, last_step=35_000)
+@pytest.mark.parametrize("where", ["the row's own directory", "elsewhere"])
+def test_a_run_stopped_early_writes_no_row_and_says_how_to_continue(runs, where):
+    results.RUNS.mkdir()
+    own = where == "the row's own directory"
+    run = _run((results.RUNS if own else runs) / "td3-humanoid", 300_000, last_step=35_000)
     with pytest.raises(SystemExit) as stopped:
         results.regenerate("td3-humanoid", from_run=run, write=False)
     message = str(stopped.value)
     assert "stopped at step 35,000 of 300,000" in message
-    assert "python -m bench.results td3-humanoid" in message
+    again = (
+        "python -m bench.results td3-humanoid" if own else f"experiments/train.py --resume {run}"
+    )
+    assert again in message
     assert not (results.RUNS / "td3-humanoid.json").exists()
 
 
