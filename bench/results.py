@@ -477,11 +477,11 @@ def unfinished(out: Path, row: Row) -> tuple[int, int] | None:
     from rl_jax.run.run_dir import CHECKPOINT_DIR
 
     total = _total_steps(out)
+    if total is None:
+        return None
     try:
         steps = [int(p.name) for p in (out / CHECKPOINT_DIR).iterdir() if p.name.isdigit()]
     except OSError:
-        return None
-    if total is None:
         return None
     asked = row.args[row.args.index("--total-steps") + 1] if "--total-steps" in row.args else None
     if not steps or max(steps) >= total or (asked is not None and int(asked) != total):
