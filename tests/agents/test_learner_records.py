@@ -8,8 +8,8 @@ own (one learner, one file), so an equal record shows that a move of code change
 
 XLA compiles for the CPU it runs on, and other flags or another jax round the same program
 differently, so records are kept per ``jax_setup.cpu_tag()``, jax version and XLA flags in
-``tests/data/learner_records.json``; where there is none the test skips and prints the values to
-add (``python tests/agents/test_learner_records.py NAME ...`` prints them as JSON).
+``tests/data/learner_records.json``; where there is none the test skips at once, naming the command
+that prints the values to add (``python tests/agents/test_learner_records.py NAME ...``, as JSON).
 """
 
 from __future__ import annotations
@@ -159,14 +159,21 @@ DEFAULT = ("td7-cpu", "crossq-cpu", "td3-simba", "dqn-cartpole", "reinforce-cart
     [name if name in DEFAULT else pytest.param(name, marks=pytest.mark.slow) for name in RUNS],
 )
 def test_short_run_equals_its_record(name):
-    got = run(name)
     record = recorded(name)
-    if record is None:
+    if record is None:  # skipped before training: another CPU's run would compare with nothing
         where = (jax_setup.cpu_tag(), jax.__version__, flags())
-        pytest.skip(f"no record for {where}; this one gives {json.dumps(got)}")
-    assert got == record
+        pytest.skip(
+            f"no record for {where}; `python tests/agents/test_learner_records.py {name}` "
+            "prints this host's"
+        )
+    assert run(name) == record
 
 
-if __name__ == "__main__":  # the named runs' records as JSON, at this process's XLA flags
+if __name__ == "__main__":  # the named runs' records as JSON, at the suite's XLA flags
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+    import compile_level
+
+    compile_level.apply()  # before the backend starts; TEST_XLA_OPT=default keeps XLA's defaults
     jax_setup.configure()
+    print(f"key: {(jax_setup.cpu_tag(), jax.__version__, flags())}", file=sys.stderr)
     print(json.dumps({name: run(name) for name in sys.argv[1:] or RUNS}))
