@@ -388,6 +388,17 @@ ROWS: dict[str, Row] = {
         )
         for name in ("HalfCheetah", "Hopper", "Walker2d", "Ant")
     },
+    # The same with an actor and temperature step every second critic step (as TD3's actor), the
+    # candidate for the 30-minute goal: a fifth fewer FLOPs per update.
+    "sac-halfcheetah-delay2": Row(
+        "SAC, its CPU recipe with `--policy-delay 2`, `rl_jax/HalfCheetah-v5`",
+        "train.py",
+        _suite_args("HalfCheetah", "--policy-delay", "2", algo="sac"),
+        5,
+        f"SAC's curve at 300k (SimbaV2's SAC runs, HalfCheetah-v4, 10 seeds): "
+        f"{SAC_CURVE_300K['HalfCheetah']:,.0f}",
+        Goal(SAC_CURVE_300K["HalfCheetah"], 5, "final", minutes=30, mean=True),
+    ),
     # PPO at CleanRL's ppo_continuous_action.py settings (our `cleanrl` recipe) for its 1M steps,
     # against CleanRL's own figure for that script (CLEANRL_PPO): the goal is to match it. The
     # vectorised recipe (`default`: many envs per seed, chosen by return against wall-clock,
