@@ -162,6 +162,20 @@ def _ppo_mujoco(name: str, label: str, recipe: tuple[str, ...]) -> Row:
     )
 
 
+def _sac_mujoco(name: str, label: str, *extra: str) -> Row:
+    """SAC on ``name``-v5 at the suite's 300k steps, 5 seeds, with ``extra`` flags, against
+    SAC's published curve (SAC_CURVE_300K); the goal: its 300k mean, in 30 minutes."""
+    return Row(
+        f"SAC, {label}, `rl_jax/{name}-v5`",
+        "train.py",
+        _suite_args(name, *extra, algo="sac"),
+        5,
+        f"SAC's curve at 300k (SimbaV2's SAC runs, {name}-v4, 10 seeds): "
+        f"{SAC_CURVE_300K[name]:,.0f}",
+        Goal(SAC_CURVE_300K[name], 5, "final", minutes=30, mean=True),
+    )
+
+
 def _td7_cpu_cheetah(steps: int, reference: str, goal: float) -> Row:
     """``td3_cheetah.py --recipe td7-cpu`` for ``steps`` env steps per seed, against TD7's table
     (10 seeds) and ``reference``'s other anchors; the goal is the mean of the 5 final returns."""
@@ -377,27 +391,13 @@ ROWS: dict[str, Row] = {
     # SAC's default (CPU) recipe at the suite's 300k steps, against the published SAC curve
     # (SimbaV2's SAC baseline runs, SAC_CURVE_300K): the goal is its mean at 300k, in 30 minutes.
     **{
-        f"sac-{name.lower()}": Row(
-            f"SAC, its CPU recipe, `rl_jax/{name}-v5`",
-            "train.py",
-            _suite_args(name, algo="sac"),
-            5,
-            f"SAC's curve at 300k (SimbaV2's SAC runs, {name}-v4, 10 seeds): "
-            f"{SAC_CURVE_300K[name]:,.0f}",
-            Goal(SAC_CURVE_300K[name], 5, "final", minutes=30, mean=True),
-        )
+        f"sac-{name.lower()}": _sac_mujoco(name, "its CPU recipe")
         for name in ("HalfCheetah", "Hopper", "Walker2d", "Ant")
     },
     # The same with an actor and temperature step every second critic step (as TD3's actor), the
     # candidate for the 30-minute goal: a fifth fewer FLOPs per update.
-    "sac-halfcheetah-delay2": Row(
-        "SAC, its CPU recipe with `--policy-delay 2`, `rl_jax/HalfCheetah-v5`",
-        "train.py",
-        _suite_args("HalfCheetah", "--policy-delay", "2", algo="sac"),
-        5,
-        f"SAC's curve at 300k (SimbaV2's SAC runs, HalfCheetah-v4, 10 seeds): "
-        f"{SAC_CURVE_300K['HalfCheetah']:,.0f}",
-        Goal(SAC_CURVE_300K["HalfCheetah"], 5, "final", minutes=30, mean=True),
+    "sac-halfcheetah-delay2": _sac_mujoco(
+        "HalfCheetah", "its CPU recipe with `--policy-delay 2`", "--policy-delay", "2"
     ),
     # PPO at CleanRL's ppo_continuous_action.py settings (our `cleanrl` recipe) for its 1M steps,
     # against CleanRL's own figure for that script (CLEANRL_PPO): the goal is to match it. The

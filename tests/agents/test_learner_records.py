@@ -104,8 +104,13 @@ def flags() -> str:
     return " ".join(sorted(f for f in given if not f.startswith(NOT_KEYS))) or "default"
 
 
+def record_key() -> tuple[str, str, str]:
+    """Where this process's records are kept: CPU tag, jax version, XLA flags."""
+    return jax_setup.cpu_tag(), jax.__version__, flags()
+
+
 def recorded(name: str) -> list | None:
-    where = (jax_setup.cpu_tag(), jax.__version__, flags())
+    where = record_key()
     for record in json.loads(RECORDS.read_text()) if RECORDS.exists() else []:
         if (record["cpu_tag"], record["jax"], record["flags"]) == where:
             return record["runs"].get(name)
@@ -161,9 +166,8 @@ DEFAULT = ("td7-cpu", "crossq-cpu", "td3-simba", "dqn-cartpole", "reinforce-cart
 def test_short_run_equals_its_record(name):
     record = recorded(name)
     if record is None:  # skipped before training: another CPU's run would compare with nothing
-        where = (jax_setup.cpu_tag(), jax.__version__, flags())
         pytest.skip(
-            f"no record for {where}; `python tests/agents/test_learner_records.py {name}` "
+            f"no record for {record_key()}; `python tests/agents/test_learner_records.py {name}` "
             "prints this host's"
         )
     assert run(name) == record
@@ -175,5 +179,5 @@ if __name__ == "__main__":  # the named runs' records as JSON, at the suite's XL
 
     compile_level.apply()  # before the backend starts; TEST_XLA_OPT=default keeps XLA's defaults
     jax_setup.configure()
-    print(f"key: {(jax_setup.cpu_tag(), jax.__version__, flags())}", file=sys.stderr)
+    print(f"key: {record_key()}", file=sys.stderr)
     print(json.dumps({name: run(name) for name in sys.argv[1:] or RUNS}))
