@@ -396,9 +396,12 @@ ROWS: dict[str, Row] = {
     },
     # The same with an actor and temperature step every second critic step (as TD3's actor), the
     # candidate for the 30-minute goal: a fifth fewer FLOPs per update.
-    "sac-halfcheetah-delay2": _sac_mujoco(
-        "HalfCheetah", "its CPU recipe with `--policy-delay 2`", "--policy-delay", "2"
-    ),
+    **{
+        f"sac-{name.lower()}-delay2": _sac_mujoco(
+            name, "its CPU recipe with `--policy-delay 2`", "--policy-delay", "2"
+        )
+        for name in ("HalfCheetah", "Hopper", "Walker2d", "Ant")
+    },
     # PPO at CleanRL's ppo_continuous_action.py settings (our `cleanrl` recipe) for its 1M steps,
     # against CleanRL's own figure for that script (CLEANRL_PPO): the goal is to match it. The
     # vectorised recipe (`default`: many envs per seed, chosen by return against wall-clock,
