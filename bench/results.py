@@ -126,12 +126,14 @@ CLEANRL_PPO = {
 }
 
 
+# The four MuJoCo tasks that SAC's and PPO's rows run on.
+SUITE4 = ("HalfCheetah", "Hopper", "Walker2d", "Ant")
+
 # SAC with the learned temperature on gymnasium's MuJoCo v4 envs: the mean over the 10 runs of
 # SimbaV2's SAC baseline (bench/reference_curves/sac_simbav2.json, its source named there) at its
 # evaluation nearest 300k env steps (299,988).
 SAC_CURVE_300K = {
-    name: read_reference("sac_simbav2", f"rl_jax/{name}-v5").mean_at(300_000)
-    for name in ("HalfCheetah", "Hopper", "Walker2d", "Ant")
+    name: read_reference("sac_simbav2", f"rl_jax/{name}-v5").mean_at(300_000) for name in SUITE4
 }
 
 
@@ -390,31 +392,25 @@ ROWS: dict[str, Row] = {
     },
     # SAC's default (CPU) recipe at the suite's 300k steps, against the published SAC curve
     # (SimbaV2's SAC baseline runs, SAC_CURVE_300K): the goal is its mean at 300k, in 30 minutes.
-    **{
-        f"sac-{name.lower()}": _sac_mujoco(name, "its CPU recipe")
-        for name in ("HalfCheetah", "Hopper", "Walker2d", "Ant")
-    },
+    **{f"sac-{name.lower()}": _sac_mujoco(name, "its CPU recipe") for name in SUITE4},
     # The same with an actor and temperature step at every critic step, as the recipe was until
     # the policy delay of 2 replaced it.
     **{
         f"sac-{name.lower()}-delay1": _sac_mujoco(
             name, "its CPU recipe with `--policy-delay 1`", "--policy-delay", "1"
         )
-        for name in ("HalfCheetah", "Hopper", "Walker2d", "Ant")
+        for name in SUITE4
     },
     # PPO at CleanRL's ppo_continuous_action.py settings (our `cleanrl` recipe) for its 1M steps,
     # against CleanRL's own figure for that script (CLEANRL_PPO): the goal is to match it. The
     # vectorised recipe (`default`: many envs per seed, chosen by return against wall-clock,
     # RESULTS.md) has the same budget and goal, and is compared with it on wall-clock.
-    **{
-        f"ppo-{name.lower()}": _ppo_mujoco(name, "vectorised recipe", ())
-        for name in ("HalfCheetah", "Hopper", "Walker2d", "Ant")
-    },
+    **{f"ppo-{name.lower()}": _ppo_mujoco(name, "vectorised recipe", ()) for name in SUITE4},
     **{
         f"ppo-cleanrl-{name.lower()}": _ppo_mujoco(
             name, "CleanRL's settings (`--recipe cleanrl`)", ("--recipe", "cleanrl")
         )
-        for name in ("HalfCheetah", "Hopper", "Walker2d", "Ant")
+        for name in SUITE4
     },
     # PPO's CartPole recipe over 30 seeds in one program: >= 29 of them end at the maximum, and
     # the whole command (start-up and compilation included) takes at most a minute on 2 cores.
