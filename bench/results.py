@@ -126,6 +126,16 @@ CLEANRL_PPO = {
 }
 
 
+# Tianshou's PPO (examples/mujoco/README.md in thu-ml/tianshou, its PPO table) on Ant-v3 at 1M
+# steps: the best mean return over its evaluations, 10 seeds, ± their std. Its gym 0.17.3 ran
+# MuJoCo 2.0, under which Ant-v3's 84 contact-force entries were all zero (openai/gym#1541): an
+# Ant without contact forces, as v4 by default and our `ppo-ant-nocontact` row.
+TIANSHOU_PPO_ANT = (3258.4, 1079.3)
+TIANSHOU_PPO_ANT_TEXT = (
+    "Tianshou's PPO, Ant-v3 (zero contact forces) at 1M, best mean of 10 seeds: "
+    "{:,.0f} ± {:,.0f}".format(*TIANSHOU_PPO_ANT)
+)
+
 # The four MuJoCo tasks that SAC's and PPO's rows run on.
 SUITE4 = ("HalfCheetah", "Hopper", "Walker2d", "Ant")
 
@@ -159,7 +169,8 @@ def _ppo_mujoco(name: str, label: str, recipe: tuple[str, ...]) -> Row:
         f"CleanRL's ppo_continuous_action.py, {name}-v4 at 1M: "
         "{:,.0f} ± {:,.0f} (3 seeds)".format(*figure)
         if figure
-        else "CleanRL's tables give no Ant figure for ppo_continuous_action.py",
+        else "CleanRL's tables give no Ant figure for ppo_continuous_action.py; "
+        + TIANSHOU_PPO_ANT_TEXT,
         Goal(figure[0], 5, "final", mean=True) if figure else None,
     )
 
@@ -412,6 +423,25 @@ ROWS: dict[str, Row] = {
         )
         for name in SUITE4
     },
+    # Ant's observation without its 78 contact-force entries (as td3-ant-nocontact): the
+    # vectorised recipe as ppo-ant otherwise. Tianshou's Ant-v3 figure was made without them
+    # too, but as the best of the mean curve, not its end: a reference beside the row, no goal.
+    "ppo-ant-nocontact": Row(
+        "PPO, vectorised recipe, `rl_jax/Ant-v5` with `include_cfrc_ext_in_observation=False`",
+        "train.py",
+        (
+            "--algo",
+            "ppo",
+            "--env",
+            "rl_jax/Ant-v5",
+            "--env-kwargs",
+            "include_cfrc_ext_in_observation=False",
+            "--total-steps",
+            "1000000",
+        ),
+        5,
+        TIANSHOU_PPO_ANT_TEXT + "; the `ppo-ant` row (with them)",
+    ),
     # PPO's CartPole recipe over 30 seeds in one program: >= 29 of them end at the maximum, and
     # the whole command (start-up and compilation included) takes at most a minute on 2 cores.
     "ppo-cartpole": Row(
