@@ -380,7 +380,7 @@ def prepare(spec: RunSpec) -> tuple[Plan, Start]:
     if spec.resume:
         learners.check_same(check_resume_dir(spec.out, spec.identity), spec.algorithm, spec.out)
     else:
-        check_out_dir(spec.out, spec.identity)
+        _check_fresh_out(spec)
     plan = make_plan(spec)
     check_memory(plan, getattr(spec.config, "buffer_size", None))
     start = restore_start(spec, plan) if spec.resume else None
@@ -388,6 +388,23 @@ def prepare(spec: RunSpec) -> tuple[Plan, Start]:
     # Every process has read what it needs before the lead writes (distributed runs).
     processes.barrier(f"rl_jax prepared {spec.out}")
     return plan, start
+
+
+def _check_fresh_out(spec: RunSpec) -> None:
+    """``check_out_dir`` by the lead alone, its verdict shared: the check probes by creating the
+    directory and a file in it, and a second process probing at the same moment would find the
+    first one's probe there and refuse a directory that nobody has used."""
+    error = None
+    if processes.is_lead():
+        try:
+            check_out_dir(spec.out, spec.identity)
+        except RunError as refused:
+            error = refused
+    (refused_by_lead,) = processes.agree(error is not None)
+    if error is not None:
+        raise error
+    if refused_by_lead:
+        raise RunError(f"process 0 refused --out {spec.out} (its output says why)")
 
 
 def run(spec: RunSpec, notify: Callable[[str], None] = print) -> RunResult:
