@@ -91,13 +91,14 @@ def devices() -> list[jax.Device]:
     return jax.local_devices() if _alone[0] else jax.devices()
 
 
-def agree(*flags: bool) -> tuple[bool, ...]:
-    """Each flag ORed over all processes (one small gather; the flags as they are on one)."""
+def agree(*flags: bool, at: str = "the end of a chunk") -> tuple[bool, ...]:
+    """Each flag ORed over all processes (one small gather; the flags as they are on one); ``at``
+    names the place in the run for the line of a wait past its limit."""
     if count() == 1:
         return tuple(bool(flag) for flag in flags)
 
     local = np.asarray(flags, dtype=np.int32)
-    with waiting("the end of a chunk"):
+    with waiting(at):
         gathered = np.asarray(multihost_utils.process_allgather(local))
     return tuple(bool(value) for value in gathered.reshape(-1, len(flags)).max(axis=0))
 

@@ -400,7 +400,7 @@ def _check_fresh_out(spec: RunSpec) -> None:
             check_out_dir(spec.out, spec.identity)
         except RunError as refused:
             error = refused
-    (refused_by_lead,) = processes.agree(error is not None)
+    (refused_by_lead,) = processes.agree(error is not None, at="the check of --out")
     if error is not None:
         raise error
     if refused_by_lead:

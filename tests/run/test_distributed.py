@@ -228,7 +228,8 @@ def test_only_the_lead_probes_a_fresh_out_and_the_others_take_its_verdict(monkey
     verdicts: list[bool] = []
     lead_refused = [False]
 
-    def agree(*flags):
+    def agree(*flags, at):
+        assert at == "the check of --out"
         verdicts.extend(flags)
         return (lead_refused[0],)
 
