@@ -199,10 +199,11 @@ def add_run_flags(parser: argparse.ArgumentParser, seeds: int, total_steps: int)
     add(
         "--checkpoint-interval",
         type=non_negative_float,
-        default=120.0,
+        default=None,
         metavar="SECONDS",
         help="minimum seconds between checkpoints; one is always written at the end and when "
-        "stopped by Ctrl-C/SIGTERM (default: 120)",
+        "stopped by Ctrl-C/SIGTERM (default: 120, or more where writing one takes over 5%% of "
+        "that, as a large replay buffer can)",
     )
     add(
         "--keep-checkpoints",

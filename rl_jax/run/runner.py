@@ -118,6 +118,22 @@ def metric_rows(
     return rows
 
 
+# Checkpoints by default: every 120 s, or further apart where writing one takes longer than a
+# twentieth of the time between them (a large replay buffer to compress: a 1M-transition buffer of
+# 5 Ant seeds took ~30 s), so that writing them takes at most ~5% of a run.
+DEFAULT_CHECKPOINT_INTERVAL = 120.0
+CHECKPOINT_TIME_SHARE = 0.05
+
+
+def checkpoint_interval(given: float | None, save_seconds: float) -> float:
+    """Least seconds from the end of one checkpoint to the next: ``given`` where set, else the
+    default spacing after a write that took ``save_seconds``."""
+    if given is not None:
+        return given
+    spacing = save_seconds * (1 - CHECKPOINT_TIME_SHARE) / CHECKPOINT_TIME_SHARE
+    return max(DEFAULT_CHECKPOINT_INTERVAL, spacing)
+
+
 @dataclasses.dataclass
 class Session:
     """One process's part of a run: the open log and checkpointer (the lead's only), and its
@@ -135,6 +151,12 @@ class Session:
     best: BestPolicies
     best_checkpointer: Checkpointer | None
     last_save: float = dataclasses.field(default_factory=time.perf_counter)
+    save_seconds: float = 0.0  # how long the latest checkpoint took to write
+
+    def checkpoint_due(self) -> bool:
+        """Whether the next checkpoint is due: the lead decides, the processes agree on it."""
+        interval = checkpoint_interval(self.spec.checkpoint_interval, self.save_seconds)
+        return processes.is_lead() and time.perf_counter() - self.last_save >= interval
 
     @classmethod
     def open(cls, spec: RunSpec, plan: Plan, start: Start, started: float) -> Session:
@@ -194,6 +216,7 @@ class Session:
         if self.checkpointer is None:  # not the lead
             self.saved_step, self.last_save = self.step, time.perf_counter()
             return
+        began = time.perf_counter()
         self.log.flush()  # rows up to this step are on disk before the checkpoint exists
         meta = {
             **checkpoint_expectation(self.spec),
@@ -207,6 +230,7 @@ class Session:
             self.best.save(self.best_checkpointer, self.step, meta)
         self.checkpointer.save(self.step, runs, meta)
         self.saved_step, self.last_save = self.step, time.perf_counter()
+        self.save_seconds = self.last_save - began
 
     def write(self, rows: list[dict[str, Any]]) -> None:
         """Append metric rows to the run's log (only the lead process has one)."""
@@ -274,7 +298,7 @@ def _train(session: Session, start: Start, stop: GracefulStop, progress: Progres
                 prior_updates,
                 session.updates,
             )
-        due = time.perf_counter() - session.last_save >= spec.checkpoint_interval
+        due = session.checkpoint_due()
         if _stopping(stop, due) or chunk + 1 == plan.chunks:
             session.save(state, hparams, chunk)
     return state

@@ -25,7 +25,9 @@ class RunSpec:
     resume: bool = False
     base_seed: int = 0
     grid_fields: tuple[str, ...] = ()  # hyperparameters a grid varies (logged on every row)
-    checkpoint_interval: float = 120.0  # seconds; also at the end and when stopped
+    # least seconds between checkpoints (also one at the end and when stopped); None: the
+    # default spacing, rl_jax.run.runner.checkpoint_interval
+    checkpoint_interval: float | None = None
     keep_checkpoints: int = 3
     log_interval: float = 30.0  # seconds between progress lines when not on a terminal
     gif: bool = False

@@ -291,3 +291,14 @@ def test_a_grid_runs_every_config_in_one_program(full_run, tmp_path):
             assert row["loss"] == pytest.approx(expected["loss"], rel=1e-4)
     lr = np.asarray(result.state.opt_state.hyperparams["learning_rate"])
     np.testing.assert_array_equal(lr, np.float32([[0.01, 0.01], [0.05, 0.05]]))
+
+
+def test_checkpoints_by_default_space_out_when_writing_them_is_slow():
+    """Unset, the interval is 120 s, or long enough that each write takes at most 5% of the time
+    from one checkpoint to the next; a given interval is kept as given (0: every chunk)."""
+    assert runner.checkpoint_interval(None, 0.0) == 120.0
+    assert runner.checkpoint_interval(None, 5.0) == 120.0
+    assert runner.checkpoint_interval(None, 30.0) == pytest.approx(570.0)
+    assert 30.0 / (30.0 + runner.checkpoint_interval(None, 30.0)) == pytest.approx(0.05)
+    assert runner.checkpoint_interval(0.0, 30.0) == 0.0
+    assert runner.checkpoint_interval(60.0, 30.0) == 60.0
