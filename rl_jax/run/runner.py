@@ -211,12 +211,12 @@ class Session:
         any number of devices)."""
         if self.saved_step == self.step:
             return
+        began = time.perf_counter()  # the copy to the host is part of a checkpoint's cost
         with processes.waiting("a checkpoint"):
             runs = self.plan.program.unpad(state, hparams)  # every process takes part
         if self.checkpointer is None:  # not the lead
             self.saved_step, self.last_save = self.step, time.perf_counter()
             return
-        began = time.perf_counter()
         self.log.flush()  # rows up to this step are on disk before the checkpoint exists
         meta = {
             **checkpoint_expectation(self.spec),
