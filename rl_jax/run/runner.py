@@ -118,9 +118,9 @@ def metric_rows(
     return rows
 
 
-# Checkpoints by default: every 120 s, or further apart where writing one takes longer than a
-# twentieth of the time between them (a large replay buffer to compress: a 1M-transition buffer of
-# 5 Ant seeds took ~30 s), so that writing them takes at most ~5% of a run.
+# Checkpoints by default: every 120 s, or further apart where one takes longer than a twentieth
+# of the time between them (a large replay buffer to copy and compress), so that checkpoints take
+# at most ~5% of a run.
 DEFAULT_CHECKPOINT_INTERVAL = 120.0
 CHECKPOINT_TIME_SHARE = 0.05
 
@@ -151,7 +151,7 @@ class Session:
     best: BestPolicies
     best_checkpointer: Checkpointer | None
     last_save: float = dataclasses.field(default_factory=time.perf_counter)
-    save_seconds: float = 0.0  # how long the latest checkpoint took to write
+    save_seconds: float = 0.0  # the latest checkpoint's seconds: copy to the host and write
 
     def checkpoint_due(self) -> bool:
         """Whether the next checkpoint is due: the lead decides, the processes agree on it."""
