@@ -426,21 +426,13 @@ ROWS: dict[str, Row] = {
     # Ant's observation without its 78 contact-force entries (as td3-ant-nocontact): the
     # vectorised recipe as ppo-ant otherwise. Tianshou's Ant-v3 figure was made without them
     # too, but as the best of the mean curve, not its end: a reference beside the row, no goal.
-    "ppo-ant-nocontact": Row(
-        "PPO, vectorised recipe, `rl_jax/Ant-v5` with `include_cfrc_ext_in_observation=False`",
-        "train.py",
-        (
-            "--algo",
-            "ppo",
-            "--env",
-            "rl_jax/Ant-v5",
-            "--env-kwargs",
-            "include_cfrc_ext_in_observation=False",
-            "--total-steps",
-            "1000000",
+    "ppo-ant-nocontact": dataclasses.replace(
+        _ppo_mujoco(
+            "Ant", "vectorised recipe", ("--env-kwargs", "include_cfrc_ext_in_observation=False")
         ),
-        5,
-        TIANSHOU_PPO_ANT_TEXT + "; the `ppo-ant` row (with them)",
+        title="PPO, vectorised recipe, `rl_jax/Ant-v5` with "
+        "`include_cfrc_ext_in_observation=False`",
+        reference=TIANSHOU_PPO_ANT_TEXT + "; the `ppo-ant` row (with them)",
     ),
     # PPO's CartPole recipe over 30 seeds in one program: >= 29 of them end at the maximum, and
     # the whole command (start-up and compilation included) takes at most a minute on 2 cores.
