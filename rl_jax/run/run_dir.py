@@ -27,6 +27,7 @@ from typing import Any
 import jax
 
 from rl_jax.errors import RunError
+from rl_jax.run import processes
 from rl_jax.run.checkpoint import library_versions
 from rl_jax.training import params
 from rl_jax.training.algorithm import Config, Hyperparams
@@ -178,11 +179,23 @@ def read_run_record(run_dir: Path) -> dict[str, Any]:
 def check_out_dir(out: Path, run_identity: dict[str, Any]) -> None:
     """Refuse to start a fresh run in a directory that already holds something, or one that
     cannot be created or written: a probe creates the missing directories and a file in the
-    last, then removes what it created (``/proc`` or a read-only mount only says so then)."""
-    try:
-        _check_out_dir(out, run_identity)
-    except OSError as error:
-        raise RunError(f"cannot use --out {out}: {_reason(error)}") from None
+    last, then removes what it created (``/proc`` or a read-only mount only says so then).
+
+    The lead process alone probes and the others take its verdict: all start at once, and one
+    probing beside another would find the other's probe and refuse a directory nobody used."""
+    error = None
+    if processes.is_lead():
+        try:
+            _check_out_dir(out, run_identity)
+        except OSError as failed:
+            error = RunError(f"cannot use --out {out}: {_reason(failed)}")
+        except RunError as refused:
+            error = refused
+    (refused_by_lead,) = processes.agree(error is not None, at="the check of --out")
+    if error is not None:
+        raise error
+    if refused_by_lead:
+        raise RunError(f"process 0 refused --out {out} (its output says why)")
 
 
 def _check_out_dir(out: Path, run_identity: dict[str, Any]) -> None:

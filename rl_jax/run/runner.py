@@ -66,6 +66,7 @@ from rl_jax.run.start import (
     GracefulStop,
     Start,
     checkpoint_expectation,
+    checkpoint_interval,
     fresh_start,
     restore_start,
     set_aside_damaged,
@@ -116,22 +117,6 @@ def metric_rows(
                 row[name] = np.asarray(value[h, s]).item()
             rows.append(row)
     return rows
-
-
-# Checkpoints by default: every 120 s, or further apart where one takes longer than a twentieth
-# of the time between them (a large replay buffer to copy and compress), so that checkpoints take
-# at most ~5% of a run.
-DEFAULT_CHECKPOINT_INTERVAL = 120.0
-CHECKPOINT_TIME_SHARE = 0.05
-
-
-def checkpoint_interval(given: float | None, save_seconds: float) -> float:
-    """Least seconds from the end of one checkpoint to the next: ``given`` where set, else the
-    default spacing after a write that took ``save_seconds``."""
-    if given is not None:
-        return given
-    spacing = save_seconds * (1 - CHECKPOINT_TIME_SHARE) / CHECKPOINT_TIME_SHARE
-    return max(DEFAULT_CHECKPOINT_INTERVAL, spacing)
 
 
 @dataclasses.dataclass
@@ -404,7 +389,7 @@ def prepare(spec: RunSpec) -> tuple[Plan, Start]:
     if spec.resume:
         learners.check_same(check_resume_dir(spec.out, spec.identity), spec.algorithm, spec.out)
     else:
-        _check_fresh_out(spec)
+        check_out_dir(spec.out, spec.identity)
     plan = make_plan(spec)
     check_memory(plan, getattr(spec.config, "buffer_size", None))
     start = restore_start(spec, plan) if spec.resume else None
@@ -412,23 +397,6 @@ def prepare(spec: RunSpec) -> tuple[Plan, Start]:
     # Every process has read what it needs before the lead writes (distributed runs).
     processes.barrier(f"rl_jax prepared {spec.out}")
     return plan, start
-
-
-def _check_fresh_out(spec: RunSpec) -> None:
-    """``check_out_dir`` by the lead alone, its verdict shared: the check probes by creating the
-    directory and a file in it, and a second process probing at the same moment would find the
-    first one's probe there and refuse a directory that nobody has used."""
-    error = None
-    if processes.is_lead():
-        try:
-            check_out_dir(spec.out, spec.identity)
-        except RunError as refused:
-            error = refused
-    (refused_by_lead,) = processes.agree(error is not None, at="the check of --out")
-    if error is not None:
-        raise error
-    if refused_by_lead:
-        raise RunError(f"process 0 refused --out {spec.out} (its output says why)")
 
 
 def run(spec: RunSpec, notify: Callable[[str], None] = print) -> RunResult:

@@ -26,7 +26,7 @@ class RunSpec:
     base_seed: int = 0
     grid_fields: tuple[str, ...] = ()  # hyperparameters a grid varies (logged on every row)
     # least seconds between checkpoints (also one at the end and when stopped); None: the
-    # default spacing, rl_jax.run.runner.checkpoint_interval
+    # default spacing, rl_jax.run.start.checkpoint_interval
     checkpoint_interval: float | None = None
     keep_checkpoints: int = 3
     log_interval: float = 30.0  # seconds between progress lines when not on a terminal

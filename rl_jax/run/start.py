@@ -36,6 +36,21 @@ from rl_jax.training import parallel, params
 REQUEUE_SIGNAL = "SIGUSR1"
 STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM, signal.SIGUSR1)
 
+# Checkpoints by default: every 120 s, or further apart where one takes longer than a twentieth
+# of the time between them (a large replay buffer to copy and compress), so that checkpoints take
+# at most ~5% of a run.
+DEFAULT_CHECKPOINT_INTERVAL = 120.0
+CHECKPOINT_TIME_SHARE = 0.05
+
+
+def checkpoint_interval(given: float | None, save_seconds: float) -> float:
+    """Least seconds from the end of one checkpoint to the next: ``given`` where set, else the
+    default spacing after a checkpoint that took ``save_seconds``."""
+    if given is not None:
+        return given
+    spacing = save_seconds * (1 - CHECKPOINT_TIME_SHARE) / CHECKPOINT_TIME_SHARE
+    return max(DEFAULT_CHECKPOINT_INTERVAL, spacing)
+
 
 class GracefulStop:
     """The first SIGINT, SIGTERM or SIGUSR1 asks to stop after the current chunk; a second

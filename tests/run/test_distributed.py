@@ -223,7 +223,7 @@ def test_only_the_lead_probes_a_fresh_out_and_the_others_take_its_verdict(monkey
     """Every process of a run starts at once: were each to probe ``--out`` (create it and a file
     in it, then remove them), one would find another's probe there and refuse a directory nobody
     used. Another process leaves ``--out`` alone and takes the lead's verdict."""
-    from rl_jax.run import processes, runner
+    from rl_jax.run import processes, run_dir
 
     verdicts: list[bool] = []
     lead_refused = [False]
@@ -236,20 +236,20 @@ def test_only_the_lead_probes_a_fresh_out_and_the_others_take_its_verdict(monkey
     monkeypatch.setattr(processes, "is_lead", lambda: False)
     monkeypatch.setattr(processes, "agree", agree)
     out = tmp_path / "fresh" / "run"
-    runner._check_fresh_out(spec_for(out, "python run.py"))
+    run_dir.check_out_dir(out, spec_for(out, "python run.py").identity)
     assert not (tmp_path / "fresh").exists() and verdicts == [False]
     # the lead's probe, caught in the act, is not this process's business
     out.mkdir(parents=True)
     (out / ".probe").write_text("")
-    runner._check_fresh_out(spec_for(out, "python run.py"))
+    run_dir.check_out_dir(out, spec_for(out, "python run.py").identity)
     lead_refused[0] = True
     with pytest.raises(RunError, match=r"^process 0 refused --out .* \(its output says why\)$"):
-        runner._check_fresh_out(spec_for(out, "python run.py"))
+        run_dir.check_out_dir(out, spec_for(out, "python run.py").identity)
     # the lead itself checks, and says why it refuses
     monkeypatch.setattr(processes, "is_lead", lambda: True)
     verdicts.clear()
     with pytest.raises(RunError, match="is not empty; choose another --out"):
-        runner._check_fresh_out(spec_for(out, "python run.py"))
+        run_dir.check_out_dir(out, spec_for(out, "python run.py").identity)
     assert verdicts == [True]
 
 

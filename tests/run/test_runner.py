@@ -15,7 +15,7 @@ import pytest
 from run_helpers import leaves_bytes, snapshot
 
 from rl_jax.errors import CheckpointError, RunError
-from rl_jax.run import runner
+from rl_jax.run import runner, start
 from rl_jax.run.best import load_part
 from rl_jax.run.checkpoint import Checkpointer
 from rl_jax.run.metrics import read_rows
@@ -296,9 +296,9 @@ def test_a_grid_runs_every_config_in_one_program(full_run, tmp_path):
 def test_checkpoints_by_default_space_out_when_writing_them_is_slow():
     """Unset, the interval is 120 s, or long enough that each write takes at most 5% of the time
     from one checkpoint to the next; a given interval is kept as given (0: every chunk)."""
-    assert runner.checkpoint_interval(None, 0.0) == 120.0
-    assert runner.checkpoint_interval(None, 5.0) == 120.0
-    assert runner.checkpoint_interval(None, 30.0) == pytest.approx(570.0)
-    assert 30.0 / (30.0 + runner.checkpoint_interval(None, 30.0)) == pytest.approx(0.05)
-    assert runner.checkpoint_interval(0.0, 30.0) == 0.0
-    assert runner.checkpoint_interval(60.0, 30.0) == 60.0
+    assert start.checkpoint_interval(None, 0.0) == 120.0
+    assert start.checkpoint_interval(None, 5.0) == 120.0
+    assert start.checkpoint_interval(None, 30.0) == pytest.approx(570.0)
+    assert 30.0 / (30.0 + start.checkpoint_interval(None, 30.0)) == pytest.approx(0.05)
+    assert start.checkpoint_interval(0.0, 30.0) == 0.0
+    assert start.checkpoint_interval(60.0, 30.0) == 60.0
