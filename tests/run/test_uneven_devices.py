@@ -5,8 +5,10 @@ file, so a run resumes on another device count. Plus the layout and shape-sharin
 
 Bit for bit holds because each device runs the same vmapped program on its block, and a batch
 of 3 runs and a batch of 5 compute each run with the same kernels (checked here at the tests' XLA
-flags, and by the slow test for TD3 at XLA's defaults). A block of one seed need not: see
-tests/test_sweep.py.
+flags, and by the slow test for TD3 at XLA's defaults). That holds for the locked jaxlib; another
+XLA may fuse the two batch sizes differently (jax 0.12 does: a loss 1 ulp apart), and there the
+runs are compared to a float tolerance, their steps, seeds and counts still exactly. A block of
+one seed need not compile to the same kernels even on the lock: see tests/test_sweep.py.
 """
 
 import dataclasses
@@ -19,9 +21,10 @@ from pathlib import Path
 
 import compile_level
 import jax
+import numpy as np
 import pytest
 from child_env import python_path
-from run_helpers import leaves_bytes
+from run_helpers import ON_THE_LOCKED_JAX, leaves_bytes
 from uneven_specs import SEEDS, spec_for
 
 from rl_jax.errors import RunError
@@ -76,14 +79,25 @@ def rows(out: Path) -> list[dict]:
     ]
 
 
-def checkpoint(out: Path, learner: str, total: int) -> list[bytes]:
+def checkpoint(out: Path, learner: str, total: int):
     """The latest checkpoint, restored into the template of the real 5 runs (a checkpoint with
     padding copies would not match it)."""
     plan = make_plan(spec_for(learner, out, total))
     with Checkpointer(out / "checkpoints", read_only=True) as checkpointer:
         state, meta = checkpointer.restore(plan.template)
     assert meta["step"] == total
-    return leaves_bytes(state)
+    return state
+
+
+def assert_close_rows(got: list[dict], want: list[dict]) -> None:
+    """The same rows, their floats to a tolerance (``ON_THE_LOCKED_JAX`` says when)."""
+    assert [sorted(row) for row in got] == [sorted(row) for row in want]
+    for row, expected in zip(got, want, strict=True):
+        for key, value in expected.items():
+            if isinstance(value, float):
+                np.testing.assert_allclose(row[key], value, rtol=1e-4, atol=1e-5, err_msg=key)
+            else:
+                assert row[key] == value, key
 
 
 def assert_same_runs(outs: list[Path], learner: str, total: int) -> None:
@@ -92,15 +106,26 @@ def assert_same_runs(outs: list[Path], learner: str, total: int) -> None:
     assert len(expected_rows) == chunks * SEEDS
     assert sorted({row["seed"] for row in expected_rows}) == list(range(SEEDS))  # no copies
     for out in outs[1:]:
-        assert rows(out) == expected_rows, out
-        assert checkpoint(out, learner, total) == expected_state, out
+        state = checkpoint(out, learner, total)
+        if ON_THE_LOCKED_JAX:
+            assert rows(out) == expected_rows, out
+            assert leaves_bytes(state) == leaves_bytes(expected_state), out
+            continue
+        assert_close_rows(rows(out), expected_rows)
+        for got, want in zip(jax.tree.leaves(state), jax.tree.leaves(expected_state), strict=True):
+            if jax.dtypes.issubdtype(want.dtype, jax.dtypes.prng_key):
+                got, want = jax.random.key_data(got), jax.random.key_data(want)
+            if jax.dtypes.issubdtype(want.dtype, np.floating):
+                np.testing.assert_allclose(got, want, rtol=1e-4, atol=1e-5)
+            else:
+                np.testing.assert_array_equal(got, want)
 
 
 @cpu_only
 def test_five_seeds_on_two_devices_equal_one_device_and_resume_on_one(tmp_path):
     """5 seeds to the end on 2 devices (3 + 3) and on 1; and 5 seeds stopped halfway on 2
-    devices, resumed on 1. All three are the same runs, bit for bit. (The other way, 1 device
-    resumed on 2: the slow TD3 test.)"""
+    devices, resumed on 1. All three are the same runs, bit for bit on the locked jaxlib. (The
+    other way, 1 device resumed on 2: the slow TD3 test.)"""
     two = start(2, [job(tmp_path / "two", FAKE_TOTAL), job(tmp_path / "half", FAKE_TOTAL // 2)])
     assert finish(two) == [[2, 6]] * 2  # 3 + 3: one copy of seed 0, dropped
     one = start(
