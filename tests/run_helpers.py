@@ -29,15 +29,20 @@ def locked_version(package: str) -> str | None:
 ON_THE_LOCKED_JAX = metadata.version("jaxlib") == locked_version("jaxlib")
 
 
-def leaves_bytes(state) -> list[bytes]:
-    """The raw bytes of every leaf (typed keys as their key data): equal means bit-identical."""
+def leaf_arrays(state) -> list[np.ndarray]:
+    """Every leaf as a numpy array (typed keys as their key data)."""
 
-    def to_bytes(leaf):
+    def to_array(leaf):
         if jax.dtypes.issubdtype(leaf.dtype, jax.dtypes.prng_key):
             leaf = jax.random.key_data(leaf)
-        return np.asarray(leaf).tobytes()
+        return np.asarray(leaf)
 
-    return [to_bytes(leaf) for leaf in jax.tree.leaves(state)]
+    return [to_array(leaf) for leaf in jax.tree.leaves(state)]
+
+
+def leaves_bytes(state) -> list[bytes]:
+    """The raw bytes of every leaf (typed keys as their key data): equal means bit-identical."""
+    return [leaf.tobytes() for leaf in leaf_arrays(state)]
 
 
 def snapshot(directory: Path) -> dict[str, bytes]:

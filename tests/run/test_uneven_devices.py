@@ -24,7 +24,7 @@ import jax
 import numpy as np
 import pytest
 from child_env import python_path
-from run_helpers import ON_THE_LOCKED_JAX, leaves_bytes
+from run_helpers import ON_THE_LOCKED_JAX, leaf_arrays, leaves_bytes
 from uneven_specs import SEEDS, spec_for
 
 from rl_jax.errors import RunError
@@ -112,10 +112,8 @@ def assert_same_runs(outs: list[Path], learner: str, total: int) -> None:
             assert leaves_bytes(state) == leaves_bytes(expected_state), out
             continue
         assert_close_rows(rows(out), expected_rows)
-        for got, want in zip(jax.tree.leaves(state), jax.tree.leaves(expected_state), strict=True):
-            if jax.dtypes.issubdtype(want.dtype, jax.dtypes.prng_key):
-                got, want = jax.random.key_data(got), jax.random.key_data(want)
-            if jax.dtypes.issubdtype(want.dtype, np.floating):
+        for got, want in zip(leaf_arrays(state), leaf_arrays(expected_state), strict=True):
+            if np.issubdtype(want.dtype, np.floating):
                 np.testing.assert_allclose(got, want, rtol=1e-4, atol=1e-5)
             else:
                 np.testing.assert_array_equal(got, want)
