@@ -98,10 +98,13 @@ class Reference:
         """The legend's text: name, seed count and the env it was measured on."""
         return f"{self.name} ({self.returns.shape[0]} seeds, {self.source_env})"
 
+    def returns_at(self, step: int) -> np.ndarray:
+        """Each seed's return ``[n]`` at the reference's eval nearest ``step``."""
+        return self.returns[:, int(np.argmin(np.abs(self.steps - step)))]
+
     def mean_at(self, step: int) -> float:
         """The mean over seeds at the reference's eval nearest ``step``."""
-        index = int(np.argmin(np.abs(self.steps - step)))
-        return float(np.mean(self.returns[:, index]))
+        return float(np.mean(self.returns_at(step)))
 
 
 def reference_names() -> list[str]:

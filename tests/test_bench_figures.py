@@ -322,6 +322,13 @@ def test_reference_curves_record_their_source_and_fit_their_steps():
             assert returns.shape[1] == len(entry.get("steps", data["steps"])), (path, env_id)
     cheetah = figure_data.read_reference("td3_paper", "rl_jax/HalfCheetah-v5")
     assert cheetah.returns.shape == (10, 101) and 9000 < cheetah.mean_at(1_000_000) < 10_000
+    # CrossQ's runs give the 300k anchors the SAC and PPO issue quotes from the same files.
+    anchors = {"HalfCheetah": 10_012, "Hopper": 2_644, "Walker2d": 5_941, "Ant": 5_712}
+    for name, anchor in anchors.items():
+        crossq = figure_data.read_reference("crossq_simbav2", f"rl_jax/{name}-v5")
+        assert crossq.returns.shape == (10, 101), name
+        assert round(crossq.mean_at(300_000)) == anchor, name
+        assert crossq.returns_at(300_000).shape == (10,)
 
 
 def test_the_manifest_names_only_kinds_and_keys_the_command_knows():
