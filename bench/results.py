@@ -33,6 +33,7 @@ from typing import Any
 import numpy as np
 
 from bench.figure_data import read_reference
+from bench.figure_stats import mean_ci
 
 ROOT = Path(__file__).resolve().parent.parent
 RESULTS_FILE = ROOT / "RESULTS.md"
@@ -145,6 +146,16 @@ SUITE4 = ("HalfCheetah", "Hopper", "Walker2d", "Ant")
 SAC_CURVE_300K = {
     name: read_reference("sac_simbav2", f"rl_jax/{name}-v5").mean_at(300_000) for name in SUITE4
 }
+
+
+# CrossQ's own runs on gymnasium's HalfCheetah-v4 (bench/reference_curves/crossq_simbav2.json, its
+# source named there), at 300k env steps: the mean over the 10 runs and its 95% bootstrap band.
+CROSSQ_CHEETAH_300K = tuple(
+    float(value[0])
+    for value in mean_ci(
+        read_reference("crossq_simbav2", "rl_jax/HalfCheetah-v5").returns_at(300_000)[:, None]
+    )
+)
 
 
 def _paper_curve(name: str, algo: str) -> str:
@@ -412,6 +423,17 @@ ROWS: dict[str, Row] = {
         )
         for name in SUITE4
     },
+    # CrossQ on SAC at CPU sizes (256 x 256 critics, where CrossQ's are 2,048 wide), against
+    # CrossQ's own runs: the goal is a mean inside their band at 300k, or above it.
+    "crossq-cpu-halfcheetah": Row(
+        "CrossQ on SAC at CPU sizes (`--recipe crossq-cpu`), `rl_jax/HalfCheetah-v5`",
+        "train.py",
+        _suite_args("HalfCheetah", "--recipe", "crossq-cpu", algo="sac"),
+        5,
+        "CrossQ's runs at 300k (SimbaV2's repository, HalfCheetah-v4, 10 seeds): "
+        "{:,.0f} [{:,.0f}, {:,.0f}]".format(*CROSSQ_CHEETAH_300K),
+        Goal(CROSSQ_CHEETAH_300K[1], 5, "final", mean=True),
+    ),
     # PPO at CleanRL's ppo_continuous_action.py settings (our `cleanrl` recipe) for its 1M steps,
     # against CleanRL's own figure for that script (CLEANRL_PPO): the goal is to match it. The
     # vectorised recipe (`default`: many envs per seed, chosen by return against wall-clock,
