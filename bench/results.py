@@ -150,12 +150,8 @@ SAC_CURVE_300K = {
 
 # CrossQ's own runs on gymnasium's HalfCheetah-v4 (bench/reference_curves/crossq_simbav2.json, its
 # source named there), at 300k env steps: the mean over the 10 runs and its 95% bootstrap band.
-CROSSQ_CHEETAH_300K = tuple(
-    float(value[0])
-    for value in mean_ci(
-        read_reference("crossq_simbav2", "rl_jax/HalfCheetah-v5").returns_at(300_000)[:, None]
-    )
-)
+_CROSSQ_CHEETAH = read_reference("crossq_simbav2", "rl_jax/HalfCheetah-v5").returns_at(300_000)
+CROSSQ_CHEETAH_300K = tuple(float(value[0]) for value in mean_ci(_CROSSQ_CHEETAH[:, None]))
 
 
 def _paper_curve(name: str, algo: str) -> str:
