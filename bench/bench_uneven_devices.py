@@ -13,7 +13,8 @@ count is fixed before JAX starts), one after another:
 * ``padded``: 5 seeds as the runs of a run are laid out (``rl_jax.run.plan.program_for``:
   padded with copies of seed 0, computed and dropped, one program);
 * ``uneven split``: 5 seeds split without padding (3 + 2, or 2 + 1 + 1 + 1), one program per
-  device, dispatched together: the alternative that padding is chosen over.
+  device, compiled in threads and dispatched together (``--layout split``,
+  ``rl_jax.training.split_program``).
 
 Each is timed over whole training chunks once compiled; its first call (compile and one chunk)
 is reported apart. ``--size tiny`` shrinks the job to a smoke test of seconds (its times mean
@@ -98,31 +99,28 @@ def _one_program(config: Any, seeds: int, devices: list) -> tuple[Any, str]:
 
 
 def _split_programs(config: Any, seeds: int, devices: list) -> tuple[Any, str]:
-    """``seeds`` split over ``devices`` without padding: a program per device, each block's
-    chunk dispatched before any is waited for."""
+    """``seeds`` split over ``devices`` without padding (``training.split_program``, what
+    ``--layout split`` runs): a program per device, compiled in threads, each block's chunk
+    dispatched before any is waited for."""
     import jax
-    import numpy as np
 
     from rl_jax.agents.td3 import td3
     from rl_jax.training import parallel, params
+    from rl_jax.training.split_program import SplitProgram
 
     hparams = params.stack([td3.default_hyperparams(ENV_ID)])
-    blocks = [b for b in np.array_split(np.arange(seeds), len(devices)) if len(b)]
-    programs = [
-        parallel.Program(td3, config, 1, len(b), devices=[d])
-        for b, d in zip(blocks, devices[: len(blocks)], strict=True)
-    ]
-    states = [
-        p.init(parallel.seed_keys(b.tolist()), hparams)
-        for p, b in zip(programs, blocks, strict=True)
-    ]
+    program = SplitProgram(td3, config, 1, seeds, devices)
+    state = [program.init(parallel.seed_keys(range(seeds)), hparams)]
+    compiled: list = []
 
     def chunk() -> None:
-        done = [p.train_chunk(s, hparams) for p, s in zip(programs, states, strict=True)]
-        states[:] = [state for state, _ in done]
-        jax.block_until_ready([metrics for _, metrics in done])
+        if not compiled:
+            compiled.append(program.compile(state[0], hparams))
+        state[0], metrics = compiled[0](state[0], hparams)
+        jax.block_until_ready(metrics)
 
-    return chunk, " + ".join(str(len(b)) for b in blocks) + f" on {len(blocks)} devices"
+    sizes = " + ".join(str(block.runs) for block in program.layout.blocks)
+    return chunk, f"{sizes} on {program.layout.devices} devices"
 
 
 def worker(devices: int, size: str) -> dict[str, Any]:

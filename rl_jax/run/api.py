@@ -135,6 +135,7 @@ def train(
     log_interval: float = 30.0,
     quiet: bool = False,
     recipe: str | None = None,
+    layout: str = "auto",
     wandb: bool = False,
     distributed: bool = False,
     coordinator: str | None = None,
@@ -150,7 +151,8 @@ def train(
     those of ``--recipe`` in the scripts), then ``config`` / ``hparams``, which override fields
     by name (as the scripts' flags do); ``total_steps`` defaults to the recipe's budget, else
     100,000 env steps per seed. ``wandb=True`` also logs every seed to Weights & Biases, as
-    ``--wandb`` does (``rl_jax.run.tracking``).
+    ``--wandb`` does (``rl_jax.run.tracking``). ``layout`` lays out seeds that do not divide
+    over the devices, as ``--layout`` does: "pad", "split" or "auto".
 
     Over several processes (``docs/cluster.md``), every process calls ``train`` alike, before
     any other JAX work: ``distributed=True`` under SLURM or Open MPI, or ``coordinator="HOST:PORT",
@@ -183,6 +185,7 @@ def train(
         seeds=seeds,
         total_steps=100_000 if total_steps is None else int(total_steps),
         log_interval=log_interval,
+        layout=layout,
         wandb=wandb,
         command=f"rl_jax.train({named!r}, {env_id!r}, seeds={seeds}, ...)",
         resume_command=f"rl_jax.resume({str(run_dir)!r}{learners.python_hint(learner)})",

@@ -337,6 +337,7 @@ def build_spec(
         checkpoint_interval=args.checkpoint_interval,
         keep_checkpoints=args.keep_checkpoints,
         log_interval=args.log_interval,
+        layout=args.layout,
         gif=args.gif,
         wandb=args.wandb,
         command=shlex.join([*program(), *argv]),

@@ -214,6 +214,14 @@ def add_run_flags(parser: argparse.ArgumentParser, seeds: int, total_steps: int)
         "one to fall back on if the latest is damaged (default: 3)",
     )
     add(
+        "--layout",
+        choices=("auto", "pad", "split"),
+        default="auto",
+        help="runs that do not divide over the devices: pad them with copies computed and "
+        "dropped (one program), split them unevenly (a program per device), or auto: split on "
+        "CPU devices for runs of 10 chunks or more, pad elsewhere (default: auto)",
+    )
+    add(
         "--log-interval",
         type=non_negative_float,
         default=30.0,

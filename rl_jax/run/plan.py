@@ -19,45 +19,80 @@ from rl_jax.run.progress import Progress
 from rl_jax.run.spec import RunSpec
 from rl_jax.training import parallel, params
 from rl_jax.training.algorithm import Hyperparams, TrainState, hooks
+from rl_jax.training.device_layout import plan_layout
+from rl_jax.training.split_program import SplitLayout, SplitProgram
+
+#: The fewest chunks with which a run on CPU devices is split unevenly rather than padded: the
+#: split's extra compiles (one per block) must be paid back by its faster chunks (BENCHMARKS.md,
+#: section 8, measures both).
+SPLIT_MIN_CHUNKS = 10
+LAYOUTS = ("auto", "pad", "split")
 
 
-def program_for(spec: RunSpec) -> parallel.Program:
+def program_for(spec: RunSpec, chunks: int | None = None) -> parallel.Program | SplitProgram:
     """All configs x seeds of ``spec`` as one program spread over every device (those of every
     process under ``jax.distributed``, or this process's own within ``processes.alone``).
 
-    Runs that do not divide over the devices are padded with copies of the first seed (or
-    config), computed and dropped (``training.device_layout.plan_layout``): 5 seeds on 2
-    devices run as 3 + 3; 5 seeds on 4 devices as 2 + 2 + 2 on three of them (as fast as
-    2 + 2 + 2 + 2, one copy fewer). Padding rather than an uneven split (3 + 2), because:
+    Runs that do not divide over the devices are laid out in one of two ways
+    (``spec.layout``: "pad", "split", or "auto" to choose):
 
-    - the wall-clock of a chunk is the busiest device's, which holds as many runs either way;
-    - padding keeps one program with one block shape on every device: one compilation, one
-      ``shard_map``. An uneven split needs a program per block shape (two compilations for 3 +
-      2, each up to tens of seconds for an MJX env), and across processes every gather of the
-      state or metrics needs equal blocks anyway;
-    - what padding costs is the copies' memory (in the plan's estimate) and, where devices
-      share compute (CPU devices of one process split the same cores), the copies' share of it:
-      5 seeds over 2 CPU devices cost as 6. ``python -m bench uneven_devices`` measures both
-      layouts against the even count.
+    - **padded** (``training.device_layout.plan_layout``): copies of the first seed (or config)
+      are computed and dropped, so that every device holds an equal block of one program: 5
+      seeds on 2 devices as 3 + 3; on 4 devices as 2 + 2 + 2 on three of them. One compilation,
+      one ``shard_map``, and equal blocks for the gathers of a mesh over processes. Where
+      devices have compute of their own (GPUs, processes) a chunk takes the busiest device's
+      time, which holds as many runs as any split would give it.
+    - **split** (``training.split_program``): each device its own program on a block of the
+      real runs, 3 + 2, or 2 + 1 + 1 + 1, one compilation per block. CPU devices of one process
+      share the same cores, so there a padded copy costs its share of them and a device left
+      out leaves its share idle; the split computes the real runs only, on every device.
+
+    "auto" splits a run of one process on CPU devices whose padded layout computes a copy or
+    leaves a device out, when it has at least ``SPLIT_MIN_CHUNKS`` chunks to pay back the extra
+    compiles; otherwise it pads. ``python -m bench uneven_devices`` measures the layouts side
+    by side.
 
     The copies never reach anything saved: metrics, checkpoints, best policies and curves hold
-    the real ``[configs, seeds]`` runs only (``Program.unpad``/``gather``), so a run resumes on
-    any number of devices. Each run computes what it computes on one device, bit for bit where
-    XLA compiles each device's block to the same kernels (5 seeds as 3 + 3 against 5 on one
-    device do); a block of a single seed may round differently. A single run stays on one
-    device.
+    the real ``[configs, seeds]`` runs only (``unpad``/``gather``), so a run resumes on any
+    number of devices or layout. Each run computes what it computes on one device, bit for bit
+    where XLA compiles each device's block to the same kernels (5 seeds as 3 + 3, or 3 + 2,
+    against 5 on one device do); a block of a single seed may round differently. A single run
+    stays on one device.
 
     A config with ``loop_seeds`` set (DQN on frames) runs its seeds as an unrolled loop instead
     of a vmap (``rl_jax.training.parallel.seed_loop``): faster for conv nets on CPU."""
     loop_seeds = bool(getattr(spec.config, "loop_seeds", False))
+    devices = list(processes.devices())
+    num_hparams = len(spec.hparams)
+    if choose_split(spec.layout, num_hparams, spec.seeds, devices, chunks):
+        return SplitProgram(
+            spec.algorithm, spec.config, num_hparams, spec.seeds, devices, loop_seeds=loop_seeds
+        )
     return parallel.Program(
-        spec.algorithm,
-        spec.config,
-        len(spec.hparams),
-        spec.seeds,
-        devices=processes.devices(),
-        loop_seeds=loop_seeds,
+        spec.algorithm, spec.config, num_hparams, spec.seeds, devices=devices, loop_seeds=loop_seeds
     )
+
+
+def choose_split(
+    layout: str, num_hparams: int, num_seeds: int, devices: list[jax.Device], chunks: int | None
+) -> bool:
+    """Whether ``[H, S]`` runs go unevenly split over ``devices`` (see ``program_for``)."""
+    if layout not in LAYOUTS:
+        raise RunError(f"--layout must be one of {', '.join(LAYOUTS)}, got {layout!r}")
+    one_process = all(d.process_index == jax.process_index() for d in devices)
+    if layout == "split" and not one_process:
+        raise RunError(
+            "--layout split needs the devices of one process: a mesh over processes is padded"
+        )
+    runs = num_hparams * num_seeds
+    if layout == "pad" or runs == 1 or len(devices) == 1 or not one_process:
+        return False
+    if layout == "split":
+        return True
+    padded = plan_layout(num_hparams, num_seeds, len(devices))
+    wasteful = padded.padding > 0 or padded.devices < min(len(devices), runs)
+    on_cpu = all(d.platform == "cpu" for d in devices)
+    return wasteful and on_cpu and chunks is not None and chunks >= SPLIT_MIN_CHUNKS
 
 
 @dataclasses.dataclass
@@ -73,7 +108,7 @@ class Plan:
     breakdown: list[tuple[str, int]]  # (top-level field of the state, bytes), largest first
     available_bytes: int
     template: TrainState  # ShapeDtypeStruct tree of the [configs, seeds] state, as checkpointed
-    program: parallel.Program  # the compiled init/chunk of all runs
+    program: parallel.Program | SplitProgram  # the compiled init/chunk of all runs
     device_bytes: int = 0  # the state on the devices, padding copies included
     checkpoint_bytes: int = 0  # the host copy of the real runs a checkpoint write takes
 
@@ -119,7 +154,7 @@ def make_plan(spec: RunSpec) -> Plan:
     if steps_per_chunk <= 0:
         raise RunError(f"the config takes {steps_per_chunk} env steps per chunk; need >= 1")
     chunks = math.ceil(spec.total_steps / steps_per_chunk)
-    program = program_for(spec)
+    program = program_for(spec, chunks)
     hparams = params.stack(list(spec.hparams))
     template = runs_template(spec, hparams)
     on_devices = memory_breakdown(program.template(hparams))
@@ -227,10 +262,13 @@ def format_plan(spec: RunSpec, plan: Plan) -> str:
     return "\n".join(lines)
 
 
-def describe_layout(program: parallel.Program) -> str:
+def describe_layout(program: parallel.Program | SplitProgram) -> str:
     """Which devices run how many runs, padding included."""
     layout = program.layout
-    names = ", ".join(str(device) for device in program.mesh.devices.flat)
+    names = ", ".join(str(device) for device in program.devices)
+    if isinstance(layout, SplitLayout):
+        blocks = " + ".join(str(block.runs) for block in layout.blocks)
+        return f"{names} ({blocks} runs, split unevenly: a program per device)"
     text = f"{names} ({layout.runs_per_device} run{'s' * (layout.runs_per_device > 1)} each"
     if layout.padding:
         text += f"; {layout.padding} padding copy of a run computed and dropped"

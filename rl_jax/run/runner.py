@@ -263,7 +263,7 @@ def _train(session: Session, start: Start, stop: GracefulStop, progress: Progres
         jax.block_until_ready(metrics)
         with processes.waiting("the end of a chunk"):
             metrics = plan.program.gather(metrics)
-            finite = plan.program.gather(finite_runs(state, spec))
+            finite = plan.program.gather(plan.program.each(lambda s: finite_runs(s, spec), state))
         chunk_seconds = time.perf_counter() - chunk_started
         prior_updates = session.updates
         session.step = int(np.max(metrics.env_steps))
@@ -292,7 +292,8 @@ def _train(session: Session, start: Start, stop: GracefulStop, progress: Progres
 def _best(plan: Plan, state: TrainState, session: Session) -> dict[str, object]:
     """The policy parts of every run, for the best policies (a gather: every process)."""
     with processes.waiting("the best policies"):
-        return plan.program.gather(policy_part(state, session.best.fields))
+        fields = session.best.fields
+        return plan.program.gather(plan.program.each(lambda s: policy_part(s, fields), state))
 
 
 def _stopping(stop: GracefulStop, due: bool = False) -> bool:

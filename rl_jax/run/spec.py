@@ -34,6 +34,9 @@ class RunSpec:
     wandb: bool = False  # also log to Weights & Biases (rl_jax.run.tracking), lead process only
     command: str = ""  # the command line, recorded in config.json
     resume_command: str = ""  # printed when stopped
+    # how runs that do not divide over the devices are laid out: "auto", "pad" or "split"
+    # (rl_jax.run.plan.program_for)
+    layout: str = "auto"
     memory_limit: int | None = None  # bytes the state may use (default: what the OS reports)
     # (env steps/s per seed, number of seeds) measured for the script's default config: the
     # plan's time estimate before anything runs. None: estimated after the first training chunk.

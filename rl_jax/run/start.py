@@ -178,7 +178,10 @@ def set_aside_damaged(spec: RunSpec, start: Start) -> list[dict[str, Any]]:
 def fresh_start(spec: RunSpec, plan: Plan) -> Start:
     keys = parallel.seed_keys(spec.seed_numbers)
     state = plan.program.init(keys, params.stack(list(spec.hparams)))
-    best = BestPolicies(policy_fields(spec.algorithm, state), (len(spec.hparams), spec.seeds))
+    # the fields from the runs' template: a split program's device state is a tuple of blocks
+    best = BestPolicies(
+        policy_fields(spec.algorithm, plan.template), (len(spec.hparams), spec.seeds)
+    )
     return Start(state, 0, 0, 0, 0.0, None, best)
 
 

@@ -94,7 +94,8 @@ def map_axes(function: Callable[[int | None, Any], Any], axes: Axes, tree: Tree)
     )
 
 
-def _is_key(leaf: object) -> bool:
+def is_key(leaf: object) -> bool:
+    """Whether ``leaf`` is an array of typed PRNG keys."""
     return hasattr(leaf, "dtype") and jax.dtypes.issubdtype(leaf.dtype, jax.dtypes.prng_key)
 
 
@@ -110,7 +111,7 @@ def _pad_edge(array: np.ndarray, sizes: tuple[int, ...]) -> np.ndarray:
 
 def _host(leaf: jax.Array | np.ndarray) -> np.ndarray:
     """A host copy of a (fully addressable) array; typed keys as their key data."""
-    if _is_key(leaf):
+    if is_key(leaf):
         leaf = jax.random.key_data(leaf)
     return np.asarray(leaf)
 
@@ -191,6 +192,16 @@ class Program:
         """``(hyperparameter sets, seeds)`` as computed, padding included."""
         return self.layout.padded_hparams, self.layout.padded_seeds
 
+    @property
+    def devices(self) -> list[jax.Device]:
+        """The devices the runs are computed on."""
+        return list(self.mesh.devices.flat)
+
+    def each(self, function: Callable[[TrainState], Any], state: TrainState) -> Any:
+        """``function`` on the device state, for ``gather``: one call here, one per block of
+        runs in a ``split_program.SplitProgram``."""
+        return function(state)
+
     def sharding(self, spec: PartitionSpec | None = None) -> NamedSharding:
         """The sharding of ``spec`` on the program's mesh (default: runs split over both mesh
         axes).
@@ -213,7 +224,7 @@ class Program:
         return jax.device_put(array, sharding)
 
     def _place_leaf(self, axis: int | None, leaf: jax.Array | np.ndarray) -> jax.Array:
-        key_impl = jax.random.key_impl(leaf) if _is_key(leaf) else None
+        key_impl = jax.random.key_impl(leaf) if is_key(leaf) else None
         array = _host(leaf)
         if axis is None:
             placed = self._put(array, self.sharding(PartitionSpec()))
@@ -232,7 +243,7 @@ class Program:
         real = (slice(0, self.num_hparams), slice(0, self.num_seeds))
 
         def take(axis: int | None, leaf: jax.Array) -> jax.Array | np.ndarray:
-            key_impl = jax.random.key_impl(leaf) if _is_key(leaf) else None
+            key_impl = jax.random.key_impl(leaf) if is_key(leaf) else None
             array = self._gather_leaf(leaf)
             array = array if axis is None else array[real]
             return array if key_impl is None else jax.random.wrap_key_data(array, impl=key_impl)
@@ -247,7 +258,7 @@ class Program:
 
     def _gather_leaf(self, leaf: jax.Array) -> np.ndarray:
         if self.multiprocess and not leaf.is_fully_addressable:
-            if _is_key(leaf):
+            if is_key(leaf):
                 leaf = jax.random.key_data(leaf)
             return np.asarray(multihost_utils.process_allgather(leaf, tiled=True))
         return _host(leaf)

@@ -2,12 +2,14 @@
 
     python uneven_child.py DEVICES JOBS_JSON
 
-JOBS_JSON is a list of ``{"out", "total", "resume", "learner"}`` (learner "fake" or "td3", a
-tiny TD3 on the pendulum); the last line printed is a JSON list, per job, of
-``[devices used, padded seeds]``. With ``COORDINATOR``, ``NUM_PROCESSES`` and ``PROCESS_ID`` in
-the environment the process joins a ``jax.distributed`` run first.
+JOBS_JSON is a list of ``{"out", "total", "resume", "learner"}`` and optionally ``"layout"``
+(learner "fake" or "td3", a tiny TD3 on the pendulum; layout "auto", "pad" or "split"); the
+last line printed is a JSON list, per job, of ``[devices used, padded seeds]``. With
+``COORDINATOR``, ``NUM_PROCESSES`` and ``PROCESS_ID`` in the environment the process joins a
+``jax.distributed`` run first.
 """
 
+import dataclasses
 import json
 import os
 import sys
@@ -36,6 +38,7 @@ from rl_jax.run.runner import run  # noqa: E402
 layouts = []
 for job in json.loads(sys.argv[2]):
     spec = spec_for(job["learner"], Path(job["out"]), job["total"], job["resume"])
+    spec = dataclasses.replace(spec, layout=job.get("layout", "auto"))
     layout = program_for(spec).layout
     layouts.append([layout.devices, layout.padded_seeds])
     run(spec, notify=lambda message: None)

@@ -1,0 +1,305 @@
+"""``[H, S]`` runs split unevenly over devices, without padding: one ``parallel.Program`` per
+device, each on its own block of runs (5 seeds on 2 devices as 3 + 2; on 4 as 2 + 1 + 1 + 1).
+
+A padded program (``parallel.Program``) computes copies of a run to make the runs divide; on CPU
+devices of one process, which share the same cores, the copies take their share of them, and a
+device left out of the mesh leaves its part of the host idle. A split computes the real runs
+only, on every device, at the cost of a compiled program per block (each block's program is
+compiled for its own device). ``rl_jax.run.plan.program_for`` chooses between the two.
+
+The device state of a split is a tuple with one ``[h, s]`` state per block, as are its chunk
+metrics; ``gather``, ``unpad`` and ``place`` translate to and from the ``[H, S]`` runs that
+every saved file holds, so a checkpoint of a split run resumes on any layout and the other way
+round. Each block computes its runs as that block's ``Program`` does: a block of several seeds
+gives what the same seeds give in a bigger batch (the same kernels, on the locked jaxlib), a
+block of one seed may round differently.
+
+Usage (what ``parallel.Program`` offers)::
+
+    program = SplitProgram(td3, config, num_hparams=1, num_seeds=5, devices=jax.devices())
+    state = program.init(parallel.seed_keys(range(5)), hparams)
+    state, metrics = program.train_chunk(state, hparams)
+    metrics = program.gather(metrics)  # [1, 5] host arrays
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Callable, Sequence
+from concurrent.futures import ThreadPoolExecutor
+from typing import Any, TypeAlias, cast
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from rl_jax.training import parallel
+from rl_jax.training.algorithm import Algorithm, ChunkMetrics, Config, Hyperparams, TrainState
+
+#: a split's state on the devices: one ``[h, s]`` train state per block (itself a train state:
+#: a tuple of them)
+Blocks: TypeAlias = tuple[TrainState, ...]
+#: a split's chunk metrics: one ``[h, s]`` tree per block, joined by ``SplitProgram.gather``
+BlockMetrics: TypeAlias = tuple[ChunkMetrics, ...]
+
+
+@dataclasses.dataclass(frozen=True)
+class Block:
+    """The runs ``[hparams, seeds]`` of one device, as index ranges into the ``[H, S]`` grid."""
+
+    hparams: range
+    seeds: range
+
+    @property
+    def runs(self) -> int:
+        return len(self.hparams) * len(self.seeds)
+
+
+@dataclasses.dataclass(frozen=True)
+class SplitLayout:
+    """Blocks of runs, one per device, split along one axis of the ``[H, S]`` grid (``axis`` 0:
+    hyperparameter sets, 1: seeds). No run is computed twice."""
+
+    num_hparams: int
+    num_seeds: int
+    axis: int
+    sizes: tuple[int, ...]  # runs along ``axis`` per block, largest first
+
+    @property
+    def blocks(self) -> tuple[Block, ...]:
+        starts = np.cumsum((0, *self.sizes))
+        ranges = [range(int(a), int(b)) for a, b in zip(starts[:-1], starts[1:], strict=True)]
+        if self.axis == 1:
+            return tuple(Block(range(self.num_hparams), r) for r in ranges)
+        return tuple(Block(r, range(self.num_seeds)) for r in ranges)
+
+    @property
+    def devices(self) -> int:
+        return len(self.sizes)
+
+    @property
+    def runs_per_device(self) -> int:
+        """Runs of the busiest device."""
+        return max(block.runs for block in self.blocks)
+
+    @property
+    def padding(self) -> int:
+        return 0
+
+    @property
+    def padded_hparams(self) -> int:
+        return self.num_hparams
+
+    @property
+    def padded_seeds(self) -> int:
+        return self.num_seeds
+
+    @property
+    def shapes(self) -> int:
+        """Distinct block shapes (each compiles on every device that holds it)."""
+        return len(set(self.sizes))
+
+
+def split_layout(num_hparams: int, num_seeds: int, num_devices: int) -> SplitLayout:
+    """Blocks as even as can be along the axis that leaves the busiest device the fewest runs
+    (seeds on a tie): 5 seeds on 2 devices as 3 + 2; 3 sets x 1 seed as sets 2 + 1.
+    """
+    best: SplitLayout | None = None
+    for axis, length in ((1, num_seeds), (0, num_hparams)):
+        used = min(length, num_devices)
+        sizes = tuple(len(part) for part in np.array_split(np.arange(length), used))
+        layout = SplitLayout(num_hparams, num_seeds, axis, sizes)
+        if best is None or layout.runs_per_device < best.runs_per_device:
+            best = layout
+    assert best is not None
+    return best
+
+
+def blocks(state: TrainState) -> Blocks:
+    """A split's device state as its blocks (``Blocks`` is a kind of ``TrainState``)."""
+    assert isinstance(state, tuple), "a split program's state is a tuple of block states"
+    return cast(Blocks, state)
+
+
+def _rows(tree: Any, block: Block) -> Any:
+    """The block's ``[h, s]`` part of ``[H, S]``-leading leaves."""
+    return jax.tree.map(
+        lambda leaf: leaf[block.hparams.start : block.hparams.stop][
+            :, block.seeds.start : block.seeds.stop
+        ],
+        tree,
+    )
+
+
+class SplitProgram:
+    """``parallel.Program``'s interface over an uneven split of the runs: a ``Program`` per
+    block on a device of its own (one process; a mesh over processes needs equal blocks)."""
+
+    def __init__(
+        self,
+        algorithm: Algorithm,
+        config: Config,
+        num_hparams: int,
+        num_seeds: int,
+        devices: Sequence[jax.Device],
+        loop_seeds: bool = False,
+    ):
+        self.algorithm, self.config = algorithm, config
+        self.num_hparams, self.num_seeds = num_hparams, num_seeds
+        self.layout = split_layout(num_hparams, num_seeds, len(devices))
+        self.devices = list(devices)[: self.layout.devices]
+        self.blocks = self.layout.blocks
+        self.programs = [
+            parallel.Program(
+                algorithm,
+                config,
+                len(block.hparams),
+                len(block.seeds),
+                devices=[device],
+                pad=False,
+                loop_seeds=loop_seeds,
+            )
+            for block, device in zip(self.blocks, self.devices, strict=True)
+        ]
+        self._hparams: tuple[Hyperparams, list[Hyperparams]] | None = None
+
+    @property
+    def padded(self) -> tuple[int, int]:
+        return self.num_hparams, self.num_seeds
+
+    def _split_hparams(self, hparams: Hyperparams) -> list[Hyperparams]:
+        """Each block's ``[h]`` hyperparameters (memoized per object, so that each block's
+        program keeps its placed copy)."""
+        if self._hparams is None or self._hparams[0] is not hparams:
+            parts = [
+                jax.tree.map(
+                    lambda x, b=block: np.asarray(x)[b.hparams.start : b.hparams.stop], hparams
+                )
+                for block in self.blocks
+            ]
+            self._hparams = (hparams, parts)
+        return self._hparams[1]
+
+    def axes(self, hparams: Hyperparams) -> parallel.Axes:
+        return self.programs[0].axes(self._split_hparams(hparams)[0])
+
+    # ---- programs --------------------------------------------------------------------------
+
+    def init(self, keys: jax.Array, hparams: Hyperparams) -> Blocks:
+        """Each block's fresh state from its seeds' keys."""
+        parts = self._split_hparams(hparams)
+        return tuple(
+            program.init(keys[block.seeds.start : block.seeds.stop], part)
+            for program, block, part in zip(self.programs, self.blocks, parts, strict=True)
+        )
+
+    def train_chunk(self, state: TrainState, hparams: Hyperparams) -> tuple[Blocks, BlockMetrics]:
+        """One chunk of every block, each dispatched before any is waited for."""
+        parts = self._split_hparams(hparams)
+        done = [
+            program.train_chunk(block_state, part)
+            for program, block_state, part in zip(self.programs, blocks(state), parts, strict=True)
+        ]
+        return tuple(new for new, _ in done), tuple(metrics for _, metrics in done)
+
+    def compile(
+        self, state: TrainState, hparams: Hyperparams
+    ) -> Callable[[TrainState, Hyperparams], tuple[Blocks, BlockMetrics]]:
+        """Every block's chunk compiled ahead of time, in threads (XLA compiles outside the
+        interpreter lock): ``compiled(state, hparams) -> (state, metrics)``."""
+        parts = self._split_hparams(hparams)
+        jobs = list(zip(self.programs, blocks(state), parts, strict=True))
+        with ThreadPoolExecutor(len(jobs)) as pool:
+            chunks = list(pool.map(lambda job: job[0].compile(job[1], job[2]), jobs))
+
+        def compiled(state: TrainState, hparams: Hyperparams) -> tuple[Blocks, BlockMetrics]:
+            parts = self._split_hparams(hparams)
+            done = [
+                chunk(block_state, part)
+                for chunk, block_state, part in zip(chunks, blocks(state), parts, strict=True)
+            ]
+            return tuple(new for new, _ in done), tuple(metrics for _, metrics in done)
+
+        return compiled
+
+    # ---- to and from the [H, S] runs -------------------------------------------------------
+
+    def each(self, function: Callable[[TrainState], Any], state: TrainState) -> Any:
+        """``function`` on each block's device state; ``gather`` joins what it returns."""
+        return tuple(function(block_state) for block_state in blocks(state))
+
+    def _join(self, parts: list[np.ndarray]) -> np.ndarray:
+        return np.concatenate(parts, axis=self.layout.axis)
+
+    def gather(self, trees: Any) -> Any:
+        """Host ``[H, S]`` copies of per-block ``[h, s]`` outputs (chunk metrics, or what
+        ``each`` returned)."""
+        gathered = [
+            program.gather(tree) for program, tree in zip(self.programs, trees, strict=True)
+        ]
+        return jax.tree.map(lambda *parts: self._join(list(parts)), *gathered)
+
+    def unpad(self, state: TrainState, hparams: Hyperparams) -> TrainState:
+        """The ``[H, S]`` runs as host arrays (typed keys stay keys; the clock is one)."""
+        parts = self._split_hparams(hparams)
+        hosts = [
+            program.unpad(block_state, part)
+            for program, block_state, part in zip(self.programs, blocks(state), parts, strict=True)
+        ]
+
+        def join(axis: int | None, *leaves: Any) -> Any:
+            if axis is None:
+                return leaves[0]
+            if parallel.is_key(leaves[0]):
+                impl = jax.random.key_impl(leaves[0])
+                data = self._join([np.asarray(jax.random.key_data(leaf)) for leaf in leaves])
+                return jax.random.wrap_key_data(jnp.asarray(data), impl=impl)
+            return self._join([np.asarray(leaf) for leaf in leaves])
+
+        axes = self.axes(hparams)
+        return jax.tree.map(
+            lambda axis, *subtrees: jax.tree.map(lambda *leaves: join(axis, *leaves), *subtrees),
+            axes,
+            *hosts,
+            is_leaf=lambda x: x is None,
+        )
+
+    def place(self, state: TrainState, hparams: Hyperparams) -> Blocks:
+        """An ``[H, S]`` state (a restored checkpoint) split into blocks on their devices."""
+        axes = self.axes(hparams)
+        parts = self._split_hparams(hparams)
+        placed = []
+        for program, block, part in zip(self.programs, self.blocks, parts, strict=True):
+
+            def take(axis: int | None, leaf: Any, block: Block = block) -> Any:
+                if axis is None:
+                    return leaf
+                if parallel.is_key(leaf):
+                    impl = jax.random.key_impl(leaf)
+                    data = _rows(np.asarray(jax.random.key_data(leaf)), block)
+                    return jax.random.wrap_key_data(jnp.asarray(data), impl=impl)
+                return _rows(np.asarray(leaf), block)
+
+            placed.append(program.place(parallel.map_axes(take, axes, state), part))
+        return tuple(placed)
+
+    def template(self, hparams: Hyperparams) -> TrainState:
+        """Shapes of the state on the devices, all blocks together (``[H, S]``: no padding)."""
+        runs = (self.num_hparams, self.num_seeds)
+        block_template = self.programs[0].template(self._split_hparams(hparams)[0])
+        return parallel.map_axes(
+            lambda axis, leaf: (
+                jax.ShapeDtypeStruct(leaf.shape, leaf.dtype)
+                if axis is None
+                else jax.ShapeDtypeStruct((*runs, *leaf.shape[2:]), leaf.dtype)
+            ),
+            self.axes(hparams),
+            block_template,
+        )
+
+    def select(self, state: TrainState, hparam_index: int, seed_index: int) -> TrainState:
+        """One run's state out of an ``[H, S]`` (host) state."""
+        return parallel.select(state, hparam_index, seed_index)
+
+    def local_fraction(self) -> float:
+        return 1.0
