@@ -263,7 +263,7 @@ def _train(session: Session, start: Start, stop: GracefulStop, progress: Progres
         jax.block_until_ready(metrics)
         with processes.waiting("the end of a chunk"):
             metrics = plan.program.gather(metrics)
-            finite = plan.program.gather(plan.program.each(lambda s: finite_runs(s, spec), state))
+            finite = plan.program.gather_each(lambda s: finite_runs(s, spec), state)
         chunk_seconds = time.perf_counter() - chunk_started
         prior_updates = session.updates
         session.step = int(np.max(metrics.env_steps))
@@ -293,7 +293,7 @@ def _best(plan: Plan, state: TrainState, session: Session) -> dict[str, object]:
     """The policy parts of every run, for the best policies (a gather: every process)."""
     with processes.waiting("the best policies"):
         fields = session.best.fields
-        return plan.program.gather(plan.program.each(lambda s: policy_part(s, fields), state))
+        return plan.program.gather_each(lambda s: policy_part(s, fields), state)
 
 
 def _stopping(stop: GracefulStop, due: bool = False) -> bool:

@@ -197,10 +197,11 @@ class Program:
         """The devices the runs are computed on."""
         return list(self.mesh.devices.flat)
 
-    def each(self, function: Callable[[TrainState], Any], state: TrainState) -> Any:
-        """``function`` on the device state, for ``gather``: one call here, one per block of
-        runs in a ``split_program.SplitProgram``."""
-        return function(state)
+    def gather_each(self, function: Callable[[TrainState], Tree], state: TrainState) -> Tree:
+        """``gather(function(state))``: ``function`` of the device state (``[H_padded,
+        S_padded]``-leading outputs) as host ``[H, S]`` copies (a ``split_program.SplitProgram``
+        calls it once per block of runs)."""
+        return self.gather(function(state))
 
     def sharding(self, spec: PartitionSpec | None = None) -> NamedSharding:
         """The sharding of ``spec`` on the program's mesh (default: runs split over both mesh

@@ -27,7 +27,7 @@ from __future__ import annotations
 import dataclasses
 from collections.abc import Callable, Sequence
 from concurrent.futures import ThreadPoolExecutor
-from typing import Any, TypeAlias, cast
+from typing import TypeAlias, cast
 
 import jax
 import jax.numpy as jnp
@@ -35,12 +35,14 @@ import numpy as np
 
 from rl_jax.training import parallel
 from rl_jax.training.algorithm import Algorithm, ChunkMetrics, Config, Hyperparams, TrainState
+from rl_jax.training.parallel import Tree
 
 #: a split's state on the devices: one ``[h, s]`` train state per block (itself a train state:
 #: a tuple of them)
 Blocks: TypeAlias = tuple[TrainState, ...]
 #: a split's chunk metrics: one ``[h, s]`` tree per block, joined by ``SplitProgram.gather``
 BlockMetrics: TypeAlias = tuple[ChunkMetrics, ...]
+Leaf: TypeAlias = jax.Array | np.ndarray
 
 
 @dataclasses.dataclass(frozen=True)
@@ -52,6 +54,7 @@ class Block:
 
     @property
     def runs(self) -> int:
+        """Runs of the block."""
         return len(self.hparams) * len(self.seeds)
 
 
@@ -67,6 +70,7 @@ class SplitLayout:
 
     @property
     def blocks(self) -> tuple[Block, ...]:
+        """The blocks in device order, contiguous along ``axis``."""
         starts = np.cumsum((0, *self.sizes))
         ranges = [range(int(a), int(b)) for a, b in zip(starts[:-1], starts[1:], strict=True)]
         if self.axis == 1:
@@ -75,6 +79,7 @@ class SplitLayout:
 
     @property
     def devices(self) -> int:
+        """Devices used: one per block."""
         return len(self.sizes)
 
     @property
@@ -84,14 +89,17 @@ class SplitLayout:
 
     @property
     def padding(self) -> int:
+        """Extra runs computed: none."""
         return 0
 
     @property
     def padded_hparams(self) -> int:
+        """Hyperparameter sets computed: the real ones."""
         return self.num_hparams
 
     @property
     def padded_seeds(self) -> int:
+        """Seeds computed: the real ones."""
         return self.num_seeds
 
     @property
@@ -121,14 +129,10 @@ def blocks(state: TrainState) -> Blocks:
     return cast(Blocks, state)
 
 
-def _rows(tree: Any, block: Block) -> Any:
-    """The block's ``[h, s]`` part of ``[H, S]``-leading leaves."""
-    return jax.tree.map(
-        lambda leaf: leaf[block.hparams.start : block.hparams.stop][
-            :, block.seeds.start : block.seeds.stop
-        ],
-        tree,
-    )
+def _rows(array: np.ndarray, block: Block) -> np.ndarray:
+    """The block's ``[h, s]`` part of an ``[H, S]``-leading array."""
+    rows = array[block.hparams.start : block.hparams.stop]
+    return rows[:, block.seeds.start : block.seeds.stop]
 
 
 class SplitProgram:
@@ -165,6 +169,7 @@ class SplitProgram:
 
     @property
     def padded(self) -> tuple[int, int]:
+        """``(hyperparameter sets, seeds)`` computed: the real runs, no padding."""
         return self.num_hparams, self.num_seeds
 
     def _split_hparams(self, hparams: Hyperparams) -> list[Hyperparams]:
@@ -181,6 +186,7 @@ class SplitProgram:
         return self._hparams[1]
 
     def axes(self, hparams: Hyperparams) -> parallel.Axes:
+        """vmap axes of the state (0, or ``None`` for the shared clock)."""
         return self.programs[0].axes(self._split_hparams(hparams)[0])
 
     # ---- programs --------------------------------------------------------------------------
@@ -224,16 +230,16 @@ class SplitProgram:
 
     # ---- to and from the [H, S] runs -------------------------------------------------------
 
-    def each(self, function: Callable[[TrainState], Any], state: TrainState) -> Any:
-        """``function`` on each block's device state; ``gather`` joins what it returns."""
-        return tuple(function(block_state) for block_state in blocks(state))
+    def gather_each(self, function: Callable[[TrainState], Tree], state: TrainState) -> Tree:
+        """``function`` of each block's device state (``[h, s]``-leading outputs), joined into
+        host ``[H, S]`` copies."""
+        return self.gather(tuple(function(block_state) for block_state in blocks(state)))
 
     def _join(self, parts: list[np.ndarray]) -> np.ndarray:
         return np.concatenate(parts, axis=self.layout.axis)
 
-    def gather(self, trees: Any) -> Any:
-        """Host ``[H, S]`` copies of per-block ``[h, s]`` outputs (chunk metrics, or what
-        ``each`` returned)."""
+    def gather(self, trees: tuple[Tree, ...]) -> Tree:
+        """Host ``[H, S]`` copies of per-block ``[h, s]`` outputs (chunk metrics)."""
         gathered = [
             program.gather(tree) for program, tree in zip(self.programs, trees, strict=True)
         ]
@@ -247,7 +253,7 @@ class SplitProgram:
             for program, block_state, part in zip(self.programs, blocks(state), parts, strict=True)
         ]
 
-        def join(axis: int | None, *leaves: Any) -> Any:
+        def join(axis: int | None, *leaves: Leaf) -> Leaf:
             if axis is None:
                 return leaves[0]
             if parallel.is_key(leaves[0]):
@@ -271,7 +277,7 @@ class SplitProgram:
         placed = []
         for program, block, part in zip(self.programs, self.blocks, parts, strict=True):
 
-            def take(axis: int | None, leaf: Any, block: Block = block) -> Any:
+            def take(axis: int | None, leaf: Leaf, block: Block = block) -> Leaf:
                 if axis is None:
                     return leaf
                 if parallel.is_key(leaf):
@@ -302,4 +308,5 @@ class SplitProgram:
         return parallel.select(state, hparam_index, seed_index)
 
     def local_fraction(self) -> float:
+        """Share of the state this process holds: all of it (a split is one process's)."""
         return 1.0
