@@ -289,6 +289,18 @@ def test_split_layout_and_when_auto_splits():
         plan.choose_split("even", 1, SEEDS, cpus, enough)
 
 
+@cpu_only
+def test_the_plan_says_a_run_is_split(tmp_path, monkeypatch):
+    """10 chunks of 5 seeds on 2 CPU devices: auto splits them, and the plan says so (the test
+    process has one device: both blocks go on it, which the plan's arithmetic does not mind)."""
+    monkeypatch.setattr(plan.processes, "devices", lambda: [jax.devices()[0]] * 2)
+    long = spec_for("fake", tmp_path / "long", plan.SPLIT_MIN_CHUNKS * FAKE_CHUNK)
+    made = make_plan(long)
+    assert made.chunks == plan.SPLIT_MIN_CHUNKS
+    assert "(3 + 2 runs, split unevenly: a program per device)" in plan.format_plan(long, made)
+    assert made.template == make_plan(dataclasses.replace(long, layout="split")).template
+
+
 def test_shapes_go_to_processes_where_that_is_faster():
     assert owners(4, 1, SEEDS, num_processes=1, local_devices=2) is None  # one process
     assert owners(1, 1, SEEDS, num_processes=2, local_devices=1) is None  # one shape
