@@ -14,6 +14,7 @@ import numpy as np
 
 from rl_jax.errors import UsageError, parse_float, parse_int, positive_int
 from rl_jax.run.field_docs import field_docs
+from rl_jax.run.plan import LAYOUTS, SPLIT_MIN_CHUNKS
 
 if TYPE_CHECKING:
     from _typeshed import DataclassInstance
@@ -215,11 +216,12 @@ def add_run_flags(parser: argparse.ArgumentParser, seeds: int, total_steps: int)
     )
     add(
         "--layout",
-        choices=("auto", "pad", "split"),
+        choices=LAYOUTS,
         default="auto",
         help="runs that do not divide over the devices: pad them with copies computed and "
         "dropped (one program), split them unevenly (a program per device), or auto: split on "
-        "CPU devices for runs of 10 chunks or more, pad elsewhere (default: auto)",
+        f"CPU devices for runs of {SPLIT_MIN_CHUNKS} chunks or more, pad elsewhere (default: "
+        "auto)",
     )
     add(
         "--log-interval",

@@ -129,8 +129,8 @@ def blocks(state: TrainState) -> Blocks:
     return cast(Blocks, state)
 
 
-def _rows(array: np.ndarray, block: Block) -> np.ndarray:
-    """The block's ``[h, s]`` part of an ``[H, S]``-leading array."""
+def _rows(array: Leaf, block: Block) -> Leaf:
+    """The block's ``[h, s]`` part of an ``[H, S]``-leading array (typed keys included)."""
     rows = array[block.hparams.start : block.hparams.stop]
     return rows[:, block.seeds.start : block.seeds.stop]
 
@@ -199,14 +199,20 @@ class SplitProgram:
             for program, block, part in zip(self.programs, self.blocks, parts, strict=True)
         )
 
-    def train_chunk(self, state: TrainState, hparams: Hyperparams) -> tuple[Blocks, BlockMetrics]:
-        """One chunk of every block, each dispatched before any is waited for."""
+    def _dispatch(
+        self, chunks: Sequence[parallel.Chunk], state: TrainState, hparams: Hyperparams
+    ) -> tuple[Blocks, BlockMetrics]:
+        """Each block's chunk on its state, each dispatched before any is waited for."""
         parts = self._split_hparams(hparams)
         done = [
-            program.train_chunk(block_state, part)
-            for program, block_state, part in zip(self.programs, blocks(state), parts, strict=True)
+            chunk(block_state, part)
+            for chunk, block_state, part in zip(chunks, blocks(state), parts, strict=True)
         ]
         return tuple(new for new, _ in done), tuple(metrics for _, metrics in done)
+
+    def train_chunk(self, state: TrainState, hparams: Hyperparams) -> tuple[Blocks, BlockMetrics]:
+        """One chunk of every block (``state`` is donated: use the returned one)."""
+        return self._dispatch([program.train_chunk for program in self.programs], state, hparams)
 
     def compile(
         self, state: TrainState, hparams: Hyperparams
@@ -218,15 +224,7 @@ class SplitProgram:
         with ThreadPoolExecutor(len(jobs)) as pool:
             chunks = list(pool.map(lambda job: job[0].compile(job[1], job[2]), jobs))
 
-        def compiled(state: TrainState, hparams: Hyperparams) -> tuple[Blocks, BlockMetrics]:
-            parts = self._split_hparams(hparams)
-            done = [
-                chunk(block_state, part)
-                for chunk, block_state, part in zip(chunks, blocks(state), parts, strict=True)
-            ]
-            return tuple(new for new, _ in done), tuple(metrics for _, metrics in done)
-
-        return compiled
+        return lambda state, hparams: self._dispatch(chunks, state, hparams)
 
     # ---- to and from the [H, S] runs -------------------------------------------------------
 
@@ -256,10 +254,8 @@ class SplitProgram:
         def join(axis: int | None, *leaves: Leaf) -> Leaf:
             if axis is None:
                 return leaves[0]
-            if parallel.is_key(leaves[0]):
-                impl = jax.random.key_impl(leaves[0])
-                data = self._join([np.asarray(jax.random.key_data(leaf)) for leaf in leaves])
-                return jax.random.wrap_key_data(jnp.asarray(data), impl=impl)
+            if parallel.is_key(leaves[0]):  # typed keys join as keys (numpy has no such dtype)
+                return jnp.concatenate(leaves, axis=self.layout.axis)
             return self._join([np.asarray(leaf) for leaf in leaves])
 
         axes = self.axes(hparams)
@@ -278,13 +274,7 @@ class SplitProgram:
         for program, block, part in zip(self.programs, self.blocks, parts, strict=True):
 
             def take(axis: int | None, leaf: Leaf, block: Block = block) -> Leaf:
-                if axis is None:
-                    return leaf
-                if parallel.is_key(leaf):
-                    impl = jax.random.key_impl(leaf)
-                    data = _rows(np.asarray(jax.random.key_data(leaf)), block)
-                    return jax.random.wrap_key_data(jnp.asarray(data), impl=impl)
-                return _rows(np.asarray(leaf), block)
+                return leaf if axis is None else _rows(leaf, block)
 
             placed.append(program.place(parallel.map_axes(take, axes, state), part))
         return tuple(placed)
