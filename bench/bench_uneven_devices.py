@@ -100,8 +100,8 @@ def _one_program(config: Any, seeds: int, devices: list) -> tuple[Any, str]:
 
 def _split_programs(config: Any, seeds: int, devices: list) -> tuple[Any, str]:
     """``seeds`` split over ``devices`` without padding (``training.split_program``, what
-    ``--layout split`` runs): a program per device, compiled in threads, each block's chunk
-    dispatched before any is waited for."""
+    ``--layout split`` runs): a program per block size, sharded over the devices of its
+    blocks, compiled in threads, each program's chunk dispatched before any is waited for."""
     import jax
 
     from rl_jax.agents.td3 import td3

@@ -219,8 +219,8 @@ def add_run_flags(parser: argparse.ArgumentParser, seeds: int, total_steps: int)
         choices=LAYOUTS,
         default="auto",
         help="runs that do not divide over the devices: pad them with copies computed and "
-        "dropped (one program), split them unevenly (a program per device), or auto: split on "
-        f"CPU devices for runs of {SPLIT_MIN_CHUNKS} chunks or more, pad elsewhere (default: "
+        "dropped (one program), split them unevenly (a program per block size), or auto: split "
+        f"on CPU devices for runs of {SPLIT_MIN_CHUNKS} chunks or more, pad elsewhere (default: "
         "auto)",
     )
     add(

@@ -268,7 +268,8 @@ def describe_layout(program: parallel.Program | SplitProgram) -> str:
     names = ", ".join(str(device) for device in program.devices)
     if isinstance(layout, SplitLayout):
         blocks = " + ".join(str(block.runs) for block in layout.blocks)
-        return f"{names} ({blocks} runs, split unevenly: a program per device)"
+        programs = "one program" if layout.shapes == 1 else f"{layout.shapes} programs"
+        return f"{names} ({blocks} runs, split unevenly: {programs})"
     text = f"{names} ({layout.runs_per_device} run{'s' * (layout.runs_per_device > 1)} each"
     if layout.padding:
         text += f"; {layout.padding} padding copy of a run computed and dropped"

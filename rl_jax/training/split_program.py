@@ -1,18 +1,22 @@
-"""``[H, S]`` runs split unevenly over devices, without padding: one ``parallel.Program`` per
-device, each on its own block of runs (5 seeds on 2 devices as 3 + 2; on 4 as 2 + 1 + 1 + 1).
+"""``[H, S]`` runs split unevenly over devices, without padding: each device its own block of
+runs (5 seeds on 2 devices as 3 + 2; on 4 as 2 + 1 + 1 + 1), and one ``parallel.Program`` per
+block size, whose mesh spans the devices of the blocks of that size (on 4 devices: 2 seeds on
+the first, and 3 seeds sharded 1 + 1 + 1 over the other three).
 
 A padded program (``parallel.Program``) computes copies of a run to make the runs divide; on CPU
 devices of one process, which share the same cores, the copies take their share of them, and a
 device left out of the mesh leaves its part of the host idle. A split computes the real runs
-only, on every device, at the cost of a compiled program per block (each block's program is
-compiled for its own device). ``rl_jax.run.plan.program_for`` chooses between the two.
+only, on every device, at the cost of a second compiled program (blocks as even as can be have
+at most two sizes; XLA compiles a program once for all the devices of its mesh, but once per
+device for programs on one device each). ``rl_jax.run.plan.program_for`` chooses between the
+two.
 
-The device state of a split is a tuple with one ``[h, s]`` state per block, as are its chunk
-metrics; ``gather``, ``unpad`` and ``place`` translate to and from the ``[H, S]`` runs that
-every saved file holds, so a checkpoint of a split run resumes on any layout and the other way
-round. Each block computes its runs as that block's ``Program`` does: a block of several seeds
-gives what the same seeds give in a bigger batch (the same kernels, on the locked jaxlib), a
-block of one seed may round differently.
+The device state of a split is a tuple with one ``[h, s]`` state per group of blocks of one
+size, as are its chunk metrics; ``gather``, ``unpad`` and ``place`` translate to and from the
+``[H, S]`` runs that every saved file holds, so a checkpoint of a split run resumes on any
+layout and the other way round. Each group computes its runs as that group's ``Program`` does:
+a block of several seeds gives what the same seeds give in a bigger batch (the same kernels, on
+the locked jaxlib), a block of one seed may round differently.
 
 Usage (what ``parallel.Program`` offers)::
 
@@ -25,6 +29,7 @@ Usage (what ``parallel.Program`` offers)::
 from __future__ import annotations
 
 import dataclasses
+import itertools
 from collections.abc import Callable, Sequence
 from concurrent.futures import ThreadPoolExecutor
 from typing import TypeAlias, cast
@@ -37,10 +42,10 @@ from rl_jax.training import parallel
 from rl_jax.training.algorithm import Algorithm, ChunkMetrics, Config, Hyperparams, TrainState
 from rl_jax.training.parallel import Tree
 
-#: a split's state on the devices: one ``[h, s]`` train state per block (itself a train state:
-#: a tuple of them)
+#: a split's state on the devices: one ``[h, s]`` train state per group of blocks of one size
+#: (itself a train state: a tuple of them)
 Blocks: TypeAlias = tuple[TrainState, ...]
-#: a split's chunk metrics: one ``[h, s]`` tree per block, joined by ``SplitProgram.gather``
+#: a split's chunk metrics: one ``[h, s]`` tree per group, joined by ``SplitProgram.gather``
 BlockMetrics: TypeAlias = tuple[ChunkMetrics, ...]
 Leaf: TypeAlias = jax.Array | np.ndarray
 
@@ -56,6 +61,15 @@ class Block:
     def runs(self) -> int:
         """Runs of the block."""
         return len(self.hparams) * len(self.seeds)
+
+
+@dataclasses.dataclass(frozen=True)
+class Group:
+    """Blocks of one size side by side: their runs together and the devices that hold them,
+    one block each (one program, sharded evenly over those devices)."""
+
+    runs: Block
+    devices: range
 
 
 @dataclasses.dataclass(frozen=True)
@@ -104,8 +118,24 @@ class SplitLayout:
 
     @property
     def shapes(self) -> int:
-        """Distinct block shapes (each compiles on every device that holds it)."""
-        return len(set(self.sizes))
+        """Distinct block sizes: the programs compiled (one per group)."""
+        return len(self.groups)
+
+    @property
+    def groups(self) -> tuple[Group, ...]:
+        """The blocks of each size together (contiguous: sizes fall), with their devices."""
+        groups: list[Group] = []
+        start = 0
+        for _, same in itertools.groupby(self.sizes):
+            count = len(list(same))
+            first, last = self.blocks[start], self.blocks[start + count - 1]
+            if self.axis == 1:
+                runs = Block(first.hparams, range(first.seeds.start, last.seeds.stop))
+            else:
+                runs = Block(range(first.hparams.start, last.hparams.stop), first.seeds)
+            groups.append(Group(runs, range(start, start + count)))
+            start += count
+        return tuple(groups)
 
 
 def split_layout(num_hparams: int, num_seeds: int, num_devices: int) -> SplitLayout:
@@ -124,20 +154,21 @@ def split_layout(num_hparams: int, num_seeds: int, num_devices: int) -> SplitLay
 
 
 def blocks(state: TrainState) -> Blocks:
-    """A split's device state as its blocks (``Blocks`` is a kind of ``TrainState``)."""
-    assert isinstance(state, tuple), "a split program's state is a tuple of block states"
+    """A split's device state as its groups' states (``Blocks`` is a kind of ``TrainState``)."""
+    assert isinstance(state, tuple), "a split program's state is a tuple of group states"
     return cast(Blocks, state)
 
 
 def _rows(array: Leaf, block: Block) -> Leaf:
-    """The block's ``[h, s]`` part of an ``[H, S]``-leading array (typed keys included)."""
+    """The ``[h, s]`` runs of ``block`` of an ``[H, S]``-leading array (typed keys included)."""
     rows = array[block.hparams.start : block.hparams.stop]
     return rows[:, block.seeds.start : block.seeds.stop]
 
 
 class SplitProgram:
     """``parallel.Program``'s interface over an uneven split of the runs: a ``Program`` per
-    block on a device of its own (one process; a mesh over processes needs equal blocks)."""
+    group of blocks of one size, on the devices of those blocks (one process; a mesh over
+    processes needs equal blocks)."""
 
     def __init__(
         self,
@@ -152,19 +183,22 @@ class SplitProgram:
         self.num_hparams, self.num_seeds = num_hparams, num_seeds
         self.layout = split_layout(num_hparams, num_seeds, len(devices))
         self.devices = list(devices)[: self.layout.devices]
-        self.blocks = self.layout.blocks
+        self.groups = self.layout.groups
         self.programs = [
             parallel.Program(
                 algorithm,
                 config,
-                len(block.hparams),
-                len(block.seeds),
-                devices=[device],
+                len(group.runs.hparams),
+                len(group.runs.seeds),
+                devices=[self.devices[index] for index in group.devices],
                 pad=False,
                 loop_seeds=loop_seeds,
             )
-            for block, device in zip(self.blocks, self.devices, strict=True)
+            for group in self.groups
         ]
+        for program, group in zip(self.programs, self.groups, strict=True):
+            # equal blocks divide evenly: the group's program uses each of its devices
+            assert program.layout.devices == len(group.devices), (program.layout, group)
         self._hparams: tuple[Hyperparams, list[Hyperparams]] | None = None
 
     @property
@@ -173,14 +207,15 @@ class SplitProgram:
         return self.num_hparams, self.num_seeds
 
     def _split_hparams(self, hparams: Hyperparams) -> list[Hyperparams]:
-        """Each block's ``[h]`` hyperparameters (memoized per object, so that each block's
+        """Each group's ``[h]`` hyperparameters (memoized per object, so that each group's
         program keeps its placed copy)."""
         if self._hparams is None or self._hparams[0] is not hparams:
             parts = [
                 jax.tree.map(
-                    lambda x, b=block: np.asarray(x)[b.hparams.start : b.hparams.stop], hparams
+                    lambda x, b=group.runs: np.asarray(x)[b.hparams.start : b.hparams.stop],
+                    hparams,
                 )
-                for block in self.blocks
+                for group in self.groups
             ]
             self._hparams = (hparams, parts)
         return self._hparams[1]
@@ -192,17 +227,17 @@ class SplitProgram:
     # ---- programs --------------------------------------------------------------------------
 
     def init(self, keys: jax.Array, hparams: Hyperparams) -> Blocks:
-        """Each block's fresh state from its seeds' keys."""
+        """Each group's fresh state from its seeds' keys."""
         parts = self._split_hparams(hparams)
         return tuple(
-            program.init(keys[block.seeds.start : block.seeds.stop], part)
-            for program, block, part in zip(self.programs, self.blocks, parts, strict=True)
+            program.init(keys[group.runs.seeds.start : group.runs.seeds.stop], part)
+            for program, group, part in zip(self.programs, self.groups, parts, strict=True)
         )
 
     def _dispatch(
         self, chunks: Sequence[parallel.Chunk], state: TrainState, hparams: Hyperparams
     ) -> tuple[Blocks, BlockMetrics]:
-        """Each block's chunk on its state, each dispatched before any is waited for."""
+        """Each group's chunk on its state, each dispatched before any is waited for."""
         parts = self._split_hparams(hparams)
         done = [
             chunk(block_state, part)
@@ -211,13 +246,13 @@ class SplitProgram:
         return tuple(new for new, _ in done), tuple(metrics for _, metrics in done)
 
     def train_chunk(self, state: TrainState, hparams: Hyperparams) -> tuple[Blocks, BlockMetrics]:
-        """One chunk of every block (``state`` is donated: use the returned one)."""
+        """One chunk of every run (``state`` is donated: use the returned one)."""
         return self._dispatch([program.train_chunk for program in self.programs], state, hparams)
 
     def compile(
         self, state: TrainState, hparams: Hyperparams
     ) -> Callable[[TrainState, Hyperparams], tuple[Blocks, BlockMetrics]]:
-        """Every block's chunk compiled ahead of time, in threads (XLA compiles outside the
+        """Every group's chunk compiled ahead of time, in threads (XLA compiles outside the
         interpreter lock): ``compiled(state, hparams) -> (state, metrics)``."""
         parts = self._split_hparams(hparams)
         jobs = list(zip(self.programs, blocks(state), parts, strict=True))
@@ -229,15 +264,15 @@ class SplitProgram:
     # ---- to and from the [H, S] runs -------------------------------------------------------
 
     def gather_each(self, function: Callable[[TrainState], Tree], state: TrainState) -> Tree:
-        """``function`` of each block's device state (``[h, s]``-leading outputs), joined into
+        """``function`` of each group's device state (``[h, s]``-leading outputs), joined into
         host ``[H, S]`` copies."""
-        return self.gather(tuple(function(block_state) for block_state in blocks(state)))
+        return self.gather(tuple(function(group_state) for group_state in blocks(state)))
 
     def _join(self, parts: list[np.ndarray]) -> np.ndarray:
         return np.concatenate(parts, axis=self.layout.axis)
 
     def gather(self, trees: tuple[Tree, ...]) -> Tree:
-        """Host ``[H, S]`` copies of per-block ``[h, s]`` outputs (chunk metrics)."""
+        """Host ``[H, S]`` copies of per-group ``[h, s]`` outputs (chunk metrics)."""
         gathered = [
             program.gather(tree) for program, tree in zip(self.programs, trees, strict=True)
         ]
@@ -247,8 +282,8 @@ class SplitProgram:
         """The ``[H, S]`` runs as host arrays (typed keys stay keys; the clock is one)."""
         parts = self._split_hparams(hparams)
         hosts = [
-            program.unpad(block_state, part)
-            for program, block_state, part in zip(self.programs, blocks(state), parts, strict=True)
+            program.unpad(group_state, part)
+            for program, group_state, part in zip(self.programs, blocks(state), parts, strict=True)
         ]
 
         def join(axis: int | None, *leaves: Leaf) -> Leaf:
@@ -267,22 +302,22 @@ class SplitProgram:
         )
 
     def place(self, state: TrainState, hparams: Hyperparams) -> Blocks:
-        """An ``[H, S]`` state (a restored checkpoint) split into blocks on their devices."""
+        """An ``[H, S]`` state (a restored checkpoint) split into groups on their devices."""
         axes = self.axes(hparams)
         parts = self._split_hparams(hparams)
         placed = []
-        for program, block, part in zip(self.programs, self.blocks, parts, strict=True):
+        for program, group, part in zip(self.programs, self.groups, parts, strict=True):
 
-            def take(axis: int | None, leaf: Leaf, block: Block = block) -> Leaf:
-                return leaf if axis is None else _rows(leaf, block)
+            def take(axis: int | None, leaf: Leaf, runs: Block = group.runs) -> Leaf:
+                return leaf if axis is None else _rows(leaf, runs)
 
             placed.append(program.place(parallel.map_axes(take, axes, state), part))
         return tuple(placed)
 
     def template(self, hparams: Hyperparams) -> TrainState:
-        """Shapes of the state on the devices, all blocks together (``[H, S]``: no padding)."""
+        """Shapes of the state on the devices, all groups together (``[H, S]``: no padding)."""
         runs = (self.num_hparams, self.num_seeds)
-        block_template = self.programs[0].template(self._split_hparams(hparams)[0])
+        group_template = self.programs[0].template(self._split_hparams(hparams)[0])
         return parallel.map_axes(
             lambda axis, leaf: (
                 jax.ShapeDtypeStruct(leaf.shape, leaf.dtype)
@@ -290,7 +325,7 @@ class SplitProgram:
                 else jax.ShapeDtypeStruct((*runs, *leaf.shape[2:]), leaf.dtype)
             ),
             self.axes(hparams),
-            block_template,
+            group_template,
         )
 
     def select(self, state: TrainState, hparam_index: int, seed_index: int) -> TrainState:

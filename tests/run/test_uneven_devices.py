@@ -35,7 +35,7 @@ from rl_jax.run.metrics import read_rows
 from rl_jax.run.plan import make_plan
 from rl_jax.run.sweep_shapes import owners, run_own
 from rl_jax.training.device_layout import plan_layout
-from rl_jax.training.split_program import split_layout
+from rl_jax.training.split_program import Block, Group, split_layout
 
 ROOT = Path(__file__).resolve().parents[2]
 CHILD = Path(__file__).with_name("uneven_child.py")
@@ -241,7 +241,8 @@ def test_layout_pads_onto_every_device_it_needs():
 @pytest.mark.slow
 @cpu_only
 def test_five_seeds_split_over_four_devices_equal_one_device(tmp_path):
-    """2 + 1 + 1 + 1 on 4 CPU devices: four programs, and the same runs as on one device, to a
+    """2 + 1 + 1 + 1 on 4 CPU devices: two programs (2 seeds on one device, 3 sharded over
+    three), and the same runs as on one device, to a
     float tolerance: XLA compiles a block of one seed to other kernels than a batch (the eval
     return 1 ulp apart), while the steps, seeds and counts stay exact."""
     four = start(4, [job(tmp_path / "four", FAKE_TOTAL, layout="split")])
@@ -263,8 +264,20 @@ def test_split_layout_and_when_auto_splits():
         (range(1), range(3)),
         (range(1), range(3, 5)),
     ]
-    assert split_layout(1, SEEDS, 4).sizes == (2, 1, 1, 1)
+    four = split_layout(1, SEEDS, 4)
+    assert four.sizes == (2, 1, 1, 1)
+    # one program per block size: 2 seeds on device 0, 3 seeds sharded over devices 1-3
+    assert four.shapes == 2 and four.groups == (
+        Group(Block(range(1), range(2)), range(1)),
+        Group(Block(range(1), range(2, 5)), range(1, 4)),
+    )
     assert split_layout(1, 2, 4).sizes == (1, 1)  # never an empty block
+    assert split_layout(1, 2, 4).shapes == 1
+    sets = split_layout(5, 1, 2).groups  # configs split 3 + 2: a group per size
+    assert [(g.runs.hparams, g.devices) for g in sets] == [
+        (range(3), range(1)),
+        (range(3, 5), range(1, 2)),
+    ]
     grid = split_layout(3, 2, 2)  # seeds split: 3 configs x 1 seed per device
     assert (grid.axis, grid.sizes, grid.runs_per_device) == (1, (1, 1), 3)
     configs = split_layout(3, 1, 2)  # one seed: the configs split, 2 + 1
@@ -297,7 +310,7 @@ def test_the_plan_says_a_run_is_split(tmp_path, monkeypatch):
     long = spec_for("fake", tmp_path / "long", plan.SPLIT_MIN_CHUNKS * FAKE_CHUNK)
     made = make_plan(long)
     assert made.chunks == plan.SPLIT_MIN_CHUNKS
-    assert "(3 + 2 runs, split unevenly: a program per device)" in plan.format_plan(long, made)
+    assert "(3 + 2 runs, split unevenly: 2 programs)" in plan.format_plan(long, made)
     assert made.template == make_plan(dataclasses.replace(long, layout="split")).template
 
 
