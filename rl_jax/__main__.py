@@ -16,6 +16,8 @@ from __future__ import annotations
 import sys
 from collections.abc import Callable
 
+from rl_jax import __version__
+
 TRAIN_DOC = """Train any algorithm on any env: --algo and --env choose them, --resume continues a
 run (which knows the rest). Every config field and hyperparameter of the algorithm is a flag too:
 --help with --algo and --env lists them with their defaults there.
@@ -57,7 +59,7 @@ curves.png with one curve per config and results.txt ranking all configs by fina
 
 
 def _train(argv: list[str]) -> int | None:
-    from rl_jax.run import cli
+    from rl_jax.run import cli  # on use: rl-jax --help starts without JAX
 
     # The defaults of experiments/train.py: one seed, 100k env steps.
     cli.main(None, None, TRAIN_DOC, seeds=1, total_steps=100_000, argv=argv)
@@ -65,20 +67,20 @@ def _train(argv: list[str]) -> int | None:
 
 
 def _sweep(argv: list[str]) -> int | None:
-    from rl_jax.run import sweep
+    from rl_jax.run import sweep  # on use: rl-jax --help starts without JAX
 
     sweep.main(SWEEP_DOC, argv)
     return None
 
 
 def _evaluate(argv: list[str]) -> int | None:
-    from rl_jax.run import evaluate
+    from rl_jax.run import evaluate  # on use: rl-jax --help starts without JAX
 
     return evaluate.main(argv)
 
 
 def _render(argv: list[str]) -> int | None:
-    from rl_jax.run import render
+    from rl_jax.run import render  # on use: rl-jax --help starts without JAX
 
     return render.main(argv)
 
@@ -117,8 +119,6 @@ def main(argv: list[str] | None = None) -> int | None:
         print(usage(), end="")
         return 0
     if command == "--version":
-        from rl_jax import __version__
-
         print(f"rl-jax {__version__}")
         return 0
     if command not in COMMANDS:

@@ -324,6 +324,8 @@ class Checkpointer:
 
 
 def _orbax_multihost() -> Any:
+    # orbax's private module (no public handle on the process index it writes as), imported
+    # only where a process writes alone, so that a change to it fails there and nowhere else
     from orbax.checkpoint._src.multihost import multihost
 
     return multihost

@@ -28,11 +28,22 @@ import argparse
 import dataclasses
 import os
 import socket
+import subprocess
 import sys
 import threading
 from collections.abc import Callable, Mapping
 
-from rl_jax.errors import OneLineParser, UsageError, parse_float, parse_int, positive_int
+import jax
+
+from rl_jax.errors import (
+    OneLineParser,
+    UsageError,
+    guard,
+    parse_float,
+    parse_int,
+    positive_int,
+)
+from rl_jax.training.jax_setup import configure_jax
 
 #: Seconds a process waits for the others by default (joining, each exchange, exit).
 DEFAULT_TIMEOUT = 600.0
@@ -207,8 +218,6 @@ def _from_flags(options: Options) -> Cluster | None:
 def start(argv: list[str]) -> list[str]:
     """Take the distribution flags out of ``argv`` and, if they ask for several processes, join
     them (before JAX starts: device count and compilation cache first). Returns the rest."""
-    from rl_jax.training.jax_setup import configure_jax
-
     options, rest = take(argv)
     cluster = resolve(options)
     configure_jax()
@@ -221,9 +230,7 @@ def initialize(cluster: Cluster, timeout: float = DEFAULT_TIMEOUT) -> None:
     """``jax.distributed.initialize`` for ``cluster``, given ``timeout`` seconds for every
     process to join. jax ends a process that cannot join with a fatal log and a stack trace;
     a watchdog ends it a little earlier with one line instead."""
-    import jax
-
-    from rl_jax.run import processes
+    from rl_jax.run import processes  # here, not at the top: processes imports this module
 
     if jax.distributed.is_initialized():
         return
@@ -310,13 +317,9 @@ def guarded(function: Callable[[], int]) -> int:
     """``rl_jax.errors.guard(function)``, and in a run over several processes a collective that
     failed because another process stopped is one line and status 1 too (every process stops;
     the run's latest checkpoint is kept, and the same command continues it)."""
-    from rl_jax.errors import guard
-
     try:
         return guard(function)
     except Exception as error:
-        import jax
-
         if not (jax.distributed.is_initialized() and is_lost_peer(error)):
             raise
         first = str(error).strip().splitlines()[0] if str(error).strip() else type(error).__name__
@@ -333,7 +336,6 @@ def guarded(function: Callable[[], int]) -> int:
 def slurm_requeue(notify: Callable[[str], None] = print) -> None:
     """Put this SLURM job back in the queue (``scontrol requeue``): its command then continues
     the run when it starts again. Not under submitit, which requeues its own jobs."""
-    import subprocess
 
     job = os.environ.get("SLURM_JOB_ID")
     if not job or os.environ.get("SUBMITIT_EXECUTOR"):

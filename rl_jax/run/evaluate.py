@@ -23,8 +23,9 @@ from __future__ import annotations
 import dataclasses
 from collections.abc import Callable
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
+import gymnasium
 import jax
 import numpy as np
 
@@ -34,9 +35,6 @@ from rl_jax.run.api import evaluate_policy as returns_of
 from rl_jax.run.policy import LoadedPolicy, Policy, add_run_choice, command_line_learner
 from rl_jax.training.algorithm import Algorithm
 from rl_jax.training.jax_setup import configure
-
-if TYPE_CHECKING:
-    import gymnasium
 
 KEY = 20_251_125  # evaluation episodes' key: none of a run's own evaluations draws it
 # Keywords of our envs' constructors that gymnasium's do not take: how we simulate, not what.
@@ -63,8 +61,6 @@ def evaluate_policy(loaded: LoadedPolicy, episodes: int, key: int = KEY) -> np.n
 def gymnasium_id(env_id: str) -> str:
     """gymnasium's id of a run's env: ``ID`` of ``gymnasium:ID``; ``NAME`` of ``rl_jax/NAME``
     where gymnasium registers ``NAME`` (the MuJoCo v5 suite, CartPole, Pendulum)."""
-    import gymnasium
-
     if env_id.startswith("gymnasium:"):
         return env_id.split(":", 1)[1]
     name = env_id.split(":")[-1].removeprefix("rl_jax/")
@@ -82,8 +78,6 @@ def gymnasium_returns(
 ) -> np.ndarray:
     """Returns ``[episodes]`` of ``policy`` in ``gymnasium.make(env_id, **keywords)``, episode
     ``i`` reset with seed ``key + i`` and played to termination or truncation."""
-    import gymnasium
-
     env = gymnasium.make(env_id, **(keywords or {}))
     try:
         return _play(env, policy, episodes, key)
@@ -108,8 +102,6 @@ def _play(
 
 def _in_gymnasium(loaded: LoadedPolicy, episodes: int) -> tuple[str, np.ndarray]:
     """``loaded``'s policy in gymnasium's twin of the run's env: its id and the returns."""
-    import gymnasium
-
     env_id = gymnasium_id(loaded.env_id)
     keywords = envs.parse_keywords(getattr(loaded.config, "env_kwargs", ""))
     keywords = {name: value for name, value in keywords.items() if name not in OWN_KEYWORDS}

@@ -207,9 +207,6 @@ def add_run_choice(parser: argparse.ArgumentParser, seed_help: str) -> None:
 def command_line_learner(run_dir: Path, named: str | None) -> Algorithm:
     """The learner a command that opens ``run_dir`` uses (``--algo``, or the run's built-in
     one); its errors say to give ``--algo``."""
-    from rl_jax.run.learners import for_run
-    from rl_jax.run.run_dir import read_run_record
-
     return for_run(read_run_record(run_dir), run_dir, named, how="--algo")
 
 

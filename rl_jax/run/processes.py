@@ -25,6 +25,8 @@ import jax
 import numpy as np
 from jax.experimental import multihost_utils
 
+from rl_jax.run.distributed import Watchdog
+
 _WAIT_LIMIT: list[float] = []  # seconds; empty: no limit (one process, or set by no one)
 _alone = [False]  # inside ``alone()``: this process runs a run of its own
 
@@ -73,8 +75,6 @@ def waiting(what: str) -> Iterator[None]:
     if count() == 1 or not _WAIT_LIMIT:
         yield
         return
-    from rl_jax.run.distributed import Watchdog
-
     limit = _WAIT_LIMIT[0]
     message = (
         f"process {jax.process_index()} waited over {limit:g} s for the other processes at "

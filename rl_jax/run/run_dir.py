@@ -29,6 +29,7 @@ import jax
 from rl_jax.errors import RunError
 from rl_jax.run import processes
 from rl_jax.run.checkpoint import library_versions
+from rl_jax.run.distributed import without_flags
 from rl_jax.training import params
 from rl_jax.training.algorithm import Config, Hyperparams
 
@@ -247,8 +248,6 @@ def same_command_again(out: Path, run_identity: dict[str, Any], command: str) ->
 
 
 def _comparable(command: str) -> list[str]:
-    from rl_jax.run.distributed import without_flags
-
     try:
         words = shlex.split(command)
     except ValueError:
