@@ -412,13 +412,28 @@ ROWS: dict[str, Row] = {
     # (SimbaV2's SAC baseline runs, SAC_CURVE_300K): the goal is its mean at 300k, in 30 minutes.
     **{f"sac-{name.lower()}": _sac_mujoco(name, "its CPU recipe") for name in SUITE4},
     # The same with an actor and temperature step at every critic step, as the recipe was until
-    # the policy delay of 2 replaced it.
+    # the policy delay of 2 replaced it (and, on Ant, Adam's b1 at 0.9 as it then was).
     **{
         f"sac-{name.lower()}-delay1": _sac_mujoco(
-            name, "its CPU recipe with `--policy-delay 1`", "--policy-delay", "1"
+            name, f"its CPU recipe with `{' '.join(delay1)}`", *delay1
+        )
+        for name, delay1 in (
+            ("HalfCheetah", ("--policy-delay", "1")),
+            ("Hopper", ("--policy-delay", "1")),
+            ("Walker2d", ("--policy-delay", "1")),
+            ("Ant", ("--policy-delay", "1", "--adam-b1", "0.9")),
+        )
+    },
+    # Adam's b1 at the other value than the recipe's: 0.5 (Ant's) on the other three, and 0.9 (the
+    # recipe's on the other three, Ant's until 2026-12-05) on Ant.
+    **{
+        f"sac-{name.lower()}-b1-0.5": _sac_mujoco(
+            name, "its CPU recipe with `--adam-b1 0.5`", "--adam-b1", "0.5"
         )
         for name in SUITE4
+        if name != "Ant"
     },
+    "sac-ant-b1-0.9": _sac_mujoco("Ant", "its CPU recipe with `--adam-b1 0.9`", "--adam-b1", "0.9"),
     # CrossQ on SAC at CPU sizes (256 x 256 critics, where CrossQ's are 2,048 wide), against
     # CrossQ's own runs: the goal is a mean inside their band at 300k, or above it.
     "crossq-cpu-halfcheetah": Row(

@@ -2,6 +2,7 @@
 gradients, terminated vs truncated in the soft target, the probe envs end to end, a tiny CrossQ
 run, and the command line."""
 
+import dataclasses
 import functools
 import os
 import subprocess
@@ -459,6 +460,10 @@ def test_recipes_build_valid_configs():
     assert crossq.critic_hidden == (2048, 2048) and crossq.policy_delay == 3
     cpu = sac.default_config("rl_jax/HalfCheetah-v5")
     assert cpu.critic_hidden == cpu.actor_hidden == (128, 128) and cpu.batch_size == 128
+    # Ant's recipe is the same but for Adam's b1 (0.5 against 0.9).
+    ant = sac.default_config("rl_jax/Ant-v5")
+    assert ant == dataclasses.replace(cpu, env_id="rl_jax/Ant-v5", adam_b1=0.5)
+    assert cpu.adam_b1 == sac.default_config("rl_jax/Humanoid-v5").adam_b1 == 0.9
     assert float(sac.default_hyperparams("rl_jax/HalfCheetah-v5").critic_lr) == pytest.approx(1e-3)
     assert sac.default_config("rl_jax/Humanoid-v5").normalize_obs
     assert float(Hyperparams().as_arrays().target_entropy_per_dim) == -1.0
