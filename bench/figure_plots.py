@@ -70,16 +70,18 @@ def curves_figure(
     line: tuple[float, str] | None = None,
 ) -> int:
     """Each run's mean eval return with its 95% bootstrap band over seeds; each reference's
-    mean and band (dashed, grey tones) up to ``max_step`` (default: the runs' last step);
-    ``line``: a horizontal line ``(value, label)``, e.g. an env's maximum return."""
+    mean and band (grey tones, dashed, dash-dotted, dotted) up to ``max_step`` (default: the
+    runs' last step); ``line``: a horizontal line ``(value, label)``, e.g. an env's maximum
+    return."""
     plt = _pyplot()
     figure, axes = plt.subplots(figsize=(6.4, 4.0))
     last = max_step or max(float(run.steps[-1]) for run in runs)
     for index, reference in enumerate(references):
         kept = reference.steps <= last
         mean, low, high = figure_stats.mean_ci(reference.returns[:, kept])
-        color = ("0.25", "0.55", "0.7")[index % 3]
-        axes.plot(reference.steps[kept], mean, "--", color=color, lw=1.5, label=reference.label)
+        color = ("0.2", "0.45", "0.6")[index % 3]
+        style = ("--", "-.", (0, (1, 1.2)))[index % 3]
+        axes.plot(reference.steps[kept], mean, ls=style, color=color, lw=1.6, label=reference.label)
         axes.fill_between(reference.steps[kept], low, high, color=color, alpha=0.18, lw=0)
     for index, run in enumerate(runs):
         mean, low, high = figure_stats.mean_ci(run.returns)
