@@ -195,6 +195,51 @@ def test_td3_on_two_devices_equals_one_device_at_default_flags(tmp_path):
     assert_same_runs([tmp_path / name for name in names], "td3", TD3_TOTAL)
 
 
+@pytest.mark.slow
+@cpu_only
+def test_sac_on_a_mujoco_env_trains_the_same_in_every_layout(tmp_path):
+    """SAC on half cheetah, stepped by the MuJoCo C op inside the program, at XLA's default
+    flags: 5 seeds on one device, split 3 + 2 and padded 3 + 3 over two. The training (every
+    metric but the evaluation, and the checkpointed state) is bit for bit the same in all three,
+    and so is the split's evaluation; the padded program's evaluations may differ in the last
+    bits (measured in RESULTS.md, "SAC's three met rows rerun"), so they are held to a float
+    tolerance."""
+    env = {"XLA_FLAGS": "", "TEST_XLA_OPT": "default"}
+    one = start(1, [job(tmp_path / "one", TD3_TOTAL, "sac")], env)
+    two = start(
+        2,
+        [
+            job(tmp_path / "split", TD3_TOTAL, "sac", layout="split"),
+            job(tmp_path / "pad", TD3_TOTAL, "sac", layout="pad"),
+        ],
+        env,
+    )
+    assert finish(one) == [[1, 5]] and finish(two) == [[2, 5], [2, 6]]
+
+    def training(out: Path) -> list[dict]:
+        return [{k: v for k, v in row.items() if k != "eval_return"} for row in rows(out)]
+
+    def evaluations(out: Path) -> np.ndarray:
+        return np.array([row["eval_return"] for row in rows(out)])
+
+    expected_state = checkpoint(tmp_path / "one", "sac", TD3_TOTAL)
+    assert len(rows(tmp_path / "one")) == 3 * SEEDS
+    for name in ("split", "pad"):
+        state = checkpoint(tmp_path / name, "sac", TD3_TOTAL)
+        if ON_THE_LOCKED_JAX:
+            assert training(tmp_path / name) == training(tmp_path / "one"), name
+            assert leaves_bytes(state) == leaves_bytes(expected_state), name
+        else:
+            assert_close_rows(training(tmp_path / name), training(tmp_path / "one"))
+    if ON_THE_LOCKED_JAX:
+        np.testing.assert_array_equal(
+            evaluations(tmp_path / "split"), evaluations(tmp_path / "one")
+        )
+    np.testing.assert_allclose(
+        evaluations(tmp_path / "pad"), evaluations(tmp_path / "one"), rtol=1e-3, atol=1e-2
+    )
+
+
 def free_port() -> int:
     with socket.socket() as probe:
         probe.bind(("localhost", 0))

@@ -3,10 +3,10 @@
     python uneven_child.py DEVICES JOBS_JSON
 
 JOBS_JSON is a list of ``{"out", "total", "resume", "learner"}`` and optionally ``"layout"``
-(learner "fake" or "td3", a tiny TD3 on the pendulum; layout "auto", "pad" or "split"); the
-last line printed is a JSON list, per job, of ``[devices used, padded seeds]``. With
-``COORDINATOR``, ``NUM_PROCESSES`` and ``PROCESS_ID`` in the environment the process joins a
-``jax.distributed`` run first.
+(learner "fake", "td3", a tiny TD3 on the pendulum, or "sac", a tiny SAC on half cheetah; layout
+"auto", "pad" or "split"); the last line printed is a JSON list, per job, of ``[devices used,
+padded seeds]``. With ``COORDINATOR``, ``NUM_PROCESSES`` and ``PROCESS_ID`` in the environment the
+process joins a ``jax.distributed`` run first.
 """
 
 import dataclasses

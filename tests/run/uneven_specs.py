@@ -5,11 +5,13 @@ from pathlib import Path
 
 import fake_algorithm as fake
 
+from rl_jax.agents.sac import sac
 from rl_jax.agents.td3 import td3
 from rl_jax.run.spec import RunSpec
 
 SEEDS = 5  # divides over neither 2 nor 4 devices
 TD3_ENV = "rl_jax/Pendulum-v1"
+SAC_ENV = "rl_jax/HalfCheetah-v5"  # stepped by the MuJoCo C op inside the program
 
 
 def tiny_td3_config():
@@ -27,11 +29,31 @@ def tiny_td3_config():
     )
 
 
+def tiny_sac_config():
+    """SAC on half cheetah at 8 x 8 networks, the chunk of the tiny TD3 (50 env steps, updates
+    from step 50), each evaluation one full 1,000-step episode per seed."""
+    return dataclasses.replace(
+        sac.default_config(SAC_ENV),
+        num_envs=2,
+        updates_per_iteration=1,
+        iterations_per_chunk=25,
+        learning_starts=50,
+        batch_size=16,
+        buffer_size=200,
+        num_eval_envs=1,
+        actor_hidden=(8, 8),
+        critic_hidden=(8, 8),
+    )
+
+
 def spec_for(learner: str, out: Path, total_steps: int, resume: bool = False) -> RunSpec:
-    """The 5-seed run of ``learner`` ("fake" or "td3"), checkpointed after every chunk."""
+    """The 5-seed run of ``learner`` ("fake", "td3" or "sac"), checkpointed after every chunk."""
     if learner == "fake":
         algorithm, env_id, config = fake, fake.ENV_ID, fake.default_config()
         hparams = fake.default_hyperparams()
+    elif learner == "sac":
+        algorithm, env_id, config = sac, SAC_ENV, tiny_sac_config()
+        hparams = sac.default_hyperparams(SAC_ENV)
     else:
         algorithm, env_id, config = td3, TD3_ENV, tiny_td3_config()
         hparams = td3.default_hyperparams(TD3_ENV)
