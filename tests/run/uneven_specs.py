@@ -14,36 +14,29 @@ TD3_ENV = "rl_jax/Pendulum-v1"
 SAC_ENV = "rl_jax/HalfCheetah-v5"  # stepped by the MuJoCo C op inside the program
 
 
+# The tiny off-policy loop both learners run: 8 x 8 networks, 50 env steps per chunk (2 envs x 25
+# iterations), updates from step 50, one evaluation episode per seed.
+TINY_LOOP = dict(
+    num_envs=2,
+    iterations_per_chunk=25,
+    learning_starts=50,
+    batch_size=16,
+    buffer_size=200,
+    num_eval_envs=1,
+    actor_hidden=(8, 8),
+    critic_hidden=(8, 8),
+)
+
+
 def tiny_td3_config():
-    """TD3 on the pendulum at 8 x 8 networks: 50 env steps per chunk, updates from step 50."""
-    return dataclasses.replace(
-        td3.default_config(TD3_ENV),
-        num_envs=2,
-        iterations_per_chunk=25,
-        learning_starts=50,
-        batch_size=16,
-        buffer_size=200,
-        num_eval_envs=1,
-        actor_hidden=(8, 8),
-        critic_hidden=(8, 8),
-    )
+    """TD3 on the pendulum in the tiny loop."""
+    return dataclasses.replace(td3.default_config(TD3_ENV), **TINY_LOOP)
 
 
 def tiny_sac_config():
-    """SAC on half cheetah at 8 x 8 networks, the chunk of the tiny TD3 (50 env steps, updates
-    from step 50), each evaluation one full 1,000-step episode per seed."""
-    return dataclasses.replace(
-        sac.default_config(SAC_ENV),
-        num_envs=2,
-        updates_per_iteration=1,
-        iterations_per_chunk=25,
-        learning_starts=50,
-        batch_size=16,
-        buffer_size=200,
-        num_eval_envs=1,
-        actor_hidden=(8, 8),
-        critic_hidden=(8, 8),
-    )
+    """SAC on half cheetah in the tiny loop (one update per env step), each evaluation one full
+    1,000-step episode per seed."""
+    return dataclasses.replace(sac.default_config(SAC_ENV), **TINY_LOOP, updates_per_iteration=1)
 
 
 def spec_for(learner: str, out: Path, total_steps: int, resume: bool = False) -> RunSpec:
