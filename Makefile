@@ -41,7 +41,7 @@ $(STAMP): requirements.lock pyproject.toml
 	$(BIN)/python -m pip install --quiet --disable-pip-version-check --no-deps --no-build-isolation -e .
 	@# the bytecode and the MuJoCo C step op (g++, one core; without it: a callback) side by side
 	@$(BIN)/python -m compileall -q -j 0 "$$($(BIN)/python -c 'import sysconfig; print(sysconfig.get_paths()["purelib"])')" >/dev/null & \
-	$(BIN)/python -m envs.mujoco.mujoco_ffi_build; status=$$?; wait; exit $$status
+	$(BIN)/python -m rl_jax.envs.mujoco.mujoco_ffi_build; status=$$?; wait; exit $$status
 	@touch $@
 
 # The CUDA 12 plugin of the same jaxlib, with its NVIDIA libraries as wheels (no system CUDA
@@ -70,7 +70,7 @@ test-latest: ## the default suite against the newest jax, flax, optax, orbax, mu
 	$(LATEST_VENV)/bin/python -m pip install --quiet --disable-pip-version-check --no-deps \
 		--no-build-isolation -e .
 	@$(LATEST_VENV)/bin/python -m pip list 2>/dev/null | grep -iE '^(jax|jaxlib|flax|optax|orbax-checkpoint|mujoco|mujoco-mjx|brax|gymnasium|numpy) '
-	$(LATEST_VENV)/bin/python -m envs.mujoco.mujoco_ffi_build
+	$(LATEST_VENV)/bin/python -m rl_jax.envs.mujoco.mujoco_ffi_build
 	$(LATEST_VENV)/bin/python -m pytest -q -n $(TEST_WORKERS) --dist loadfile
 
 test-slow: install ## run the long learning tests only
@@ -80,8 +80,8 @@ lint: install ## ruff lint + format check
 	$(BIN)/ruff check .
 	$(BIN)/ruff format --check .
 
-# mypy over rl_jax/ and envs/ (settings in pyproject.toml; its cache in .mypy_cache), failing when
-# the errors outnumber scripts/typecheck_baseline.txt, and when they fall short of it (then
+# mypy over rl_jax/ and rl_jax/envs (settings in pyproject.toml; its cache in .mypy_cache), failing
+# when the errors outnumber scripts/typecheck_baseline.txt, and when they fall short of it (then
 # `$(BIN)/python scripts/typecheck.py --update` lowers it).
 typecheck: install ## mypy against its baseline of known errors, which may only shrink
 	$(BIN)/python scripts/typecheck.py

@@ -25,10 +25,10 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-import envs
 from bench.machine import describe
 from bench.numpy_rocket import NumpyRocketEnv, ScalarGoalNumpyRocketEnv
-from envs.core.batched import autoreset_step
+from rl_jax import envs
+from rl_jax.envs.core.batched import autoreset_step
 
 SIZES = (1, 64, 4096)
 CASES = [

@@ -263,7 +263,7 @@ def run(
     mjx_sizes = sizes if backend == "mjx" else tuple(n for n in sizes if n > 1) or sizes
     load_start = os.getloadavg()[0]
     if backend != "mjx":
-        from envs.mujoco import mujoco_ffi_build
+        from rl_jax.envs.mujoco import mujoco_ffi_build
 
         mujoco_ffi_build.build()  # a once-per-machine cost, not part of any measurement
     rows: dict[str, dict] = {}

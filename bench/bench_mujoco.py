@@ -142,7 +142,7 @@ _ENVS: dict = {}
 
 
 def _our_env(env_id: str, backend: str):
-    import envs
+    from rl_jax import envs
 
     key = (env_id, backend)
     if key not in _ENVS:

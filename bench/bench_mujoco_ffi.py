@@ -97,7 +97,7 @@ def start_script(backend: str, cache: str, out: Path, seeds: int) -> dict[str, f
 
 
 def warm_section(quick: bool) -> list[str]:
-    from envs.mujoco import mujoco_ffi_build
+    from rl_jax.envs.mujoco import mujoco_ffi_build
 
     mujoco_ffi_build.build()  # a once-per-machine cost, not part of a start
     seeds = 1 if quick else 5

@@ -29,8 +29,8 @@ def programs(run_dir: Path = RUN) -> tuple[dict, tuple]:
     batch for every seed of the run (seeds vmapped)."""
     import jax
 
-    from envs.core.wrappers import Wrapper
     from rl_jax.agents import reinforce_policy
+    from rl_jax.envs.core.wrappers import Wrapper
     from rl_jax.run.policy import LoadedPolicy
     from rl_jax.training import episodes
 

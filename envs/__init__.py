@@ -1,24 +1,31 @@
 """rl_jax environments: a functional JAX env API, wrappers, and the registered envs.
 
-``import envs`` also registers every id with gymnasium (``gymnasium.make`` and
+Imported as ``rl_jax.envs`` (``from rl_jax import envs``): the repository keeps the package in
+its top-level ``envs/`` folder, but an installed rl_jax claims no top-level name but its own.
+Importing it also registers every id with gymnasium (``gymnasium.make`` and
 ``gymnasium.make_vec(..., vectorization_mode="vector_entry_point")``). The other way round,
 ``envs.from_gymnasium(id_or_env)`` makes any gymnasium env one of ours
 (``envs.adapters.gymnasium_host``).
 """
 
-from envs.adapters import external_ids as _external_ids  # noqa: F401  (resolves MODULE:ID)
-from envs.adapters.gym_adapter import register_with_gymnasium
-from envs.adapters.gymnasium_host import from_gymnasium
-from envs.core.core import Environment, EnvParams, EnvState, TimeStep
-from envs.core.registry import (
+if __name__ == "envs":  # the folder imported by its own name, from a checkout's root
+    raise ImportError(
+        "rl_jax's environments are the package rl_jax.envs: write `from rl_jax import envs`"
+    )
+
+from rl_jax.envs.adapters import external_ids as _external_ids  # noqa: F401  (resolves MODULE:ID)
+from rl_jax.envs.adapters.gym_adapter import register_with_gymnasium
+from rl_jax.envs.adapters.gymnasium_host import from_gymnasium
+from rl_jax.envs.core.core import Environment, EnvParams, EnvState, TimeStep
+from rl_jax.envs.core.registry import (
     UnknownEnvError,
     make,
     parse_keywords,
     register,
     registered_ids,
 )
-from envs.core.spaces import Box, Discrete, Space
-from envs.core.wrappers import (
+from rl_jax.envs.core.spaces import Box, Discrete, Space
+from rl_jax.envs.core.wrappers import (
     AutoReset,
     DiscretizeActions,
     EpisodeStatistics,

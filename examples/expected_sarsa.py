@@ -16,7 +16,7 @@ import jax.numpy as jnp
 import optax
 from flax import struct
 
-import envs
+from rl_jax import envs
 from rl_jax.training import episodes
 from rl_jax.training.algorithm import ChunkMetrics
 from rl_jax.training.params import HyperparamsMethods

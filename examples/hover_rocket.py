@@ -4,7 +4,7 @@ import jax
 import jax.numpy as jnp
 from flax import struct
 
-import envs
+from rl_jax import envs
 
 
 @struct.dataclass

@@ -32,10 +32,10 @@ from pathlib import Path
 
 import numpy as np
 
-import envs
-from envs.classic import rocket_control
-from envs.classic.rocket import Rocket
-from envs.classic.rocket_comparison import (
+from rl_jax import envs
+from rl_jax.envs.classic import rocket_control
+from rl_jax.envs.classic.rocket import Rocket
+from rl_jax.envs.classic.rocket_comparison import (
     Entry,
     Settings,
     analytic_entries,

@@ -89,7 +89,7 @@ class OneLineParser(argparse.ArgumentParser):
 def user_errors() -> tuple[type[BaseException], ...]:
     """Exception types that mean bad input, not a bug: reported in one line."""
     # heavy: envs imports JAX and gymnasium, and is needed only once an error is caught
-    from envs.core.registry import BackendError, UnknownEnvError, UnsupportedEnvError
+    from rl_jax.envs.core.registry import BackendError, UnknownEnvError, UnsupportedEnvError
 
     errors = (UsageError, RunError, CheckpointError, UnknownEnvError, BackendError)
     return (*errors, UnsupportedEnvError, RenderError, PolicyError)

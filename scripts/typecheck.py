@@ -1,5 +1,5 @@
-"""The type check of `make typecheck` and CI: mypy over rl_jax/ and envs/ (its settings are in
-pyproject.toml), held to a baseline that may only shrink.
+"""The type check of `make typecheck` and CI: mypy over rl_jax/ and its env package rl_jax.envs
+(its settings are in pyproject.toml), held to a baseline that may only shrink.
 
 scripts/typecheck_baseline.txt lists the errors the code had when the list was last written, one
 per line as "path: [code] message" (no line numbers, so that an edit elsewhere in the file does
@@ -26,7 +26,7 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parent.parent
 BASELINE = ROOT / "scripts" / "typecheck_baseline.txt"
 HEADER = """\
-# mypy errors in rl_jax/ and envs/ (scripts/typecheck.py): this list may only shrink.
+# mypy errors in rl_jax/ and rl_jax/envs (scripts/typecheck.py): this list may only shrink.
 # One line per error, "path: [code] message", sorted; regenerate with
 # `python scripts/typecheck.py --update`.
 """

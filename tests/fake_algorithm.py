@@ -20,9 +20,9 @@ import numpy as np
 import optax
 from flax import struct
 
-import envs
-from envs.core.core import Environment, EnvParams, EnvState
-from envs.core.spaces import Box
+from rl_jax import envs
+from rl_jax.envs.core.core import Environment, EnvParams, EnvState
+from rl_jax.envs.core.spaces import Box
 from rl_jax.training.algorithm import ChunkMetrics
 
 ENV_ID = "rl_jax/FakePoint-v0"

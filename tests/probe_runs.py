@@ -9,7 +9,7 @@ import functools
 import jax
 import jax.numpy as jnp
 
-import envs.core.probes  # noqa: F401  (registers the probe ids)
+import rl_jax.envs.core.probes  # noqa: F401  (registers the probe ids)
 from rl_jax.agents.td3 import ddpg, make_networks, td3
 from rl_jax.training import networks
 

@@ -7,7 +7,7 @@ that an MJX phase which runs too long, or fails, becomes a "skipped" cell instea
 import pytest
 
 from bench import bench_env_throughput
-from envs.mujoco import mujoco_ffi_build
+from rl_jax.envs.mujoco import mujoco_ffi_build
 
 
 def test_mjx_phase_over_its_limit_is_skipped_not_waited_for():

@@ -99,7 +99,7 @@ def test_env_table_describes_every_registered_env():
     # The library's own registry, read in a fresh process: test modules register envs of their
     # own in this one.
     ids = subprocess.run(
-        [sys.executable, "-c", "import envs; print('\\n'.join(envs.registered_ids()))"],
+        [sys.executable, "-c", "from rl_jax import envs; print('\\n'.join(envs.registered_ids()))"],
         cwd=ROOT,
         capture_output=True,
         text=True,

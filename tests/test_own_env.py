@@ -17,7 +17,7 @@ import numpy as np
 import pytest
 from child_env import without_root
 
-import envs
+from rl_jax import envs
 
 ROOT = Path(__file__).resolve().parent.parent
 ENV_ID = "examples.hover_rocket:examples/HoverRocket-v0"
@@ -90,7 +90,7 @@ def test_gymnasium_make_runs_it_after_registering_with_gymnasium(hover_rocket):
     """Its plain id joins gymnasium's registry; the ``MODULE:ID`` alias is ours only."""
     import gymnasium
 
-    from envs.adapters.gym_adapter import register_with_gymnasium
+    from rl_jax.envs.adapters.gym_adapter import register_with_gymnasium
 
     register_with_gymnasium()
     assert "examples/HoverRocket-v0" in gymnasium.registry and ENV_ID not in gymnasium.registry

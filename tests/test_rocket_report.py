@@ -14,10 +14,10 @@ import pytest
 from child_env import python_path
 from run_helpers import fake_run
 
-from envs.classic import rocket_control
-from envs.classic.rocket_comparison import PLOT_FILE, TABLE_FILE, Settings
 from experiments import rocket_report
 from rl_jax.agents.dqn import dqn
+from rl_jax.envs.classic import rocket_control
+from rl_jax.envs.classic.rocket_comparison import PLOT_FILE, TABLE_FILE, Settings
 from rl_jax.run.policy import load_policy
 from rl_jax.run.runner import run
 from rl_jax.run.spec import RunSpec

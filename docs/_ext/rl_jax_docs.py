@@ -321,8 +321,8 @@ def space_text(space: Any) -> str:
 def env_rows() -> dict[str, tuple[str, str, int]]:
     """Every registered id: observation space, action space, episode limit. MuJoCo envs are
     built on the host-callback backend, which needs no compiled op (the spaces are the same)."""
-    import envs
-    from envs.core import registry
+    from rl_jax import envs
+    from rl_jax.envs.core import registry
 
     rows = {}
     for env_id in envs.registered_ids():

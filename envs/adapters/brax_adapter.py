@@ -28,9 +28,9 @@ import numpy as np
 from brax.envs import base as brax_base
 from flax import struct
 
-from envs.core.core import Array, Environment, EnvParams, EnvState, PRNGKey
-from envs.core.spaces import Box
-from envs.core.wrappers import RescaleAction
+from rl_jax.envs.core.core import Array, Environment, EnvParams, EnvState, PRNGKey
+from rl_jax.envs.core.spaces import Box
+from rl_jax.envs.core.wrappers import RescaleAction
 
 
 @struct.dataclass

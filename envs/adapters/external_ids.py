@@ -23,8 +23,8 @@ import os
 import sys
 from types import ModuleType
 
-from envs.adapters.gymnasium_host import register_gymnasium_id
-from envs.core import registry
+from rl_jax.envs.adapters.gymnasium_host import register_gymnasium_id
+from rl_jax.envs.core import registry
 
 GYMNASIUM_PREFIX = "gymnasium:"
 

@@ -1,6 +1,6 @@
 """Gymnasium front ends for the JAX envs: ``gymnasium.make`` and ``gymnasium.make_vec``.
 
-``import envs`` calls ``register_with_gymnasium()``, so every id of ``envs.core.registry``
+Importing ``rl_jax.envs`` calls ``register_with_gymnasium()``, so every id of ``envs.core.registry``
 works as::
 
     env = gymnasium.make("rl_jax/Rocket-v0", render_mode="rgb_array")
@@ -36,9 +36,9 @@ import gymnasium
 import jax
 import numpy as np
 
-from envs.core import registry
-from envs.core.batched import reset_where, select_envs
-from envs.core.core import Environment
+from rl_jax.envs.core import registry
+from rl_jax.envs.core.batched import reset_where, select_envs
+from rl_jax.envs.core.core import Environment
 
 # gymnasium's reward thresholds for the references of our ids (its registry is the source).
 _REWARD_THRESHOLDS = {
@@ -67,7 +67,7 @@ def register_with_gymnasium() -> None:
         gymnasium.register(
             id=env_id,
             entry_point=f"{__name__}:GymnasiumEnv",
-            vector_entry_point="envs.adapters.gym_vector:GymnasiumVectorEnv",
+            vector_entry_point="rl_jax.envs.adapters.gym_vector:GymnasiumVectorEnv",
             max_episode_steps=registry.max_episode_steps(env_id),
             reward_threshold=_REWARD_THRESHOLDS.get(env_id),
             kwargs={"env_id": env_id},

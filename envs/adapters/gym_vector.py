@@ -15,14 +15,14 @@ from gymnasium.utils import seeding
 from gymnasium.vector import AutoresetMode
 from gymnasium.vector.utils import batch_space
 
-from envs.adapters.gym_adapter import (
+from rl_jax.envs.adapters.gym_adapter import (
     build,
     check_no_options_left,
     key_from_rng,
     take_reset_params,
     take_state_vector,
 )
-from envs.core import registry
+from rl_jax.envs.core import registry
 
 
 class GymnasiumVectorEnv(gymnasium.vector.VectorEnv):

@@ -75,7 +75,7 @@ import jax.numpy as jnp
 import numpy as np
 from flax import struct
 
-from envs.adapters.gymnasium_pool import (
+from rl_jax.envs.adapters.gymnasium_pool import (
     HANDLE,
     NOT_STARTED,
     OUT_LOST,
@@ -85,10 +85,10 @@ from envs.adapters.gymnasium_pool import (
     OUT_TRUNCATED,
     HostPool,
 )
-from envs.core import registry
-from envs.core.core import Array, Environment, EnvParams, EnvState, PRNGKey, TimeStep
-from envs.core.registry import UnknownEnvError, UnsupportedEnvError
-from envs.core.spaces import Box, Discrete, Space
+from rl_jax.envs.core import registry
+from rl_jax.envs.core.core import Array, Environment, EnvParams, EnvState, PRNGKey, TimeStep
+from rl_jax.envs.core.registry import UnknownEnvError, UnsupportedEnvError
+from rl_jax.envs.core.spaces import Box, Discrete, Space
 
 ID_PREFIX = "gymnasium:"
 LOST_KEY = "host_state_lost"

@@ -21,9 +21,9 @@ import jax.numpy as jnp
 import numpy as np
 from flax import struct
 
-from envs.classic.cartpole import CartPole, CartPoleParams, CartPoleState
-from envs.core.core import Array, Environment, EnvState, PRNGKey
-from envs.core.spaces import Box, Discrete
+from rl_jax.envs.classic.cartpole import CartPole, CartPoleParams, CartPoleState
+from rl_jax.envs.core.core import Array, Environment, EnvState, PRNGKey
+from rl_jax.envs.core.spaces import Box, Discrete
 
 # gymnasium's CartPole screen, in its own surface coordinates before its vertical flip: x right,
 # y up from the bottom; the point (u, v) lies in surface pixel (floor(u), floor(v)).

@@ -56,9 +56,9 @@ import jax.numpy as jnp
 import numpy as np
 from flax import struct
 
-from envs.classic.drawing import Canvas
-from envs.core.core import Array, Environment, EnvParams, EnvState, PRNGKey
-from envs.core.spaces import Box
+from rl_jax.envs.classic.drawing import Canvas
+from rl_jax.envs.core.core import Array, Environment, EnvParams, EnvState, PRNGKey
+from rl_jax.envs.core.spaces import Box
 
 
 def _f32(value: float):

@@ -20,7 +20,7 @@ from typing import Any
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 
-from envs.classic import rocket_control
+from rl_jax.envs.classic import rocket_control
 
 PLOT_FILE = "rocket_comparison.png"
 TABLE_FILE = "rocket_comparison.md"

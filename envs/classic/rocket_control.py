@@ -41,8 +41,8 @@ from typing import Any
 import jax
 import numpy as np
 
-import envs
-from envs.classic.rocket import Rocket
+from rl_jax import envs
+from rl_jax.envs.classic.rocket import Rocket
 
 DT = 0.01  # the rocket's seconds per step (RocketParams.dt)
 TOLERANCE = 0.01  # the "come to rest" box |x|, |v| <= TOLERANCE (RocketSettle's goal box)

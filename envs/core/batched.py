@@ -19,7 +19,7 @@ from typing import Any
 import jax
 import jax.numpy as jnp
 
-from envs.core.core import Array, Environment, TimeStep
+from rl_jax.envs.core.core import Array, Environment, TimeStep
 
 
 def select_envs(mask: Array, on_true: Any, on_false: Any) -> Any:

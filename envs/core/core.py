@@ -19,7 +19,7 @@ import jax.numpy as jnp
 import numpy as np
 from flax import struct
 
-from envs.core.spaces import Space
+from rl_jax.envs.core.spaces import Space
 
 Array = jax.Array
 PRNGKey = jax.Array

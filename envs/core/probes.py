@@ -29,9 +29,9 @@ import jax.numpy as jnp
 import numpy as np
 from flax import struct
 
-from envs.core.core import Array, Environment, EnvParams, EnvState
-from envs.core.registry import register
-from envs.core.spaces import Box, Discrete, Space
+from rl_jax.envs.core.core import Array, Environment, EnvParams, EnvState
+from rl_jax.envs.core.registry import register
+from rl_jax.envs.core.spaces import Box, Discrete, Space
 
 
 @struct.dataclass
@@ -195,16 +195,16 @@ class DiscreteTermination(_Discrete, Termination):
 
 
 PROBE_IDS = {
-    "rl_jax/ProbeConstantReward-v0": "envs.core.probes:ConstantReward",
-    "rl_jax/ProbeActionReward-v0": "envs.core.probes:ActionReward",
-    "rl_jax/ProbeTwoStep-v0": "envs.core.probes:TwoStep",
-    "rl_jax/ProbeTruncation-v0": "envs.core.probes:Truncation",
-    "rl_jax/ProbeTermination-v0": "envs.core.probes:Termination",
-    "rl_jax/ProbeConstantRewardDiscrete-v0": "envs.core.probes:DiscreteConstantReward",
-    "rl_jax/ProbeActionRewardDiscrete-v0": "envs.core.probes:DiscreteActionReward",
-    "rl_jax/ProbeTwoStepDiscrete-v0": "envs.core.probes:DiscreteTwoStep",
-    "rl_jax/ProbeTruncationDiscrete-v0": "envs.core.probes:DiscreteTruncation",
-    "rl_jax/ProbeTerminationDiscrete-v0": "envs.core.probes:DiscreteTermination",
+    "rl_jax/ProbeConstantReward-v0": "rl_jax.envs.core.probes:ConstantReward",
+    "rl_jax/ProbeActionReward-v0": "rl_jax.envs.core.probes:ActionReward",
+    "rl_jax/ProbeTwoStep-v0": "rl_jax.envs.core.probes:TwoStep",
+    "rl_jax/ProbeTruncation-v0": "rl_jax.envs.core.probes:Truncation",
+    "rl_jax/ProbeTermination-v0": "rl_jax.envs.core.probes:Termination",
+    "rl_jax/ProbeConstantRewardDiscrete-v0": "rl_jax.envs.core.probes:DiscreteConstantReward",
+    "rl_jax/ProbeActionRewardDiscrete-v0": "rl_jax.envs.core.probes:DiscreteActionReward",
+    "rl_jax/ProbeTwoStepDiscrete-v0": "rl_jax.envs.core.probes:DiscreteTwoStep",
+    "rl_jax/ProbeTruncationDiscrete-v0": "rl_jax.envs.core.probes:DiscreteTruncation",
+    "rl_jax/ProbeTerminationDiscrete-v0": "rl_jax.envs.core.probes:DiscreteTermination",
 }
 for _env_id, _entry_point in PROBE_IDS.items():
     register(_env_id, _entry_point)

@@ -8,26 +8,26 @@ import importlib
 from collections.abc import Callable
 from typing import Any
 
-from envs.core.core import Environment
+from rl_jax.envs.core.core import Environment
 
 # id -> "module:factory". Factories take keyword arguments (e.g. ``backend=`` for MuJoCo envs).
 _ENTRY_POINTS: dict[str, str] = {
-    "rl_jax/Rocket-v0": "envs.classic.rocket:Rocket",
-    "rl_jax/RocketSettle-v0": "envs.classic.rocket:RocketSettle",
-    "rl_jax/CartPole-v1": "envs.classic.cartpole:CartPole",
-    "rl_jax/CartPolePixels-v1": "envs.classic.cartpole_pixels:CartPolePixels",
-    "rl_jax/Pendulum-v1": "envs.classic.pendulum:Pendulum",
-    "rl_jax/InvertedPendulum-v5": "envs.mujoco.inverted_pendulum:InvertedPendulum",
+    "rl_jax/Rocket-v0": "rl_jax.envs.classic.rocket:Rocket",
+    "rl_jax/RocketSettle-v0": "rl_jax.envs.classic.rocket:RocketSettle",
+    "rl_jax/CartPole-v1": "rl_jax.envs.classic.cartpole:CartPole",
+    "rl_jax/CartPolePixels-v1": "rl_jax.envs.classic.cartpole_pixels:CartPolePixels",
+    "rl_jax/Pendulum-v1": "rl_jax.envs.classic.pendulum:Pendulum",
+    "rl_jax/InvertedPendulum-v5": "rl_jax.envs.mujoco.inverted_pendulum:InvertedPendulum",
     "rl_jax/InvertedDoublePendulum-v5": (
-        "envs.mujoco.inverted_double_pendulum:InvertedDoublePendulum"
+        "rl_jax.envs.mujoco.inverted_double_pendulum:InvertedDoublePendulum"
     ),
-    "rl_jax/HalfCheetah-v5": "envs.mujoco.half_cheetah:HalfCheetah",
-    "rl_jax/Hopper-v5": "envs.mujoco.hopper:Hopper",
-    "rl_jax/Ant-v5": "envs.mujoco.ant:Ant",
-    "rl_jax/Humanoid-v5": "envs.mujoco.humanoid:Humanoid",
-    "rl_jax/Walker2d-v5": "envs.mujoco.walker2d:Walker2d",
-    "rl_jax/Swimmer-v5": "envs.mujoco.swimmer:Swimmer",
-    "rl_jax/Reacher-v5": "envs.mujoco.reacher:Reacher",
+    "rl_jax/HalfCheetah-v5": "rl_jax.envs.mujoco.half_cheetah:HalfCheetah",
+    "rl_jax/Hopper-v5": "rl_jax.envs.mujoco.hopper:Hopper",
+    "rl_jax/Ant-v5": "rl_jax.envs.mujoco.ant:Ant",
+    "rl_jax/Humanoid-v5": "rl_jax.envs.mujoco.humanoid:Humanoid",
+    "rl_jax/Walker2d-v5": "rl_jax.envs.mujoco.walker2d:Walker2d",
+    "rl_jax/Swimmer-v5": "rl_jax.envs.mujoco.swimmer:Swimmer",
+    "rl_jax/Reacher-v5": "rl_jax.envs.mujoco.reacher:Reacher",
 }
 
 
@@ -88,7 +88,7 @@ def registered_ids() -> list[str]:
     return sorted(_ENTRY_POINTS)
 
 
-# Set by envs.adapters.external_ids when ``import envs`` runs: it registers ``gymnasium:ID`` and
+# Set by envs.adapters.external_ids when rl_jax.envs is imported: it registers ``gymnasium:ID`` and
 # ``MODULE:ID`` names on first use. A hook rather than an import, so that the core does not
 # import the adapters that build on it.
 _external_resolver: Callable[[str], str] | None = None

@@ -13,8 +13,8 @@ import jax.numpy as jnp
 import numpy as np
 from flax import struct
 
-from envs.core.core import Array, Environment, TimeStep
-from envs.core.spaces import Box, Discrete, Space
+from rl_jax.envs.core.core import Array, Environment, TimeStep
+from rl_jax.envs.core.spaces import Box, Discrete, Space
 
 
 class Wrapper(Environment):

@@ -28,9 +28,9 @@ import jax.numpy as jnp
 import mujoco
 from flax import struct
 
-from envs.core.core import Array, float32_field
-from envs.mujoco.mujoco_backend import Measurement
-from envs.mujoco.mujoco_env import (
+from rl_jax.envs.core.core import Array, float32_field
+from rl_jax.envs.mujoco.mujoco_backend import Measurement
+from rl_jax.envs.mujoco.mujoco_env import (
     REMEMBERED_KEY,
     MujocoEnv,
     MujocoParams,

@@ -14,9 +14,9 @@ from __future__ import annotations
 import jax.numpy as jnp
 from flax import struct
 
-from envs.core.core import Array, float32_field
-from envs.mujoco.mujoco_backend import Measurement
-from envs.mujoco.mujoco_env import MujocoEnv, MujocoParams
+from rl_jax.envs.core.core import Array, float32_field
+from rl_jax.envs.mujoco.mujoco_backend import Measurement
+from rl_jax.envs.mujoco.mujoco_env import MujocoEnv, MujocoParams
 
 
 @struct.dataclass

@@ -19,9 +19,9 @@ from typing import Any
 import jax.numpy as jnp
 from flax import struct
 
-from envs.core.core import Array, float32_field
-from envs.mujoco.mujoco_backend import Measurement
-from envs.mujoco.mujoco_env import MujocoEnv, MujocoParams
+from rl_jax.envs.core.core import Array, float32_field
+from rl_jax.envs.mujoco.mujoco_backend import Measurement
+from rl_jax.envs.mujoco.mujoco_env import MujocoEnv, MujocoParams
 
 _VELOCITY_CLIP = 10.0  # gymnasium clips the observed velocities (not those of the health check)
 

@@ -11,7 +11,7 @@ import numpy as np
 from jax.custom_batching import custom_vmap
 from mujoco import mjx
 
-from envs.mujoco.mujoco_backend import (
+from rl_jax.envs.mujoco.mujoco_backend import (
     DIVERGENCE_LIMIT,
     POST_CONSTRAINT_EXTRAS,
     Array,

@@ -69,8 +69,8 @@ import jax.numpy as jnp
 import mujoco
 import numpy as np
 
-from envs.core.registry import BackendError
-from envs.mujoco import mujoco_ffi_build
+from rl_jax.envs.core.registry import BackendError
+from rl_jax.envs.mujoco import mujoco_ffi_build
 
 Array = jax.Array
 

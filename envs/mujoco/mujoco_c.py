@@ -12,13 +12,13 @@ import jax.numpy as jnp
 import mujoco
 import numpy as np
 
-from envs.mujoco.float64_bits import (
+from rl_jax.envs.mujoco.float64_bits import (
     bits_to_float64,
     float32_to_float64_bits,
     float64_bits_to_float32,
     float64_to_bits,
 )
-from envs.mujoco.mujoco_backend import Array, Measurement, Physics
+from rl_jax.envs.mujoco.mujoco_backend import Array, Measurement, Physics
 
 
 def default_thread_count() -> int:

@@ -12,8 +12,8 @@ import mujoco
 import numpy as np
 from mujoco import batch as mujoco_batch
 
-from envs.mujoco.float64_bits import bits_to_float64, float64_to_bits
-from envs.mujoco.mujoco_backend import (
+from rl_jax.envs.mujoco.float64_bits import bits_to_float64, float64_to_bits
+from rl_jax.envs.mujoco.mujoco_backend import (
     _INSTABILITY_WARNINGS,
     COMPUTED_EXTRAS,
     DIVERGENCE_LIMIT,
@@ -21,7 +21,7 @@ from envs.mujoco.mujoco_backend import (
     Array,
     extra_field,
 )
-from envs.mujoco.mujoco_c import MujocoCPhysics
+from rl_jax.envs.mujoco.mujoco_c import MujocoCPhysics
 
 
 def _state_columns(model: mujoco.MjModel, component: mujoco.mjtState) -> slice:

@@ -48,9 +48,17 @@ import mujoco
 import numpy as np
 from flax import struct
 
-from envs.core.core import Array, Environment, EnvParams, EnvState, PRNGKey, TimeStep, keep_active
-from envs.core.spaces import Box
-from envs.mujoco.mujoco_backend import (
+from rl_jax.envs.core.core import (
+    Array,
+    Environment,
+    EnvParams,
+    EnvState,
+    PRNGKey,
+    TimeStep,
+    keep_active,
+)
+from rl_jax.envs.core.spaces import Box
+from rl_jax.envs.mujoco.mujoco_backend import (
     DIVERGENCE_LIMIT,
     Measurement,
     Physics,
@@ -59,9 +67,9 @@ from envs.mujoco.mujoco_backend import (
     load_model,
     resolve_backend,
 )
-from envs.mujoco.mujoco_callback import MujocoCallbackPhysics
-from envs.mujoco.mujoco_ffi import MujocoFfiPhysics
-from envs.mujoco.mujoco_render import SceneRenderer
+from rl_jax.envs.mujoco.mujoco_callback import MujocoCallbackPhysics
+from rl_jax.envs.mujoco.mujoco_ffi import MujocoFfiPhysics
+from rl_jax.envs.mujoco.mujoco_render import SceneRenderer
 
 DIVERGED_KEY = "physics_diverged"
 GYMNASIUM_SOLVER = (100, 50)  # MuJoCo's defaults, which most of gymnasium's models keep
@@ -82,7 +90,7 @@ def make_physics(
     """The physics of ``backend`` (a name of ``BACKEND_NAMES``, or None: the default)."""
     backend = resolve_backend(backend)
     if backend == "mjx":
-        from envs.mujoco.mjx_physics import MjxPhysics  # heavy: MJX is imported on first use
+        from rl_jax.envs.mujoco.mjx_physics import MjxPhysics  # heavy: MJX is imported on first use
 
         return MjxPhysics(model, frame_skip, extras, mjx_chunk)
     if backend == "mujoco_ffi":

@@ -39,9 +39,9 @@ import jax.numpy as jnp
 import mujoco
 import numpy as np
 
-from envs.mujoco import mujoco_ffi_build
-from envs.mujoco.mujoco_backend import Array
-from envs.mujoco.mujoco_c import MujocoCPhysics
+from rl_jax.envs.mujoco import mujoco_ffi_build
+from rl_jax.envs.mujoco.mujoco_backend import Array
+from rl_jax.envs.mujoco.mujoco_c import MujocoCPhysics
 
 ERROR_BUFFER_SIZE = 1000
 

@@ -5,7 +5,7 @@ against jaxlib's XLA FFI headers (``jax.ffi.include_dir()``) and the mujoco whee
 ``libmujoco.so``. It is kept in ``~/.cache/rl_jax/mujoco_ffi/`` (``$XDG_CACHE_HOME`` respected)
 under a name that hashes the source, the compiler and its flags, and the mujoco, jax and jaxlib
 versions, so any change to them builds it anew and nothing built is ever committed.
-``make install`` builds it ahead of first use (``python -m envs.mujoco.mujoco_ffi_build``).
+``make install`` builds it ahead of first use (``python -m rl_jax.envs.mujoco.mujoco_ffi_build``).
 
 At load, the MuJoCo header version the library was compiled against must equal ``mj_version()``
 of the MuJoCo library it runs with, and that of the Python bindings. Then the two handlers are
@@ -212,7 +212,7 @@ def available() -> bool:
 
 
 def main() -> int:
-    """``python -m envs.mujoco.mujoco_ffi_build``: build now (as ``make install`` does)."""
+    """``python -m rl_jax.envs.mujoco.mujoco_ffi_build``: build now (as ``make install`` does)."""
     try:
         load()
     except FfiUnavailable as error:

@@ -13,7 +13,7 @@ from typing import Any
 import mujoco
 import numpy as np
 
-from envs.mujoco import opengl
+from rl_jax.envs.mujoco import opengl
 
 
 class SceneRenderer:

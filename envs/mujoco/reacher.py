@@ -18,9 +18,9 @@ import jax
 import jax.numpy as jnp
 from flax import struct
 
-from envs.core.core import Array, EnvParams, PRNGKey, float32_field
-from envs.mujoco.mujoco_backend import Measurement
-from envs.mujoco.mujoco_env import MujocoEnv
+from rl_jax.envs.core.core import Array, EnvParams, PRNGKey, float32_field
+from rl_jax.envs.mujoco.mujoco_backend import Measurement
+from rl_jax.envs.mujoco.mujoco_env import MujocoEnv
 
 # gymnasium's fixed reset ranges (not constructor keywords there, so not params here)
 _ARM_QPOS_NOISE, _ARM_QVEL_NOISE, _GOAL_RADIUS = 0.1, 0.005, 0.2

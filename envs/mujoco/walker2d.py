@@ -16,10 +16,10 @@ from __future__ import annotations
 
 from flax import struct
 
-from envs.core.core import Array, float32_field
-from envs.mujoco.hopper import Hopper
-from envs.mujoco.mujoco_backend import Measurement
-from envs.mujoco.mujoco_env import MujocoParams
+from rl_jax.envs.core.core import Array, float32_field
+from rl_jax.envs.mujoco.hopper import Hopper
+from rl_jax.envs.mujoco.mujoco_backend import Measurement
+from rl_jax.envs.mujoco.mujoco_env import MujocoParams
 
 
 @struct.dataclass

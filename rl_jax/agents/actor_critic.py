@@ -18,7 +18,7 @@ import jax.numpy as jnp
 import numpy as np
 from flax import struct
 
-from envs.core.spaces import Box, Space
+from rl_jax.envs.core.spaces import Box, Space
 from rl_jax.training import networks, params, replay
 from rl_jax.training.networks import Params
 from rl_jax.training.offpolicy import OffPolicyConfig

@@ -39,7 +39,7 @@ import optax
 from flax import struct
 from jax.typing import ArrayLike
 
-import envs
+from rl_jax import envs
 from rl_jax.agents.common import linearly_decayed, optimizer_step, polyak_update
 from rl_jax.agents.dqn_config import PIXEL_ENVS, Config, Hyperparams, PixelConfig
 from rl_jax.agents.dqn_recipes import RECIPES

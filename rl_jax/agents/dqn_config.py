@@ -10,7 +10,7 @@ import dataclasses
 from flax import struct
 from jax.typing import ArrayLike
 
-import envs
+from rl_jax import envs
 from rl_jax.training import conv, networks, params
 from rl_jax.training.offpolicy import OffPolicyConfig
 

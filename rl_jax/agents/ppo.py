@@ -31,8 +31,7 @@ import jax.numpy as jnp
 import optax
 from flax import struct
 
-import envs
-from envs.core.wrappers import StatisticsState
+from rl_jax import envs
 from rl_jax.agents import ppo_losses as losses
 from rl_jax.agents.common import clip_by_global_norm, linearly_decayed, optimizer_step
 from rl_jax.agents.policy_gradient import entropy, log_prob
@@ -46,6 +45,7 @@ from rl_jax.agents.ppo_networks import (
     value,
 )
 from rl_jax.agents.ppo_recipes import RECIPES
+from rl_jax.envs.core.wrappers import StatisticsState
 from rl_jax.training import episodes, normalization, validation
 from rl_jax.training.algorithm import ChunkMetrics, RecipeBook
 from rl_jax.training.networks import Params

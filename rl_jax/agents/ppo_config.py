@@ -9,7 +9,7 @@ import dataclasses
 
 from flax import struct
 
-import envs
+from rl_jax import envs
 from rl_jax.training import conv, networks, params
 from rl_jax.training.params import Scalar
 

@@ -22,7 +22,7 @@ import flax.linen as nn
 import jax
 import jax.numpy as jnp
 
-import envs
+from rl_jax import envs
 from rl_jax.training import conv, episodes, networks, normalization
 
 if TYPE_CHECKING:

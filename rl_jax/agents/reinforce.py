@@ -42,7 +42,7 @@ import optax
 from flax import struct
 from jax.typing import ArrayLike
 
-import envs
+from rl_jax import envs
 from rl_jax.agents.common import clip_by_global_norm, linearly_decayed, optimizer_step
 from rl_jax.agents.policy_gradient import (
     entropy,

@@ -9,7 +9,7 @@ import dataclasses
 from flax import struct
 from jax.typing import ArrayLike
 
-import envs
+from rl_jax import envs
 from rl_jax.training import networks, params
 
 BASELINES = ("none", "mean", "value")

@@ -11,7 +11,7 @@ import jax
 import jax.numpy as jnp
 import optax
 
-import envs
+from rl_jax import envs
 from rl_jax.agents.reinforce_config import Config
 from rl_jax.training import episodes, networks, normalization
 

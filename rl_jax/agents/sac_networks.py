@@ -16,8 +16,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from envs.core.spaces import Box
 from rl_jax.agents.sac_config import Config
+from rl_jax.envs.core.spaces import Box
 from rl_jax.training import episodes, networks, squashed_gaussian
 from rl_jax.training.networks import Params
 from rl_jax.training.squashed_gaussian import GaussianActor

@@ -30,7 +30,7 @@ from typing import Any
 import jax
 import numpy as np
 
-import envs
+from rl_jax import envs
 from rl_jax.errors import RunError
 from rl_jax.run import cli, learners, plots, recipe_choice
 from rl_jax.run import distributed as joining

@@ -28,7 +28,7 @@ from typing import Any, NoReturn
 
 import jax
 
-import envs
+from rl_jax import envs
 from rl_jax.errors import (
     OneLineParser,
     RunError,

@@ -29,7 +29,7 @@ import gymnasium
 import jax
 import numpy as np
 
-import envs
+from rl_jax import envs
 from rl_jax.errors import OneLineParser, UsageError, exit_now, guard, positive_int
 from rl_jax.run.api import evaluate_policy as returns_of
 from rl_jax.run.policy import LoadedPolicy, Policy, add_run_choice, command_line_learner

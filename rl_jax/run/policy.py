@@ -28,7 +28,7 @@ import jax.numpy as jnp
 import numpy as np
 import numpy.typing as npt
 
-from envs import Environment
+from rl_jax.envs import Environment
 from rl_jax.errors import PolicyError, parse_int
 from rl_jax.run.best import BEST_DIR, load_part, policy_fields, with_policy_part
 from rl_jax.run.checkpoint import Checkpointer, Tree

@@ -36,8 +36,8 @@ import imageio.v2 as imageio
 import jax
 import numpy as np
 
-from envs.core.core import Environment
-from envs.core.wrappers import Wrapper
+from rl_jax.envs.core.core import Environment
+from rl_jax.envs.core.wrappers import Wrapper
 from rl_jax.errors import OneLineParser, RenderError, exit_now, guard, positive_int
 from rl_jax.run.policy import LoadedPolicy, add_run_choice, command_line_learner
 from rl_jax.training.algorithm import Algorithm

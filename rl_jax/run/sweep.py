@@ -21,7 +21,7 @@ from typing import TYPE_CHECKING, Any
 
 import jax
 
-import envs
+from rl_jax import envs
 from rl_jax.errors import (
     OneLineParser,
     RunError,

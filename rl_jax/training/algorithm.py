@@ -28,7 +28,7 @@ from typing import Any, ClassVar, NamedTuple, Protocol, Self, TypeAlias
 
 import jax
 
-import envs
+from rl_jax import envs
 from rl_jax.training.recipes import Recipe, Recipes, Setting
 
 PRNGKey = jax.Array

@@ -14,7 +14,7 @@ from typing import Protocol
 import jax
 import jax.numpy as jnp
 
-import envs
+from rl_jax import envs
 from rl_jax.training.replay import Transition
 
 

@@ -28,8 +28,8 @@ import jax.numpy as jnp
 from flax import struct
 from flax.typing import ArrayPytree
 
-import envs
-from envs.core.wrappers import StatisticsState
+from rl_jax import envs
+from rl_jax.envs.core.wrappers import StatisticsState
 from rl_jax.training import replay
 from rl_jax.training.algorithm import ChunkMetrics, Hyperparams, PolicyFn, RecipeBook
 from rl_jax.training.episodes import evaluate, example_transition, make_eval_env, make_train_env

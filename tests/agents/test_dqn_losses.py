@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 from jax.test_util import check_grads
 
-import envs.core.probes  # noqa: F401  (registers the probe ids)
+import rl_jax.envs.core.probes  # noqa: F401  (registers the probe ids)
 from rl_jax.agents import dqn, q_learning
 from rl_jax.training import networks, replay
 from rl_jax.training.replay import Transition

@@ -5,7 +5,7 @@ import jax
 import numpy as np
 import pytest
 
-import envs.core.probes  # noqa: F401  (registers the probe ids)
+import rl_jax.envs.core.probes  # noqa: F401  (registers the probe ids)
 from rl_jax.agents.dqn import dqn
 from rl_jax.agents.reinforce import reinforce
 from rl_jax.training import parallel, params

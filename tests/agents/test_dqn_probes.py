@@ -17,9 +17,9 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-import envs.core.probes  # noqa: F401  (registers the probe ids)
-from envs.core.probes import Truncation
+import rl_jax.envs.core.probes  # noqa: F401  (registers the probe ids)
 from rl_jax.agents import dqn, reinforce, reinforce_policy
+from rl_jax.envs.core.probes import Truncation
 
 GAMMA = 0.5
 TOL = 0.05

@@ -17,9 +17,9 @@ import pytest
 from jax.test_util import check_grads
 from scipy import stats
 
-import envs.core.probes  # noqa: F401  (registers the probe ids)
-from envs.core.probes import Truncation
+import rl_jax.envs.core.probes  # noqa: F401  (registers the probe ids)
 from rl_jax.agents import policy_gradient, ppo, ppo_losses, ppo_networks
+from rl_jax.envs.core.probes import Truncation
 from rl_jax.training import normalization, parallel, params
 
 ROOT = Path(__file__).resolve().parents[2]

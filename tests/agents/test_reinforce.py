@@ -10,7 +10,7 @@ import pytest
 from jax.test_util import check_grads
 from scipy import stats
 
-import envs.core.probes  # noqa: F401  (registers the probe ids)
+import rl_jax.envs.core.probes  # noqa: F401  (registers the probe ids)
 from rl_jax.agents import common, policy_gradient, reinforce, reinforce_policy
 from rl_jax.agents.reinforce import Trajectory
 from rl_jax.training import networks
@@ -168,7 +168,7 @@ def test_rollout_on_mujoco_c_skipping_ended_envs_equals_stepping_them_all():
     the MuJoCo C backend implements by skipping the others' physics); wrapped in a bare
     ``Wrapper``, the same env takes the generic path that steps every env and keeps the ended
     ones' state. The trajectories are identical."""
-    from envs.core.wrappers import Wrapper
+    from rl_jax.envs.core.wrappers import Wrapper
     from rl_jax.training import episodes
 
     env_id = "rl_jax/InvertedDoublePendulum-v5"

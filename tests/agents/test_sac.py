@@ -15,9 +15,7 @@ import numpy as np
 import pytest
 from jax.test_util import check_grads
 
-import envs.core.probes  # noqa: F401  (registers the probe ids)
-from envs.core.probes import Truncation
-from envs.core.spaces import Box
+import rl_jax.envs.core.probes  # noqa: F401  (registers the probe ids)
 from rl_jax.agents import sac_losses, sac_networks
 from rl_jax.agents.sac import Config, Hyperparams, sac
 from rl_jax.agents.sac_losses import (
@@ -27,6 +25,8 @@ from rl_jax.agents.sac_losses import (
     soft_td_target,
     temperature_loss,
 )
+from rl_jax.envs.core.probes import Truncation
+from rl_jax.envs.core.spaces import Box
 from rl_jax.run import field_docs
 from rl_jax.training import networks, replay, squashed_gaussian
 from rl_jax.training.replay import Transition

@@ -7,7 +7,6 @@ import numpy as np
 import pytest
 from jax.test_util import check_grads
 
-from envs.core.spaces import Box
 from rl_jax.agents import actor_critic
 from rl_jax.agents.actor_critic import (
     CriticBatch,
@@ -20,6 +19,7 @@ from rl_jax.agents.actor_critic import (
 )
 from rl_jax.agents.common import polyak_update
 from rl_jax.agents.td3 import Agent, Config, Hyperparams, actor_loss_fn, critic_loss_fn
+from rl_jax.envs.core.spaces import Box
 from rl_jax.training import networks
 from rl_jax.training.replay import Transition
 

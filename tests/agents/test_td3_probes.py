@@ -11,8 +11,8 @@ import numpy as np
 import pytest
 from probe_runs import PROBE_HPARAMS, policy_actions, probe_config, probe_hparams, q_values, train
 
-import envs
-from envs.core.probes import ActionReward, Truncation
+from rl_jax import envs
+from rl_jax.envs.core.probes import ActionReward, Truncation
 
 GAMMA = PROBE_HPARAMS["gamma"]
 TOL = 0.05

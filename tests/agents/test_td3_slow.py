@@ -10,7 +10,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-import envs
+from rl_jax import envs
 from rl_jax.agents.td3 import make_networks, td3
 from rl_jax.training import parallel, params
 

@@ -7,7 +7,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-import envs.core.probes  # noqa: F401  (registers the probe ids)
+import rl_jax.envs.core.probes  # noqa: F401  (registers the probe ids)
 from rl_jax.agents import actor_critic, td7, td7_parts
 from rl_jax.agents.actor_critic import CriticBatch
 from rl_jax.agents.td7_parts import Encoders, ValueRange

@@ -4,8 +4,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-import envs
-from envs.core.batched import autoreset_step, reset_where
+from rl_jax import envs
+from rl_jax.envs.core.batched import autoreset_step, reset_where
 
 NUM_ENVS, NUM_STEPS, MAX_RESETS = 64, 120, 4
 

@@ -8,10 +8,10 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-import envs
+from rl_jax import envs
 
 brax_envs = pytest.importorskip("brax.envs")
-from envs.adapters.brax_adapter import FromBrax, ToBrax, make_brax  # noqa: E402
+from rl_jax.envs.adapters.brax_adapter import FromBrax, ToBrax, make_brax  # noqa: E402
 
 
 def test_brax_env_steps_as_ours_with_autoreset():

@@ -22,9 +22,9 @@ import pytest
 from gym_frames import preprocess
 from gymnasium.utils.env_checker import check_env
 
-import envs
-from envs.classic.cartpole import CartPole, CartPoleParams
-from envs.classic.cartpole_pixels import CartPolePixels, draw_frame
+from rl_jax import envs
+from rl_jax.envs.classic.cartpole import CartPole, CartPoleParams
+from rl_jax.envs.classic.cartpole_pixels import CartPolePixels, draw_frame
 
 ENV_ID = "rl_jax/CartPolePixels-v1"
 MEAN_MAD, MAX_MAD = 0.15, 0.25

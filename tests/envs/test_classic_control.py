@@ -20,9 +20,9 @@ import numpy as np
 import pytest
 from scipy import stats
 
-import envs
-from envs.classic.cartpole import CartPole
-from envs.classic.pendulum import Pendulum
+from rl_jax import envs
+from rl_jax.envs.classic.cartpole import CartPole
+from rl_jax.envs.classic.pendulum import Pendulum
 
 ATOL, RTOL, BAND = 4e-6, 1e-6, 1e-6
 TAU = 0.02

@@ -15,12 +15,12 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-import envs
 import rl_jax
-from envs.adapters.gymnasium_host import LOST_KEY, HostGymnasiumEnv
-from envs.core.registry import UnsupportedEnvError
+from rl_jax import envs
 from rl_jax.agents.td3 import td3
 from rl_jax.agents.td3_recipes import RECIPES
+from rl_jax.envs.adapters.gymnasium_host import LOST_KEY, HostGymnasiumEnv
+from rl_jax.envs.core.registry import UnsupportedEnvError
 from rl_jax.errors import guard
 from rl_jax.run import cli
 from rl_jax.run.metrics import METRICS_FILE, read_rows
@@ -230,7 +230,7 @@ def test_spaces_are_translated():
         (lambda: envs.from_gymnasium(Countdown), UnsupportedEnvError, "max_episode_steps"),
         (lambda: envs.make("no_such_module_here:X-v0"), envs.UnknownEnvError, "cannot import"),
         (
-            lambda: envs.make("envs.classic.rocket:NoSuchEnv-v0"),
+            lambda: envs.make("rl_jax.envs.classic.rocket:NoSuchEnv-v0"),
             envs.UnknownEnvError,
             "registers no",
         ),

@@ -13,10 +13,10 @@ import pytest
 from gymnasium.utils.env_checker import check_env
 from gymnasium.vector import AutoresetMode
 
-import envs
-from envs.adapters.gym_adapter import register_with_gymnasium
-from envs.classic.rocket import Rocket, RocketState
-from envs.core import registry
+from rl_jax import envs
+from rl_jax.envs.adapters.gym_adapter import register_with_gymnasium
+from rl_jax.envs.classic.rocket import Rocket, RocketState
+from rl_jax.envs.core import registry
 
 CLASSIC_IDS = ["rl_jax/Rocket-v0", "rl_jax/CartPole-v1", "rl_jax/Pendulum-v1"]
 # The contract of DESIGN.md (other tests may register extra envs of their own).

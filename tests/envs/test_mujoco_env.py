@@ -19,9 +19,9 @@ import pytest
 from scipy import stats
 from test_mujoco_parity import BATCH, C_BACKENDS, engine, mjx_params
 
-import envs
-from envs.mujoco import mujoco_backend, mujoco_ffi_build
-from envs.mujoco.float64_bits import float32_to_float64_bits, float64_bits_to_float32
+from rl_jax import envs
+from rl_jax.envs.mujoco import mujoco_backend, mujoco_ffi_build
+from rl_jax.envs.mujoco.float64_bits import float32_to_float64_bits, float64_bits_to_float32
 
 ENV_IDS = ["InvertedPendulum-v5", "InvertedDoublePendulum-v5", "HalfCheetah-v5"]
 # Checked here on the C backend only (their MJX steps are compiled in test_mujoco_parity.py).
@@ -424,9 +424,9 @@ def test_small_cholesky_matches_lapack(size):
 
     expected = jax.jit(jax.vmap(solve))(spd, b, b_matrix)
     with mujoco_backend.small_cholesky():
-        assert jax.scipy.linalg.cho_factor.__module__ == "envs.mujoco.mujoco_backend"
+        assert jax.scipy.linalg.cho_factor.__module__ == "rl_jax.envs.mujoco.mujoco_backend"
         ours = jax.jit(jax.vmap(solve))(spd, b, b_matrix)
-    assert jax.scipy.linalg.cho_factor.__module__ != "envs.mujoco.mujoco_backend"  # restored
+    assert jax.scipy.linalg.cho_factor.__module__ != "rl_jax.envs.mujoco.mujoco_backend"  # restored
     for x, y in zip(jax.tree.leaves(ours), jax.tree.leaves(expected), strict=True):
         np.testing.assert_allclose(x, y, rtol=2e-5, atol=2e-5)
 

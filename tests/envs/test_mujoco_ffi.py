@@ -23,9 +23,9 @@ import numpy as np
 import pytest
 from child_env import python_path
 
-import envs
-from envs.mujoco import mujoco_backend, mujoco_ffi_build
-from envs.mujoco.mujoco_ffi import register_model
+from rl_jax import envs
+from rl_jax.envs.mujoco import mujoco_backend, mujoco_ffi_build
+from rl_jax.envs.mujoco.mujoco_ffi import register_model
 
 REPO = Path(__file__).resolve().parents[2]
 
@@ -174,7 +174,7 @@ CHILD = textwrap.dedent(
     logger = logging.getLogger("jax._src.compiler")
     logger.setLevel(logging.DEBUG)
     logger.addHandler(Hits())
-    import envs
+    from rl_jax import envs
 
     sums = {}
     for backend in sys.argv[1:]:
@@ -241,7 +241,7 @@ SHARDED_CHILD = textwrap.dedent(
     configure(cpu_devices=2)
     import jax, numpy as np
     from jax.sharding import Mesh, PartitionSpec as P
-    import envs
+    from rl_jax import envs
 
     mesh = Mesh(np.array(jax.devices()), ("seeds",))
     keys = jax.random.split(jax.random.PRNGKey(0), 8).reshape(4, 2, -1)
@@ -353,7 +353,7 @@ def test_the_ffi_op_skips_the_physics_of_inactive_envs():
 
 
 def test_an_unknown_backend_in_the_environment_is_one_user_error(monkeypatch):
-    from envs.core.registry import BackendError
+    from rl_jax.envs.core.registry import BackendError
     from rl_jax.errors import user_errors
 
     monkeypatch.setenv(mujoco_backend.BACKEND_ENV_VAR, "cuda")
@@ -372,7 +372,7 @@ def test_post_constraint_fields_are_gymnasiums_after_a_step_and_zero_after_a_for
         pytest.skip("the MuJoCo FFI op cannot be built here")
     import gymnasium
 
-    from envs.mujoco.mujoco_env import make_physics
+    from rl_jax.envs.mujoco.mujoco_env import make_physics
 
     reference = gymnasium.make("Humanoid-v5").unwrapped
     reference.reset(seed=3)

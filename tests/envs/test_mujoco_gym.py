@@ -9,7 +9,7 @@ import pytest
 from gymnasium.utils.env_checker import check_env
 from test_mujoco_parity import ENV_IDS, POSITION_ULPS, _tracked_position
 
-import envs  # noqa: F401  (registers the rl_jax ids with gymnasium)
+from rl_jax import envs  # noqa: F401  (registers the rl_jax ids with gymnasium)
 
 # The MuJoCo C backend, named: on a GPU the default is MJX (float32 physics, and one compile of
 # each env's step, a long one), which test_mujoco_parity.py checks against C on its own.

@@ -29,7 +29,7 @@ SCRIPT = textwrap.dedent(
     from rl_jax.training.jax_setup import configure
     configure()
     import jax, jax.numpy as jnp
-    import envs
+    from rl_jax import envs
 
     env = envs.make("rl_jax/HalfCheetah-v5", backend="mjx")
     keys = jax.random.split(jax.random.PRNGKey(0), {N_ENVS})

@@ -73,8 +73,8 @@ from gymnasium.envs.mujoco.ant_v5 import AntEnv
 from gymnasium.envs.mujoco.humanoid_v5 import HumanoidEnv, mass_center
 from scipy import linalg
 
-import envs
-from envs.mujoco import mujoco_ffi_build
+from rl_jax import envs
+from rl_jax.envs.mujoco import mujoco_ffi_build
 
 ENV_IDS = [
     "InvertedPendulum-v5",

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 from scipy import stats
 
-from envs.classic.rocket import Rocket, RocketSettle, draw_rocket, plot_episode
+from rl_jax.envs.classic.rocket import Rocket, RocketSettle, draw_rocket, plot_episode
 
 ENV = Rocket()
 PARAMS = ENV.default_params

@@ -13,8 +13,8 @@ import numpy as np
 import pytest
 import scipy.linalg
 
-from envs.classic import rocket_comparison, rocket_control
-from envs.classic.rocket import Rocket, RocketSettle, reward_and_termination
+from rl_jax.envs.classic import rocket_comparison, rocket_control
+from rl_jax.envs.classic.rocket import Rocket, RocketSettle, reward_and_termination
 
 SETTLE = "rl_jax/RocketSettle-v0"
 DT = rocket_control.DT

@@ -11,7 +11,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-import envs
+from rl_jax import envs
 
 NUM_ENVS = 4096
 EPS32 = float(np.finfo(np.float32).eps)

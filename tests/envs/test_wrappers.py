@@ -6,9 +6,9 @@ import numpy as np
 import pytest
 from flax import struct
 
-import envs
-from envs.classic.rocket import Rocket
-from envs.core.core import Environment, EnvParams, EnvState
+from rl_jax import envs
+from rl_jax.envs.classic.rocket import Rocket
+from rl_jax.envs.core.core import Environment, EnvParams, EnvState
 
 
 @struct.dataclass

@@ -9,8 +9,8 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-import envs
 import rl_jax
+from rl_jax import envs
 from rl_jax.errors import RunError, UsageError
 from rl_jax.run.api import evaluate_policy
 

@@ -7,8 +7,8 @@ import json
 import numpy as np
 import pytest
 
-import envs
 import rl_jax
+from rl_jax import envs
 from rl_jax.agents.dqn import dqn
 from rl_jax.agents.reinforce import reinforce
 from rl_jax.agents.td3 import td3

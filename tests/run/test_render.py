@@ -209,8 +209,9 @@ def test_episode_plot_hook_and_frame_rate(run_dir, tmp_path, monkeypatch):
 NO_OPENGL_SCRIPT = textwrap.dedent(
     """
     import jax, numpy as np
-    import envs, rl_jax
-    from envs.mujoco.opengl import OpenGLUnavailableError
+    import rl_jax
+    from rl_jax import envs
+    from rl_jax.envs.mujoco.opengl import OpenGLUnavailableError
 
     env = envs.make("rl_jax/InvertedPendulum-v5")
     state, step = env.reset(jax.random.key(0))

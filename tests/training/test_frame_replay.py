@@ -7,9 +7,9 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-import envs
-from envs.classic.cartpole_pixels import CartPolePixels
+from rl_jax import envs
 from rl_jax.agents.dqn import dqn
+from rl_jax.envs.classic.cartpole_pixels import CartPolePixels
 from rl_jax.run.plan import memory_breakdown
 from rl_jax.training import frame_replay, prioritized, replay
 from rl_jax.training.replay import Transition

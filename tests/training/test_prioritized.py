@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 from scipy import stats
 
-import envs.core.probes  # noqa: F401  (registers the probe ids)
+import rl_jax.envs.core.probes  # noqa: F401  (registers the probe ids)
 from rl_jax.agents import dqn
 from rl_jax.training import prioritized
 from rl_jax.training.replay import Transition
