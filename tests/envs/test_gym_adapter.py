@@ -78,7 +78,7 @@ def _warnings_of(function) -> set[str]:
 # ---- registration -------------------------------------------------------------------------------
 def test_import_registers_every_id_without_importing_mujoco():
     code = (
-        "import sys, gymnasium, envs\n"
+        "import sys, gymnasium\nfrom rl_jax import envs\n"
         "ids = set(envs.registered_ids())\n"
         "assert ids <= set(gymnasium.registry), ids - set(gymnasium.registry)\n"
         "print(sorted(m for m in sys.modules if m.split('.')[0] in ('mujoco', 'brax')))\n"
