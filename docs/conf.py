@@ -54,9 +54,9 @@ nitpick_ignore_regex = [
     # pieces of a dataclass signature that Sphinx splits at its commas (``tuple[int, ...]``)
     (r"py:class", r"(tuple|list|dict)\[.*"),
     # type variables, and the internal classes behind a public function's return value
-    (r"py:class", r"envs\.core\.core\.(StateT|ParamsT)"),
+    (r"py:class", r"(rl_jax\.)?envs\.core\.core\.(StateT|ParamsT)"),
     (r"py:class", r"(rl_jax\.run\.policy\.)?LoadedPolicy"),
-    (r"py:class", r"envs\.adapters\.gymnasium_host\.HostGymnasiumEnv"),
+    (r"py:class", r"(rl_jax\.)?envs\.adapters\.gymnasium_host\.HostGymnasiumEnv"),
     (r"py:class", r"rl_jax\.training\.algorithm\.DataclassState"),
     (r"py:class", r"rl_jax\.run\.plots\.FinalResult"),
 ]
