@@ -31,18 +31,26 @@ TINY = [
 ]  # fmt: skip
 # The installed packages, not the checkout: their files, and what the wheel must hold.
 INSTALLED = """
-import importlib.metadata, json, pathlib, rl_jax, envs
+import importlib.metadata, importlib.util, json, pathlib, rl_jax
+from rl_jax import envs
 files = [str(f) for f in importlib.metadata.files("rl_jax")]
 print(json.dumps({
     "packages": [str(pathlib.Path(p.__file__).parent) for p in (rl_jax, envs)],
+    "top_level_envs": importlib.util.find_spec("envs") is not None,
     "files": [f for f in files if f.endswith(("py.typed", ".cc", "LICENSE"))],
 }))
 """
 
 
-def _run(command: list, cwd: Path, timeout: float) -> subprocess.CompletedProcess:
+def run_command(
+    command: list, cwd: Path, timeout: float, pythonpath: str | None = None
+) -> subprocess.CompletedProcess:
+    """``command`` in ``cwd`` as a user's shell starts it: with ``pythonpath`` as its PYTHONPATH
+    (none by default)."""
     env = {key: value for key, value in os.environ.items() if key != "PYTHONPATH"}
     env.pop("TF_CPP_MIN_LOG_LEVEL", None)  # set by importing jax here; rl_jax sets its own
+    if pythonpath:
+        env["PYTHONPATH"] = pythonpath
     return subprocess.run(
         [str(part) for part in command],
         cwd=cwd,
@@ -54,50 +62,63 @@ def _run(command: list, cwd: Path, timeout: float) -> subprocess.CompletedProces
     )
 
 
-def _ok(done: subprocess.CompletedProcess) -> subprocess.CompletedProcess:
+def succeeded(done: subprocess.CompletedProcess) -> subprocess.CompletedProcess:
     output = f"{done.stdout}\n{done.stderr}"
     assert done.returncode == 0, f"{done.args} exited {done.returncode}:\n{output}"
     return done
 
 
-@pytest.mark.timeout(1800)
-def test_wheel_installs_beside_other_packages_and_trains(tmp_path):
-    source = tmp_path / "source"
+def build_wheel(directory: Path, isolated: bool = True) -> Path:
+    """The wheel built from a copy of the checkout's SOURCES (links kept: rl_jax/envs is one),
+    in ``directory``; ``isolated=False`` builds with this environment's setuptools (no download)."""
+    source = directory / "source"
     source.mkdir()
     for name in SOURCES:
-        copy = shutil.copytree if (ROOT / name).is_dir() else shutil.copy2
-        ignore = {"ignore": shutil.ignore_patterns("__pycache__")} if (ROOT / name).is_dir() else {}
-        copy(ROOT / name, source / name, **ignore)
-    wheels = tmp_path / "wheels"
+        if (ROOT / name).is_dir():
+            ignore = shutil.ignore_patterns("__pycache__")
+            shutil.copytree(ROOT / name, source / name, symlinks=True, ignore=ignore)
+        else:
+            shutil.copy2(ROOT / name, source / name)
+    wheels = directory / "wheels"
     build = [sys.executable, "-m", "pip", "wheel", "--no-deps", "-w", wheels, source]
-    _ok(_run(build, tmp_path, timeout=600))
+    isolation = [] if isolated else ["--no-build-isolation"]
+    succeeded(run_command([*build, *isolation], directory, timeout=600))
     (wheel,) = wheels.glob("rl_jax-*.whl")
+    return wheel
+
+
+@pytest.mark.timeout(1800)
+def test_wheel_installs_beside_other_packages_and_trains(tmp_path):
+    wheel = build_wheel(tmp_path)
 
     venv = tmp_path / "venv"
-    _ok(_run([sys.executable, "-m", "venv", venv], tmp_path, timeout=120))
+    succeeded(run_command([sys.executable, "-m", "venv", venv], tmp_path, timeout=120))
     python, rl_jax = venv / "bin" / "python", venv / "bin" / "rl-jax"
     pip = [python, "-m", "pip", "install", "--quiet", "--no-compile"]
-    _ok(_run([*pip, *OTHERS], tmp_path, timeout=600))
-    _ok(_run([*pip, wheel], tmp_path, timeout=1200))
-    _ok(_run([python, "-m", "pip", "check"], tmp_path, timeout=120))
+    succeeded(run_command([*pip, *OTHERS], tmp_path, timeout=600))
+    succeeded(run_command([*pip, wheel], tmp_path, timeout=1200))
+    succeeded(run_command([python, "-m", "pip", "check"], tmp_path, timeout=120))
     # Test-only packages are extras, not dependencies.
-    shown = _run([python, "-m", "pip", "show", "pygame-ce", "pytest"], tmp_path, timeout=60)
+    shown = run_command([python, "-m", "pip", "show", "pygame-ce", "pytest"], tmp_path, timeout=60)
     assert shown.returncode != 0 and "Name:" not in shown.stdout, shown.stdout
 
     work = tmp_path / "work"  # outside the checkout: nothing of it on the path
     work.mkdir()
-    installed = json.loads(_ok(_run([python, "-c", INSTALLED], work, timeout=120)).stdout)
+    installed = json.loads(
+        succeeded(run_command([python, "-c", INSTALLED], work, timeout=120)).stdout
+    )
     assert all(Path(path).is_relative_to(venv) for path in installed["packages"]), installed
-    for name in ("rl_jax/py.typed", "envs/py.typed", "LICENSE", ".cc"):
+    for name in ("rl_jax/py.typed", "rl_jax/envs/py.typed", "LICENSE", "mujoco/mujoco_ffi.cc"):
         assert any(path.endswith(name) for path in installed["files"]), (name, installed)
+    assert not installed["top_level_envs"], "the wheel claims the top-level name envs"
 
-    usage = _ok(_run([rl_jax, "--help"], work, timeout=120)).stdout
+    usage = succeeded(run_command([rl_jax, "--help"], work, timeout=120)).stdout
     assert "train" in usage and "sweep" in usage
-    unknown = _run([rl_jax, "trian"], work, timeout=120)
+    unknown = run_command([rl_jax, "trian"], work, timeout=120)
     assert unknown.returncode == 2 and len(unknown.stderr.strip().splitlines()) == 1
-    _ok(_run([rl_jax, "sweep", "--help"], work, timeout=300))
+    succeeded(run_command([rl_jax, "sweep", "--help"], work, timeout=300))
 
-    _ok(_run([rl_jax, "train", *TINY, "--out", "run"], work, timeout=900))
+    succeeded(run_command([rl_jax, "train", *TINY, "--out", "run"], work, timeout=900))
     record = json.loads((work / "run" / "config.json").read_text())
     assert record["identity"]["algorithm"] == "td3"
     rows = [json.loads(line) for line in (work / "run" / "metrics.jsonl").read_text().splitlines()]
