@@ -5,7 +5,7 @@ What a user imports: ``train``, ``resume``, ``open_run`` and ``Run`` (``rl_jax.r
 ``load_policy`` (``rl_jax.run.policy``) and the learners ``td3``, ``ddpg``, ``td7``, ``crossq``,
 ``sac``, ``ppo``, ``dqn`` and ``reinforce`` (``rl_jax.agents``). The package: ``agents`` (the
 learners), ``training`` (what makes the compiled program), ``run`` (what touches disk, terminal
-and processes).
+and processes) and ``envs`` (the environments: ``from rl_jax import envs``, then ``envs.make``).
 """
 
 import importlib

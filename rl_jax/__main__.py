@@ -29,12 +29,12 @@ run (which knows the rest). Every config field and hyperparameter of the algorit
   rl-jax train --resume runs/Pendulum-v1__td3__...
 
 --env takes a registered id; gymnasium:ID, any env gymnasium.make knows, stepped on the host
-through envs.from_gymnasium; or MODULE:ID, which imports MODULE (searched on the Python path and
-in the current directory) so that its envs.register(ID, ...) runs first. Algorithms without a
-recipe for an env start from their own defaults (the TD3 paper's for td3: 25,000 random steps
-first), so small budgets need flags such as --learning-starts. --recipe NAME puts one of the
-algorithm's whole named recipes on top of the env's. Several processes (SLURM, Open MPI, or
-hosts of your own): --distributed, or --coordinator/--num-processes/--process-id
+through rl_jax.envs.from_gymnasium; or MODULE:ID, which imports MODULE (searched on the Python
+path and in the current directory) so that its rl_jax.envs.register(ID, ...) runs first.
+Algorithms without a recipe for an env start from their own defaults (the TD3 paper's for td3:
+25,000 random steps first), so small budgets need flags such as --learning-starts. --recipe NAME
+puts one of the algorithm's whole named recipes on top of the env's. Several processes (SLURM,
+Open MPI, or hosts of your own): --distributed, or --coordinator/--num-processes/--process-id
 (docs/cluster.md).
 """
 

@@ -3,12 +3,16 @@
 ``FromBrax(brax_env)`` (or ``make_brax("hopper", backend="mjx")``) makes any ``brax.envs.Env``
 one of our ``Environment``s, so our learners and wrappers train it::
 
+    from rl_jax import envs
+    from rl_jax.envs.adapters.brax_adapter import ToBrax, make_brax
+
     env = envs.AutoReset(make_brax("ant"))          # brax's MJX ant as an rl_jax env
 
 ``ToBrax(env)`` exposes one of our envs as a ``brax.envs.Env``, so brax's wrappers and training code
 drive it::
 
-    brax_env = brax.envs.training.wrap(ToBrax(envs.make("HalfCheetah-v5")), episode_length=1000)
+    cheetah = ToBrax(envs.make("rl_jax/HalfCheetah-v5"))
+    brax_env = brax.envs.training.wrap(cheetah, episode_length=1000)
 
 Conventions bridged: brax's ``done`` is termination only (brax's ``EpisodeWrapper`` adds the time
 limit and reports it in ``info["truncation"]``), so ``FromBrax`` maps ``done`` to ``terminated`` and

@@ -1,5 +1,7 @@
 """Any gymnasium env as an rl_jax ``Environment``, stepped on the host from inside jit.
 
+    from rl_jax import envs
+
     env = envs.from_gymnasium("MountainCarContinuous-v0")   # an id, a gymnasium.Env or a factory
     state, ts = jax.vmap(env.reset)(jax.random.split(key, 8))
     state, ts = jax.vmap(env.step)(jax.random.split(key, 8), state, actions)
