@@ -46,7 +46,7 @@ from rl_jax.envs.classic.rocket_comparison import (
 )
 from rl_jax.errors import OneLineParser, UsageError, exit_now, guard, parse_float, positive_int
 from rl_jax.run.policy import load_policy
-from rl_jax.run.run_dir import read_run_record
+from rl_jax.run.run_dir import read_run_record, recorded_env
 from rl_jax.training.jax_setup import configure
 
 DEFAULT_ENV = "rl_jax/Rocket-v0"
@@ -70,22 +70,25 @@ def run_env_id(run_dir: Path) -> str:
     """The env a run trained on; ``ReportError`` unless it is a rocket."""
 
     identity = read_run_record(run_dir)["identity"]
-    if not is_rocket_env(identity["env_id"]):
+    # resolved from the registry alone: a run's record never makes this report import code
+    env_id = recorded_env(identity["env_id"], run_dir)
+    if not is_rocket_env(env_id):
         raise ReportError(
             f"{run_dir} is a {identity['algorithm']} run on {identity['env_id']}, not on the "
             "rocket: this report compares rocket policies with the rocket's analytic controllers"
         )
-    return identity["env_id"]
+    return env_id
 
 
 def choose_env(run_dirs: list[Path], env_id: str | None) -> str:
     """``env_id`` if given (it must be a rocket), else the env all runs share."""
 
-    run_envs = {run_env_id(run_dir) for run_dir in run_dirs}
-    if env_id is not None:
+    if env_id is not None:  # named first: a rocket of the user's own module is imported here
         env_id = envs.core.registry.resolve_id(env_id)
         if not is_rocket_env(env_id):
             raise ReportError(f"--env {env_id} is not a rocket env")
+    run_envs = {run_env_id(run_dir) for run_dir in run_dirs}
+    if env_id is not None:
         return env_id
     if len(run_envs) > 1:
         raise ReportError(

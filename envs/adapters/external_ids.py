@@ -9,8 +9,11 @@
     of the module, an ``Environment`` class or a function returning one, registered or not:
     ``--env examples.hover_rocket:HoverRocket``.
 
-The whole string is the env's id: a run records it in config.json, so ``--resume``,
-``rl_jax.open_run`` and ``rl_jax.load_policy`` import the module again in a fresh process.
+The whole string is the env's id, and a run records it in config.json. A record is data: an id
+read from it is resolved with ``imports=False``, so ``--resume``, ``rl_jax.open_run`` and
+``rl_jax.load_policy`` never import ``MODULE`` by themselves; the user names the env again
+(``--env MODULE:ID``, ``env="MODULE:ID"``), which imports it as below. ``gymnasium:ID`` needs no
+import of ours when ``ID`` is in gymnasium's registry, and is accepted from a record then.
 ``MODULE`` is imported as Python imports it; when it is not found there, the current directory
 is searched as well (``python experiments/x.py`` puts only ``experiments/`` on the path, where
 ``python -m`` would have put the current directory).
@@ -23,17 +26,26 @@ import os
 import sys
 from types import ModuleType
 
+import gymnasium
+
 from rl_jax.envs.adapters.gymnasium_host import register_gymnasium_id
 from rl_jax.envs.core import registry
 
 GYMNASIUM_PREFIX = "gymnasium:"
 
 
-def resolve_external_id(name: str) -> str:
-    """Register ``gymnasium:ID`` or ``MODULE:ID`` under the whole ``name``; return ``name``."""
+def resolve_external_id(name: str, imports: bool = True) -> str:
+    """Register ``gymnasium:ID`` or ``MODULE:ID`` under the whole ``name``; return ``name``.
+    Without ``imports``, ``EnvNotNamedError`` for any name that would import a module."""
     if name.startswith(GYMNASIUM_PREFIX):
+        inner = name.removeprefix(GYMNASIUM_PREFIX)
+        if not imports and not _in_gymnasium_registry(inner):
+            # gymnasium.make imports the module of a "module:Env" id, or fails on an unknown one
+            raise registry.EnvNotNamedError(name, inner.partition(":")[0] or inner)
         return register_gymnasium_id(name)
     module_name, _, inner = name.partition(":")
+    if not imports:
+        raise registry.EnvNotNamedError(name, module_name)
     module = _import(module_name, name)
     if _is_registered(inner):
         inner_id = registry.resolve_id(inner)
@@ -47,6 +59,12 @@ def resolve_external_id(name: str) -> str:
         f"module {module_name!r} registers no environment {inner!r} and has no attribute of that "
         f"name; known environments: {', '.join(registry.registered_ids())}"
     )
+
+
+def _in_gymnasium_registry(env_id: str) -> bool:
+    """Whether gymnasium's registry holds ``env_id`` itself: gymnasium makes it from its own
+    entry point, importing nothing that the id names."""
+    return ":" not in env_id and env_id in gymnasium.registry
 
 
 def _is_registered(env_id: str) -> bool:

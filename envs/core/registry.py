@@ -56,6 +56,20 @@ class UnknownEnvError(ValueError):
     """Raised for a name that is not registered; the message lists the known ids."""
 
 
+class EnvNotNamedError(UnknownEnvError):
+    """An id that would import a module (``MODULE:ID``, or a gymnasium id that names one) where
+    the caller allowed no imports: an id read from a run's records, which is data. ``module`` is
+    the module the id would import; the caller asks the user to name the env again."""
+
+    def __init__(self, env_id: str, module: str) -> None:
+        super().__init__(
+            f"environment {env_id!r} is defined in module {module!r}, which is imported only "
+            "when you name the environment yourself"
+        )
+        self.env_id = env_id
+        self.module = module
+
+
 class UnsupportedEnvError(ValueError):
     """An env that exists but cannot be used as given (a gymnasium space the adapter does not
     translate, no time limit, missing extras); the message says what to change."""
@@ -91,17 +105,23 @@ def registered_ids() -> list[str]:
 # Set by envs.adapters.external_ids when rl_jax.envs is imported: it registers ``gymnasium:ID`` and
 # ``MODULE:ID`` names on first use. A hook rather than an import, so that the core does not
 # import the adapters that build on it.
-_external_resolver: Callable[[str], str] | None = None
+_external_resolver: Callable[[str, bool], str] | None = None
 
 
-def set_external_resolver(resolver: Callable[[str], str]) -> None:
-    """Let ``resolve_id`` hand names with a ``:`` to ``resolver`` (which registers them)."""
+def set_external_resolver(resolver: Callable[[str, bool], str]) -> None:
+    """Let ``resolve_id`` hand names with a ``:`` to ``resolver(name, imports)`` (which
+    registers them, importing a module only where ``imports`` allows it)."""
     global _external_resolver
     _external_resolver = resolver
 
 
-def resolve_id(name: str) -> str:
-    """Accept the full id (``rl_jax/Rocket-v0``) or the id without namespace, any case."""
+def resolve_id(name: str, *, imports: bool = True) -> str:
+    """Accept the full id (``rl_jax/Rocket-v0``) or the id without namespace, any case.
+
+    ``imports=False`` resolves from what is registered alone (and gymnasium's own registry for
+    ``gymnasium:ID``): a ``MODULE:ID`` that this process has not registered raises
+    ``EnvNotNamedError`` instead of importing ``MODULE``. Ids read from a run's records are
+    resolved so, since a record is data and must not choose code to run."""
     if name in _ENTRY_POINTS:
         return name
     wanted = name.lower().removeprefix("rl_jax/")
@@ -109,7 +129,7 @@ def resolve_id(name: str) -> str:
         if env_id.lower().removeprefix("rl_jax/") == wanted:
             return env_id
     if ":" in name and _external_resolver is not None:  # "gymnasium:ID" or "MODULE:ID"
-        return _external_resolver(name)  # registered on first use
+        return _external_resolver(name, imports)  # registered on first use
     known = ", ".join(registered_ids())
     raise UnknownEnvError(f"unknown environment {name!r}; known environments: {known}")
 

@@ -23,6 +23,7 @@ work on it. Progress is one line per ``log_interval`` seconds when the output is
 
 from __future__ import annotations
 
+import os
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
@@ -38,12 +39,12 @@ from rl_jax.run.learners import for_run
 from rl_jax.run.metrics import METRICS_FILE, read_rows
 from rl_jax.run.policy import LoadedPolicy, load_policy
 from rl_jax.run.render import write_gif
-from rl_jax.run.run_dir import CURVES_FILE, read_run_record
+from rl_jax.run.run_dir import CURVES_FILE, read_run_record, recorded_env
 from rl_jax.run.runner import run
 from rl_jax.run.spec import RunSpec
 from rl_jax.training.algorithm import Algorithm
 from rl_jax.training.episodes import episode_returns
-from rl_jax.training.jax_setup import configure
+from rl_jax.training.jax_setup import configure_jax, cpu_count
 from rl_jax.training.params import dataclass_from_dict
 
 
@@ -56,13 +57,14 @@ class Run:
         run_dir: str | Path,
         results: list[plots.FinalResult] | None = None,
         algorithm: str | Algorithm | None = None,
+        env: str | None = None,
     ):
         self.run_dir = Path(run_dir)
         self.learner = algorithm
         self.record = read_run_record(self.run_dir)
         identity = self.record["identity"]
         self.algorithm: str = identity["algorithm"]
-        self.env_id: str = identity["env_id"]
+        self.env_id: str = recorded_env(identity["env_id"], self.run_dir, env, how="env=")
         self.seeds: list[int] = [identity["base_seed"] + s for s in range(identity["seeds"])]
         self._results = results
 
@@ -85,14 +87,14 @@ class Run:
 
     def policy(self, seed: int | None = None, which: str = "best", config: int | None = None):
         """The numpy ``obs -> action`` callable of ``seed`` (default: the best seed)."""
-        return load_policy(self.run_dir, seed, which, config, self.learner)
+        return load_policy(self.run_dir, seed, which, config, self.learner, self.env_id)
 
     def evaluate(self, episodes: int = 10, which: str = "best", key: int = 0) -> dict[int, float]:
         """Mean undiscounted return of ``episodes`` fresh episodes of each seed's deterministic
         policy (in the env the run trained on, episodes vmapped in one compiled call)."""
         returns = {}
         for seed in self.seeds:
-            loaded = LoadedPolicy(self.run_dir, seed, None, which, self.learner)
+            loaded = LoadedPolicy(self.run_dir, seed, None, which, self.learner, self.env_id)
             totals = evaluate_policy(loaded.env(), loaded.act(), jax.random.key(key), episodes)
             returns[seed] = float(np.mean(totals))
         return returns
@@ -105,7 +107,9 @@ class Run:
         episodes: int = 1,
     ) -> Path:
         """A GIF of the policy (default: ``RUN_DIR/policy.gif`` of the best seed's best)."""
-        return write_gif(self.run_dir, seed, episodes, path, which=which, algorithm=self.learner)
+        return write_gif(
+            self.run_dir, seed, episodes, path, which=which, algorithm=self.learner, env=self.env_id
+        )
 
     def plot(self) -> Any:
         """curves.png (redrawn from metrics.jsonl): an inline image in IPython, else its path."""
@@ -154,13 +158,18 @@ def train(
     ``--wandb`` does (``rl_jax.run.tracking``). ``layout`` lays out seeds that do not divide
     over the devices, as ``--layout`` does: "pad", "split" or "auto".
 
+    Devices are the CLI's: one JAX device per CPU core (``RL_JAX_CPU_DEVICES`` overrides the
+    count), over which seeds are sharded. That takes effect only where JAX has not started yet
+    in this process; a notebook that ran JAX before gets one line saying how many devices the
+    run uses and why.
+
     Over several processes (``docs/cluster.md``), every process calls ``train`` alike, before
     any other JAX work: ``distributed=True`` under SLURM or Open MPI, or ``coordinator="HOST:PORT",
     num_processes=N, process_id=I`` anywhere; process 0 writes the run directory and prints.
     """
     join = joining.Options(distributed, coordinator, num_processes, process_id)
     cluster = joining.resolve(join)
-    configure()
+    _use_every_core(quiet)
     if cluster is not None:
         try:
             joining.initialize(cluster, join.timeout)
@@ -200,20 +209,23 @@ def resume(
     quiet: bool = False,
     algorithm: str | Algorithm | None = None,
     wandb: bool = False,
+    env: str | None = None,
 ) -> Run:
     """Continue a run (from the scripts or ``train``) from its latest checkpoint.
     ``algorithm``: the run's learner, when it is one of your own (named as for ``train``);
-    ``wandb``: log to Weights & Biases, continuing the W&B runs of the run's earlier starts."""
-    configure()
+    ``wandb``: log to Weights & Biases, continuing the W&B runs of the run's earlier starts;
+    ``env``: the run's env, when it comes from a module of your own (``MODULE:ID``)."""
+    _use_every_core(quiet)
     run_dir = Path(run_dir)
     record = read_run_record(run_dir)
     identity = record["identity"]
+    env_id = recorded_env(identity["env_id"], run_dir, env, how="env=")
     learner = for_run(record, run_dir, algorithm, how="algorithm=")
-    config = dataclass_from_dict(learner.default_config(identity["env_id"]), identity["config"])
+    config = dataclass_from_dict(learner.default_config(env_id), identity["config"])
     template = learner.default_hyperparams()
     spec = RunSpec(
         algorithm=learner,
-        env_id=identity["env_id"],
+        env_id=env_id,
         config=config,
         hparams=tuple(dataclass_from_dict(template, h) for h in identity["hparams"]),
         out=run_dir,
@@ -225,13 +237,16 @@ def resume(
         wandb=wandb,
     )
     result = run(spec, notify=(lambda message: None) if quiet else print)
-    return Run(result.run_dir, result.results or None, learner)
+    return Run(result.run_dir, result.results or None, learner, env_id)
 
 
-def open_run(run_dir: str | Path, algorithm: str | Algorithm | None = None) -> Run:
+def open_run(
+    run_dir: str | Path, algorithm: str | Algorithm | None = None, env: str | None = None
+) -> Run:
     """The ``Run`` of an existing run directory; ``algorithm`` names its learner when it is one
-    of your own (its policies, evaluation and GIFs need it)."""
-    return Run(run_dir, algorithm=algorithm)
+    of your own, and ``env`` its env when it comes from a module of your own (``MODULE:ID``):
+    a run directory is data, and opening one imports neither by itself."""
+    return Run(run_dir, algorithm=algorithm, env=env)
 
 
 def evaluate_policy(
@@ -242,6 +257,20 @@ def evaluate_policy(
     env's step limit): ``rl_jax.training.episodes.episode_returns``."""
     run_all = jax.jit(lambda key: episode_returns(jax.vmap(act), env, key, episodes))
     return np.asarray(run_all(key))
+
+
+def _use_every_core(quiet: bool) -> None:
+    """The CLI's device layout (``jax_setup.configure_jax``: a JAX device per CPU core), and a
+    line when JAX started earlier in this process with fewer devices than that."""
+    configure_jax()
+    wanted = int(os.environ.get("RL_JAX_CPU_DEVICES", cpu_count()))
+    if quiet or jax.default_backend() != "cpu" or jax.local_device_count() >= wanted:
+        return
+    print(
+        f"note: JAX started in this process before rl_jax with {jax.local_device_count()} CPU "
+        f"device(s), so the run shards its seeds over those, not over all {wanted} cores; "
+        "call rl_jax first (or set XLA_FLAGS=--xla_force_host_platform_device_count=N)"
+    )
 
 
 def _results_from_metrics(run_dir: Path, record: dict[str, Any]) -> list[plots.FinalResult]:

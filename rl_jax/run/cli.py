@@ -44,7 +44,7 @@ from rl_jax.run.flags import (
     parse_grid,
 )
 from rl_jax.run.learners import ALGORITHMS
-from rl_jax.run.run_dir import read_run_record
+from rl_jax.run.run_dir import read_run_record, recorded_env
 from rl_jax.run.spec import RunSpec
 from rl_jax.training import params
 from rl_jax.training.algorithm import Algorithm, Config, Hyperparams, hooks
@@ -203,7 +203,9 @@ def _add_choice_flags(parser: argparse.ArgumentParser) -> None:
 def _choose(
     argv: list[str], algorithm: Algorithm | None, env_id: str | None
 ) -> tuple[Algorithm | None, str, bool]:
-    """Algorithm and env: fixed by the script, or from --algo/--env (or the resumed run)."""
+    """Algorithm and env: fixed by the script, or from --algo/--env (or the resumed run). With
+    ``--help`` and no env, the env is the learner's default one (``help_env``), whose defaults
+    the help then shows."""
     pre = OneLineParser(add_help=False)
     _add_choice_flags(pre)
     pre.add_argument("--resume", type=Path, default=None)
@@ -219,18 +221,49 @@ def _choose(
             if chosen.name == record["identity"]["algorithm"]:
                 algorithm = chosen
         return algorithm, envs.core.registry.resolve_id(env_id), False
-    env_name = env_id or known.env or (record["identity"]["env_id"] if record else None)
-    if {"-h", "--help"} & set(argv) and (algorithm or known.algo or record) is None:
+    wants_help = bool({"-h", "--help"} & set(argv))
+    if wants_help and (algorithm or known.algo or record) is None:
         return None, "", True
     if algorithm is None and known.algo is None and record is None:
         raise UsageError("--algo is required")
-    if env_name is None:
+    if record is not None:  # the run's env, never imported from its record (run_dir)
+        env_name = recorded_env(
+            record["identity"]["env_id"], known.resume, env_id or known.env, how="--env"
+        )
+    else:
+        env_name = env_id or known.env
+    if env_name is None and not wants_help:
         raise UsageError("--env is required")
     if algorithm is None and known.algo is not None:
         algorithm = resolve_algorithm(known.algo)
     elif algorithm is None:  # the resumed run's own learner, if built in (never imported else)
         algorithm = learners.for_run(record, known.resume, how="--algo")
+    if env_name is None:
+        env_name = help_env(algorithm)
     return algorithm, envs.core.registry.resolve_id(env_name), True
+
+
+#: Where ``help_env`` looks when a learner's recipes name no env: continuous, then discrete.
+HELP_ENVS = ("rl_jax/Pendulum-v1", "rl_jax/CartPole-v1")
+
+
+def help_env(algorithm: Algorithm) -> str:
+    """The env whose defaults ``--help`` shows when no ``--env`` is given: the first env of the
+    learner's default recipes, else the first of ``HELP_ENVS`` it has a config for."""
+    recipes = hooks(algorithm).recipes.recipes
+    named = [env for recipe in recipes if recipe.name == "default" for env in recipe.envs]
+    for env_id in [*named, *HELP_ENVS]:
+        try:
+            algorithm.default_config(env_id)
+        except Exception:  # a learner of the user's own may refuse an env in any way
+            continue
+        return env_id
+    raise UsageError(f"--env is required: {algorithm.name} has no default env to show flags for")
+
+
+def _names_env(argv: list[str]) -> bool:
+    """Whether ``argv`` gives ``--env`` or ``--resume`` (which names a run and so its env)."""
+    return any(word.split("=")[0] in ("--env", "--resume") for word in argv)
 
 
 def _help_without_algorithm(description: str, defaults: Defaults) -> int:
@@ -362,6 +395,11 @@ def run_experiment(
     algorithm, env_id, choose = _choose(argv, algorithm, env_id)
     if algorithm is None:
         return _help_without_algorithm(description or "", defaults)
+    if choose and {"-h", "--help"} & set(argv) and not _names_env(argv):
+        description = (
+            f"{description or ''}\n\nDefaults below are {algorithm.name}'s for {env_id}; "
+            "give --env ID to see those of another env."
+        ).strip()
     given = typed  # the run records the command as typed, --recipe included
     if not choose:
         algorithm, argv = recipe_choice.learner_of_recipe(argv, algorithm, env_id)

@@ -32,7 +32,13 @@ import numpy as np
 from rl_jax import envs
 from rl_jax.errors import OneLineParser, UsageError, exit_now, guard, positive_int
 from rl_jax.run.api import evaluate_policy as returns_of
-from rl_jax.run.policy import LoadedPolicy, Policy, add_run_choice, command_line_learner
+from rl_jax.run.policy import (
+    LoadedPolicy,
+    Policy,
+    add_run_choice,
+    command_line_env,
+    command_line_learner,
+)
 from rl_jax.training.algorithm import Algorithm
 from rl_jax.training.jax_setup import configure
 
@@ -127,15 +133,19 @@ def evaluate_run(
     latest: bool = False,
     algorithm: str | Algorithm | None = None,
     gymnasium: bool = False,
+    env: str | None = None,
 ) -> list[Evaluation]:
     """Every seed's best policy (and its latest, with ``latest``) on ``episodes`` episodes of
     the run's env, or with ``gymnasium`` of gymnasium's own; ``algorithm`` names the run's
-    learner when it is not built in."""
-    first = LoadedPolicy(run_dir, None, config_index, "latest", algorithm)
+    learner when it is not built in, ``env`` its env when it comes from a module of the
+    user's own."""
+    first = LoadedPolicy(run_dir, None, config_index, "latest", algorithm, env)
     evaluations = []
     for seed in first.seeds if seeds is None else seeds:
         for which in ("best", "latest") if latest else ("best",):
-            loaded = LoadedPolicy(run_dir, seed, first.config_index, which, first.algorithm)
+            loaded = LoadedPolicy(
+                run_dir, seed, first.config_index, which, first.algorithm, first.env_id
+            )
             env, returns = (
                 _in_gymnasium(loaded, episodes)
                 if gymnasium
@@ -197,6 +207,7 @@ def main(argv: list[str] | None = None) -> int:
     def run() -> int:
         configure()
         seeds = None if args.seed is None else [args.seed]
+        env_id = command_line_env(args.run_dir, args.env)
         learner = command_line_learner(args.run_dir, args.algo)
         evaluations = evaluate_run(
             args.run_dir,
@@ -206,6 +217,7 @@ def main(argv: list[str] | None = None) -> int:
             args.latest,
             learner,
             args.gymnasium,
+            env_id,
         )
         print(table(evaluations))
         return 0

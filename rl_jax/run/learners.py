@@ -18,13 +18,16 @@ From Python the learner object itself works as well. Whatever names it, the lear
 the ``rl_jax.training.algorithm.Algorithm`` interface; a missing part is one error line naming it.
 
 A run records where its learner came from (``config.json``, ``"learner"``): ``"builtin"``,
-``"module:PACKAGE.MODULE:NAME"`` or ``"file:/absolute/path.py:NAME"``. Opening a run again
+``"module:PACKAGE.MODULE:NAME"`` or ``"file:/absolute/path.py:NAME"``, and for a learner of the
+user's own the SHA-256 of its module's source (``"learner_source"``). Opening a run again
 (``--resume``, evaluation, rendering, ``load_policy``) imports a built-in learner by itself, and
 never anything else: a record is data, and importing what it names would run code the user did
-not ask for. A learner of the user's own is named again (the error says how); naming another
-one than the record's is refused. A learner this process already trained with or named (a test,
-a notebook that goes on with a run it made, a name given to ``register_algorithm``) counts as
-named.
+not ask for. A learner of the user's own is named again (the error says how), by any path or
+module: a run moved to another folder, or sent to a colleague, opens with the learner's file
+wherever it now lies. The learner's ``name`` must be the run's; a source that differs from the
+recorded one is accepted with one warning line. A learner this process already trained with or
+named (a test, a notebook that goes on with a run it made, a name given to
+``register_algorithm``) counts as named.
 """
 
 from __future__ import annotations
@@ -57,6 +60,9 @@ ALGORITHMS: dict[str, str | Algorithm] = {
     "sac": "rl_jax.agents.sac:sac",
     "ppo": "rl_jax.agents.ppo:ppo",
 }
+
+#: Where the built-in learners live: the only modules a run's record may make us import.
+_BUILTIN_REFERENCES = tuple(ALGORITHMS.values())
 
 #: What ``resolve`` checks a learner has, as the error line shows it.
 INTERFACE = {
@@ -152,6 +158,11 @@ def check_interface(learner: object, label: str) -> None:
 
 
 def _checked(learner: object, label: str) -> Algorithm:
+    if isinstance(learner, type):
+        raise UsageError(
+            f"{label} is the class {learner.__name__}, not a learner: name an instance of it "
+            f"(e.g. `learner = {learner.__name__}()` in its module, then MODULE:learner)"
+        )
     try:
         check_interface(learner, label)
     except UsageError as error:
@@ -229,7 +240,7 @@ def _import_module(module_name: str, reference: str) -> types.ModuleType:
                     "directory or the Python path, or path/to/file.py:NAME"
                 ) from None
             sys.path.append(os.getcwd())
-        except (ImportError, SyntaxError) as error:
+        except Exception as error:  # whatever the module raises while it runs: one line
             raise UsageError(f"cannot import the learner {reference}: {_reason(error)}") from None
     raise AssertionError("unreachable")
 
@@ -256,7 +267,7 @@ def _import_file(where: str, reference: str) -> types.ModuleType:
         sys.path.append(str(path.parent))  # its own helper modules, as `python FILE` finds them
     try:
         spec.loader.exec_module(module)
-    except (ImportError, SyntaxError) as error:
+    except Exception as error:  # whatever the file raises while it runs: one line
         del sys.modules[module_name]
         raise UsageError(f"cannot import the learner file {where}: {_reason(error)}") from None
     _FILES[str(path)] = module
@@ -326,8 +337,25 @@ def reference(learner: Algorithm) -> str:
 
 
 def record_fields(learner: Algorithm) -> dict[str, str]:
-    """What a new run's record says of its learner."""
-    return {"algorithm_module": reference(learner), "learner": str(origin_of(learner))}
+    """What a new run's record says of its learner: where it came from and, for a learner of
+    the user's own, the hash of its source (``source_hash``)."""
+    fields = {"algorithm_module": reference(learner), "learner": str(origin_of(learner))}
+    source = source_hash(learner)
+    if origin_of(learner).kind != BUILTIN and source is not None:
+        fields["learner_source"] = source
+    return fields
+
+
+def source_hash(learner: Algorithm) -> str | None:
+    """``sha256:HEX`` of the source file of the module that holds ``learner``; None where the
+    module has no file (a class typed into a notebook)."""
+    module, _ = _locate(learner)
+    path = getattr(module, "__file__", None)
+    try:
+        source = Path(path).read_bytes() if path else None
+    except OSError:
+        source = None
+    return None if source is None else "sha256:" + hashlib.sha256(source).hexdigest()
 
 
 def recorded_origin(record: dict[str, Any]) -> Origin:
@@ -362,7 +390,7 @@ def for_run(
     name = record["identity"]["algorithm"]
     if origin.kind == BUILTIN:
         return _builtin(record, name)
-    known = _named_here(origin)
+    known = _named_here(origin, record)
     if known is not None:
         return known
     spelling = origin.spelling(name)
@@ -374,16 +402,41 @@ def for_run(
 
 
 def check_same(record: dict[str, Any], learner: Algorithm, run_dir: Path | str) -> None:
-    """``RunError`` unless ``learner`` is the one the run of ``record`` was trained with."""
+    """``RunError`` unless ``learner`` is the one the run of ``record`` was trained with: the
+    same name, and built in where the run's was (or of the user's own where the run's was). A
+    learner of the user's own may be named by any path or module; where its source differs
+    from the run's, one warning line says so."""
     name = record["identity"]["algorithm"]
     recorded, given = recorded_origin(record), origin_of(learner)
-    if given != recorded:
+    if learner.name != name:
+        raise RunError(f"{run_dir} is a {name} run, not a {learner.name} run")
+    if (given.kind == BUILTIN) != (recorded.kind == BUILTIN):
         raise RunError(
             f"{run_dir} was trained with {recorded.describe(name)}, not with "
             f"{given.describe(learner.name)}; name the run's own learner"
         )
-    if learner.name != name:
-        raise RunError(f"{run_dir} is a {name} run, not a {learner.name} run")
+    if given.kind == BUILTIN:
+        return
+    warned = (str(run_dir), str(source_hash(learner)))
+    if _same_source(record, learner) is False and warned not in _WARNED:
+        _WARNED.add(warned)
+        print(
+            f"warning: {run_dir} was trained with a {name} learner whose source differs from "
+            f"that of {given.spelling(name)}; opening the run with it",
+            file=sys.stderr,
+            flush=True,
+        )
+
+
+#: (run directory, source) pairs already warned of: a run opened once per seed says it once.
+_WARNED: set[tuple[str, str]] = set()
+
+
+def _same_source(record: dict[str, Any], learner: Algorithm) -> bool | None:
+    """Whether ``learner``'s source is the one ``record`` was trained with; None where either
+    is unknown (a record from before sources were kept, a learner without a file)."""
+    recorded, given = record.get("learner_source"), source_hash(learner)
+    return None if recorded is None or given is None else recorded == given
 
 
 def cli_args(learner: Algorithm) -> list[str]:
@@ -405,8 +458,10 @@ def python_hint(learner: Algorithm) -> str:
 def _builtin(record: dict[str, Any], name: str) -> Algorithm:
     """The built-in learner of ``record``, imported from inside rl_jax only."""
     reference = record.get("algorithm_module")
-    if not isinstance(reference, str) or not reference.startswith(_PACKAGE + "."):
-        raise RunError(f"the run record names a built-in learner at {reference!r}, not in rl_jax")
+    builtin_modules = {str(where).partition(":")[0] for where in _BUILTIN_REFERENCES}
+    module_name = str(reference).partition(":")[0]
+    if MOVED_MODULES.get(module_name, module_name) not in builtin_modules:
+        raise RunError(f"the run record names a built-in learner at {reference!r}, not one of ours")
     try:
         learner = load_algorithm(reference)
     except AttributeError:
@@ -417,10 +472,15 @@ def _builtin(record: dict[str, Any], name: str) -> Algorithm:
     return cast(Algorithm, learner)  # it has the interface's name and methods
 
 
-def _named_here(origin: Origin) -> Algorithm | None:
-    """A learner of ``origin`` that this process trained with or named, or registered."""
+def _named_here(origin: Origin, record: dict[str, Any]) -> Algorithm | None:
+    """A learner of ``origin`` that this process trained with or named, or registered; or one
+    it named elsewhere with the run's name and the run's very source (a copy of the file)."""
     for learner, seen in _SEEN.values():
         if seen == origin:
+            return learner
+    name = record["identity"]["algorithm"]
+    for learner, seen in _SEEN.values():
+        if seen.kind != BUILTIN and learner.name == name and _same_source(record, learner):
             return learner
     for name, registered in ALGORITHMS.items():
         if isinstance(registered, str) and _reference_origin(registered) == origin:

@@ -13,8 +13,10 @@
 a seed, the seed (and sweep config) with the highest such eval return is chosen.
 
 A run of a learner of the user's own is opened with that learner named again
-(``load_policy(run_dir, algorithm="my_learner.py:learner")``, or the object): a run directory
-never makes this process import code by itself (``rl_jax.run.learners``).
+(``load_policy(run_dir, algorithm="my_learner.py:learner")``, or the object), and a run on an
+env of the user's own module with that env named again (``env="my_envs:Hover-v0"``): a run
+directory never makes this process import code by itself (``rl_jax.run.learners``,
+``rl_jax.run.run_dir.recorded_env``).
 """
 
 from __future__ import annotations
@@ -35,7 +37,7 @@ from rl_jax.run.checkpoint import Checkpointer, Tree
 from rl_jax.run.learners import for_run
 from rl_jax.run.metrics import METRICS_FILE, read_rows
 from rl_jax.run.plan import make_plan
-from rl_jax.run.run_dir import CHECKPOINT_DIR, identity_hash, read_run_record
+from rl_jax.run.run_dir import CHECKPOINT_DIR, identity_hash, read_run_record, recorded_env
 from rl_jax.run.spec import RunSpec
 from rl_jax.training.algorithm import Algorithm, Config, PolicyFn, TrainState, hooks
 from rl_jax.training.jax_setup import configure
@@ -52,7 +54,8 @@ class LoadedPolicy:
     (the env step of that policy), ``eval_return`` (the run's eval of it, if known) and
     ``state`` (a train state whose policy fields are this run's; pass it to
     ``algorithm.policy(state, config)``). ``algorithm`` names the run's learner, which a run
-    of the user's own learner needs (``rl_jax.run.learners.for_run``).
+    of the user's own learner needs (``rl_jax.run.learners.for_run``), and ``env`` its env,
+    which a run on an env of the user's own module needs (``run_dir.recorded_env``).
     """
 
     def __init__(
@@ -62,13 +65,14 @@ class LoadedPolicy:
         config_index: int | None = None,
         which: str = "best",
         algorithm: str | Algorithm | None = None,
+        env: str | None = None,
     ):
         if which not in WHICH:
             raise PolicyError(f"which must be one of {', '.join(WHICH)}, got {which!r}")
         self.run_dir = Path(run_dir)
         self.record = read_run_record(self.run_dir)
         identity = self.record["identity"]
-        self.env_id = identity["env_id"]
+        self.env_id = recorded_env(identity["env_id"], self.run_dir, env, how="env=")
         self.seeds = [identity["base_seed"] + s for s in range(identity["seeds"])]
         self.which = which
         self.note: str | None = None
@@ -194,6 +198,13 @@ def add_run_choice(parser: argparse.ArgumentParser, seed_help: str) -> None:
         "path/to/file.py:NAME, as it was trained with): a run never imports one by itself",
     )
 
+    parser.add_argument(
+        "--env",
+        default=None,
+        metavar="ENV",
+        help="the run's env, when it comes from a module of your own (MODULE:ID, as it was "
+        "trained with): a run never imports one by itself",
+    )
     parser.add_argument("--seed", type=parse_int, default=None, help=seed_help)
     parser.add_argument(
         "--config",
@@ -210,22 +221,30 @@ def command_line_learner(run_dir: Path, named: str | None) -> Algorithm:
     return for_run(read_run_record(run_dir), run_dir, named, how="--algo")
 
 
+def command_line_env(run_dir: Path, named: str | None) -> str:
+    """The env id a command that opens ``run_dir`` uses (``--env``, or the run's own when it
+    needs no import); its errors say to give ``--env``."""
+    return recorded_env(read_run_record(run_dir)["identity"]["env_id"], run_dir, named)
+
+
 def load_policy(
     run_dir: str | Path,
     seed: int | None = None,
     which: str = "best",
     config: int | None = None,
     algorithm: str | Algorithm | None = None,
+    env: str | None = None,
 ) -> Policy:
     """The trained policy of a run as a numpy ``obs -> action`` callable.
 
     ``seed``: which seed (default: the one with the best eval return); ``which``: "best" (the
     policy of that seed's best evaluation) or "latest" (its latest checkpoint); ``config``: the
     config index of a sweep (default: the best); ``algorithm``: the run's learner, when it is
-    one of your own (as ``--algo`` names it, or the object).
+    one of your own (as ``--algo`` names it, or the object); ``env``: the run's env, when it
+    comes from a module of your own (``MODULE:ID``, as ``--env`` names it).
     """
     configure()
-    return Policy(LoadedPolicy(Path(run_dir), seed, config, which, algorithm))
+    return Policy(LoadedPolicy(Path(run_dir), seed, config, which, algorithm, env))
 
 
 def _index(tree: Tree, run: tuple[int, int]) -> Tree:

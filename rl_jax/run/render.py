@@ -39,7 +39,12 @@ import numpy as np
 from rl_jax.envs.core.core import Environment
 from rl_jax.envs.core.wrappers import Wrapper
 from rl_jax.errors import OneLineParser, RenderError, exit_now, guard, positive_int
-from rl_jax.run.policy import LoadedPolicy, add_run_choice, command_line_learner
+from rl_jax.run.policy import (
+    LoadedPolicy,
+    add_run_choice,
+    command_line_env,
+    command_line_learner,
+)
 from rl_jax.training.algorithm import Algorithm
 from rl_jax.training.jax_setup import configure
 
@@ -167,12 +172,14 @@ def write_gif(
     max_frames: int = 600,
     which: str = "best",
     algorithm: str | Algorithm | None = None,
+    env: str | None = None,
 ) -> Path:
     """Render the deterministic policy of (config, seed) of ``run_dir`` to a GIF; its path.
     ``which``: the seed's best evaluated policy ("best") or its latest checkpoint ("latest");
-    ``algorithm``: the run's learner, when it is not built in."""
+    ``algorithm``: the run's learner, when it is not built in; ``env``: the run's env, when it
+    comes from a module of the user's own."""
     with opengl_errors():  # a MuJoCo env may import mujoco (and fail) while being built
-        loaded = LoadedPolicy(Path(run_dir), seed, config_index, which, algorithm)
+        loaded = LoadedPolicy(Path(run_dir), seed, config_index, which, algorithm, env)
         env = loaded.env()
         act = loaded.act()
         episodes_data = rollout(env, act, jax.random.key(loaded.seed), episodes)
@@ -236,6 +243,7 @@ def main(argv: list[str] | None = None) -> int:
             args.max_frames,
             "latest" if args.latest else "best",
             command_line_learner(args.run_dir, args.algo),
+            command_line_env(args.run_dir, args.env),
         )
         return 0
 

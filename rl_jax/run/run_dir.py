@@ -26,6 +26,7 @@ from typing import Any
 
 import jax
 
+from rl_jax.envs.core import registry
 from rl_jax.errors import RunError
 from rl_jax.run import processes
 from rl_jax.run.checkpoint import library_versions
@@ -162,7 +163,8 @@ def write_json_atomic(path: Path, payload: Mapping[str, object]) -> None:
 
 
 def read_run_record(run_dir: Path) -> dict[str, Any]:
-    """``config.json`` of ``run_dir``; ``RunError`` if it is not a readable run directory."""
+    """``config.json`` of ``run_dir``, checked as data (``check_record``); ``RunError`` if it is
+    not a readable, untouched run record."""
     path = Path(run_dir) / CONFIG_FILE
     if not Path(run_dir).is_dir():
         raise RunError(f"no run directory at {run_dir}")
@@ -174,7 +176,123 @@ def read_run_record(run_dir: Path) -> dict[str, Any]:
         raise RunError(f"{path} is unreadable: {error}") from None
     if not isinstance(record, dict) or "identity" not in record:
         raise RunError(f"{path} is not an rl_jax run config")
+    problem = record_problem(record)
+    if problem is not None:
+        raise RunError(f"{path} is refused: {problem}")
     return record
+
+
+#: The top-level fields of config.json and the JSON types each may hold. A record is data: no
+#: field is ever imported or called, and one that this code does not know is refused rather
+#: than ignored, so that nothing in a record can change what runs without being checked here.
+RECORD_FIELDS: dict[str, type] = {
+    "identity": dict,
+    "identity_hash": str,
+    "algorithm_module": str,
+    "learner": str,
+    "learner_source": str,
+    "total_steps": int,
+    "steps_per_chunk": int,
+    "grid_fields": list,
+    "command": str,
+    "sessions": list,
+    "created": str,
+    "environment": dict,
+}
+IDENTITY_FIELDS: dict[str, type] = {
+    "algorithm": str,
+    "env_id": str,
+    "config": dict,
+    "hparams": list,
+    "seeds": int,
+    "base_seed": int,
+}
+
+
+def record_problem(record: dict[str, Any]) -> str | None:
+    """What makes ``record`` no untouched run record, in a phrase; None when it is one.
+
+    Types and field names are checked against ``RECORD_FIELDS`` and ``IDENTITY_FIELDS``; the
+    config and hyperparameters hold plain JSON values only; the identity must still hash to
+    the ``identity_hash`` written beside it, so that an edit of what the run is (its learner,
+    env, env keywords, settings or seeds) is refused. The hash is a check against edits, not a
+    signature: the protection against foreign code is that nothing in a record is imported."""
+    problem = _fields_problem(record, RECORD_FIELDS, "")
+    if problem is None:
+        problem = _fields_problem(record["identity"], IDENTITY_FIELDS, "identity.")
+    if problem is not None:
+        return problem
+    identity = record["identity"]
+    missing = sorted(set(IDENTITY_FIELDS) - set(identity))
+    if missing:
+        return f"its identity lacks {', '.join(missing)}"
+    if not all(isinstance(values, dict) for values in identity["hparams"]):
+        return "identity.hparams is not a list of objects"
+    for where, value in [("identity.config", identity["config"])] + [
+        (f"identity.hparams[{i}]", values) for i, values in enumerate(identity["hparams"])
+    ]:
+        if not _plain_data(value):
+            return f"{where} holds something other than numbers, strings, booleans and lists"
+    if identity["config"].get("env_id", identity["env_id"]) != identity["env_id"]:
+        return "its config's env_id is not the run's env_id"
+    recorded = record.get("identity_hash")
+    if recorded is not None and recorded != identity_hash(identity):
+        return "its identity was edited after the run wrote it (it no longer matches identity_hash)"
+    return None
+
+
+def _fields_problem(values: dict[str, Any], fields: dict[str, type], prefix: str) -> str | None:
+    for name, value in values.items():
+        if name not in fields:
+            return f"it has a field {prefix}{name!r} that rl_jax does not write"
+        wanted = fields[name]
+        if isinstance(value, bool) or not isinstance(value, wanted):
+            return f"{prefix}{name} is not a JSON {wanted.__name__}"
+    return None
+
+
+def _plain_data(values: dict[str, Any]) -> bool:
+    """Each value is a number, string, boolean or null, or a list of them (lists nested): what
+    the fields of a learner's config and hyperparameters are written as."""
+
+    def plain(value: object) -> bool:
+        if value is None or isinstance(value, (bool, int, float, str)):
+            return True
+        return isinstance(value, list) and all(plain(item) for item in value)
+
+    return all(plain(value) for value in values.values())
+
+
+def recorded_env(
+    recorded: str, run_dir: Path | str, named: str | None = None, how: str = "--env"
+) -> str:
+    """The env id ``recorded`` by the run (or sweep) in ``run_dir``, resolved without importing
+    anything that the record names: a registered id, ``gymnasium:ID`` of gymnasium's registry,
+    or a ``MODULE:ID`` that this process has registered (the user named it). ``named`` is the
+    user's own naming of the env (``--env``, ``env=``), which may import its module and must
+    resolve to the run's env. Else ``RunError`` says how to name it again (``how``: "--env" or
+    "env=")."""
+    given = None
+    if named is not None:
+        try:
+            given = registry.resolve_id(named)
+        except registry.UnknownEnvError as error:
+            raise RunError(str(error)) from None
+    try:
+        resolved = registry.resolve_id(recorded, imports=False)
+    except registry.EnvNotNamedError as error:
+        if given is not None:
+            raise RunError(f"{run_dir} is a run on {recorded}, not on {given}") from None
+        again = f"{how}{recorded!r}" if how.endswith("=") else f"{how} {shlex.quote(recorded)}"
+        raise RunError(
+            f"{run_dir} trains the environment {recorded!r} of the module {error.module!r}, which "
+            f"opening a run does not import by itself; name it again: {again}"
+        ) from None
+    except registry.UnknownEnvError as error:
+        raise RunError(f"{run_dir}: {error}") from None
+    if given is not None and given != resolved:
+        raise RunError(f"{run_dir} is a run on {resolved}, not on {given}")
+    return resolved
 
 
 def check_out_dir(out: Path, run_identity: dict[str, Any]) -> None:

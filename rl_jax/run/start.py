@@ -211,7 +211,6 @@ def write_run_record(
             "sessions": [session],
         }
         learner = learners.record_fields(spec.algorithm)  # where it came from (learners.py)
-        record = new_run_record(
-            spec.identity, learner["algorithm_module"], {"learner": learner["learner"], **extra}
-        )
+        module = learner.pop("algorithm_module")
+        record = new_run_record(spec.identity, module, {**learner, **extra})
     write_json_atomic(path, record)

@@ -41,6 +41,7 @@ from rl_jax.run import (
     sweep_shapes,
 )
 from rl_jax.run.metrics import METRICS_FILE, read_rows
+from rl_jax.run.run_dir import recorded_env
 from rl_jax.training import params
 from rl_jax.training.algorithm import Algorithm
 
@@ -113,12 +114,35 @@ def parse_args(argv: list[str]) -> tuple[argparse.Namespace, list[str]]:
     return parser.parse_known_args(argv)
 
 
+#: The fields of ``sweep.json`` and their JSON types (list fields hold strings). It is data: a
+#: field this code does not write, or a value of another type, is refused.
+SWEEP_FIELDS: dict[str, type | tuple[type, ...]] = {
+    "algo": str,
+    "env": str,
+    "grid": list,
+    "learner": (str, type(None)),
+    "argv": list,
+}
+
+
 def sweep_record(out: Path) -> dict[str, Any]:
-    """The ``sweep.json`` of a sweep directory, or a ``RunError`` when there is none."""
+    """The ``sweep.json`` of a sweep directory, checked as data; ``RunError`` when there is none
+    or it is not one that this code wrote."""
     path = out / "sweep.json"
     if not path.is_file():
         raise RunError(f"no sweep at {out} (no sweep.json)")
-    return json.loads(path.read_text())
+    try:
+        record = json.loads(path.read_text())
+    except (OSError, ValueError) as error:
+        raise RunError(f"{path} is unreadable: {error}") from None
+    if not isinstance(record, dict) or not {"algo", "env", "grid", "argv"} <= set(record):
+        raise RunError(f"{path} is not an rl_jax sweep record")
+    for name, value in record.items():
+        wanted = SWEEP_FIELDS.get(name)
+        strings = not isinstance(value, list) or all(isinstance(item, str) for item in value)
+        if wanted is None or not isinstance(value, wanted) or not strings:
+            raise RunError(f"{path} is refused: its field {name!r} is not one rl_jax writes")
+    return record
 
 
 def build_specs(
@@ -132,7 +156,9 @@ def build_specs(
         out = Path(rest[rest.index("--resume") + 1])
         saved = sweep_record(out)
         algorithm = _resumed_learner(saved, sweep_args.algo, out)
-        sweep_args.algo, sweep_args.env = saved["algo"], saved["env"]
+        # the sweep's env, never imported from its record (run_dir.recorded_env)
+        env = recorded_env(saved["env"], out, sweep_args.env, how="--env")
+        sweep_args.algo, sweep_args.env = saved["algo"], env
         sweep_args.grid = saved["grid"]
         rest = [*saved["argv"], *rest]
     if not sweep_args.algo or not sweep_args.env:
@@ -181,15 +207,17 @@ def build_specs(
 
 
 def _resumed_learner(saved: dict[str, Any], named: str | None, out: Path) -> Algorithm:
-    """The learner of a resumed sweep: ``--algo`` if given (checked against the sweep's), else
-    the sweep's own if it is built in; a learner of the user's own is never imported from the
-    record (``rl_jax.run.learners``). Each shape's run directory is checked again on resume."""
+    """The learner of a resumed sweep: ``--algo`` if given (built in where the sweep's is, and
+    checked by name and source against each shape's run on resume), else the sweep's own if it
+    is built in; a learner of the user's own is never imported from the record
+    (``rl_jax.run.learners``)."""
     # A sweep recorded before "learner" was kept ran a built-in or a registered name.
     recorded = saved.get("learner") or ("builtin" if saved["algo"] in BUILTIN_NAMES else None)
-    if named is not None:
+    if named is not None:  # any spelling of the sweep's learner: each shape's run checks it
         learner = cli.resolve_algorithm(named)
         given = learners.origin_of(learner)
-        if recorded is not None and str(given) != recorded:
+        builtin = (given.kind == learners.BUILTIN, recorded == learners.BUILTIN)
+        if recorded is not None and builtin[0] != builtin[1]:
             own = learners.Origin.parse(recorded).describe(saved["algo"])
             raise RunError(
                 f"{out} is a sweep of {own}, not of {given.describe(learner.name)}; name the "

@@ -104,8 +104,8 @@ def runs(tmp_path_factory):
     printed = {
         "whole": in_process([*whole, "--gif"]),
         "split": in_process(split),
-        "another": in_process([*resume, "--algo", BY_FILE]),
-        "resumed": in_process([*resume, "--algo", BY_MODULE]),
+        "another": in_process([*resume, "--algo", "td3"]),
+        "resumed": in_process([*resume, "--algo", BY_FILE]),  # trained by module name
         "sweep": finish(sweeping),
     }
     for name in ("whole", "split", "resumed", "sweep"):
@@ -126,12 +126,9 @@ def test_a_run_records_where_its_learner_came_from(runs):
 
 
 def test_a_resume_names_the_learner_again_and_equals_never_stopping(runs):
+    """Trained by module name, resumed by file: one learner, however it is named."""
     root, printed = runs
-    one_line(
-        *printed["another"][1:],
-        f"{root / 'split'} was trained with the learner module:examples.expected_sarsa:learner, "
-        f"not with the learner file:{EXAMPLE}:learner; name the run's own learner",
-    )
+    one_line(*printed["another"][1:], f"{root / 'split'} is a expected_sarsa run, not a td3 run")
     assert "resuming from the checkpoint at step 200" in printed["resumed"][0]
     whole, resumed = rows(root / "whole"), rows(root / "split")
     assert len(whole) == 8 and resumed == whole  # every metric of every chunk, bit for bit
@@ -272,3 +269,49 @@ def test_opening_a_run_never_imports_the_learner_its_record_names(runs, tmp_path
         rl_jax.load_policy(run_dir, algorithm=f"{EXAMPLE}:learner")
     assert not (tmp_path / "imported").exists()
     assert not any("planted" in name for name in sys.modules)
+
+
+def test_a_run_travels_with_its_learner(runs, tmp_path, capsys):
+    """A run moved to another folder opens with the learner's file wherever it now lies: a copy
+    of the file, or the module by name, is the same learner; an edited copy opens with one
+    warning line; a learner of another name is refused."""
+    moved = tmp_path / "elsewhere" / "run"
+    shutil.copytree(runs[0] / "whole", moved)
+    copy = tmp_path / "project" / "sarsa_copy.py"
+    copy.parent.mkdir()
+    shutil.copy(EXAMPLE, copy)
+    record = json.loads((moved / "config.json").read_text())
+    assert record["learner_source"].startswith("sha256:")
+    for named in (f"{copy}:learner", BY_MODULE):
+        policy = rl_jax.load_policy(moved, seed=0, algorithm=named)
+        assert np.asarray(policy(np.zeros(4, np.float32))).shape == ()
+        assert capsys.readouterr().err == ""
+    edited = tmp_path / "project" / "sarsa_edited.py"
+    edited.write_text(EXAMPLE.read_text() + "\n# an edit after the run\n")
+    rl_jax.load_policy(moved, seed=0, algorithm=f"{edited}:learner")
+    rl_jax.load_policy(moved, seed=1, algorithm=f"{edited}:learner")
+    lines = capsys.readouterr().err.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("warning: ") and "source differs" in lines[0]
+    renamed = tmp_path / "project" / "sarsa_renamed.py"
+    renamed.write_text(EXAMPLE.read_text().replace('name = "expected_sarsa"', 'name = "other"'))
+    with pytest.raises(RunError, match="is a expected_sarsa run, not a other run"):
+        rl_jax.load_policy(moved, algorithm=f"{renamed}:learner")
+
+
+RAISING_LEARNER = """
+raise RuntimeError("the learner's module fails while it runs")
+"""
+
+
+def test_a_learner_module_that_raises_or_a_class_is_one_line(tmp_path):
+    raising = tmp_path / "raising_learner.py"
+    raising.write_text(RAISING_LEARNER)
+    with pytest.raises(UsageError) as failed:
+        learners.resolve(f"{raising}:learner")
+    message = str(failed.value)
+    assert "\n" not in message and "RuntimeError: the learner's module fails" in message
+    with pytest.raises(UsageError, match="is the class ExpectedSarsa, not a learner: name an"):
+        learners.resolve(f"{EXAMPLE}:ExpectedSarsa")
+    # and through the script: one line, no traceback
+    _, err, code = in_process(["--algo", f"{raising}:learner", *FLAGS])
+    one_line(err, code, "RuntimeError: the learner's module fails")
