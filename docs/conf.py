@@ -36,6 +36,10 @@ exclude_patterns = ["_build", "Thumbs.db", ".DS_Store"]
 myst_enable_extensions = ["dollarmath", "colon_fence", "deflist"]
 myst_heading_anchors = 6
 
+# MathJax from the site itself, not from a CDN, so that maths renders offline: rl_jax_docs copies
+# MathJax 3 from the sphinx-mathjax-offline package (the docs extra) into _static/mathjax.
+mathjax_path = "mathjax/tex-chtml.js"
+
 # The API reference: signatures with their type hints and defaults as written, members in source
 # order. Docstrings are reST prose with ``literals``, not Google or NumPy sections, so napoleon is
 # left out: it would read a property's first line "The results: a ..." as a type.

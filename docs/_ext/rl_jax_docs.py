@@ -17,7 +17,9 @@
     directive's content gives each id's parity line as ``ID: text``.
     An id registered but not described, or described but not registered, fails the build.
 
-After the HTML is written, ``check_output`` reads every page: a local link (``href``) or image
+After the HTML is written, ``copy_mathjax`` puts MathJax (from the ``sphinx-mathjax-offline``
+package) into ``_static/mathjax``, where ``conf.py``'s ``mathjax_path`` points, so that maths
+renders without a network; and ``check_output`` reads every page: a local link (``href``) or image
 (``src``) whose file or ``#anchor`` does not exist is a warning, so ``-W`` fails the build.
 """
 
@@ -26,8 +28,10 @@ from __future__ import annotations
 import dataclasses
 import html.parser
 import importlib
+import importlib.util
 import inspect
 import re
+import shutil
 import tomllib
 from pathlib import Path
 from typing import Any
@@ -467,6 +471,37 @@ def broken_references(outdir: Path) -> list[str]:
     return problems
 
 
+# ---- MathJax in the site ------------------------------------------------------------------------
+
+#: The package that ships MathJax 3 (its ``static/mathjax``); it is imported by this name.
+MATHJAX_PACKAGE = "sphinx-mathjax-offline"
+
+
+def mathjax_source() -> Path:
+    """The MathJax folder of the installed ``sphinx-mathjax-offline`` package."""
+    spec = importlib.util.find_spec(MATHJAX_PACKAGE)
+    if spec is None or spec.origin is None:
+        raise RuntimeError(f"{MATHJAX_PACKAGE} is not installed: pip install -e '.[docs]'")
+    return Path(spec.origin).parent / "static" / "mathjax"
+
+
+def copy_mathjax(app: Sphinx, exception: Exception | None) -> None:
+    """After a successful HTML build: MathJax into ``_static/mathjax``, every component and
+    font, since MathJax loads the extensions a page's TeX asks for when it asks. A file already
+    there with the same size is kept, so a rebuild copies nothing."""
+    if exception is not None or app.builder.format != "html":
+        return
+    source = mathjax_source()
+    target = Path(app.outdir) / "_static" / "mathjax"
+    for path in source.rglob("*"):
+        if not path.is_file():
+            continue
+        copy = target / path.relative_to(source)
+        if not copy.is_file() or copy.stat().st_size != path.stat().st_size:
+            copy.parent.mkdir(parents=True, exist_ok=True)
+            shutil.copyfile(path, copy)
+
+
 def check_output(app: Sphinx, exception: Exception | None) -> None:
     """After a successful HTML build: a warning for each broken local link or image."""
     if exception is None and app.builder.format == "html":
@@ -480,5 +515,6 @@ def setup(app: Sphinx) -> dict[str, Any]:
     app.add_directive("learner-recipes", LearnerRecipes)
     app.add_directive("learner-figures", LearnerFigures)
     app.add_directive("env-table", EnvTable)
+    app.connect("build-finished", copy_mathjax)
     app.connect("build-finished", check_output)
     return {"version": "1", "parallel_read_safe": True, "parallel_write_safe": True}
