@@ -69,5 +69,6 @@ suppress_warnings = ["myst.header"]
 
 html_theme = "furo"
 html_title = "rl_jax"
-html_static_path: list[str] = []
+html_static_path = ["_static"]
+html_css_files = ["rl_jax.css"]  # tables that fit the column, flags that never break
 html_show_sourcelink = False

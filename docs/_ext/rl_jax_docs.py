@@ -17,6 +17,9 @@
     directive's content gives each id's parity line as ``ID: text``.
     An id registered but not described, or described but not registered, fails the build.
 
+Every inline literal that is an option flag (``--updates-per-iteration``) gets the class
+``rl-jax-flag`` (``MarkFlags``), which ``_static/rl_jax.css`` keeps on one line.
+
 After the HTML is written, ``copy_mathjax`` puts MathJax (from the ``sphinx-mathjax-offline``
 package) into ``_static/mathjax``, where ``conf.py``'s ``mathjax_path`` points, so that maths
 renders without a network; and ``check_output`` reads every page: a local link (``href``) or image
@@ -40,6 +43,7 @@ from urllib.parse import unquote, urlsplit
 from docutils import nodes
 from docutils.parsers.rst import directives
 from sphinx.application import Sphinx
+from sphinx.transforms import SphinxTransform
 from sphinx.util import logging
 from sphinx.util.docutils import SphinxDirective
 
@@ -471,6 +475,24 @@ def broken_references(outdir: Path) -> list[str]:
     return problems
 
 
+# ---- option flags ------------------------------------------------------------------------------
+
+#: A literal that is an option flag, alone or with a short value: ``--updates-per-iteration``,
+#: ``--seeds 5``. The site's CSS keeps it on one line (``docs/_static/rl_jax.css``).
+FLAG = re.compile(r"--[A-Za-z][\w-]*(?:[ =][^ ]{1,40})?")
+
+
+class MarkFlags(SphinxTransform):
+    """Adds the class ``rl-jax-flag`` to every inline literal that is an option flag."""
+
+    default_priority = 800
+
+    def apply(self, **kwargs: Any) -> None:
+        for node in self.document.findall(nodes.literal):
+            if FLAG.fullmatch(node.astext()):
+                node["classes"].append("rl-jax-flag")
+
+
 # ---- MathJax in the site ------------------------------------------------------------------------
 
 #: The package that ships MathJax 3 (its ``static/mathjax``); it is imported by this name.
@@ -515,6 +537,13 @@ def setup(app: Sphinx) -> dict[str, Any]:
     app.add_directive("learner-recipes", LearnerRecipes)
     app.add_directive("learner-figures", LearnerFigures)
     app.add_directive("env-table", EnvTable)
+    app.add_transform(MarkFlags)
     app.connect("build-finished", copy_mathjax)
     app.connect("build-finished", check_output)
-    return {"version": "1", "parallel_read_safe": True, "parallel_write_safe": True}
+    # env_version: a change to what the transforms write re-reads every page, not only new ones
+    return {
+        "version": "2",
+        "env_version": 2,
+        "parallel_read_safe": True,
+        "parallel_write_safe": True,
+    }
