@@ -1,7 +1,7 @@
 # rl_jax — every set-up step lives here so that a fresh machine needs only Python 3.11 and pip.
 #   make train   install, then train TD3 on half cheetah with 5 seeds
 #   make test    install, then run the test suite (CI runs make lint, make typecheck, make docs,
-#                then this)
+#                make docs-check, then this)
 #   make install GPU=1        also the CUDA 12 build of the pinned jaxlib (requirements-gpu.lock)
 #   make test-latest          the default suite against the newest releases, in .venv-latest
 PYTHON ?= python3.11
@@ -92,6 +92,14 @@ typecheck: install ## mypy against its baseline of known errors, which may only 
 .PHONY: docs
 docs: install ## build the documentation site into docs/_build/html (warnings are errors)
 	$(BIN)/python -m sphinx -W --keep-going -q -j auto -b html docs docs/_build/html
+
+# The site `make docs` built, read in headless Chromium at 1,280 px (scripts/docs_check.py): no
+# broken image, maths typeset offline, no table or element wider than its column, every link and
+# anchor inside the site there. scripts/docs_check.sh installs Chromium and its driver if missing.
+.PHONY: docs-check
+docs-check: install ## check the built site in headless Chromium: images, maths, widths, links
+	@bash scripts/docs_check.sh
+	$(BIN)/python scripts/docs_check.py docs/_build/html
 
 format: install ## apply ruff formatting and safe fixes
 	$(BIN)/ruff format .
