@@ -111,7 +111,7 @@ def test_the_readme_command_trains_and_resumes_in_a_fresh_process(tmp_path):
         environment["PYTHONPATH"] = path
     for flags in (
         [*argv[2:], *TINY_FLAGS, "--total-steps=200", f"--out={out}"],
-        ["--resume", str(out), "--total-steps=400"],
+        ["--resume", str(out), "--env", ENV_ID, "--total-steps=400"],  # named again
     ):
         done = subprocess.run(
             [sys.executable, "experiments/train.py", *flags],

@@ -134,6 +134,14 @@ def resolve_id(name: str, *, imports: bool = True) -> str:
     raise UnknownEnvError(f"unknown environment {name!r}; known environments: {known}")
 
 
+def names_a_module(env_id: str) -> bool:
+    """Whether ``env_id`` imports a module of its own when it is resolved (``MODULE:ID``, or
+    gymnasium's ``module:Env`` spelling): a run on it is opened with the env named again."""
+    if env_id.startswith("gymnasium:"):
+        return ":" in env_id.removeprefix("gymnasium:")
+    return ":" in env_id
+
+
 def factory(name: str) -> Callable[..., Environment]:
     """The class (or function) that builds the env; imports its module."""
     entry_point = _ENTRY_POINTS[resolve_id(name)]

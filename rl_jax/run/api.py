@@ -63,6 +63,8 @@ class Run:
         self.learner = algorithm
         self.record = read_run_record(self.run_dir)
         identity = self.record["identity"]
+        if algorithm is not None:  # named by the user: its module may register the run's env
+            for_run(self.record, self.run_dir, algorithm, how="algorithm=")
         self.algorithm: str = identity["algorithm"]
         self.env_id: str = recorded_env(identity["env_id"], self.run_dir, env, how="env=")
         self.seeds: list[int] = [identity["base_seed"] + s for s in range(identity["seeds"])]
@@ -185,6 +187,7 @@ def train(
     cli.check_env_fits(learner, chosen_config, chosen_hparams)
     run_dir = Path(out) if out is not None else cli.default_run_dir(env_id, learner.name)
     named = algorithm if isinstance(algorithm, str) else learner.name
+    env_hint = f", env={env_id!r}" if envs.core.registry.names_a_module(env_id) else ""
     spec = RunSpec(
         algorithm=learner,
         env_id=env_id,
@@ -197,7 +200,7 @@ def train(
         layout=layout,
         wandb=wandb,
         command=f"rl_jax.train({named!r}, {env_id!r}, seeds={seeds}, ...)",
-        resume_command=f"rl_jax.resume({str(run_dir)!r}{learners.python_hint(learner)})",
+        resume_command=f"rl_jax.resume({str(run_dir)!r}{learners.python_hint(learner)}{env_hint})",
     )
     result = run(spec, notify=(lambda message: None) if quiet else print)
     return Run(result.run_dir, result.results or None, learner)
@@ -219,8 +222,8 @@ def resume(
     run_dir = Path(run_dir)
     record = read_run_record(run_dir)
     identity = record["identity"]
+    learner = for_run(record, run_dir, algorithm, how="algorithm=")  # may register the env
     env_id = recorded_env(identity["env_id"], run_dir, env, how="env=")
-    learner = for_run(record, run_dir, algorithm, how="algorithm=")
     config = dataclass_from_dict(learner.default_config(env_id), identity["config"])
     template = learner.default_hyperparams()
     spec = RunSpec(

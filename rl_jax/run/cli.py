@@ -226,18 +226,15 @@ def _choose(
         return None, "", True
     if algorithm is None and known.algo is None and record is None:
         raise UsageError("--algo is required")
-    if record is not None:  # the run's env, never imported from its record (run_dir)
-        env_name = recorded_env(
-            record["identity"]["env_id"], known.resume, env_id or known.env, how="--env"
-        )
-    else:
-        env_name = env_id or known.env
-    if env_name is None and not wants_help:
+    if (env_id or known.env or record) is None and not wants_help:
         raise UsageError("--env is required")
     if algorithm is None and known.algo is not None:
         algorithm = resolve_algorithm(known.algo)
     elif algorithm is None:  # the resumed run's own learner, if built in (never imported else)
         algorithm = learners.for_run(record, known.resume, how="--algo")
+    env_name = env_id or known.env
+    if record is not None:  # after the learner, whose module may register the run's env
+        env_name = recorded_env(record["identity"]["env_id"], known.resume, env_name, "--env")
     if env_name is None:
         env_name = help_env(algorithm)
     return algorithm, envs.core.registry.resolve_id(env_name), True
@@ -356,6 +353,8 @@ def build_spec(
     script = shlex.join(program())
     # A learner of the user's own is named again on resume (never imported from the record).
     named = shlex.join(learners.cli_args(algorithm)) if hasattr(args, "algo") else ""
+    if envs.core.registry.names_a_module(env_id):  # never imported from the record either
+        named = f"{named} --env {shlex.quote(env_id)}".strip()
     return RunSpec(
         algorithm=algorithm,
         env_id=env_id,

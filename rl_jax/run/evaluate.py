@@ -183,11 +183,12 @@ def table(evaluations: list[Evaluation]) -> str:
     return "\n".join(lines)
 
 
-def main(argv: list[str] | None = None) -> int:
+def main(argv: list[str] | None = None, prog: str = "python -m rl_jax.run.evaluate") -> int:
     """``python -m rl_jax.run.evaluate RUN_DIR``: run each seed's best (and with ``--latest``
-    latest) policy on fresh episodes and print the table. Returns the exit status.
+    latest) policy on fresh episodes and print the table. Returns the exit status. ``prog`` is
+    the command named in ``--help`` and errors (``rl-jax evaluate``).
     """
-    parser = OneLineParser(prog="python -m rl_jax.run.evaluate", description=__doc__.split("\n")[0])
+    parser = OneLineParser(prog=prog, description=__doc__.split("\n")[0])
     parser.add_argument("run_dir", type=Path, help="a run directory (holds config.json)")
     parser.add_argument(
         "--episodes", type=positive_int, default=100, help="episodes per policy (default: 100)"
@@ -207,8 +208,8 @@ def main(argv: list[str] | None = None) -> int:
     def run() -> int:
         configure()
         seeds = None if args.seed is None else [args.seed]
+        learner = command_line_learner(args.run_dir, args.algo)  # first: it may register the env
         env_id = command_line_env(args.run_dir, args.env)
-        learner = command_line_learner(args.run_dir, args.algo)
         evaluations = evaluate_run(
             args.run_dir,
             args.episodes,

@@ -41,6 +41,7 @@ import os
 import shlex
 import sys
 import types
+from collections.abc import Mapping
 from pathlib import Path
 from typing import Any, cast
 
@@ -158,7 +159,7 @@ def check_interface(learner: object, label: str) -> None:
 
 
 def _checked(learner: object, label: str) -> Algorithm:
-    if isinstance(learner, type):
+    if isinstance(learner, type) and all(callable(getattr(learner, m, None)) for m in INTERFACE):
         raise UsageError(
             f"{label} is the class {learner.__name__}, not a learner: name an instance of it "
             f"(e.g. `learner = {learner.__name__}()` in its module, then MODULE:learner)"
@@ -390,7 +391,7 @@ def for_run(
     name = record["identity"]["algorithm"]
     if origin.kind == BUILTIN:
         return _builtin(record, name)
-    known = _named_here(origin, record)
+    known = _named_here(origin, name, record)
     if known is not None:
         return known
     spelling = origin.spelling(name)
@@ -432,7 +433,7 @@ def check_same(record: dict[str, Any], learner: Algorithm, run_dir: Path | str) 
 _WARNED: set[tuple[str, str]] = set()
 
 
-def _same_source(record: dict[str, Any], learner: Algorithm) -> bool | None:
+def _same_source(record: Mapping[str, object], learner: Algorithm) -> bool | None:
     """Whether ``learner``'s source is the one ``record`` was trained with; None where either
     is unknown (a record from before sources were kept, a learner without a file)."""
     recorded, given = record.get("learner_source"), source_hash(learner)
@@ -472,13 +473,12 @@ def _builtin(record: dict[str, Any], name: str) -> Algorithm:
     return cast(Algorithm, learner)  # it has the interface's name and methods
 
 
-def _named_here(origin: Origin, record: dict[str, Any]) -> Algorithm | None:
+def _named_here(origin: Origin, name: str, record: Mapping[str, object]) -> Algorithm | None:
     """A learner of ``origin`` that this process trained with or named, or registered; or one
     it named elsewhere with the run's name and the run's very source (a copy of the file)."""
     for learner, seen in _SEEN.values():
         if seen == origin:
             return learner
-    name = record["identity"]["algorithm"]
     for learner, seen in _SEEN.values():
         if seen.kind != BUILTIN and learner.name == name and _same_source(record, learner):
             return learner

@@ -72,7 +72,8 @@ class LoadedPolicy:
         self.run_dir = Path(run_dir)
         self.record = read_run_record(self.run_dir)
         identity = self.record["identity"]
-        self.env_id = recorded_env(identity["env_id"], self.run_dir, env, how="env=")
+        self.env_id: str = identity["env_id"]  # resolved in _restore, after the learner
+        self._named_env = env
         self.seeds = [identity["base_seed"] + s for s in range(identity["seeds"])]
         self.which = which
         self.note: str | None = None
@@ -97,6 +98,8 @@ class LoadedPolicy:
     def _restore(self) -> tuple[Algorithm, Config, TrainState, int]:
         identity = self.record["identity"]
         algorithm = for_run(self.record, self.run_dir, self._named, how="algorithm=")
+        # after the learner: a learner's own module may register the env it trains on
+        self.env_id = recorded_env(identity["env_id"], self.run_dir, self._named_env, "env=")
         config = dataclass_from_dict(algorithm.default_config(self.env_id), identity["config"])
         template = algorithm.default_hyperparams()
         hparams = tuple(dataclass_from_dict(template, h) for h in identity["hparams"])

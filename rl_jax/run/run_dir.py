@@ -241,7 +241,9 @@ def record_problem(record: dict[str, Any]) -> str | None:
     return None
 
 
-def _fields_problem(values: dict[str, Any], fields: dict[str, type], prefix: str) -> str | None:
+def _fields_problem(
+    values: Mapping[str, object], fields: dict[str, type], prefix: str
+) -> str | None:
     for name, value in values.items():
         if name not in fields:
             return f"it has a field {prefix}{name!r} that rl_jax does not write"
@@ -251,7 +253,7 @@ def _fields_problem(values: dict[str, Any], fields: dict[str, type], prefix: str
     return None
 
 
-def _plain_data(values: dict[str, Any]) -> bool:
+def _plain_data(values: Mapping[str, object]) -> bool:
     """Each value is a number, string, boolean or null, or a list of them (lists nested): what
     the fields of a learner's config and hyperparameters are written as."""
 

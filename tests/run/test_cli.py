@@ -20,7 +20,7 @@ from rl_jax import errors
 from rl_jax.run import cli, field_docs, flags, learners, recipe_choice
 from rl_jax.run.checkpoint import Checkpointer
 from rl_jax.run.plan import make_plan
-from rl_jax.run.run_dir import CHECKPOINT_DIR
+from rl_jax.run.run_dir import CHECKPOINT_DIR, identity_hash
 from rl_jax.run.script import Script
 from rl_jax.run.spec import RunSpec
 from rl_jax.run.start import fresh_start
@@ -164,10 +164,14 @@ def workspace(tmp_path_factory):
     for name, change in {
         "foreign_env": lambda r: r["identity"].update(env_id="rl_jax/Pendulum-v1"),
         "foreign_algorithm": lambda r: r["identity"].update(algorithm="td3"),
+        "edited": lambda r: r["identity"].update(seeds=3),
     }.items():
         shutil.copytree(existing, root / name)
         record = json.loads((root / name / "config.json").read_text())
         change(record)
+        if name != "edited":  # another run, recorded as such (hash and config's env id agree)
+            record["identity"]["config"]["env_id"] = record["identity"]["env_id"]
+            record["identity_hash"] = identity_hash(record["identity"])
         (root / name / "config.json").write_text(json.dumps(record))
         copies[name] = root / name
     shutil.copytree(existing, root / "corrupt")
@@ -227,6 +231,10 @@ BAD_INPUTS = {
         "it is a fake run on rl_jax/Pendulum-v1, this is fake on rl_jax/FakePoint-v0",
     ),
     "resume of another algorithm": (["--resume", "{foreign_algorithm}"], "it is a td3 run"),
+    "resume of an edited record": (
+        ["--resume", "{edited}"],
+        "is refused: its identity was edited after the run wrote it",
+    ),
     "resume with another config": (
         ["--resume", "{existing}", "--learning-rate", "0.5"],
         "it is a different run (learning_rate 0.01 vs 0.5)",
@@ -331,7 +339,7 @@ def run_in_process(argv: list[str]) -> tuple[str, str, int]:
 def bad_input_results(workspace):
     """Every bad input; the runs' files before and after."""
     learners.register_algorithm("fake", "fake_algorithm")
-    names = ("existing", "foreign_env", "foreign_algorithm", "corrupt")
+    names = ("existing", "foreign_env", "foreign_algorithm", "edited", "corrupt")
     before = {name: snapshot(workspace[name]) for name in names}
     formatted = {
         case: [arg.format(**{k: str(v) for k, v in workspace.items()}) for arg in args]
@@ -370,7 +378,7 @@ def test_bad_inputs_leave_existing_runs_untouched(bad_input_results, workspace):
     _, before, after = bad_input_results
     assert after == before
     created = {p.name for p in workspace["root"].iterdir()}
-    assert created == {"existing", "foreign_env", "foreign_algorithm", "corrupt"}
+    assert created == {"existing", "foreign_env", "foreign_algorithm", "edited", "corrupt"}
     assert not (workspace["root"] / "runs").exists()
 
 

@@ -14,6 +14,7 @@ import numpy as np
 import pytest
 
 import rl_jax
+from rl_jax.run.run_dir import identity_hash
 
 OLD_RUN = Path(__file__).resolve().parents[1] / "data" / "old_run_td3"
 
@@ -36,7 +37,12 @@ def _without_hyperparameter(run_dir: Path, name: str) -> None:
     record = json.loads(path.read_text())
     for hparams in record["identity"]["hparams"]:
         del hparams[name]
+    # the identity's hash as that code wrote it, in the record and in the checkpoints' metadata
+    old, new = record["identity_hash"], identity_hash(record["identity"])
+    record["identity_hash"] = new
     path.write_text(json.dumps(record, indent=2))
+    for metadata in run_dir.glob("*/*/meta/metadata"):
+        metadata.write_text(metadata.read_text().replace(old, new))
 
 
 @pytest.mark.parametrize("older", [False, True], ids=["as written", "before lr_decay_steps"])
