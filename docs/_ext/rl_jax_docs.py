@@ -6,7 +6,9 @@
     learner ``OTHER`` (DDPG against TD3); ``:variant: module:Class`` adds the fields a config
     variant adds or changes (DQN's ``PixelConfig``).
 ``learner-recipes NAME``
-    the learner's recipes (``rl_jax.training.recipes``): name, envs, summary, budget.
+    the learner's recipes (``rl_jax.training.recipes``): name, envs, summary, and env steps per
+    seed: the recipe's own budget, else the default budgets of the scripts that would run it,
+    read from ``experiments/*.py`` (``Script(...)``, ``cli.main(...)``).
 ``learner-figures NAME [NAME ...]``
     every image under ``docs/figures/`` that shows one of the learners: the name is a word of
     the file name (``halfcheetah_td3.png``) or of what ``docs/figures/manifest.toml`` says the
@@ -28,6 +30,7 @@ renders without a network; and ``check_output`` reads every page: a local link (
 
 from __future__ import annotations
 
+import ast
 import dataclasses
 import html.parser
 import importlib
@@ -102,9 +105,9 @@ def table(headers: list[str], rows: list[list[Cell]], widths: list[int]) -> node
     return result
 
 
-def literal(text: str) -> nodes.paragraph:
-    """A table cell of one code span."""
-    return nodes.paragraph("", "", nodes.literal(text, text))
+def literal(text: str, *classes: str) -> nodes.paragraph:
+    """A table cell of one code span (with ``classes``)."""
+    return nodes.paragraph("", "", nodes.literal(text, text, classes=list(classes)))
 
 
 def describe(value: Any) -> str:
@@ -224,6 +227,112 @@ class LearnerOptions(SphinxDirective):
 
 # ---- recipes ----------------------------------------------------------------------------------
 
+#: The runnable scripts, whose defaults (learner, env, budget) the recipe tables name.
+EXPERIMENTS = "experiments"
+
+
+@dataclasses.dataclass(frozen=True)
+class ScriptBudget:
+    """What one script of ``experiments/`` runs when given no flags: its learner (the name it is
+    imported as, ``td3``; None: any learner, ``--algo``), env (None: any, ``--env``) and budget."""
+
+    script: str
+    learner: str | None
+    env_id: str | None
+    total_steps: int
+
+
+def _value(node: ast.expr | None, names: dict[str, Any]) -> Any:
+    """A literal, or a name bound to one in the script, as the script would see it."""
+    if node is None:
+        return None
+    if isinstance(node, ast.Name) and node.id in names:
+        return names[node.id]
+    try:
+        return ast.literal_eval(node)
+    except (ValueError, TypeError, SyntaxError):  # a name: the learner it was imported as
+        return node.id if isinstance(node, ast.Name) else None
+
+
+def _call_name(call: ast.Call) -> str:
+    func = call.func
+    return func.attr if isinstance(func, ast.Attribute) else getattr(func, "id", "")
+
+
+def _script_budget(path: Path, found: dict[str, ScriptBudget]) -> ScriptBudget | None:
+    """A script's defaults, read from its source without running it: ``Script(learner, env,
+    total_steps=...)``, ``cli.main(learner, env, __doc__, total_steps=...)``, or
+    ``dataclasses.replace(other.SCRIPT, ...)`` of another script's."""
+    tree = ast.parse(path.read_text(encoding="utf-8"))
+    names: dict[str, Any] = {}
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Assign) and isinstance(node.value, ast.Constant):
+            for target in node.targets:
+                if isinstance(target, ast.Name):
+                    names[target.id] = node.value.value
+    for node in ast.walk(tree):
+        if not isinstance(node, ast.Call):
+            continue
+        keywords = {k.arg: k.value for k in node.keywords if k.arg}
+        steps = _value(keywords.get("total_steps"), names)
+        name = _call_name(node)
+        if name in ("Script", "main") and len(node.args) >= 2:
+            learner, env_id = (_value(a, names) for a in node.args[:2])
+            default = ScriptBudget.__dataclass_fields__["total_steps"].default
+            return ScriptBudget(path.name, learner, env_id, steps or default)
+        if name == "replace" and node.args and isinstance(node.args[0], ast.Attribute):
+            base = found.get(f"{getattr(node.args[0].value, 'id', '')}.py")
+            if base is not None:
+                algorithm = keywords.get("algorithm")
+                return ScriptBudget(
+                    path.name,
+                    _value(algorithm, names) if algorithm else base.learner,
+                    _value(keywords.get("env_id"), names) or base.env_id,
+                    steps or base.total_steps,
+                )
+    return None
+
+
+def script_budgets(root: Path) -> list[ScriptBudget]:
+    """The defaults of every script in ``experiments/`` that trains one learner on one env, or
+    any learner on any env (``train.py``); the others (``sweep.py``, reports) are left out."""
+    found: dict[str, ScriptBudget] = {}
+    pending = sorted((root / EXPERIMENTS).glob("*.py"))
+    for _ in range(len(pending)):  # rounds: a script built on another's SCRIPT after that one
+        for path in list(pending):
+            budget = _script_budget(path, found)
+            if budget is not None:
+                found[path.name] = budget
+                pending.remove(path)
+    return sorted(found.values(), key=lambda b: b.script)
+
+
+def budget_cell(recipe: Any, algorithm: Any, scripts: list[ScriptBudget]) -> str:
+    """A recipe's env steps per seed: its own budget, else the default budgets of ``train.py``
+    (any learner on any env) and of the scripts that run its learner on one of its envs."""
+    if recipe.total_steps:
+        return f"{recipe.total_steps:,}"
+    by_budget: dict[int, list[str]] = {}
+    for budget in scripts:
+        if budget.learner is not None:
+            if budget.env_id not in recipe.envs:
+                continue
+            try:
+                if learner(budget.learner).recipes is not algorithm.recipes:
+                    continue
+            except Exception:  # a script's first argument that is not a learner's name
+                continue
+        by_budget.setdefault(budget.total_steps, []).append(f"``{budget.script}``")
+    parts = [f"{steps:,} ({', '.join(names)})" for steps, names in by_budget.items()]
+    return "; ".join(parts) + ("" if recipe.envs else "; a script's own on its env")
+
+
+RECIPES_NOTE = (
+    "Steps per seed: a recipe's own budget where it sets one; otherwise the budget of the run, "
+    "``--total-steps`` or ``total_steps=``, else the default of the script that runs it (named "
+    "beside its number; ``train.py``'s for any learner, ``rl_jax.train``'s is the same)."
+)
+
 
 class LearnerRecipes(SphinxDirective):
     """The recipes of one learner (see the module docstring)."""
@@ -233,14 +342,20 @@ class LearnerRecipes(SphinxDirective):
     def run(self) -> list[nodes.Node]:
         self.env.note_reread()
         algorithm = learner(self.arguments[0])
+        scripts = script_budgets(Path(self.env.srcdir).parent)
         rows: list[list[Cell]] = []
         for recipe in algorithm.recipes:
             envs_cell = ", ".join(f"``{e}``" for e in recipe.envs) if recipe.envs else "any env"
-            budget = f"{recipe.total_steps:,}" if recipe.total_steps else ""
-            rows.append([literal(recipe.name), envs_cell, recipe.about, budget])
+            budget = budget_cell(recipe, algorithm, scripts)
+            name = literal(recipe.name, "rl-jax-name")  # kept on one line, as flags are
+            rows.append([name, envs_cell, recipe.about, budget])
         if not rows:
             return [nodes.paragraph("", "", *inline("No recipes: the defaults above."))]
-        return [table(["recipe", "for", "what it is", "steps per seed"], rows, [14, 30, 44, 12])]
+        headers = ["recipe", "for", "what it is", "steps per seed"]
+        return [
+            table(headers, rows, [14, 30, 40, 16]),
+            nodes.paragraph("", "", *inline(RECIPES_NOTE)),
+        ]
 
 
 # ---- figures ----------------------------------------------------------------------------------
