@@ -29,12 +29,15 @@ from typing import Any
 import jax
 import jax.numpy as jnp
 import numpy as np
-from brax.envs import base as brax_base
 from flax import struct
 
 from rl_jax.envs.core.core import Array, Environment, EnvParams, EnvState, PRNGKey
 from rl_jax.envs.core.spaces import Box
 from rl_jax.envs.core.wrappers import RescaleAction
+from rl_jax.envs.mujoco.mujoco_backend import without_warp_lines
+
+with without_warp_lines():  # brax imports MJX, which prints two lines where Warp is not installed
+    from brax.envs import base as brax_base
 
 
 @struct.dataclass

@@ -9,7 +9,6 @@ import jax.numpy as jnp
 import mujoco
 import numpy as np
 from jax.custom_batching import custom_vmap
-from mujoco import mjx
 
 from rl_jax.envs.mujoco.mujoco_backend import (
     DIVERGENCE_LIMIT,
@@ -19,7 +18,11 @@ from rl_jax.envs.mujoco.mujoco_backend import (
     Physics,
     extra_field,
     small_cholesky,
+    without_warp_lines,
 )
+
+with without_warp_lines():  # MJX prints two lines on import where NVIDIA Warp is not installed
+    from mujoco import mjx
 
 
 def _jax_diverged(*arrays: Array) -> Array:

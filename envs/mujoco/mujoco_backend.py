@@ -59,7 +59,11 @@ and the env layer ends the episode (see ``envs.mujoco.mujoco_env``).
 from __future__ import annotations
 
 import contextlib
+import io
 import os
+import re
+import sys
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any, NamedTuple
 
@@ -138,13 +142,78 @@ def load_model(
 ) -> mujoco.MjModel:
     """gymnasium's model, with other constraint-solver iteration limits where given (None: the
     model's own, which is what gymnasium runs: MuJoCo's 100/50 unless the XML sets them, as
-    Humanoid's 50 iterations of PGS)."""
-    model = mujoco.MjModel.from_xml_path(str(gymnasium_asset(xml_file)))
+    Humanoid's 50 iterations of PGS).
+
+    The model is the one ``mujoco.MjModel.from_xml_path`` compiles from gymnasium's XML, bit for
+    bit in every field, but compiled without the deprecated ``<compiler settotalmass>`` that
+    half_cheetah.xml uses (MuJoCo warns about it on stdout and in ``MUJOCO_LOG.TXT`` in the
+    current directory at every compile): ``set_total_mass`` scales the compiled masses the way
+    the compiler does."""
+    spec = mujoco.MjSpec.from_file(str(gymnasium_asset(xml_file)))
+    total_mass = spec.compiler.settotalmass
+    if total_mass > 0:
+        spec.compiler.settotalmass = -1.0  # MuJoCo's default: masses as the geoms make them
+    model = spec.compile()
+    if total_mass > 0:
+        set_total_mass(model, total_mass)
     if iterations is not None:
         model.opt.iterations = iterations
     if ls_iterations is not None:
         model.opt.ls_iterations = ls_iterations
     return model
+
+
+def set_total_mass(model: mujoco.MjModel, total_mass: float) -> None:
+    """Scale a compiled model's masses and inertias to ``total_mass``, and what depends on them,
+    exactly as MuJoCo's compiler does for ``<compiler settotalmass>``: ``mj_setTotalmass``, then
+    ``mj_setConst`` (the constants computed from the masses: subtree masses, inverse weights),
+    then the statistics the compiler computes once ``mj_setConst`` has run and that no function
+    updates later: the mean body mass and the mean diagonal of the mass matrix at ``qpos0``
+    (which scales the constraint solver's tolerance). The sums run in MuJoCo's order, so the
+    model equals the compiler's bit for bit (tests/envs/test_mujoco_model.py)."""
+    mujoco.mj_setTotalmass(model, total_mass)
+    data = mujoco.MjData(model)
+    mujoco.mj_setConst(model, data)
+    if model.nbody > 1:
+        mean_mass = 0.0
+        for mass in model.body_mass[1:]:
+            mean_mass += float(mass)
+        model.stat.meanmass = mean_mass / (model.nbody - 1)
+    if model.nv:
+        mujoco.mj_resetData(model, data)  # qpos0
+        mujoco.mj_forward(model, data)
+        mass_matrix = np.zeros((model.nv, model.nv))
+        mujoco.mj_fullM(model, data, mass_matrix)
+        mean_inertia = 0.0
+        for dof in range(model.nv):
+            mean_inertia += float(mass_matrix[dof, dof])
+        model.stat.meaninertia = mean_inertia / model.nv
+
+
+#: The lines ``mujoco/mjx/warp/__init__.py`` prints with ``print()`` when it is imported and NVIDIA
+#: Warp is not installed, one for ``warp`` and one for ``mujoco_warp``. Importing ``mujoco.mjx``
+#: (or brax, which imports it) imports that package, and MuJoCo has no setting (environment
+#: variable or logger) that silences them. MJX's JAX implementation, the one these envs use,
+#: needs no Warp.
+WARP_ABSENT = re.compile(r"Failed to import (mujoco_)?warp: No module named 'warp(\..+)?'")
+
+
+@contextlib.contextmanager
+def without_warp_lines() -> Iterator[None]:
+    """Import ``mujoco.mjx`` (or brax) inside this block: the lines MJX prints on import where
+    Warp is not installed (``WARP_ABSENT``) are dropped; anything else printed meanwhile (a Warp
+    that is installed and fails says why) passes on to stdout."""
+    if "mujoco.mjx.warp" in sys.modules:  # imported before: importing it again prints nothing
+        yield
+        return
+    printed = io.StringIO()
+    try:
+        with contextlib.redirect_stdout(printed):
+            yield
+    finally:
+        kept = [line for line in printed.getvalue().splitlines() if not WARP_ABSENT.fullmatch(line)]
+        if kept:
+            print("\n".join(kept), flush=True)
 
 
 # Extras computed from qpos rather than read from mjData. The C backend evaluates them in float64
