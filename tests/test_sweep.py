@@ -97,14 +97,13 @@ def test_sweep_ranks_every_config_of_every_shape(sweeps):
     ranked = [line.split()[1:3] for line in table.splitlines() if line.strip()[:1].isdigit()]
     assert len(ranked) == 4  # 2 batch sizes (one program each) x 2 learning rates (vmapped)
     labels = {" ".join(parts) for parts in ranked}
-    assert labels == {f"batch={b}, actor_lr={lr}" for b in (8, 16) for lr in ("0.0001", "0.001")}, (
-        labels
-    )
+    # labelled by the grid's names: lr (which sets actor_lr and critic_lr) and batch
+    assert labels == {f"batch={b}, lr={lr}" for b in (8, 16) for lr in ("0.0001", "0.001")}, labels
     means = [float(line.split()[3]) for line in table.splitlines() if line.strip()[:1].isdigit()]
     assert means == sorted(means, reverse=True)
     assert "95% CI" in table and (root / "single" / "curves.png").stat().st_size > 0
     assert out.count("compiled in") == 2  # once per shape
-    assert "2 seeds x 2 configs (actor_lr)" in out
+    assert "2 seeds x 2 configs (lr)" in out
     for batch in (8, 16):
         record = json.loads((root / "single" / f"batch={batch}" / "config.json").read_text())
         assert record["identity"]["config"]["batch_size"] == batch

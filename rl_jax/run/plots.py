@@ -86,15 +86,24 @@ class Curves:
         return center, low, high
 
 
-def _label(config: int | None, row: dict[str, Any], grid_fields: tuple[str, ...]) -> str:
+def _label(
+    config: int | None, row: dict[str, Any], grid_fields: tuple[str, ...], names: tuple[str, ...]
+) -> str:
     if config is None:
         return "all seeds"
-    values = ", ".join(f"{name}={row.get(name)}" for name in grid_fields)
+    shown = names or grid_fields
+    values = ", ".join(
+        f"{name}={row.get(field)}" for name, field in zip(shown, grid_fields, strict=True)
+    )
     return values or f"config {config}"
 
 
-def curves_from_rows(rows: list[dict[str, Any]], grid_fields: tuple[str, ...] = ()) -> list[Curves]:
-    """One ``Curves`` per config (in config order) from metrics rows."""
+def curves_from_rows(
+    rows: list[dict[str, Any]], grid_fields: tuple[str, ...] = (), names: tuple[str, ...] = ()
+) -> list[Curves]:
+    """One ``Curves`` per config (in config order) from metrics rows, labelled by the values of
+    its ``grid_fields``, each shown by its name in ``names`` where given (the name a sweep's grid
+    was asked by: ``lr`` for ``actor_lr``), else by the field's own."""
     by_config: dict[int | None, list[dict]] = {}
     for row in rows:
         by_config.setdefault(row.get("config"), []).append(row)
@@ -111,7 +120,8 @@ def curves_from_rows(rows: list[dict[str, Any]], grid_fields: tuple[str, ...] = 
             returns[seed_index[row["seed"]], step_index[row["step"]]] = (
                 np.nan if value is None else value
             )
-        curves.append(Curves(_label(config, group[0], grid_fields), steps, seeds, returns))
+        label = _label(config, group[0], grid_fields, names)
+        curves.append(Curves(label, steps, seeds, returns))
     return curves
 
 

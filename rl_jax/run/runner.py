@@ -317,7 +317,7 @@ def summarize(spec: RunSpec, wall_clock: float) -> tuple[list[plots.FinalResult]
     rows = read_rows(spec.out / METRICS_FILE)
     if not rows:
         return [], ""
-    curves = plots.curves_from_rows(rows, spec.grid_fields)
+    curves = plots.curves_from_rows(rows, spec.grid_fields, spec.grid_labels)
     title = f"{spec.algorithm.name} on {spec.env_id}"
     plots.plot_curves(curves, spec.out / CURVES_FILE, title=title)
     results = plots.final_results(curves)

@@ -25,6 +25,9 @@ class RunSpec:
     resume: bool = False
     base_seed: int = 0
     grid_fields: tuple[str, ...] = ()  # hyperparameters a grid varies (logged on every row)
+    # the name each of grid_fields is shown by in the plan, tables and curves: the one its grid
+    # was asked by (a sweep's lr sets actor_lr and critic_lr). Empty: the fields' own names.
+    grid_names: tuple[str, ...] = ()
     # least seconds between checkpoints (also one at the end and when stopped); None: the
     # default spacing, rl_jax.run.start.checkpoint_interval
     checkpoint_interval: float | None = None
@@ -46,6 +49,11 @@ class RunSpec:
     def seed_numbers(self) -> range:
         """The seeds of the run: ``base_seed`` and on, the same under every config of a grid."""
         return range(self.base_seed, self.base_seed + self.seeds)
+
+    @property
+    def grid_labels(self) -> tuple[str, ...]:
+        """The names the grid's fields are shown by: ``grid_names``, else the fields'."""
+        return self.grid_names or self.grid_fields
 
     @property
     def identity(self) -> dict[str, Any]:

@@ -197,6 +197,7 @@ def build_specs(
                 out=Path(out) / label,
                 resume=resume and (Path(out) / label / "config.json").is_file(),
                 grid_fields=tuple(axis.fields[0] for axis in dynamic),
+                grid_names=tuple(axis.name for axis in dynamic),  # lr, not actor_lr
                 command=shlex.join([*cli.program(), *sys.argv[1:]]),
                 resume_command=shlex.join([*cli.program(), "--resume", str(out), *named]),
                 throughput=None,
@@ -269,7 +270,8 @@ def summarize(out: Path, specs: list[RunSpec], labels: list[str], wall_clock: fl
     """curves.png (one curve per config of every shape) and the ranked results.txt."""
     curves = []
     for spec, label in zip(specs, labels, strict=True):
-        for curve in plots.curves_from_rows(read_rows(spec.out / METRICS_FILE), spec.grid_fields):
+        rows = read_rows(spec.out / METRICS_FILE)
+        for curve in plots.curves_from_rows(rows, spec.grid_fields, spec.grid_labels):
             prefix = "" if label == "base" else label
             curve.label = ", ".join(part for part in (prefix, curve.label) if part) or "base"
             curves.append(curve)
@@ -300,7 +302,9 @@ def run_sweep(argv: list[str], description: str = "") -> int:
     if stopped:
         return 0
     if lead:
-        print(summarize(out, specs, labels, time.perf_counter() - started))
+        table = summarize(out, specs, labels, time.perf_counter() - started)
+        if len(specs) > 1:  # a single shape's run has just printed this same ranking
+            print(table)
         print(f"sweep directory: {out}")
     return 0
 
