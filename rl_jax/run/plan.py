@@ -18,7 +18,7 @@ from rl_jax.run import plots, processes
 from rl_jax.run.progress import Progress
 from rl_jax.run.spec import RunSpec
 from rl_jax.training import parallel, params
-from rl_jax.training.algorithm import Hyperparams, TrainState, hooks
+from rl_jax.training.algorithm import Algorithm, Hyperparams, OptionalHooks, TrainState, hooks
 from rl_jax.training.device_layout import plan_layout
 from rl_jax.training.split_program import SplitLayout, SplitProgram
 
@@ -242,16 +242,15 @@ def format_plan(spec: RunSpec, plan: Plan) -> str:
     available, and the time estimate.
     """
     configs = len(spec.hparams)
-    runs = f"{spec.seeds} seed{'s' * (spec.seeds > 1)}"
+    runs = plots.count_of(spec.seeds, "seed")
     if configs > 1:
-        runs += f" x {configs} configs ({', '.join(spec.grid_fields)})"
+        runs += f" x {configs} configs ({', '.join(spec.grid_labels)})"
     num_envs = getattr(spec.config, "num_envs", None)
-    envs = f", {num_envs} envs each" if num_envs else ""
+    envs = f", {plots.count_of(num_envs, 'env')} each" if num_envs else ""
     largest = ", ".join(f"{name} {format_bytes(size)}" for name, size in plan.breakdown[:3])
     lines = [
         f"plan: {spec.algorithm.name} on {spec.env_id}, {runs}{envs}, one compiled program",
-        f"  {plan.final_steps:,} env steps per seed in {plan.chunks} chunks of "
-        f"{plan.steps_per_chunk:,} (asked for {spec.total_steps:,})",
+        f"  {budget_line(spec.total_steps, plan)}",
         f"  train state {format_bytes(plan.state_bytes)} ({largest}); "
         f"{format_bytes(plan.available_bytes)} of memory available",
         f"  devices: {describe_layout(plan.program)}",
@@ -262,6 +261,19 @@ def format_plan(spec: RunSpec, plan: Plan) -> str:
     return "\n".join(lines)
 
 
+def budget_line(total_steps: int, plan: Plan) -> str:
+    """The env steps a run takes, in whole chunks: a budget that is not a whole number of
+    chunks is rounded up, and the line says so (a chunk is one compiled call: it cannot stop
+    part way)."""
+    chunks = f"{plots.count_of(plan.chunks, 'chunk')} of {plan.steps_per_chunk:,}"
+    if plan.final_steps == total_steps:
+        return f"{plan.final_steps:,} env steps per seed in {chunks}"
+    return (
+        f"{total_steps:,} env steps per seed round up to {plan.final_steps:,}, whole chunks: "
+        f"{chunks}"
+    )
+
+
 def describe_layout(program: parallel.Program | SplitProgram) -> str:
     """Which devices run how many runs, padding included."""
     layout = program.layout
@@ -270,9 +282,10 @@ def describe_layout(program: parallel.Program | SplitProgram) -> str:
         blocks = " + ".join(str(block.runs) for block in layout.blocks)
         programs = "one program" if layout.shapes == 1 else f"{layout.shapes} programs"
         return f"{names} ({blocks} runs, split unevenly: {programs})"
-    text = f"{names} ({layout.runs_per_device} run{'s' * (layout.runs_per_device > 1)} each"
+    text = f"{names} ({plots.count_of(layout.runs_per_device, 'run')} each"
     if layout.padding:
-        text += f"; {layout.padding} padding copy of a run computed and dropped"
+        copies = "copy" if layout.padding == 1 else "copies"
+        text += f"; {layout.padding} padding {copies} of a run computed and dropped"
     return text + ")"
 
 
@@ -283,20 +296,24 @@ def estimate_remaining(
     spec: RunSpec,
     progress: Progress,
     chunk_seconds: float,
-    remaining_chunks: int,
+    chunk: int,
+    chunks: int,
     prior_updates: int,
     updates: int,
 ) -> bool:
-    """Print the time left from a measured chunk, once the chunk is representative: warm-up
-    chunks (random actions, no gradient updates) run many times faster than training ones.
-    Returns whether it printed."""
+    """Print the time left from the measured ``chunk`` (counted from 0) of ``chunks``, once the
+    chunk is representative: warm-up chunks (random actions, no gradient updates) run many
+    times faster than training ones, so the line may come after a few chunks, and it names the
+    chunk it measured. Returns whether it printed."""
     no_warm_up = getattr(spec.config, "learning_starts", 0) == 0
     if updates == 0 or not (prior_updates > 0 or no_warm_up):
         return False
+    remaining_chunks = chunks - chunk - 1
     remaining = plots.format_duration(chunk_seconds * remaining_chunks)
+    which = "the last chunk" if remaining_chunks == 1 else f"the remaining {remaining_chunks}"
     progress.write(
-        f"measured: a training chunk took {chunk_seconds:.2f} s; about {remaining} left for "
-        f"the remaining {remaining_chunks} chunks"
+        f"measured: chunk {chunk + 1} of {chunks} took {chunk_seconds:.2f} s; about "
+        f"{remaining} left for {which}"
     )
     return True
 
@@ -313,6 +330,47 @@ def estimate_from_throughput(spec: RunSpec, plan: Plan) -> str | None:
     return (
         f"  estimated time: about {plots.format_duration(seconds)} of training plus compilation "
         f"(from the script's documented {steps_per_second:,.0f} env steps/s per seed measured "
-        f"with {measured_runs} seeds on a 2-core machine; re-estimated after the first training "
-        "chunk)"
+        f"with {plots.count_of(measured_runs, 'seed')} on a 2-core machine; re-estimated after "
+        "the first training chunk)"
     )
+
+
+# ---- the budget, chunk by chunk -------------------------------------------------------------
+
+
+def check_env_steps(
+    plan: Plan, algorithm: Algorithm, chunk: int, env_steps: np.ndarray | jax.Array
+) -> None:
+    """Refuse, with one line that names the hook to define, a learner whose env steps after
+    ``chunk`` (counted from 0; every seed and config of the run) are not the plan's: ``chunk +
+    1`` times its ``env_steps_per_chunk``. A run's budget, progress, checkpoints and time
+    estimates all count in planned chunks, so a learner whose chunk takes more env steps than
+    it says would overrun them unnoticed."""
+    planned = (chunk + 1) * plan.steps_per_chunk
+    reported = np.asarray(env_steps).reshape(-1)
+    wrong = reported[reported != planned]
+    if wrong.size == 0:
+        return
+    if defines_hook(algorithm, "env_steps_per_chunk"):
+        source = f"{plan.steps_per_chunk:,} per chunk, from its env_steps_per_chunk"
+        fix = "make env_steps_per_chunk(config) return"
+    else:
+        source = (
+            f"{plan.steps_per_chunk:,} per chunk, env_steps_per_chunk's default: num_envs x "
+            "iterations_per_chunk"
+        )
+        fix = "define env_steps_per_chunk(config) to return"
+    raise RunError(
+        f"the learner {algorithm.name} reported {int(wrong[0]):,} env steps per seed after chunk "
+        f"{chunk + 1}, but the plan has {planned:,} ({source}); {fix} the env steps one "
+        "train_chunk takes per seed"
+    )
+
+
+def defines_hook(algorithm: Algorithm, name: str) -> bool:
+    """Whether ``algorithm`` defines the optional hook ``name`` itself rather than taking its
+    default (``rl_jax.training.algorithm.OptionalHooks``)."""
+    if isinstance(algorithm, OptionalHooks):
+        inherited = getattr(type(algorithm), name, None) is getattr(OptionalHooks, name)
+        return not inherited or name in getattr(algorithm, "__dict__", {})
+    return hasattr(algorithm, name)

@@ -244,9 +244,15 @@ def format_duration(seconds: float) -> str:
     return f"{seconds // 3600}:{seconds % 3600 // 60:02d}:{seconds % 60:02d}"
 
 
+def count_of(number: int, noun: str) -> str:
+    """A count and its noun, plural unless the count is one: ``1 seed``, ``5 seeds``."""
+    return f"{number:,} {noun}{'' if number == 1 else 's'}"
+
+
 def results_table(result: FinalResult, wall_clock: float | None = None) -> str:
     """The final-return table of a single-config run, as text."""
-    lines = [f"final eval return at step {result.step:,} ({len(result.seeds)} seeds)", ""]
+    seeds = count_of(len(result.seeds), "seed")
+    lines = [f"final eval return at step {result.step:,} ({seeds})", ""]
     best = result.best if result.best is not None else np.full(len(result.seeds), np.nan)
     steps = result.best_steps if result.best_steps is not None else np.full(len(best), -1)
     lines += ["  seed   final eval   best eval (at step)"]

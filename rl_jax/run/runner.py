@@ -46,6 +46,7 @@ from rl_jax.run.divergence import check_finite, finite_runs
 from rl_jax.run.metrics import METRICS_FILE, MetricsLog, read_rows
 from rl_jax.run.plan import (
     Plan,
+    check_env_steps,
     check_memory,
     estimate_remaining,
     format_plan,
@@ -265,6 +266,9 @@ def _train(session: Session, start: Start, stop: GracefulStop, progress: Progres
             metrics = plan.program.gather(metrics)
             finite = plan.program.gather_each(lambda s: finite_runs(s, spec), state)
         chunk_seconds = time.perf_counter() - chunk_started
+        # Before anything of this chunk is written: what is saved stays as the last good chunk
+        # left it, and a resume continues from there.
+        check_env_steps(plan, spec.algorithm, chunk, metrics.env_steps)
         prior_updates = session.updates
         session.step = int(np.max(metrics.env_steps))
         session.updates = int(np.max(metrics.updates))
@@ -276,12 +280,7 @@ def _train(session: Session, start: Start, stop: GracefulStop, progress: Progres
         progress.update(session.step, session.updates, metrics.eval_return)
         if not estimated and chunk + 1 < plan.chunks:
             estimated = estimate_remaining(
-                spec,
-                progress,
-                chunk_seconds,
-                plan.chunks - chunk - 1,
-                prior_updates,
-                session.updates,
+                spec, progress, chunk_seconds, chunk, plan.chunks, prior_updates, session.updates
             )
         due = session.checkpoint_due()
         if _stopping(stop, due) or chunk + 1 == plan.chunks:
@@ -417,7 +416,7 @@ def run(spec: RunSpec, notify: Callable[[str], None] = print) -> RunResult:
         notify(f"resuming from the checkpoint at step {start.step:,} (chunk {start.chunk})")
     runs = spec.seeds * len(spec.hparams)
     progress = Progress(
-        spec.total_steps,
+        plan.final_steps,  # the budget in whole chunks: the line never passes 100%
         start.step,
         start.updates,
         runs,
