@@ -76,13 +76,13 @@ def _sweep(argv: list[str]) -> int | None:
 def _evaluate(argv: list[str]) -> int | None:
     from rl_jax.run import evaluate  # on use: rl-jax --help starts without JAX
 
-    return evaluate.main(argv)
+    return evaluate.main(argv, prog="rl-jax evaluate")
 
 
 def _render(argv: list[str]) -> int | None:
     from rl_jax.run import render  # on use: rl-jax --help starts without JAX
 
-    return render.main(argv)
+    return render.main(argv, prog="rl-jax render")
 
 
 #: command -> (what it does, for --help; its entry point, called with the remaining arguments).

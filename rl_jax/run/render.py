@@ -4,6 +4,11 @@ policy by default, ``--latest`` for the latest checkpoint's).
     python -m rl_jax.run.render RUN_DIR [--seed K] [--config I] [--episodes N] [--out FILE]
                                 [--latest] [--algo LEARNER]
 
+Without ``--out`` the GIF is ``RUN_DIR/policy.gif``, or, where that exists (the one ``--gif``
+wrote at the end of the run, or an earlier rendering), the first free name of ``policy-2.gif``,
+``policy-3.gif``, ...: a rendering never replaces a GIF unasked. ``--out FILE`` names the file
+to write, and replaces it if it exists, saying so in the line it prints.
+
 ``--algo`` names the run's learner when it is one of your own (``rl_jax.run.learners``).
 
 Frames come from the environment, through one of two hooks (the first one the env has):
@@ -152,6 +157,8 @@ def _fps(env: Environment) -> float:
     return float(1.0 / float(dt)) if dt is not None and float(dt) > 0 else 30.0
 
 
+#: The GIF ``--gif`` writes at the end of a run, and ``render``'s first choice of name.
+GIF_FILE = "policy.gif"
 #: GIF players round frame delays below 20 ms up to 100 ms: faster envs skip frames instead.
 MAX_GIF_FPS = 50.0
 
@@ -184,7 +191,8 @@ def write_gif(
         act = loaded.act()
         episodes_data = rollout(env, act, jax.random.key(loaded.seed), episodes)
         frames = [f for episode in episodes_data for f in episode_frames(env, episode["states"])]
-        path = Path(out) if out is not None else Path(run_dir) / "policy.gif"
+        path = Path(out) if out is not None else free_gif_path(Path(run_dir))
+        replaced = path.exists()
         save_gif(frames, path, _fps(env), max_frames)
         plot_path = _save_episode_plot(env, episodes_data[-1]["states"], path)
     returns = ", ".join(f"{episode['return']:.1f}" for episode in episodes_data)
@@ -194,8 +202,18 @@ def write_gif(
     print(
         f"rendered seed {loaded.seed} (config {loaded.config_index}) at step {loaded.step:,}, "
         f"its {loaded.which} policy: episode return {returns}; {len(frames)} frames -> "
-        f"{path}{plot_note}"
+        f"{path}{' (replaced the file that was there)' if replaced else ''}{plot_note}"
     )
+    return path
+
+
+def free_gif_path(run_dir: Path) -> Path:
+    """``run_dir/policy.gif``, or the first of ``policy-2.gif``, ``policy-3.gif``, ... that does
+    not exist: a rendering without ``--out`` writes a new file, never over one."""
+    path, number = run_dir / GIF_FILE, 1
+    while path.exists():
+        number += 1
+        path = run_dir / f"{Path(GIF_FILE).stem}-{number}{Path(GIF_FILE).suffix}"
     return path
 
 
@@ -208,16 +226,20 @@ def _save_episode_plot(env: Environment, states: list[Any], gif_path: Path) -> P
     return path
 
 
-def main(argv: list[str] | None = None) -> int:
+def main(argv: list[str] | None = None, prog: str = "python -m rl_jax.run.render") -> int:
     """``python -m rl_jax.run.render RUN_DIR``: render a seed's policy to a GIF. Returns the exit
-    status.
+    status. ``prog`` is the command named in ``--help`` and errors (``rl-jax render``).
     """
-    parser = OneLineParser(prog="python -m rl_jax.run.render", description=__doc__.split("\n")[0])
+    parser = OneLineParser(prog=prog, description=__doc__.split("\n")[0])
     parser.add_argument("run_dir", type=Path, help="a run directory (holds config.json)")
     add_run_choice(parser, "seed to render (default: the one with the best eval return)")
     parser.add_argument("--episodes", type=positive_int, default=1, help="episodes (default: 1)")
     parser.add_argument(
-        "--out", type=Path, default=None, help="GIF path (default: RUN_DIR/policy.gif)"
+        "--out",
+        type=Path,
+        default=None,
+        help="GIF path, replaced if it exists (default: RUN_DIR/policy.gif, or where that "
+        "exists the first free policy-2.gif, policy-3.gif, ...: never an existing file)",
     )
     parser.add_argument(
         "--max-frames",

@@ -332,8 +332,11 @@ def _render_gif(spec: RunSpec, notify: Callable[[str], None]) -> str | None:
     OpenGL backend once per process, and the child can choose headless EGL whatever this
     process chose. Returns the error line if rendering failed."""
     env = {**os.environ, "PYTHONPATH": os.pathsep.join(path for path in sys.path if path)}
-    # A learner of the user's own is named to the child (it never imports one by itself).
+    # A learner of the user's own is named to the child (it never imports one by itself). The
+    # run's own GIF is named as --out: render replaces it (and says so) where a resumed run
+    # made one before, rather than writing policy-2.gif beside it.
     command = [sys.executable, "-m", "rl_jax.run.render", str(spec.out)]
+    command += ["--out", str(spec.out / "policy.gif")]
     command += learners.cli_args(spec.algorithm)
     done = subprocess.run(command, env=env, capture_output=True, text=True)
     if done.returncode != 0:
