@@ -458,9 +458,9 @@ def python_hint(learner: Algorithm) -> str:
 
 def _builtin(record: dict[str, Any], name: str) -> Algorithm:
     """The built-in learner of ``record``, imported from inside rl_jax only."""
-    reference = record.get("algorithm_module")
+    reference = str(record.get("algorithm_module"))
     builtin_modules = {str(where).partition(":")[0] for where in _BUILTIN_REFERENCES}
-    module_name = str(reference).partition(":")[0]
+    module_name = reference.partition(":")[0]
     if MOVED_MODULES.get(module_name, module_name) not in builtin_modules:
         raise RunError(f"the run record names a built-in learner at {reference!r}, not one of ours")
     try:

@@ -187,14 +187,14 @@ def write_gif(
     comes from a module of the user's own."""
     with opengl_errors():  # a MuJoCo env may import mujoco (and fail) while being built
         loaded = LoadedPolicy(Path(run_dir), seed, config_index, which, algorithm, env)
-        env = loaded.env()
+        played = loaded.env()
         act = loaded.act()
-        episodes_data = rollout(env, act, jax.random.key(loaded.seed), episodes)
-        frames = [f for episode in episodes_data for f in episode_frames(env, episode["states"])]
+        episodes_data = rollout(played, act, jax.random.key(loaded.seed), episodes)
+        frames = [f for episode in episodes_data for f in episode_frames(played, episode["states"])]
         path = Path(out) if out is not None else free_gif_path(Path(run_dir))
         replaced = path.exists()
-        save_gif(frames, path, _fps(env), max_frames)
-        plot_path = _save_episode_plot(env, episodes_data[-1]["states"], path)
+        save_gif(frames, path, _fps(played), max_frames)
+        plot_path = _save_episode_plot(played, episodes_data[-1]["states"], path)
     returns = ", ".join(f"{episode['return']:.1f}" for episode in episodes_data)
     plot_note = f" (episode plot: {plot_path})" if plot_path else ""
     if loaded.note:
