@@ -108,7 +108,9 @@ class Run:
         which: str = "best",
         episodes: int = 1,
     ) -> Path:
-        """A GIF of the policy (default: ``RUN_DIR/policy.gif`` of the best seed's best)."""
+        """A GIF of the policy (default: the best seed's best) at ``path``, else at
+        ``RUN_DIR/policy.gif``, or ``policy-2.gif``, ... where that exists: never over a GIF
+        already there unless ``path`` names it."""
         return write_gif(
             self.run_dir, seed, episodes, path, which=which, algorithm=self.learner, env=self.env_id
         )
