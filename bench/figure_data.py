@@ -1,6 +1,6 @@
 """What the figures are drawn from: run directories (``config.json`` and ``metrics.jsonl``), the
-published reference curves under ``bench/reference_curves/``, and the Markdown tables of the
-benchmark results.
+published reference curves under ``bench/reference_curves/``, the Markdown tables of the
+benchmark results, and the per-seed final returns of RESULTS.md's rows.
 
 Everything here reads; nothing writes. Problems are ``FigureError``s with one line of text, which
 ``bench.figures`` prints before skipping the figure concerned.
@@ -177,3 +177,54 @@ def table_columns(rows: list[dict[str, str]], wanted: list[str], path: Any) -> N
     for column in wanted:
         if column not in header:
             raise FigureError(f"the table in {path} has no column {column!r}; it has {header}")
+
+
+# ---- RESULTS.md's rows ----------------------------------------------------------------------
+
+#: Where every row of RESULTS.md is written, one line each, by ``python -m bench.results ROW``.
+RESULTS_FILE = "RESULTS.md"
+RESULTS_HEADING = "Every row, as generated"
+_ROW = re.compile(r"python -m bench\.results ([\w.-]+)")
+_ENV_ID = re.compile(r"`([\w./-]+-v\d+)`")
+#: A seed's final return, or several seeds' equal ones: "9,353", "500 (x8)".
+_SEED = re.compile(r"(-?[\d,]+(?:\.\d+)?)(?: \(x(\d+)\))?")
+
+
+@dataclasses.dataclass
+class ResultRow:
+    """One row of RESULTS.md: its name, env, budget and each seed's final eval return."""
+
+    name: str
+    env_id: str
+    total_steps: int
+    finals: np.ndarray  # [S]
+
+
+def _finals(cell: str, name: str) -> np.ndarray:
+    """``"5,019 / 5,992 / 500 (x8); mean ..."`` -> each seed's final return."""
+    finals: list[float] = []
+    for part in cell.split(";")[0].split(" / "):
+        match = _SEED.fullmatch(part.strip())
+        if match is None:
+            raise FigureError(f"row {name}: cannot read a seed's final return from {part!r}")
+        finals += [float(match.group(1).replace(",", ""))] * int(match.group(2) or 1)
+    return np.asarray(finals, np.float64)
+
+
+def result_rows(path: str | Path = RESULTS_FILE) -> dict[str, ResultRow]:
+    """Every row of the results table (``## Every row, as generated``) by its name."""
+    table = markdown_table(path, RESULTS_HEADING)
+    columns = list(table[0]) if table else []
+    final = next((c for c in columns if c.startswith("final eval return per seed")), None)
+    table_columns(table, ["algorithm, env", "command", "env steps per seed"], path)
+    if final is None:
+        raise FigureError(f"the table in {path} has no column 'final eval return per seed'")
+    rows = {}
+    for cells in table:
+        name, env = _ROW.search(cells["command"]), _ENV_ID.search(cells["algorithm, env"])
+        steps = cell_number(cells["env steps per seed"])
+        if name is None or env is None or steps is None:
+            continue
+        finals = _finals(cells[final], name.group(1))
+        rows[name.group(1)] = ResultRow(name.group(1), env.group(1), int(steps), finals)
+    return rows

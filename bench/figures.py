@@ -15,15 +15,22 @@ whenever the runs are redone; nothing is drawn by hand. Four kinds (``[kind.name
   [value, "label"]``.
 * ``aggregate.NAME`` -> ``aggregate_NAME.png``: over a suite of envs, each learner's IQM of
   normalised final scores and its performance profile, with stratified-bootstrap 95% intervals
-  (``bench/figure_stats.py``). Keys: ``runs``, optional ``labels`` (runs with one label pool as
-  one learner), ``title``, and ``normalize.<env id>`` = ``{low, high}`` or ``{reference, step,
-  low}`` (``high``: the reference's mean return at ``step``).
+  (``bench/figure_stats.py``). The scores come from ``runs`` (run directories; optional
+  ``labels``: runs with one label pool as one learner) or from ``rows`` = ``{label: [ROW,
+  ...]}``, RESULTS.md's rows by name (their per-seed final returns, as ``python -m
+  bench.results ROW`` wrote them), which must cover the same envs for every label. Keys: one of
+  those, optional ``title``, and ``normalize.<env id>`` = ``{low, high}``, ``{high, source}``
+  (a published number, ``source`` saying whose) or ``{reference, step, low}`` (``high``: the
+  reference curves' mean return at ``step``); ``low`` defaults to 0.
 * ``speed.NAME`` -> ``speed_NAME.png``: bars of a benchmark table (``source`` file, the first
   table after the heading containing ``heading``), one group per row (``label`` columns), one
   bar per ``bars`` column, ratios over ``baseline``. Optional ``names``, ``title``, ``unit``,
   ``log``.
 * ``gifs.NAME`` -> ``policy_NAME.gif``: the best seed's best policy of ``run`` (``seed`` to
   choose), rendered by ``rl_jax.run.render``.
+
+Any entry may have a ``caption``: what the documentation site writes under the image (default:
+its ``title``; ``docs/_ext/rl_jax_docs.py`` reads it).
 
 Paths are relative to the repository root. A figure whose run directory (or results file) is
 missing is skipped with one line saying so; the others are still made. Every image is written at
@@ -50,6 +57,7 @@ from bench.figure_data import (
     read_run,
     reference_names,
     resolve,
+    result_rows,
     table_columns,
 )
 from rl_jax.errors import OneLineParser
@@ -60,15 +68,25 @@ OUT = ROOT / "docs" / "figures"
 #: Per kind: the file name's prefix and suffix, and the keys an entry may have (the first
 #: ones are required).
 KINDS: dict[str, tuple[str, str, tuple[str, ...], tuple[str, ...]]] = {
-    "curves": ("curves_", ".png", ("runs",), ("labels", "title", "reference", "max_step", "line")),
-    "aggregate": ("aggregate_", ".png", ("runs", "normalize"), ("labels", "title")),
+    "curves": (
+        "curves_",
+        ".png",
+        ("runs",),
+        ("labels", "title", "reference", "max_step", "line", "caption"),
+    ),
+    "aggregate": (
+        "aggregate_",
+        ".png",
+        ("normalize",),
+        ("runs", "rows", "labels", "title", "caption"),
+    ),
     "speed": (
         "speed_",
         ".png",
         ("source", "heading", "label", "bars"),
-        ("names", "baseline", "title", "unit", "log"),
+        ("names", "baseline", "title", "unit", "log", "caption"),
     ),
-    "gifs": ("policy_", ".gif", ("run",), ("seed", "max_frames", "episodes")),
+    "gifs": ("policy_", ".gif", ("run",), ("seed", "max_frames", "episodes", "caption")),
 }
 
 
@@ -175,23 +193,63 @@ def _scale(env_id: str, spec: dict[str, Any]) -> tuple[float, float, str]:
         return low, high, f"{env_id}: {reference.name}'s mean at {step:,} steps"
     if "high" not in spec:
         raise FigureError(f"normalize.{env_id} needs high, or reference (and step)")
+    if "source" in spec:
+        return low, float(spec["high"]), f"{env_id}: {float(spec['high']):,g} ({spec['source']})"
     return low, float(spec["high"]), f"{env_id}: [{low:g}, {float(spec['high']):g}]"
+
+
+def _run_finals(entry: dict[str, Any]) -> tuple[dict[str, dict[str, list[Any]]], str]:
+    """Each learner's final scores per env, from the entry's run directories."""
+    runs, left_out = _runs(entry)
+    finals: dict[str, dict[str, list[Any]]] = {}
+    for run in runs:
+        label = run.label if entry.get("labels") else run.algorithm.upper()
+        finals.setdefault(label, {}).setdefault(run.env_id, []).append(final_scores(run))
+    return finals, left_out
+
+
+def _row_finals(entry: dict[str, Any]) -> tuple[dict[str, dict[str, list[Any]]], str]:
+    """Each learner's final scores per env, from RESULTS.md's rows named by the entry; every
+    learner on the same envs, so that the aggregate compares like with like."""
+    rows, named = result_rows(), entry["rows"]
+    if not isinstance(named, dict) or not named:
+        raise FigureError("its rows must be a table of label = [RESULTS.md row names]")
+    finals: dict[str, dict[str, list[Any]]] = {}
+    for label, names in named.items():
+        for name in names:
+            if name not in rows:
+                raise FigureError(f"RESULTS.md has no row {name!r}")
+            row = rows[name]
+            finals.setdefault(label, {}).setdefault(row.env_id, []).append(row.finals)
+    envs = {label: sorted(by_env) for label, by_env in finals.items()}
+    first = next(iter(envs.values()))
+    for label, theirs in envs.items():
+        if theirs != first:
+            raise FigureError(f"{label}'s rows cover {theirs}, not the same envs as {first}")
+    return finals, ""
 
 
 def make_aggregate(entry: dict[str, Any], path: Path) -> str:
     """The IQM and performance-profile figure over a suite; a note with the IQMs."""
-    runs, left_out = _runs(entry)
+    if ("runs" in entry) == ("rows" in entry):
+        raise FigureError("give runs (run directories) or rows (RESULTS.md's rows), one of them")
+    finals, left_out = _row_finals(entry) if "rows" in entry else _run_finals(entry)
     scales = {}
-    for run in runs:
-        if run.env_id not in entry["normalize"]:
-            raise FigureError(f"no normalize entry for {run.env_id}")
-        scales[run.env_id] = _scale(run.env_id, entry["normalize"][run.env_id])
+    for env_id in sorted({env for by_env in finals.values() for env in by_env}):
+        if env_id not in entry["normalize"]:
+            raise FigureError(f"no normalize entry for {env_id}")
+        scales[env_id] = _scale(env_id, entry["normalize"][env_id])
     scores: dict[str, list[Any]] = {}
-    for run in runs:
-        low, high, _ = scales[run.env_id]
-        label = run.label if entry.get("labels") else run.algorithm.upper()
-        scores.setdefault(label, []).append(figure_stats.normalize(final_scores(run), low, high))
-    normalised = "0 at low, 1 at high per env" if len(scales) > 1 else "0 at low, 1 at high"
+    for label, by_env in finals.items():
+        for env_id, per_env in by_env.items():
+            low, high, _ = scales[env_id]
+            scores.setdefault(label, []).extend(
+                figure_stats.normalize(values, low, high) for values in per_env
+            )
+    if all("source" in entry["normalize"][env] for env in scales):
+        normalised = "final return / reference, per env"
+    else:
+        normalised = "0 at low, 1 at high per env" if len(scales) > 1 else "0 at low, 1 at high"
     size, iqms = figure_plots.aggregate_figure(
         scores, path, entry.get("title", "suite aggregate"), normalised
     )

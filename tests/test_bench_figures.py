@@ -247,6 +247,19 @@ def test_figures_that_cannot_be_made_say_why(runs, tmp_path):
         figures.make_speed(speed, tmp_path / "s.png")
 
 
+def test_the_suite_aggregate_reads_its_rows_per_seed_from_results_md(tmp_path):
+    rows = figure_data.result_rows()
+    assert rows["sac-hopper"].env_id == "rl_jax/Hopper-v5"
+    assert rows["sac-hopper"].total_steps == 300_000 and rows["sac-hopper"].finals.size == 5
+    assert rows["dqn-cartpole"].finals.size == 30  # "500 (x8) / 499 / 500 (x21)"
+    entry = figures.read_manifest(figures.MANIFEST)["aggregate"]["suite"]
+    note = figures.make_aggregate(entry, tmp_path / "a.png")
+    assert all(f"{label} IQM" in note for label in entry["rows"]), note
+    uneven = {**entry, "rows": {"A": ["sac-hopper", "sac-ant"], "B": ["sac-hopper"]}}
+    with pytest.raises(figure_data.FigureError, match="not the same envs"):
+        figures.make_aggregate(uneven, tmp_path / "b.png")
+
+
 def test_cells_of_benchmark_tables_read_as_numbers():
     assert figure_data.cell_number("1,029,909") == 1029909
     assert figure_data.cell_number("296, 294") == 294
