@@ -13,6 +13,9 @@
     every image under ``docs/figures/`` that shows one of the learners: the name is a word of
     the file name (``halfcheetah_td3.png``) or of what ``docs/figures/manifest.toml`` says the
     image is drawn from (its title, labels, run directories); or one line saying there is none.
+    Each image's caption is its manifest entry's ``caption``, else its ``title``.
+``manifest-figure FILE``
+    one image of ``docs/figures/`` (``aggregate_suite.png``) with its manifest caption.
 ``env-table``
     every registered env id with its observation and action spaces and episode limit (built
     from ``envs.make``), and its policy GIF where ``docs/figures/policy_NAME.gif`` exists; the
@@ -25,7 +28,8 @@ Every inline literal that is an option flag (``--updates-per-iteration``) gets t
 After the HTML is written, ``copy_mathjax`` puts MathJax (from the ``sphinx-mathjax-offline``
 package) into ``_static/mathjax``, where ``conf.py``'s ``mathjax_path`` points, so that maths
 renders without a network; and ``check_output`` reads every page: a local link (``href``) or image
-(``src``) whose file or ``#anchor`` does not exist is a warning, so ``-W`` fails the build.
+(``src``) whose file or ``#anchor`` does not exist is a warning, so ``-W`` fails the build, and so
+is an image of ``docs/figures/`` that no page shows.
 """
 
 from __future__ import annotations
@@ -363,8 +367,9 @@ class LearnerRecipes(SphinxDirective):
 
 #: Image name prefix -> the table of docs/figures/manifest.toml (``make figures``) that says what
 #: the image ``PREFIX_KEY.png`` is drawn from: ``[curves.KEY]``, ``[gifs.KEY]``, ``[speed.KEY]``.
-#: (The aggregate over the suite names every learner's runs: it belongs to no one learner.)
-MANIFEST_TABLES = {"curves": "curves", "policy": "gifs", "speed": "speed"}
+#: (An aggregate over the suite compares learners: it is on no one learner's page, and
+#: ``manifest-figure`` shows it where a page asks.)
+MANIFEST_TABLES = {"curves": "curves", "policy": "gifs", "speed": "speed", "aggregate": "aggregate"}
 
 
 def manifest_entry(manifest: dict[str, Any], path: Path) -> dict[str, Any]:
@@ -389,19 +394,41 @@ def figure_files(figures_dir: Path, names: list[str]) -> list[tuple[Path, str]]:
     word of the file name, or of its manifest entry's title, labels or run directories."""
     if not figures_dir.is_dir():
         return []
-    manifest: dict[str, Any] = {}
-    if (figures_dir / "manifest.toml").is_file():
-        manifest = tomllib.loads((figures_dir / "manifest.toml").read_text(encoding="utf-8"))
+    manifest = read_manifest(figures_dir)
     wanted = {n.lower() for n in names}
     found = []
     for path in sorted(figures_dir.rglob("*")):
         if path.suffix.lower() not in IMAGE_SUFFIXES:
             continue
+        if path.stem.startswith("aggregate_"):  # over learners; shown by manifest-figure
+            continue
         entry = manifest_entry(manifest, path)
         words = _words(path.stem, *(entry.get(k) for k in ("title", "labels", "runs", "run")))
         if words & wanted:
-            found.append((path, str(entry.get("title") or path.stem.replace("_", " "))))
+            found.append((path, caption_of(entry, path)))
     return found
+
+
+def caption_of(entry: dict[str, Any], path: Path) -> str:
+    """What the site writes under an image: its manifest entry's ``caption``, else its title."""
+    return str(entry.get("caption") or entry.get("title") or path.stem.replace("_", " "))
+
+
+def read_manifest(figures_dir: Path) -> dict[str, Any]:
+    """``docs/figures/manifest.toml`` (``{}`` when there is none)."""
+    path = figures_dir / "manifest.toml"
+    return tomllib.loads(path.read_text(encoding="utf-8")) if path.is_file() else {}
+
+
+def figure_node(directive: SphinxDirective, path: Path, caption: str) -> nodes.figure:
+    """An image of ``docs/figures/`` with its caption (code spans as literals)."""
+    srcdir = Path(directive.env.srcdir)
+    directive.env.note_dependency(str(path))
+    uri = "/" + path.relative_to(srcdir).as_posix()  # to Sphinx: from the source folder
+    figure = nodes.figure()
+    figure += nodes.image(uri=uri, alt=caption.split(". ")[0])
+    figure += nodes.caption(caption, "", *inline(caption))
+    return figure
 
 
 class LearnerFigures(SphinxDirective):
@@ -417,15 +444,24 @@ class LearnerFigures(SphinxDirective):
         if not files:
             text = "No figure of this learner yet: the results page has its numbers."
             return [nodes.paragraph("", "", nodes.emphasis(text, text))]
-        out: list[nodes.Node] = []
-        for path, caption in files:
-            self.env.note_dependency(str(path))
-            uri = "/" + path.relative_to(srcdir).as_posix()  # to Sphinx: from the source folder
-            figure = nodes.figure()
-            figure += nodes.image(uri=uri, alt=caption)
-            figure += nodes.caption(caption, caption)
-            out.append(figure)
-        return out
+        return [figure_node(self, path, caption) for path, caption in files]
+
+
+class ManifestFigure(SphinxDirective):
+    """One image of ``docs/figures/`` by file name, with its manifest caption (see the module
+    docstring); a name that is not there fails the build."""
+
+    required_arguments = 1
+
+    def run(self) -> list[nodes.Node]:
+        self.env.note_reread()
+        figures_dir = Path(self.env.srcdir) / FIGURES
+        path = figures_dir / self.arguments[0]
+        if not path.is_file():
+            logger.warning(f"manifest-figure: no {FIGURES}/{path.name}", location=self)
+            return []
+        entry = manifest_entry(read_manifest(figures_dir), path)
+        return [figure_node(self, path, caption_of(entry, path))]
 
 
 # ---- environments -----------------------------------------------------------------------------
@@ -639,10 +675,28 @@ def copy_mathjax(app: Sphinx, exception: Exception | None) -> None:
             shutil.copyfile(path, copy)
 
 
+def unshown_figures(outdir: Path, figures_dir: Path) -> list[str]:
+    """Each image of ``docs/figures/`` that no page of the site under ``outdir`` shows (Sphinx
+    copies a page's images into ``_images/`` under their own names)."""
+    shown = set()
+    for page in outdir.rglob("*.html"):
+        collector = _Collector()
+        collector.feed(page.read_text(encoding="utf-8"))
+        shown |= {unquote(urlsplit(src).path).rsplit("/", 1)[-1] for src in collector.images}
+    return [
+        f"{FIGURES}/{path.name} is shown on no page of the site"
+        for path in sorted(figures_dir.glob("*"))
+        if path.suffix.lower() in IMAGE_SUFFIXES and path.name not in shown
+    ]
+
+
 def check_output(app: Sphinx, exception: Exception | None) -> None:
-    """After a successful HTML build: a warning for each broken local link or image."""
+    """After a successful HTML build: a warning for each broken local link or image, and for
+    each image of ``docs/figures/`` shown on no page."""
     if exception is None and app.builder.format == "html":
         for problem in broken_references(Path(app.outdir)):
+            logger.warning(problem)
+        for problem in unshown_figures(Path(app.outdir), Path(app.srcdir) / FIGURES):
             logger.warning(problem)
 
 
@@ -651,6 +705,7 @@ def setup(app: Sphinx) -> dict[str, Any]:
     app.add_directive("learner-options", LearnerOptions)
     app.add_directive("learner-recipes", LearnerRecipes)
     app.add_directive("learner-figures", LearnerFigures)
+    app.add_directive("manifest-figure", ManifestFigure)
     app.add_directive("env-table", EnvTable)
     app.add_transform(MarkFlags)
     app.connect("build-finished", copy_mathjax)
