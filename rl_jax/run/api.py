@@ -50,7 +50,9 @@ from rl_jax.training.params import dataclass_from_dict
 
 class Run:
     """A run directory, trained or opened: its results, curves, policies and GIFs.
-    ``learner``: the run's learner as named (None: the run's built-in one)."""
+    ``algorithm``: the run's learner as the user names it (None: the run's built-in one), kept
+    as the attribute ``learner``; ``env``: the run's env named again where it is one of the
+    user's own (``"my_module:MyEnv-v0"``)."""
 
     def __init__(
         self,
@@ -150,10 +152,10 @@ def train(
     num_processes: int | None = None,
     process_id: int | None = None,
 ) -> Run:
-    """Train ``algorithm`` ("td3", "ddpg", "dqn", "reinforce"; a learner of your own as
-    "my_package.my_module:learner" or "path/to/file.py:learner", or the learner object) on
-    ``env_id`` with every seed in one compiled program, into a run directory (default
-    ``runs/<env>__<algo>__<time>/``).
+    """Train ``algorithm`` ("td3", "ddpg", "td7", "crossq", "sac", "ppo", "dqn", "reinforce"; a
+    learner of your own as "my_package.my_module:learner" or "path/to/file.py:learner", or the
+    learner object) on ``env_id`` with every seed in one compiled program, into a run directory
+    (default ``runs/<env>__<algo>__<time>/``).
 
     The settings are the learner's ``recipe`` for the env (None: its default; the names are
     those of ``--recipe`` in the scripts), then ``config`` / ``hparams``, which override fields
