@@ -6,7 +6,6 @@ from __future__ import annotations
 
 import importlib.util
 import shutil
-import sys
 from pathlib import Path
 
 import pytest
@@ -23,7 +22,6 @@ def load_checker():
     spec = importlib.util.spec_from_file_location("docs_check", ROOT / "scripts" / "docs_check.py")
     assert spec is not None and spec.loader is not None
     module = importlib.util.module_from_spec(spec)
-    sys.modules.setdefault("docs_check", module)
     spec.loader.exec_module(module)
     return module
 
