@@ -115,7 +115,10 @@ def metrics_iqm(values):
 def write_run(directory: Path, algorithm: str, env_id: str, returns: np.ndarray, every=1000):
     """A run directory as the run layer writes it: config.json and metrics.jsonl rows."""
     directory.mkdir(parents=True)
-    identity = {"algorithm": algorithm, "env_id": env_id, "seeds": len(returns), "base_seed": 0}
+    identity = {
+        "algorithm": algorithm, "env_id": env_id, "config": {"env_id": env_id}, "hparams": [{}],
+        "seeds": len(returns), "base_seed": 0,
+    }  # fmt: skip
     (directory / "config.json").write_text(json.dumps({"identity": identity}))
     rows = [
         {"step": every * (t + 1), "seed": s, "eval_return": float(value), "train_return": 0.0}
@@ -238,7 +241,7 @@ def test_figures_that_cannot_be_made_say_why(runs, tmp_path):
         figures.make_curves(entry, tmp_path / "c.png")
     with pytest.raises(figure_data.FigureError, match="unknown reference 'nope'"):
         figures.make_curves({"runs": entry["runs"][:1], "reference": "nope"}, tmp_path / "c.png")
-    with pytest.raises(figure_data.FigureError, match="no normalize entry for rl_jax/HalfCheetah"):
+    with pytest.raises(figure_data.FigureError, match="no normalize entry for rl_jax/"):
         figures.make_aggregate({"runs": entry["runs"], "normalize": {}}, tmp_path / "a.png")
     with pytest.raises(figure_data.FigureError, match="non-empty list"):
         figures.make_curves({"runs": []}, tmp_path / "c.png")
