@@ -5,6 +5,7 @@ line too (from the script itself as well)."""
 
 import dataclasses
 import errno
+import json
 import os
 import subprocess
 import sys
@@ -179,10 +180,13 @@ def _read_only(*args, **kwargs):
 def test_a_read_only_out_or_resume_directory_is_refused(tmp_path, monkeypatch):
     """A directory that exists but takes no file (a read-only mount; root ignores file modes,
     so the file system's refusal is simulated) is refused before the run starts."""
-    identity = {"algorithm": "td3"}
+    identity = {
+        "algorithm": "td3", "env_id": "rl_jax/Pendulum-v1", "config": {}, "hparams": [{}],
+        "seeds": 1, "base_seed": 0,
+    }  # fmt: skip
     run = tmp_path / "run"
     run.mkdir()
-    (run / run_dir.CONFIG_FILE).write_text('{"identity": {"algorithm": "td3"}}')
+    (run / run_dir.CONFIG_FILE).write_text(json.dumps({"identity": identity}))
     (tmp_path / "empty").mkdir()
     assert run_dir.check_resume_dir(run, identity)["identity"] == identity
     assert sorted(p.name for p in run.iterdir()) == [run_dir.CONFIG_FILE]
