@@ -200,30 +200,44 @@ def _add_choice_flags(parser: argparse.ArgumentParser) -> None:
     )
 
 
-def _choose(
-    argv: list[str], algorithm: Algorithm | None, env_id: str | None
-) -> tuple[Algorithm | None, str, bool]:
+@dataclasses.dataclass(frozen=True)
+class Choice:
+    """What the command line chooses before the learner's own flags can be read, from one pass
+    over argv: the learner, the env, the recipe's name, the resumed run's record, whether the
+    learner and env came from the command line (``--algo``, ``--env``) rather than the script,
+    and the rest of argv (``--recipe`` taken out) for the learner's parser."""
+
+    algorithm: Algorithm | None
+    env_id: str
+    chosen: bool
+    recipe: str | None = None
+    record: dict[str, Any] | None = None
+    rest: tuple[str, ...] = ()
+    env_given: bool = False
+
+
+def _choose(argv: list[str], algorithm: Algorithm | None, env_id: str | None) -> Choice:
     """Algorithm and env: fixed by the script, or from --algo/--env (or the resumed run). With
     ``--help`` and no env, the env is the learner's default one (``help_env``), whose defaults
     the help then shows."""
     pre = OneLineParser(add_help=False)
     _add_choice_flags(pre)
     pre.add_argument("--resume", type=Path, default=None)
+    pre.add_argument("--recipe", default=None)
     known, _ = pre.parse_known_args(argv)
+    # --algo, --env and --resume stay in argv for the learner's parser, which lists them too
+    rest = _without_recipe(argv)
     record = read_run_record(known.resume) if known.resume else None
+    given = known.env is not None or record is not None
     if algorithm is not None and env_id is not None:
-        # a script's run may be another built-in learner's, chosen by its --recipe
-        # (when the run's recorded --recipe chose it: any other learner's run is refused)
         if record is not None and record.get("learner") == "builtin":
-            recorded = shlex.split(record.get("command", ""))
-            env = envs.core.registry.resolve_id(env_id)
-            chosen, _ = recipe_choice.learner_of_recipe(recorded, algorithm, env)
-            if chosen.name == record["identity"]["algorithm"]:
-                algorithm = chosen
-        return algorithm, envs.core.registry.resolve_id(env_id), False
+            algorithm = recipe_choice.resumed_learner(algorithm, record["identity"]["algorithm"])
+        algorithm, recipe = recipe_choice.script_recipe(algorithm, known.recipe)
+        env = envs.core.registry.resolve_id(env_id)
+        return Choice(algorithm, env, False, recipe, record, tuple(rest), given)
     wants_help = bool({"-h", "--help"} & set(argv))
     if wants_help and (algorithm or known.algo or record) is None:
-        return None, "", True
+        return Choice(None, "", True)
     if algorithm is None and known.algo is None and record is None:
         raise UsageError("--algo is required")
     if (env_id or known.env or record) is None and not wants_help:
@@ -237,7 +251,21 @@ def _choose(
         env_name = recorded_env(record["identity"]["env_id"], known.resume, env_name, "--env")
     if env_name is None:
         env_name = help_env(algorithm)
-    return algorithm, envs.core.registry.resolve_id(env_name), True
+    env = envs.core.registry.resolve_id(env_name)
+    return Choice(algorithm, env, True, known.recipe, record, tuple(rest), given)
+
+
+def _without_recipe(argv: list[str]) -> list[str]:
+    """``argv`` without ``--recipe NAME`` / ``--recipe=NAME`` (read by ``_choose``)."""
+    rest, skip = [], False
+    for word in argv:
+        if skip:
+            skip = False
+        elif word == "--recipe":
+            skip = True
+        elif not word.startswith("--recipe="):
+            rest.append(word)
+    return rest
 
 
 #: Where ``help_env`` looks when a learner's recipes name no env: continuous, then discrete.
@@ -256,11 +284,6 @@ def help_env(algorithm: Algorithm) -> str:
             continue
         return env_id
     raise UsageError(f"--env is required: {algorithm.name} has no default env to show flags for")
-
-
-def _names_env(argv: list[str]) -> bool:
-    """Whether ``argv`` gives ``--env`` or ``--resume`` (which names a run and so its env)."""
-    return any(word.split("=")[0] in ("--env", "--resume") for word in argv)
 
 
 def _help_without_algorithm(description: str, defaults: Defaults) -> int:
@@ -391,24 +414,24 @@ def run_experiment(
     argv = distributed.start(typed)  # JAX's settings, and the processes joined if asked
     defaults = defaults or Defaults()
     description = (description or "").strip() or None
-    algorithm, env_id, choose = _choose(argv, algorithm, env_id)
+    choice = _choose(argv, algorithm, env_id)
+    algorithm, env_id = choice.algorithm, choice.env_id
     if algorithm is None:
         return _help_without_algorithm(description or "", defaults)
-    if choose and {"-h", "--help"} & set(argv) and not _names_env(argv):
+    if choice.chosen and {"-h", "--help"} & set(argv) and not choice.env_given:
         description = (
             f"{description or ''}\n\nDefaults below are {algorithm.name}'s for {env_id}; "
             "give --env ID to see those of another env."
         ).strip()
-    given = typed  # the run records the command as typed, --recipe included
-    if not choose:
-        algorithm, argv = recipe_choice.learner_of_recipe(argv, algorithm, env_id)
-    recipe, argv = recipe_choice.take_recipe(argv, algorithm, env_id)
+    resuming = choice.record is not None
+    recipe = recipe_choice.recipe_named(algorithm, env_id, choice.recipe, resuming)
     parser, config_names, hparam_names = build_parser(
-        algorithm, env_id, description or "", defaults, choose, recipe
+        algorithm, env_id, description or "", defaults, choice.chosen, recipe
     )
-    args = parser.parse_args(argv)
+    args = parser.parse_args(list(choice.rest))
     names = (config_names, hparam_names)
-    spec = build_spec(args, algorithm, env_id, defaults, names, given, recipe)
+    # the run records the command as typed, --recipe included
+    spec = build_spec(args, algorithm, env_id, defaults, names, typed, recipe)
     result = runner.run(spec)
     if not processes.is_lead():
         return 0

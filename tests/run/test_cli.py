@@ -276,6 +276,26 @@ def test_a_recipe_is_whole_and_an_unknown_one_is_one_error():
         recipe_choice.take_recipe(["--recipe", "paper"], fake, fake.ENV_ID)
 
 
+def test_algo_picks_the_learner_and_recipe_one_of_its_recipes():
+    """--recipe never switches the learner by splitting its name: a script of a fixed learner
+    takes the explicit aliases that recorded commands use, and every other spelling of another
+    learner's recipe is one line saying what to type instead."""
+    from rl_jax.agents.td3 import td3
+
+    cheetah = "rl_jax/HalfCheetah-v5"
+    for spelling, (learner, recipe) in recipe_choice.RECIPE_ALIASES.items():
+        chosen, name = recipe_choice.script_recipe(td3, spelling)
+        assert (chosen.name, name) == (learner, recipe)
+        assert recipe_choice.recipe_named(chosen, cheetah, name).name == recipe
+        with pytest.raises(cli.UsageError, match=f"is {learner}'s: --algo {learner} --recipe"):
+            recipe_choice.recipe_named(td3, cheetah, spelling)  # --algo td3 --recipe td7-cpu
+    assert recipe_choice.script_recipe(td3, "paper") == (td3, "paper")
+    with pytest.raises(cli.UsageError, match=r"\(ppo-cleanrl is ppo's: --algo ppo --recipe clean"):
+        recipe_choice.recipe_named(td3, cheetah, "ppo-cleanrl")
+    assert recipe_choice.resumed_learner(td3, "td7").name == "td7"
+    assert recipe_choice.resumed_learner(td3, "dqn") is td3
+
+
 def test_a_recipe_is_recorded_in_the_runs_command(monkeypatch, tmp_path):
     """The command a run records reruns it: --recipe (which is taken out of the flags before
     parsing) is part of it, as typed."""
