@@ -43,7 +43,7 @@ from rl_jax import envs
 from rl_jax.agents.common import linearly_decayed, optimizer_step, polyak_update
 from rl_jax.agents.dqn_config import PIXEL_ENVS, Config, Hyperparams, PixelConfig
 from rl_jax.agents.dqn_recipes import RECIPES
-from rl_jax.agents.dqn_replay import Buffer, add_to_buffer, init_buffer, sample, write_priorities
+from rl_jax.agents.dqn_replay import Buffer, add_to_buffer, init_buffer, replay_for
 from rl_jax.agents.q_learning import (
     double_q_values,
     greedy_values,
@@ -155,7 +155,8 @@ def update(
     update_index: jax.Array,
 ) -> tuple[Agent, Buffer, dict[str, jax.Array]]:
     """One gradient update, then (when due) a target step and new priorities."""
-    batch, weights, indices = sample(buffer, key, config, hparams, update_index)
+    replay = replay_for(config)
+    batch, weights, indices = replay.sample(buffer, key, hparams, update_index)
     if isinstance(config, PixelConfig) and config.augment_shift:
         batch = _shifted(batch, key, config.augment_shift)
     (loss, (td_error, q)), grads = jax.value_and_grad(loss_fn, has_aux=True)(
@@ -168,7 +169,7 @@ def update(
         due, lambda: polyak_update(agent.target, agent.online, hparams.tau), lambda: agent.target
     )
     agent = agent.replace(target=target)
-    buffer = write_priorities(buffer, indices, td_error, config, hparams)
+    buffer = replay.write_priorities(buffer, indices, td_error, hparams)
     epsilon = epsilon_at(env_steps, hparams)
     return agent, buffer, {"loss": loss, "q": q, "epsilon": epsilon}
 

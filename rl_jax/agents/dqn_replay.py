@@ -1,17 +1,21 @@
-"""DQN's replay: rows of transitions, uniform or prioritized (``Config.prioritized``:
-``rl_jax.training.prioritized``); for a ``PixelConfig`` each frame is kept once beside the rows and
-stacks are rebuilt when sampled (``rl_jax.training.frame_replay``). A sample is a batch of
-``n_step`` windows (``rl_jax.training.replay``) with its importance weights.
+"""DQN's replay, picked once per config by ``replay_for``: rows of transitions, uniform or
+prioritized (``Config.prioritized``: ``rl_jax.training.prioritized``), laid out flat or, for a
+``PixelConfig``, beside frames kept once, whose stacks are rebuilt when sampled
+(``rl_jax.training.frame_replay``). A sample is a batch of ``n_step`` windows
+(``rl_jax.training.replay``) with its importance weights.
 """
 
 from __future__ import annotations
+
+from collections.abc import Callable
+from typing import Any, NamedTuple
 
 import jax
 import jax.numpy as jnp
 
 from rl_jax.agents.dqn_config import Config, Hyperparams, PixelConfig
 from rl_jax.training import frame_replay, offpolicy, prioritized, replay
-from rl_jax.training.frame_replay import FrameReplay, FrameRow
+from rl_jax.training.frame_replay import FrameReplay
 from rl_jax.training.prioritized import PrioritizedBuffer
 from rl_jax.training.replay import NStepBatch, ReplayBuffer, Transition
 
@@ -23,74 +27,148 @@ Buffer = Rows | FrameReplay
 Indices = tuple[jax.Array, jax.Array]
 
 
+# ---- the rows: uniform or prioritized -----------------------------------------------------------
+class RowKind(NamedTuple):
+    """How the transition rows are kept, drawn from and told the TD errors."""
+
+    init: Callable[[Any, Config], Any]  # (example row, config) -> rows
+    add: Callable[[Any, Any, Hyperparams], Any]  # (rows, batch of rows [N, ...], hparams) -> rows
+    # (rows, key, config, hparams, update_index) -> (rows [B], columns [B], weights [B])
+    draw: Callable[[Any, jax.Array, Config, Hyperparams, jax.Array], tuple[jax.Array, ...]]
+    storage: Callable[[Any], ReplayBuffer]  # the plain ReplayBuffer under the rows
+    # (rows, indices, td_error [B], hparams) -> rows
+    reprioritize: Callable[[Any, Indices, jax.Array, Hyperparams], Any]
+
+
+def _draw_uniform(
+    rows: ReplayBuffer,
+    key: jax.Array,
+    config: Config,
+    hparams: Hyperparams,
+    update_index: jax.Array,
+) -> tuple[jax.Array, ...]:
+    rows_drawn, columns = replay.sample_indices(rows, key, config.batch_size)
+    return rows_drawn, columns, jnp.ones(config.batch_size, jnp.float32)
+
+
+def _draw_prioritized(
+    rows: PrioritizedBuffer,
+    key: jax.Array,
+    config: Config,
+    hparams: Hyperparams,
+    update_index: jax.Array,
+) -> tuple[jax.Array, ...]:
+    env_steps = offpolicy.env_steps_at_update(update_index, config)
+    beta = prioritized.annealed_beta(
+        hparams.priority_beta_start, env_steps, hparams.priority_beta_steps
+    )
+    return prioritized.sample_indices(rows, key, config.batch_size, beta)
+
+
+def _reprioritize(
+    rows: PrioritizedBuffer, indices: Indices, td_error: jax.Array, hparams: Hyperparams
+) -> PrioritizedBuffer:
+    """The sampled transitions' priorities become ``|TD error| + eps``."""
+    priorities = jnp.abs(td_error) + hparams.priority_eps
+    return prioritized.update_priorities(rows, *indices, priorities, hparams.priority_alpha)
+
+
+UNIFORM = RowKind(
+    init=lambda example, config: replay.init(example, config.buffer_size, config.num_envs),
+    add=lambda rows, batch, hparams: replay.add(rows, batch),
+    draw=_draw_uniform,
+    storage=lambda rows: rows,
+    reprioritize=lambda rows, indices, td_error, hparams: rows,
+)
+PRIORITIZED = RowKind(
+    init=lambda example, config: prioritized.init(example, config.buffer_size, config.num_envs),
+    add=lambda rows, batch, hparams: prioritized.add(rows, batch, hparams.priority_alpha),
+    draw=_draw_prioritized,
+    storage=lambda rows: rows.buffer,
+    reprioritize=_reprioritize,
+)
+
+
+# ---- the layout: observations in the rows, or frames beside them --------------------------------
+class Layout(NamedTuple):
+    """Where the observations are kept, around rows of some ``RowKind``."""
+
+    # (example transition, init_rows(example row) -> rows) -> buffer
+    init: Callable[[Transition, Callable[[Any], Any]], Any]
+    # (buffer, transitions [N, ...], add_rows(rows, batch of rows) -> rows) -> buffer
+    add: Callable[[Any, Transition, Callable[[Any, Any], Any]], Any]
+    rows_of: Callable[[Any], Any]  # buffer -> its rows
+    with_rows: Callable[[Any, Any], Any]  # (buffer, rows) -> the buffer with those rows
+    # (buffer, windows of rows [B, L, ...], rows [B], columns [B]) -> Transition windows
+    transitions: Callable[[Any, Any, jax.Array, jax.Array], Transition]
+
+
+FLAT = Layout(
+    init=lambda example, init_rows: init_rows(example),
+    add=lambda buffer, transitions, add_rows: add_rows(buffer, transitions),
+    rows_of=lambda buffer: buffer,
+    with_rows=lambda buffer, rows: rows,
+    transitions=lambda buffer, window, rows, columns: window,
+)
+FRAMES = Layout(
+    init=frame_replay.init,
+    add=frame_replay.add,
+    rows_of=lambda buffer: buffer.rows,
+    with_rows=lambda buffer, rows: buffer.replace(rows=rows),
+    transitions=frame_replay.transitions,
+)
+
+
+# ---- DQN's replay for one config ----------------------------------------------------------------
+class Replay(NamedTuple):
+    """DQN's buffer functions for one config: rows of one kind in one layout."""
+
+    config: Config
+    kind: RowKind
+    layout: Layout
+
+    def init(self, example: Transition) -> Buffer:
+        return self.layout.init(example, lambda row: self.kind.init(row, self.config))
+
+    def add(self, buffer: Buffer, transitions: Transition, hparams: Hyperparams) -> Buffer:
+        add_rows = lambda rows, batch: self.kind.add(rows, batch, hparams)  # noqa: E731
+        return self.layout.add(buffer, transitions, add_rows)
+
+    def sample(
+        self, buffer: Buffer, key: jax.Array, hparams: Hyperparams, update_index: jax.Array
+    ) -> tuple[NStepBatch, jax.Array, Indices]:
+        """``(batch, weights [B], (rows, columns))``."""
+        rows_buffer = self.layout.rows_of(buffer)
+        rows, columns, weights = self.kind.draw(
+            rows_buffer, key, self.config, hparams, update_index
+        )
+        window, stored = replay.gather_windows(
+            self.kind.storage(rows_buffer), rows, columns, self.config.n_step
+        )
+        window = self.layout.transitions(buffer, window, rows, columns)
+        return replay.n_step_batch(window, stored, hparams.gamma), weights, (rows, columns)
+
+    def write_priorities(
+        self, buffer: Buffer, indices: Indices, td_error: jax.Array, hparams: Hyperparams
+    ) -> Buffer:
+        """With ``prioritized``: the sampled transitions' priorities from their TD errors."""
+        rows = self.kind.reprioritize(self.layout.rows_of(buffer), indices, td_error, hparams)
+        return self.layout.with_rows(buffer, rows)
+
+
+def replay_for(config: Config) -> Replay:
+    """The one place where the config picks DQN's replay."""
+    kind = PRIORITIZED if config.prioritized else UNIFORM
+    layout = FRAMES if isinstance(config, PixelConfig) else FLAT
+    return Replay(config, kind, layout)
+
+
+# ---- the off-policy loop's buffer functions (offpolicy.Learner) --------------------------------
 def init_buffer(example: Transition, config: Config) -> Buffer:
-    if isinstance(config, PixelConfig):  # frames kept once, stacks rebuilt when sampled
-        return frame_replay.init(example, lambda row: _init_rows(row, config))
-    return _init_rows(example, config)
+    return replay_for(config).init(example)
 
 
 def add_to_buffer(
     buffer: Buffer, transitions: Transition, config: Config, hparams: Hyperparams
 ) -> Buffer:
-    if isinstance(config, PixelConfig):
-        add_rows = lambda rows, batch: _add_rows(rows, batch, config, hparams)  # noqa: E731
-        return frame_replay.add(buffer, transitions, add_rows)
-    return _add_rows(buffer, transitions, config, hparams)
-
-
-def sample(
-    buffer: Buffer, key: jax.Array, config: Config, hparams: Hyperparams, update_index: jax.Array
-) -> tuple[NStepBatch, jax.Array, Indices]:
-    """``(batch, weights [B], (rows, columns))`` from uniform or prioritized replay."""
-    frames, buffer = buffer, _rows_of(buffer, config)
-    if config.prioritized:
-        env_steps = offpolicy.env_steps_at_update(update_index, config)
-        beta = prioritized.annealed_beta(
-            hparams.priority_beta_start, env_steps, hparams.priority_beta_steps
-        )
-        rows, columns, weights = prioritized.sample_indices(buffer, key, config.batch_size, beta)
-        storage = buffer.buffer
-    else:
-        rows, columns = replay.sample_indices(buffer, key, config.batch_size)
-        weights, storage = jnp.ones(config.batch_size, jnp.float32), buffer
-    window, stored = replay.gather_windows(storage, rows, columns, config.n_step)
-    if isinstance(config, PixelConfig):
-        window = frame_replay.transitions(frames, window, rows, columns)
-    return replay.n_step_batch(window, stored, hparams.gamma), weights, (rows, columns)
-
-
-def write_priorities(
-    buffer: Buffer, indices: Indices, td_error: jax.Array, config: Config, hparams: Hyperparams
-) -> Buffer:
-    """With ``prioritized``: the sampled transitions' priorities become ``|TD error| + eps``."""
-    if not config.prioritized:
-        return buffer
-    rows, columns = indices
-    priorities = jnp.abs(td_error) + hparams.priority_eps
-    rows_buffer = prioritized.update_priorities(
-        _rows_of(buffer, config), rows, columns, priorities, hparams.priority_alpha
-    )
-    return _with_rows(buffer, rows_buffer, config)
-
-
-def _init_rows(example: Transition | FrameRow, config: Config) -> Rows:
-    if config.prioritized:
-        return prioritized.init(example, config.buffer_size, config.num_envs)
-    return offpolicy.uniform_buffer(example, config)
-
-
-def _add_rows(
-    rows: Rows, transitions: Transition | FrameRow, config: Config, hparams: Hyperparams
-) -> Rows:
-    if config.prioritized:
-        return prioritized.add(rows, transitions, hparams.priority_alpha)
-    return replay.add(rows, transitions)
-
-
-def _rows_of(buffer: Buffer, config: Config) -> Rows:
-    """The transition rows (uniform or prioritized) whatever the observation layout."""
-    return buffer.rows if isinstance(config, PixelConfig) else buffer
-
-
-def _with_rows(buffer: Buffer, rows: Rows, config: Config) -> Buffer:
-    return buffer.replace(rows=rows) if isinstance(config, PixelConfig) else rows
+    return replay_for(config).add(buffer, transitions, hparams)

@@ -135,7 +135,8 @@ def test_a_dqn_update_writes_abs_td_error_plus_eps_back():
 
     @jax.jit
     def sample_and_td_error(agent, buffer):
-        batch, weights, indices = dqn.sample(buffer, key, config, hparams, jnp.int32(0))
+        replay = dqn.replay_for(config)
+        batch, weights, indices = replay.sample(buffer, key, hparams, jnp.int32(0))
         td_error = dqn.loss_fn(agent.online, agent.target, batch, weights, hparams, config)[1][0]
         return indices, td_error
 
