@@ -128,9 +128,11 @@ class Replay(NamedTuple):
     layout: Layout
 
     def init(self, example: Transition) -> Buffer:
+        """An empty buffer for transitions shaped like ``example``."""
         return self.layout.init(example, lambda row: self.kind.init(row, self.config))
 
     def add(self, buffer: Buffer, transitions: Transition, hparams: Hyperparams) -> Buffer:
+        """``buffer`` with one env step of all envs (``transitions`` leaves ``[N, ...]``)."""
         add_rows = lambda rows, batch: self.kind.add(rows, batch, hparams)  # noqa: E731
         return self.layout.add(buffer, transitions, add_rows)
 
@@ -165,10 +167,12 @@ def replay_for(config: Config) -> Replay:
 
 # ---- the off-policy loop's buffer functions (offpolicy.Learner) --------------------------------
 def init_buffer(example: Transition, config: Config) -> Buffer:
+    """``replay_for(config).init``, as the loop calls it."""
     return replay_for(config).init(example)
 
 
 def add_to_buffer(
     buffer: Buffer, transitions: Transition, config: Config, hparams: Hyperparams
 ) -> Buffer:
+    """``replay_for(config).add``, as the loop calls it."""
     return replay_for(config).add(buffer, transitions, hparams)
