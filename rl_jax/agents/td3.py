@@ -49,18 +49,10 @@ from rl_jax.training.offpolicy import Clock
 from rl_jax.training.params import Scalar
 from rl_jax.training.replay import ReplayBuffer, Transition
 
-_TD7_OFF = {
-    "sale": False,
-    "lap": False,
-    "value_clipping": False,
-    "policy_checkpoints": False,
-    "target_update_period": 0,
-    "embedding_dim": 256,
-    "embedding_hidden": [256, 256],
-    "checkpoint_episodes": 20,
-    "checkpoint_episodes_from": 750_000,
-}
-_CROSSQ_OFF = {"target_networks": True, "adam_b1": 0.9, "renorm_warmup": 100_000}
+
+def _moved_to(learner: str, **off: Any) -> dict[str, tuple[Any, str]]:
+    """``RETIRED`` entries: each setting at the value that meant off, now ``learner``'s."""
+    return {name: (value, f"is now the {learner} learner's") for name, value in off.items()}
 
 
 @dataclasses.dataclass(frozen=True, kw_only=True)
@@ -94,11 +86,21 @@ class Config(ActorCriticConfig):
         hidden = {"actor_hidden": self.actor_hidden, "critic_hidden": self.critic_hidden}
         networks.check_architecture(self.network, hidden, (self.critic_norm, self.actor_norm))
 
-    # Settings TD3 had before TD7 and CrossQ became learners of their own: the value a run
-    # recorded when the setting was off (such runs load as TD3 runs), and where it went.
+    #: Run-directory migration (``params.dataclass_from_dict``): old runs recorded these.
     RETIRED: ClassVar[dict[str, tuple[Any, str]]] = {
-        **{name: (off, "is now the td7 learner's") for name, off in _TD7_OFF.items()},
-        **{name: (off, "is now the crossq learner's") for name, off in _CROSSQ_OFF.items()},
+        **_moved_to(
+            "td7",
+            sale=False,
+            lap=False,
+            value_clipping=False,
+            policy_checkpoints=False,
+            target_update_period=0,
+            embedding_dim=256,
+            embedding_hidden=[256, 256],
+            checkpoint_episodes=20,
+            checkpoint_episodes_from=750_000,
+        ),
+        **_moved_to("crossq", target_networks=True, adam_b1=0.9, renorm_warmup=100_000),
     }
 
     @property
@@ -113,15 +115,10 @@ class Hyperparams(ActorCriticHyperparams):
 
     tau: Scalar = 0.005  # Polyak step of the target networks
 
-    # TD7's, recorded by TD3 runs before TD7 became a learner of its own (see Config.RETIRED)
-    RETIRED: ClassVar[dict[str, tuple[Any, str]]] = {
-        name: (off, "is now the td7 learner's")
-        for name, off in {
-            "lap_alpha": 0.4,
-            "encoder_lr": 3e-4,
-            "checkpoint_reset_weight": 0.9,
-        }.items()
-    }
+    #: Run-directory migration (``params.dataclass_from_dict``): old runs recorded these.
+    RETIRED: ClassVar[dict[str, tuple[Any, str]]] = _moved_to(
+        "td7", lap_alpha=0.4, encoder_lr=3e-4, checkpoint_reset_weight=0.9
+    )
 
 
 @struct.dataclass
