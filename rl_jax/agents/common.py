@@ -1,5 +1,5 @@
-"""What the learners (TD3 and DDPG, DQN, REINFORCE) share of their maths: the optimizer step at
-this update's rates, rate schedules, and target-network steps.
+"""What the learners share of their maths: the optimizer step at this update's rates, rate
+schedules, gradient clipping and target-network steps.
 
 The envs they train and evaluate on, and the evaluation itself, are in
 ``rl_jax.training.episodes`` (the off-policy loop uses them too).
