@@ -43,6 +43,8 @@ from rl_jax.run import distributed, learners, plots, processes
 from rl_jax.run.best import BEST_DIR, BestPolicies, policy_part
 from rl_jax.run.checkpoint import Checkpointer
 from rl_jax.run.divergence import check_finite, finite_runs
+from rl_jax.run.lease import Lease
+from rl_jax.run.lease import acquire as acquire_lease
 from rl_jax.run.metrics import METRICS_FILE, MetricsLog, read_rows
 from rl_jax.run.plan import (
     Plan,
@@ -55,6 +57,7 @@ from rl_jax.run.plan import (
 from rl_jax.run.progress import Progress
 from rl_jax.run.run_dir import (
     CHECKPOINT_DIR,
+    CONFIG_FILE,
     CURVES_FILE,
     RESULTS_FILE,
     check_out_dir,
@@ -75,7 +78,7 @@ from rl_jax.run.start import (
 )
 from rl_jax.run.tracking import WandbRuns, import_wandb
 from rl_jax.training import params
-from rl_jax.training.algorithm import ChunkMetrics, Hyperparams, TrainState
+from rl_jax.training.algorithm import ChunkMetrics, Hyperparams, TrainState, hooks
 from rl_jax.training.validation import check_ranges
 
 #: Checkpoints a run keeps at the least, whatever ``keep_checkpoints`` asks: with one, a damaged
@@ -394,7 +397,7 @@ def prepare(spec: RunSpec) -> tuple[Plan, Start]:
     else:
         check_out_dir(spec.out, spec.identity)
     plan = make_plan(spec)
-    check_memory(plan, getattr(spec.config, "buffer_size", None))
+    check_memory(plan, hooks(spec.algorithm).replay_capacity(spec.config))
     start = restore_start(spec, plan) if spec.resume else None
     start = start or fresh_start(spec, plan)
     # Every process has read what it needs before the lead writes (distributed runs).
@@ -408,11 +411,51 @@ def run(spec: RunSpec, notify: Callable[[str], None] = print) -> RunResult:
     spec = dataclasses.replace(spec, out=Path(spec.out))
     if not processes.speaks():
         notify = _silent
-    if not spec.resume and same_command_again(spec.out, spec.identity, spec.command):
-        # a requeued job, or the same command after a crash: it continues the run
-        notify(f"{spec.out} holds this run, started by this same command: continuing it")
-        spec = dataclasses.replace(spec, resume=True)
-    plan, start = prepare(spec)
+    # An existing run is owned before anything of it is read; a new one once it is checked.
+    # (Every process takes part in _own, which holds a lease on the lead alone.)
+    existing = (spec.out / CONFIG_FILE).is_file()
+    (existing,) = processes.agree(existing, at="the run directory's record")
+    lease = _own(spec) if existing else None
+    try:
+        if not spec.resume and same_command_again(spec.out, spec.identity, spec.command):
+            # a requeued job, or the same command after a crash: it continues the run
+            notify(f"{spec.out} holds this run, started by this same command: continuing it")
+            spec = dataclasses.replace(spec, resume=True)
+        plan, start = prepare(spec)
+        if not existing:
+            lease = _own(spec)
+    except BaseException:
+        if lease is not None:
+            lease.release()
+        raise
+    try:
+        return _run_owned(spec, plan, start, started, notify)
+    finally:
+        if lease is not None:
+            lease.release()
+
+
+def _own(spec: RunSpec) -> Lease | None:
+    """The run directory's lease, held by the lead process (``rl_jax.run.lease``); every
+    process stops with one line when the lead cannot take it."""
+    lease, error = None, None
+    if processes.is_lead():
+        try:
+            lease = acquire_lease(spec.out, spec.command)
+        except RunError as refused:
+            error = refused
+    (refused_by_lead,) = processes.agree(error is not None, at="the lease of the run directory")
+    if error is not None:
+        raise error
+    if refused_by_lead:
+        raise RunError(f"process 0 could not take {spec.out} (its output says why)")
+    return lease
+
+
+def _run_owned(
+    spec: RunSpec, plan: Plan, start: Start, started: float, notify: Callable[[str], None]
+) -> RunResult:
+    """The run of ``run`` once its directory is this process's: train, then finish."""
     notify(format_plan(spec, plan))
     session = Session.open(spec, plan, start, started)  # after the lines on damaged checkpoints
     if start.checkpoint_step is not None:
