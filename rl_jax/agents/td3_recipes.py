@@ -1,14 +1,13 @@
 """TD3's and DDPG's recipes (``rl_jax.training.recipes``): each env's default on top of the
 paper's settings (the ``Config``/``Hyperparams`` defaults), and named alternatives, each with the
-reason it was chosen. The runs that chose them are in the results and benchmarks pages.
+reason it was chosen. How they were chosen: docs/learners/td3.md#how-the-recipes-were-chosen.
 """
 
 from __future__ import annotations
 
 from rl_jax.training.recipes import Recipe, Recipes, Setting
 
-# Small networks and 4 envs with 4 updates per iteration (one update per env step, as in the
-# paper) suffice for the classic envs, at a small fraction of a 256 x 256 update's FLOPs.
+# The classic envs: small networks suffice, one update per env step as in the paper.
 PENDULUM_CONFIG: dict[str, Setting] = {
     "num_envs": 4,
     "updates_per_iteration": 4,
@@ -17,34 +16,21 @@ PENDULUM_CONFIG: dict[str, Setting] = {
     "actor_hidden": (64, 64),
     "critic_hidden": (64, 64),
 }
-# The rocket: the Pendulum loop with 5,000-step chunks (10 episodes) and a short warm-up. The
-# settle variant (same dynamics, reward for resting inside the 0.01 box) starts from the same loop
-# and exploration.
+# The rocket and its settle variant: the Pendulum loop with 5,000-step chunks (10 episodes).
 ROCKET_CONFIG: dict[str, Setting] = {
     **PENDULUM_CONFIG,
     "iterations_per_chunk": 1250,
     "learning_starts": 2000,
 }
+# Rocket: a longer horizon, and exploration noise that pushes long enough to move the velocity
+# (docs/learners/td3.md#how-the-recipes-were-chosen).
 ROCKET_HPARAMS: dict[str, float] = {
-    # The reward pays 1 / (v^2 + 1) while approaching, so creeping in is almost as good as
-    # arriving. Scoring clipped PD laws u = -kp x - kd v from (1, 0) by discounted return:
-    # at gamma 0.99 the best (kp 5, kd 10) never gets inside |x|, |v| < 0.05 in 500 steps;
-    # at 0.995 the best (kp 10, kd 10) is inside from step 323 and slow gains lose ~1%.
     "gamma": 0.995,
-    # dt = 0.01 s: independent noise of std 0.1 barely moves the velocity before it averages
-    # out. AR(1) noise with rho 0.98 (~0.5 s memory) at std 0.5 pushes for long enough to
-    # visit overshoots and reversals.
     "exploration_correlation": 0.98,
     "exploration_noise": 0.5,
 }
-# Half cheetah: the TD3 paper's networks (256 x 256) and one update per env step, cut to fewer
-# FLOPs per unit of progress for a CPU, where updates (not env steps) are the cost:
-# * batch 128 instead of 256 halves every update's FLOPs (0.21 vs 0.41 GFLOP; the original TD3
-#   paper trained with batch 100);
-# * 4 envs per seed with 4 updates per iteration keeps one update per env step but crosses into
-#   the MuJoCo C callback 4x less often, and each crossing has a fixed cost;
-# * learning starts after 10k random steps instead of 25k.
-# ``Config(env_id=...)`` without a recipe is the paper recipe (1 env, batch 256, 25k).
+# Half cheetah's CPU loop: one update per env step, cheaper ones, since on a CPU updates are the
+# cost (docs/learners/td3.md#how-the-recipes-were-chosen).
 CHEETAH_LOOP: dict[str, Setting] = {
     "num_envs": 4,
     "updates_per_iteration": 4,
@@ -52,22 +38,17 @@ CHEETAH_LOOP: dict[str, Setting] = {
     "batch_size": 128,
     "learning_starts": 10_000,
 }
-# experiments/td3_cheetah.py's default on top of that loop: 128 x 128 networks at rate 1e-3
-# (the original TD3 code's rate), chosen by return against wall-clock with `experiments/sweep.py`
-# over rates and n-step returns: a quarter of the 256 x 256 update's FLOPs, and at these widths
-# rate 1e-3 learned faster than 3e-4.
+# Half cheetah's default: 128 x 128 at rate 1e-3, chosen by return against wall-clock
+# (RESULTS.md#td3-on-half-cheetah-in-minutes).
 FAST_CHEETAH_CONFIG: dict[str, Setting] = {"actor_hidden": (128, 128), "critic_hidden": (128, 128)}
 FAST_CHEETAH_HPARAMS: dict[str, float] = {"actor_lr": 1e-3, "critic_lr": 1e-3}
-# The half-cheetah CPU loop at 128 x 128 and rate 1e-3. The rest of the MuJoCo suite starts from
-# it, unchanged, so that the suite's results say what that one recipe does on each task
-# (`experiments/train.py --algo td3 --env rl_jax/Hopper-v5`).
+# The rest of the MuJoCo suite runs half cheetah's recipe unchanged, so that the suite's results
+# say what one recipe does on each task.
 CHEETAH_CPU_CONFIG: dict[str, Setting] = {**CHEETAH_LOOP, **FAST_CHEETAH_CONFIG}
 MUJOCO_SUITE = tuple(
     f"rl_jax/{name}-v5" for name in ("Hopper", "Walker2d", "Ant", "Reacher", "Swimmer", "Humanoid")
 )
-# Humanoid's observation carries raw contact forces (up to ~1,900) beside joint angles of ~1: fed
-# raw, they saturate the actor's tanh outputs, which then pass no gradient. Standardised by running
-# statistics, the inputs share one scale.
+# Humanoid: raw contact forces beside joint angles saturate the actor's tanh unless standardised.
 HUMANOID_CONFIG: dict[str, Setting] = {**CHEETAH_CPU_CONFIG, "normalize_obs": True}
 #: The per-env config settings above, by env id (what each env's ``default`` recipe starts from).
 RECIPES: dict[str, dict[str, Setting]] = {
@@ -94,14 +75,8 @@ PAPER_RECIPE_CONFIG: dict[str, Setting] = {
     "critic_hidden": (256, 256),
 }
 PAPER_HPARAMS: dict[str, Setting] = {"actor_lr": 3e-4, "critic_lr": 3e-4}
-# The settings of the TD3 paper's own runs (2018), which made the learning curves its repository
-# publishes and our results compare with: 400 x 300 actor and critics, Adam at its default rate
-# 1e-3, batch 100, one env with one update per env step, and 1,000 random steps before learning
-# (10,000 on HalfCheetah and Ant: NAMED_RECIPE_ENVS). Read from github.com/sfujim/TD3 at its
-# "Camera-ready cleanup" commit (bc98e62, June 2018): TD3.py, main.py and run_experiments.sh; the
-# repository's defaults changed in 2019 to what PAPER_RECIPE_CONFIG above restates (256 x 256,
-# 3e-4, batch 256, 25,000 random steps). One difference stays: the 2018 loop ran an episode's
-# updates in one burst at its end, this loop one after each env step (as the 2019 code does).
+# The settings of the TD3 paper's own runs (2018), which made the curves our results compare with
+# (RESULTS.md#two-paper-recipes-on-hopper); 10,000 random steps on PAPER_2018_LONG_WARMUP.
 PAPER_2018_CONFIG: dict[str, Setting] = {
     **PAPER_CONFIG,
     "batch_size": 100,
@@ -110,9 +85,8 @@ PAPER_2018_CONFIG: dict[str, Setting] = {
     "critic_hidden": (400, 300),
 }
 PAPER_2018_HPARAMS: dict[str, Setting] = {"actor_lr": 1e-3, "critic_lr": 1e-3}
-# Half cheetah on one GPU (MJX), chosen by return against wall-clock among bench/gpu_recipe.py's
-# candidates: on a GPU a larger batch or more envs per MJX step cost little more time than small
-# ones, so more envs per seed and larger batches, at half an update per env step.
+# Half cheetah on one GPU (MJX), where more envs and larger batches cost little more time; chosen
+# by return against wall-clock (docs/learners/td3.md#how-the-recipes-were-chosen).
 GPU_CHEETAH_CONFIG: dict[str, Setting] = {
     **FAST_CHEETAH_CONFIG,
     "num_envs": 64,
@@ -139,7 +113,7 @@ TD3_RECIPES = Recipes(
         "64x64 networks, 4 envs x 4 updates per iteration",
         PENDULUM_CONFIG,
         envs=("rl_jax/Pendulum-v1",),
-        # seeds spread as 3 + 3 over both cores of a quiet 2-core machine
+        # measured: docs/learners/td3.md#how-the-recipes-were-chosen (as every throughput below)
         throughput=(830.0, 5),
     ),
     Recipe(
