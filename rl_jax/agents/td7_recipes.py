@@ -11,9 +11,7 @@ TD7_RECIPES = Recipes(
         "TD7's published settings: 256x256 networks, 256-d embeddings, LAP, hard target copies "
         "every 250 updates, value clipping, policy checkpoints on the TD3 paper's loop, rate 3e-4",
     ),
-    # A SALE update is ~6x the arithmetic of TD3's at the same sizes, too slow at TD7's own sizes
-    # on the paper's loop for a CPU: the half-cheetah CPU loop (4 envs x 4 updates per iteration,
-    # batch 128, 10,000 random steps) at 128 sizes instead.
+    # TD7's own sizes are too slow for a CPU (docs/learners/td7.md#how-the-recipes-were-chosen).
     Recipe(
         "cpu",
         "TD7 at CPU sizes: 128x128 networks, 128-d embeddings, the half-cheetah CPU loop (4 envs "
@@ -29,6 +27,6 @@ TD7_RECIPES = Recipes(
             "embedding_dim": 128,
             "embedding_hidden": (128, 128),
         },
-        throughput=(61.0, 5),
+        throughput=(61.0, 5),  # measured: docs/learners/td7.md#how-the-recipes-were-chosen
     ),
 )
