@@ -1,5 +1,6 @@
 """DQN's recipes (``rl_jax.training.recipes``): each env's default on top of the ``Config`` and
-``Hyperparams`` defaults (CleanRL's classic-control DQN), each with the reason it was chosen.
+``Hyperparams`` defaults (CleanRL's classic-control DQN), each with the reason it was chosen and
+a link to the runs that chose it.
 """
 
 from __future__ import annotations
@@ -19,35 +20,34 @@ _CLASSIC: dict[str, Setting] = {
     "target_update_period": 100,
 }
 # CartPole: the policy a run ends with is TD7's checkpoint, since the greedy policy alone keeps
-# collapsing and recovering after it first scores 500.
+# collapsing and recovering after it first scores 500 (RESULTS.md#dqn-on-cartpole).
 _CARTPOLE: dict[str, Setting] = {
     **_CLASSIC,
     "hidden": (64, 64),  # enough here, at a fraction of 256x256's cost
-    "n_step": 3,  # with rate 3e-3, reaches 500 within the budget in every tuning seed
+    "n_step": 3,
     "policy_checkpoints": True,
-    "checkpoint_episodes": 20,  # TD7's; with 10, checkpoints scoring 461-494 got through
+    "checkpoint_episodes": 20,  # TD7's; fewer let checkpoints short of 500 through
     "checkpoint_episodes_from": 20_000,
 }
 _CONFIGS: dict[str, dict[str, Setting]] = {
     "rl_jax/CartPole-v1": _CARTPOLE,
-    # Pixels: with CartPole's own settings the Q-values climbed towards 1 / (1 - gamma) while
-    # episodes stayed at the random ~20 steps.
+    # Pixels: the settings that got the conv torso learning (RESULTS.md#dqn-from-pixels).
     "rl_jax/CartPolePixels-v1": {
         **_CLASSIC,
         "hidden": (256,),
         "buffer_size": 50_000,  # frame pairs: about 0.7 GB per seed
         "batch_size": 32,
         "updates_per_iteration": 1,  # one update per 4 env steps
-        "double": True,  # with 3-step returns and slower targets: what got it learning at all
+        "double": True,
         "n_step": 3,
         "target_update_period": 500,
         "crop_drawn_rows": True,  # the other rows are always white: the same net, cheaper
-        "norm": "layer",  # learns faster than without (RESULTS.md, "DQN from pixels")
+        "norm": "layer",  # learns faster than without
     },
     "rl_jax/InvertedPendulum-v5": _CLASSIC,
     "rl_jax/Rocket-v0": {**_CLASSIC, "action_bins": 3},
-    # The settle variant: thrust {-1, -0.5, 0, 0.5, 1}, with which (and LayerNorm) every seed
-    # came to rest from (1, 0), where {-1, 0, +1} left most short of it.
+    # The settle variant: finer thrust and LayerNorm bring every seed to rest
+    # (RESULTS.md#the-rocket).
     "rl_jax/RocketSettle-v0": {**_CLASSIC, "action_bins": 5, "norm": "layer"},
 }
 _FAST_DECAY = {"learning_rate": 1e-3, "epsilon_decay_steps": 8000.0, "epsilon_end": 0.04}
@@ -75,7 +75,8 @@ _ABOUT = {
     "rl_jax/Rocket-v0": "the classic-control base, thrust {-1, 0, +1}",
     "rl_jax/RocketSettle-v0": "thrust {-1, -0.5, 0, 0.5, 1}, LayerNorm, gamma 0.995",
 }
-# (env steps/s per seed, seeds) of the pixel recipe's run of record, for run plans' estimates
+# (env steps/s per seed, seeds) for run plans' estimates, measured as
+# docs/learners/dqn.md#how-the-recipes-were-chosen says
 _THROUGHPUT = {"rl_jax/CartPolePixels-v1": (117.0, 3)}
 RECIPES = Recipes(
     *(
