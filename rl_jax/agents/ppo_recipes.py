@@ -1,5 +1,6 @@
 """PPO's recipes: whole, named settings per env (``rl_jax.training.recipes``), over the defaults
-of ``ppo_config``. Envs without a recipe of their own train on those defaults.
+of ``ppo_config``. Envs without a recipe of their own train on those defaults. How they were
+chosen: docs/learners/ppo.md#how-the-recipes-were-chosen.
 """
 
 from __future__ import annotations
@@ -21,12 +22,8 @@ MUJOCO = tuple(
     )
 )
 
-# CleanRL's ppo_continuous_action.py (its Args and make_env): one env, 2048-step rollouts, 10
-# epochs of 32 minibatches (64 steps each), Adam at 3e-4 (eps 1e-5) annealed linearly to 0 over
-# the 1M-step run, gamma 0.99, lambda 0.95, clip 0.2 for the ratio and the value, value weight
-# 0.5, no entropy bonus, gradients clipped to norm 0.5, 64x64 tanh actor and critic apart,
-# orthogonal init, a state-independent log-std starting at 0 (std 1), observations standardised
-# (clipped to +-10) and rewards scaled by the std of discounted returns (clipped to +-10).
+# CleanRL's ppo_continuous_action.py (its Args and make_env), setting by setting: the reference
+# the MuJoCo rows compare with.
 CLEANRL_CONFIG: dict[str, Setting] = {
     "num_envs": 1,
     "num_steps": 2048,
@@ -55,22 +52,17 @@ CLEANRL_HPARAMS: dict[str, Setting] = {
     "reward_clip": 10.0,
 }
 
-# Vectorised: 64 envs x 32 steps make CleanRL's 2,048-step batch from 64 short rollouts (one
-# compiled step advances 64 envs per seed), with CleanRL's 10 epochs of 32 minibatches of 64 and
-# its rates and norms; evaluated every 20,480 env steps, since 10 evaluation episodes of 1,000
-# steps cost about as much as 10,240 steps of training. Chosen on half cheetah by return against
-# wall-clock among three layouts (RESULTS.md, "PPO's vectorised recipe").
+# Vectorised: CleanRL's 2,048-step batch from 64 envs x 32 steps, chosen on half cheetah by
+# return against wall-clock (RESULTS.md#ppos-vectorised-recipe).
 MUJOCO_CONFIG: dict[str, Setting] = {
     **CLEANRL_CONFIG,
     "num_envs": 64,
     "num_steps": 32,
-    "iterations_per_chunk": 10,
+    "iterations_per_chunk": 10,  # 10 evaluation episodes cost about 10,240 steps of training
 }
 
-# CartPole: 16 envs x 32 steps, 10 epochs of 2 minibatches; gamma 0.98, lambda 0.8, rate 1e-3
-# falling to 0 over the 100k-step budget, no entropy bonus and no value clipping (the settings of
-# rl-baselines3-zoo's tuned CartPole PPO, there with 8 envs and 20 epochs). Chosen over CleanRL's
-# ppo.py settings and two other variants by 30-seed runs (RESULTS.md, "SAC and PPO").
+# CartPole: rl-baselines3-zoo's tuned settings, chosen over three others by 30-seed runs
+# (RESULTS.md#sac-and-ppo-first-measurements-and-ppo-on-cartpole).
 CARTPOLE_CONFIG: dict[str, Setting] = {
     "num_envs": 16,
     "num_steps": 32,
@@ -87,12 +79,9 @@ CARTPOLE_HPARAMS: dict[str, Setting] = {
     "ent_coef": 0.0,
 }
 
-# Frames: CartPole's pixels through DQN's conv torso, for the budget of DQN's pixel recipe (200k
-# env steps), the rate annealed to 0 over it. Rewards are scaled as on MuJoCo: CartPole's
-# unscaled returns (tens to hundreds) make the value loss's gradient, through the shared torso,
-# fill the clipped gradient norm, and leave the policy at its initial entropy. Otherwise untuned.
+# Frames: DQN's conv torso at DQN's pixel budget, otherwise untuned (RESULTS.md#ppo-from-pixels).
 PIXELS_CONFIG: dict[str, Setting] = {
-    "normalize_rewards": True,
+    "normalize_rewards": True,  # unscaled, the value loss's gradient fills the clipped norm
     "num_envs": 8,
     "num_steps": 128,
     "num_epochs": 4,
