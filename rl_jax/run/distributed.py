@@ -30,7 +30,6 @@ import os
 import socket
 import subprocess
 import sys
-import threading
 from collections.abc import Callable, Mapping
 
 import jax
@@ -43,6 +42,7 @@ from rl_jax.errors import (
     parse_int,
     positive_int,
 )
+from rl_jax.run import processes
 from rl_jax.training.jax_setup import configure_jax
 
 #: Seconds a process waits for the others by default (joining, each exchange, exit).
@@ -230,12 +230,10 @@ def initialize(cluster: Cluster, timeout: float = DEFAULT_TIMEOUT) -> None:
     """``jax.distributed.initialize`` for ``cluster``, given ``timeout`` seconds for every
     process to join. jax ends a process that cannot join with a fatal log and a stack trace;
     a watchdog ends it a little earlier with one line instead."""
-    from rl_jax.run import processes  # here, not at the top: processes imports this module
-
     if jax.distributed.is_initialized():
         return
     limit = int(timeout)
-    watchdog = Watchdog(timeout, lambda: _join_failed(cluster, timeout))
+    watchdog = processes.Watchdog(timeout, lambda: _join_failed(cluster, timeout))
     with watchdog:
         jax.distributed.initialize(
             coordinator_address=cluster.coordinator,
@@ -273,35 +271,6 @@ def reachable(address: str) -> bool:
             return True
     except (OSError, ValueError):
         return False
-
-
-class Watchdog:
-    """A time limit on native code that waits for other processes: after ``seconds`` inside the
-    ``with``, ``message()`` as one error line and exit status 1 (a process stuck there could only
-    end by aborting)."""
-
-    def __init__(self, seconds: float, message: Callable[[], str]):
-        self._timer = threading.Timer(seconds, self._fire)
-        self._timer.daemon = True
-        self._message = message
-
-    def _fire(self) -> None:
-        give_up(self._message())
-
-    def __enter__(self) -> Watchdog:
-        self._timer.start()
-        return self
-
-    def __exit__(self, *exc_info: object) -> None:
-        self._timer.cancel()
-
-
-def give_up(message: str) -> None:
-    """One error line, then exit status 1 at once (no clean-up: another process is gone, and
-    jax's own shutdown would wait for it)."""
-    sys.stdout.flush()
-    print(f"error: {message}", file=sys.stderr, flush=True)
-    os._exit(1)
 
 
 # ---- running --------------------------------------------------------------------------------

@@ -19,13 +19,14 @@ no part in other processes' collectives and decides alone; only process 0 still 
 from __future__ import annotations
 
 import contextlib
-from collections.abc import Iterator
+import os
+import sys
+import threading
+from collections.abc import Callable, Iterator
 
 import jax
 import numpy as np
 from jax.experimental import multihost_utils
-
-from rl_jax.run.distributed import Watchdog
 
 _WAIT_LIMIT: list[float] = []  # seconds; empty: no limit (one process, or set by no one)
 _alone = [False]  # inside ``alone()``: this process runs a run of its own
@@ -83,6 +84,35 @@ def waiting(what: str) -> Iterator[None]:
     )
     with Watchdog(limit, lambda: message):
         yield
+
+
+class Watchdog:
+    """A time limit on native code that waits for other processes: after ``seconds`` inside the
+    ``with``, ``message()`` as one error line and exit status 1 (a process stuck there could only
+    end by aborting)."""
+
+    def __init__(self, seconds: float, message: Callable[[], str]) -> None:
+        self._timer = threading.Timer(seconds, self._fire)
+        self._timer.daemon = True
+        self._message = message
+
+    def _fire(self) -> None:
+        give_up(self._message())
+
+    def __enter__(self) -> Watchdog:
+        self._timer.start()
+        return self
+
+    def __exit__(self, *exc_info: object) -> None:
+        self._timer.cancel()
+
+
+def give_up(message: str) -> None:
+    """One error line, then exit status 1 at once (no clean-up: another process is gone, and
+    jax's own shutdown would wait for it)."""
+    sys.stdout.flush()
+    print(f"error: {message}", file=sys.stderr, flush=True)
+    os._exit(1)
 
 
 def devices() -> list[jax.Device]:
