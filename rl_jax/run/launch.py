@@ -16,7 +16,8 @@ pinned with fewer cores than processes or where the system cannot pin (macOS). T
 shows process 0's output, passes Ctrl-C, SIGTERM and SIGUSR1 on to all of them, and
 stops them all when one fails. ``--slurm`` submits the command with ``--distributed`` added:
 each task learns its rank from SLURM. SLURM sends SIGUSR1 90 s before the time limit; the run
-checkpoints and submitit requeues the job, whose same command then continues the run. submitit
+checkpoints and submitit requeues the job, whose same command then continues the run, after
+every time limit (``--max-requeues N`` caps that; submitit's own cap of 3 is not used). submitit
 is an optional dependency: ``pip install 'rl_jax[cluster]'``. docs/cluster.md has the details
 and sbatch templates for the same jobs without submitit.
 
@@ -44,6 +45,11 @@ from rl_jax.errors import OneLineParser, UsageError, exit_now, guard, positive_i
 #: What the runs print to stderr that says what went wrong (one line each).
 ERROR_PREFIX = "error: "
 FORWARDED = (signal.SIGINT, signal.SIGTERM, signal.SIGUSR1)
+
+
+#: ``--max-requeues``'s default: more time limits than any run meets, so that the run, not a
+#: count, decides when the job ends.
+UNLIMITED_REQUEUES = 10_000
 
 
 def parse(argv: list[str]) -> tuple[argparse.Namespace, list[str]]:
@@ -76,6 +82,14 @@ def parse(argv: list[str]) -> tuple[argparse.Namespace, list[str]]:
     slurm.add_argument("--job-name", default="rl_jax")
     slurm.add_argument(
         "--logs", type=Path, default=Path("slurm_logs"), metavar="DIR", help="submitit's folder"
+    )
+    slurm.add_argument(
+        "--max-requeues",
+        type=positive_int,
+        default=UNLIMITED_REQUEUES,
+        metavar="N",
+        help="requeues after the time limit before the job is left stopped (default: as many as "
+        "the run needs; a preemption always requeues); submitit's own default is 3",
     )
     parser.add_argument("command", nargs=argparse.REMAINDER, help="the script and its flags")
     args = parser.parse_args(argv)
@@ -271,7 +285,9 @@ def submit(command: list[str], args: argparse.Namespace) -> int:
         raise UsageError(
             "--slurm needs submitit, which is not installed: pip install 'rl_jax[cluster]'"
         ) from None
-    executor = submitit.AutoExecutor(folder=str(args.logs))
+    # submitit requeues a job preempted by SLURM as often as it happens, one that hit its time
+    # limit only max_num_timeout times (3 unless told): a long run needs many of those
+    executor = submitit.AutoExecutor(folder=str(args.logs), slurm_max_num_timeout=args.max_requeues)
     parameters: dict[str, int | str] = {
         "nodes": args.nodes,
         "tasks_per_node": args.tasks_per_node,

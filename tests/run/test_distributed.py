@@ -123,6 +123,28 @@ def test_the_launcher_needs_a_command_and_says_when_submitit_is_missing(monkeypa
         launch.submit(command, args)
 
 
+def test_slurm_jobs_requeue_after_every_time_limit_unless_capped(monkeypatch):
+    """submitit stops requeueing after 3 time limits unless told: the launcher tells it
+    ``--max-requeues`` (default: more than any run meets). submitit itself is faked here."""
+    made: list[dict] = []
+
+    class Executor:
+        def __init__(self, **kwargs):
+            made.append(kwargs)
+
+        def update_parameters(self, **kwargs):
+            pass
+
+        def submit(self, command):
+            return type("job", (), {"job_id": "1"})()
+
+    monkeypatch.setitem(sys.modules, "submitit", type("submitit", (), {"AutoExecutor": Executor}))
+    for flags, expected in [([], launch.UNLIMITED_REQUEUES), (["--max-requeues", "5"], 5)]:
+        args, command = launch.parse(["--slurm", *flags, "x.py"])
+        assert launch.submit(command, args) == 0
+        assert made[-1]["slurm_max_num_timeout"] == expected
+
+
 def test_cores_are_split_into_disjoint_blocks_when_there_are_enough():
     blocks = launch.core_blocks(2, [7, 0, 3, 5, 1])
     if blocks is None:
