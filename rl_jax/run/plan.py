@@ -249,7 +249,7 @@ def format_plan(spec: RunSpec, plan: Plan) -> str:
     envs = f", {plots.count_of(num_envs, 'env')} each" if num_envs else ""
     largest = ", ".join(f"{name} {format_bytes(size)}" for name, size in plan.breakdown[:3])
     lines = [
-        f"plan: {spec.algorithm.name} on {spec.env_id}, {runs}{envs}, one compiled program",
+        f"plan: {spec.algorithm.name} on {spec.env_id}, {runs}{envs}, {_programs(plan)}",
         f"  {budget_line(spec.total_steps, plan)}",
         f"  train state {format_bytes(plan.state_bytes)} ({largest}); "
         f"{format_bytes(plan.available_bytes)} of memory available",
@@ -259,6 +259,14 @@ def format_plan(spec: RunSpec, plan: Plan) -> str:
     estimate = estimate_from_throughput(spec, plan)
     lines.append(estimate or "  estimated time: measured on the first training chunk")
     return "\n".join(lines)
+
+
+def _programs(plan: Plan) -> str:
+    """How many compiled programs train the runs: one, or one per block size of an uneven
+    split (``SplitProgram``)."""
+    layout = plan.program.layout
+    shapes = layout.shapes if isinstance(layout, SplitLayout) else 1
+    return "one compiled program" if shapes == 1 else f"{shapes} compiled programs"
 
 
 def budget_line(total_steps: int, plan: Plan) -> str:

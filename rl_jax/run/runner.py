@@ -141,6 +141,7 @@ class Session:
     best_checkpointer: Checkpointer | None
     last_save: float = dataclasses.field(default_factory=time.perf_counter)
     save_seconds: float = 0.0  # the latest checkpoint's seconds: copy to the host and write
+    saved: bool = False  # whether this session wrote a checkpoint (a stop in compiling: none)
 
     def checkpoint_due(self) -> bool:
         """Whether the next checkpoint is due: the lead decides, the processes agree on it."""
@@ -218,6 +219,7 @@ class Session:
         if self.best_checkpointer is not None and self.best.changed:
             self.best.save(self.best_checkpointer, self.step, meta)
         self.checkpointer.save(self.step, runs, meta)
+        self.saved = True
         self.saved_step, self.last_save = self.step, time.perf_counter()
         self.save_seconds = self.last_save - began
 
@@ -363,9 +365,8 @@ def _finish(
     results, table = summarize(spec, session.wall_clock())
     gif_error = None
     if stopped:
-        notify(
-            f"stopped at step {session.step:,} of {session.plan.final_steps:,}; checkpoint saved."
-        )
+        saved = "checkpoint saved" if session.saved else "nothing new to save"
+        notify(f"stopped at step {session.step:,} of {session.plan.final_steps:,}; {saved}.")
         if spec.resume_command:
             notify(f"resume with: {spec.resume_command}")
     else:

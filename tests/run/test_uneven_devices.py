@@ -355,7 +355,9 @@ def test_the_plan_says_a_run_is_split(tmp_path, monkeypatch):
     long = spec_for("fake", tmp_path / "long", plan.SPLIT_MIN_CHUNKS * FAKE_CHUNK)
     made = make_plan(long)
     assert made.chunks == plan.SPLIT_MIN_CHUNKS
-    assert "(3 + 2 runs, split unevenly: 2 programs)" in plan.format_plan(long, made)
+    described = plan.format_plan(long, made)
+    assert "(3 + 2 runs, split unevenly: 2 programs)" in described
+    assert described.splitlines()[0].endswith(", 2 compiled programs")
     assert made.template == make_plan(dataclasses.replace(long, layout="split")).template
 
 
