@@ -18,7 +18,6 @@ from __future__ import annotations
 import dataclasses
 import functools
 from collections.abc import Callable
-from typing import Any
 
 import jax
 import jax.numpy as jnp
@@ -33,7 +32,7 @@ from rl_jax.agents.actor_critic import (
     Networks,
 )
 from rl_jax.agents.common import linearly_decayed, optimizer_step
-from rl_jax.training import episodes, networks, offpolicy, replay, validation
+from rl_jax.training import batch_renorm, episodes, networks, offpolicy, replay, validation
 from rl_jax.training.networks import Params
 from rl_jax.training.offpolicy import Clock
 from rl_jax.training.params import Scalar
@@ -100,6 +99,12 @@ def explore(agent: Agent, obs, noise, key, config: Config, hparams: Hyperparams,
     return actor_critic.explore(action, noise, key, make_networks(config), hparams)
 
 
+def adam(learning_rate, b1=0.9) -> optax.GradientTransformation:
+    """Adam whose numbers are state (``optax.inject_hyperparams``): a checkpoint records them,
+    and each step reads them there."""
+    return optax.inject_hyperparams(optax.adam)(learning_rate=learning_rate, b1=b1)
+
+
 def init_agent(key, config: Config, hparams: Hyperparams, obs_space, action_space) -> Agent:
     nets = make_networks(config)
     actor_key, critic_key = jax.random.split(key)
@@ -108,7 +113,6 @@ def init_agent(key, config: Config, hparams: Hyperparams, obs_space, action_spac
     actor = nets.actor.init(actor_key, obs)
     critics = dict(networks.init_stacked(nets.critic, critic_key, config.num_critics, obs, action))
     stats = critics.pop("batch_stats")
-    adam = optax.inject_hyperparams(optax.adam)
     return Agent(
         actor=actor,
         critics=critics,
@@ -119,29 +123,14 @@ def init_agent(key, config: Config, hparams: Hyperparams, obs_space, action_spac
 
 
 # ---- losses -------------------------------------------------------------------------------------
-def joint_values(nets: Networks, critics, stats, obs, action) -> tuple[jax.Array, Any]:
-    """``(q [num_critics, B], new stats)``: batch renormalisation in training mode, its statistics
-    of this batch folded into ``stats``."""
-
-    def one(variables):
-        out, updated = nets.critic.apply(
-            variables, obs, action, None, train=True, mutable=["batch_stats"]
-        )
-        return out, updated["batch_stats"]
-
-    return jax.vmap(one)({**critics, "batch_stats": stats})
-
-
 def critic_loss_fn(critics, agent: Agent, batch: CriticBatch, noise, hparams, nets: Networks):
     """``(loss, (q_tm1, new stats))``: the squared error to the clipped double-Q target, both
-    halves from one forward pass over ``[(s, a); (s', a')]``."""
+    halves from one forward pass over ``[(s, a); (s', a')]`` (``batch_renorm.joint_pass``)."""
     a_t = nets.actor.apply(agent.actor, batch.next_obs)
     a_t = jax.lax.stop_gradient(actor_critic.target_action(a_t, noise, hparams, nets))
-    obs = jnp.concatenate([batch.obs, batch.next_obs], axis=0)
-    action = jnp.concatenate([batch.action, a_t], axis=0)
-    q, stats = joint_values(nets, critics, agent.critic_stats, obs, action)
-    size = batch.obs.shape[0]
-    q_tm1, q_t = q[:, :size], q[:, size:]
+    q_tm1, q_t, stats = batch_renorm.joint_pass(
+        nets.critic, critics, agent.critic_stats, batch.obs, batch.action, batch.next_obs, a_t
+    )
     return actor_critic.critic_loss(q_tm1, batch.r_t, batch.discount_t, q_t), (q_tm1, stats)
 
 
@@ -154,14 +143,11 @@ def actor_loss_fn(actor, agent: Agent, obs: jax.Array, nets: Networks) -> jax.Ar
 
 
 # ---- one update ---------------------------------------------------------------------------------
-_ADAM = optax.inject_hyperparams(optax.adam)(learning_rate=3e-4)
-
-
 def _adam(grads, opt_state, params, rate, b1: float):
     """Adam at ``rate`` and ``b1``, both written into the injected state (which a checkpoint
     records) before the step reads them."""
     b1 = jnp.asarray(b1, jnp.float32)
-    return optimizer_step(_ADAM, grads, opt_state, params, learning_rate=rate, b1=b1)
+    return optimizer_step(adam(rate, b1), grads, opt_state, params, learning_rate=rate, b1=b1)
 
 
 def critic_step(agent: Agent, batch: CriticBatch, key, hparams, config: Config, rate: Callable):

@@ -2,7 +2,7 @@
 
 Batch normalisation standardises each feature by the statistics of the batch it sees; in a
 critic, a batch of ``(s, a)`` and one of ``(s', a')`` have different statistics, which is why
-CrossQ evaluates both in one forward pass (``rl_jax.agents.td3`` with ``target_networks=False``).
+CrossQ evaluates both in one forward pass (``joint_pass``, as the ``crossq`` learner calls it).
 Batch *re*normalisation corrects the batch statistics towards running ones, so that training
 (batch statistics) and acting or evaluating (running statistics) see the same function:
 
@@ -23,10 +23,16 @@ they checkpoint) apart from the parameters (which its optimizer steps).
 
 from __future__ import annotations
 
+from collections.abc import Mapping
+from typing import Any, TypeAlias
+
 import flax.linen as nn
 import jax
 import jax.numpy as jnp
 from jax.typing import DTypeLike
+
+#: flax variables (as ``networks.Params``, which imports this module)
+Variables: TypeAlias = Mapping[str, Any]
 
 MOMENTUM, EPSILON, R_MAX, D_MAX, WARMUP = 0.99, 1e-3, 3.0, 5.0, 100_000
 
@@ -90,3 +96,29 @@ class BatchRenorm(nn.Module):
         else:
             x_hat = renorm_eval(x, mean.value, var.value)
         return (x_hat * _row(scale, x) + _row(bias, x)).astype(self.dtype)
+
+
+def joint_pass(
+    critic: nn.Module,
+    critics: Variables,
+    stats: Variables,
+    obs_tm1: jax.Array,
+    action_tm1: jax.Array,
+    obs_t: jax.Array,
+    action_t: jax.Array,
+) -> tuple[jax.Array, jax.Array, Variables]:
+    """CrossQ's critic pass: stacked critics (parameters ``critics`` and statistics ``stats``,
+    leaves ``[num_critics, ...]``) in training mode over the batch's ``(s, a)`` and ``(s', a')``
+    stacked into one batch, so that batch renormalisation's statistics cover both halves.
+    ``(q_tm1 [num_critics, B], q_t [num_critics, B], the statistics with this batch folded in)``.
+    ``critic`` is a ``networks.Critic`` (``(obs, action, train=...)``)."""
+    obs = jnp.concatenate([obs_tm1, obs_t], axis=0)
+    action = jnp.concatenate([action_tm1, action_t], axis=0)
+
+    def one(variables: Variables) -> tuple[jax.Array, Variables]:
+        q, updated = critic.apply(variables, obs, action, train=True, mutable=["batch_stats"])
+        return q, updated["batch_stats"]
+
+    q, stats = jax.vmap(one)({**critics, "batch_stats": stats})
+    size = obs_tm1.shape[0]
+    return q[:, :size], q[:, size:], stats

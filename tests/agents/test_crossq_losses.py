@@ -111,7 +111,7 @@ def test_adam_b1_sets_the_first_moment_decay_and_is_recorded_in_the_state():
     params = {"w": jnp.array([1.0, -2.0])}
     g1, g2 = jnp.array([0.5, -1.0]), jnp.array([-2.0, 0.25])
     rate, (b1, b2, eps) = 0.1, (0.5, 0.999, 1e-8)
-    state = crossq._ADAM.init(params)
+    state = crossq.adam(3e-4).init(params)
     step = jax.jit(crossq._adam, static_argnums=4)
     new, state = step({"w": g1}, state, params, jnp.float32(rate), b1)
     new, state = step({"w": g2}, state, new, jnp.float32(rate), b1)
@@ -123,9 +123,9 @@ def test_adam_b1_sets_the_first_moment_decay_and_is_recorded_in_the_state():
     np.testing.assert_allclose(new["w"], expected, rtol=1e-5)
     assert float(state.hyperparams["b1"]) == b1
     # Adam's default keeps the plain optimizer's state and step exactly.
-    plain_state = crossq._ADAM.init(params)
-    plain, _ = crossq._ADAM.update({"w": g1}, plain_state, params)
-    ours, _ = step({"w": g1}, crossq._ADAM.init(params), params, jnp.float32(3e-4), 0.9)
+    plain_state = crossq.adam(3e-4).init(params)
+    plain, _ = crossq.adam(3e-4).update({"w": g1}, plain_state, params)
+    ours, _ = step({"w": g1}, crossq.adam(3e-4).init(params), params, jnp.float32(3e-4), 0.9)
     np.testing.assert_array_equal(ours["w"], params["w"] + plain["w"])
     config = crossq.crossq.default_config("rl_jax/Pendulum-v1", adam_b1=1.0)
     with pytest.raises(validation.RangeError, match=r"--adam-b1 must be in \[0, 1\)"):

@@ -104,3 +104,33 @@ def test_batch_renorm_sits_on_the_input_and_after_each_nonlinearity():
         h = eval_norm(h)
     out = h @ np.asarray(params["Dense_2"]["kernel"]) + np.asarray(params["Dense_2"]["bias"])
     np.testing.assert_allclose(mlp.apply(variables, x), out, rtol=1e-5, atol=1e-6)
+
+
+def test_the_joint_pass_is_one_training_pass_over_both_halves():
+    """CrossQ's pass over ``[(s, a); (s', a')]``: its values and statistics are those of one
+    training-mode pass of each stacked critic over the 2B rows together, split back in two."""
+    critic = networks.Critic((8,), norm="batch_renorm", renorm_warmup=0)
+    keys = jax.random.split(jax.random.key(3), 5)
+    obs, next_obs = jax.random.normal(keys[0], (2, 5, 3))
+    action, next_action = jax.random.uniform(keys[1], (2, 5, 2))
+    critics = dict(networks.init_stacked(critic, keys[2], 2, obs, action))
+    stats = critics.pop("batch_stats")
+    q_tm1, q_t, new_stats = jax.jit(batch_renorm.joint_pass, static_argnums=0)(
+        critic, critics, stats, obs, action, next_obs, next_action
+    )
+    assert q_tm1.shape == q_t.shape == (2, 5)
+    for index in range(2):
+        variables = jax.tree.map(lambda x, i=index: x[i], {**critics, "batch_stats": stats})
+        both, updated = critic.apply(
+            variables,
+            jnp.concatenate([obs, next_obs]),
+            jnp.concatenate([action, next_action]),
+            train=True,
+            mutable=["batch_stats"],
+        )
+        np.testing.assert_allclose(q_tm1[index], both[:5], rtol=1e-6, atol=1e-7)
+        np.testing.assert_allclose(q_t[index], both[5:], rtol=1e-6, atol=1e-7)
+        mine = jax.tree.map(lambda x, i=index: x[i], new_stats)
+        same = lambda a, b: np.testing.assert_allclose(a, b, rtol=1e-6, atol=1e-7)  # noqa: E731
+        jax.tree.map(same, mine, updated["batch_stats"])
+    assert np.all(np.asarray(new_stats["MLP_0"]["BatchRenorm_0"]["steps"]) == 1)
