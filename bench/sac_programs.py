@@ -1,5 +1,5 @@
 """SAC's update as the peers benchmark counts and times it: its exact matmul FLOPs and its matrix
-products, traced from ``rl_jax.agents.sac_update`` the way ``bench.td3_programs`` traces TD3's.
+products, traced from ``rl_jax.agents.sac``'s update the way ``bench.td3_programs`` traces TD3's.
 
 SAC's update does more products than TD3's at the same widths and batch: the critic step also
 runs the actor forward on the next observations (the bootstrap action is sampled, not a
@@ -15,10 +15,8 @@ from typing import Any
 import jax
 
 from bench.td3_programs import _dot_equations, jaxpr_matmul_flops
-from rl_jax.agents import sac_update
-from rl_jax.agents.sac import sac
-from rl_jax.agents.sac_config import Config
-from rl_jax.agents.sac_networks import make_networks
+from rl_jax.agents import sac as sac_module
+from rl_jax.agents.sac import Config, make_networks, sac
 
 
 def _steps(config: Config):
@@ -27,10 +25,11 @@ def _steps(config: Config):
     nets = make_networks(config)
 
     def critic(agent, batch, key):
-        return sac_update.critic_step(agent, batch, key, hparams, nets)
+        return sac_module.critic_step(agent, batch, key, config, hparams, nets)
 
     def actor(agent, batch, key):
-        return sac_update.actor_and_temperature_step(agent, batch.obs, key, config, hparams, nets)
+        step = sac_module.actor_and_temperature_step
+        return step(agent, batch.obs, key, config, hparams, nets)
 
     return critic, actor
 
@@ -38,7 +37,7 @@ def _steps(config: Config):
 def _state_and_batch(config: Config, key: jax.Array):
     hparams = sac.default_hyperparams()
     state = sac.init(key, config, hparams)
-    batch = sac_update.sample(state.buffer, jax.random.fold_in(key, 1), config, hparams)
+    batch = sac_module.sample(state.buffer, jax.random.fold_in(key, 1), config, hparams)
     return state.agent, batch
 
 

@@ -1,6 +1,7 @@
-"""SAC: the squashed Gaussian's maths against numeric references, the losses' exact values and
-gradients, terminated vs truncated in the soft target, the probe envs end to end, a tiny CrossQ
-run, and the command line."""
+"""SAC: the squashed Gaussian's maths against numeric references, the losses on networks and
+their gradients, the probe envs end to end, the network options, the recipes, what became of
+CrossQ's former SAC settings, and the command line. The pure maths alone is in
+``test_sac_parts.py``."""
 
 import dataclasses
 import functools
@@ -16,23 +17,17 @@ import pytest
 from jax.test_util import check_grads
 
 import rl_jax.envs.core.probes  # noqa: F401  (registers the probe ids)
-from rl_jax.agents import sac_losses, sac_networks
+from rl_jax.agents import sac as sac_module
+from rl_jax.agents.actor_critic import CriticBatch
 from rl_jax.agents.sac import Config, Hyperparams, sac
-from rl_jax.agents.sac_losses import (
-    CriticBatch,
-    soft_critic_loss,
-    soft_policy_loss,
-    soft_td_target,
-    temperature_loss,
-)
 from rl_jax.envs.core.probes import Truncation
 from rl_jax.envs.core.spaces import Box
+from rl_jax.errors import RunError, UsageError
 from rl_jax.run import field_docs
-from rl_jax.training import networks, replay, squashed_gaussian
-from rl_jax.training.replay import Transition
+from rl_jax.training import networks, squashed_gaussian
+from rl_jax.training.params import dataclass_from_dict
 
 ROOT = Path(__file__).resolve().parents[2]
-modes = pytest.mark.parametrize("transform", [lambda f: f, jax.jit], ids=["nojit", "jit"])
 
 
 # ---- the squashed Gaussian -----------------------------------------------------------------------
@@ -101,119 +96,19 @@ def test_rescale_maps_the_unit_box_onto_the_bounds():
     np.testing.assert_allclose(got, [[-2.0, 0.0], [0.0, 0.5], [2.0, 1.0]])
 
 
-# ---- the losses' maths ---------------------------------------------------------------------------
-@modes
-def test_soft_target_and_losses_exact_values(transform):
-    r_t, discount_t = jnp.array([1.0, 0.5]), jnp.array([0.9, 0.0])
-    q_t = jnp.array([[2.0, 3.0], [1.0, 4.0]])  # min per column: 1, 3
-    log_pi_t, alpha = jnp.array([-1.0, 2.0]), 0.5
-    # y = r + d (min q - alpha log pi): 1 + 0.9 (1 + 0.5) = 2.35; 0.5 + 0 = 0.5
-    target = transform(soft_td_target)(r_t, discount_t, q_t, log_pi_t, alpha)
-    np.testing.assert_allclose(target, [2.35, 0.5], rtol=1e-6)
-    q_tm1 = jnp.array([[2.35, 1.5], [1.35, 0.5]])
-    # 1/2 sum over critics of the mean squared error: 1/2 (0.5 + 0.5)
-    loss = transform(soft_critic_loss)(q_tm1, r_t, discount_t, q_t, log_pi_t, alpha)
-    assert float(loss) == pytest.approx(0.5, rel=1e-6)
-    # mean(alpha log pi - min q): (0.5 * -1 - 1.35 + 0.5 * 2 - 0.5) / 2
-    policy = transform(soft_policy_loss)(q_tm1, log_pi_t, alpha)
-    assert float(policy) == pytest.approx((-0.5 - 1.35 + 1.0 - 0.5) / 2, rel=1e-6)
-
-
-def test_temperature_gradient_is_entropy_minus_target():
-    log_pi = jnp.array([-0.2, 0.4, 1.3])  # entropy estimate -0.5
-    target_entropy = -2.0
-    grad = jax.grad(temperature_loss)(jnp.float32(0.3), log_pi, target_entropy)
-    assert float(grad) == pytest.approx(-0.5 - target_entropy, rel=1e-6)  # 1.5 > 0: alpha falls
-    eps = 1e-2
-    loss = lambda x: temperature_loss(x, log_pi, target_entropy)  # noqa: E731
-    numeric = (loss(0.3 + eps) - loss(0.3 - eps)) / (2 * eps)
-    assert float(grad) == pytest.approx(float(numeric), rel=1e-3)
-    # value: -0.3 * (0.5 - 2)
-    assert float(loss(0.3)) == pytest.approx(0.45, rel=1e-6)
-    # The log-densities are data for the temperature: no gradient reaches them.
-    assert np.all(np.asarray(jax.grad(temperature_loss, argnums=1)(0.3, log_pi, -2.0)) == 0.0)
-
-
-def test_soft_target_has_no_gradient():
-    args = (jnp.ones(3), jnp.full(3, 0.9), jnp.full((2, 3), 2.0), jnp.zeros(3), 0.2)
-    grads = jax.grad(soft_critic_loss, argnums=(3, 4))(jnp.ones((2, 3)), *args)
-    assert all(np.all(np.asarray(g) == 0.0) for g in grads)
-
-
-def test_pure_losses_check_grads():
-    q_tm1, q_t = jax.random.normal(jax.random.key(0), (2, 2, 7))
-    r_t, discount_t = jnp.linspace(-1.0, 1.0, 7), jnp.full((7,), 0.9)
-    log_pi = jnp.linspace(-2.0, 1.0, 7)
-    check_grads(
-        jax.jit(lambda q: soft_critic_loss(q, r_t, discount_t, q_t, log_pi, 0.3)),
-        (q_tm1,),
-        order=2,
-        eps=1e-2,
-    )
-    check_grads(jax.jit(lambda q, lp: soft_policy_loss(q, lp, 0.3)), (q_t, log_pi), 2, eps=1e-2)
-    check_grads(jax.jit(lambda x: temperature_loss(x, log_pi, -1.0)), (0.1,), order=2, eps=1e-2)
-    check_grads(jax.jit(squashed_gaussian.tanh_log_det_jacobian), (q_t,), order=2, eps=1e-3)
-
-
-# ---- terminated vs truncated ---------------------------------------------------------------------
-def test_target_stops_at_termination_and_bootstraps_through_truncation():
-    """Four hand-made transitions: running, truncated, terminated, both flags. Only termination
-    zeroes the bootstrap; truncation keeps gamma x the soft value of the true next obs."""
-    gamma, alpha = 0.9, 0.5
-    batch = Transition(
-        obs=jnp.zeros((4, 1)),
-        action=jnp.zeros((4, 1)),
-        reward=jnp.array([1.0, 2.0, 3.0, 4.0]),
-        next_obs=jnp.ones((4, 1)),
-        terminated=jnp.array([False, False, True, True]),
-        truncated=jnp.array([False, True, False, True]),
-    )
-    critic_batch = CriticBatch.one_step(batch, gamma)
-    np.testing.assert_allclose(critic_batch.discount_t, [0.9, 0.9, 0.0, 0.0])
-    q_t = jnp.array([[5.0, 6.0, 7.0, 8.0], [4.0, 9.0, 9.0, 9.0]])
-    log_pi_t = jnp.array([-1.0, 1.0, -1.0, 1.0])
-    target = soft_td_target(critic_batch.r_t, critic_batch.discount_t, q_t, log_pi_t, alpha)
-    # 1 + 0.9 (4 + 0.5); 2 + 0.9 (6 - 0.5); 3; 4
-    np.testing.assert_allclose(target, [5.05, 6.95, 3.0, 4.0], rtol=1e-6)
-
-
-def test_n_step_window_stops_at_episode_ends():
-    """3-step windows of one env (gamma 0.5): one runs through, one is cut by a truncation (it
-    bootstraps after 2 steps), one by a termination (no bootstrap)."""
-    ones = jnp.ones((3, 3))
-    window = Transition(
-        obs=jnp.zeros((3, 3, 1)),
-        action=jnp.zeros((3, 3, 1)),
-        reward=ones,
-        next_obs=jnp.arange(9.0).reshape(3, 3, 1),
-        terminated=jnp.array([[0, 0, 0], [0, 0, 0], [0, 1, 0]], bool),
-        truncated=jnp.array([[0, 0, 0], [0, 1, 0], [0, 0, 0]], bool),
-    )
-    batch = CriticBatch.n_step(replay.n_step_batch(window, jnp.ones((3, 3), bool), 0.5))
-    np.testing.assert_allclose(batch.r_t, [1.75, 1.5, 1.5])
-    np.testing.assert_allclose(batch.discount_t, [0.125, 0.25, 0.0])
-    np.testing.assert_allclose(batch.next_obs[:, 0], [2.0, 4.0, 7.0])
-
-
 # ---- losses on networks --------------------------------------------------------------------------
 ACTION_SPACE = Box(np.array([-2.0, 0.0]), np.array([2.0, 1.0]), (2,))
 
 
-def _network_setup(dtype=jnp.float32, **overrides):
+def _network_setup(dtype=jnp.float32):
     config = Config(
-        env_id="unused",
-        actor_hidden=(8,),
-        critic_hidden=(8,),
-        compute_dtype=jnp.dtype(dtype).name,
-        **overrides,
+        env_id="unused", actor_hidden=(8,), critic_hidden=(8,), compute_dtype=jnp.dtype(dtype).name
     )
-    nets = sac_networks.build_networks(config, ACTION_SPACE)
+    nets = sac_module.build_networks(config, ACTION_SPACE)
     keys = jax.random.split(jax.random.key(3), 6)
     obs = jax.random.normal(keys[0], (5, 3), dtype)
     variables = dict(nets.actor.init(keys[1], obs))
-    actor_stats = variables.pop("batch_stats", None)
     critics = dict(networks.init_stacked(nets.critic, keys[2], 2, obs, jnp.zeros((5, 2), dtype)))
-    critic_stats = critics.pop("batch_stats", None)
     to = lambda tree: jax.tree.map(lambda x: x.astype(dtype), tree)  # noqa: E731
     batch = CriticBatch(
         obs=obs,
@@ -222,65 +117,39 @@ def _network_setup(dtype=jnp.float32, **overrides):
         discount_t=jnp.array([0.9, 0.9, 0.0, 0.9, 0.0], dtype),
         next_obs=jax.random.normal(keys[5], (5, 3), dtype),
     )
-    return nets, to(variables), to(critics), batch, actor_stats, critic_stats
+    return nets, to(variables), to(critics), batch
 
 
 def test_network_losses_check_grads():
     # ReLU kinks and float32 rounding make finite differences of whole networks unreliable, so
     # this runs in float64 (locally; library code stays float32).
     with jax.enable_x64(True):
-        nets, actor, critics, batch, _, _ = _network_setup(jnp.float64)
+        nets, actor, critics, batch = _network_setup(jnp.float64)
         key, alpha = jax.random.key(4), jnp.float64(0.2)
 
         def critic_objective(c):
-            return sac_losses.critic_loss_fn(c, critics, actor, batch, key, alpha, nets)[0]
+            return sac_module.critic_loss_fn(c, critics, actor, batch, key, alpha, nets)[0]
 
         def actor_objective(a):
-            return sac_losses.actor_loss_fn(a, critics, batch.obs, key, alpha, nets)[0]
+            return sac_module.actor_loss_fn(a, critics, batch.obs, key, alpha, nets)[0]
 
         check_grads(jax.jit(critic_objective), (critics,), order=1, modes=("rev",), eps=1e-6)
         check_grads(jax.jit(actor_objective), (actor,), order=1, modes=("rev",), eps=1e-6)
 
 
-@pytest.mark.parametrize("targets", [True, False], ids=["target-critics", "crossq-joint"])
-def test_critic_gradient_reaches_only_the_online_critics(targets):
+def test_critic_gradient_reaches_only_the_online_critics():
     """The bootstrap action is data (no gradient to the actor), and so are the target critics'
-    values, or under CrossQ the bootstrap half of the joint pass."""
-    overrides = {} if targets else {"critic_norm": "batch_renorm", "target_networks": False}
-    nets, actor, critics, batch, actor_stats, stats = _network_setup(**overrides)
+    values."""
+    nets, actor, critics, batch = _network_setup()
     key, alpha = jax.random.key(5), jnp.float32(0.2)
 
     def loss(online, target, actor):
-        args = (batch, key, alpha, nets, stats, actor_stats)
-        return sac_losses.critic_loss_fn(online, target, actor, *args)[0]
+        return sac_module.critic_loss_fn(online, target, actor, batch, key, alpha, nets)[0]
 
-    if targets:
-        online, target, actor_grads = jax.grad(loss, argnums=(0, 1, 2))(critics, critics, actor)
-        assert all(np.all(np.asarray(g) == 0.0) for g in jax.tree.leaves(target))
-    else:
-        online, actor_grads = jax.grad(loss, argnums=(0, 2))(critics, None, actor)
+    online, target, actor_grads = jax.grad(loss, argnums=(0, 1, 2))(critics, critics, actor)
+    assert all(np.all(np.asarray(g) == 0.0) for g in jax.tree.leaves(target))
     assert all(np.all(np.asarray(g) == 0.0) for g in jax.tree.leaves(actor_grads))
     assert any(np.any(np.asarray(g) != 0.0) for g in jax.tree.leaves(online))
-
-
-def test_crossq_joint_pass_matches_a_pass_over_both_halves():
-    """The joint pass is one training-mode pass over [s; s'] x [a; a']: its values and
-    statistics are those of the 2B rows together."""
-    nets, actor, critics, batch, _, stats = _network_setup(
-        critic_norm="batch_renorm", target_networks=False
-    )
-    a_t = jnp.full((5, 2), 0.5)
-    q_tm1, q_t, new_stats = sac_losses.joint_values(nets, critics, stats, batch, a_t)
-    both, expected_stats = sac_networks.critic_values_train(
-        nets,
-        critics,
-        stats,
-        jnp.concatenate([batch.obs, batch.next_obs]),
-        jnp.concatenate([batch.action, a_t]),
-    )
-    np.testing.assert_array_equal(jnp.concatenate([q_tm1, q_t], axis=1), both)
-    for got, want in zip(jax.tree.leaves(new_stats), jax.tree.leaves(expected_stats), strict=True):
-        np.testing.assert_array_equal(got, want)
 
 
 # ---- probe envs, end to end ----------------------------------------------------------------------
@@ -318,15 +187,15 @@ def probe_run(env_id: str, fixed_alpha: bool = False, n_step: int = 1):
 def q_values(state, config, obs_values, action_values):
     obs = jnp.asarray(obs_values, jnp.float32)[:, None]
     actions = jnp.asarray(action_values, jnp.float32)[:, None]
-    nets = sac_networks.make_networks(config)
-    return sac_networks.critic_values(nets, state.agent.critics, None, obs, actions)
+    nets = sac_module.make_networks(config)
+    return sac_module.critic_values(nets, state.agent.critics, obs, actions)
 
 
 def policy_entropy(state, config, obs_value) -> float:
     """The learned policy's entropy at one observation, by quadrature."""
-    nets = sac_networks.make_networks(config)
+    nets = sac_module.make_networks(config)
     obs = jnp.array([[obs_value]], jnp.float32)
-    mean, log_std = sac_networks.actor_outputs(nets, state.agent.actor, None, obs)
+    mean, log_std = sac_module.actor_outputs(nets, state.agent.actor, obs)
     return squashed_entropy(float(mean[0, 0]), float(log_std[0, 0]))
 
 
@@ -388,7 +257,7 @@ def test_bootstraps_through_truncation_not_termination(env_id, n_step):
         assert np.max(np.abs(np.asarray(values) - np.asarray(expected))) > 3 * TOL
 
 
-# ---- CrossQ and the network options, tiny ---------------------------------------------------
+# ---- the network options, tiny ------------------------------------------------------------------
 TINY_LOOP = {
     "num_envs": 2,
     "updates_per_iteration": 2,
@@ -409,25 +278,6 @@ def tiny_run(recipe=None, **overrides):
     assert np.isfinite(float(metrics.eval_return)) and np.isfinite(metrics.extra["q"])
     assert int(state.clock.updates) == 2 * (100 - 32)
     return state, config
-
-
-def test_tiny_crossq_run_is_finite():
-    sizes = {"actor_hidden": (16, 16), "critic_hidden": (32, 32), "renorm_warmup": 50}
-    state, config = tiny_run("crossq-cpu", **sizes)
-    assert (config.critic_norm, config.actor_norm, config.target_networks) == (
-        "batch_renorm",
-        "batch_renorm",
-        False,
-    )
-    agent, updates = state.agent, int(state.clock.updates)
-    assert agent.target_critics is None
-    # Every critic update folded its batch into the statistics; the actor's every third.
-    steps = agent.critic_stats["MLP_0"]["BatchRenorm_0"]["steps"]
-    np.testing.assert_array_equal(steps, [updates, updates])
-    assert int(agent.actor_stats["MLP_0"]["BatchRenorm_0"]["steps"]) == updates // 3
-    assert int(agent.actor_opt.count) == updates // 3
-    assert float(agent.critic_opt.hyperparams["b1"]) == 0.5
-    assert float(agent.alpha_opt.hyperparams["b1"]) == pytest.approx(0.9)
 
 
 @pytest.mark.parametrize(
@@ -456,8 +306,6 @@ def test_recipes_build_valid_configs():
             sac.default_hyperparams(env_id, recipe=name)
     paper = sac.default_config("rl_jax/Hopper-v5", recipe="sac-paper")
     assert (paper.num_envs, paper.updates_per_iteration, paper.batch_size) == (1, 1, 256)
-    crossq = sac.default_config("rl_jax/Hopper-v5", recipe="crossq")
-    assert crossq.critic_hidden == (2048, 2048) and crossq.policy_delay == 3
     cpu = sac.default_config("rl_jax/HalfCheetah-v5")
     assert cpu.critic_hidden == cpu.actor_hidden == (128, 128) and cpu.batch_size == 128
     # Ant's recipe is the same but for Adam's b1 (0.5 against 0.9).
@@ -470,6 +318,34 @@ def test_recipes_build_valid_configs():
     # every field is a documented flag (env_id is the script's)
     assert field_docs.undocumented_fields(paper) == ["env_id"]
     assert field_docs.undocumented_fields(sac.default_hyperparams()) == []
+
+
+def test_crossqs_former_sac_recipes_and_flags_say_what_to_type_instead():
+    """CrossQ left SAC for a learner of its own: its recipe names, its norm, and the recorded
+    settings of an old CrossQ run each say so in one line."""
+    for recipe, instead in (
+        ("crossq", "--algo crossq"),
+        ("crossq-cpu", "--algo crossq --recipe cpu"),
+    ):
+        with pytest.raises(UsageError, match=f"--recipe {recipe}: .*{instead}"):
+            sac.default_config("rl_jax/HalfCheetah-v5", recipe=recipe)
+        assert recipe not in sac.recipes.names("rl_jax/HalfCheetah-v5")
+    with pytest.raises(ValueError, match="critic_norm 'batch_renorm' is CrossQ's.*--algo crossq"):
+        sac.default_config("rl_jax/Pendulum-v1", critic_norm="batch_renorm")
+
+
+def test_old_runs_load_where_their_crossq_settings_were_off():
+    """A SAC run recorded before CrossQ left has ``target_networks``, ``renorm_warmup`` and the
+    norms in its config.json: off, it loads as SAC (the path runs load through); a CrossQ run
+    says that it is one."""
+    config = sac.default_config("rl_jax/Pendulum-v1")
+    recorded = {**config.to_dict(), "target_networks": True, "renorm_warmup": 100_000}
+    assert dataclass_from_dict(config, recorded) == config
+    crossq_run = {**recorded, "critic_norm": "batch_renorm", "target_networks": False}
+    with pytest.raises(RunError, match="target_networks, which is now the crossq learner's, so"):
+        dataclass_from_dict(config, crossq_run)
+    with pytest.raises(RunError, match="critic_norm 'batch_renorm' is CrossQ's"):
+        dataclass_from_dict(config, {**recorded, "critic_norm": "batch_renorm"})
 
 
 def test_command_line_trains_pendulum(tmp_path):
