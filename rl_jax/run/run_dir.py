@@ -416,17 +416,23 @@ def with_newer_fields(saved: dict[str, Any], wanted: dict[str, Any]) -> dict[str
     """``saved`` with the config and hyperparameter fields it lacks taken from ``wanted``: a
     field a run's record does not have was added to the code after the run was written, and
     resuming fills it from the defaults the record is read with (e.g. TD3's ``lr_decay_steps``,
-    0: off, as the run trained)."""
+    0: off, as the run trained). A field only the record has was retired since (a learner's
+    ``RETIRED``): reading the record kept it only at its "off" value, so it is dropped."""
     upgraded = dict(saved)
     if isinstance(saved.get("config"), dict) and isinstance(wanted.get("config"), dict):
-        upgraded["config"] = {**wanted["config"], **saved["config"]}
+        upgraded["config"] = _upgraded(saved["config"], wanted["config"])
     saved_hparams, wanted_hparams = saved.get("hparams"), wanted.get("hparams")
     comparable = isinstance(saved_hparams, list) and isinstance(wanted_hparams, list)
     if comparable and len(saved_hparams) == len(wanted_hparams):
         upgraded["hparams"] = [
-            {**new, **old} for old, new in zip(saved_hparams, wanted_hparams, strict=True)
+            _upgraded(old, new) for old, new in zip(saved_hparams, wanted_hparams, strict=True)
         ]
     return upgraded
+
+
+def _upgraded(saved: dict[str, Any], wanted: dict[str, Any]) -> dict[str, Any]:
+    """``wanted``'s fields, at ``saved``'s values where it has them."""
+    return {**wanted, **{name: value for name, value in saved.items() if name in wanted}}
 
 
 def check_resume_dir(run_dir: Path, run_identity: dict[str, Any]) -> dict[str, Any]:

@@ -5,7 +5,9 @@ CrossQ's former SAC settings, and the command line. The pure maths alone is in
 
 import dataclasses
 import functools
+import json
 import os
+import shutil
 import subprocess
 import sys
 from pathlib import Path
@@ -16,6 +18,7 @@ import numpy as np
 import pytest
 from jax.test_util import check_grads
 
+import rl_jax
 import rl_jax.envs.core.probes  # noqa: F401  (registers the probe ids)
 from rl_jax.agents import sac as sac_module
 from rl_jax.agents.actor_critic import CriticBatch
@@ -24,10 +27,12 @@ from rl_jax.envs.core.probes import Truncation
 from rl_jax.envs.core.spaces import Box
 from rl_jax.errors import RunError, UsageError
 from rl_jax.run import field_docs
+from rl_jax.run.run_dir import identity_hash
 from rl_jax.training import networks, squashed_gaussian
 from rl_jax.training.params import dataclass_from_dict
 
 ROOT = Path(__file__).resolve().parents[2]
+PENDULUM = "rl_jax/Pendulum-v1"
 
 
 # ---- the squashed Gaussian -----------------------------------------------------------------------
@@ -346,6 +351,34 @@ def test_old_runs_load_where_their_crossq_settings_were_off():
         dataclass_from_dict(config, crossq_run)
     with pytest.raises(RunError, match="critic_norm 'batch_renorm' is CrossQ's"):
         dataclass_from_dict(config, {**recorded, "critic_norm": "batch_renorm"})
+
+
+def _as_recorded_while_crossq_was_sacs(run_dir: Path, **crossq) -> None:
+    """The run's record as SAC wrote it while CrossQ was its option: with ``target_networks``
+    and ``renorm_warmup`` (off, unless ``crossq`` sets them), the hashes to match."""
+    path = run_dir / "config.json"
+    record = json.loads(path.read_text())
+    retired = {"target_networks": True, "renorm_warmup": 100_000, **crossq}
+    record["identity"]["config"].update(retired)
+    old, new = record["identity_hash"], identity_hash(record["identity"])
+    record["identity_hash"] = new
+    path.write_text(json.dumps(record, indent=2))
+    for metadata in run_dir.glob("*/*/meta/metadata"):
+        metadata.write_text(metadata.read_text().replace(old, new))
+
+
+def test_a_run_recorded_while_crossq_was_sacs_opens_and_resumes(tmp_path):
+    run_dir, crossq_run = tmp_path / "run", tmp_path / "crossq"
+    config = {**TINY_LOOP, "actor_hidden": (8, 8), "critic_hidden": (8, 8)}
+    rl_jax.train("sac", PENDULUM, seeds=2, total_steps=400, out=run_dir, config=config, quiet=True)
+    shutil.copytree(run_dir, crossq_run)
+    _as_recorded_while_crossq_was_sacs(run_dir)
+    action = np.asarray(rl_jax.open_run(run_dir).policy(seed=1)(np.zeros(3, np.float32)))
+    assert action.shape == (1,) and np.all(np.abs(action) <= 2.0)
+    assert rl_jax.resume(run_dir, total_steps=600, quiet=True).results.step == 600
+    _as_recorded_while_crossq_was_sacs(crossq_run, target_networks=False)
+    with pytest.raises(RunError, match="so this is a CrossQ run"):
+        rl_jax.open_run(crossq_run).policy(seed=0)
 
 
 def test_command_line_trains_pendulum(tmp_path):
