@@ -144,6 +144,12 @@ def env_steps_per_chunk(config: Config) -> int:
     return config.num_envs * config.iterations_per_chunk
 
 
+def replay_capacity(config: Config) -> int:
+    """Its buffer's rows (a state too big for memory is refused naming the --buffer-size that
+    fits)."""
+    return config.buffer_size
+
+
 def _optimizer(hparams: Hyperparams) -> optax.GradientTransformation:
     return optax.inject_hyperparams(optax.adam)(learning_rate=hparams.learning_rate)
 

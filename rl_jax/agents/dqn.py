@@ -300,6 +300,10 @@ class DQN(offpolicy.OffPolicyAlgorithm[Config]):
         """The env the policy acts in (discretised actions), for rendering."""
         return episodes.make_eval_env(config)
 
+    def loop_seeds(self, config: Config) -> bool:
+        """Seeds as an unrolled loop where a ``PixelConfig`` asks for it (conv nets on CPU)."""
+        return isinstance(config, PixelConfig) and config.loop_seeds
+
 
 dqn = DQN()
 default_config, default_hyperparams = dqn.default_config, dqn.default_hyperparams

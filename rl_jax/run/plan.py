@@ -18,7 +18,7 @@ from rl_jax.run import plots, processes
 from rl_jax.run.progress import Progress
 from rl_jax.run.spec import RunSpec
 from rl_jax.training import parallel, params
-from rl_jax.training.algorithm import Algorithm, Hyperparams, OptionalHooks, TrainState, hooks
+from rl_jax.training.algorithm import Algorithm, Hyperparams, TrainState, hooks
 from rl_jax.training.device_layout import plan_layout
 from rl_jax.training.split_program import SplitLayout, SplitProgram
 
@@ -59,9 +59,10 @@ def program_for(spec: RunSpec, chunks: int | None = None) -> parallel.Program | 
     against 5 on one device do); a block of a single seed may round differently. A single run
     stays on one device.
 
-    A config with ``loop_seeds`` set (DQN on frames) runs its seeds as an unrolled loop instead
-    of a vmap (``rl_jax.training.parallel.seed_loop``): faster for conv nets on CPU."""
-    loop_seeds = bool(getattr(spec.config, "loop_seeds", False))
+    A learner whose ``loop_seeds`` hook says so (DQN on frames) runs its seeds as an unrolled
+    loop instead of a vmap (``rl_jax.training.parallel.seed_loop``): faster for conv nets on
+    CPU."""
+    loop_seeds = bool(hooks(spec.algorithm).loop_seeds(spec.config))
     devices = list(processes.devices())
     num_hparams = len(spec.hparams)
     if choose_split(spec.layout, num_hparams, spec.seeds, devices, chunks):
@@ -222,8 +223,9 @@ def buffer_that_fits(plan: Plan, buffer_size: int | None) -> int | None:
 
 
 def check_memory(plan: Plan, buffer_size: int | None = None) -> None:
-    """Refuse, with the estimate, a state that would not fit in memory (and, with the config's
-    ``buffer_size``, the replay buffer that would)."""
+    """Refuse, with the estimate, a state that would not fit in memory (and, given the replay
+    buffer's capacity, ``buffer_size``: the learner's ``replay_capacity``, the one that
+    would)."""
     if plan.state_bytes > plan.available_bytes:
         largest = ", ".join(f"{name} {format_bytes(size)}" for name, size in plan.breakdown[:2])
         fits = buffer_that_fits(plan, buffer_size)
@@ -245,7 +247,7 @@ def format_plan(spec: RunSpec, plan: Plan) -> str:
     runs = plots.count_of(spec.seeds, "seed")
     if configs > 1:
         runs += f" x {configs} configs ({', '.join(spec.grid_labels)})"
-    num_envs = getattr(spec.config, "num_envs", None)
+    num_envs = hooks(spec.algorithm).envs_per_seed(spec.config)
     envs = f", {plots.count_of(num_envs, 'env')} each" if num_envs else ""
     largest = ", ".join(f"{name} {format_bytes(size)}" for name, size in plan.breakdown[:3])
     lines = [
@@ -313,7 +315,7 @@ def estimate_remaining(
     chunk is representative: warm-up chunks (random actions, no gradient updates) run many
     times faster than training ones, so the line may come after a few chunks, and it names the
     chunk it measured. Returns whether it printed."""
-    no_warm_up = getattr(spec.config, "learning_starts", 0) == 0
+    no_warm_up = hooks(spec.algorithm).warm_up_steps(spec.config) == 0
     if updates == 0 or not (prior_updates > 0 or no_warm_up):
         return False
     remaining_chunks = chunks - chunk - 1
@@ -359,7 +361,7 @@ def check_env_steps(
     wrong = reported[reported != planned]
     if wrong.size == 0:
         return
-    if defines_hook(algorithm, "env_steps_per_chunk"):
+    if hooks(algorithm).defines_hook("env_steps_per_chunk"):
         source = f"{plan.steps_per_chunk:,} per chunk, from its env_steps_per_chunk"
         fix = "make env_steps_per_chunk(config) return"
     else:
@@ -373,12 +375,3 @@ def check_env_steps(
         f"{chunk + 1}, but the plan has {planned:,} ({source}); {fix} the env steps one "
         "train_chunk takes per seed"
     )
-
-
-def defines_hook(algorithm: Algorithm, name: str) -> bool:
-    """Whether ``algorithm`` defines the optional hook ``name`` itself rather than taking its
-    default (``rl_jax.training.algorithm.OptionalHooks``)."""
-    if isinstance(algorithm, OptionalHooks):
-        inherited = getattr(type(algorithm), name, None) is getattr(OptionalHooks, name)
-        return not inherited or name in getattr(algorithm, "__dict__", {})
-    return hasattr(algorithm, name)

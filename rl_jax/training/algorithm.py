@@ -1,4 +1,5 @@
-"""The interface every learner (TD3, DDPG, DQN, REINFORCE) offers to the run machinery.
+"""The interface every learner (ours and a user's own) offers to the run machinery: the
+``Algorithm`` protocol and its ``OptionalHooks``.
 
 Two kinds of settings, kept apart on purpose (the Rejax split):
 
@@ -23,8 +24,19 @@ delayed updates) with real branches under vmap; every other leaf gains the ``[H,
 from __future__ import annotations
 
 import dataclasses
+import inspect
 from collections.abc import Callable
-from typing import Any, ClassVar, NamedTuple, Protocol, Self, TypeAlias
+from typing import (
+    Any,
+    ClassVar,
+    Generic,
+    NamedTuple,
+    Protocol,
+    Self,
+    TypeAlias,
+    TypeVar,
+    runtime_checkable,
+)
 
 import jax
 
@@ -48,12 +60,20 @@ class ChunkMetrics(NamedTuple):
 
 
 class Config(Protocol):
-    """What the run machinery reads of any learner's static ``Config`` (a frozen dataclass)."""
+    """What the run machinery reads of any learner's static ``Config`` (a frozen dataclass: its
+    fields read-only). ``num_envs`` and ``iterations_per_chunk`` serve the default of
+    ``OptionalHooks.env_steps_per_chunk``: a learner that defines the hook need not have them."""
 
     __dataclass_fields__: ClassVar[dict[str, dataclasses.Field[Any]]]  # a dataclass: its fields
-    env_id: str
-    num_envs: int
-    iterations_per_chunk: int
+
+    @property
+    def env_id(self) -> str: ...
+
+    @property
+    def num_envs(self) -> int: ...
+
+    @property
+    def iterations_per_chunk(self) -> int: ...
 
 
 class Hyperparams(Protocol):
@@ -83,12 +103,11 @@ PolicyFn: TypeAlias = Callable[[jax.Array], jax.Array]
 class Algorithm(Protocol):
     """A learner. Implementations are plain modules or small stateless objects.
 
-    Beyond the methods below, an algorithm may define the hooks of ``OptionalHooks``
-    (``policy_fields``, ``ranges``, ``recipes``, ``env_steps_per_chunk``, ``validate``,
-    ``make_env``); callers reach them through ``hooks(algorithm)``, which
-    supplies the defaults."""
+    Beyond the methods below, an algorithm may define the hooks of ``OptionalHooks`` (``HOOKS``
+    names them); callers reach them through ``hooks(algorithm)``, which supplies the
+    defaults."""
 
-    name: str  # "td3", "ddpg", "td7", "crossq", "dqn", "reinforce", or a learner of your own
+    name: str  # "td3", "ddpg", "td7", "crossq", "sac", "ppo", "dqn", "reinforce", or your own
 
     def default_config(self, env_id: str) -> Config:
         """The static ``Config`` for an env (its default recipe)."""
@@ -109,13 +128,36 @@ class Algorithm(Protocol):
         """A pure ``obs -> action`` function of the deterministic policy (for eval and GIFs)."""
 
 
-class OptionalHooks:
+@runtime_checkable
+class MakesEnv(Protocol):
+    """A config that builds its env itself (``make_env()``: the registered env with its
+    keywords, or one adapted to the learner)."""
+
+    def make_env(self) -> envs.Environment: ...
+
+
+@runtime_checkable
+class CountsEnvs(Protocol):
+    """A config that says how many envs each seed steps together."""
+
+    @property
+    def num_envs(self) -> int: ...
+
+
+#: A learner's own ``Config`` type, in the hooks it defines.
+ConfigT = TypeVar("ConfigT", bound=Config)
+
+
+class OptionalHooks(Generic[ConfigT]):
     """The optional part of ``Algorithm``: what the run machinery asks of an algorithm beyond
     the protocol's methods, each with the default it gets when the algorithm does not define it.
+    Shared code asks these, never a learner's config or state for a field by name.
 
-    ``RecipeBook`` (and so every algorithm object here) inherits them. An algorithm written as a
-    plain module has no base class: ``hooks(algorithm)`` gives it these defaults, so callers
-    call ``hooks(algorithm).make_env(config)`` and never ask ``hasattr``."""
+    ``RecipeBook`` (and so every algorithm object here) inherits them. An algorithm written
+    without this base (a plain module, an object of a class of its own) is seen through
+    ``hooks(algorithm)``: its own hooks where it defines them, these defaults for the rest, so
+    callers call ``hooks(algorithm).make_env(config)`` and never ask ``hasattr``. ``ConfigT``
+    is the learner's ``Config``."""
 
     #: Train-state fields the deterministic policy reads (kept for the best-policy checkpoint).
     #: None: ``("agent",)`` when the state has that field, else no best-policy tracking.
@@ -131,53 +173,99 @@ class OptionalHooks:
         """Recipe ``name`` (None: the env's default) for ``env_id``; ``KeyError`` if none."""
         return self.recipes.get(env_id, name)
 
-    def env_steps_per_chunk(self, config: Config) -> int:
+    def env_steps_per_chunk(self, config: ConfigT) -> int:
         """Env steps one ``train_chunk`` takes per seed: ``num_envs * iterations_per_chunk``."""
         return int(config.num_envs * config.iterations_per_chunk)
 
-    def validate(self, config: Config, hparams: Hyperparams) -> None:
+    def validate(self, config: ConfigT, hparams: Hyperparams) -> None:
         """``ValueError`` for settings each valid alone that the algorithm cannot run together."""
 
-    def make_env(self, config: Config) -> envs.Environment:
+    def make_env(self, config: ConfigT) -> envs.Environment:
         """The env the policy acts in (loaded policies, rendering): the config's ``make_env()``
         where it has one (the registered ``env_id`` with its ``env_kwargs``), else ``env_id``."""
-        make = getattr(config, "make_env", None)
-        return make() if make is not None else envs.make(config.env_id)
+        if isinstance(config, MakesEnv):
+            return config.make_env()
+        return envs.make(config.env_id)
+
+    def envs_per_seed(self, config: ConfigT) -> int | None:
+        """Envs each seed steps together, for the plan's line (None: the line does not say):
+        the config's ``num_envs`` where it has one."""
+        return config.num_envs if isinstance(config, CountsEnvs) else None
+
+    def warm_up_steps(self, config: ConfigT) -> int:
+        """Env steps per seed taken before the first gradient update (random actions, no
+        learning): the time estimate measures a chunk past them. Default: none."""
+        return 0
+
+    def replay_capacity(self, config: ConfigT) -> int | None:
+        """Transitions the replay buffer holds, as the config's ``buffer_size`` sets them (a
+        state too big for memory is refused naming the ``--buffer-size`` that fits). Default:
+        None, no replay buffer."""
+        return None
+
+    def loop_seeds(self, config: ConfigT) -> bool:
+        """Whether the seeds of a run go through the one program as an unrolled loop rather
+        than a vmap (``rl_jax.training.parallel``: faster for conv nets on CPU). Default: no."""
+        return False
+
+    def defines_hook(self, name: str) -> bool:
+        """Whether the algorithm defines the hook ``name`` itself rather than taking its
+        default here."""
+        _check_hook(name)
+        if name in vars(self):
+            return True
+        owner = next(cls for cls in type(self).__mro__ if name in vars(cls))
+        return owner is not OptionalHooks
 
 
 HOOKS = (
     "policy_fields",
     "ranges",
     "recipes",
+    "recipe",
     "env_steps_per_chunk",
     "validate",
     "make_env",
+    "envs_per_seed",
+    "warm_up_steps",
+    "replay_capacity",
+    "loop_seeds",
 )
 
 
-class _WithDefaults(OptionalHooks):
-    """An algorithm module's own hooks, and the defaults for those it does not define."""
+class _OwnHooks(OptionalHooks[Any]):
+    """An algorithm without the ``OptionalHooks`` base seen through them: the hooks it defines
+    itself, the defaults for the rest. Its members are read here, once, by listing them; the
+    callers of ``hooks`` only ever see ``OptionalHooks``."""
 
     def __init__(self, algorithm: Algorithm) -> None:
-        for name in HOOKS:
-            if hasattr(algorithm, name):
-                setattr(self, name, getattr(algorithm, name))
+        self._own = {name: value for name, value in inspect.getmembers(algorithm) if name in HOOKS}
+        vars(self).update(self._own)
+
+    def defines_hook(self, name: str) -> bool:
+        _check_hook(name)
+        return name in self._own
 
 
-def hooks(algorithm: Algorithm) -> OptionalHooks:
+def _check_hook(name: str) -> None:
+    if name not in HOOKS:
+        raise ValueError(f"{name!r} is not an optional hook; they are {', '.join(HOOKS)}")
+
+
+def hooks(algorithm: Algorithm) -> OptionalHooks[Any]:
     """The optional hooks of ``algorithm``: its own where it defines them, else the defaults."""
     if isinstance(algorithm, OptionalHooks):
         return algorithm
-    return _WithDefaults(algorithm)
+    return _OwnHooks(algorithm)
 
 
-class RecipeBook(OptionalHooks):
+class RecipeBook(OptionalHooks[ConfigT]):
     """What the algorithm objects share: settings from the learner's defaults, then one of its
     ``recipes`` (``rl_jax.training.recipes``: ``"default"`` unless a name is given), then the
     caller's overrides.
 
-    Subclasses set ``name``, ``config_type``, ``hparams_type`` (with ``as_arrays()``) and
-    ``recipes``.
+    Subclasses set ``name``, ``config_type`` (``ConfigT``), ``hparams_type`` (with
+    ``as_arrays()``) and ``recipes``.
     """
 
     name: str
@@ -186,7 +274,7 @@ class RecipeBook(OptionalHooks):
 
     def default_config(
         self, env_id: str, recipe: str | None = None, **overrides: Setting
-    ) -> Config:
+    ) -> ConfigT:
         values = {**self.recipe(env_id, recipe).config, **overrides}
         return self.config_type(env_id=env_id, **values)
 

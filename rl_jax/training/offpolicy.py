@@ -1,4 +1,4 @@
-"""The off-policy training loop shared by TD3, DDPG and DQN.
+"""The off-policy training loop shared by TD3, DDPG, TD7, CrossQ, SAC and DQN.
 
 One *iteration*: all ``num_envs`` envs act (uniformly random for the first ``learning_starts`` env
 steps, then the learner's exploration policy) and step once, the ``num_envs`` transitions go into
@@ -60,16 +60,17 @@ class OffPolicyConfig:
 
     def __post_init__(self) -> None:
         envs.parse_keywords(self.env_kwargs)  # a ValueError names what is wrong
-        for name in (
-            "num_envs",
-            "updates_per_iteration",
-            "iterations_per_chunk",
-            "batch_size",
-            "buffer_size",
-            "num_eval_envs",
-        ):
-            if getattr(self, name) < 1:
-                raise ValueError(f"{name} must be >= 1, got {getattr(self, name)}")
+        counts = {
+            "num_envs": self.num_envs,
+            "updates_per_iteration": self.updates_per_iteration,
+            "iterations_per_chunk": self.iterations_per_chunk,
+            "batch_size": self.batch_size,
+            "buffer_size": self.buffer_size,
+            "num_eval_envs": self.num_eval_envs,
+        }
+        for name, value in counts.items():
+            if value < 1:
+                raise ValueError(f"{name} must be >= 1, got {value}")
         if self.learning_starts < 0:
             raise ValueError(f"learning_starts must be >= 0, got {self.learning_starts}")
 
@@ -125,17 +126,27 @@ class TrainState:
     #                           that ended any (NaN until one does)
 
 
+#: The learner's own types: its agent pytree, replay memory, ``Config`` and ``Hyperparams``.
+AgentT = TypeVar("AgentT")
+BufferT = TypeVar("BufferT")
+ConfigT = TypeVar("ConfigT", bound=OffPolicyConfig)
+HparamsT = TypeVar("HparamsT")
+
+
 def uniform_buffer(example: Transition, config: OffPolicyConfig) -> ReplayBuffer[Transition]:
     return replay.init(example, config.buffer_size, config.num_envs)
 
 
 def add_uniform(
-    buffer: ReplayBuffer[Transition], transitions: Transition, config, hparams
+    buffer: ReplayBuffer[Transition],
+    transitions: Transition,
+    config: OffPolicyConfig,
+    hparams: object,
 ) -> ReplayBuffer[Transition]:
     return replay.add(buffer, transitions)
 
 
-class Learner(NamedTuple):
+class Learner(NamedTuple, Generic[AgentT, BufferT, ConfigT, HparamsT]):
     """What an off-policy algorithm provides. ``config``/``hparams`` are its own types.
 
     init_agent(key, config, hparams, obs_space, action_space) -> agent
@@ -159,14 +170,25 @@ class Learner(NamedTuple):
         ``episode_return`` counts where ``done``); ``clock`` is before the step. None: nothing.
     """
 
-    init_agent: Callable[..., Any]
-    explore: Callable[..., tuple[jax.Array, jax.Array]]
-    act: Callable[..., jax.Array]
-    update: Callable[..., tuple[Any, ReplayBuffer, dict[str, jax.Array]]]
-    metric_names: tuple[str, ...] | Callable[[Any], tuple[str, ...]]
-    init_buffer: Callable[..., Any] = uniform_buffer
-    add_to_buffer: Callable[..., Any] = add_uniform
-    observe: Callable[..., Any] | None = None
+    init_agent: Callable[[PRNGKey, ConfigT, HparamsT, envs.Space, envs.Space], AgentT]
+    explore: Callable[
+        [AgentT, jax.Array, jax.Array, PRNGKey, ConfigT, HparamsT, Clock],
+        tuple[jax.Array, jax.Array],
+    ]
+    act: Callable[[AgentT, jax.Array, ConfigT], jax.Array]
+    update: Callable[
+        [AgentT, BufferT, PRNGKey, ConfigT, HparamsT, jax.Array],
+        tuple[AgentT, BufferT, dict[str, jax.Array]],
+    ]
+    metric_names: tuple[str, ...] | Callable[[ConfigT], tuple[str, ...]]
+    # The defaults hold for BufferT = ReplayBuffer[Transition] only: a default of a generic
+    # NamedTuple cannot say so, and a learner that keeps them gets that BufferT.
+    init_buffer: Callable[[Transition, ConfigT], BufferT] = uniform_buffer  # type: ignore[assignment]
+    add_to_buffer: Callable[[BufferT, Transition, ConfigT, HparamsT], BufferT] = add_uniform  # type: ignore[assignment]
+    observe: (
+        Callable[[AgentT, Transition, jax.Array, jax.Array, Clock, ConfigT, HparamsT], AgentT]
+        | None
+    ) = None
 
 
 def buffer_nbytes(config: OffPolicyConfig) -> int:
@@ -205,7 +227,14 @@ def random_actions(space: envs.Space, key: PRNGKey, count: int) -> jax.Array:
     return jax.vmap(space.sample)(jax.random.split(key, count))
 
 
-def _choose_actions(learner, config, hparams, state: TrainState, key: PRNGKey, space):
+def _choose_actions(
+    learner: Learner,
+    config: OffPolicyConfig,
+    hparams: DataclassInstance,
+    state: TrainState,
+    key: PRNGKey,
+    space: envs.Space,
+) -> tuple[jax.Array, jax.Array]:
     """``(actions, noise)``: uniformly random while warming up, then the learner's choice."""
     warming_up = state.clock.env_steps < config.learning_starts
     return jax.lax.cond(
@@ -217,7 +246,14 @@ def _choose_actions(learner, config, hparams, state: TrainState, key: PRNGKey, s
     )
 
 
-def _updates(learner, config, hparams, state: TrainState, key: PRNGKey, buffer: ReplayBuffer):
+def _updates(
+    learner: Learner,
+    config: OffPolicyConfig,
+    hparams: DataclassInstance,
+    state: TrainState,
+    key: PRNGKey,
+    buffer: ReplayBuffer,
+) -> tuple[ArrayPytree, ReplayBuffer, dict[str, jax.Array], jax.Array]:
     """``updates_per_iteration`` updates, or none (NaN metrics) while warming up."""
     count = config.updates_per_iteration
 
@@ -242,7 +278,9 @@ def _updates(learner, config, hparams, state: TrainState, key: PRNGKey, buffer: 
     return agent, buffer, metrics, jnp.where(learning, count, 0)
 
 
-def train_iteration(learner, config, hparams, state: TrainState):
+def train_iteration(
+    learner: Learner, config: OffPolicyConfig, hparams: DataclassInstance, state: TrainState
+) -> tuple[TrainState, tuple[dict[str, jax.Array], tuple[jax.Array, jax.Array]]]:
     """All envs act and step once, the transitions are stored, then the gradient updates."""
     env = make_train_env(config)
     key, act_key, step_key, update_key = jax.random.split(state.key, 4)
@@ -292,7 +330,7 @@ def env_steps_at_update(update_index: jax.Array, config: OffPolicyConfig) -> jax
 # ---- a chunk ------------------------------------------------------------------------------------
 def train_chunk(
     learner: Learner, state: TrainState, config: OffPolicyConfig, hparams: DataclassInstance
-):
+) -> tuple[TrainState, ChunkMetrics]:
     """``config.iterations_per_chunk`` iterations, then one evaluation. Pure; jit it outside."""
 
     def body(state, _):
@@ -319,11 +357,7 @@ def train_chunk(
 
 
 # ---- the Algorithm object -----------------------------------------------------------------------
-#: the learner's own Config
-ConfigT = TypeVar("ConfigT", bound=OffPolicyConfig)
-
-
-class OffPolicyAlgorithm(RecipeBook, Generic[ConfigT]):
+class OffPolicyAlgorithm(RecipeBook[ConfigT]):
     """What every learner on this loop offers the run machinery beyond its settings: ``init``,
     ``train_chunk`` and a ``policy`` that acts with ``learner.act`` on a seed's agent.
 
@@ -346,3 +380,15 @@ class OffPolicyAlgorithm(RecipeBook, Generic[ConfigT]):
         """``obs -> action`` (env units) of the deterministic policy of one seed's state."""
         agent, act = state.agent, self.learner.act
         return lambda obs: act(agent, obs, config)
+
+    def make_env(self, config: ConfigT) -> envs.Environment:
+        """The env the policy acts in: the config's own (``OffPolicyConfig.make_env``)."""
+        return config.make_env()
+
+    def warm_up_steps(self, config: ConfigT) -> int:
+        """The config's ``learning_starts``: env steps of random actions before any update."""
+        return config.learning_starts
+
+    def replay_capacity(self, config: ConfigT) -> int:
+        """The config's ``buffer_size``, in transitions."""
+        return config.buffer_size

@@ -27,7 +27,7 @@ from rl_jax.run.metrics import read_rows
 from rl_jax.run.progress import Progress
 from rl_jax.run.runner import run
 from rl_jax.run.spec import RunSpec
-from rl_jax.training.algorithm import OptionalHooks
+from rl_jax.training.algorithm import OptionalHooks, hooks
 
 STEPS_PER_CHUNK = 20  # the fake learner: 4 envs x 5 iterations
 ROOT = Path(__file__).resolve().parents[2]
@@ -110,11 +110,14 @@ def test_whether_a_learner_defines_the_hook_or_takes_its_default():
 
     given = Inherits()
     given.env_steps_per_chunk = lambda config: 1
-    assert not plan.defines_hook(Inherits(), "env_steps_per_chunk")
-    assert plan.defines_hook(Defines(), "env_steps_per_chunk")
-    assert plan.defines_hook(given, "env_steps_per_chunk")
-    assert plan.defines_hook(fake, "env_steps_per_chunk")
-    assert not plan.defines_hook(overrunning_learner.learner, "env_steps_per_chunk")
+    for learner, defines in [
+        (Inherits(), False),
+        (Defines(), True),
+        (given, True),
+        (fake, True),  # a module
+        (overrunning_learner.learner, False),  # an object of a class of its own
+    ]:
+        assert hooks(learner).defines_hook("env_steps_per_chunk") == defines
 
 
 def test_a_learner_with_a_wrong_hook_is_told_to_fix_it():
@@ -159,7 +162,8 @@ def test_one_seed_and_one_chunk_are_counted_in_the_singular(tmp_path, capsys):
 def test_the_time_estimate_names_the_chunk_it_measured():
     """After warm-up chunks (no updates) the estimate comes from a later chunk, and says which:
     the chunks left are counted from it."""
-    warm_up = types.SimpleNamespace(config=types.SimpleNamespace(learning_starts=40))
+    learner = types.SimpleNamespace(name="warm", warm_up_steps=lambda config: 40)
+    warm_up = types.SimpleNamespace(algorithm=learner, config=None)
     out = io.StringIO()
     progress = Progress(100, file=out, tty=False)
     assert not plan.estimate_remaining(warm_up, progress, 0.5, 0, 5, 0, 0)  # no updates yet
