@@ -12,6 +12,7 @@ from jax.typing import ArrayLike
 
 from rl_jax import envs
 from rl_jax.training import conv, networks, params
+from rl_jax.training.episodes import ImageObservations
 from rl_jax.training.offpolicy import OffPolicyConfig
 
 
@@ -63,7 +64,7 @@ PIXEL_ENVS = ("rl_jax/CartPolePixels-v1",)
 
 
 @dataclasses.dataclass(frozen=True, kw_only=True)
-class PixelConfig(Config):
+class PixelConfig(Config, ImageObservations):
     """DQN on frames (``PIXEL_ENVS``): the frame geometry and a conv torso before ``hidden``.
 
     The replay keeps each frame once per step and rebuilds stacks when sampling
@@ -71,7 +72,6 @@ class PixelConfig(Config):
     4x4/2, then 256 units), not Nature DQN's (32 8x8/4, 64 4x4/2, 64 3x3/1, 512): its gradient
     step costs about a third as much on a CPU, and CartPole's frames are simple."""
 
-    image_observations = True  # (not a field) offpolicy keeps the frames [H, W, C]
     hidden: tuple[int, ...] = (256,)  # hidden ReLU layers after the conv torso
     frame_size: int = 84  # frames are frame_size x frame_size grayscale pixels
     frame_stack: int = 4  # the last frame_stack frames are the observation's channels

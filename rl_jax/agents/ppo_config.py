@@ -11,6 +11,7 @@ from flax import struct
 
 from rl_jax import envs
 from rl_jax.training import conv, networks, params
+from rl_jax.training.episodes import ImageObservations
 from rl_jax.training.params import Scalar
 
 
@@ -73,13 +74,12 @@ PIXEL_ENVS = ("rl_jax/CartPolePixels-v1",)
 
 
 @dataclasses.dataclass(frozen=True, kw_only=True)
-class PixelConfig(Config):
+class PixelConfig(Config, ImageObservations):
     """PPO on frames (``PIXEL_ENVS``): a conv torso (``conv.ConvTorso``, DQN's) and the
     ``hidden`` layers after it are shared by actor and critic, each then one linear head (as in
     the PPO paper's Atari network). Observations are not standardised: the torso scales the
     uint8 pixels to [0, 1] itself."""
 
-    image_observations = True  # (not a field) episodes keeps the frames [H, W, C]
     hidden: tuple[int, ...] = (256,)
     activation: str = "relu"
     frame_size: int = 84  # frames are frame_size x frame_size grayscale pixels

@@ -16,17 +16,14 @@ log-probability (and so the ratio) is that of the unclipped sample.
 from __future__ import annotations
 
 import functools
-from typing import TYPE_CHECKING
 
 import flax.linen as nn
 import jax
 import jax.numpy as jnp
 
 from rl_jax import envs
+from rl_jax.agents.ppo_config import Config, PixelConfig
 from rl_jax.training import conv, episodes, networks, normalization
-
-if TYPE_CHECKING:
-    from rl_jax.agents.ppo_config import Config
 
 HIDDEN_GAIN = 2.0**0.5
 POLICY_GAIN = 0.01
@@ -107,7 +104,7 @@ def make_network(config: Config) -> ActorCritic:
     """The network for ``config`` (cached: called at every trace)."""
     space = episodes.make_eval_env(config).action_space()
     discrete = isinstance(space, envs.Discrete)
-    conv_layers = getattr(config, "conv_layers", ())
+    conv_layers = config.conv_layers if isinstance(config, PixelConfig) else ()
     return ActorCritic(
         hidden=config.hidden,
         action_dim=1 if discrete else space.shape[0],

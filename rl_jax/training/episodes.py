@@ -2,13 +2,13 @@
 its deterministic policy: the same for the off-policy loop (TD3, DDPG, DQN) and REINFORCE.
 
 A config offers ``make_env()`` (the env as registered, or adapted: DQN discretises actions) and
-``num_eval_envs``; a config whose network reads images sets ``image_observations``.
+``num_eval_envs``; a config whose network reads images is an ``ImageObservations``.
 """
 
 from __future__ import annotations
 
 import functools
-from collections.abc import Callable
+from collections.abc import Callable, Hashable
 from typing import Protocol
 
 import jax
@@ -18,12 +18,19 @@ from rl_jax import envs
 from rl_jax.training.replay import Transition
 
 
-class EnvConfig(Protocol):
+class EnvConfig(Hashable, Protocol):
     """What a learner's config offers the env builders (frozen, so hashable: they cache)."""
 
-    num_eval_envs: int
+    @property
+    def num_eval_envs(self) -> int: ...
 
     def make_env(self) -> envs.Environment: ...
+
+
+class ImageObservations:
+    """The base of a config whose network reads images (a conv torso: ``dqn.PixelConfig``): its
+    envs keep the observations ``[H, W, C]``. Every other config's are flattened to one axis
+    (flattening would also make a uint8 space float32)."""
 
 
 # Cached: every trace asks for the env, and building one (an MJX model) can be slow. Envs are
@@ -35,9 +42,7 @@ def make_eval_env(config: EnvConfig) -> envs.Environment:
     # when built (MuJoCo's initial obs, default params) must stay concrete, not leak tracers.
     with jax.ensure_compile_time_eval():
         env = config.make_env()
-    # A config whose network reads images (a conv torso: ``dqn.PixelConfig``) keeps them
-    # [H, W, C]; flattening would also make a uint8 space float32.
-    keep_images = getattr(config, "image_observations", False)
+    keep_images = isinstance(config, ImageObservations)
     if len(env.observation_space().shape) != 1 and not keep_images:
         env = envs.FlattenObservation(env)
     return env
