@@ -3,8 +3,7 @@ saved, with one line naming the runs and the likely cause."""
 
 from __future__ import annotations
 
-import dataclasses
-from typing import TYPE_CHECKING
+from typing import Protocol
 
 import jax
 import jax.numpy as jnp
@@ -13,14 +12,29 @@ import numpy as np
 from rl_jax.errors import RunError
 from rl_jax.run.best import policy_fields, policy_part
 from rl_jax.run.spec import RunSpec
+from rl_jax.training import params
 from rl_jax.training.algorithm import ChunkMetrics, TrainState
-
-if TYPE_CHECKING:
-    from rl_jax.run.runner import Session
 
 
 class DivergenceError(RunError):
     """A run's parameters or evaluation became non-finite: the run stopped before saving it."""
+
+
+class RunSoFar(Protocol):
+    """What the check reads of a run in progress (``rl_jax.run.runner.Session`` is one)."""
+
+    @property
+    def spec(self) -> RunSpec: ...
+
+    @property
+    def step(self) -> int:
+        """Env steps per seed reached."""
+        ...
+
+    @property
+    def saved_step(self) -> int | None:
+        """The step of the latest checkpoint (None: none yet)."""
+        ...
 
 
 @jax.jit
@@ -40,7 +54,9 @@ def finite_runs(state: TrainState, spec: RunSpec) -> jax.Array:
     return _all_finite(policy_part(state, fields) if fields else state)
 
 
-def check_finite(session: Session, metrics: ChunkMetrics, finite_state: np.ndarray) -> None:
+def check_finite(
+    session: RunSoFar, metrics: ChunkMetrics, finite_state: np.ndarray | jax.Array
+) -> None:
     """Stop the run, before its state is saved, when a run's parameters or eval return are no
     longer finite, or a loss overflowed to infinity: one line names the runs, the step and the
     likely cause. (A NaN loss alone is no sign: learners report NaN for "no update here", e.g.
@@ -50,9 +66,9 @@ def check_finite(session: Session, metrics: ChunkMetrics, finite_state: np.ndarr
     eval_ok = np.isfinite(np.asarray(metrics.eval_return, dtype=np.float64))
     losses_ok = np.ones_like(eval_ok)
     for value in metrics.extra.values():
-        value = np.asarray(value)
-        if value.dtype.kind == "f" and value.shape == losses_ok.shape:
-            losses_ok &= ~np.isinf(value)
+        loss = np.asarray(value)
+        if loss.dtype.kind == "f" and loss.shape == losses_ok.shape:
+            losses_ok &= ~np.isinf(loss)
     finite = params_ok & eval_ok & losses_ok
     if finite.all():
         return
@@ -70,16 +86,16 @@ def check_finite(session: Session, metrics: ChunkMetrics, finite_state: np.ndarr
         )
         if not ok[~finite].all()
     ]
+    diverged = [params.dataclass_to_dict(spec.hparams[h]) for h in sorted({h for h, _ in bad})]
     rates = sorted(
         {
-            f"--{name.replace('_', '-')} {float(np.asarray(getattr(spec.hparams[h], name))):g}"
-            for h, _ in bad
-            for name in _rate_fields(spec.hparams[h])
+            f"--{name.replace('_', '-')} {float(np.asarray(value)):g}"
+            for values in diverged
+            for name, value in values.items()
+            if _is_rate(name)
         }
     )
-    clipping = any(
-        f.name == "max_grad_norm" for h, _ in bad for f in dataclasses.fields(spec.hparams[h])
-    )
+    clipping = any("max_grad_norm" in values for values in diverged)
     kept = (
         f"the last finite checkpoint (step {session.saved_step:,}) is kept"
         if session.saved_step is not None
@@ -94,9 +110,7 @@ def check_finite(session: Session, metrics: ChunkMetrics, finite_state: np.ndarr
     )
 
 
-def _rate_fields(hparams: object) -> list[str]:
-    return [
-        f.name
-        for f in dataclasses.fields(hparams)
-        if f.name == "lr" or f.name.endswith(("_lr", "learning_rate"))
-    ]
+def _is_rate(name: str) -> bool:
+    """Whether the hyperparameter ``name`` is a learning rate (``lr``, ``*_lr``,
+    ``*learning_rate``)."""
+    return name == "lr" or name.endswith(("_lr", "learning_rate"))
