@@ -88,11 +88,13 @@ class OneLineParser(argparse.ArgumentParser):
 
 def user_errors() -> tuple[type[BaseException], ...]:
     """Exception types that mean bad input, not a bug: reported in one line."""
-    # heavy: envs imports JAX and gymnasium, and is needed only once an error is caught
-    from rl_jax.envs.core.registry import BackendError, UnknownEnvError, UnsupportedEnvError
-
-    errors = (UsageError, RunError, CheckpointError, UnknownEnvError, BackendError)
-    return (*errors, UnsupportedEnvError, RenderError, PolicyError)
+    errors = (UsageError, RunError, CheckpointError, RenderError, PolicyError)
+    # The envs' own too, once the envs are loaded (none of them is raised before): this module
+    # imports nothing of the package, and envs would pull in JAX and gymnasium.
+    registry = sys.modules.get("rl_jax.envs.core.registry")
+    if registry is None:
+        return errors
+    return (*errors, registry.UnknownEnvError, registry.BackendError, registry.UnsupportedEnvError)
 
 
 def guard(function: Callable[[], int]) -> int:
