@@ -399,7 +399,7 @@ LEARNER = offpolicy.Learner(init_agent, explore, act, update, METRICS, observe=o
 
 
 # ---- recipes ------------------------------------------------------------------------------------
-# Each recipe's measurements: docs/learners/sac.md and RESULTS.md, "SAC on the MuJoCo suite".
+# Why each recipe is what it is: docs/learners/sac.md, "How the recipes were chosen".
 PENDULUM, ANT, HUMANOID = "rl_jax/Pendulum-v1", "rl_jax/Ant-v5", "rl_jax/Humanoid-v5"
 _CPU_ENVS = "InvertedPendulum InvertedDoublePendulum HalfCheetah Hopper Walker2d Reacher Swimmer"
 RATE_1E3: dict[str, Setting] = {"actor_lr": 1e-3, "critic_lr": 1e-3, "alpha_lr": 1e-3}
