@@ -213,8 +213,8 @@ def make_networks(config: Config) -> Networks:
     return build_networks(config, episodes.make_eval_env(config).action_space())
 
 
-def actor_outputs(nets: Networks, actor: Params, obs: jax.Array) -> tuple[jax.Array, jax.Array]:
-    """``(mean, log_std)``, pre-tanh."""
+def actor_outputs(nets: Networks, actor: Params, obs: jax.Array):
+    """``(mean, log_std)`` ``[B, A]`` each, pre-tanh."""
     return nets.actor.apply(actor, obs)
 
 
