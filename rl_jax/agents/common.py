@@ -7,6 +7,8 @@ The envs they train and evaluate on, and the evaluation itself, are in
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
 import jax
 import jax.numpy as jnp
 import optax
@@ -26,6 +28,20 @@ def optimizer_step(
     opt_state = opt_state._replace(hyperparams={**opt_state.hyperparams, **rates})
     updates, opt_state = optimizer.update(grads, opt_state, params)
     return optax.apply_updates(params, updates), opt_state
+
+
+def injected_step(
+    factory: Callable[..., optax.GradientTransformation],
+    grads: optax.Updates,
+    opt_state: optax.InjectStatefulHyperparamsState,
+    params: optax.Params,
+    **rates: ArrayLike,
+) -> tuple[optax.Params, optax.InjectStatefulHyperparamsState]:
+    """``optimizer_step`` of ``optax.inject_hyperparams(factory)`` built at this update's
+    ``rates``, so that no optimizer stands at rates it never uses; ``opt_state`` is what the same
+    optimizer, built at the run's first rates, initialised."""
+    optimizer = optax.inject_hyperparams(factory)(**rates)
+    return optimizer_step(optimizer, grads, opt_state, params, **rates)
 
 
 def clip_by_global_norm(

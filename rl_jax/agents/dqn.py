@@ -40,7 +40,7 @@ from flax import struct
 from jax.typing import ArrayLike
 
 from rl_jax import envs
-from rl_jax.agents.common import linearly_decayed, optimizer_step, polyak_update
+from rl_jax.agents.common import injected_step, linearly_decayed, polyak_update
 from rl_jax.agents.dqn_config import PIXEL_ENVS, Config, Hyperparams, PixelConfig
 from rl_jax.agents.dqn_recipes import RECIPES
 from rl_jax.agents.dqn_replay import Buffer, add_to_buffer, init_buffer, replay_for
@@ -112,10 +112,6 @@ def _optimizer(learning_rate: ArrayLike, max_grad_norm: ArrayLike) -> optax.Grad
     return optax.chain(optax.clip_by_global_norm(max_grad_norm), optax.adam(learning_rate))
 
 
-# The rates in use live in the optimizer state (checkpointed); these values only build it.
-_OPTIMIZER = optax.inject_hyperparams(_optimizer)(learning_rate=2.5e-4, max_grad_norm=10.0)
-
-
 def learning_rate_at(env_steps: jax.Array, hparams: Hyperparams) -> jax.Array:
     """The Adam rate after ``env_steps``: linear decay to 0 over ``lr_decay_steps`` (if > 0).
     DQN's greedy policy on CartPole otherwise keeps collapsing and recovering long after it first
@@ -126,8 +122,8 @@ def learning_rate_at(env_steps: jax.Array, hparams: Hyperparams) -> jax.Array:
 def _gradient_step(
     agent: Agent, grads: optax.Updates, hparams: Hyperparams, env_steps: jax.Array
 ) -> Agent:
-    online, opt_state = optimizer_step(
-        _OPTIMIZER,
+    online, opt_state = injected_step(
+        _optimizer,
         grads,
         agent.opt_state,
         agent.online,

@@ -33,7 +33,7 @@ from flax import struct
 
 from rl_jax import envs
 from rl_jax.agents import ppo_losses as losses
-from rl_jax.agents.common import clip_by_global_norm, linearly_decayed, optimizer_step
+from rl_jax.agents.common import clip_by_global_norm, injected_step, linearly_decayed
 from rl_jax.agents.policy_gradient import entropy, log_prob
 from rl_jax.agents.ppo_config import PIXEL_ENVS, Config, Hyperparams, PixelConfig
 from rl_jax.agents.ppo_networks import (
@@ -191,17 +191,14 @@ def targets(rollout: Rollout, state: TrainState, hparams: Hyperparams, config: C
 
 
 # ---- updates ----------------------------------------------------------------------------------
-_OPTIMIZER = optax.inject_hyperparams(optax.adam)(learning_rate=2.5e-4, eps=1e-5)
-
-
 def gradient_step(agent: Agent, batch: Batch, hparams: Hyperparams, config: Config, rate):
     """One Adam step on a minibatch at ``rate``, the gradient clipped by its global norm."""
     grads, metrics = jax.grad(loss_fn, has_aux=True)(
         agent.params, batch, hparams, config, agent.obs_stats
     )
     grads, metrics["grad_norm"] = clip_by_global_norm(grads, hparams.max_grad_norm)
-    params, opt_state = optimizer_step(
-        _OPTIMIZER, grads, agent.opt_state, agent.params, learning_rate=rate, eps=hparams.adam_eps
+    params, opt_state = injected_step(
+        optax.adam, grads, agent.opt_state, agent.params, learning_rate=rate, eps=hparams.adam_eps
     )
     return agent.replace(params=params, opt_state=opt_state), metrics
 

@@ -43,7 +43,7 @@ from flax import struct
 from jax.typing import ArrayLike
 
 from rl_jax import envs
-from rl_jax.agents.common import clip_by_global_norm, linearly_decayed, optimizer_step
+from rl_jax.agents.common import clip_by_global_norm, injected_step, linearly_decayed
 from rl_jax.agents.policy_gradient import (
     entropy,
     log_prob,
@@ -132,9 +132,6 @@ def _adamw(learning_rate: ArrayLike, weight_decay: ArrayLike) -> optax.GradientT
     return optax.adamw(learning_rate, weight_decay=weight_decay)
 
 
-_OPTIMIZER = optax.inject_hyperparams(_adamw)(learning_rate=1e-4, weight_decay=0.01)
-
-
 def learning_rate(hparams: Hyperparams, updates: jax.Array) -> jax.Array:
     """The rate of update number ``updates``: linear decay to 0 over ``lr_decay_updates``."""
     return linearly_decayed(hparams.learning_rate, updates, hparams.lr_decay_updates)
@@ -153,8 +150,8 @@ def update(
         agent.params, trajectory, hparams, config, agent.obs_stats
     )
     grads, metrics["grad_norm"] = clip_by_global_norm(grads, hparams.max_grad_norm)
-    params, opt_state = optimizer_step(
-        _OPTIMIZER,
+    params, opt_state = injected_step(
+        _adamw,
         grads,
         agent.opt_state,
         agent.params,

@@ -40,7 +40,7 @@ from rl_jax.agents.actor_critic import (
     critic_values,
     first_critic_value,
 )
-from rl_jax.agents.common import linearly_decayed, optimizer_step, polyak_update
+from rl_jax.agents.common import injected_step, linearly_decayed, polyak_update
 from rl_jax.agents.td3_recipes import TD3_RECIPES
 from rl_jax.training import episodes, networks, normalization, offpolicy, replay
 from rl_jax.training.networks import Params
@@ -220,17 +220,14 @@ def actor_loss_fn(actor, critics, obs: jax.Array, nets: Networks) -> jax.Array:
 
 
 # ---- one update ---------------------------------------------------------------------------------
-_ADAM = optax.inject_hyperparams(optax.adam)(learning_rate=3e-4)
-
-
 def critic_step(agent: Agent, batch: CriticBatch, key, hparams, nets: Networks, rate: Callable):
     """``(agent, loss, q_tm1)`` after one Adam step of the critics; ``rate`` decays a rate."""
     noise = jax.random.normal(key, batch.action.shape, jnp.float32)
     (loss, q_tm1), grads = jax.value_and_grad(critic_loss_fn, has_aux=True)(
         agent.critics, agent, batch, noise, hparams, nets
     )
-    critics, critic_opt = optimizer_step(
-        _ADAM, grads, agent.critic_opt, agent.critics, learning_rate=rate(hparams.critic_lr)
+    critics, critic_opt = injected_step(
+        optax.adam, grads, agent.critic_opt, agent.critics, learning_rate=rate(hparams.critic_lr)
     )
     return agent.replace(critics=critics, critic_opt=critic_opt), loss, q_tm1
 
@@ -238,8 +235,8 @@ def critic_step(agent: Agent, batch: CriticBatch, key, hparams, nets: Networks, 
 def actor_step(agent: Agent, obs, hparams, nets: Networks, rate: Callable):
     """``(agent, loss)`` after an Adam step of the actor and a Polyak step of the targets."""
     loss, grads = jax.value_and_grad(actor_loss_fn)(agent.actor, agent.critics, obs, nets)
-    actor, actor_opt = optimizer_step(
-        _ADAM, grads, agent.actor_opt, agent.actor, learning_rate=rate(hparams.actor_lr)
+    actor, actor_opt = injected_step(
+        optax.adam, grads, agent.actor_opt, agent.actor, learning_rate=rate(hparams.actor_lr)
     )
     agent = agent.replace(
         actor=actor,

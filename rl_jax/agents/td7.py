@@ -39,7 +39,7 @@ from flax import struct
 
 from rl_jax.agents import actor_critic, td7_parts
 from rl_jax.agents.actor_critic import ActorCriticConfig, ActorCriticHyperparams, CriticBatch
-from rl_jax.agents.common import linearly_decayed, optimizer_step
+from rl_jax.agents.common import injected_step, linearly_decayed
 from rl_jax.agents.td7_parts import Encoders, ValueRange
 from rl_jax.agents.td7_recipes import TD7_RECIPES
 from rl_jax.training import (
@@ -232,11 +232,8 @@ def encoder_loss_fn(online, batch: CriticBatch, config: Config) -> jax.Array:
 
 
 # ---- one update ---------------------------------------------------------------------------------
-_ADAM = optax.inject_hyperparams(optax.adam)(learning_rate=3e-4)
-
-
 def _adam(grads, opt_state, params, rate):
-    return optimizer_step(_ADAM, grads, opt_state, params, learning_rate=rate)
+    return injected_step(optax.adam, grads, opt_state, params, learning_rate=rate)
 
 
 def encoder_step(agent: Agent, batch: CriticBatch, hparams, config: Config, rate: Callable):
