@@ -30,6 +30,7 @@ from rl_jax.envs.core.wrappers import (
     DiscretizeActions,
     EpisodeStatistics,
     FlattenObservation,
+    MaskObservation,
     RescaleAction,
     Wrapper,
 )
@@ -47,6 +48,7 @@ __all__ = [
     "EpisodeStatistics",
     "FlattenObservation",
     "from_gymnasium",
+    "MaskObservation",
     "RescaleAction",
     "Space",
     "TimeStep",

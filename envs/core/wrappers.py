@@ -6,6 +6,7 @@ outside autoreset so they see the step that ended an episode, not the reset that
 
 from __future__ import annotations
 
+from collections.abc import Iterable
 from typing import Any
 
 import jax
@@ -313,3 +314,83 @@ class FlattenObservation(Wrapper):
         """Step with a flattened observation (and ``final_obs``)."""
         state, ts = self.env.step(key, state, action, params)
         return state, self._flatten(ts)
+
+
+class MaskObservation(Wrapper):
+    """Shows the learner only the entries ``keep`` of a one-dimensional Box observation, making
+    the env partially observed (velocities hidden, for instance).
+
+    By default the other entries are dropped: the observation, its space (bounds included) and
+    ``info["final_obs"]`` (where an ``AutoReset`` below keeps one) hold the kept entries in the
+    order given. With ``zero_others=True`` they are set to zero instead and the observation and
+    its space keep their shape, as RL Zoo's ``MaskVelocityWrapper`` does (``CartPoleNoVel-v1``).
+    Rewards, both flags, the rest of ``info``, the state and the episode limit are the wrapped
+    env's; setting ``max_episode_steps`` sets the wrapped env's, which decides truncation.
+    """
+
+    def __init__(self, env: Environment, keep: Iterable[int], zero_others: bool = False):
+        super().__init__(env)
+        space = env.observation_space()
+        if not isinstance(space, Box) or len(space.shape) != 1:
+            raise TypeError(f"MaskObservation needs a one-dimensional Box observation, got {space}")
+        size = space.shape[0]
+        self.keep = tuple(int(i) for i in keep)
+        if not self.keep or len(set(self.keep)) != len(self.keep):
+            raise ValueError(f"keep must name distinct observation entries, got {self.keep}")
+        if not all(0 <= i < size for i in self.keep):
+            raise ValueError(f"keep {self.keep} must index an observation of {size} entries")
+        self.zero_others = zero_others
+        self._kept = np.zeros(size, np.bool_)
+        self._kept[list(self.keep)] = True
+
+    @property
+    def max_episode_steps(self) -> int:
+        """The wrapped env's episode limit."""
+        return self.env.max_episode_steps
+
+    @max_episode_steps.setter
+    def max_episode_steps(self, value: int) -> None:
+        self.env.max_episode_steps = value
+
+    def observation_space(self, params=None) -> Space:
+        """The kept entries' bounds (or, with ``zero_others``, the wrapped env's space)."""
+        space = self.env.observation_space(params)
+        if self.zero_others or not isinstance(space, Box):
+            return space
+        keep = list(self.keep)
+        return Box(space.low[keep], space.high[keep], (len(keep),), space.dtype)
+
+    def mask(self, obs: Array) -> Array:
+        """The observation the learner sees of ``obs`` (``[..., size]``: leading axes kept)."""
+        if self.zero_others:
+            kept = jnp.broadcast_to(jnp.asarray(self._kept), obs.shape)
+            return jnp.where(kept, obs, jnp.zeros_like(obs))
+        return obs[..., np.asarray(self.keep)]
+
+    def _mask_info(self, info: dict[str, Array]) -> dict[str, Array]:
+        if "final_obs" not in info:
+            return info
+        return {**info, "final_obs": self.mask(info["final_obs"])}
+
+    def _masked(self, state, ts: TimeStep):
+        return state, ts._replace(obs=self.mask(ts.obs), info=self._mask_info(ts.info))
+
+    def empty_info(self) -> dict[str, Array]:
+        """The wrapped env's reset info, with ``final_obs`` (if any) masked too."""
+        return self._mask_info(dict(self.env.empty_info()))
+
+    def reset(self, key, params=None):
+        """Reset; the learner sees the masked first observation."""
+        return self._masked(*self.env.reset(key, params))
+
+    def reset_to(self, vector, params=None):
+        """Start from an exact state of the wrapped env; the observation is masked."""
+        return self._masked(*self.env.reset_to(vector, params))
+
+    def step(self, key, state, action, params=None):
+        """Step the wrapped env; the observation (and ``final_obs``) is masked."""
+        return self._masked(*self.env.step(key, state, action, params))
+
+    def step_active(self, key, state, action, active, params=None):
+        """The wrapped env's ``step_active`` (which may skip the inactive envs' work), masked."""
+        return self._masked(*self.env.step_active(key, state, action, active, params))

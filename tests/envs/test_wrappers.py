@@ -196,3 +196,96 @@ def test_autoreset_and_statistics_on_the_rocket():
         assert np.all(
             ts.info["episode_return"][last:, column] == ts.info["episode_return"][last, column]
         )
+
+
+# ---- MaskObservation ----------------------------------------------------------------------------
+def _cartpole_pair(**mask_keywords):
+    from rl_jax.envs.classic.cartpole import CartPole
+
+    return CartPole(), envs.MaskObservation(CartPole(), **mask_keywords)
+
+
+def test_mask_observation_keeps_the_chosen_entries_and_their_bounds():
+    bare, masked = _cartpole_pair(keep=(2, 0))
+    space = bare.observation_space()
+    assert masked.observation_space() == envs.Box(space.low[[2, 0]], space.high[[2, 0]], (2,))
+    key = jax.random.PRNGKey(3)
+    (bare_state, bare_ts), (state, ts) = bare.reset(key), masked.reset(key)
+    np.testing.assert_array_equal(ts.obs, bare_ts.obs[np.array([2, 0])])
+    for t in range(5):
+        key = jax.random.fold_in(key, t)
+        bare_state, bare_ts = bare.step(key, bare_state, jnp.int32(t % 2))
+        state, ts = masked.step(key, state, jnp.int32(t % 2))
+        np.testing.assert_array_equal(ts.obs, bare_ts.obs[np.array([2, 0])])
+        assert (ts.reward, ts.terminated, ts.truncated) == (
+            bare_ts.reward,
+            bare_ts.terminated,
+            bare_ts.truncated,
+        )
+    assert jax.tree.structure(state) == jax.tree.structure(bare_state)
+
+
+def test_mask_observation_can_zero_the_others_and_keep_the_shape():
+    bare, masked = _cartpole_pair(keep=(0, 2), zero_others=True)
+    assert masked.observation_space() == bare.observation_space()
+    _, ts = masked.reset_to(jnp.array([0.1, -0.2, 0.03, 0.4]))
+    np.testing.assert_array_equal(ts.obs, np.array([0.1, 0.0, 0.03, 0.0], np.float32))
+    # reset_to with leading axes, as the MuJoCo envs take it
+    obs = masked.mask(jnp.ones((3, 4)))
+    np.testing.assert_array_equal(obs, np.tile([1.0, 0.0, 1.0, 0.0], (3, 1)))
+
+
+@pytest.mark.parametrize("mask_outside", [True, False])
+def test_mask_observation_masks_the_final_obs_of_autoreset(mask_outside):
+    from rl_jax.envs.classic.cartpole import CartPole
+
+    keep = (0, 2)
+    env = (
+        envs.MaskObservation(envs.AutoReset(CartPole()), keep)
+        if mask_outside
+        else envs.AutoReset(envs.MaskObservation(CartPole(), keep))
+    )
+    reference = envs.AutoReset(CartPole())
+    assert env.empty_info()["final_obs"].shape == (2,)
+    keys = jax.random.split(jax.random.PRNGKey(4), 6)
+    state, ts = jax.vmap(env.reset)(keys)
+    ref_state, ref_ts = jax.vmap(reference.reset)(keys)
+    assert ts.info["final_obs"].shape == (6, 2)
+    step, ref_step = jax.jit(jax.vmap(env.step)), jax.jit(jax.vmap(reference.step))
+    ended = 0
+    for t in range(40):  # always push right: every episode ends and restarts within 40 steps
+        step_keys = jax.random.split(jax.random.fold_in(keys[0], t), 6)
+        state, ts = step(step_keys, state, jnp.ones(6, jnp.int32))
+        ref_state, ref_ts = ref_step(step_keys, ref_state, jnp.ones(6, jnp.int32))
+        np.testing.assert_array_equal(ts.obs, ref_ts.obs[:, np.array(keep)])
+        np.testing.assert_array_equal(ts.info["final_obs"], ref_ts.info["final_obs"][:, keep])
+        np.testing.assert_array_equal(ts.terminated, ref_ts.terminated)
+        ended += int(np.sum(ts.terminated))
+    assert ended >= 6
+
+
+def test_mask_observation_passes_step_active_and_the_episode_limit_through():
+    bare, masked = _cartpole_pair(keep=(0,))
+    state, _ = masked.reset(jax.random.PRNGKey(5))
+    new_state, ts = masked.step_active(jax.random.PRNGKey(6), state, jnp.int32(1), False)
+    assert ts.obs.shape == (1,)
+    np.testing.assert_array_equal(new_state.x, state.x)  # inactive: the state is kept
+    # Setting the limit sets the wrapped env's, which decides truncation (as make_vec does).
+    masked.max_episode_steps = 2
+    assert masked.env.max_episode_steps == 2
+    state, _ = masked.reset(jax.random.PRNGKey(5))
+    truncated = []
+    for t in range(2):
+        state, ts = masked.step(jax.random.PRNGKey(t), state, jnp.int32(t % 2))
+        truncated.append(bool(ts.truncated))
+    assert truncated == [False, True]
+
+
+@pytest.mark.parametrize(
+    ("keep", "error"), [((), ValueError), ((0, 0), ValueError), ((4,), ValueError)]
+)
+def test_mask_observation_refuses_bad_indices(keep, error):
+    from rl_jax.envs.classic.cartpole import CartPole
+
+    with pytest.raises(error):
+        envs.MaskObservation(CartPole(), keep)
