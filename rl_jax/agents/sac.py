@@ -121,12 +121,11 @@ class Config(OffPolicyConfig):
             if getattr(self, name) not in networks.ACTIVATIONS:
                 raise ValueError(f"{name} must be one of {tuple(networks.ACTIVATIONS)}")
         for name in ("critic_norm", "actor_norm"):
-            if getattr(self, name) == "batch_renorm":
-                raise ValueError(
-                    f"{name} 'batch_renorm' is CrossQ's, a learner of its own now: --algo crossq"
-                )
             if getattr(self, name) not in ("none", "layer"):
-                raise ValueError(f"{name} must be one of ('none', 'layer')")
+                raise ValueError(
+                    f"{name} must be 'none' or 'layer' (batch renormalisation is CrossQ's, a "
+                    "learner of its own now: --algo crossq)"
+                )
         hidden = {"actor_hidden": self.actor_hidden, "critic_hidden": self.critic_hidden}
         networks.check_architecture(self.network, hidden, (self.critic_norm, self.actor_norm))
         if self.log_std_min >= self.log_std_max:

@@ -335,7 +335,7 @@ def test_crossqs_former_sac_recipes_and_flags_say_what_to_type_instead():
         with pytest.raises(UsageError, match=f"--recipe {recipe}: .*{instead}"):
             sac.default_config("rl_jax/HalfCheetah-v5", recipe=recipe)
         assert recipe not in sac.recipes.names("rl_jax/HalfCheetah-v5")
-    with pytest.raises(ValueError, match="critic_norm 'batch_renorm' is CrossQ's.*--algo crossq"):
+    with pytest.raises(ValueError, match="critic_norm must be 'none' or 'layer'.*--algo crossq"):
         sac.default_config("rl_jax/Pendulum-v1", critic_norm="batch_renorm")
 
 
@@ -349,7 +349,7 @@ def test_old_runs_load_where_their_crossq_settings_were_off():
     crossq_run = {**recorded, "critic_norm": "batch_renorm", "target_networks": False}
     with pytest.raises(RunError, match="target_networks, which is now the crossq learner's, so"):
         dataclass_from_dict(config, crossq_run)
-    with pytest.raises(RunError, match="critic_norm 'batch_renorm' is CrossQ's"):
+    with pytest.raises(RunError, match="critic_norm must be 'none' or 'layer' .*CrossQ's"):
         dataclass_from_dict(config, {**recorded, "critic_norm": "batch_renorm"})
 
 
