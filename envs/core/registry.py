@@ -28,6 +28,12 @@ _ENTRY_POINTS: dict[str, str] = {
     "rl_jax/Walker2d-v5": "rl_jax.envs.mujoco.walker2d:Walker2d",
     "rl_jax/Swimmer-v5": "rl_jax.envs.mujoco.swimmer:Swimmer",
     "rl_jax/Reacher-v5": "rl_jax.envs.mujoco.reacher:Reacher",
+    # POPGym's memory tasks at Easy
+    "rl_jax/RepeatPreviousEasy-v0": "rl_jax.envs.memory.cards:RepeatPrevious",
+    "rl_jax/RepeatFirstEasy-v0": "rl_jax.envs.memory.cards:RepeatFirst",
+    "rl_jax/CountRecallEasy-v0": "rl_jax.envs.memory.cards:CountRecall",
+    "rl_jax/AutoencodeEasy-v0": "rl_jax.envs.memory.cards:Autoencode",
+    "rl_jax/StatelessCartPoleEasy-v0": "rl_jax.envs.memory.stateless_cartpole:StatelessCartPole",
 }
 
 
@@ -49,6 +55,12 @@ _MAX_EPISODE_STEPS: dict[str, int] = {
     "rl_jax/Walker2d-v5": 1000,
     "rl_jax/Swimmer-v5": 1000,
     "rl_jax/Reacher-v5": 50,
+    # one step more than every episode lasts: they all end by termination (envs/memory/cards.py)
+    "rl_jax/RepeatPreviousEasy-v0": 52,
+    "rl_jax/RepeatFirstEasy-v0": 52,
+    "rl_jax/CountRecallEasy-v0": 52,
+    "rl_jax/AutoencodeEasy-v0": 104,
+    "rl_jax/StatelessCartPoleEasy-v0": 200,
 }
 
 
