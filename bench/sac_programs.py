@@ -25,7 +25,7 @@ def _steps(config: Config):
     nets = make_networks(config)
 
     def critic(agent, batch, key):
-        return sac_module.critic_step(agent, batch, key, config, hparams, nets)
+        return sac_module.critic_step(agent, batch, key, hparams, nets)
 
     def actor(agent, batch, key):
         step = sac_module.actor_and_temperature_step

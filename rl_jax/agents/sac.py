@@ -297,7 +297,7 @@ def alpha_of(agent: Agent) -> jax.Array:
     return jax.lax.stop_gradient(jnp.exp(agent.log_alpha))
 
 
-def critic_step(agent: Agent, batch: CriticBatch, key, config: Config, hparams, nets: Networks):
+def critic_step(agent: Agent, batch: CriticBatch, key, hparams: Hyperparams, nets: Networks):
     """``(agent, loss, q_tm1)`` after one critic step and a Polyak step of the targets."""
     inputs = (agent.target_critics, agent.actor, batch, key, alpha_of(agent), nets)
     (loss, q_tm1), grads = jax.value_and_grad(critic_loss_fn, has_aux=True)(agent.critics, *inputs)
@@ -334,7 +334,7 @@ def update(
     nets = make_networks(config)
     sample_key, critic_key, actor_key = jax.random.split(key, 3)
     batch = normalized_batch(agent, sample(buffer, sample_key, config, hparams))
-    agent, critic_loss, q_tm1 = critic_step(agent, batch, critic_key, config, hparams, nets)
+    agent, critic_loss, q_tm1 = critic_step(agent, batch, critic_key, hparams, nets)
 
     def policy_step(agent: Agent):
         return actor_and_temperature_step(agent, batch.obs, actor_key, config, hparams, nets)
