@@ -28,6 +28,13 @@ _ENTRY_POINTS: dict[str, str] = {
     "rl_jax/Walker2d-v5": "rl_jax.envs.mujoco.walker2d:Walker2d",
     "rl_jax/Swimmer-v5": "rl_jax.envs.mujoco.swimmer:Swimmer",
     "rl_jax/Reacher-v5": "rl_jax.envs.mujoco.reacher:Reacher",
+    # partially observed: velocities hidden (envs/memory/masked.py says whose ids these are)
+    "rl_jax/CartPoleNoVel-v1": "rl_jax.envs.memory.masked:cartpole_no_velocity",
+    "rl_jax/PendulumNoVel-v1": "rl_jax.envs.memory.masked:pendulum_no_velocity",
+    "rl_jax/Hopper-P-v5": "rl_jax.envs.memory.masked:hopper_positions",
+    "rl_jax/Walker2d-P-v5": "rl_jax.envs.memory.masked:walker2d_positions",
+    "rl_jax/HalfCheetah-P-v5": "rl_jax.envs.memory.masked:half_cheetah_positions",
+    "rl_jax/Ant-P-v5": "rl_jax.envs.memory.masked:ant_positions",
     # POPGym's memory tasks at Easy
     "rl_jax/RepeatPreviousEasy-v0": "rl_jax.envs.memory.cards:RepeatPrevious",
     "rl_jax/RepeatFirstEasy-v0": "rl_jax.envs.memory.cards:RepeatFirst",
@@ -55,6 +62,12 @@ _MAX_EPISODE_STEPS: dict[str, int] = {
     "rl_jax/Walker2d-v5": 1000,
     "rl_jax/Swimmer-v5": 1000,
     "rl_jax/Reacher-v5": 50,
+    "rl_jax/CartPoleNoVel-v1": 500,
+    "rl_jax/PendulumNoVel-v1": 200,
+    "rl_jax/Hopper-P-v5": 1000,
+    "rl_jax/Walker2d-P-v5": 1000,
+    "rl_jax/HalfCheetah-P-v5": 1000,
+    "rl_jax/Ant-P-v5": 1000,
     # one step more than every episode lasts: they all end by termination (envs/memory/cards.py)
     "rl_jax/RepeatPreviousEasy-v0": 52,
     "rl_jax/RepeatFirstEasy-v0": 52,
