@@ -61,7 +61,7 @@ nitpick_ignore_regex = [
     (r"py:class", r"(rl_jax\.)?envs\.core\.core\.(StateT|ParamsT)"),
     (r"py:class", r"(rl_jax\.run\.policy\.)?LoadedPolicy"),
     (r"py:class", r"(rl_jax\.)?envs\.adapters\.gymnasium_host\.HostGymnasiumEnv"),
-    (r"py:class", r"rl_jax\.training\.algorithm\.DataclassState"),
+    (r"py:class", r"rl_jax\.training\.algorithm\.(DataclassState|ConfigT)"),
     (r"py:class", r"rl_jax\.run\.plots\.FinalResult"),
 ]
 # RESULTS.md and BENCHMARKS.md, included as they are, skip heading levels here and there.
