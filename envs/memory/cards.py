@@ -125,7 +125,7 @@ class OneDeckTask(CardTask[CardState]):
 
 class RepeatPrevious(OneDeckTask):
     """``rl_jax/RepeatPreviousEasy-v0``, popgym's ``RepeatPreviousEasy``: name the suit of the
-    card dealt ``k = 4`` cards before the one just shown.
+    ``k``-th most recent card (``k = 4``; the card just shown is the first).
 
     Each step (t = 1..51) scores the suit of card ``t - k``, ``+-1/48``, from step ``k`` on (no
     reward before), then deals card ``t``. Terminates at step 51, when one card is left.

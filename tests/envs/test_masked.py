@@ -2,9 +2,11 @@
 against gymnasium's envs with the velocity entries zeroed, and the position-only MuJoCo variants
 against gymnasium's observation layout and our unmasked envs; check_env and the episode limits."""
 
+import re
 import subprocess
 import sys
 import warnings
+from pathlib import Path
 
 import gymnasium
 import jax
@@ -185,3 +187,14 @@ def test_jit_and_vmap_through_autoreset():
     state, ts = jax.jit(jax.vmap(env.step))(keys, state, jnp.ones(8, jnp.int32))
     assert ts.obs.shape == ts.info["final_obs"].shape == (8, 4)
     assert np.all(ts.info["final_obs"][:, [1, 3]] == 0.0)
+
+
+def test_the_docs_example_runs():
+    """docs/using_envs.md, "Partially observed envs and memory tasks": its Python block."""
+    page = (Path(__file__).resolve().parents[2] / "docs" / "using_envs.md").read_text()
+    section = page.split("## Partially observed envs and memory tasks\n", 1)[1].split("\n## ")[0]
+    namespace: dict = {}
+    exec(re.findall(r"```python\n(.*?)```", section, flags=re.S)[0], namespace)
+    assert namespace["hopper_angles"].observation_space().shape == (4,)
+    _, ts = namespace["no_velocity"].reset(jax.random.PRNGKey(0))
+    assert ts.obs.shape == (4,) and ts.obs[1] == ts.obs[3] == 0.0
