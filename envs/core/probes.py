@@ -20,6 +20,9 @@ Every probe takes ``num_actions``: ``None`` gives a continuous ``Box(-1, 1, (1,)
 Observations are ``(1,)`` float32. Importing this module registers the ``rl_jax/Probe*`` ids;
 ``rl_jax/Probe*Discrete-v0`` are the discrete-action versions (``DISCRETE_ACTIONS`` = 5 actions:
 index 3 stands for 0.5, the best action of ``ActionReward``).
+
+``FatalIllegalActions`` (``rl_jax/ProbeFatalIllegalActions-v0``) probes the legal-action mask
+(``info["action_mask"]``): an illegal action terminates with a large negative reward.
 """
 
 from __future__ import annotations
@@ -29,7 +32,8 @@ import jax.numpy as jnp
 import numpy as np
 from flax import struct
 
-from rl_jax.envs.core.core import Array, Environment, EnvParams, EnvState
+from rl_jax.envs.core.core import Array, Environment, EnvParams, EnvState, float32_field
+from rl_jax.envs.core.preprocessing import ACTION_MASK
 from rl_jax.envs.core.registry import register
 from rl_jax.envs.core.spaces import Box, Discrete, Space
 
@@ -164,6 +168,107 @@ class Termination(Truncation):
     terminal = True
 
 
+@struct.dataclass
+class IllegalActionsState(EnvState):
+    """``FatalIllegalActions``'s state: which actions are legal now."""
+
+    legal: Array  # [num_actions] bool, at least one True
+
+
+@struct.dataclass
+class IllegalActionsParams(EnvParams):
+    """The reward of an illegal action, which also ends the episode."""
+
+    illegal_reward: Array = float32_field(-10.0)
+
+
+class FatalIllegalActions(Environment):
+    """An env with a legal-action mask whose illegal actions are fatal: taking one pays
+    ``illegal_reward`` (-10) and terminates.
+
+    Each state's legal actions are a uniform draw among the non-empty subsets of the
+    ``num_actions`` (4) actions, reported as ``info["action_mask"]`` (reset's included) and as
+    the observation (the mask as 0/1 floats). A legal action ``a`` pays ``(a + 1) / n`` and
+    moves to a fresh draw; episodes are cut after 10 steps. The best policy takes the highest
+    legal action: it never dies, and its values are ``true_q``. A learner that ignores the mask
+    must learn the same from the observation, dying on the way.
+    """
+
+    max_episode_steps = 10
+
+    def __init__(self, num_actions: int = 4):
+        if not 2 <= num_actions <= 16:
+            raise ValueError(f"num_actions must be in [2, 16], got {num_actions}")
+        self.num_actions = num_actions
+
+    @property
+    def default_params(self) -> IllegalActionsParams:
+        """An illegal action pays -10."""
+        return IllegalActionsParams()
+
+    def observation_space(self, params=None) -> Space:
+        """The legal-action mask as 0/1 floats."""
+        shape = (self.num_actions,)
+        return Box(np.zeros(shape, np.float32), np.ones(shape, np.float32), shape)
+
+    def action_space(self, params=None) -> Space:
+        """``Discrete(num_actions)``."""
+        return Discrete(self.num_actions)
+
+    def empty_info(self) -> dict[str, Array]:
+        """``action_mask``: all True."""
+        return {ACTION_MASK: jnp.ones((self.num_actions,), jnp.bool_)}
+
+    def draw_legal(self, key: Array) -> Array:
+        """A uniform non-empty subset of the actions, as a bool ``[num_actions]`` mask."""
+        subset = jax.random.randint(key, (), 1, 2**self.num_actions)
+        return (subset >> jnp.arange(self.num_actions)) & 1 == 1
+
+    def _at(self, legal: Array, time: Array) -> tuple[IllegalActionsState, Array]:
+        return IllegalActionsState(time=time, legal=legal), legal.astype(jnp.float32)
+
+    def reset_env(self, key, params):
+        """A fresh draw of legal actions; the observation is the mask."""
+        return self._at(self.draw_legal(key), jnp.int32(0))
+
+    def state_from_vector(self, vector, params=None):
+        """Start with the legal actions given as a 0/1 vector (not all 0)."""
+        return self._at(jnp.asarray(vector).reshape(self.num_actions) > 0.5, jnp.int32(0))
+
+    def reset(self, key, params=None):
+        """Start an episode; the first timestep's ``info`` holds its legal actions."""
+        state, ts = super().reset(key, params)
+        return state, ts._replace(info={ACTION_MASK: state.legal})
+
+    def reset_to(self, vector, params=None):
+        """Start from given legal actions, reported in the first timestep's ``info``."""
+        state, ts = super().reset_to(vector, params)
+        return state, ts._replace(info={ACTION_MASK: state.legal})
+
+    def step_env(self, key, state, action, params):
+        """Pay ``(a + 1) / n`` for a legal ``a`` and draw the next legal actions; an illegal
+        action pays ``illegal_reward`` and terminates."""
+        action = jnp.asarray(action, jnp.int32)
+        legal = state.legal[action]
+        reward = jnp.where(legal, (action + 1) / self.num_actions, params.illegal_reward)
+        next_state, obs = self._at(self.draw_legal(key), state.time + 1)
+        return next_state, obs, reward, ~legal, {ACTION_MASK: next_state.legal}
+
+    def best_reward(self) -> float:
+        """The mean reward of the best policy, ``E[(max legal a + 1) / n]``: of the
+        ``2^n - 1`` subsets, ``2^a`` have ``a`` as their highest action."""
+        n = self.num_actions
+        return sum((a + 1) / n * 2**a for a in range(n)) / (2**n - 1)
+
+    def true_q(self, legal: np.ndarray, gamma: float, illegal_reward: float = -10.0) -> np.ndarray:
+        """The exact Q-values ``[num_actions]`` in a state with ``legal`` actions: a legal ``a``
+        is worth ``(a + 1) / n`` plus ``gamma`` times the best policy's value, bootstrapped
+        through the time limit (``best_reward / (1 - gamma)``); an illegal one its reward."""
+        value = self.best_reward() / (1.0 - gamma)
+        rewards = (np.arange(self.num_actions) + 1) / self.num_actions
+        return np.where(np.asarray(legal, bool), rewards + gamma * value, illegal_reward)
+
+
 DISCRETE_ACTIONS = 5
 
 
@@ -205,6 +310,7 @@ PROBE_IDS = {
     "rl_jax/ProbeTwoStepDiscrete-v0": "rl_jax.envs.core.probes:DiscreteTwoStep",
     "rl_jax/ProbeTruncationDiscrete-v0": "rl_jax.envs.core.probes:DiscreteTruncation",
     "rl_jax/ProbeTerminationDiscrete-v0": "rl_jax.envs.core.probes:DiscreteTermination",
+    "rl_jax/ProbeFatalIllegalActions-v0": "rl_jax.envs.core.probes:FatalIllegalActions",
 }
 for _env_id, _entry_point in PROBE_IDS.items():
     register(_env_id, _entry_point)
