@@ -1,6 +1,10 @@
 """REINFORCE's maths, pure and network-free: the masked reward-to-go and its standardisation, the
 log-probabilities and entropy of the Gaussian and categorical policies, and the score-function
 loss. Arrays are ``[T, N]`` (time, envs) with a 0/1 ``mask`` of the steps inside episodes.
+
+For envs with a legal-action mask (``info["action_mask"]``, ``rl_jax.envs.core.preprocessing``):
+the categorical policy restricted to legal actions (``masked_*``; ``legal`` is bool, True where
+an action is legal) for acting, its log-probabilities and its entropy.
 """
 
 from __future__ import annotations
@@ -39,6 +43,33 @@ def categorical_log_prob(logits: jax.Array, action: jax.Array) -> jax.Array:
     """``log softmax(logits)[action]``: ``[..., A], [...] -> [...]``."""
     log_probs = jax.nn.log_softmax(logits, axis=-1)
     return jnp.take_along_axis(log_probs, action[..., None].astype(jnp.int32), axis=-1)[..., 0]
+
+
+def masked_logits(logits: jax.Array, legal: jax.Array) -> jax.Array:
+    """``logits`` with the illegal actions' set to the lowest float, so that their probability is
+    0 and every log-probability, entropy and gradient stays finite: ``[..., A] -> [..., A]``. A
+    row with no legal action keeps all its logits."""
+    legal = jnp.asarray(legal, jnp.bool_)
+    legal = legal | ~jnp.any(legal, axis=-1, keepdims=True)
+    return jnp.where(legal, logits, jnp.finfo(logits.dtype).min)
+
+
+def masked_categorical_log_prob(
+    logits: jax.Array, action: jax.Array, legal: jax.Array
+) -> jax.Array:
+    """``log pi(action)`` of the softmax over the legal actions: ``[..., A], [...] -> [...]``."""
+    return categorical_log_prob(masked_logits(logits, legal), action)
+
+
+def masked_categorical_sample(key: jax.Array, logits: jax.Array, legal: jax.Array) -> jax.Array:
+    """An action drawn from the softmax over the legal actions: ``[..., A] -> [...]`` int32."""
+    return jax.random.categorical(key, masked_logits(logits, legal)).astype(jnp.int32)
+
+
+def masked_categorical_entropy(logits: jax.Array, legal: jax.Array) -> jax.Array:
+    """Entropy of the softmax over the legal actions: ``[..., A] -> [...]``."""
+    log_probs = jax.nn.log_softmax(masked_logits(logits, legal), axis=-1)
+    return -jnp.sum(jnp.exp(log_probs) * log_probs, axis=-1)
 
 
 def policy_gradient_loss(log_prob: jax.Array, advantage: jax.Array, mask: jax.Array) -> jax.Array:
