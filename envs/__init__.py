@@ -17,6 +17,18 @@ from rl_jax.envs.adapters import external_ids as _external_ids  # noqa: F401  (r
 from rl_jax.envs.adapters.gym_adapter import register_with_gymnasium
 from rl_jax.envs.adapters.gymnasium_host import from_gymnasium
 from rl_jax.envs.core.core import Environment, EnvParams, EnvState, TimeStep
+from rl_jax.envs.core.preprocessing import (
+    ClipReward,
+    EpisodicLife,
+    FrameSkip,
+    FrameStack,
+    SignReward,
+    StickyActions,
+    TransformReward,
+    action_mask,
+    has_action_mask,
+    reset_after,
+)
 from rl_jax.envs.core.registry import (
     UnknownEnvError,
     make,
@@ -40,22 +52,32 @@ register_with_gymnasium()
 __all__ = [
     "AutoReset",
     "Box",
+    "ClipReward",
     "Discrete",
     "DiscretizeActions",
     "EnvParams",
     "EnvState",
     "Environment",
     "EpisodeStatistics",
+    "EpisodicLife",
     "FlattenObservation",
+    "FrameSkip",
+    "FrameStack",
     "from_gymnasium",
     "MaskObservation",
     "RescaleAction",
+    "SignReward",
     "Space",
+    "StickyActions",
     "TimeStep",
+    "TransformReward",
     "UnknownEnvError",
     "Wrapper",
+    "action_mask",
+    "has_action_mask",
     "make",
     "parse_keywords",
     "register",
     "registered_ids",
+    "reset_after",
 ]
