@@ -43,7 +43,7 @@ def test_sale_encoder_loss_counts_its_products_by_hand():
     obs, action = jnp.zeros((batch_size, 17)), jnp.zeros((batch_size, 6))
     params = encoder.init(jax.random.key(0), obs, action)
     batch = CriticBatch(obs, action, jnp.zeros(batch_size), jnp.ones(batch_size), obs)
-    loss = jax.value_and_grad(lambda params, batch: encoder_loss_fn(params, batch, config))
+    loss = jax.value_and_grad(lambda params, batch: encoder_loss_fn(params, batch, encoder))
     traced = jax.make_jaxpr(loss)(params, batch)
 
     def dense(n_in, n_out):

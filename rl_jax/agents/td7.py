@@ -31,6 +31,7 @@ from __future__ import annotations
 import dataclasses
 import functools
 from collections.abc import Callable
+from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
@@ -113,9 +114,16 @@ class Agent:
         return Policy(actor=self.actor, encoder=self.encoders.fixed)
 
 
+class Networks(NamedTuple):
+    """TD7's networks: the actor and critics (with the action bounds), and SALE's encoder."""
+
+    actor_critic: actor_critic.Networks
+    sale: networks.StateActionEncoder
+
+
 @functools.lru_cache(maxsize=64)
-def make_networks(config: Config) -> tuple[actor_critic.Networks, networks.StateActionEncoder]:
-    """``(actor-critic networks, SALE's encoder)`` for ``config.env_id`` (cached)."""
+def make_networks(config: Config) -> Networks:
+    """TD7's networks for ``config.env_id`` (cached)."""
     action_space = episodes.make_eval_env(config).action_space()
     low, high = actor_critic.bounds(action_space, "TD7")
     dtype = jnp.dtype(config.compute_dtype)
@@ -126,27 +134,28 @@ def make_networks(config: Config) -> tuple[actor_critic.Networks, networks.State
         config.embedding_hidden, config.embedding_dim, init, dtype, config.critic_activation
     )
     nets = actor_critic.Networks(actor, critic, action_space.low.copy(), action_space.high.copy())
-    return nets, encoder
+    return Networks(nets, encoder)
 
 
 # ---- acting through the embeddings --------------------------------------------------------------
-def policy_action(config: Config, actor: Params, encoder: Params, obs: jax.Array) -> jax.Array:
+def policy_action(nets: Networks, actor: Params, encoder: Params, obs: jax.Array) -> jax.Array:
     """The deterministic action of actor parameters ``actor`` reading ``z_s`` of ``encoder``."""
-    nets, sale = make_networks(config)
-    return nets.actor.apply(actor, obs, td7_parts.embed_state(sale, encoder, obs))
+    z_s = td7_parts.embed_state(nets.sale, encoder, obs)
+    return nets.actor_critic.actor.apply(actor, obs, z_s)
 
 
 def act(agent: Agent, obs: jax.Array, config: Config) -> jax.Array:
     """The checkpoint's deterministic action, in the env's own units."""
     best = agent.checkpoint.best
-    return policy_action(config, best.actor, best.encoder, obs)
+    return policy_action(make_networks(config), best.actor, best.encoder, obs)
 
 
 def explore(agent: Agent, obs, noise, key, config: Config, hparams: Hyperparams, clock: Clock):
     """``(actions, noise)``: the copy under assessment plus AR(1) exploration noise."""
+    nets = make_networks(config)
     assessed = agent.checkpoint.assessed
-    action = policy_action(config, assessed.actor, assessed.encoder, obs)
-    return actor_critic.explore(action, noise, key, make_networks(config)[0], hparams)
+    action = policy_action(nets, assessed.actor, assessed.encoder, obs)
+    return actor_critic.explore(action, noise, key, nets.actor_critic, hparams)
 
 
 def observe(agent: Agent, transitions: Transition, episode_return, done, clock, config, hparams):
@@ -195,37 +204,38 @@ def init_agent(key, config: Config, hparams: Hyperparams, obs_space, action_spac
 
 
 # ---- losses -------------------------------------------------------------------------------------
-def critic_loss_fn(critics, agent: Agent, batch: CriticBatch, noise, hparams, config: Config):
+def critic_loss_fn(critics, agent: Agent, batch: CriticBatch, noise, hparams, nets: Networks):
     """``(loss, (q_tm1, td_tm1, (min, max) of the targets))``: LAP's loss of the critics' errors
     against the value-clipped double-Q target of the target networks, which read the fixed target
     encoder (the critics read the fixed one)."""
-    nets, sale = make_networks(config)
     fixed, fixed_target = agent.encoders.fixed, agent.encoders.fixed_target
-    a_t = policy_action(config, agent.target_actor, fixed_target, batch.next_obs)
-    a_t = actor_critic.target_action(a_t, noise, hparams, nets)
-    extra_t = td7_parts.embeddings(sale, fixed_target, batch.next_obs, a_t)
-    q_t = actor_critic.critic_values(nets, agent.target_critics, batch.next_obs, a_t, extra_t)
-    extra_tm1 = td7_parts.embeddings(sale, fixed, batch.obs, batch.action)
-    q_tm1 = actor_critic.critic_values(nets, critics, batch.obs, batch.action, extra_tm1)
+    a_t = policy_action(nets, agent.target_actor, fixed_target, batch.next_obs)
+    a_t = actor_critic.target_action(a_t, noise, hparams, nets.actor_critic)
+    extra_t = td7_parts.embeddings(nets.sale, fixed_target, batch.next_obs, a_t)
+    q_t = actor_critic.critic_values(
+        nets.actor_critic, agent.target_critics, batch.next_obs, a_t, extra_t
+    )
+    extra_tm1 = td7_parts.embeddings(nets.sale, fixed, batch.obs, batch.action)
+    q_tm1 = actor_critic.critic_values(
+        nets.actor_critic, critics, batch.obs, batch.action, extra_tm1
+    )
     bounds = agent.value_range.low, agent.value_range.high
     target = td7_parts.value_clipped_target(batch.r_t, batch.discount_t, q_t, *bounds)
     td_tm1 = q_tm1 - target[None, :]
     return td7_parts.lap_loss(td_tm1), (q_tm1, td_tm1, (jnp.min(target), jnp.max(target)))
 
 
-def actor_loss_fn(actor, critics, encoder, obs: jax.Array, config: Config) -> jax.Array:
+def actor_loss_fn(actor, critics, encoder, obs: jax.Array, nets: Networks) -> jax.Array:
     """The deterministic policy gradient through the first critic, via the fixed encoder's
     embeddings of the actor's own action (the encoder itself never changes here)."""
-    nets, sale = make_networks(config)
-    action = policy_action(config, actor, encoder, obs)
-    extra = td7_parts.embeddings(sale, encoder, obs, action)
-    q = actor_critic.first_critic_value(nets, critics, obs, action, extra)
+    action = policy_action(nets, actor, encoder, obs)
+    extra = td7_parts.embeddings(nets.sale, encoder, obs, action)
+    q = actor_critic.first_critic_value(nets.actor_critic, critics, obs, action, extra)
     return actor_critic.deterministic_policy_loss(q)
 
 
-def encoder_loss_fn(online, batch: CriticBatch, config: Config) -> jax.Array:
+def encoder_loss_fn(online, batch: CriticBatch, sale: networks.StateActionEncoder) -> jax.Array:
     """SALE's loss: ``g(f(s), a)`` against ``f(s')`` of the same (online) encoder, stopped."""
-    sale = make_networks(config)[1]
     zs_t = sale.apply(online, batch.next_obs, method="embed_state")
     zsa_tm1 = sale.apply(online, batch.obs, batch.action)[1]
     return td7_parts.sale_loss(zsa_tm1, zs_t)
@@ -236,30 +246,30 @@ def _adam(grads, opt_state, params, rate):
     return injected_step(optax.adam, grads, opt_state, params, learning_rate=rate)
 
 
-def encoder_step(agent: Agent, batch: CriticBatch, hparams, config: Config, rate: Callable):
+def encoder_step(agent: Agent, batch: CriticBatch, hparams, nets: Networks, rate: Callable):
     """``(agent, loss)`` after one Adam step of SALE's online encoder."""
     encoders = agent.encoders
-    loss, grads = jax.value_and_grad(encoder_loss_fn)(encoders.online, batch, config)
+    loss, grads = jax.value_and_grad(encoder_loss_fn)(encoders.online, batch, nets.sale)
     online, opt = _adam(grads, encoders.opt, encoders.online, rate(hparams.encoder_lr))
     return agent.replace(encoders=encoders.replace(online=online, opt=opt)), loss
 
 
-def critic_step(agent: Agent, batch: CriticBatch, key, hparams, config: Config, rate: Callable):
+def critic_step(agent: Agent, batch: CriticBatch, key, hparams, nets: Networks, rate: Callable):
     """``(agent, loss, q_tm1, td_tm1)`` after one Adam step of the critics; the targets' range
     joins the value-clipping range's extremes."""
     noise = jax.random.normal(key, batch.action.shape, jnp.float32)
     (loss, (q_tm1, td_tm1, target_range)), grads = jax.value_and_grad(critic_loss_fn, has_aux=True)(
-        agent.critics, agent, batch, noise, hparams, config
+        agent.critics, agent, batch, noise, hparams, nets
     )
     critics, opt = _adam(grads, agent.critic_opt, agent.critics, rate(hparams.critic_lr))
     values = agent.value_range.seeing(target_range)
     return agent.replace(critics=critics, critic_opt=opt, value_range=values), loss, q_tm1, td_tm1
 
 
-def actor_step(agent: Agent, obs, hparams, config: Config, rate: Callable):
+def actor_step(agent: Agent, obs, hparams, nets: Networks, rate: Callable):
     """``(agent, loss)`` after one Adam step of the actor (the targets are copied, not
     stepped)."""
-    args = (agent.actor, agent.critics, agent.encoders.fixed, obs, config)
+    args = (agent.actor, agent.critics, agent.encoders.fixed, obs, nets)
     loss, grads = jax.value_and_grad(actor_loss_fn)(*args)
     actor, opt = _adam(grads, agent.actor_opt, agent.actor, rate(hparams.actor_lr))
     return agent.replace(actor=actor, actor_opt=opt), loss
@@ -280,6 +290,7 @@ def update(agent: Agent, buffer: PrioritizedBuffer, key, config: Config, hparams
     """One encoder and critic update, with LAP's new priorities for the batch; every
     ``policy_delay``-th an actor update; every ``target_update_period``-th the hard copies (and
     LAP's priority for new transitions reset to the largest stored)."""
+    nets = make_networks(config)
     sample_key, noise_key = jax.random.split(key)
     rows, columns, _ = prioritized.sample_indices(buffer, sample_key, config.batch_size, 0.0)
     batch = actor_critic.gather_batch(buffer.buffer, rows, columns, hparams.gamma)
@@ -288,14 +299,14 @@ def update(agent: Agent, buffer: PrioritizedBuffer, key, config: Config, hparams
     def rate(value):
         return linearly_decayed(value, env_steps, hparams.lr_decay_steps)
 
-    agent, encoder_loss = encoder_step(agent, batch, hparams, config, rate)
-    agent, critic_loss, q_tm1, td_tm1 = critic_step(agent, batch, noise_key, hparams, config, rate)
+    agent, encoder_loss = encoder_step(agent, batch, hparams, nets, rate)
+    agent, critic_loss, q_tm1, td_tm1 = critic_step(agent, batch, noise_key, hparams, nets, rate)
     priorities = td7_parts.lap_priorities(td_tm1)
     buffer = prioritized.update_priorities(buffer, rows, columns, priorities, hparams.lap_alpha)
     agent, actor_loss = actor_critic.every_policy_delay(
         update_index,
         config.policy_delay,
-        lambda agent: actor_step(agent, batch.obs, hparams, config, rate),
+        lambda agent: actor_step(agent, batch.obs, hparams, nets, rate),
         agent,
     )
     due = (update_index + 1) % config.target_update_period == 0

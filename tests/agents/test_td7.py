@@ -93,7 +93,9 @@ def test_policy_checkpoints_evaluate_the_checkpoint_not_the_online_actor():
     one = jax.tree.map(lambda x: x[0, 0], state.agent)
     obs = np.zeros((1, 3), np.float32)
     best = one.checkpoint.best
-    expected = td7_module.policy_action(config, best.actor, best.encoder, obs)
+    expected = td7_module.policy_action(
+        td7_module.make_networks(config), best.actor, best.encoder, obs
+    )
     np.testing.assert_array_equal(td7.policy(state.replace(agent=one), config)(obs), expected)
     assert_trained_and_finite(state, history)
 

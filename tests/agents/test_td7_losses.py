@@ -99,7 +99,9 @@ def test_a_lap_update_writes_floored_priorities_and_samples_without_weights():
         rows, columns, _ = prioritized.sample_indices(buffer, sample_key, config.batch_size, 0.0)
         batch = actor_critic.gather_batch(buffer.buffer, rows, columns, hparams.gamma)
         noise = jax.random.normal(noise_key, batch.action.shape, jnp.float32)
-        _, (_, td_tm1, _) = td7.critic_loss_fn(agent.critics, agent, batch, noise, hparams, config)
+        _, (_, td_tm1, _) = td7.critic_loss_fn(
+            agent.critics, agent, batch, noise, hparams, td7.make_networks(config)
+        )
         return (rows, columns), td_tm1
 
     (rows, columns), td_tm1 = sample_and_td_errors(agent, buffer)
@@ -189,7 +191,7 @@ def test_sale_networks_read_normalised_features_and_the_embeddings(sale_setup):
     features = networks.avg_l1_norm(batch.obs @ first["kernel"] + first["bias"][None])
     mlp = {"params": actor["params"]["MLP_0"]}
     raw = networks.MLP((8, 8), 1, output_gain=0.01).apply(mlp, jnp.concatenate([features, zs], -1))
-    got = td7.policy_action(SALE_CONFIG, actor, fixed, batch.obs)
+    got = td7.policy_action(td7.make_networks(SALE_CONFIG), actor, fixed, batch.obs)
     # tanh stretched onto Pendulum's [-2, 2]
     np.testing.assert_allclose(got, 2.0 * jnp.tanh(raw), rtol=1e-5, atol=1e-6)
 
@@ -204,7 +206,9 @@ def test_sale_losses_send_no_gradient_into_fixed_or_target_encoders(sale_setup):
     def critic_objective(critics, fixed, fixed_target):
         encoders = agent.encoders.replace(fixed=fixed, fixed_target=fixed_target)
         with_encoders = agent.replace(encoders=encoders)
-        return td7.critic_loss_fn(critics, with_encoders, batch, noise, hparams, SALE_CONFIG)[0]
+        return td7.critic_loss_fn(
+            critics, with_encoders, batch, noise, hparams, td7.make_networks(SALE_CONFIG)
+        )[0]
 
     encoders = agent.encoders
     grads = jax.jit(jax.grad(critic_objective, argnums=(0, 1, 2)))(
@@ -215,7 +219,9 @@ def test_sale_losses_send_no_gradient_into_fixed_or_target_encoders(sale_setup):
         assert np.all(np.asarray(leaf) == 0.0)
 
     def actor_objective(actor, encoder):
-        return td7.actor_loss_fn(actor, agent.critics, encoder, batch.obs, SALE_CONFIG)
+        return td7.actor_loss_fn(
+            actor, agent.critics, encoder, batch.obs, td7.make_networks(SALE_CONFIG)
+        )
 
     actor_grads = jax.jit(jax.grad(actor_objective, argnums=(0, 1)))(agent.actor, encoders.fixed)
     assert all(np.any(np.asarray(g) != 0.0) for g in jax.tree.leaves(actor_grads[0]))
@@ -228,14 +234,14 @@ def test_sale_encoder_loss_regresses_on_a_stopped_next_state_embedding(sale_setu
     online = agent.encoders.online
     zs_next = sale.apply(online, batch.next_obs, method="embed_state")
     zsa = sale.apply(online, batch.obs, batch.action)[1]
-    loss = td7.encoder_loss_fn(online, batch, SALE_CONFIG)
+    loss = td7.encoder_loss_fn(online, batch, sale)
     np.testing.assert_allclose(loss, np.mean((np.asarray(zsa) - np.asarray(zs_next)) ** 2), 1e-6)
 
     def with_constant_target(params):  # the same loss with f(s') a constant from outside
         zsa = sale.apply(params, batch.obs, batch.action)[1]
         return jnp.mean((zsa - zs_next) ** 2)
 
-    grads = jax.jit(jax.grad(lambda p: td7.encoder_loss_fn(p, batch, SALE_CONFIG)))(online)
+    grads = jax.jit(jax.grad(lambda p: td7.encoder_loss_fn(p, batch, sale)))(online)
     expected = jax.jit(jax.grad(with_constant_target))(online)
     # Equal to the last bit on the pinned jax; jax 0.12 compiles the two programs into other
     # fusions and one entry in 272 moved by 1 ulp. A gradient through f(s') would move many
@@ -271,8 +277,9 @@ def test_critic_loss_uses_and_reports_the_clipped_targets(sale_setup):
     hparams = td7.Hyperparams().as_arrays()
     bounds = ValueRange.initial().replace(low=jnp.float32(-0.01), high=jnp.float32(0.01))
     noise = jnp.ones((5, 1))
+    nets = td7.make_networks(SALE_CONFIG)
     loss, (q_tm1, td_tm1, target_range) = td7.critic_loss_fn(
-        agent.critics, agent.replace(value_range=bounds), batch, noise, hparams, SALE_CONFIG
+        agent.critics, agent.replace(value_range=bounds), batch, noise, hparams, nets
     )
     target = np.asarray(q_tm1 - td_tm1)[0]
     np.testing.assert_allclose(np.asarray(q_tm1 - td_tm1)[1], target, rtol=1e-6)  # shared
