@@ -179,7 +179,12 @@ def epsilon_at(env_steps: jax.Array, hparams: Hyperparams) -> jax.Array:
 
 def greedy(params: optax.Params, obs: jax.Array, config: Config) -> jax.Array:
     """Greedy actions ``[N]`` int32 of the Q-network ``params``."""
-    return jnp.argmax(make_network(config).apply(params, obs), axis=-1).astype(jnp.int32)
+    return greedy_actions(make_network(config), params, obs)
+
+
+def greedy_actions(net: networks.QNetwork, params: optax.Params, obs: jax.Array) -> jax.Array:
+    """Greedy actions ``[N]`` int32 of ``net`` at ``params``."""
+    return jnp.argmax(net.apply(params, obs), axis=-1).astype(jnp.int32)
 
 
 def act(agent: Agent, obs: jax.Array, config: Config) -> jax.Array:
@@ -204,14 +209,13 @@ def explore(
     """``(actions, noise)``. Epsilon-greedy: a uniform action with probability epsilon(env steps),
     else greedy (with ``policy_checkpoints``, the assessed copy's). Independent from step to step,
     so the carried ``noise`` state is passed through."""
+    net = make_network(config)
     acting = agent.checkpoint.assessed if config.policy_checkpoints else agent.online
-    greedy_actions = greedy(acting, obs, config)
+    exploit = greedy_actions(net, acting, obs)
     coin_key, action_key = jax.random.split(key)
-    num_actions = make_network(config).num_actions
-    shape = greedy_actions.shape
-    uniform = jax.random.randint(action_key, shape, 0, num_actions, jnp.int32)
-    explore_now = jax.random.uniform(coin_key, shape) < epsilon_at(clock.env_steps, hparams)
-    return jnp.where(explore_now, uniform, greedy_actions), noise
+    uniform = jax.random.randint(action_key, exploit.shape, 0, net.num_actions, jnp.int32)
+    explore_now = jax.random.uniform(coin_key, exploit.shape) < epsilon_at(clock.env_steps, hparams)
+    return jnp.where(explore_now, uniform, exploit), noise
 
 
 def observe(

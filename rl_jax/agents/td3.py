@@ -161,16 +161,22 @@ def make_networks(config: Config) -> Networks:
 
 
 # ---- acting -------------------------------------------------------------------------------------
+def policy_action(nets: Networks, agent: Agent, obs: jax.Array) -> jax.Array:
+    """The deterministic policy of ``agent``, in the env's own action units."""
+    obs = normalization.normalize(agent.obs_stats, obs)
+    return nets.actor.apply(agent.actor, obs)
+
+
 def act(agent: Agent, obs: jax.Array, config: Config) -> jax.Array:
     """The deterministic policy, in the env's own action units."""
-    obs = normalization.normalize(agent.obs_stats, obs)
-    return make_networks(config).actor.apply(agent.actor, obs)
+    return policy_action(make_networks(config), agent, obs)
 
 
 def explore(agent: Agent, obs, noise, key, config: Config, hparams: Hyperparams, clock: Clock):
     """``(actions, noise)``: the policy plus AR(1) exploration noise, clipped to the bounds."""
-    action = act(agent, obs, config)
-    return actor_critic.explore(action, noise, key, make_networks(config), hparams)
+    nets = make_networks(config)
+    action = policy_action(nets, agent, obs)
+    return actor_critic.explore(action, noise, key, nets, hparams)
 
 
 def observe(agent: Agent, transitions: Transition, episode_return, done, clock, config, hparams):
