@@ -25,11 +25,24 @@ import socket
 import threading
 import time
 from pathlib import Path
-from typing import Any
+from typing import TypedDict, cast
 
 from rl_jax.errors import RunError
 
 LEASE_FILE = "lease.json"
+
+
+class Holder(TypedDict, total=False):
+    """What ``lease.json`` says of its owner (fields may be missing from a damaged file)."""
+
+    host: str
+    pid: int
+    token: str
+    started: str
+    command: str
+    heartbeat: float
+
+
 HEARTBEAT_SECONDS = 10.0
 STALE_SECONDS = 30.0
 POLL_SECONDS = 1.0
@@ -41,7 +54,7 @@ _HELD: set[str] = set()
 class Lease:
     """This process's hold on a run directory; ``release()`` (or ``with``) gives it back."""
 
-    def __init__(self, run_dir: Path, owner: dict[str, object]) -> None:
+    def __init__(self, run_dir: Path, owner: Holder) -> None:
         self.path = Path(run_dir) / LEASE_FILE
         self.owner = owner
         _HELD.add(str(owner["token"]))
@@ -78,7 +91,7 @@ def acquire(run_dir: Path, command: str = "") -> Lease:
     run_dir.mkdir(parents=True, exist_ok=True)
     path = run_dir / LEASE_FILE
     now = time.time()
-    owner: dict[str, object] = {
+    owner: Holder = {
         "host": socket.gethostname(),
         "pid": os.getpid(),
         "token": f"{socket.gethostname()}:{os.getpid()}:{now:.6f}",
@@ -97,7 +110,7 @@ def acquire(run_dir: Path, command: str = "") -> Lease:
     return Lease(run_dir, owner)
 
 
-def _create(path: Path, owner: dict[str, object]) -> bool:
+def _create(path: Path, owner: Holder) -> bool:
     """Create the lease file exclusively; False if it exists."""
     try:
         handle = os.open(path, os.O_CREAT | os.O_EXCL | os.O_WRONLY, 0o644)
@@ -108,7 +121,7 @@ def _create(path: Path, owner: dict[str, object]) -> bool:
     return True
 
 
-def _wait_for_stale(path: Path) -> dict[str, Any] | None:
+def _wait_for_stale(path: Path) -> Holder | None:
     """The lease's owner while it lives, None once it is gone: at once where that can be seen
     (the same host, an unreadable or missing file), else after watching the heartbeat."""
     held = _read(path)
@@ -127,7 +140,7 @@ def _wait_for_stale(path: Path) -> dict[str, Any] | None:
     return None
 
 
-def _gone_here(held: dict[str, Any]) -> bool:
+def _gone_here(held: Holder) -> bool:
     """Whether the owner ran on this host and its process no longer exists (or is this process,
     which no longer holds that lease)."""
     if held.get("host") != socket.gethostname():
@@ -146,21 +159,21 @@ def _gone_here(held: dict[str, Any]) -> bool:
     return False
 
 
-def _read(path: Path) -> dict[str, Any]:
+def _read(path: Path) -> Holder:
     try:
         value = json.loads(path.read_text())
     except (OSError, ValueError):
         return {}
-    return value if isinstance(value, dict) else {}
+    return cast(Holder, value) if isinstance(value, dict) else {}
 
 
-def _write(path: Path, owner: dict[str, object]) -> None:
+def _write(path: Path, owner: Holder) -> None:
     temporary = path.with_name(f"{path.name}.{os.getpid()}.tmp")
     temporary.write_text(json.dumps(owner))
     os.replace(temporary, path)
 
 
-def _refusal(run_dir: Path, held: dict[str, Any]) -> str:
+def _refusal(run_dir: Path, held: Holder) -> str:
     age = max(0.0, time.time() - float(held.get("heartbeat", 0.0)))
     return (
         f"{run_dir} is in use by a live run (host {held.get('host')}, pid {held.get('pid')}, "
