@@ -20,6 +20,7 @@ import jax
 import jax.numpy as jnp
 
 from rl_jax.envs.core.core import Array, Environment, TimeStep
+from rl_jax.envs.core.wrappers import ACTION_MASK, FINAL_ACTION_MASK, reset_after
 
 
 def select_envs(mask: Array, on_true: Any, on_false: Any) -> Any:
@@ -95,7 +96,10 @@ def autoreset_step(
 
     Same-step autoreset with the semantics of ``jax.vmap(AutoReset(env).step)``: the returned
     obs of a finished env is its new episode's first, ``info["final_obs"]`` holds the finished
-    episode's last obs (equal to ``obs`` otherwise), reward and flags are the finishing step's.
+    episode's last obs (equal to ``obs`` otherwise), reward and flags are the finishing step's;
+    an env with an action mask has its new episode's in ``info["action_mask"]`` and the
+    ended one's in ``info["final_action_mask"]``. The resets are ``reset_after``'s (a game
+    goes on after a lost life).
     Each reset draws a fresh start state, but keys are split only for the envs reset, so the
     draws differ from ``AutoReset``'s (which derives one per env per step). ``states`` and
     ``actions`` have a leading ``num_envs`` axis; ``params`` is shared.
@@ -107,15 +111,30 @@ def autoreset_step(
     step_keys = jax.random.split(key_step, num_envs)
     next_states, timestep = jax.vmap(env.step, (0, 0, 0, None))(step_keys, states, actions, params)
     done = jnp.logical_or(timestep.terminated, timestep.truncated)
+    masked = ACTION_MASK in timestep.info
 
-    def reset(reset_keys):
-        reset_states, reset_timestep = jax.vmap(env.reset, (0, None))(reset_keys, params)
+    def reset(slots):
+        # reset_after continues where an env goes on after an episode's end (a lost life); the
+        # ended states and timesteps of the reset envs are gathered for it.
+        reset_keys, index = slots
+        ended = (next_states, timestep)
+        if index is not None:
+            ended = jax.tree.map(lambda leaf: leaf[index], ended)
+        reset_states, reset_timestep = jax.vmap(
+            lambda k, s, ts: reset_after(env, k, s, ts, params)
+        )(reset_keys, *ended)
+        if masked:
+            return reset_states, reset_timestep.obs, reset_timestep.info[ACTION_MASK]
         return reset_states, reset_timestep.obs
 
-    def keys_for(count: int, index: Array | None) -> Array:
-        return jax.random.split(key_reset, count)
+    def keys_for(count: int, index: Array | None) -> tuple[Array, Array | None]:
+        return jax.random.split(key_reset, count), index
 
-    current = (next_states, timestep.obs)
-    states, obs = _reset_some(reset, keys_for, done, current, max_resets)
     info = {**timestep.info, "final_obs": timestep.obs}
+    if not masked:
+        states, obs = _reset_some(reset, keys_for, done, (next_states, timestep.obs), max_resets)
+        return states, timestep._replace(obs=obs, info=info)
+    current = (next_states, timestep.obs, timestep.info[ACTION_MASK])
+    states, obs, mask = _reset_some(reset, keys_for, done, current, max_resets)
+    info = {**info, ACTION_MASK: mask, FINAL_ACTION_MASK: timestep.info[ACTION_MASK]}
     return states, timestep._replace(obs=obs, info=info)

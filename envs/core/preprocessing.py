@@ -42,29 +42,14 @@ import jax.numpy as jnp
 import numpy as np
 from flax import struct
 
-from rl_jax.envs.core.core import Array, Environment, PRNGKey, TimeStep
+from rl_jax.envs.core.core import Array, Environment, TimeStep
 from rl_jax.envs.core.spaces import Box, Discrete, Space
-from rl_jax.envs.core.wrappers import AutoReset, Wrapper
+from rl_jax.envs.core.wrappers import ACTION_MASK, AutoReset, Wrapper, reset_after
 
-ACTION_MASK = "action_mask"  # info key: bool [n], the legal actions of the timestep's obs
 LIVES = "lives"  # info key: int32 [], the lives left
 
 
 # ---- the contract: lives, legal actions, continuing resets --------------------------------------
-def reset_after(
-    env: Environment, key: PRNGKey, state: Any, timestep: TimeStep, params: Any = None
-) -> tuple[Any, TimeStep]:
-    """The start of the episode that follows one that ended in ``state`` with ``timestep``.
-
-    ``env.reset_after`` where the env's class defines it (it may go on from ``state``:
-    ``EpisodicLife`` after a lost life), else ``env.reset(key, params)``. Looked up on the class,
-    so a wrapper without its own ``reset_after`` never hands its state to its env's.
-    """
-    if getattr(type(env), "reset_after", None) is None:
-        return env.reset(key, params)
-    return env.reset_after(key, state, timestep, params)  # type: ignore[attr-defined]
-
-
 def has_action_mask(env: Environment) -> bool:
     """Whether ``env`` reports ``info["action_mask"]``; raises ``TypeError`` where the mask
     does not fit its action space (a ``Discrete(n)`` space and a bool ``[n]`` mask)."""

@@ -14,8 +14,25 @@ import jax.numpy as jnp
 import numpy as np
 from flax import struct
 
-from rl_jax.envs.core.core import Array, Environment, TimeStep
+from rl_jax.envs.core.core import Array, Environment, PRNGKey, TimeStep
 from rl_jax.envs.core.spaces import Box, Discrete, Space
+
+ACTION_MASK = "action_mask"  # info key: bool [n], the legal actions of the timestep's obs
+FINAL_ACTION_MASK = "final_action_mask"  # info key: the action mask of ``final_obs``
+
+
+def reset_after(
+    env: Environment, key: PRNGKey, state: Any, timestep: TimeStep, params: Any = None
+) -> tuple[Any, TimeStep]:
+    """The start of the episode that follows one that ended in ``state`` with ``timestep``.
+
+    ``env.reset_after`` where the env's class defines it (it may go on from ``state``:
+    ``EpisodicLife`` after a lost life), else ``env.reset(key, params)``. Looked up on the class,
+    so a wrapper without its own ``reset_after`` never hands its state to its env's.
+    """
+    if getattr(type(env), "reset_after", None) is None:
+        return env.reset(key, params)
+    return env.reset_after(key, state, timestep, params)  # type: ignore[attr-defined]
 
 
 class Wrapper(Environment):
@@ -62,6 +79,15 @@ class Wrapper(Environment):
         """Step the wrapped env; returns ``(state, timestep)``."""
         return self.env.step(key, state, action, params)
 
+    def reset_after(self, key, state, timestep: TimeStep, params=None):
+        """The start after an episode that ended in ``state`` (``reset_after``): the wrapped
+        env's, which may continue a game after a lost life, where this wrapper keeps the env's
+        state and reset as they are; else this wrapper's own ``reset``. A wrapper that changes
+        the state or the reset and should pass a continuing reset on overrides this."""
+        if type(self).reset is not Wrapper.reset:
+            return self.reset(key, params)
+        return reset_after(self.env, key, state, timestep, params)
+
     def reset_to(self, vector, params=None):
         """Start the wrapped env from an exact state vector (``Environment.reset_to``)."""
         return self.env.reset_to(vector, params)
@@ -89,23 +115,40 @@ class AutoReset(Wrapper):
 
     The reset branch is computed every step and selected per env (under vmap a ``cond`` would
     run both branches anyway); envs whose reset is expensive can override ``reset`` cheaply.
+    The reset is ``reset_after(env, ...)``: an env that continues after an episode's end
+    (``EpisodicLife`` after a lost life) goes on from the ended state. For an env with a
+    legal-action mask, ``info["action_mask"]`` is the new episode's first observation's, as
+    ``obs`` is, and ``info["final_action_mask"]`` keeps the ended one's, as ``final_obs`` does.
     """
 
     def empty_info(self) -> dict[str, Array]:
-        """The wrapped env's info plus ``final_obs``, zeros shaped like an observation."""
+        """The wrapped env's info plus ``final_obs``, zeros shaped like an observation (and
+        ``final_action_mask``, all True, for an env with an action mask)."""
         obs_space = self.observation_space()
         final_obs = jnp.zeros(obs_space.shape, obs_space.dtype)
-        return {**self.env.empty_info(), "final_obs": final_obs}
+        info = {**self.env.empty_info(), "final_obs": final_obs}
+        if ACTION_MASK in info:
+            info[FINAL_ACTION_MASK] = info[ACTION_MASK]
+        return info
+
+    @staticmethod
+    def _first(state, ts: TimeStep):
+        info = {**ts.info, "final_obs": ts.obs}
+        if ACTION_MASK in info:
+            info[FINAL_ACTION_MASK] = info[ACTION_MASK]
+        return state, ts._replace(info=info)
 
     def reset(self, key, params=None):
         """Reset; ``info["final_obs"]`` is the first observation itself."""
-        state, ts = self.env.reset(key, params)
-        return state, ts._replace(info={**ts.info, "final_obs": ts.obs})
+        return self._first(*self.env.reset(key, params))
 
     def reset_to(self, vector, params=None):
         """Start from an exact state; ``info["final_obs"]`` is the first observation itself."""
-        state, ts = self.env.reset_to(vector, params)
-        return state, ts._replace(info={**ts.info, "final_obs": ts.obs})
+        return self._first(*self.env.reset_to(vector, params))
+
+    def reset_after(self, key, state, timestep: TimeStep, params=None):
+        """The wrapped env's ``reset_after``, with ``final_obs`` its first observation."""
+        return self._first(*reset_after(self.env, key, state, timestep, params))
 
     def step(self, key, state, action, params=None):
         """Step, and where the episode ended (terminated or truncated) start a new one at once.
@@ -117,11 +160,15 @@ class AutoReset(Wrapper):
         """
         key_step, key_reset = jax.random.split(key)
         next_state, ts = self.env.step(key_step, state, action, params)
-        reset_state, reset_ts = self.env.reset(key_reset, params)
+        reset_state, reset_ts = reset_after(self.env, key_reset, next_state, ts, params)
         done = jnp.logical_or(ts.terminated, ts.truncated)
         state = _select(done, reset_state, next_state)
         obs = jnp.where(done, reset_ts.obs, ts.obs)
-        return state, ts._replace(obs=obs, info={**ts.info, "final_obs": ts.obs})
+        info = {**ts.info, "final_obs": ts.obs}
+        if ACTION_MASK in ts.info:
+            info[ACTION_MASK] = jnp.where(done, reset_ts.info[ACTION_MASK], ts.info[ACTION_MASK])
+            info[FINAL_ACTION_MASK] = ts.info[ACTION_MASK]
+        return state, ts._replace(obs=obs, info=info)
 
 
 @struct.dataclass
@@ -174,6 +221,10 @@ class EpisodeStatistics(Wrapper):
     def reset_to(self, vector, params=None):
         """Start the wrapped env from an exact state, with zeroed episode totals."""
         return self._wrap(*self.env.reset_to(vector, params))
+
+    def reset_after(self, key, state: StatisticsState, timestep: TimeStep, params=None):
+        """The wrapped env's ``reset_after``, with zeroed episode totals."""
+        return self._wrap(*reset_after(self.env, key, state.env_state, timestep, params))
 
     def step(self, key, state: StatisticsState, action, params=None):
         """Step and add the reward to the running totals.
@@ -310,6 +361,13 @@ class FlattenObservation(Wrapper):
         state, ts = self.env.reset_to(vector, params)
         return state, self._flatten(ts)
 
+    def reset_after(self, key, state, timestep: TimeStep, params=None):
+        """The wrapped env's ``reset_after`` (given the observation in its shape), flattened."""
+        shape = self.env.observation_space(params).shape
+        inner = timestep._replace(obs=timestep.obs.reshape(shape))
+        state, ts = reset_after(self.env, key, state, inner, params)
+        return state, self._flatten(ts)
+
     def step(self, key, state, action, params=None):
         """Step with a flattened observation (and ``final_obs``)."""
         state, ts = self.env.step(key, state, action, params)
@@ -386,6 +444,18 @@ class MaskObservation(Wrapper):
     def reset_to(self, vector, params=None):
         """Start from an exact state of the wrapped env; the observation is masked."""
         return self._masked(*self.env.reset_to(vector, params))
+
+    def reset_after(self, key, state, timestep: TimeStep, params=None):
+        """The wrapped env's ``reset_after``, masked. It gets the observation in its own shape
+        with the kept entries in place and zeros for the others (which the mask drops again)."""
+        size = self._kept.shape[0]
+        if self.zero_others:
+            obs = timestep.obs
+        else:
+            zeros = jnp.zeros((*timestep.obs.shape[:-1], size), timestep.obs.dtype)
+            obs = zeros.at[..., np.asarray(self.keep)].set(timestep.obs)
+        inner = timestep._replace(obs=obs)
+        return self._masked(*reset_after(self.env, key, state, inner, params))
 
     def step(self, key, state, action, params=None):
         """Step the wrapped env; the observation (and ``final_obs``) is masked."""
