@@ -7,18 +7,21 @@ prioritized (``Config.prioritized``: ``rl_jax.training.prioritized``), laid out 
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Callable
-from typing import Any, NamedTuple
+from typing import NamedTuple, cast
 
 import jax
 import jax.numpy as jnp
 
 from rl_jax.agents.dqn_config import Config, Hyperparams, PixelConfig
 from rl_jax.training import frame_replay, offpolicy, prioritized, replay
-from rl_jax.training.frame_replay import FrameReplay
+from rl_jax.training.frame_replay import FrameReplay, FrameRow
 from rl_jax.training.prioritized import PrioritizedBuffer
 from rl_jax.training.replay import NStepBatch, ReplayBuffer, Transition
 
+#: One stored row: a transition, or with a ``PixelConfig`` its ``FrameRow`` (frames kept apart).
+Row = Transition | FrameRow
 #: The transition rows: uniform, or prioritized with ``Config.prioritized``.
 Rows = ReplayBuffer | PrioritizedBuffer
 #: DQN's replay: the rows, or with a ``PixelConfig`` the rows and the frames they point into.
@@ -29,30 +32,32 @@ Indices = tuple[jax.Array, jax.Array]
 
 # ---- the rows: uniform or prioritized -----------------------------------------------------------
 class RowKind(NamedTuple):
-    """How the transition rows are kept, drawn from and told the TD errors."""
+    """How the transition rows are kept, drawn from and told the TD errors. Each kind's
+    functions take the ``Rows`` union and are only ever given their own kind of rows
+    (``replay_for`` pairs them), so they narrow it with ``cast``."""
 
-    init: Callable[[Any, Config], Any]  # (example row, config) -> rows
-    add: Callable[[Any, Any, Hyperparams], Any]  # (rows, batch of rows [N, ...], hparams) -> rows
+    init: Callable[[Row, Config], Rows]  # (example row, config) -> rows
+    add: Callable[[Rows, Row, Hyperparams], Rows]  # (rows, batch of rows [N, ...], hparams) -> rows
     # (rows, key, config, hparams, update_index) -> (rows [B], columns [B], weights [B])
-    draw: Callable[[Any, jax.Array, Config, Hyperparams, jax.Array], tuple[jax.Array, ...]]
-    storage: Callable[[Any], ReplayBuffer]  # the plain ReplayBuffer under the rows
+    draw: Callable[[Rows, jax.Array, Config, Hyperparams, jax.Array], tuple[jax.Array, ...]]
+    storage: Callable[[Rows], ReplayBuffer]  # the plain ReplayBuffer under the rows
     # (rows, indices, td_error [B], hparams) -> rows
-    reprioritize: Callable[[Any, Indices, jax.Array, Hyperparams], Any]
+    reprioritize: Callable[[Rows, Indices, jax.Array, Hyperparams], Rows]
 
 
 def _draw_uniform(
-    rows: ReplayBuffer,
+    rows: Rows,
     key: jax.Array,
     config: Config,
     hparams: Hyperparams,
     update_index: jax.Array,
 ) -> tuple[jax.Array, ...]:
-    rows_drawn, columns = replay.sample_indices(rows, key, config.batch_size)
+    rows_drawn, columns = replay.sample_indices(cast(ReplayBuffer, rows), key, config.batch_size)
     return rows_drawn, columns, jnp.ones(config.batch_size, jnp.float32)
 
 
 def _draw_prioritized(
-    rows: PrioritizedBuffer,
+    rows: Rows,
     key: jax.Array,
     config: Config,
     hparams: Hyperparams,
@@ -62,60 +67,69 @@ def _draw_prioritized(
     beta = prioritized.annealed_beta(
         hparams.priority_beta_start, env_steps, hparams.priority_beta_steps
     )
-    return prioritized.sample_indices(rows, key, config.batch_size, beta)
+    return prioritized.sample_indices(cast(PrioritizedBuffer, rows), key, config.batch_size, beta)
 
 
 def _reprioritize(
-    rows: PrioritizedBuffer, indices: Indices, td_error: jax.Array, hparams: Hyperparams
+    rows: Rows, indices: Indices, td_error: jax.Array, hparams: Hyperparams
 ) -> PrioritizedBuffer:
     """The sampled transitions' priorities become ``|TD error| + eps``."""
     priorities = jnp.abs(td_error) + hparams.priority_eps
-    return prioritized.update_priorities(rows, *indices, priorities, hparams.priority_alpha)
+    return prioritized.update_priorities(
+        cast(PrioritizedBuffer, rows), *indices, priorities, hparams.priority_alpha
+    )
 
 
 UNIFORM = RowKind(
     init=lambda example, config: replay.init(example, config.buffer_size, config.num_envs),
-    add=lambda rows, batch, hparams: replay.add(rows, batch),
+    add=lambda rows, batch, hparams: replay.add(cast(ReplayBuffer, rows), batch),
     draw=_draw_uniform,
-    storage=lambda rows: rows,
+    storage=lambda rows: cast(ReplayBuffer, rows),
     reprioritize=lambda rows, indices, td_error, hparams: rows,
 )
 PRIORITIZED = RowKind(
     init=lambda example, config: prioritized.init(example, config.buffer_size, config.num_envs),
-    add=lambda rows, batch, hparams: prioritized.add(rows, batch, hparams.priority_alpha),
+    add=lambda rows, batch, hparams: prioritized.add(
+        cast(PrioritizedBuffer, rows), batch, hparams.priority_alpha
+    ),
     draw=_draw_prioritized,
-    storage=lambda rows: rows.buffer,
+    storage=lambda rows: cast(PrioritizedBuffer, rows).buffer,
     reprioritize=_reprioritize,
 )
 
 
 # ---- the layout: observations in the rows, or frames beside them --------------------------------
 class Layout(NamedTuple):
-    """Where the observations are kept, around rows of some ``RowKind``."""
+    """Where the observations are kept, around rows of some ``RowKind``. As with ``RowKind``,
+    each layout's functions take the ``Buffer`` union and are given only their own layout."""
 
     # (example transition, init_rows(example row) -> rows) -> buffer
-    init: Callable[[Transition, Callable[[Any], Any]], Any]
+    init: Callable[[Transition, Callable[[Row], Rows]], Buffer]
     # (buffer, transitions [N, ...], add_rows(rows, batch of rows) -> rows) -> buffer
-    add: Callable[[Any, Transition, Callable[[Any, Any], Any]], Any]
-    rows_of: Callable[[Any], Any]  # buffer -> its rows
-    with_rows: Callable[[Any, Any], Any]  # (buffer, rows) -> the buffer with those rows
+    add: Callable[[Buffer, Transition, Callable[[Rows, Row], Rows]], Buffer]
+    rows_of: Callable[[Buffer], Rows]  # buffer -> its rows
+    with_rows: Callable[[Buffer, Rows], Buffer]  # (buffer, rows) -> the buffer with those rows
     # (buffer, windows of rows [B, L, ...], rows [B], columns [B]) -> Transition windows
-    transitions: Callable[[Any, Any, jax.Array, jax.Array], Transition]
+    transitions: Callable[[Buffer, Row, jax.Array, jax.Array], Transition]
 
 
 FLAT = Layout(
     init=lambda example, init_rows: init_rows(example),
-    add=lambda buffer, transitions, add_rows: add_rows(buffer, transitions),
-    rows_of=lambda buffer: buffer,
+    add=lambda buffer, transitions, add_rows: add_rows(cast(Rows, buffer), transitions),
+    rows_of=lambda buffer: cast(Rows, buffer),
     with_rows=lambda buffer, rows: rows,
-    transitions=lambda buffer, window, rows, columns: window,
+    transitions=lambda buffer, window, rows, columns: cast(Transition, window),
 )
 FRAMES = Layout(
     init=frame_replay.init,
-    add=frame_replay.add,
-    rows_of=lambda buffer: buffer.rows,
-    with_rows=lambda buffer, rows: buffer.replace(rows=rows),
-    transitions=frame_replay.transitions,
+    add=lambda buffer, transitions, add_rows: frame_replay.add(
+        cast(FrameReplay, buffer), transitions, add_rows
+    ),
+    rows_of=lambda buffer: cast(FrameReplay, buffer).rows,
+    with_rows=lambda buffer, rows: dataclasses.replace(cast(FrameReplay, buffer), rows=rows),
+    transitions=lambda buffer, window, rows, columns: frame_replay.transitions(
+        cast(FrameReplay, buffer), cast(FrameRow, window), rows, columns
+    ),
 )
 
 

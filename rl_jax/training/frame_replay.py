@@ -27,7 +27,7 @@ rebuilt stacks against the env's own).
 from __future__ import annotations
 
 from collections.abc import Callable
-from typing import Any, NamedTuple
+from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
@@ -62,7 +62,12 @@ class FrameReplay:
     @property
     def storage(self) -> replay.ReplayBuffer:
         """The plain ``ReplayBuffer`` under the rows (prioritized or not)."""
-        return getattr(self.rows, "buffer", self.rows)
+        return storage_of(self.rows)
+
+
+def storage_of(rows: ReplayBuffer | PrioritizedBuffer) -> ReplayBuffer:
+    """The plain ``ReplayBuffer`` under transition rows, prioritized or not."""
+    return rows.buffer if isinstance(rows, PrioritizedBuffer) else rows
 
 
 def _row(transition: Transition) -> FrameRow:
@@ -75,12 +80,14 @@ def _row(transition: Transition) -> FrameRow:
     )
 
 
-def init(example: Transition, init_rows: Callable[[FrameRow], Any]) -> FrameReplay:
+def init(
+    example: Transition, init_rows: Callable[[FrameRow], ReplayBuffer | PrioritizedBuffer]
+) -> FrameReplay:
     """An empty buffer for transitions shaped like ``example`` (obs ``[H, W, stack]``);
     ``init_rows(example_row)`` makes the transition rows (``replay.init`` or
     ``prioritized.init`` with the capacity and width)."""
     rows = init_rows(_row(example))
-    storage = getattr(rows, "buffer", rows)
+    storage = storage_of(rows)
     slots = storage.rows + example.obs.shape[-1] - 1
     frames = jnp.zeros((slots, storage.width, *example.obs.shape[:-1]), example.obs.dtype)
     # Before the first step every step "ended": no history reaches back past it.
@@ -88,7 +95,13 @@ def init(example: Transition, init_rows: Callable[[FrameRow], Any]) -> FrameRepl
     return FrameReplay(rows=rows, frames=frames, ended=ended, written=jnp.int32(0))
 
 
-def add(buffer: FrameReplay, batch: Transition, add_rows: Callable[[Any, FrameRow], Any]):
+def add(
+    buffer: FrameReplay,
+    batch: Transition,
+    add_rows: Callable[
+        [ReplayBuffer | PrioritizedBuffer, FrameRow], ReplayBuffer | PrioritizedBuffer
+    ],
+) -> FrameReplay:
     """Write one env step of all envs (``batch`` leaves ``[width, ...]``); ``add_rows`` writes
     the transition rows (``replay.add`` or ``prioritized.add``)."""
     slot = buffer.written % buffer.frames.shape[0]
@@ -122,7 +135,9 @@ def stacks(buffer: FrameReplay, steps: jax.Array, columns: jax.Array) -> jax.Arr
     return jnp.stack(newest_first[::-1], axis=-1)
 
 
-def transitions(buffer: FrameReplay, window: FrameRow, rows: jax.Array, columns: jax.Array):
+def transitions(
+    buffer: FrameReplay, window: FrameRow, rows: jax.Array, columns: jax.Array
+) -> Transition:
     """Full ``Transition`` windows from ``replay.gather_windows`` on ``buffer.storage``:
     ``window`` leaves ``[B, L, ...]`` start at storage ``rows`` [B] in env ``columns`` [B].
     Steps of a window past the newest row get whatever is there, as ``gather_windows`` says."""
