@@ -34,10 +34,15 @@ install: $(STAMP) $(if $(GPU),$(GPU_STAMP)) system-deps ## create .venv and inst
 # Re-installs only when the lock or pyproject changed; `pip install -r` of a hashed lock is exact.
 # --no-compile, then compileall over every core: pip compiles the packages' bytecode one file at a
 # time, compileall on all cores at once, beside the build of the MuJoCo C step op.
-$(STAMP): requirements.lock pyproject.toml
+# requirements-nodeps.lock: gymnax, whose declared gymnasium<1.4 no resolver can meet beside our
+# gymnasium 1.4 (pyproject.toml's minatar extra says why it runs there); what it imports is in
+# requirements.lock, so it goes in without its declared dependencies, hash-checked all the same.
+$(STAMP): requirements.lock requirements-nodeps.lock pyproject.toml
 	@command -v $(PYTHON) >/dev/null || { echo "error: $(PYTHON) not found; install Python 3.11 or run 'make PYTHON=python3 ...'" >&2; exit 1; }
 	@test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
 	$(BIN)/python -m pip install --quiet --disable-pip-version-check --no-compile -r requirements.lock
+	$(BIN)/python -m pip install --quiet --disable-pip-version-check --no-compile --no-deps \
+		-r requirements-nodeps.lock
 	$(BIN)/python -m pip install --quiet --disable-pip-version-check --no-deps --no-build-isolation -e .
 	@# the bytecode and the MuJoCo C step op (g++, one core; without it: a callback) side by side
 	@$(BIN)/python -m compileall -q -j 0 "$$($(BIN)/python -c 'import sysconfig; print(sysconfig.get_paths()["purelib"])')" >/dev/null & \
@@ -66,10 +71,13 @@ test-latest: ## the default suite against the newest jax, flax, optax, orbax, mu
 	@test -x $(LATEST_VENV)/bin/python || $(LATEST_PYTHON) -m venv $(LATEST_VENV)
 	$(LATEST_VENV)/bin/python -m pip install --quiet --disable-pip-version-check --upgrade \
 		jax jaxlib flax optax orbax-checkpoint mujoco mujoco-mjx brax "gymnasium[mujoco]" numpy \
-		matplotlib tensorboardX tqdm imageio pillow pygame-ce pytest pytest-timeout pytest-xdist scipy setuptools
+		matplotlib tensorboardX tqdm imageio pillow pygame-ce pytest pytest-timeout pytest-xdist scipy setuptools \
+		minatar seaborn six
+	@# gymnax without its declared gymnasium<1.4, which would pull gymnasium back (see make install)
+	$(LATEST_VENV)/bin/python -m pip install --quiet --disable-pip-version-check --upgrade --no-deps gymnax
 	$(LATEST_VENV)/bin/python -m pip install --quiet --disable-pip-version-check --no-deps \
 		--no-build-isolation -e .
-	@$(LATEST_VENV)/bin/python -m pip list 2>/dev/null | grep -iE '^(jax|jaxlib|flax|optax|orbax-checkpoint|mujoco|mujoco-mjx|brax|gymnasium|numpy) '
+	@$(LATEST_VENV)/bin/python -m pip list 2>/dev/null | grep -iE '^(jax|jaxlib|flax|optax|orbax-checkpoint|mujoco|mujoco-mjx|brax|gymnasium|gymnax|numpy) '
 	$(LATEST_VENV)/bin/python -m rl_jax.envs.mujoco.mujoco_ffi_build
 	$(LATEST_VENV)/bin/python -m pytest -q -n $(TEST_WORKERS) --dist loadfile
 
@@ -117,13 +125,15 @@ figures: install ## redraw docs/figures/ from the runs named in docs/figures/man
 train: install ## train TD3 on half cheetah, 5 seeds in one compiled program
 	$(BIN)/python experiments/td3_cheetah.py --seeds 5
 
-# The lock holds the library and its test, dev, docs and tracking extras. pip-compile keeps every
+# The lock holds the library and its test, dev, docs, tracking and minatar extras (gymnax itself:
+# requirements-nodeps.lock, written by hand: see its header). pip-compile keeps every
 # pin in requirements.lock that pyproject.toml still admits (adding, dropping or moving only what
 # changed); UPGRADE=1 takes the newest release of everything inside pyproject.toml's ranges instead.
 UPGRADE ?=
 lock: ## regenerate requirements.lock from pyproject.toml (needs network; UPGRADE=1: newest in range)
 	@test -x $(BIN)/pip-compile || $(MAKE) install
-	$(BIN)/pip-compile --quiet --extra test --extra dev --extra docs --extra tracking --strip-extras \
+	$(BIN)/pip-compile --quiet --extra test --extra dev --extra docs --extra tracking --extra minatar \
+		--strip-extras \
 		--generate-hashes --allow-unsafe --no-emit-index-url --no-emit-find-links \
 		$(if $(UPGRADE),--upgrade) -o requirements.lock pyproject.toml
 
