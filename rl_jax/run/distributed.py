@@ -42,7 +42,7 @@ from rl_jax.errors import (
     parse_int,
     positive_int,
 )
-from rl_jax.run import processes
+from rl_jax.run import join, processes
 from rl_jax.training.jax_setup import configure_jax
 
 #: Seconds a process waits for the others by default (joining, each exchange, exit).
@@ -222,21 +222,28 @@ def start(argv: list[str]) -> list[str]:
     cluster = resolve(options)
     configure_jax()
     if cluster is not None:
-        initialize(cluster, options.timeout)
+        initialize(cluster, options.timeout, join.fingerprint(without_flags(rest)))
     return rest
 
 
-def initialize(cluster: Cluster, timeout: float = DEFAULT_TIMEOUT) -> None:
+def initialize(
+    cluster: Cluster, timeout: float = DEFAULT_TIMEOUT, agreed: join.Fingerprint | None = None
+) -> None:
     """``jax.distributed.initialize`` for ``cluster``, given ``timeout`` seconds for every
-    process to join. jax ends a process that cannot join with a fatal log and a stack trace;
-    a watchdog ends it a little earlier with one line instead."""
+    process to join, once the processes agreed on ``agreed`` (``rl_jax.run.join``: a
+    disagreement, a duplicate rank or a port held by another job is one line, ``UsageError``).
+    jax ends a process that cannot join with a fatal log and a stack trace; a watchdog ends it
+    a little earlier with one line instead."""
     if jax.distributed.is_initialized():
         return
     limit = int(timeout)
+    address = coordinator_address(cluster)
+    if address is not None:
+        handshake(cluster, address, timeout, agreed or join.fingerprint([]))
     watchdog = processes.Watchdog(timeout, lambda: _join_failed(cluster, timeout))
     with watchdog:
         jax.distributed.initialize(
-            coordinator_address=cluster.coordinator,
+            coordinator_address=address,
             num_processes=cluster.num_processes,
             process_id=cluster.process_id,
             # jax's own limits come after ours, so that ours speak first
@@ -245,6 +252,65 @@ def initialize(cluster: Cluster, timeout: float = DEFAULT_TIMEOUT) -> None:
             shutdown_timeout_seconds=limit + 30,
         )
     processes.set_wait_limit(timeout)
+
+
+def coordinator_address(cluster: Cluster, environ: Mapping[str, str] = os.environ) -> str | None:
+    """``HOST:PORT`` of the coordinator: the flag's, or under SLURM the step's first node on a
+    port derived from the job and the step (jax's own derivation takes the job alone, so two
+    steps of one job would meet on one port; ``JAX_COORDINATOR_PORT`` still sets it). None
+    where jax finds it itself (Open MPI)."""
+    if cluster.coordinator is not None or cluster.source != "slurm":
+        return cluster.coordinator
+    port = environ.get("JAX_COORDINATOR_PORT") or str(slurm_port(environ))
+    return f"{first_node(environ['SLURM_STEP_NODELIST'])}:{port}"
+
+
+def slurm_port(environ: Mapping[str, str]) -> int:
+    """A port in jax's range (61440 .. 65535) from the job id and the step id: the steps of one
+    job get different ports."""
+    job = int(environ["SLURM_JOB_ID"])
+    step = environ.get("SLURM_STEP_ID", "0")
+    step_id = int(step) if step.isdigit() else 0
+    return 61440 + (job * 16 + step_id % 16) % 4096
+
+
+def first_node(node_list: str) -> str:
+    """The first host of a SLURM node list (``node[001-004],gpu7`` -> ``node001``), as jax's
+    ``SlurmCluster`` reads it."""
+    end = next((i for i, ch in enumerate(node_list) if ch in ",["), len(node_list))
+    if end == len(node_list) or node_list[end] == ",":
+        return node_list[:end]
+    suffix = node_list[end + 1 :]
+    stop = next((i for i, ch in enumerate(suffix) if ch in ",-]"), len(suffix))
+    return node_list[:end] + suffix[:stop]
+
+
+def handshake(cluster: Cluster, address: str, timeout: float, agreed: join.Fingerprint) -> None:
+    """The processes' agreement before jax joins them (``rl_jax.run.join``): one line
+    (``UsageError``) on any disagreement, a duplicate rank or a port held by another job;
+    process 0's port is checked before jax binds it."""
+    host, _, port_text = address.rpartition(":")
+    host, port = host.strip("[]"), int(port_text)
+    rank, count = cluster.process_id, cluster.num_processes
+    try:
+        if rank == 0:
+            try:
+                join.lead(port, count, agreed, timeout)
+                return
+            except join.PortTaken:
+                # held here: by another process 0 of this run (a duplicate rank), or not ours
+                join.follow("localhost", port, 0, count, agreed, join.SEE_SECONDS)
+        else:
+            join.follow(host, port, rank, count, agreed, timeout)
+    except join.JoinError as error:
+        raise UsageError(str(error)) from None
+    except TimeoutError:
+        if rank == 0:
+            raise UsageError(
+                f"the coordinator port {port} is held on this host ({socket.gethostname()}) by "
+                "another job or program; choose another port for this run"
+            ) from None
+        processes.give_up(_join_failed(cluster, timeout))
 
 
 def _join_failed(cluster: Cluster, timeout: float) -> str:
