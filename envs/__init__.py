@@ -5,7 +5,8 @@ its top-level ``envs/`` folder, but an installed rl_jax claims no top-level name
 Importing it also registers every id with gymnasium (``gymnasium.make`` and
 ``gymnasium.make_vec(..., vectorization_mode="vector_entry_point")``). The other way round,
 ``envs.from_gymnasium(id_or_env)`` makes any gymnasium env one of ours
-(``envs.adapters.gymnasium_host``).
+(``envs.adapters.gymnasium_host``), and ``envs.from_gymnax(name)`` any gymnax env
+(``envs.adapters.gymnax_adapter``).
 """
 
 if __name__ == "envs":  # the folder imported by its own name, from a checkout's root
@@ -16,6 +17,7 @@ if __name__ == "envs":  # the folder imported by its own name, from a checkout's
 from rl_jax.envs.adapters import external_ids as _external_ids  # noqa: F401  (resolves MODULE:ID)
 from rl_jax.envs.adapters.gym_adapter import register_with_gymnasium
 from rl_jax.envs.adapters.gymnasium_host import from_gymnasium
+from rl_jax.envs.adapters.gymnax_adapter import from_gymnax  # imports gymnax on its first call
 from rl_jax.envs.core.core import Environment, EnvParams, EnvState, TimeStep
 from rl_jax.envs.core.preprocessing import (
     ClipReward,
@@ -64,6 +66,7 @@ __all__ = [
     "FrameSkip",
     "FrameStack",
     "from_gymnasium",
+    "from_gymnax",
     "MaskObservation",
     "RescaleAction",
     "SignReward",

@@ -41,6 +41,11 @@ _ENTRY_POINTS: dict[str, str] = {
     "rl_jax/CountRecallEasy-v0": "rl_jax.envs.memory.cards:CountRecall",
     "rl_jax/AutoencodeEasy-v0": "rl_jax.envs.memory.cards:Autoencode",
     "rl_jax/StatelessCartPoleEasy-v0": "rl_jax.envs.memory.stateless_cartpole:StatelessCartPole",
+    # MinAtar, gymnax's JAX games under gymnax's names (envs/adapters/gymnax_adapter.py)
+    "rl_jax/Breakout-MinAtar": "rl_jax.envs.adapters.gymnax_adapter:breakout_minatar",
+    "rl_jax/SpaceInvaders-MinAtar": "rl_jax.envs.adapters.gymnax_adapter:space_invaders_minatar",
+    "rl_jax/Asterix-MinAtar": "rl_jax.envs.adapters.gymnax_adapter:asterix_minatar",
+    "rl_jax/Freeway-MinAtar": "rl_jax.envs.adapters.gymnax_adapter:freeway_minatar",
 }
 
 
@@ -74,6 +79,11 @@ _MAX_EPISODE_STEPS: dict[str, int] = {
     "rl_jax/CountRecallEasy-v0": 52,
     "rl_jax/AutoencodeEasy-v0": 104,
     "rl_jax/StatelessCartPoleEasy-v0": 200,
+    # gymnax's max_steps_in_episode (Freeway's 2,500 is MinAtar's own end of its game)
+    "rl_jax/Breakout-MinAtar": 1000,
+    "rl_jax/SpaceInvaders-MinAtar": 1000,
+    "rl_jax/Asterix-MinAtar": 1000,
+    "rl_jax/Freeway-MinAtar": 2500,
 }
 
 
