@@ -98,7 +98,9 @@ class FromGymnax(Environment):
         )
         if isinstance(self._observation_space, Discrete):  # observed as a float32 scalar
             n = self._observation_space.n
-            self._observation_space = Box(np.float32(0), np.float32(n - 1), ())
+            self._observation_space = Box(
+                np.zeros((), np.float32), np.full((), n - 1, np.float32), ()
+            )
         self._action_space = _space(gymnax_env.action_space(params), "action", self.id)
 
     @property

@@ -1,0 +1,254 @@
+"""gymnax envs through envs.from_gymnax: step for step against gymnax's own step on the same keys
+(terminated and truncated apart, no reset inside), the rl_jax/*-MinAtar ids through gymnasium, and
+the MinAtar games against the numpy `minatar` package, sticky actions off, where their rules
+agree (docs/using_envs.md, "MinAtar through gymnax", lists where they do not)."""
+
+import subprocess
+import sys
+import warnings
+
+import gymnasium
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+from gymnasium.utils.env_checker import check_env
+
+from rl_jax import envs
+from rl_jax.envs.core import registry
+
+gymnax = pytest.importorskip("gymnax")
+minatar = pytest.importorskip("minatar")
+
+GAMES = ["Breakout", "SpaceInvaders", "Asterix", "Freeway"]
+IDS = [f"rl_jax/{game}-MinAtar" for game in GAMES]
+
+
+# ---- against gymnax itself ----------------------------------------------------------------------
+def _rollouts(name: str, limit: int, steps: int, n_envs: int, seed: int):
+    """Ours and gymnax's ``step`` driven by the same keys and actions, vmapped and jitted.
+
+    Ours resets (with the reset key gymnax's step draws) where an episode ended, as AutoReset
+    would; gymnax resets inside its step. Per step: ours (pre-reset obs, reward, terminated,
+    truncated, obs after any reset) and gymnax's (``final_observation``, reward, terminated,
+    truncated, obs)."""
+    env = envs.from_gymnax(name, max_steps_in_episode=limit)
+    gymnax_env, gymnax_params = gymnax.make(name)
+    gymnax_params = gymnax_params.replace(max_steps_in_episode=limit)
+    n_actions = env.action_space().n
+
+    def one_env(key):
+        key, reset_key = jax.random.split(key)
+        state, first = env.reset(reset_key)
+        gymnax_obs, gymnax_state = gymnax_env.reset(reset_key, gymnax_params)
+
+        def step(carry, key):
+            state, gymnax_state = carry
+            action_key, step_key = jax.random.split(key)
+            action = jax.random.randint(action_key, (), 0, n_actions)
+            state, ts = env.step(step_key, state, action)
+            done = ts.terminated | ts.truncated
+            reset_state, reset_ts = env.reset(jax.random.split(step_key)[1])
+            state = jax.tree.map(lambda r, s: jnp.where(done, r, s), reset_state, state)
+            obs_after = jnp.where(done, reset_ts.obs, ts.obs)
+            g_obs, gymnax_state, g_reward, g_term, g_trunc, info = gymnax_env.step(
+                step_key, gymnax_state, action, gymnax_params
+            )
+            ours = (ts.obs, ts.reward, ts.terminated, ts.truncated, obs_after)
+            theirs = (info["final_observation"], g_reward, g_term, g_trunc, g_obs)
+            return (state, gymnax_state), (ours, theirs)
+
+        keys = jax.random.split(key, steps)
+        _, (ours, theirs) = jax.lax.scan(step, (state, gymnax_state), keys)
+        return (first.obs, gymnax_obs), ours, theirs
+
+    keys = jax.random.split(jax.random.key(seed), n_envs)
+    return jax.jit(jax.vmap(one_env))(keys)
+
+
+NAMES = ["obs", "reward", "terminated", "truncated", "obs after the reset"]
+
+
+@pytest.mark.parametrize("game", GAMES)
+def test_same_keys_give_gymnax_episodes_step_for_step(game):
+    # A short limit, so that the rollouts hold truncations as well as terminations.
+    (first, gymnax_first), ours, theirs = _rollouts(f"{game}-MinAtar", 25, 300, 8, seed=1)
+    np.testing.assert_array_equal(first, gymnax_first)
+    for mine, reference, what in zip(ours, theirs, NAMES, strict=True):
+        assert mine.dtype == (jnp.bool_ if what in ("terminated", "truncated") else jnp.float32)
+        np.testing.assert_array_equal(mine, reference, err_msg=what)
+    terminated, truncated = np.asarray(ours[2]), np.asarray(ours[3])
+    assert truncated.sum() > 0  # both ends, apart, in the compared rollouts
+    if game != "Freeway":  # Freeway's game never ends before its limit
+        assert terminated.sum() > 0
+
+
+def test_default_limits_are_gymnax_and_truncation_is_not_termination():
+    for env_id in IDS:
+        env = envs.make(env_id)
+        params = gymnax.make(env_id.removeprefix("rl_jax/"))[1]
+        assert env.max_episode_steps == params.max_steps_in_episode
+        assert env.max_episode_steps == registry.max_episode_steps(env_id)
+    # Freeway never terminates; it is cut at 2,500 steps as truncated.
+    env = envs.make("rl_jax/Freeway-MinAtar")
+
+    def run(key):
+        state, _ = env.reset(key)
+
+        def step(state, key):
+            state, ts = env.step(key, state, jnp.int32(1))
+            return state, (ts.terminated, ts.truncated)
+
+        return jax.lax.scan(step, state, jax.random.split(key, 2500))[1]
+
+    terminated, truncated = jax.jit(run)(jax.random.key(0))
+    assert not terminated.any()
+    assert truncated[-1] and not truncated[:-1].any()
+
+
+def test_constructor_and_params_keywords():
+    env = envs.from_gymnax("Breakout-MinAtar", use_minimal_action_set=False)
+    assert env.action_space().n == 6
+    env = envs.make("rl_jax/Asterix-MinAtar", ramping=False, max_steps_in_episode=50)
+    assert env.max_episode_steps == 50 and not bool(env.default_params.ramping)
+    with pytest.raises(envs.UnknownEnvError.__mro__[1]):  # UnsupportedEnvError, a ValueError
+        envs.from_gymnax("NoSuchGame-MinAtar")
+
+
+def test_jit_vmap_over_envs_and_autoreset():
+    env = envs.AutoReset(envs.make("rl_jax/Breakout-MinAtar"))
+    keys = jax.random.split(jax.random.key(0), 16)
+    state, ts = jax.jit(jax.vmap(env.reset))(keys)
+    step = jax.jit(jax.vmap(env.step))
+    for i in range(40):
+        actions = jax.random.randint(jax.random.key(i), (16,), 0, 3)
+        state, ts = step(jax.random.split(jax.random.key(100 + i), 16), state, actions)
+    assert ts.obs.shape == (16, 10, 10, 4) and ts.obs.dtype == jnp.float32
+
+
+def test_importing_envs_does_not_import_gymnax():
+    code = (
+        "import sys\nfrom rl_jax import envs\n"
+        "print(sorted(m for m in sys.modules if m.split('.')[0] in ('gymnax', 'seaborn')))\n"
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert out.stdout.strip() == "[]"
+
+
+@pytest.mark.parametrize("env_id", IDS)
+def test_registered_with_gymnasium_and_passes_check_env(env_id):
+    spec = gymnasium.spec(env_id)
+    assert spec.max_episode_steps == registry.max_episode_steps(env_id)
+    env = gymnasium.make(env_id, render_mode="rgb_array")
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        check_env(env.unwrapped)
+    assert not caught, [str(w.message) for w in caught]
+    env.reset(seed=0)
+    frame = env.render()
+    assert frame.shape == (160, 160, 3) and frame.dtype == np.uint8
+
+
+# ---- against the numpy minatar package -----------------------------------------------------------
+def _numpy_game(game: str, seed: int):
+    env = minatar.Environment(game.lower().replace("spaceinvaders", "space_invaders"), 0.0)
+    env.seed(seed)
+    env.reset()
+    return env
+
+
+def _play_against_numpy(game: str, seed: int, start) -> int:
+    """One episode of random actions in ours and in numpy MinAtar from the same start state;
+    observations, rewards and terminals compared at every step. Returns its length."""
+    env = envs.make(f"rl_jax/{game}-MinAtar")
+    action_set = np.asarray(env.gymnax_env.action_set)
+    step = jax.jit(env.step)
+    state, ts = env.reset(jax.random.key(seed))
+    reference = _numpy_game(game, seed)
+    start(reference.env, state.inner)
+    np.testing.assert_array_equal(ts.obs, reference.state())
+    rng = np.random.default_rng(seed)
+    for t in range(env.max_episode_steps):
+        action = int(rng.integers(len(action_set)))
+        reward, terminal = reference.act(int(action_set[action]))
+        state, ts = step(jax.random.key(t), state, jnp.int32(action))
+        np.testing.assert_array_equal(ts.obs, reference.state(), err_msg=f"step {t}")
+        assert (float(ts.reward), bool(ts.terminated)) == (reward, terminal), t
+        if terminal:
+            return t + 1
+    return env.max_episode_steps
+
+
+def _breakout_start(game, inner) -> None:
+    # gymnax draws which side the ball starts from with its key, numpy with its generator
+    game.ball_x, game.last_x = int(inner.ball_x), int(inner.last_x)
+    game.ball_dir = int(inner.ball_dir)
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_breakout_matches_numpy_minatar_from_the_same_start(seed):
+    assert _play_against_numpy("Breakout", seed, _breakout_start) > 1
+
+
+def test_space_invaders_matches_numpy_minatar():
+    # no randomness in either: the same actions give the same game
+    lengths = [
+        _play_against_numpy("SpaceInvaders", seed, lambda game, inner: None) for seed in (0, 1)
+    ]
+    assert min(lengths) > 1
+
+
+def _numpy_random_returns(game: str, episodes: int, limit: int) -> tuple[np.ndarray, np.ndarray]:
+    env = _numpy_game(game, 0)
+    actions = env.minimal_action_set()
+    rng = np.random.default_rng(0)
+    returns, lengths = [], []
+    for _ in range(episodes):
+        env.reset()
+        total, t, terminal = 0.0, 0, False
+        while not terminal and t < limit:
+            reward, terminal = env.act(actions[rng.integers(len(actions))])
+            total, t = total + reward, t + 1
+        returns.append(total)
+        lengths.append(t)
+    return np.asarray(returns), np.asarray(lengths)
+
+
+def _our_random_returns(game: str, episodes: int) -> tuple[np.ndarray, np.ndarray]:
+    env = envs.make(f"rl_jax/{game}-MinAtar")
+    n_actions = env.action_space().n
+
+    def episode(key):
+        state, _ = env.reset(key)
+
+        def step(carry, key):
+            state, total, length, over = carry
+            action_key, step_key = jax.random.split(key)
+            action = jax.random.randint(action_key, (), 0, n_actions)
+            state, ts = env.step(step_key, state, action)
+            total = total + jnp.where(over, 0.0, ts.reward)
+            length = length + jnp.where(over, 0, 1)
+            return (state, total, length, over | ts.terminated | ts.truncated), None
+
+        keys = jax.random.split(key, env.max_episode_steps)
+        start = (state, jnp.float32(0), jnp.int32(0), jnp.bool_(False))
+        return jax.lax.scan(step, start, keys)[0][1:3]
+
+    returns, lengths = jax.jit(jax.vmap(episode))(jax.random.split(jax.random.key(0), episodes))
+    return np.asarray(returns), np.asarray(lengths)
+
+
+@pytest.mark.parametrize(("game", "episodes"), [("Asterix", 400), ("Freeway", 60)])
+def test_random_policy_statistics_match_numpy_minatar(game, episodes):
+    """Their random draws cannot be matched (numpy's generator against jax's keys): the return
+    and length of a random policy's episodes, cut at gymnax's limit, agree within 4 standard
+    errors of their difference."""
+    ours = _our_random_returns(game, episodes)
+    limit = envs.make(f"rl_jax/{game}-MinAtar").max_episode_steps
+    theirs = _numpy_random_returns(game, episodes, limit)
+    for mine, reference in zip(ours, theirs, strict=True):
+        error = np.sqrt(mine.var() / len(mine) + reference.var() / len(reference))
+        assert abs(mine.mean() - reference.mean()) <= 4 * error + 1e-9, (
+            mine.mean(),
+            reference.mean(),
+        )
