@@ -22,6 +22,7 @@ from gymnasium.wrappers import (
 )
 
 from rl_jax import envs
+from rl_jax.envs.core import batched
 from rl_jax.envs.core import preprocessing as pre
 from rl_jax.envs.core.core import Environment, EnvParams, EnvState
 from rl_jax.envs.core.probes import FatalIllegalActions
@@ -275,11 +276,28 @@ def autoreset_step(env, key, state, action):
     return state, ts._replace(obs=obs, info={**ts.info, "final_obs": ts.obs})
 
 
-def test_episodic_life_goes_on_after_a_lost_life_and_restarts_after_the_game():
+def autoreset_wrapper_step(env, flatten):
+    """``envs.AutoReset``'s own step (around ``FlattenObservation`` with ``flatten``), with the
+    observations shown in the game's shape."""
+    wrapped = envs.AutoReset(envs.FlattenObservation(env) if flatten else env)
+
+    def step(key, state, action):
+        state, ts = wrapped.step(key, state, action)
+        info = {**ts.info, "final_obs": ts.info["final_obs"].reshape(WIDTH, WIDTH)}
+        return state, ts._replace(obs=ts.obs.reshape(WIDTH, WIDTH), info=info)
+
+    return step
+
+
+@pytest.mark.parametrize("autoreset", ["by hand", "AutoReset", "AutoReset(FlattenObservation)"])
+def test_episodic_life_goes_on_after_a_lost_life_and_restarts_after_the_game(autoreset):
     game, key = LivesGame(), jax.random.key(2)
     env = pre.EpisodicLife(game)
     actions = actions_for(7, 120, left=0.7)
-    step = jax.jit(lambda key, state, action: autoreset_step(env, key, state, action))
+    if autoreset == "by hand":
+        step = jax.jit(lambda key, state, action: autoreset_step(env, key, state, action))
+    else:
+        step = jax.jit(autoreset_wrapper_step(env, flatten=autoreset != "AutoReset"))
     state, _ = env.reset(key)
     # By hand: the bare game played straight through, one game after another.
     bare_step = jax.jit(game.step)
@@ -572,6 +590,53 @@ def state_mask(state):
     while not hasattr(state, "legal"):
         state = state.env_state
     return state.legal
+
+
+def test_autoreset_takes_the_new_episodes_mask_and_keeps_the_ended_ones():
+    env = FatalIllegalActions()
+    wrapped = envs.AutoReset(env)
+    assert pre.has_action_mask(wrapped)
+    empty = wrapped.empty_info()
+    np.testing.assert_array_equal(empty["final_action_mask"], empty[pre.ACTION_MASK])
+    keys = jax.random.split(jax.random.key(3), 64)
+    state, first = jax.vmap(wrapped.reset)(keys)
+    np.testing.assert_array_equal(first.info["final_action_mask"], first.info[pre.ACTION_MASK])
+    # Half the envs take an illegal action (their episode ends), half a legal one.
+    mask = np.asarray(first.info[pre.ACTION_MASK])
+    illegal = np.argmin(mask, axis=1)
+    legal = np.argmax(mask, axis=1)
+    ending = ~mask.all(axis=1) & (np.arange(64) % 2 == 0)
+    actions = jnp.asarray(np.where(ending, illegal, legal), jnp.int32)
+    step_keys = jax.random.split(jax.random.key(4), 64)
+    for step in (jax.vmap(wrapped.step), lambda k, s, a: batched.autoreset_step(env, k[0], s, a)):
+        _, ts = step(step_keys, state, actions)
+        np.testing.assert_array_equal(ts.terminated, ending)
+        # The mask goes with the obs: the new episode's where one ended, as obs does ...
+        np.testing.assert_array_equal(ts.info[pre.ACTION_MASK], np.asarray(ts.obs) > 0.5)
+        # ... and the ended one's goes with final_obs.
+        final_mask = np.asarray(ts.info["final_action_mask"])
+        np.testing.assert_array_equal(final_mask, np.asarray(ts.info["final_obs"]) > 0.5)
+        same = ~ending
+        np.testing.assert_array_equal(final_mask[same], np.asarray(ts.info[pre.ACTION_MASK])[same])
+
+
+def test_batched_autoreset_continues_the_game_after_a_lost_life():
+    game = LivesGame()
+    env = pre.EpisodicLife(game)
+    keys = jax.random.split(jax.random.key(5), 8)
+    state, first = jax.vmap(env.reset)(keys)
+    # Walk every player into the left wall: each loses a life, and its game goes on.
+    step = jax.jit(lambda key, state, action: batched.autoreset_step(env, key, state, action))
+    lefts = jnp.full(8, LEFT, jnp.int32)
+    lost = np.zeros(8, bool)
+    for t in range(WIDTH):
+        state, ts = step(jax.random.key(t), state, lefts)
+        lost |= np.asarray(ts.terminated)
+        assert not (np.asarray(ts.terminated) & (np.asarray(state.lives) == 3)).any()
+    assert lost.all()
+    # The games went on: no game restarted its clock or its lives.
+    np.testing.assert_array_equal(state.env_state.time, WIDTH)
+    assert (np.asarray(state.lives) < 3).all()
 
 
 def test_a_mask_that_does_not_fit_is_refused():
