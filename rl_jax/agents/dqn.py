@@ -48,6 +48,10 @@ from rl_jax.agents.q_learning import (
     double_q_values,
     greedy_values,
     linear_schedule,
+    masked_argmax,
+    masked_double_q_values,
+    masked_epsilon_greedy,
+    masked_max,
     n_step_target,
     q_learning_loss,
 )
@@ -99,8 +103,13 @@ def loss_fn(
     net = make_network(config)
     q_tm1 = net.apply(online, batch.obs)
     q_t = net.apply(target, batch.next_obs)
-    if config.double:
+    legal_t = batch.next_legal  # for an env with an action mask: bootstrap over legal actions
+    if config.double and legal_t is not None:
+        v_t = masked_double_q_values(q_t, net.apply(online, batch.next_obs), legal_t)
+    elif config.double:
         v_t = double_q_values(q_t, net.apply(online, batch.next_obs))
+    elif legal_t is not None:
+        v_t = masked_max(q_t, legal_t)
     else:
         v_t = greedy_values(q_t)
     target_tm1 = n_step_target(batch.r_t, batch.discount_t, v_t)
@@ -177,19 +186,27 @@ def epsilon_at(env_steps: jax.Array, hparams: Hyperparams) -> jax.Array:
     )
 
 
-def greedy(params: optax.Params, obs: jax.Array, config: Config) -> jax.Array:
-    """Greedy actions ``[N]`` int32 of the Q-network ``params``."""
-    return greedy_actions(make_network(config), params, obs)
+def greedy(
+    params: optax.Params, obs: jax.Array, config: Config, legal: jax.Array | None = None
+) -> jax.Array:
+    """Greedy actions ``[N]`` int32 of the Q-network ``params`` (among the ``legal`` ones, bool
+    ``[N, A]``, for an env with an action mask)."""
+    return greedy_actions(make_network(config), params, obs, legal)
 
 
-def greedy_actions(net: networks.QNetwork, params: optax.Params, obs: jax.Array) -> jax.Array:
-    """Greedy actions ``[N]`` int32 of ``net`` at ``params``."""
+def greedy_actions(
+    net: networks.QNetwork, params: optax.Params, obs: jax.Array, legal: jax.Array | None = None
+) -> jax.Array:
+    """Greedy actions ``[N]`` int32 of ``net`` at ``params`` (legal ones, given ``legal``)."""
+    if legal is not None:
+        return masked_argmax(net.apply(params, obs), legal)
     return jnp.argmax(net.apply(params, obs), axis=-1).astype(jnp.int32)
 
 
-def act(agent: Agent, obs: jax.Array, config: Config) -> jax.Array:
-    """Greedy actions ``[N]`` int32: of the online network, or the checkpoint's."""
-    return greedy(policy_params(agent, config), obs, config)
+def act(agent: Agent, obs: jax.Array, config: Config, legal: jax.Array | None = None) -> jax.Array:
+    """Greedy actions ``[N]`` int32: of the online network, or the checkpoint's (legal ones,
+    given the env's mask ``legal``)."""
+    return greedy(policy_params(agent, config), obs, config, legal)
 
 
 def policy_params(agent: Agent, config: Config) -> optax.Params:
@@ -205,12 +222,17 @@ def explore(
     config: Config,
     hparams: Hyperparams,
     clock: Clock,
+    legal: jax.Array | None = None,
 ) -> tuple[jax.Array, jax.Array]:
     """``(actions, noise)``. Epsilon-greedy: a uniform action with probability epsilon(env steps),
-    else greedy (with ``policy_checkpoints``, the assessed copy's). Independent from step to step,
+    else greedy (with ``policy_checkpoints``, the assessed copy's); both among the ``legal``
+    actions (bool ``[N, A]``) for an env with an action mask. Independent from step to step,
     so the carried ``noise`` state is passed through."""
     net = make_network(config)
     acting = agent.checkpoint.assessed if config.policy_checkpoints else agent.online
+    if legal is not None:
+        epsilon = epsilon_at(clock.env_steps, hparams)
+        return masked_epsilon_greedy(key, net.apply(acting, obs), legal, epsilon), noise
     exploit = greedy_actions(net, acting, obs)
     coin_key, action_key = jax.random.split(key)
     uniform = jax.random.randint(action_key, exploit.shape, 0, net.num_actions, jnp.int32)
@@ -290,11 +312,12 @@ class DQN(offpolicy.OffPolicyAlgorithm[Config]):
         values = {**self.recipe(env_id, recipe).config, **overrides}
         return PixelConfig(env_id=env_id, **values)
 
-    def policy(self, state: TrainState, config: Config) -> Callable[[jax.Array], jax.Array]:
+    def policy(self, state: TrainState, config: Config) -> Callable[..., jax.Array]:
         """``obs -> action index`` of the greedy policy of one seed's state (with
-        ``policy_checkpoints``, the checkpoint's)."""
+        ``policy_checkpoints``, the checkpoint's); for an env with an action mask
+        ``(obs, legal) -> action index``, the best legal action."""
         params = policy_params(state.agent, config)
-        return lambda obs: greedy(params, obs, config)
+        return lambda obs, legal=None: greedy(params, obs, config, legal)
 
     def make_env(self, config: Config) -> envs.Environment:
         """The env the policy acts in (discretised actions), for rendering."""

@@ -15,6 +15,7 @@ import jax
 import jax.numpy as jnp
 
 from rl_jax import envs
+from rl_jax.envs.core.preprocessing import ACTION_MASK
 from rl_jax.training.replay import Transition
 
 
@@ -60,7 +61,10 @@ def example_transition(env: envs.Environment) -> Transition:
     obs = jnp.zeros(obs_space.shape, obs_space.dtype)
     action = jnp.zeros(action_space.shape, action_space.dtype)
     false = jnp.zeros((), jnp.bool_)
-    return Transition(obs, action, jnp.zeros((), jnp.float32), obs, false, false)
+    transition = Transition(obs, action, jnp.zeros((), jnp.float32), obs, false, false)
+    if envs.has_action_mask(env):  # the rows keep the next obs's legal actions
+        return transition._replace(next_legal=env.empty_info()[ACTION_MASK])
+    return transition
 
 
 def evaluate(
@@ -68,19 +72,27 @@ def evaluate(
 ) -> jax.Array:
     """Mean undiscounted return of ``num_eval_envs`` episodes of the deterministic policy
     ``act(agent, obs [N, ...], config)`` on fresh env copies (no exploration noise, no
-    autoreset); [] float32."""
+    autoreset); [] float32. For an env with an action mask it is
+    ``act(agent, obs, config, legal [N, A])``, so that it chooses among the legal actions."""
     env = make_eval_env(config)
+    if envs.has_action_mask(env):
+        masked_policy = lambda obs, legal: act(agent, obs, config, legal)  # noqa: E731
+        return jnp.mean(episode_returns(masked_policy, env, key, config.num_eval_envs))
     returns = episode_returns(lambda obs: act(agent, obs, config), env, key, config.num_eval_envs)
     return jnp.mean(returns)
 
 
 def episode_returns(
-    policy: Callable[[jax.Array], jax.Array], env: envs.Environment, key: jax.Array, episodes: int
+    policy: Callable[..., jax.Array], env: envs.Environment, key: jax.Array, episodes: int
 ) -> jax.Array:
     """Undiscounted returns ``[episodes]`` of ``policy`` (``obs [N, ...] -> actions [N, ...]``)
-    in ``env``: one fresh copy per episode, all stepped together until the last one ends."""
+    in ``env``: one fresh copy per episode, all stepped together until the last one ends. For
+    an env with a legal-action mask (``envs.has_action_mask``) the policy is called as
+    ``policy(obs, legal)``, ``legal`` the bool ``[N, A]`` mask of ``obs``."""
     reset_key, step_key = jax.random.split(key)
     env_state, ts = jax.vmap(env.reset)(jax.random.split(reset_key, episodes))
+    if envs.has_action_mask(env):
+        return _masked_episode_returns(policy, env, step_key, env_state, ts, episodes)
     alive = jnp.ones(episodes, jnp.bool_)
     total = jnp.zeros(episodes, jnp.float32)
 
@@ -97,4 +109,33 @@ def episode_returns(
         return time + 1, env_state, ts.obs, alive, total
 
     carry = (jnp.int32(0), env_state, ts.obs, alive, total)
+    return jax.lax.while_loop(running, step, carry)[-1]
+
+
+def _masked_episode_returns(
+    policy: Callable[[jax.Array, jax.Array], jax.Array],
+    env: envs.Environment,
+    step_key: jax.Array,
+    env_state: object,
+    ts: envs.TimeStep,
+    episodes: int,
+) -> jax.Array:
+    """``episode_returns`` for an env with an action mask: the policy sees each obs's mask."""
+    mask_key = ACTION_MASK
+
+    def running(carry):
+        time, _, _, _, alive, _ = carry
+        return jnp.logical_and(time < env.max_episode_steps, jnp.any(alive))
+
+    def step(carry):
+        time, env_state, obs, legal, alive, total = carry
+        keys = jax.random.split(jax.random.fold_in(step_key, time), episodes)
+        env_state, ts = jax.vmap(env.step)(keys, env_state, policy(obs, legal))
+        total = total + jnp.where(alive, ts.reward, 0.0)
+        alive = jnp.logical_and(alive, ~jnp.logical_or(ts.terminated, ts.truncated))
+        return time + 1, env_state, ts.obs, ts.info[mask_key], alive, total
+
+    alive = jnp.ones(episodes, jnp.bool_)
+    total = jnp.zeros(episodes, jnp.float32)
+    carry = (jnp.int32(0), env_state, ts.obs, ts.info[mask_key], alive, total)
     return jax.lax.while_loop(running, step, carry)[-1]

@@ -29,7 +29,7 @@ from flax import struct
 from flax.typing import ArrayPytree
 
 from rl_jax import envs
-from rl_jax.envs.core.wrappers import StatisticsState
+from rl_jax.envs.core.wrappers import ACTION_MASK, FINAL_ACTION_MASK, StatisticsState
 from rl_jax.training import replay
 from rl_jax.training.algorithm import ChunkMetrics, Hyperparams, PolicyFn, RecipeBook
 from rl_jax.training.episodes import evaluate, example_transition, make_eval_env, make_train_env
@@ -124,6 +124,9 @@ class TrainState:
     clock: Clock
     train_return: jax.Array  # [] float32, mean return of the episodes ended in the last chunk
     #                           that ended any (NaN until one does)
+    # [num_envs, A] bool, the legal actions of obs, for an env with an action mask (else None:
+    # no leaf, so the states of other envs stay as they were)
+    action_mask: jax.Array | None = None
 
 
 #: The learner's own types: its agent pytree, replay memory, ``Config`` and ``Hyperparams``.
@@ -153,8 +156,10 @@ class Learner(NamedTuple, Generic[AgentT, BufferT, ConfigT, HparamsT]):
     explore(agent, obs [N, ...], noise [N, ...], key, config, hparams, clock)
         -> (actions [N, ...], noise): acting after warm-up. ``noise`` is per-env exploration
         state carried from step to step (temporally correlated exploration; zeroed when an
-        episode ends); ``clock`` lets a schedule, e.g. epsilon, depend on progress.
-    act(agent, obs [N, ...], config) -> deterministic actions [N, ...]
+        episode ends); ``clock`` lets a schedule, e.g. epsilon, depend on progress. For an env
+        with a legal-action mask it is also given ``legal=`` (bool ``[N, A]``, of ``obs``).
+    act(agent, obs [N, ...], config) -> deterministic actions [N, ...]; for an env with an
+        action mask, ``act(agent, obs, config, legal)``.
     update(agent, buffer, key, config, hparams, update_index []) -> (agent, buffer, metrics)
         one gradient update (it samples the buffer itself, so prioritised replay can write
         priorities back); ``update_index`` counts updates before this one (unbatched);
@@ -219,6 +224,7 @@ def init(
         key=key,
         clock=Clock(env_steps=zero, updates=zero, iterations=zero),
         train_return=jnp.float32(jnp.nan),
+        action_mask=timestep.info[ACTION_MASK] if envs.has_action_mask(env) else None,
     )
 
 
@@ -235,13 +241,25 @@ def _choose_actions(
     key: PRNGKey,
     space: envs.Space,
 ) -> tuple[jax.Array, jax.Array]:
-    """``(actions, noise)``: uniformly random while warming up, then the learner's choice."""
+    """``(actions, noise)``: uniformly random while warming up, then the learner's choice
+    (over the legal actions only, for an env with an action mask)."""
     warming_up = state.clock.env_steps < config.learning_starts
+    legal = state.action_mask
+    if legal is None:
+        return jax.lax.cond(
+            warming_up,
+            lambda: (random_actions(space, key, config.num_envs), state.noise),
+            lambda: learner.explore(
+                state.agent, state.obs, state.noise, key, config, hparams, state.clock
+            ),
+        )
+    explore: Callable[..., tuple[jax.Array, jax.Array]] = learner.explore
+    uniform_legal = jnp.where(legal, 0.0, -jnp.inf)
     return jax.lax.cond(
         warming_up,
-        lambda: (random_actions(space, key, config.num_envs), state.noise),
-        lambda: learner.explore(
-            state.agent, state.obs, state.noise, key, config, hparams, state.clock
+        lambda: (jax.random.categorical(key, uniform_legal).astype(jnp.int32), state.noise),
+        lambda: explore(
+            state.agent, state.obs, state.noise, key, config, hparams, state.clock, legal=legal
         ),
     )
 
@@ -290,6 +308,8 @@ def train_iteration(
     transition = Transition(
         state.obs, actions, ts.reward, ts.info["final_obs"], ts.terminated, ts.truncated
     )
+    if state.action_mask is not None:
+        transition = transition._replace(next_legal=ts.info[FINAL_ACTION_MASK])
     buffer = learner.add_to_buffer(state.buffer, transition, config, hparams)
     done = jnp.logical_or(ts.terminated, ts.truncated)
     if learner.observe is not None:
@@ -313,6 +333,8 @@ def train_iteration(
         key=key,
         clock=clock,
     )
+    if state.action_mask is not None:
+        state = state.replace(action_mask=ts.info[ACTION_MASK])
     episodes = (jnp.sum(jnp.where(done, ts.info["episode_return"], 0.0)), jnp.sum(done))
     return state, (metrics, episodes)
 
@@ -377,9 +399,17 @@ class OffPolicyAlgorithm(RecipeBook[ConfigT]):
         return train_chunk(self.learner, state, config, hparams)
 
     def policy(self, state: TrainState, config: ConfigT) -> PolicyFn:
-        """``obs -> action`` (env units) of the deterministic policy of one seed's state."""
+        """``obs -> action`` (env units) of the deterministic policy of one seed's state; for an
+        env with an action mask, ``(obs, legal) -> action``, a legal one."""
         agent, act = state.agent, self.learner.act
-        return lambda obs: act(agent, obs, config)
+        act_legal: Callable[..., jax.Array] = act
+
+        def policy(obs: jax.Array, legal: jax.Array | None = None) -> jax.Array:
+            if legal is None:
+                return act(agent, obs, config)
+            return act_legal(agent, obs, config, legal)
+
+        return policy
 
     def make_env(self, config: ConfigT) -> envs.Environment:
         """The env the policy acts in: the config's own (``OffPolicyConfig.make_env``)."""

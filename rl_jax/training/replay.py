@@ -29,6 +29,9 @@ class Transition(NamedTuple):
     next_obs: jax.Array  # [*obs_shape]
     terminated: jax.Array  # [] bool: next_obs is terminal, its value is 0
     truncated: jax.Array  # [] bool: the time limit cut the episode; next_obs still has a value
+    # [A] bool, the legal actions of next_obs, kept only for an env with an action mask (None:
+    # no leaf, so the rows of other envs stay as they were)
+    next_legal: jax.Array | None = None
 
 
 #: the stored pytree (one item, no batch axis): a ``Transition`` for the off-policy learners
@@ -146,6 +149,7 @@ class NStepBatch(NamedTuple):
     r_t: jax.Array  # [B, n], 0 after the window's end
     discount_t: jax.Array  # [B, n], gamma (0 at termination), 1 after the window's end
     next_obs: jax.Array  # [B, *obs_shape], the true next obs of the window's last step
+    next_legal: jax.Array | None = None  # [B, A] bool, its legal actions (masked envs only)
 
 
 def n_step_batch(window: Transition, stored: jax.Array, gamma) -> NStepBatch:
@@ -155,14 +159,18 @@ def n_step_batch(window: Transition, stored: jax.Array, gamma) -> NStepBatch:
     included = jnp.logical_and(stored, ~ended_before)
     not_terminal = 1.0 - window.terminated.astype(jnp.float32)
     last = jnp.sum(included, axis=1) - 1
+
+    def at_last(leaf: jax.Array) -> jax.Array:
+        return jnp.take_along_axis(leaf, last.reshape((-1,) + (1,) * (leaf.ndim - 1)), axis=1)[:, 0]
+
+    next_legal = None if window.next_legal is None else at_last(window.next_legal)
     return NStepBatch(
         obs=window.obs[:, 0],
         action=window.action[:, 0],
         r_t=jnp.where(included, window.reward, 0.0),
         discount_t=jnp.where(included, gamma * not_terminal, 1.0),
-        next_obs=jnp.take_along_axis(
-            window.next_obs, last.reshape((-1,) + (1,) * (window.next_obs.ndim - 1)), axis=1
-        )[:, 0],
+        next_obs=at_last(window.next_obs),
+        next_legal=next_legal,
     )
 
 
