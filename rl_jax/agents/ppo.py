@@ -24,6 +24,8 @@ the recipes in ``ppo_recipes``.
 
 from __future__ import annotations
 
+import dataclasses
+from collections.abc import Callable
 from typing import Any, NamedTuple
 
 import jax
@@ -45,6 +47,7 @@ from rl_jax.agents.ppo_networks import (
     value,
 )
 from rl_jax.agents.ppo_recipes import RECIPES
+from rl_jax.envs.core.preprocessing import ACTION_MASK
 from rl_jax.envs.core.wrappers import StatisticsState
 from rl_jax.training import episodes, normalization, validation
 from rl_jax.training.algorithm import ChunkMetrics, RecipeBook
@@ -84,6 +87,7 @@ class TrainState:
     discounted_return: jax.Array | None = (
         None  # normalize_rewards: [num_envs], each env's running return
     )
+    action_mask: jax.Array | None = None  # [num_envs, A] bool, legal actions of obs (masked envs)
 
 
 class Rollout(NamedTuple):
@@ -98,6 +102,7 @@ class Rollout(NamedTuple):
     terminated: jax.Array  # bool
     truncated: jax.Array  # bool
     episode_return: jax.Array  # the return of an episode that ended at this step, else 0
+    legal: jax.Array | None = None  # bool [..., A], the legal actions of obs (masked envs)
 
 
 class Batch(NamedTuple):
@@ -109,12 +114,20 @@ class Batch(NamedTuple):
     value: jax.Array  # at collection (value clipping's reference)
     advantage: jax.Array
     target: jax.Array  # the lambda-return, advantage + value
+    legal: jax.Array | None = None  # bool [B, A], the legal actions of obs (masked envs)
 
 
 # ---- the loss -------------------------------------------------------------------------------
-def loss_fn(params, batch: Batch, hparams: Hyperparams, config: Config, obs_stats=None):
-    """``(loss, metrics)`` of one minibatch."""
-    policy = outputs(params, obs_stats, batch.obs, config)
+def loss_fn(
+    params: Params,
+    batch: Batch,
+    hparams: Hyperparams,
+    config: Config,
+    obs_stats: RunningStats | None = None,
+) -> tuple[jax.Array, dict[str, jax.Array]]:
+    """``(loss, metrics)`` of one minibatch (log-probabilities and entropy over the legal
+    actions where the env has a mask)."""
+    policy = outputs(params, obs_stats, batch.obs, config, batch.legal)
     log_pi = log_prob(policy, batch.action)
     advantage = batch.advantage
     if config.normalize_advantages:
@@ -133,23 +146,32 @@ def loss_fn(params, batch: Batch, hparams: Hyperparams, config: Config, obs_stat
 
 
 # ---- acting and rollouts ----------------------------------------------------------------------
-def act(agent: Agent, obs: jax.Array, config: Config) -> jax.Array:
-    """The deterministic policy: the Gaussian's mean (clipped) or the most likely action."""
+def act(agent: Agent, obs: jax.Array, config: Config, legal: jax.Array | None = None) -> jax.Array:
+    """The deterministic policy: the Gaussian's mean (clipped) or the most likely (legal,
+    given the env's mask ``legal``) action."""
     space = episodes.make_eval_env(config).action_space()
-    return deterministic_action(outputs(agent.params, agent.obs_stats, obs, config), space)
+    return deterministic_action(outputs(agent.params, agent.obs_stats, obs, config, legal), space)
 
 
-def collect(agent: Agent, env_state, obs, key, config: Config):
-    """``(env_state, obs, Rollout)`` after ``num_steps`` steps of every env. Each step also
-    values its true next observation, which differs from the next step's observation where an
-    episode ended (autoreset), so that truncations can bootstrap."""
+def collect(
+    agent: Agent,
+    env_state: StatisticsState,
+    obs: jax.Array,
+    key: jax.Array,
+    config: Config,
+    legal: jax.Array | None = None,
+) -> tuple[StatisticsState, jax.Array, jax.Array | None, Rollout]:
+    """``(env_state, obs, legal, Rollout)`` after ``num_steps`` steps of every env. Each step
+    also values its true next observation, which differs from the next step's observation where
+    an episode ended (autoreset), so that truncations can bootstrap. Where the env has an action
+    mask, ``legal`` holds the legal actions of ``obs`` and the policy draws only those."""
     env = episodes.make_train_env(config)
     space = env.action_space()
 
     def step(carry, step_key):
-        env_state, obs = carry
+        env_state, obs, legal = carry
         action_key, env_key = jax.random.split(step_key)
-        policy = outputs(agent.params, agent.obs_stats, obs, config)
+        policy = outputs(agent.params, agent.obs_stats, obs, config, legal)
         action = sample_action(policy, action_key)
         keys = jax.random.split(env_key, config.num_envs)
         env_state, ts = jax.vmap(env.step)(keys, env_state, to_env_action(action, space))
@@ -165,15 +187,19 @@ def collect(agent: Agent, env_state, obs, key, config: Config):
             terminated=ts.terminated,
             truncated=ts.truncated,
             episode_return=jnp.where(ended, ts.info["episode_return"], 0.0),
+            legal=legal,
         )
-        return (env_state, ts.obs), row
+        next_legal = None if legal is None else ts.info[ACTION_MASK]
+        return (env_state, ts.obs, next_legal), row
 
     keys = jax.random.split(key, config.num_steps)
-    (env_state, obs), rollout = jax.lax.scan(step, (env_state, obs), keys)
-    return env_state, obs, rollout
+    (env_state, obs, legal), rollout = jax.lax.scan(step, (env_state, obs, legal), keys)
+    return env_state, obs, legal, rollout
 
 
-def targets(rollout: Rollout, state: TrainState, hparams: Hyperparams, config: Config):
+def targets(
+    rollout: Rollout, state: TrainState, hparams: Hyperparams, config: Config
+) -> tuple[jax.Array, jax.Array, TrainState]:
     """``(advantages [T, N], lambda-returns [T, N], state with new reward statistics)``."""
     ended = jnp.logical_or(rollout.terminated, rollout.truncated)
     r_t = rollout.r_t
@@ -181,7 +207,7 @@ def targets(rollout: Rollout, state: TrainState, hparams: Hyperparams, config: C
         g_t, carry = losses.discounted_returns(r_t, ended, state.discounted_return, hparams.gamma)
         assert state.return_stats is not None  # kept with normalize_rewards
         r_t, stats = losses.scale_rewards(r_t, g_t, state.return_stats, hparams.reward_clip)
-        state = state.replace(return_stats=stats, discounted_return=carry)
+        state = dataclasses.replace(state, return_stats=stats, discounted_return=carry)
     discount_t = hparams.gamma * (1.0 - rollout.terminated.astype(jnp.float32))
     trace_t = hparams.gamma * hparams.gae_lambda * (1.0 - ended.astype(jnp.float32))
     advantage = losses.generalized_advantage_estimates(
@@ -191,7 +217,9 @@ def targets(rollout: Rollout, state: TrainState, hparams: Hyperparams, config: C
 
 
 # ---- updates ----------------------------------------------------------------------------------
-def gradient_step(agent: Agent, batch: Batch, hparams: Hyperparams, config: Config, rate):
+def gradient_step(
+    agent: Agent, batch: Batch, hparams: Hyperparams, config: Config, rate: jax.Array
+) -> tuple[Agent, dict[str, jax.Array]]:
     """One Adam step on a minibatch at ``rate``, the gradient clipped by its global norm."""
     grads, metrics = jax.grad(loss_fn, has_aux=True)(
         agent.params, batch, hparams, config, agent.obs_stats
@@ -200,10 +228,17 @@ def gradient_step(agent: Agent, batch: Batch, hparams: Hyperparams, config: Conf
     params, opt_state = injected_step(
         optax.adam, grads, agent.opt_state, agent.params, learning_rate=rate, eps=hparams.adam_eps
     )
-    return agent.replace(params=params, opt_state=opt_state), metrics
+    return dataclasses.replace(agent, params=params, opt_state=opt_state), metrics
 
 
-def update(agent: Agent, batch: Batch, key, hparams: Hyperparams, config: Config, rate):
+def update(
+    agent: Agent,
+    batch: Batch,
+    key: jax.Array,
+    hparams: Hyperparams,
+    config: Config,
+    rate: jax.Array,
+) -> tuple[Agent, dict[str, jax.Array]]:
     """``num_epochs`` passes over ``batch [B, ...]``, each in ``num_minibatches`` shuffled
     minibatches; metrics are the means over all steps."""
     count = config.num_minibatches
@@ -217,24 +252,41 @@ def update(agent: Agent, batch: Batch, key, hparams: Hyperparams, config: Config
     return agent, jax.tree.map(jnp.mean, metrics)
 
 
-def explained_variance(v_tm1, target) -> jax.Array:
+def explained_variance(v_tm1: jax.Array, target: jax.Array) -> jax.Array:
     """``1 - var(target - v) / var(target)``: 1 for a perfect critic, 0 for a constant one."""
     return 1.0 - jnp.var(target - v_tm1) / jnp.maximum(jnp.var(target), 1e-8)
 
 
-def train_iteration(state: TrainState, config: Config, hparams: Hyperparams):
+IterationMetrics = tuple[dict[str, jax.Array], tuple[jax.Array, jax.Array]]
+
+
+def train_iteration(
+    state: TrainState, config: Config, hparams: Hyperparams
+) -> tuple[TrainState, IterationMetrics]:
     key, collect_key, update_key = jax.random.split(state.key, 3)
-    env_state, obs, rollout = collect(state.agent, state.env_state, state.obs, collect_key, config)
+    env_state, obs, legal, rollout = collect(
+        state.agent, state.env_state, state.obs, collect_key, config, state.action_mask
+    )
     advantage, target, state = targets(rollout, state, hparams, config)
     flat = lambda x: x.reshape(config.batch_size, *x.shape[2:])  # noqa: E731
-    batch = Batch(rollout.obs, rollout.action, rollout.log_mu, rollout.v_tm1, advantage, target)
+    batch = Batch(
+        rollout.obs,
+        rollout.action,
+        rollout.log_mu,
+        rollout.v_tm1,
+        advantage,
+        target,
+        rollout.legal,
+    )
     rate = linearly_decayed(hparams.learning_rate, state.clock.env_steps, hparams.lr_decay_steps)
     agent, metrics = update(
         state.agent, jax.tree.map(flat, batch), update_key, hparams, config, rate
     )
     if agent.obs_stats is not None:
         mask = jnp.ones(rollout.r_t.shape, jnp.float32)
-        agent = agent.replace(obs_stats=normalization.update(agent.obs_stats, rollout.obs, mask))
+        agent = dataclasses.replace(
+            agent, obs_stats=normalization.update(agent.obs_stats, rollout.obs, mask)
+        )
     metrics = {
         **metrics,
         "learning_rate": rate,
@@ -245,7 +297,11 @@ def train_iteration(state: TrainState, config: Config, hparams: Hyperparams):
         updates=state.clock.updates + config.num_epochs * config.num_minibatches,
         iterations=state.clock.iterations + 1,
     )
-    state = state.replace(agent=agent, env_state=env_state, obs=obs, key=key, clock=clock)
+    state = dataclasses.replace(
+        state, agent=agent, env_state=env_state, obs=obs, key=key, clock=clock
+    )
+    if legal is not None:
+        state = dataclasses.replace(state, action_mask=legal)
     ended = jnp.logical_or(rollout.terminated, rollout.truncated)
     return state, (metrics, (jnp.sum(rollout.episode_return), jnp.sum(ended)))
 
@@ -267,13 +323,19 @@ def init(key: jax.Array, config: Config, hparams: Hyperparams) -> TrainState:
         clock=Clock(env_steps=jnp.int32(0), updates=jnp.int32(0), iterations=jnp.int32(0)),
         train_return=jnp.float32(jnp.nan),
     )
+    if envs.has_action_mask(env):
+        state = dataclasses.replace(state, action_mask=ts.info[ACTION_MASK])
     if config.normalize_rewards:
         zeros = jnp.zeros(config.num_envs, jnp.float32)
-        state = state.replace(return_stats=normalization.init(1), discounted_return=zeros)
+        state = dataclasses.replace(
+            state, return_stats=normalization.init(1), discounted_return=zeros
+        )
     return state
 
 
-def train_chunk(state: TrainState, config: Config, hparams: Hyperparams):
+def train_chunk(
+    state: TrainState, config: Config, hparams: Hyperparams
+) -> tuple[TrainState, ChunkMetrics]:
     """``iterations_per_chunk`` iterations, then one evaluation. Pure; jit outside."""
     state, (metrics, (return_sums, counts)) = jax.lax.scan(
         lambda s, _: train_iteration(s, config, hparams),
@@ -287,7 +349,7 @@ def train_chunk(state: TrainState, config: Config, hparams: Hyperparams):
     train_return = jnp.where(
         count > 0, jnp.sum(return_sums) / jnp.maximum(count, 1), state.train_return
     )
-    state = state.replace(key=key, train_return=train_return)
+    state = dataclasses.replace(state, key=key, train_return=train_return)
     return state, ChunkMetrics(
         env_steps=state.clock.env_steps,
         updates=state.clock.updates,
@@ -322,15 +384,18 @@ class PPO(RecipeBook):
     def init(self, key: jax.Array, config: Config, hparams: Hyperparams) -> TrainState:
         return init(key, config, hparams)
 
-    def train_chunk(self, state: TrainState, config: Config, hparams: Hyperparams):
+    def train_chunk(
+        self, state: TrainState, config: Config, hparams: Hyperparams
+    ) -> tuple[TrainState, ChunkMetrics]:
         return train_chunk(state, config, hparams)
 
     def env_steps_per_chunk(self, config: Config) -> int:
         return config.batch_size * config.iterations_per_chunk
 
-    def policy(self, state: TrainState, config: Config):
-        """``obs -> action`` of the deterministic policy of one seed's state."""
-        return lambda obs: act(state.agent, obs, config)
+    def policy(self, state: TrainState, config: Config) -> Callable[..., jax.Array]:
+        """``obs -> action`` of the deterministic policy of one seed's state; for an env with
+        an action mask, ``(obs, legal) -> action``, the most likely legal action."""
+        return lambda obs, legal=None: act(state.agent, obs, config, legal)
 
     def make_env(self, config: Config) -> envs.Environment:
         return episodes.make_eval_env(config)

@@ -10,20 +10,25 @@ the PPO implementation studies (Engstrom et al. 2020; Andrychowicz et al. 2021).
 Actions: a categorical policy for ``Discrete`` spaces; for ``Box`` spaces a diagonal Gaussian
 whose log-std is one learned parameter per action dimension, independent of the state. The
 Gaussian samples unbounded actions; the env step gets them clipped to the bounds, while the
-log-probability (and so the ratio) is that of the unclipped sample.
+log-probability (and so the ratio) is that of the unclipped sample. For an env with a
+legal-action mask the categorical is over the legal actions alone (``outputs(..., legal)``).
 """
 
 from __future__ import annotations
 
 import functools
+from typing import cast
 
 import flax.linen as nn
 import jax
 import jax.numpy as jnp
 
 from rl_jax import envs
+from rl_jax.agents.policy_gradient import masked_logits
 from rl_jax.agents.ppo_config import Config, PixelConfig
 from rl_jax.training import conv, episodes, networks, normalization
+from rl_jax.training.networks import Params
+from rl_jax.training.normalization import RunningStats
 
 HIDDEN_GAIN = 2.0**0.5
 POLICY_GAIN = 0.01
@@ -116,25 +121,40 @@ def make_network(config: Config) -> ActorCritic:
     )
 
 
-def outputs(params, obs_stats, obs, config: Config) -> dict[str, jax.Array]:
-    """The network on observations standardised by ``obs_stats`` (``None``: as they are)."""
-    return make_network(config).apply(params, normalization.normalize(obs_stats, obs))
+def outputs(
+    params: Params,
+    obs_stats: RunningStats | None,
+    obs: jax.Array,
+    config: Config,
+    legal: jax.Array | None = None,
+) -> dict[str, jax.Array]:
+    """The network on observations standardised by ``obs_stats`` (``None``: as they are). With
+    ``legal`` (bool ``[..., A]``, the env's action mask) the categorical policy is the softmax
+    over the legal actions only (``masked_logits``): every draw, log-probability, entropy and
+    most likely action of it is then legal."""
+    net = make_network(config)
+    policy = cast(dict[str, jax.Array], net.apply(params, normalization.normalize(obs_stats, obs)))
+    if legal is None:
+        return policy
+    return {**policy, "logits": masked_logits(policy["logits"], legal)}
 
 
-def value(params, obs_stats, obs, config: Config) -> jax.Array:
+def value(
+    params: Params, obs_stats: RunningStats | None, obs: jax.Array, config: Config
+) -> jax.Array:
     """The critic alone on (standardised) observations: ``[...]``."""
     net = make_network(config)
     return net.apply(params, normalization.normalize(obs_stats, obs), method=ActorCritic.value)
 
 
-def sample_action(policy: dict[str, jax.Array], key) -> jax.Array:
+def sample_action(policy: dict[str, jax.Array], key: jax.Array) -> jax.Array:
     """A draw from the policy (unclipped for the Gaussian)."""
     if "logits" in policy:
         return jax.random.categorical(key, policy["logits"]).astype(jnp.int32)
     return policy["mean"] + policy["std"] * jax.random.normal(key, policy["mean"].shape)
 
 
-def to_env_action(action: jax.Array, space) -> jax.Array:
+def to_env_action(action: jax.Array, space: envs.Space) -> jax.Array:
     """What the env steps with: a Gaussian draw clipped to the bounds; an index as it is."""
     if isinstance(space, envs.Box):
         leading = (1,) * (action.ndim - len(space.shape))
@@ -143,7 +163,7 @@ def to_env_action(action: jax.Array, space) -> jax.Array:
     return action
 
 
-def deterministic_action(policy: dict[str, jax.Array], space) -> jax.Array:
+def deterministic_action(policy: dict[str, jax.Array], space: envs.Space) -> jax.Array:
     """The most likely action (the Gaussian's mean, clipped to the bounds)."""
     if "logits" in policy:
         return jnp.argmax(policy["logits"], axis=-1).astype(jnp.int32)

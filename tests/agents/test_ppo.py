@@ -219,7 +219,7 @@ def test_rollout_steps_the_env_with_clipped_actions_and_keeps_unclipped_log_prob
     hparams = ppo.default_hyperparams()
     state = ppo.init(jax.random.key(0), config, hparams)
     collect = jax.jit(ppo.collect, static_argnums=4)
-    _, _, rollout = collect(state.agent, state.env_state, state.obs, jax.random.key(1), config)
+    rollout = collect(state.agent, state.env_state, state.obs, jax.random.key(1), config)[-1]
     action = np.asarray(rollout.action)
     assert np.any(np.abs(action) > 2.0)  # beyond Pendulum's torque bounds of +-2
     out = ppo_networks.outputs(state.agent.params, None, rollout.obs, config)
@@ -239,7 +239,7 @@ def test_rollout_values_the_true_final_observation_at_truncation():
     config = ppo.default_config("rl_jax/ProbeTruncation-v0", num_envs=16, num_steps=4)
     state = ppo.init(jax.random.key(0), config, ppo.default_hyperparams())
     collect = jax.jit(ppo.collect, static_argnums=4)
-    _, _, rollout = collect(state.agent, state.env_state, state.obs, jax.random.key(1), config)
+    rollout = collect(state.agent, state.env_state, state.obs, jax.random.key(1), config)[-1]
     assert np.all(np.asarray(rollout.truncated)) and not np.any(np.asarray(rollout.terminated))
     final_obs = 1.0 - rollout.obs  # the probe flips its observation, then the time limit cuts
     expected = ppo_networks.value(state.agent.params, None, final_obs, config)
