@@ -31,6 +31,7 @@ import socket
 import subprocess
 import sys
 from collections.abc import Callable, Mapping
+from pathlib import Path
 
 import jax
 
@@ -239,7 +240,7 @@ def initialize(
     limit = int(timeout)
     address = coordinator_address(cluster)
     if address is not None:
-        handshake(cluster, address, timeout, agreed or join.fingerprint([]))
+        address = handshake(cluster, address, timeout, agreed or join.fingerprint([]))
     watchdog = processes.Watchdog(timeout, lambda: _join_failed(cluster, timeout))
     with watchdog:
         jax.distributed.initialize(
@@ -285,32 +286,59 @@ def first_node(node_list: str) -> str:
     return node_list[:end] + suffix[:stop]
 
 
-def handshake(cluster: Cluster, address: str, timeout: float, agreed: join.Fingerprint) -> None:
+def handshake(cluster: Cluster, address: str, timeout: float, agreed: join.Fingerprint) -> str:
     """The processes' agreement before jax joins them (``rl_jax.run.join``): one line
     (``UsageError``) on any disagreement, a duplicate rank or a port held by another job;
-    process 0's port is checked before jax binds it."""
+    process 0's port is checked before jax binds it. Returns the coordinator's address: under
+    SLURM on a derived port, process 0 moves to a free port when it finds its own held and
+    tells the others through a file beside the run directory (named by job, step and restart).
+    """
     host, _, port_text = address.rpartition(":")
     host, port = host.strip("[]"), int(port_text)
     rank, count = cluster.process_id, cluster.num_processes
+    derived = cluster.source == "slurm" and cluster.coordinator is None
+    derived = derived and "JAX_COORDINATOR_PORT" not in os.environ
+    moved_to = join.port_file(agreed.resolved, agreed.job) if derived else None
     try:
         if rank == 0:
-            try:
-                join.lead(port, count, agreed, timeout)
-                return
-            except join.PortTaken:
-                # held here: by another process 0 of this run (a duplicate rank), or not ours
-                join.follow("localhost", port, 0, count, agreed, join.SEE_SECONDS)
+            port = _lead(port, count, agreed, timeout, moved_to)
         else:
-            join.follow(host, port, rank, count, agreed, timeout)
+            moved = None if moved_to is None else lambda: join.read_port(moved_to)
+            port = join.follow(host, port, rank, count, agreed, timeout, moved)
     except join.JoinError as error:
         raise UsageError(str(error)) from None
     except TimeoutError:
-        if rank == 0:
-            raise UsageError(
+        processes.give_up(_join_failed(cluster, timeout))
+    return f"{host}:{port}"
+
+
+def _lead(
+    port: int, count: int, agreed: join.Fingerprint, timeout: float, moved_to: Path | None
+) -> int:
+    """Process 0's side of the handshake; returns the port it held."""
+    try:
+        join.lead(port, count, agreed, timeout)
+        return port
+    except join.PortTaken:
+        pass
+    try:  # held here: by another process 0 of this run (a duplicate rank), or not ours
+        join.follow("localhost", port, 0, count, agreed, join.SEE_SECONDS)
+    except join.JoinError as error:
+        if not error.held or moved_to is None:
+            raise
+    except TimeoutError:
+        if moved_to is None:
+            raise join.JoinError(
                 f"the coordinator port {port} is held on this host ({socket.gethostname()}) by "
                 "another job or program; choose another port for this run"
             ) from None
-        processes.give_up(_join_failed(cluster, timeout))
+    assert moved_to is not None
+    try:
+        elsewhere = join.move_port(moved_to)
+        join.lead(elsewhere, count, agreed, timeout)
+    finally:
+        moved_to.unlink(missing_ok=True)
+    return elsewhere
 
 
 def _join_failed(cluster: Cluster, timeout: float) -> str:

@@ -28,7 +28,7 @@ import os
 import secrets
 import socket
 import time
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from pathlib import Path
 
 #: The longest a process waits to see process 0's file, or for one line of the handshake.
@@ -37,10 +37,18 @@ SEE_SECONDS = 5.0
 LINGER_SECONDS = 5.0
 #: The prefix of the file that tells whether the run directory is shared.
 NONCE_PREFIX = ".rl_jax-join-"
+#: The prefix of the file with the port process 0 moved to, and how long the others wait for it.
+PORT_PREFIX = ".rl_jax-port-"
+MOVE_SECONDS = 20.0
 
 
 class JoinError(Exception):
-    """One line on why the processes cannot run together."""
+    """One line on why the processes cannot run together; ``held``: the port answered, but not
+    as this run's process 0."""
+
+    def __init__(self, message: str, held: bool = False):
+        super().__init__(message)
+        self.held = held
 
 
 @dataclasses.dataclass(frozen=True)
@@ -110,7 +118,7 @@ def disagreement(rank: int, count: int, mine: Fingerprint, hello: Mapping[str, o
             f"--num-processes differs between the processes: {count} on process {rank}, "
             f"{hello['count']} on process {other}; give every process the same"
         )
-    theirs = Fingerprint(**dict(hello["fingerprint"]))  # type: ignore[call-overload]
+    theirs = _fingerprint_of(hello)
     if theirs.seeds != mine.seeds:
         return (
             f"--seeds differs between the processes: {mine.seeds} on process {rank}, "
@@ -139,6 +147,19 @@ def disagreement(rank: int, count: int, mine: Fingerprint, hello: Mapping[str, o
             "put --out on a file system that every process sees"
         )
     return ""
+
+
+def _fingerprint_of(hello: Mapping[str, object]) -> Fingerprint:
+    given = hello.get("fingerprint")
+    fields: Mapping[str, object] = given if isinstance(given, dict) else {}
+
+    def text(name: str) -> str | None:
+        value = fields.get(name)
+        return None if value is None else str(value)
+
+    return Fingerprint(
+        text("command") or "", text("seeds"), text("out"), text("resolved") or "", text("job") or ""
+    )
 
 
 def nearest(path: str) -> Path:
@@ -256,8 +277,7 @@ def _admit(
     if hello is None or "rank" not in hello:
         connection.close()  # not one of ours (a port scan, a process that went away)
         return ""
-    fingerprint_of = dict(hello.get("fingerprint") or {})  # type: ignore[call-overload]
-    if fingerprint_of.get("job") != mine.job:
+    if _fingerprint_of(hello).job != mine.job:
         _send(connection, {"other_job": mine.job})
         connection.close()
         return ""
@@ -289,35 +309,101 @@ def _refuse_all(
         joined[-len(joined) - 100] = connection
 
 
-def follow(host: str, port: int, rank: int, count: int, mine: Fingerprint, timeout: float) -> None:
+def follow(
+    host: str,
+    port: int,
+    rank: int,
+    count: int,
+    mine: Fingerprint,
+    timeout: float,
+    moved: Callable[[], int | None] | None = None,
+) -> int:
     """Any other process's side (and a process 0 that found its port held): say who it is to
-    process 0 at ``host:port`` and wait for its answer. ``JoinError`` with the line to print;
-    ``TimeoutError`` when process 0 did not answer within ``timeout``."""
+    process 0 at ``host:port`` and wait for its answer; returns the port it joined at.
+    ``moved`` tells the port process 0 moved to when it found its own held (None: not moved).
+    ``JoinError`` with the line to print; ``TimeoutError`` when process 0 did not answer
+    within ``timeout``."""
     deadline = time.monotonic() + timeout
     while True:
+        port = (moved and moved()) or port
         try:
             connection = socket.create_connection((host, port), timeout=SEE_SECONDS)
-            break
         except OSError:
             if time.monotonic() > deadline:
                 raise TimeoutError() from None
             time.sleep(0.25)
+            continue
+        try:
+            _greet(connection, host, port, rank, count, mine, deadline)
+            return port
+        except JoinError as error:
+            if not error.held or moved is None:
+                raise
+            port = _moved_from(port, moved, error)
+
+
+def _moved_from(port: int, moved: Callable[[], int | None], error: JoinError) -> int:
+    """The port process 0 moved to from ``port``, once it says so (within ``MOVE_SECONDS``);
+    ``error`` if it does not."""
+    deadline = time.monotonic() + MOVE_SECONDS
+    while time.monotonic() < deadline:
+        elsewhere = moved()
+        if elsewhere is not None and elsewhere != port:
+            return elsewhere
+        time.sleep(0.25)
+    raise error
+
+
+def _greet(
+    connection: socket.socket,
+    host: str,
+    port: int,
+    rank: int,
+    count: int,
+    mine: Fingerprint,
+    deadline: float,
+) -> None:
     with connection:
         greeting = _read_line(connection, SEE_SECONDS)
         if greeting is None or greeting.get("rl_jax") != 1:
-            raise JoinError(_held(host, port))
+            raise JoinError(_held(host, port), held=True)
         sees = _sees(str(greeting["folder"]), str(greeting["nonce"]))
         hello = {"rank": rank, "count": count, "fingerprint": dataclasses.asdict(mine)}
         _send(connection, {**hello, "sees": sees})
         answer = _read_line(connection, max(deadline - time.monotonic(), SEE_SECONDS))
     if answer is None:
-        raise JoinError(
-            "process 0 stopped during the handshake of the processes (its output says why)"
-        )
+        raise JoinError("process 0 stopped while the processes joined (its output says why)")
     if "other_job" in answer:
-        raise JoinError(_held(host, port, f" (process 0 of SLURM job step {answer['other_job']})"))
+        who = f" (process 0 of SLURM job step {answer['other_job']})"
+        raise JoinError(_held(host, port, who), held=True)
     if "error" in answer:
         raise JoinError(str(answer["error"]))
+
+
+# ---- a port moved: process 0 found its own held (SLURM) --------------------------------------
+
+
+def port_file(resolved: str, job: str) -> Path:
+    """Where process 0 writes the port it moved to: beside the run directory, named by job."""
+    return nearest(resolved) / f"{PORT_PREFIX}{job}"
+
+
+def read_port(path: Path) -> int | None:
+    """The port in ``path``; None while there is none."""
+    try:
+        text = path.read_text().strip()
+    except OSError:
+        return None
+    return int(text) if text.isdigit() else None
+
+
+def move_port(path: Path) -> int:
+    """A free port, written to ``path`` for the other processes."""
+    with socket.socket() as probe:
+        probe.bind(("", 0))
+        port = probe.getsockname()[1]
+    path.write_text(f"{port}\n")
+    return port
 
 
 def _held(host: str, port: int, who: str = "") -> str:

@@ -233,3 +233,45 @@ def test_a_second_job_on_the_port_stops_and_the_first_finishes(tmp_path):
         out, err = process.communicate(timeout=300)
         assert process.returncode == 0, err
     assert (tmp_path / "first" / "results.txt").exists() and not (tmp_path / "second").exists()
+
+
+def slurm_task(job: str, rank: int) -> dict[str, str]:
+    """The variables of one task of a two-task SLURM step on this host."""
+    return {
+        "SLURM_JOB_ID": job,
+        "SLURM_STEP_ID": "0",
+        "SLURM_STEP_NODELIST": "localhost",
+        "SLURM_NTASKS": "2",
+        "SLURM_PROCID": str(rank),
+        "SLURM_LOCALID": str(rank),
+    }
+
+
+@pytest.mark.slow
+def test_under_slurm_a_held_port_moves_and_the_others_follow_through_the_run_directory(tmp_path):
+    """The port derived from the job and step is held (another job's step, say): process 0
+    takes a free one and writes it beside the run directory; the other reads it and joins."""
+    job = next(
+        str(job)
+        for job in range(1000, 5000)
+        if join.port_is_free(distributed.slurm_port({"SLURM_JOB_ID": str(job)}))
+    )
+    port = distributed.slurm_port({"SLURM_JOB_ID": job})
+    with socket.create_server(("", port)):
+        started = [
+            subprocess.Popen(
+                [sys.executable, str(SCRIPT), *TINY, "--seeds", "2", "--out", "run"]
+                + ["--distributed"],
+                cwd=tmp_path,
+                env={**ENV, "RL_JAX_CPU_DEVICES": "1", **slurm_task(job, rank)},
+                stdout=subprocess.PIPE,
+                stderr=subprocess.PIPE,
+                text=True,
+            )
+            for rank in (0, 1)
+        ]
+        ended = [process.communicate(timeout=300) for process in started]
+    for process, (_out, err) in zip(started, ended, strict=True):
+        assert process.returncode == 0, err
+    assert (tmp_path / "run" / "results.txt").exists()
+    assert not list(tmp_path.glob(".rl_jax-*"))  # the port's file is gone with the handshake
