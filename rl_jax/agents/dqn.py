@@ -31,7 +31,7 @@ from __future__ import annotations
 
 import functools
 from collections.abc import Callable
-from typing import Any
+from typing import Any, cast
 
 import jax
 import jax.numpy as jnp
@@ -102,10 +102,11 @@ def loss_fn(
     stopped-gradient target."""
     net = make_network(config)
     q_tm1 = net.apply(online, batch.obs)
-    q_t = net.apply(target, batch.next_obs)
+    q_t = cast(jax.Array, net.apply(target, batch.next_obs))
     legal_t = batch.next_legal  # for an env with an action mask: bootstrap over legal actions
     if config.double and legal_t is not None:
-        v_t = masked_double_q_values(q_t, net.apply(online, batch.next_obs), legal_t)
+        q_t_online = cast(jax.Array, net.apply(online, batch.next_obs))
+        v_t = masked_double_q_values(q_t, q_t_online, legal_t)
     elif config.double:
         v_t = double_q_values(q_t, net.apply(online, batch.next_obs))
     elif legal_t is not None:
@@ -199,7 +200,7 @@ def greedy_actions(
 ) -> jax.Array:
     """Greedy actions ``[N]`` int32 of ``net`` at ``params`` (legal ones, given ``legal``)."""
     if legal is not None:
-        return masked_argmax(net.apply(params, obs), legal)
+        return masked_argmax(cast(jax.Array, net.apply(params, obs)), legal)
     return jnp.argmax(net.apply(params, obs), axis=-1).astype(jnp.int32)
 
 
@@ -232,7 +233,8 @@ def explore(
     acting = agent.checkpoint.assessed if config.policy_checkpoints else agent.online
     if legal is not None:
         epsilon = epsilon_at(clock.env_steps, hparams)
-        return masked_epsilon_greedy(key, net.apply(acting, obs), legal, epsilon), noise
+        q = cast(jax.Array, net.apply(acting, obs))
+        return masked_epsilon_greedy(key, q, legal, epsilon), noise
     exploit = greedy_actions(net, acting, obs)
     coin_key, action_key = jax.random.split(key)
     uniform = jax.random.randint(action_key, exploit.shape, 0, net.num_actions, jnp.int32)

@@ -46,6 +46,7 @@ class FrameRow(NamedTuple):
     next_frame: jax.Array  # [H, W] uint8, the newest frame of the true next observation
     terminated: jax.Array  # [] bool
     truncated: jax.Array  # [] bool
+    next_legal: jax.Array | None = None  # [A] bool, next obs's legal actions (masked envs only)
 
 
 @struct.dataclass
@@ -77,6 +78,7 @@ def _row(transition: Transition) -> FrameRow:
         transition.next_obs[..., -1],
         transition.terminated,
         transition.truncated,
+        transition.next_legal,
     )
 
 
@@ -147,5 +149,11 @@ def transitions(
     obs = stacks(buffer, steps, env_columns)
     next_obs = jnp.concatenate([obs[..., 1:], window.next_frame[..., None]], axis=-1)
     return Transition(
-        obs, window.action, window.reward, next_obs, window.terminated, window.truncated
+        obs,
+        window.action,
+        window.reward,
+        next_obs,
+        window.terminated,
+        window.truncated,
+        window.next_legal,
     )

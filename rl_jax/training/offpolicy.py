@@ -334,7 +334,7 @@ def train_iteration(
         clock=clock,
     )
     if state.action_mask is not None:
-        state = state.replace(action_mask=ts.info[ACTION_MASK])
+        state = dataclasses.replace(state, action_mask=ts.info[ACTION_MASK])
     episodes = (jnp.sum(jnp.where(done, ts.info["episode_return"], 0.0)), jnp.sum(done))
     return state, (metrics, episodes)
 
