@@ -168,7 +168,9 @@ def collect(
     env = episodes.make_train_env(config)
     space = env.action_space()
 
-    def step(carry, step_key):
+    Carry = tuple[StatisticsState, jax.Array, jax.Array | None]
+
+    def step(carry: Carry, step_key: jax.Array) -> tuple[Carry, Rollout]:
         env_state, obs, legal = carry
         action_key, env_key = jax.random.split(step_key)
         policy = outputs(agent.params, agent.obs_stats, obs, config, legal)
@@ -204,6 +206,7 @@ def targets(
     ended = jnp.logical_or(rollout.terminated, rollout.truncated)
     r_t = rollout.r_t
     if config.normalize_rewards:
+        assert state.discounted_return is not None  # kept with normalize_rewards
         g_t, carry = losses.discounted_returns(r_t, ended, state.discounted_return, hparams.gamma)
         assert state.return_stats is not None  # kept with normalize_rewards
         r_t, stats = losses.scale_rewards(r_t, g_t, state.return_stats, hparams.reward_clip)
@@ -243,7 +246,7 @@ def update(
     minibatches; metrics are the means over all steps."""
     count = config.num_minibatches
 
-    def epoch(agent, epoch_key):
+    def epoch(agent: Agent, epoch_key: jax.Array) -> tuple[Agent, dict[str, jax.Array]]:
         order = jax.random.permutation(epoch_key, config.batch_size)
         split = jax.tree.map(lambda x: x[order].reshape(count, -1, *x.shape[1:]), batch)
         return jax.lax.scan(lambda a, b: gradient_step(a, b, hparams, config, rate), agent, split)

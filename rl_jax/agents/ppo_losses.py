@@ -15,7 +15,9 @@ import jax.numpy as jnp
 from rl_jax.training import normalization
 
 
-def generalized_advantage_estimates(r_t, discount_t, v_tm1, v_t, trace_t) -> jax.Array:
+def generalized_advantage_estimates(
+    r_t: jax.Array, discount_t: jax.Array, v_tm1: jax.Array, v_t: jax.Array, trace_t: jax.Array
+) -> jax.Array:
     """``A_tm1 = delta_t + trace_t A_t`` backwards over axis 0, with the TD error
     ``delta_t = r_t + discount_t v_t - v_tm1``: ``[T, N] -> [T, N]``.
 
@@ -26,7 +28,7 @@ def generalized_advantage_estimates(r_t, discount_t, v_tm1, v_t, trace_t) -> jax
     advantage is known beyond the rollout, and ``v_t`` already bootstraps for it."""
     delta_t = r_t + discount_t * v_t - v_tm1
 
-    def back(a_next, inputs):
+    def back(a_next: jax.Array, inputs: tuple[jax.Array, jax.Array]) -> tuple[jax.Array, jax.Array]:
         delta, trace = inputs
         a = delta + trace * a_next
         return a, a
@@ -35,12 +37,14 @@ def generalized_advantage_estimates(r_t, discount_t, v_tm1, v_t, trace_t) -> jax
     return advantages
 
 
-def normalize_advantages(adv_t, eps: float = 1e-8) -> jax.Array:
+def normalize_advantages(adv_t: jax.Array, eps: float = 1e-8) -> jax.Array:
     """``(adv - mean) / (std + eps)`` over the whole (mini)batch (population std)."""
     return (adv_t - jnp.mean(adv_t)) / (jnp.std(adv_t) + eps)
 
 
-def clipped_surrogate_loss(log_pi_t, log_mu_t, adv_t, epsilon) -> jax.Array:
+def clipped_surrogate_loss(
+    log_pi_t: jax.Array, log_mu_t: jax.Array, adv_t: jax.Array, epsilon: float | jax.Array
+) -> jax.Array:
     """The negated clipped surrogate objective (PPO's L^CLIP), averaged:
     ``mean(max(-A rho, -A clip(rho, 1 - eps, 1 + eps)))`` with ``rho = pi / mu`` the ratio of the
     current policy's probability of the taken action to the behaviour policy's. The advantages
@@ -52,12 +56,14 @@ def clipped_surrogate_loss(log_pi_t, log_mu_t, adv_t, epsilon) -> jax.Array:
     return jnp.mean(jnp.maximum(unclipped, clipped))
 
 
-def value_loss(v_t, target_t) -> jax.Array:
+def value_loss(v_t: jax.Array, target_t: jax.Array) -> jax.Array:
     """``0.5 mean((v - target)^2)``."""
     return 0.5 * jnp.mean((v_t - jax.lax.stop_gradient(target_t)) ** 2)
 
 
-def clipped_value_loss(v_t, v_old_t, target_t, epsilon) -> jax.Array:
+def clipped_value_loss(
+    v_t: jax.Array, v_old_t: jax.Array, target_t: jax.Array, epsilon: float | jax.Array
+) -> jax.Array:
     """``0.5 mean(max((v - target)^2, (v_clip - target)^2))`` with ``v_clip`` the new value kept
     within ``epsilon`` of the value at collection (``v_old_t``): the pessimistic of the two, so
     a step cannot gain by moving the value further than ``epsilon``."""
@@ -67,7 +73,9 @@ def clipped_value_loss(v_t, v_old_t, target_t, epsilon) -> jax.Array:
     return 0.5 * jnp.mean(jnp.maximum((v_t - target_t) ** 2, (v_clipped - target_t) ** 2))
 
 
-def policy_statistics(log_pi_t, log_mu_t, epsilon) -> dict[str, jax.Array]:
+def policy_statistics(
+    log_pi_t: jax.Array, log_mu_t: jax.Array, epsilon: float | jax.Array
+) -> dict[str, jax.Array]:
     """Diagnostics of one minibatch: ``approx_kl``, the estimate ``mean((rho - 1) - log rho)``
     of KL(mu || pi) (non-negative, unbiased), and ``clip_fraction``, the share of ratios outside
     ``[1 - eps, 1 + eps]``."""
@@ -79,13 +87,17 @@ def policy_statistics(log_pi_t, log_mu_t, epsilon) -> dict[str, jax.Array]:
     }
 
 
-def discounted_returns(r_t, ended_t, g_0, gamma) -> tuple[jax.Array, jax.Array]:
+def discounted_returns(
+    r_t: jax.Array, ended_t: jax.Array, g_0: jax.Array, gamma: float | jax.Array
+) -> tuple[jax.Array, jax.Array]:
     """The running discounted return of each env's current episode, ``g_t = gamma g_tm1 + r_t``,
     restarted after an episode ends (``ended_t``: terminated or truncated at step t).
     ``g_0 [N]`` is the value carried in from the previous rollout (already restarted where the
     previous step ended an episode). Returns ``(g [T, N], the carry for the next rollout [N])``."""
 
-    def forward(g_prev, inputs):
+    def forward(
+        g_prev: jax.Array, inputs: tuple[jax.Array, jax.Array]
+    ) -> tuple[jax.Array, jax.Array]:
         r, ended = inputs
         g = gamma * g_prev + r
         return jnp.where(ended, 0.0, g), g
@@ -94,7 +106,9 @@ def discounted_returns(r_t, ended_t, g_0, gamma) -> tuple[jax.Array, jax.Array]:
     return g_t, carry
 
 
-def scale_rewards(r_t, g_t, stats: normalization.RunningStats, clip):
+def scale_rewards(
+    r_t: jax.Array, g_t: jax.Array, stats: normalization.RunningStats, clip: float | jax.Array
+) -> tuple[jax.Array, normalization.RunningStats]:
     """Rewards divided by the running std of the discounted returns ``g_t`` (after folding them
     into ``stats``), then clipped to ``+-clip`` (``clip <= 0``: not clipped). The scale keeps the
     value targets near unit size whatever the env's reward units; the mean is not removed, so the

@@ -174,3 +174,30 @@ def test_dqn_without_the_mask_takes_illegal_actions():
     assert state.action_mask is None
     assert "next_legal" not in state.buffer.data._asdict() or state.buffer.data.next_legal is None
     assert _stored_deaths(state) > 0
+
+
+def test_frame_replay_keeps_the_next_observations_mask():
+    """DQN's replay of frames (``PixelConfig``) keeps the mask in its rows as the flat one does,
+    and hands it on with the window's last step (n-step targets bootstrap from there)."""
+    from rl_jax.training import frame_replay, replay
+    from rl_jax.training.replay import Transition
+
+    width, steps, rows = 2, 6, 8
+    rng = np.random.default_rng(0)
+    obs = jnp.asarray(rng.integers(0, 255, (steps, width, 5, 5, 4)), jnp.uint8)
+    legal = jnp.asarray(rng.random((steps, width, 4)) < 0.5)
+    false = jnp.zeros((steps, width), bool)
+    played = Transition(obs, jnp.zeros((steps, width), jnp.int32), false * 1.0, obs, false, false)
+    played = played._replace(next_legal=legal)
+    example = jax.tree.map(lambda leaf: leaf[0, 0], played)
+    buffer = frame_replay.init(example, lambda row: replay.init(row, rows * width, width))
+    for t in range(steps):
+        step = jax.tree.map(lambda leaf, t=t: leaf[t], played)
+        buffer = frame_replay.add(buffer, step, replay.add)
+    starts = jnp.array([0, 1, 2], jnp.int32)
+    columns = jnp.array([0, 1, 0], jnp.int32)
+    window, stored = replay.gather_windows(buffer.storage, starts, columns, 3)
+    windows = frame_replay.transitions(buffer, window, starts, columns)
+    np.testing.assert_array_equal(windows.next_legal[:, 0], legal[starts, columns])
+    batch = replay.n_step_batch(windows, stored, 0.9)
+    np.testing.assert_array_equal(batch.next_legal, legal[starts + 2, columns])
