@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import dataclasses
 from collections.abc import Callable
-from typing import NamedTuple, TypeVar
+from typing import NamedTuple, TypeVar, cast
 
 import jax
 import jax.numpy as jnp
@@ -70,6 +70,10 @@ class ActorCriticHyperparams(params.HyperparamsMethods):
     lr_decay_steps: Scalar = 0.0
 
 
+#: A learning rate's schedule: the rate for this update from the hyperparameter's value.
+Rate = Callable[[Scalar], jax.Array]
+
+
 class Networks(NamedTuple):
     """An actor, one critic module (stacked ``num_critics`` times in the parameters) and the
     bounds the actions live in."""
@@ -100,19 +104,36 @@ def row(x: np.ndarray, like: jax.Array) -> jax.Array:
     return jnp.reshape(jnp.asarray(x, jnp.float32), (1,) * (like.ndim - 1) + (-1,))
 
 
-def critic_values(nets: Networks, critics: Params, obs, action, *extra) -> jax.Array:
+def critic_values(
+    nets: Networks, critics: Params, obs: jax.Array, action: jax.Array, *extra: jax.Array
+) -> jax.Array:
     """``[num_critics, B]``: every stacked critic at ``(obs, action)`` (``extra``: more inputs,
     such as TD7's embeddings)."""
     return networks.apply_stacked(nets.critic, critics, obs, action, *extra)
 
 
-def first_critic_value(nets: Networks, critics: Params, obs, action, *extra) -> jax.Array:
+def first_critic_value(
+    nets: Networks, critics: Params, obs: jax.Array, action: jax.Array, *extra: jax.Array
+) -> jax.Array:
     """``[B]``: the first critic alone (the one the actor ascends)."""
     first = jax.tree.map(lambda x: x[0], critics)
-    return nets.critic.apply(first, obs, action, *extra)
+    return cast(jax.Array, nets.critic.apply(first, obs, action, *extra))
 
 
-def explore(action, noise, key, nets: Networks, hparams: ActorCriticHyperparams):
+def actor_action(nets: Networks, actor: Params, obs: jax.Array, *extra: jax.Array) -> jax.Array:
+    """The deterministic action of actor parameters ``actor`` at ``obs`` (``extra``: more
+    inputs, such as TD7's ``z_s``). Flax types ``apply`` as its output or a pair with updated
+    state; an actor has no state to update."""
+    return cast(jax.Array, nets.actor.apply(actor, obs, *extra))
+
+
+def explore(
+    action: jax.Array,
+    noise: jax.Array,
+    key: jax.Array,
+    nets: Networks,
+    hparams: ActorCriticHyperparams,
+) -> tuple[jax.Array, jax.Array]:
     """``(actions, noise)``: ``action`` plus ``exploration_noise`` x half-range x an AR(1) noise
     of unit std (independent when ``exploration_correlation`` is 0), clipped to the bounds."""
     rho = hparams.exploration_correlation
@@ -133,7 +154,7 @@ class CriticBatch(NamedTuple):
     next_obs: jax.Array
 
     @classmethod
-    def one_step(cls, batch: Transition, gamma) -> CriticBatch:
+    def one_step(cls, batch: Transition, gamma: Scalar) -> CriticBatch:
         discount_t = gamma * (1.0 - batch.terminated.astype(jnp.float32))
         return cls(batch.obs, batch.action, batch.reward, discount_t, batch.next_obs)
 
@@ -144,7 +165,11 @@ class CriticBatch(NamedTuple):
 
 
 def gather_batch(
-    storage: ReplayBuffer[Transition], rows, columns, gamma, n_step: int = 1
+    storage: ReplayBuffer[Transition],
+    rows: jax.Array,
+    columns: jax.Array,
+    gamma: Scalar,
+    n_step: int = 1,
 ) -> CriticBatch:
     """The ``CriticBatch`` of stored transitions ``(rows, columns)``: one step each, or windows
     of ``n_step`` consecutive steps of one env (cut at an episode's end)."""
@@ -175,12 +200,16 @@ def every_policy_delay(
     return jax.lax.cond(delayed, step, lambda agent: (agent, skipped), agent)
 
 
-def smoothed_target_action(a_t, noise, noise_clip, low, high) -> jax.Array:
+def smoothed_target_action(
+    a_t: jax.Array, noise: jax.Array, noise_clip: jax.Array, low: jax.Array, high: jax.Array
+) -> jax.Array:
     """Target policy smoothing: ``clip(a_t + clip(noise, -noise_clip, noise_clip), low, high)``."""
     return jnp.clip(a_t + jnp.clip(noise, -noise_clip, noise_clip), low, high)
 
 
-def target_action(a_t, noise, hparams: ActorCriticHyperparams, nets: Networks) -> jax.Array:
+def target_action(
+    a_t: jax.Array, noise: jax.Array, hparams: ActorCriticHyperparams, nets: Networks
+) -> jax.Array:
     """``a_t`` plus smoothing noise ``target_noise * noise`` clipped to ``+-target_noise_clip``
     (both x the action half-range); ``noise`` is standard normal."""
     scale = row(nets.half_range, a_t)
@@ -193,18 +222,20 @@ def target_action(a_t, noise, hparams: ActorCriticHyperparams, nets: Networks) -
     )
 
 
-def clipped_double_q_target(r_t, discount_t, q_t) -> jax.Array:
+def clipped_double_q_target(r_t: jax.Array, discount_t: jax.Array, q_t: jax.Array) -> jax.Array:
     """``r_t + discount_t * min_i q_t[i]`` with no gradient; ``q_t`` [num_critics, B] -> [B].
     With one critic this is the plain DDPG target. ``discount_t`` is 0 at termination."""
     return jax.lax.stop_gradient(r_t + discount_t * jnp.min(q_t, axis=0))
 
 
-def critic_loss(q_tm1, r_t, discount_t, q_t) -> jax.Array:
+def critic_loss(
+    q_tm1: jax.Array, r_t: jax.Array, discount_t: jax.Array, q_t: jax.Array
+) -> jax.Array:
     """Sum over critics of the mean squared error to the shared target; ``q_tm1`` [C, B]."""
     target = clipped_double_q_target(r_t, discount_t, q_t)
     return jnp.sum(jnp.mean((q_tm1 - target[None, :]) ** 2, axis=-1))
 
 
-def deterministic_policy_loss(q_tm1) -> jax.Array:
+def deterministic_policy_loss(q_tm1: jax.Array) -> jax.Array:
     """The actor ascends Q at its own action: loss ``-mean(q_tm1)``."""
     return -jnp.mean(q_tm1)

@@ -17,7 +17,6 @@ from __future__ import annotations
 
 import dataclasses
 import functools
-from collections.abc import Callable
 
 import jax
 import jax.numpy as jnp
@@ -30,8 +29,10 @@ from rl_jax.agents.actor_critic import (
     ActorCriticHyperparams,
     CriticBatch,
     Networks,
+    Rate,
 )
 from rl_jax.agents.common import linearly_decayed, optimizer_step
+from rl_jax.envs.core.spaces import Space
 from rl_jax.training import batch_renorm, episodes, networks, offpolicy, replay, validation
 from rl_jax.training.networks import Params
 from rl_jax.training.offpolicy import Clock
@@ -90,22 +91,32 @@ def make_networks(config: Config) -> Networks:
 
 def act(agent: Agent, obs: jax.Array, config: Config) -> jax.Array:
     """The deterministic policy, in the env's own action units."""
-    return make_networks(config).actor.apply(agent.actor, obs)
+    return actor_critic.actor_action(make_networks(config), agent.actor, obs)
 
 
-def explore(agent: Agent, obs, noise, key, config: Config, hparams: Hyperparams, clock: Clock):
+def explore(
+    agent: Agent,
+    obs: jax.Array,
+    noise: jax.Array,
+    key: jax.Array,
+    config: Config,
+    hparams: Hyperparams,
+    clock: Clock,
+) -> tuple[jax.Array, jax.Array]:
     """``(actions, noise)``: the policy plus AR(1) exploration noise, clipped to the bounds."""
     action = act(agent, obs, config)
     return actor_critic.explore(action, noise, key, make_networks(config), hparams)
 
 
-def adam(learning_rate, b1=0.9) -> optax.GradientTransformation:
+def adam(learning_rate: Scalar, b1: Scalar = 0.9) -> optax.GradientTransformation:
     """Adam whose numbers are state (``optax.inject_hyperparams``): a checkpoint records them,
     and each step reads them there."""
     return optax.inject_hyperparams(optax.adam)(learning_rate=learning_rate, b1=b1)
 
 
-def init_agent(key, config: Config, hparams: Hyperparams, obs_space, action_space) -> Agent:
+def init_agent(
+    key: jax.Array, config: Config, hparams: Hyperparams, obs_space: Space, action_space: Space
+) -> Agent:
     nets = make_networks(config)
     actor_key, critic_key = jax.random.split(key)
     obs = jnp.zeros(obs_space.shape, jnp.float32)
@@ -123,10 +134,17 @@ def init_agent(key, config: Config, hparams: Hyperparams, obs_space, action_spac
 
 
 # ---- losses -------------------------------------------------------------------------------------
-def critic_loss_fn(critics, agent: Agent, batch: CriticBatch, noise, hparams, nets: Networks):
+def critic_loss_fn(
+    critics: Params,
+    agent: Agent,
+    batch: CriticBatch,
+    noise: jax.Array,
+    hparams: Hyperparams,
+    nets: Networks,
+) -> tuple[jax.Array, tuple[jax.Array, Params]]:
     """``(loss, (q_tm1, new stats))``: the squared error to the clipped double-Q target, both
     halves from one forward pass over ``[(s, a); (s', a')]`` (``batch_renorm.joint_pass``)."""
-    a_t = nets.actor.apply(agent.actor, batch.next_obs)
+    a_t = actor_critic.actor_action(nets, agent.actor, batch.next_obs)
     a_t = jax.lax.stop_gradient(actor_critic.target_action(a_t, noise, hparams, nets))
     q_tm1, q_t, stats = batch_renorm.joint_pass(
         nets.critic, critics, agent.critic_stats, batch.obs, batch.action, batch.next_obs, a_t
@@ -134,53 +152,69 @@ def critic_loss_fn(critics, agent: Agent, batch: CriticBatch, noise, hparams, ne
     return actor_critic.critic_loss(q_tm1, batch.r_t, batch.discount_t, q_t), (q_tm1, stats)
 
 
-def actor_loss_fn(actor, agent: Agent, obs: jax.Array, nets: Networks) -> jax.Array:
+def actor_loss_fn(actor: Params, agent: Agent, obs: jax.Array, nets: Networks) -> jax.Array:
     """The deterministic policy gradient through the first critic in evaluation mode."""
-    action = nets.actor.apply(actor, obs)
+    action = actor_critic.actor_action(nets, actor, obs)
     critics = {**agent.critics, "batch_stats": agent.critic_stats}
     q = actor_critic.first_critic_value(nets, critics, obs, action)
     return actor_critic.deterministic_policy_loss(q)
 
 
 # ---- one update ---------------------------------------------------------------------------------
-def _adam(grads, opt_state, params, rate, b1: float):
+def _adam(
+    grads: Params, opt_state: optax.OptState, params: Params, rate: jax.Array, b1: float
+) -> tuple[Params, optax.OptState]:
     """Adam at ``rate`` and ``b1``, both written into the injected state (which a checkpoint
     records) before the step reads them."""
-    b1 = jnp.asarray(b1, jnp.float32)
-    return optimizer_step(adam(rate, b1), grads, opt_state, params, learning_rate=rate, b1=b1)
+    beta1 = jnp.asarray(b1, jnp.float32)
+    return optimizer_step(adam(rate, beta1), grads, opt_state, params, learning_rate=rate, b1=beta1)
 
 
-def critic_step(agent: Agent, batch: CriticBatch, key, hparams, config: Config, rate: Callable):
+def critic_step(
+    agent: Agent,
+    batch: CriticBatch,
+    key: jax.Array,
+    hparams: Hyperparams,
+    config: Config,
+    rate: Rate,
+) -> tuple[Agent, jax.Array, jax.Array]:
     """``(agent, loss, q_tm1)`` after one Adam step of the critics and their statistics'."""
     nets = make_networks(config)
     noise = jax.random.normal(key, batch.action.shape, jnp.float32)
     (loss, (q_tm1, stats)), grads = jax.value_and_grad(critic_loss_fn, has_aux=True)(
         agent.critics, agent, batch, noise, hparams, nets
     )
-    rate = rate(hparams.critic_lr)
-    critics, opt = _adam(grads, agent.critic_opt, agent.critics, rate, config.adam_b1)
+    critic_lr = rate(hparams.critic_lr)
+    critics, opt = _adam(grads, agent.critic_opt, agent.critics, critic_lr, config.adam_b1)
     return agent.replace(critics=critics, critic_opt=opt, critic_stats=stats), loss, q_tm1
 
 
-def actor_step(agent: Agent, obs, hparams, config: Config, rate: Callable):
+def actor_step(
+    agent: Agent, obs: jax.Array, hparams: Hyperparams, config: Config, rate: Rate
+) -> tuple[Agent, jax.Array]:
     """``(agent, loss)`` after one Adam step of the actor."""
     nets = make_networks(config)
     loss, grads = jax.value_and_grad(actor_loss_fn)(agent.actor, agent, obs, nets)
-    rate = rate(hparams.actor_lr)
-    actor, opt = _adam(grads, agent.actor_opt, agent.actor, rate, config.adam_b1)
+    actor_lr = rate(hparams.actor_lr)
+    actor, opt = _adam(grads, agent.actor_opt, agent.actor, actor_lr, config.adam_b1)
     return agent.replace(actor=actor, actor_opt=opt), loss
 
 
 def update(
-    agent: Agent, buffer: ReplayBuffer[Transition], key, config: Config, hparams, update_index
-):
+    agent: Agent,
+    buffer: ReplayBuffer[Transition],
+    key: jax.Array,
+    config: Config,
+    hparams: Hyperparams,
+    update_index: jax.Array,
+) -> tuple[Agent, ReplayBuffer[Transition], dict[str, jax.Array]]:
     """One critic update; every ``policy_delay``-th also an actor update."""
     sample_key, noise_key = jax.random.split(key)
     rows, columns = replay.sample_indices(buffer, sample_key, config.batch_size)
     batch = actor_critic.gather_batch(buffer, rows, columns, hparams.gamma)
     env_steps = offpolicy.env_steps_at_update(update_index, config)
 
-    def rate(value):
+    def rate(value: Scalar) -> jax.Array:
         return linearly_decayed(value, env_steps, hparams.lr_decay_steps)
 
     agent, critic_loss, q_tm1 = critic_step(agent, batch, noise_key, hparams, config, rate)

@@ -297,7 +297,9 @@ def alpha_of(agent: Agent) -> jax.Array:
     return jax.lax.stop_gradient(jnp.exp(agent.log_alpha))
 
 
-def critic_step(agent: Agent, batch: CriticBatch, key, hparams: Hyperparams, nets: Networks):
+def critic_step(
+    agent: Agent, batch: CriticBatch, key: jax.Array, hparams: Hyperparams, nets: Networks
+) -> tuple[Agent, jax.Array, jax.Array]:
     """``(agent, loss, q_tm1)`` after one critic step and a Polyak step of the targets."""
     inputs = (agent.target_critics, agent.actor, batch, key, alpha_of(agent), nets)
     (loss, q_tm1), grads = jax.value_and_grad(critic_loss_fn, has_aux=True)(agent.critics, *inputs)
@@ -306,7 +308,14 @@ def critic_step(agent: Agent, batch: CriticBatch, key, hparams: Hyperparams, net
     return agent.replace(critics=critics, critic_opt=opt, target_critics=targets), loss, q_tm1
 
 
-def actor_and_temperature_step(agent: Agent, obs, key, config: Config, hparams, nets: Networks):
+def actor_and_temperature_step(
+    agent: Agent,
+    obs: jax.Array,
+    key: jax.Array,
+    config: Config,
+    hparams: Hyperparams,
+    nets: Networks,
+) -> tuple[Agent, tuple[jax.Array, jax.Array, jax.Array]]:
     """``(agent, (actor loss, temperature loss, entropy estimate))`` after an actor step and,
     with ``learn_temperature``, a step of ``log_alpha`` towards the target entropy."""
     inputs = (agent.critics, obs, key, alpha_of(agent), nets)
@@ -328,8 +337,13 @@ METRICS = ("critic_loss", "actor_loss", "alpha_loss", "alpha", "entropy", "q")
 
 
 def update(
-    agent: Agent, buffer: ReplayBuffer[Transition], key, config: Config, hparams, update_index
-):
+    agent: Agent,
+    buffer: ReplayBuffer[Transition],
+    key: jax.Array,
+    config: Config,
+    hparams: Hyperparams,
+    update_index: jax.Array,
+) -> tuple[Agent, ReplayBuffer[Transition], dict[str, jax.Array]]:
     """One critic update; every ``policy_delay``-th also an actor and temperature update."""
     nets = make_networks(config)
     sample_key, critic_key, actor_key = jax.random.split(key, 3)
@@ -356,7 +370,15 @@ def act(agent: Agent, obs: jax.Array, config: Config) -> jax.Array:
     return squashed_gaussian.rescale(jnp.tanh(mean), nets.low, nets.high)
 
 
-def explore(agent: Agent, obs, noise, key, config: Config, hparams: Hyperparams, clock=None):
+def explore(
+    agent: Agent,
+    obs: jax.Array,
+    noise: jax.Array,
+    key: jax.Array,
+    config: Config,
+    hparams: Hyperparams,
+    clock: offpolicy.Clock | None = None,
+) -> tuple[jax.Array, jax.Array]:
     """``(actions, noise)``: a sample of the policy (SAC explores through its own entropy;
     the loop's noise state is passed on unused)."""
     nets = make_networks(config)
@@ -365,7 +387,9 @@ def explore(agent: Agent, obs, noise, key, config: Config, hparams: Hyperparams,
     return sampled_action(nets, key, mean, log_std)[0], noise
 
 
-def init_agent(key, config: Config, hparams: Hyperparams, obs_space, action_space) -> Agent:
+def init_agent(
+    key: jax.Array, config: Config, hparams: Hyperparams, obs_space: Space, action_space: Space
+) -> Agent:
     nets = make_networks(config)
     actor_key, critic_key = jax.random.split(key)
     obs = jnp.zeros(obs_space.shape, jnp.float32)
@@ -385,7 +409,15 @@ def init_agent(key, config: Config, hparams: Hyperparams, obs_space, action_spac
     )
 
 
-def observe(agent: Agent, transitions: Transition, episode_return, done, clock, config, hparams):
+def observe(
+    agent: Agent,
+    transitions: Transition,
+    episode_return: jax.Array,
+    done: jax.Array,
+    clock: offpolicy.Clock,
+    config: Config,
+    hparams: Hyperparams,
+) -> Agent:
     """Every env step: the running observation statistics (SimBa, normalize_obs) take in the
     observations acted on."""
     if agent.obs_stats is None:

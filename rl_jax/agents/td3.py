@@ -23,7 +23,6 @@ from __future__ import annotations
 
 import dataclasses
 import functools
-from collections.abc import Callable
 from typing import Any, ClassVar
 
 import jax
@@ -37,11 +36,13 @@ from rl_jax.agents.actor_critic import (
     ActorCriticHyperparams,
     CriticBatch,
     Networks,
+    Rate,
     critic_values,
     first_critic_value,
 )
 from rl_jax.agents.common import injected_step, linearly_decayed, polyak_update
 from rl_jax.agents.td3_recipes import TD3_RECIPES
+from rl_jax.envs.core.spaces import Space
 from rl_jax.training import episodes, networks, normalization, offpolicy, replay
 from rl_jax.training.networks import Params
 from rl_jax.training.normalization import RunningStats
@@ -164,7 +165,7 @@ def make_networks(config: Config) -> Networks:
 def policy_action(nets: Networks, agent: Agent, obs: jax.Array) -> jax.Array:
     """The deterministic policy of ``agent``, in the env's own action units."""
     obs = normalization.normalize(agent.obs_stats, obs)
-    return nets.actor.apply(agent.actor, obs)
+    return actor_critic.actor_action(nets, agent.actor, obs)
 
 
 def act(agent: Agent, obs: jax.Array, config: Config) -> jax.Array:
@@ -172,14 +173,30 @@ def act(agent: Agent, obs: jax.Array, config: Config) -> jax.Array:
     return policy_action(make_networks(config), agent, obs)
 
 
-def explore(agent: Agent, obs, noise, key, config: Config, hparams: Hyperparams, clock: Clock):
+def explore(
+    agent: Agent,
+    obs: jax.Array,
+    noise: jax.Array,
+    key: jax.Array,
+    config: Config,
+    hparams: Hyperparams,
+    clock: Clock,
+) -> tuple[jax.Array, jax.Array]:
     """``(actions, noise)``: the policy plus AR(1) exploration noise, clipped to the bounds."""
     nets = make_networks(config)
     action = policy_action(nets, agent, obs)
     return actor_critic.explore(action, noise, key, nets, hparams)
 
 
-def observe(agent: Agent, transitions: Transition, episode_return, done, clock, config, hparams):
+def observe(
+    agent: Agent,
+    transitions: Transition,
+    episode_return: jax.Array,
+    done: jax.Array,
+    clock: Clock,
+    config: Config,
+    hparams: Hyperparams,
+) -> Agent:
     """Every env step: the running statistics take in the observations acted on."""
     if not config.standardizes_obs:
         return agent
@@ -187,7 +204,9 @@ def observe(agent: Agent, transitions: Transition, episode_return, done, clock, 
     return agent.replace(obs_stats=normalization.update(agent.obs_stats, transitions.obs, mask))
 
 
-def init_agent(key, config: Config, hparams: Hyperparams, obs_space, action_space) -> Agent:
+def init_agent(
+    key: jax.Array, config: Config, hparams: Hyperparams, obs_space: Space, action_space: Space
+) -> Agent:
     nets = make_networks(config)
     actor_key, critic_key = jax.random.split(key)
     obs = jnp.zeros(obs_space.shape, jnp.float32)
@@ -208,25 +227,39 @@ def init_agent(key, config: Config, hparams: Hyperparams, obs_space, action_spac
 
 
 # ---- losses -------------------------------------------------------------------------------------
-def critic_loss_fn(critics, agent: Agent, batch: CriticBatch, noise, hparams, nets: Networks):
+def critic_loss_fn(
+    critics: Params,
+    agent: Agent,
+    batch: CriticBatch,
+    noise: jax.Array,
+    hparams: Hyperparams,
+    nets: Networks,
+) -> tuple[jax.Array, jax.Array]:
     """``(loss, q_tm1 [C, B])``: the critics' mean squared error to the clipped double-Q target
     of the target networks (``noise`` [B, action_dim], standard normal, smooths the target
     action)."""
-    a_t = nets.actor.apply(agent.target_actor, batch.next_obs)
+    a_t = actor_critic.actor_action(nets, agent.target_actor, batch.next_obs)
     a_t = actor_critic.target_action(a_t, noise, hparams, nets)
     q_t = critic_values(nets, agent.target_critics, batch.next_obs, a_t)
     q_tm1 = critic_values(nets, critics, batch.obs, batch.action)
     return actor_critic.critic_loss(q_tm1, batch.r_t, batch.discount_t, q_t), q_tm1
 
 
-def actor_loss_fn(actor, critics, obs: jax.Array, nets: Networks) -> jax.Array:
+def actor_loss_fn(actor: Params, critics: Params, obs: jax.Array, nets: Networks) -> jax.Array:
     """Deterministic policy gradient through the *first* critic only (as TD3 prescribes)."""
-    action = nets.actor.apply(actor, obs)
+    action = actor_critic.actor_action(nets, actor, obs)
     return actor_critic.deterministic_policy_loss(first_critic_value(nets, critics, obs, action))
 
 
 # ---- one update ---------------------------------------------------------------------------------
-def critic_step(agent: Agent, batch: CriticBatch, key, hparams, nets: Networks, rate: Callable):
+def critic_step(
+    agent: Agent,
+    batch: CriticBatch,
+    key: jax.Array,
+    hparams: Hyperparams,
+    nets: Networks,
+    rate: Rate,
+) -> tuple[Agent, jax.Array, jax.Array]:
     """``(agent, loss, q_tm1)`` after one Adam step of the critics; ``rate`` decays a rate."""
     noise = jax.random.normal(key, batch.action.shape, jnp.float32)
     (loss, q_tm1), grads = jax.value_and_grad(critic_loss_fn, has_aux=True)(
@@ -238,7 +271,9 @@ def critic_step(agent: Agent, batch: CriticBatch, key, hparams, nets: Networks, 
     return agent.replace(critics=critics, critic_opt=critic_opt), loss, q_tm1
 
 
-def actor_step(agent: Agent, obs, hparams, nets: Networks, rate: Callable):
+def actor_step(
+    agent: Agent, obs: jax.Array, hparams: Hyperparams, nets: Networks, rate: Rate
+) -> tuple[Agent, jax.Array]:
     """``(agent, loss)`` after an Adam step of the actor and a Polyak step of the targets."""
     loss, grads = jax.value_and_grad(actor_loss_fn)(agent.actor, agent.critics, obs, nets)
     actor, actor_opt = injected_step(
@@ -254,8 +289,13 @@ def actor_step(agent: Agent, obs, hparams, nets: Networks, rate: Callable):
 
 
 def update(
-    agent: Agent, buffer: ReplayBuffer[Transition], key, config: Config, hparams, update_index
-):
+    agent: Agent,
+    buffer: ReplayBuffer[Transition],
+    key: jax.Array,
+    config: Config,
+    hparams: Hyperparams,
+    update_index: jax.Array,
+) -> tuple[Agent, ReplayBuffer[Transition], dict[str, jax.Array]]:
     """One critic update; every ``policy_delay``-th also an actor and target update."""
     nets = make_networks(config)
     sample_key, noise_key = jax.random.split(key)
@@ -266,7 +306,7 @@ def update(
         batch = batch._replace(obs=normalize(batch.obs), next_obs=normalize(batch.next_obs))
     env_steps = offpolicy.env_steps_at_update(update_index, config)
 
-    def rate(value):
+    def rate(value: Scalar) -> jax.Array:
         return linearly_decayed(value, env_steps, hparams.lr_decay_steps)
 
     agent, critic_loss, q_tm1 = critic_step(agent, batch, noise_key, hparams, nets, rate)

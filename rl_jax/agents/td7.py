@@ -30,7 +30,6 @@ from __future__ import annotations
 
 import dataclasses
 import functools
-from collections.abc import Callable
 from typing import NamedTuple
 
 import jax
@@ -39,10 +38,16 @@ import optax
 from flax import struct
 
 from rl_jax.agents import actor_critic, td7_parts
-from rl_jax.agents.actor_critic import ActorCriticConfig, ActorCriticHyperparams, CriticBatch
+from rl_jax.agents.actor_critic import (
+    ActorCriticConfig,
+    ActorCriticHyperparams,
+    CriticBatch,
+    Rate,
+)
 from rl_jax.agents.common import injected_step, linearly_decayed
 from rl_jax.agents.td7_parts import Encoders, ValueRange
 from rl_jax.agents.td7_recipes import TD7_RECIPES
+from rl_jax.envs.core.spaces import Space
 from rl_jax.training import (
     episodes,
     networks,
@@ -141,7 +146,7 @@ def make_networks(config: Config) -> Networks:
 def policy_action(nets: Networks, actor: Params, encoder: Params, obs: jax.Array) -> jax.Array:
     """The deterministic action of actor parameters ``actor`` reading ``z_s`` of ``encoder``."""
     z_s = td7_parts.embed_state(nets.sale, encoder, obs)
-    return nets.actor_critic.actor.apply(actor, obs, z_s)
+    return actor_critic.actor_action(nets.actor_critic, actor, obs, z_s)
 
 
 def act(agent: Agent, obs: jax.Array, config: Config) -> jax.Array:
@@ -150,7 +155,15 @@ def act(agent: Agent, obs: jax.Array, config: Config) -> jax.Array:
     return policy_action(make_networks(config), best.actor, best.encoder, obs)
 
 
-def explore(agent: Agent, obs, noise, key, config: Config, hparams: Hyperparams, clock: Clock):
+def explore(
+    agent: Agent,
+    obs: jax.Array,
+    noise: jax.Array,
+    key: jax.Array,
+    config: Config,
+    hparams: Hyperparams,
+    clock: Clock,
+) -> tuple[jax.Array, jax.Array]:
     """``(actions, noise)``: the copy under assessment plus AR(1) exploration noise."""
     nets = make_networks(config)
     assessed = agent.checkpoint.assessed
@@ -158,7 +171,15 @@ def explore(agent: Agent, obs, noise, key, config: Config, hparams: Hyperparams,
     return actor_critic.explore(action, noise, key, nets.actor_critic, hparams)
 
 
-def observe(agent: Agent, transitions: Transition, episode_return, done, clock, config, hparams):
+def observe(
+    agent: Agent,
+    transitions: Transition,
+    episode_return: jax.Array,
+    done: jax.Array,
+    clock: Clock,
+    config: Config,
+    hparams: Hyperparams,
+) -> Agent:
     """Every env step: the policy checkpoints count the episodes that ended."""
     checkpoint = policy_checkpoints.assess(
         agent.checkpoint,
@@ -172,7 +193,9 @@ def observe(agent: Agent, transitions: Transition, episode_return, done, clock, 
     return agent.replace(checkpoint=checkpoint)
 
 
-def init_agent(key, config: Config, hparams: Hyperparams, obs_space, action_space) -> Agent:
+def init_agent(
+    key: jax.Array, config: Config, hparams: Hyperparams, obs_space: Space, action_space: Space
+) -> Agent:
     nets, sale = make_networks(config)
     actor_key, critic_key = jax.random.split(key)
     obs = jnp.zeros(obs_space.shape, jnp.float32)
@@ -204,7 +227,14 @@ def init_agent(key, config: Config, hparams: Hyperparams, obs_space, action_spac
 
 
 # ---- losses -------------------------------------------------------------------------------------
-def critic_loss_fn(critics, agent: Agent, batch: CriticBatch, noise, hparams, nets: Networks):
+def critic_loss_fn(
+    critics: Params,
+    agent: Agent,
+    batch: CriticBatch,
+    noise: jax.Array,
+    hparams: Hyperparams,
+    nets: Networks,
+) -> tuple[jax.Array, tuple[jax.Array, jax.Array, tuple[jax.Array, jax.Array]]]:
     """``(loss, (q_tm1, td_tm1, (min, max) of the targets))``: LAP's loss of the critics' errors
     against the value-clipped double-Q target of the target networks, which read the fixed target
     encoder (the critics read the fixed one)."""
@@ -225,7 +255,9 @@ def critic_loss_fn(critics, agent: Agent, batch: CriticBatch, noise, hparams, ne
     return td7_parts.lap_loss(td_tm1), (q_tm1, td_tm1, (jnp.min(target), jnp.max(target)))
 
 
-def actor_loss_fn(actor, critics, encoder, obs: jax.Array, nets: Networks) -> jax.Array:
+def actor_loss_fn(
+    actor: Params, critics: Params, encoder: Params, obs: jax.Array, nets: Networks
+) -> jax.Array:
     """The deterministic policy gradient through the first critic, via the fixed encoder's
     embeddings of the actor's own action (the encoder itself never changes here)."""
     action = policy_action(nets, actor, encoder, obs)
@@ -234,7 +266,9 @@ def actor_loss_fn(actor, critics, encoder, obs: jax.Array, nets: Networks) -> ja
     return actor_critic.deterministic_policy_loss(q)
 
 
-def encoder_loss_fn(online, batch: CriticBatch, sale: networks.StateActionEncoder) -> jax.Array:
+def encoder_loss_fn(
+    online: Params, batch: CriticBatch, sale: networks.StateActionEncoder
+) -> jax.Array:
     """SALE's loss: ``g(f(s), a)`` against ``f(s')`` of the same (online) encoder, stopped."""
     zs_t = sale.apply(online, batch.next_obs, method="embed_state")
     zsa_tm1 = sale.apply(online, batch.obs, batch.action)[1]
@@ -242,11 +276,15 @@ def encoder_loss_fn(online, batch: CriticBatch, sale: networks.StateActionEncode
 
 
 # ---- one update ---------------------------------------------------------------------------------
-def _adam(grads, opt_state, params, rate):
+def _adam(
+    grads: Params, opt_state: optax.OptState, params: Params, rate: jax.Array
+) -> tuple[Params, optax.OptState]:
     return injected_step(optax.adam, grads, opt_state, params, learning_rate=rate)
 
 
-def encoder_step(agent: Agent, batch: CriticBatch, hparams, nets: Networks, rate: Callable):
+def encoder_step(
+    agent: Agent, batch: CriticBatch, hparams: Hyperparams, nets: Networks, rate: Rate
+) -> tuple[Agent, jax.Array]:
     """``(agent, loss)`` after one Adam step of SALE's online encoder."""
     encoders = agent.encoders
     loss, grads = jax.value_and_grad(encoder_loss_fn)(encoders.online, batch, nets.sale)
@@ -254,7 +292,14 @@ def encoder_step(agent: Agent, batch: CriticBatch, hparams, nets: Networks, rate
     return agent.replace(encoders=encoders.replace(online=online, opt=opt)), loss
 
 
-def critic_step(agent: Agent, batch: CriticBatch, key, hparams, nets: Networks, rate: Callable):
+def critic_step(
+    agent: Agent,
+    batch: CriticBatch,
+    key: jax.Array,
+    hparams: Hyperparams,
+    nets: Networks,
+    rate: Rate,
+) -> tuple[Agent, jax.Array, jax.Array, jax.Array]:
     """``(agent, loss, q_tm1, td_tm1)`` after one Adam step of the critics; the targets' range
     joins the value-clipping range's extremes."""
     noise = jax.random.normal(key, batch.action.shape, jnp.float32)
@@ -266,7 +311,9 @@ def critic_step(agent: Agent, batch: CriticBatch, key, hparams, nets: Networks, 
     return agent.replace(critics=critics, critic_opt=opt, value_range=values), loss, q_tm1, td_tm1
 
 
-def actor_step(agent: Agent, obs, hparams, nets: Networks, rate: Callable):
+def actor_step(
+    agent: Agent, obs: jax.Array, hparams: Hyperparams, nets: Networks, rate: Rate
+) -> tuple[Agent, jax.Array]:
     """``(agent, loss)`` after one Adam step of the actor (the targets are copied, not
     stepped)."""
     args = (agent.actor, agent.critics, agent.encoders.fixed, obs, nets)
@@ -286,7 +333,14 @@ def copy_targets(agent: Agent) -> Agent:
     )
 
 
-def update(agent: Agent, buffer: PrioritizedBuffer, key, config: Config, hparams, update_index):
+def update(
+    agent: Agent,
+    buffer: PrioritizedBuffer,
+    key: jax.Array,
+    config: Config,
+    hparams: Hyperparams,
+    update_index: jax.Array,
+) -> tuple[Agent, PrioritizedBuffer, dict[str, jax.Array]]:
     """One encoder and critic update, with LAP's new priorities for the batch; every
     ``policy_delay``-th an actor update; every ``target_update_period``-th the hard copies (and
     LAP's priority for new transitions reset to the largest stored)."""
@@ -296,7 +350,7 @@ def update(agent: Agent, buffer: PrioritizedBuffer, key, config: Config, hparams
     batch = actor_critic.gather_batch(buffer.buffer, rows, columns, hparams.gamma)
     env_steps = offpolicy.env_steps_at_update(update_index, config)
 
-    def rate(value):
+    def rate(value: Scalar) -> jax.Array:
         return linearly_decayed(value, env_steps, hparams.lr_decay_steps)
 
     agent, encoder_loss = encoder_step(agent, batch, hparams, nets, rate)

@@ -29,6 +29,8 @@ Naming as rlax (and ``td3``): ``td_tm1`` is the TD error of the transition's sta
 
 from __future__ import annotations
 
+from typing import Protocol
+
 import jax
 import jax.numpy as jnp
 import optax
@@ -37,6 +39,7 @@ from flax import struct
 from rl_jax.training import policy_checkpoints, prioritized
 from rl_jax.training.networks import Params, StateActionEncoder
 from rl_jax.training.offpolicy import OffPolicyConfig
+from rl_jax.training.params import Scalar
 from rl_jax.training.prioritized import PrioritizedBuffer
 from rl_jax.training.replay import Transition
 
@@ -72,7 +75,9 @@ def sale_loss(zsa_tm1: jax.Array, zs_t: jax.Array) -> jax.Array:
     return jnp.mean((zsa_tm1 - jax.lax.stop_gradient(zs_t)) ** 2)
 
 
-def value_clipped_target(r_t, discount_t, q_t, low, high) -> jax.Array:
+def value_clipped_target(
+    r_t: jax.Array, discount_t: jax.Array, q_t: jax.Array, low: jax.Array, high: jax.Array
+) -> jax.Array:
     """``r_t + discount_t * clip(min_i q_t[i], low, high)`` with no gradient; ``q_t`` [C, B]."""
     return jax.lax.stop_gradient(r_t + discount_t * jnp.clip(jnp.min(q_t, axis=0), low, high))
 
@@ -126,7 +131,9 @@ def embed_state(encoder: StateActionEncoder, params: Params, obs: jax.Array) -> 
     return encoder.apply(jax.lax.stop_gradient(params), obs, method="embed_state")
 
 
-def embeddings(encoder: StateActionEncoder, params: Params, obs, action) -> jax.Array:
+def embeddings(
+    encoder: StateActionEncoder, params: Params, obs: jax.Array, action: jax.Array
+) -> jax.Array:
     """The critics' extra input ``[z_sa, z_s]`` of a fixed encoder."""
     zs = embed_state(encoder, params, obs)
     zsa = encoder.apply(jax.lax.stop_gradient(params), zs, action, method="embed_pair")
@@ -137,6 +144,18 @@ def init_buffer(example: Transition, config: OffPolicyConfig) -> PrioritizedBuff
     return prioritized.init(example, config.buffer_size, config.num_envs)
 
 
-def add_to_buffer(buffer: PrioritizedBuffer, transitions: Transition, config, hparams):
+class LapHyperparams(Protocol):
+    """What LAP's replay reads of the learner's hyperparameters."""
+
+    @property
+    def lap_alpha(self) -> Scalar: ...
+
+
+def add_to_buffer(
+    buffer: PrioritizedBuffer,
+    transitions: Transition,
+    config: OffPolicyConfig,
+    hparams: LapHyperparams,
+) -> PrioritizedBuffer:
     """Store one row at the largest priority so far."""
     return prioritized.add(buffer, transitions, hparams.lap_alpha)
