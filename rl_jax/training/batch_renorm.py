@@ -41,7 +41,16 @@ def _row(x: jax.Array, like: jax.Array) -> jax.Array:
     return jnp.reshape(x, (1,) * (like.ndim - 1) + x.shape)
 
 
-def renorm_train(x, mean, var, steps, warmup=WARMUP, r_max=R_MAX, d_max=D_MAX, epsilon=EPSILON):
+def renorm_train(
+    x: jax.Array,
+    mean: jax.Array,
+    var: jax.Array,
+    steps: jax.Array,
+    warmup: int = WARMUP,
+    r_max: float = R_MAX,
+    d_max: float = D_MAX,
+    epsilon: float = EPSILON,
+) -> tuple[jax.Array, jax.Array, jax.Array]:
     """Training mode on ``x`` [..., F] with running ``mean``/``var`` [F] after ``steps`` training
     calls: ``(x_hat, batch mean [F], batch var [F])``."""
     axes = tuple(range(x.ndim - 1))
@@ -57,12 +66,20 @@ def renorm_train(x, mean, var, steps, warmup=WARMUP, r_max=R_MAX, d_max=D_MAX, e
     return x_hat, batch_mean, batch_var
 
 
-def renorm_eval(x, mean, var, epsilon=EPSILON) -> jax.Array:
+def renorm_eval(
+    x: jax.Array, mean: jax.Array, var: jax.Array, epsilon: float = EPSILON
+) -> jax.Array:
     """Evaluation mode: ``(x - mean) / sqrt(var + epsilon)`` with the running statistics."""
     return (x - _row(mean, x)) / _row(jnp.sqrt(var + epsilon), x)
 
 
-def running_update(mean, var, batch_mean, batch_var, momentum=MOMENTUM):
+def running_update(
+    mean: jax.Array,
+    var: jax.Array,
+    batch_mean: jax.Array,
+    batch_var: jax.Array,
+    momentum: float = MOMENTUM,
+) -> tuple[jax.Array, jax.Array]:
     """``(mean, var)`` one step of ``1 - momentum`` towards the batch's (no gradient)."""
     batch_mean, batch_var = jax.lax.stop_gradient((batch_mean, batch_var))
     return (

@@ -39,6 +39,8 @@ if TYPE_CHECKING:
     from _typeshed import DataclassInstance
 
 PRNGKey = jax.Array
+#: One update's metrics by name, each [] float32.
+Metrics = dict[str, jax.Array]
 
 
 @dataclasses.dataclass(frozen=True, kw_only=True)
@@ -275,8 +277,10 @@ def _updates(
     """``updates_per_iteration`` updates, or none (NaN metrics) while warming up."""
     count = config.updates_per_iteration
 
-    def run(agent, buffer):
-        def one(carry, inputs):
+    def run(agent: object, buffer: ReplayBuffer) -> tuple[object, ReplayBuffer, Metrics]:
+        def one(
+            carry: tuple[object, ReplayBuffer], inputs: tuple[jax.Array, jax.Array]
+        ) -> tuple[tuple[object, ReplayBuffer], Metrics]:
             update_key, index = inputs
             agent, buffer, metrics = learner.update(*carry, update_key, config, hparams, index)
             return (agent, buffer), metrics
@@ -285,7 +289,7 @@ def _updates(
         (agent, buffer), metrics = jax.lax.scan(one, (agent, buffer), inputs)
         return agent, buffer, jax.tree.map(jnp.nanmean, metrics)
 
-    def skip(agent, buffer):
+    def skip(agent: object, buffer: ReplayBuffer) -> tuple[object, ReplayBuffer, Metrics]:
         nan = jnp.full((), jnp.nan, jnp.float32)
         names = learner.metric_names
         names = names(config) if callable(names) else names
@@ -355,7 +359,9 @@ def train_chunk(
 ) -> tuple[TrainState, ChunkMetrics]:
     """``config.iterations_per_chunk`` iterations, then one evaluation. Pure; jit it outside."""
 
-    def body(state, _):
+    def body(
+        state: TrainState, _: None
+    ) -> tuple[TrainState, tuple[Metrics, tuple[jax.Array, jax.Array]]]:
         return train_iteration(learner, config, hparams, state)
 
     state, (metrics, (return_sums, episode_counts)) = jax.lax.scan(

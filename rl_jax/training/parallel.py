@@ -331,7 +331,7 @@ class Program:
 
         key_impl = self._key_impl
 
-        def init_one(key_data, hp):
+        def init_one(key_data: jax.Array, hp: Hyperparams) -> TrainState:
             return algorithm.init(jax.random.wrap_key_data(key_data, impl=key_impl), config, hp)
 
         init = jax.vmap(init_one, in_axes=(0, None), out_axes=axes)
@@ -339,7 +339,7 @@ class Program:
         init = self._wrap(init, (by_seed, by_hparam), state_specs)
         init = jax.jit(init, out_shardings=self._shardings(state_specs))
 
-        def chunk_one(state, hp):
+        def chunk_one(state: TrainState, hp: Hyperparams) -> tuple[TrainState, ChunkMetrics]:
             return algorithm.train_chunk(state, config, hp)
 
         if self.loop_seeds:

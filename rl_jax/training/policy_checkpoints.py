@@ -12,11 +12,14 @@ from TD7's one env and deferred updates: ``rl_jax.agents.td7``'s docstring.
 
 from __future__ import annotations
 
-from typing import Generic, TypeVar
+from typing import Generic, Protocol, TypeVar
 
 import jax
 import jax.numpy as jnp
 from flax import struct
+from jax.typing import ArrayLike
+
+from rl_jax.training.offpolicy import Clock
 
 #: TD7's start values: a checkpoint score below any return, an assessment minimum above any.
 NO_SCORE, NO_EPISODE = -1e8, 1e8
@@ -35,7 +38,14 @@ class PolicyCheckpoint(Generic[PolicyT]):
     counting: jax.Array  # [num_envs] bool, whether each env's episode began under ``assessed``
 
 
-def assess_episodes(lowest, episodes, score, returns, counted, required):
+def assess_episodes(
+    lowest: jax.Array,
+    episodes: jax.Array,
+    score: jax.Array,
+    returns: jax.Array,
+    counted: jax.Array,
+    required: jax.Array,
+) -> tuple[jax.Array, jax.Array, jax.Array, jax.Array]:
     """One env step of an assessment: ``returns`` [N] of the episodes that ended, ``counted``
     [N] those that count. Returns ``(lowest, episodes, passed, ended)``: the lowest return and the
     number of episodes so far; ``passed`` when ``required`` episodes have all stayed at or above
@@ -60,6 +70,19 @@ def init(policy: PolicyT, num_envs: int, learning_starts: int) -> PolicyCheckpoi
     )
 
 
+class CheckpointSchedule(Protocol):
+    """The settings ``assess`` reads of a learner's config (TD7's and DQN's have them)."""
+
+    @property
+    def num_envs(self) -> int: ...
+    @property
+    def learning_starts(self) -> int: ...
+    @property
+    def checkpoint_episodes(self) -> int: ...
+    @property
+    def checkpoint_episodes_from(self) -> int: ...
+
+
 def _where(flag: jax.Array, a: PolicyT, b: PolicyT) -> PolicyT:
     return jax.tree.map(lambda x, y: jnp.where(flag, x, y), a, b)
 
@@ -67,11 +90,11 @@ def _where(flag: jax.Array, a: PolicyT, b: PolicyT) -> PolicyT:
 def assess(
     ckpt: PolicyCheckpoint[PolicyT],
     current: PolicyT,
-    episode_return,
-    done,
-    clock,
-    config,
-    reset_weight,
+    episode_return: jax.Array,
+    done: jax.Array,
+    clock: Clock,
+    config: CheckpointSchedule,
+    reset_weight: ArrayLike,
 ) -> PolicyCheckpoint[PolicyT]:
     """One env step of TD7's checkpoint schedule: count the episodes that ended, and when an
     assessment ends, keep its copy if it passed and take ``current`` as the new copy. Until an

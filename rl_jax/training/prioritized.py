@@ -20,13 +20,15 @@ update, which dominates with buffers of 10^5-10^6 transitions.
 from __future__ import annotations
 
 from collections.abc import Callable
-from typing import Generic
+from typing import Generic, cast
 
 import jax
 import jax.numpy as jnp
 from flax import struct
+from jax.typing import ArrayLike
 
 from rl_jax.training import replay
+from rl_jax.training.params import Scalar
 from rl_jax.training.replay import Item, ReplayBuffer
 
 
@@ -83,7 +85,7 @@ def tree_set(tree: jax.Array, slots: jax.Array, values: jax.Array, combine: Call
     node = slots.astype(jnp.int32) + leaves
     tree = tree.at[node].set(values.astype(tree.dtype))
 
-    def level(_, carry):
+    def level(_: int, carry: tuple[jax.Array, jax.Array]) -> tuple[jax.Array, jax.Array]:
         tree, node = carry
         node = node // 2
         return tree.at[node].set(combine(tree[2 * node], tree[2 * node + 1])), node
@@ -99,7 +101,7 @@ def tree_find(sums: jax.Array, targets: jax.Array) -> jax.Array:
     interval's edge cannot land on an empty slot."""
     leaves = sums.shape[0] // 2
 
-    def level(_, carry):
+    def level(_: int, carry: tuple[jax.Array, jax.Array]) -> tuple[jax.Array, jax.Array]:
         node, target = carry
         left, right = sums[2 * node], sums[2 * node + 1]
         go_right = jnp.logical_and(target >= left, right > 0.0)
@@ -112,15 +114,19 @@ def tree_find(sums: jax.Array, targets: jax.Array) -> jax.Array:
 
 
 # ---- the maths ----------------------------------------------------------------------------------
-def importance_weights(probabilities, min_probability, size, beta) -> jax.Array:
+def importance_weights(
+    probabilities: jax.Array, min_probability: jax.Array, size: jax.Array, beta: Scalar
+) -> jax.Array:
     """``(N P(i))^-beta / (N min_j P(j))^-beta``: the largest possible weight is 1."""
     return (size * probabilities) ** -beta / (size * min_probability) ** -beta
 
 
-def annealed_beta(beta_start, env_steps, anneal_steps) -> jax.Array:
+def annealed_beta(
+    beta_start: ArrayLike, env_steps: jax.Array, anneal_steps: ArrayLike
+) -> jax.Array:
     """``beta`` rises linearly from ``beta_start`` to 1 over ``anneal_steps`` env steps."""
     fraction = jnp.clip(env_steps / jnp.maximum(anneal_steps, 1.0), 0.0, 1.0)
-    return beta_start + (1.0 - beta_start) * fraction
+    return cast(jax.Array, beta_start + (1.0 - beta_start) * fraction)
 
 
 # ---- buffer operations --------------------------------------------------------------------------
@@ -129,14 +135,18 @@ def _row_slots(prioritized: PrioritizedBuffer, row: jax.Array) -> jax.Array:
     return row * width + jnp.arange(width, dtype=jnp.int32)
 
 
-def _set_priorities(prioritized: PrioritizedBuffer, slots, powered) -> PrioritizedBuffer:
+def _set_priorities(
+    prioritized: PrioritizedBuffer, slots: jax.Array, powered: jax.Array
+) -> PrioritizedBuffer:
     return prioritized.replace(
         sums=tree_set(prioritized.sums, slots, powered, jnp.add),
         mins=tree_set(prioritized.mins, slots, powered, jnp.minimum),
     )
 
 
-def add(prioritized: PrioritizedBuffer[Item], batch: Item, alpha) -> PrioritizedBuffer[Item]:
+def add(
+    prioritized: PrioritizedBuffer[Item], batch: Item, alpha: ArrayLike
+) -> PrioritizedBuffer[Item]:
     """Write one row (``rl_jax.training.replay.add``) with the largest priority so far."""
     slots = _row_slots(prioritized, prioritized.buffer.position)
     prioritized = prioritized.replace(buffer=replay.add(prioritized.buffer, batch))
@@ -144,7 +154,9 @@ def add(prioritized: PrioritizedBuffer[Item], batch: Item, alpha) -> Prioritized
     return _set_priorities(prioritized, slots, powered)
 
 
-def sample_indices(prioritized: PrioritizedBuffer, key: jax.Array, batch_size: int, beta):
+def sample_indices(
+    prioritized: PrioritizedBuffer, key: jax.Array, batch_size: int, beta: Scalar
+) -> tuple[jax.Array, jax.Array, jax.Array]:
     """Stratified proportional draws: the range [0, total) is cut into ``batch_size`` equal
     segments and one target is drawn uniformly in each (lower variance than independent draws,
     same marginal). Returns ``(rows, columns, weights)``, each ``[batch_size]``."""
@@ -165,7 +177,11 @@ def sample_indices(prioritized: PrioritizedBuffer, key: jax.Array, batch_size: i
 
 
 def update_priorities(
-    prioritized: PrioritizedBuffer, rows: jax.Array, columns: jax.Array, priorities, alpha
+    prioritized: PrioritizedBuffer,
+    rows: jax.Array,
+    columns: jax.Array,
+    priorities: jax.Array,
+    alpha: ArrayLike,
 ) -> PrioritizedBuffer:
     """New priorities (e.g. ``|td error| + eps``, > 0) of the transitions at ``(rows, columns)``."""
     priorities = priorities.astype(jnp.float32)
@@ -176,7 +192,7 @@ def update_priorities(
     )
 
 
-def reset_max_priority(prioritized: PrioritizedBuffer, alpha) -> PrioritizedBuffer:
+def reset_max_priority(prioritized: PrioritizedBuffer, alpha: ArrayLike) -> PrioritizedBuffer:
     """The priority new transitions get becomes the largest one stored now (instead of the
     largest ever given), as TD7 does at each target update: early large errors, long since
     corrected, no longer make every new transition a favourite. Read from the leaves' p^alpha."""
