@@ -22,6 +22,7 @@ directory never makes this process import code by itself (``rl_jax.run.learners`
 from __future__ import annotations
 
 import argparse
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -156,7 +157,9 @@ class Policy:
 
     Actions are what the original environment takes: env units for continuous actions, the
     index for discrete ones, and, for a continuous env a discrete learner drove through
-    ``envs.DiscretizeActions``, the continuous value the index stands for.
+    ``envs.DiscretizeActions``, the continuous value the index stands for. For an env with a
+    legal-action mask, ``policy(obs, legal)`` chooses among the legal actions (bool ``[A]``, or
+    ``[N, A]`` for a batch: the env's ``info["action_mask"]``).
     """
 
     def __init__(self, loaded: LoadedPolicy):
@@ -169,13 +172,18 @@ class Policy:
         values = getattr(env, "action_values", None)
         table = None if values is None else jnp.asarray(values)
 
-        def batched(obs):
-            action = jax.vmap(act)(obs)
+        act_legal: Callable[..., jax.Array] = act
+
+        def batched(obs: jax.Array, legal: jax.Array | None) -> jax.Array:
+            if legal is None:
+                action = jax.vmap(act)(obs)
+            else:
+                action = jax.vmap(act_legal)(obs, legal)
             return action if table is None else table[action]
 
         self._act = jax.jit(batched)
 
-    def __call__(self, obs: npt.ArrayLike) -> np.ndarray:
+    def __call__(self, obs: npt.ArrayLike, legal: npt.ArrayLike | None = None) -> np.ndarray:
         obs = np.asarray(obs, dtype=self._dtype)
         single = obs.shape == self.observation_shape
         if not single and obs.shape[1:] != self.observation_shape:
@@ -183,7 +191,10 @@ class Policy:
                 f"expected an observation of shape {self.observation_shape} or a batch "
                 f"[N, *{self.observation_shape}], got shape {obs.shape}"
             )
-        action = np.asarray(self._act(obs[None] if single else obs))
+        if legal is not None:
+            legal = np.asarray(legal, dtype=bool)
+            legal = legal[None] if single else legal
+        action = np.asarray(self._act(obs[None] if single else obs, legal))
         return action[0] if single else action
 
     def __repr__(self) -> str:

@@ -42,6 +42,7 @@ import jax
 import numpy as np
 
 from rl_jax.envs.core.core import Environment
+from rl_jax.envs.core.preprocessing import ACTION_MASK, has_action_mask
 from rl_jax.envs.core.wrappers import Wrapper
 from rl_jax.errors import OneLineParser, RenderError, exit_now, guard, positive_int
 from rl_jax.run.policy import (
@@ -70,7 +71,13 @@ def rollout(
     """``episodes`` episodes of ``act`` in ``env``: per episode the states and total reward."""
     params = env.default_params
     reset = jax.jit(lambda key: env.reset(key, params))
-    step = jax.jit(lambda key, state, obs: env.step(key, state, act(obs), params))
+    masked = has_action_mask(env)  # then the policy is given each obs's legal actions
+    act_legal: Callable[..., jax.Array] = act
+
+    def choose(obs: jax.Array, legal: jax.Array | None) -> jax.Array:
+        return act(obs) if legal is None else act_legal(obs, legal)
+
+    step = jax.jit(lambda key, state, obs, legal: env.step(key, state, choose(obs, legal), params))
     results = []
     for _ in range(episodes):
         key, key_reset = jax.random.split(key)
@@ -78,7 +85,8 @@ def rollout(
         states, total = [jax.device_get(state)], 0.0
         for _ in range(env.max_episode_steps):
             key, key_step = jax.random.split(key)
-            state, timestep = step(key_step, state, timestep.obs)
+            legal = timestep.info[ACTION_MASK] if masked else None
+            state, timestep = step(key_step, state, timestep.obs, legal)
             states.append(jax.device_get(state))
             total += float(timestep.reward)
             if bool(timestep.terminated) or bool(timestep.truncated):

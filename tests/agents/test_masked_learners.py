@@ -201,3 +201,30 @@ def test_frame_replay_keeps_the_next_observations_mask():
     np.testing.assert_array_equal(windows.next_legal[:, 0], legal[starts, columns])
     batch = replay.n_step_batch(windows, stored, 0.9)
     np.testing.assert_array_equal(batch.next_legal, legal[starts + 2, columns])
+
+
+def test_rendering_and_load_policy_hand_the_policy_the_mask():
+    """The GIF's rollout and ``load_policy``'s numpy callable act legally too."""
+    from rl_jax.run.policy import Policy
+    from rl_jax.run.render import rollout
+
+    state, config, _ = _dqn_run(True, 4)
+    env = dqn.dqn.make_env(config)
+    act = dqn.dqn.policy(state, config)
+    episodes = rollout(env, act, jax.random.key(9), 4)
+    # Never dead: every episode runs to the 10-step limit, each step paying a legal reward.
+    assert [len(episode["states"]) for episode in episodes] == [11] * 4
+    assert all(episode["return"] > 0 for episode in episodes)
+
+    class Loaded:
+        def env(self):
+            return env
+
+        def act(self):
+            return act
+
+    policy = Policy(Loaded())
+    legal = SUBSETS.astype(np.float32)
+    best = 3 - np.argmax(SUBSETS[:, ::-1], axis=1)
+    np.testing.assert_array_equal(policy(legal, SUBSETS), best)
+    assert int(policy(legal[0], SUBSETS[0])) == best[0]
