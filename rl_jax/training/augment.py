@@ -25,7 +25,7 @@ def random_shift(key: jax.Array, images: jax.Array, pad: int) -> jax.Array:
     padded = jnp.pad(images, ((0, 0), (pad, pad), (pad, pad), (0, 0)), mode="edge")
     corners = jax.random.randint(key, (batch, 2), 0, 2 * pad + 1)
 
-    def crop(image, corner):
+    def crop(image: jax.Array, corner: jax.Array) -> jax.Array:
         start = (corner[0], corner[1], 0)
         return jax.lax.dynamic_slice(image, start, (height, width, channels))
 

@@ -17,6 +17,7 @@ from typing import Generic, NamedTuple, TypeVar
 import jax
 import jax.numpy as jnp
 from flax import struct
+from jax.typing import ArrayLike
 
 
 class Transition(NamedTuple):
@@ -152,7 +153,7 @@ class NStepBatch(NamedTuple):
     next_legal: jax.Array | None = None  # [B, A] bool, its legal actions (masked envs only)
 
 
-def n_step_batch(window: Transition, stored: jax.Array, gamma) -> NStepBatch:
+def n_step_batch(window: Transition, stored: jax.Array, gamma: ArrayLike) -> NStepBatch:
     """Cut each window (leaves [B, n, ...], ``stored`` [B, n]) after its first episode end."""
     ended = jnp.logical_or(window.terminated, window.truncated)
     ended_before = (jnp.cumsum(ended, axis=1) - ended) > 0
@@ -174,7 +175,9 @@ def n_step_batch(window: Transition, stored: jax.Array, gamma) -> NStepBatch:
     )
 
 
-def sample_n_step(buffer: ReplayBuffer, key: jax.Array, batch_size: int, n: int, gamma):
+def sample_n_step(
+    buffer: ReplayBuffer, key: jax.Array, batch_size: int, n: int, gamma: ArrayLike
+) -> NStepBatch:
     """A uniform batch of ``n``-step windows (``NStepBatch``)."""
     rows, columns = sample_indices(buffer, key, batch_size)
     window, stored = gather_windows(buffer, rows, columns, n)
