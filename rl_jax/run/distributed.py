@@ -34,6 +34,8 @@ from collections.abc import Callable, Mapping
 from pathlib import Path
 
 import jax
+import numpy as np
+from jax.experimental import multihost_utils
 
 from rl_jax.errors import (
     OneLineParser,
@@ -68,6 +70,27 @@ class Cluster:
     num_processes: int
     process_id: int
     source: str
+
+
+def resume_hint(command: str) -> str:
+    """``command`` (a run's resume command) as the processes of this run would give it: with
+    the flags that place each process, on every process."""
+    if not _joined or jax.process_count() == 1:
+        return command
+    cluster = _joined[0]
+    if command.startswith("rl_jax."):  # the Python API
+        return f"{command} in every process, with the same distributed or coordinator arguments"
+    if cluster.source != "flags":
+        return f"{command} --distributed in every {cluster.source} task (or the same command again)"
+    flags = f"--coordinator {cluster.coordinator} --num-processes {cluster.num_processes}"
+    last = cluster.num_processes - 1
+    return (
+        f"{command} {flags} --process-id I on every process, I = 0 .. {last} (or the same "
+        "command again on every process)"
+    )
+
+
+_joined: list[Cluster] = []  # the cluster this process joined
 
 
 @dataclasses.dataclass(frozen=True)
@@ -241,6 +264,7 @@ def initialize(
     address = coordinator_address(cluster)
     if address is not None:
         address = handshake(cluster, address, timeout, agreed or join.fingerprint([]))
+    _joined[:] = [cluster]
     watchdog = processes.Watchdog(timeout, lambda: _join_failed(cluster, timeout))
     with watchdog:
         jax.distributed.initialize(
@@ -253,6 +277,36 @@ def initialize(
             shutdown_timeout_seconds=limit + 30,
         )
     processes.set_wait_limit(timeout)
+    connect_quietly()
+
+
+def _gather_over_every_device() -> None:
+    """One all-gather over every device of every process: the group the runs' own gathers use,
+    whose connections Gloo opens (and announces) once."""
+    mesh = jax.sharding.Mesh(np.asarray(jax.devices()), ("devices",))
+    spread = jax.sharding.NamedSharding(mesh, jax.sharding.PartitionSpec("devices"))
+    pieces = [jax.device_put(np.zeros(1, np.int32), device) for device in jax.local_devices()]
+    local = jax.make_array_from_single_device_arrays((len(jax.devices()),), spread, pieces)
+    everywhere = jax.sharding.NamedSharding(mesh, jax.sharding.PartitionSpec())
+    jax.jit(lambda values: values, out_shardings=everywhere)(local).block_until_ready()
+
+
+def connect_quietly() -> None:
+    """Open the connections between the processes with one small gather, its output to
+    /dev/null: Gloo (the CPU collectives) prints a line on stdout from C++ as it connects
+    ("[Gloo] Rank 0 is connected to 1 peer ranks ..."), and no setting of its own turns that
+    off."""
+    sys.stdout.flush()
+    saved = os.dup(1)
+    try:
+        with open(os.devnull, "w") as devnull:
+            os.dup2(devnull.fileno(), 1)
+            with processes.waiting("the first exchange between the processes"):
+                _gather_over_every_device()
+                multihost_utils.process_allgather(np.zeros(1, np.int32))  # processes.agree's
+    finally:
+        os.dup2(saved, 1)
+        os.close(saved)
 
 
 def coordinator_address(cluster: Cluster, environ: Mapping[str, str] = os.environ) -> str | None:

@@ -30,6 +30,7 @@ from jax.experimental import multihost_utils
 
 _WAIT_LIMIT: list[float] = []  # seconds; empty: no limit (one process, or set by no one)
 _alone = [False]  # inside ``alone()``: this process runs a run of its own
+_last_agreed: list[np.ndarray] = []  # the flags of every process at the last ``agree``
 
 #: The longest ``wait_for_all`` waits for the slowest process: one of a sweep's shapes may train
 #: for days. A process that dies ends the wait sooner (the coordinator misses its heartbeats).
@@ -130,7 +131,25 @@ def agree(*flags: bool, at: str = "the end of a chunk") -> tuple[bool, ...]:
     local = np.asarray(flags, dtype=np.int32)
     with waiting(at):
         gathered = np.asarray(multihost_utils.process_allgather(local))
-    return tuple(bool(value) for value in gathered.reshape(-1, len(flags)).max(axis=0))
+    _last_agreed[:] = [gathered.reshape(-1, len(flags))]
+    return tuple(bool(value) for value in _last_agreed[0].max(axis=0))
+
+
+def raised_by(index: int) -> list[int]:
+    """The processes whose flag ``index`` was set at the last ``agree`` (none on one process)."""
+    if not _last_agreed:
+        return []
+    return [int(rank) for rank in np.flatnonzero(_last_agreed[0][:, index])]
+
+
+def stopped_by(asked: int, requeue: int) -> str:
+    """Who asked the last ``agree`` to stop, for the lead's line: the processes whose flag
+    ``asked`` was set, and SIGUSR1 where flag ``requeue`` was (SIGTERM or Ctrl-C otherwise:
+    the flags do not say which)."""
+    ranks = raised_by(asked)
+    which = "SIGUSR1" if raised_by(requeue) else "SIGTERM or SIGINT"
+    named = ", ".join(str(rank) for rank in ranks) or "another process"
+    return f"{which} on process{'es' if len(ranks) > 1 else ''} {named}"
 
 
 def barrier(name: str) -> None:

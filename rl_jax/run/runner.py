@@ -310,6 +310,8 @@ def _stopping(stop: GracefulStop, due: bool = False) -> bool:
         stop.requested = REQUEUE_SIGNAL
     elif requested and stop.requested is None:
         stop.requested = "another process"
+    if requested and not asked:  # the lead says whose signal stops the run
+        stop.relay(processes.stopped_by(asked=1, requeue=2))
     return due or requested
 
 
@@ -368,7 +370,7 @@ def _finish(
         saved = "checkpoint saved" if session.saved else "nothing new to save"
         notify(f"stopped at step {session.step:,} of {session.plan.final_steps:,}; {saved}.")
         if spec.resume_command:
-            notify(f"resume with: {spec.resume_command}")
+            notify(f"resume with: {distributed.resume_hint(spec.resume_command)}")
     else:
         notify(table)
         (spec.out / RESULTS_FILE).write_text(table + "\n")

@@ -72,6 +72,10 @@ class GracefulStop:
             f"{name}: stopping after this chunk (a checkpoint follows; Ctrl-C again aborts)"
         )
 
+    def relay(self, who: str) -> None:
+        """Say that another process's signal (``who``) stops the run after this chunk."""
+        self._notify(f"{who}: stopping after this chunk (a checkpoint follows)")
+
     def __enter__(self) -> GracefulStop:
         for signum in STOP_SIGNALS:
             # Outside the main thread signals cannot be caught: they stay with the caller.

@@ -468,3 +468,20 @@ def test_a_hung_process_stops_the_other_at_the_time_limit(reference):
     lines = err.strip().splitlines()
     assert len(lines) == 1, err
     assert lines[0].startswith("error: process 0 waited over 60 s for the other processes at ")
+
+
+@pytest.mark.slow
+def test_a_signal_to_another_process_is_named_by_the_lead_with_a_full_resume_hint(reference):
+    """SIGTERM to process 1 alone: the lead says whose signal stopped the run, and the resume
+    hint carries the process flags. Gloo's connection lines stay out of the output."""
+    job = launched([*TINY, "--out", "signalled"], reference)
+    seen = "".join(wait_for_training(job))
+    children = psutil.Process(job.pid).children()
+    victim = next(c for c in children if c.cmdline()[-2:] == ["--process-id", "1"])
+    victim.send_signal(signal.SIGTERM)
+    out, err = job.communicate(timeout=300)
+    assert job.returncode == 0, err
+    assert "SIGTERM or SIGINT on process 1: stopping after this chunk" in out
+    hint = next(line for line in out.splitlines() if line.startswith("resume with: "))
+    assert "--num-processes 2 --process-id I on every process, I = 0 .. 1" in hint
+    assert "[Gloo]" not in seen + out + err

@@ -275,3 +275,36 @@ def test_under_slurm_a_held_port_moves_and_the_others_follow_through_the_run_dir
         assert process.returncode == 0, err
     assert (tmp_path / "run" / "results.txt").exists()
     assert not list(tmp_path.glob(".rl_jax-*"))  # the port's file is gone with the handshake
+
+
+# ---- what the lead says of the other processes ------------------------------------------------
+
+
+def test_the_resume_hint_gives_the_process_flags(monkeypatch):
+    monkeypatch.setattr(distributed.jax, "process_count", lambda: 2)
+    monkeypatch.setattr(distributed, "_joined", [distributed.Cluster("h:1", 2, 0, "flags")])
+    assert distributed.resume_hint("x.py --resume run") == (
+        "x.py --resume run --coordinator h:1 --num-processes 2 --process-id I on every process, "
+        "I = 0 .. 1 (or the same command again on every process)"
+    )
+    monkeypatch.setattr(distributed, "_joined", [distributed.Cluster(None, 2, 0, "slurm")])
+    assert distributed.resume_hint("x.py --resume run") == (
+        "x.py --resume run --distributed in every slurm task (or the same command again)"
+    )
+    assert distributed.resume_hint("rl_jax.resume('run')").endswith(
+        "in every process, with the same distributed or coordinator arguments"
+    )
+    monkeypatch.setattr(distributed, "_joined", [])
+    assert distributed.resume_hint("x.py --resume run") == "x.py --resume run"
+
+
+def test_the_lead_names_the_process_whose_signal_stops_the_run(monkeypatch):
+    import numpy as np
+
+    from rl_jax.run import processes
+
+    # columns as the runner's agree gives them: checkpoint due, stop asked, requeue
+    monkeypatch.setattr(processes, "_last_agreed", [np.array([[0, 0, 0], [1, 1, 0]])])
+    assert processes.stopped_by(asked=1, requeue=2) == "SIGTERM or SIGINT on process 1"
+    monkeypatch.setattr(processes, "_last_agreed", [np.array([[0, 0, 0], [0, 1, 1], [0, 1, 1]])])
+    assert processes.stopped_by(asked=1, requeue=2) == "SIGUSR1 on processes 1, 2"
