@@ -316,6 +316,8 @@ def coordinator_address(cluster: Cluster, environ: Mapping[str, str] = os.enviro
     where jax finds it itself (Open MPI)."""
     if cluster.coordinator is not None or cluster.source != "slurm":
         return cluster.coordinator
+    if environ.get("JAX_COORDINATOR_ADDRESS"):  # jax's own override of the whole address
+        return environ["JAX_COORDINATOR_ADDRESS"]
     port = environ.get("JAX_COORDINATOR_PORT") or str(slurm_port(environ))
     return f"{first_node(environ['SLURM_STEP_NODELIST'])}:{port}"
 
@@ -351,7 +353,7 @@ def handshake(cluster: Cluster, address: str, timeout: float, agreed: join.Finge
     host, port = host.strip("[]"), int(port_text)
     rank, count = cluster.process_id, cluster.num_processes
     derived = cluster.source == "slurm" and cluster.coordinator is None
-    derived = derived and "JAX_COORDINATOR_PORT" not in os.environ
+    derived = derived and not {"JAX_COORDINATOR_PORT", "JAX_COORDINATOR_ADDRESS"} & set(os.environ)
     moved_to = join.port_file(agreed.resolved, agreed.job) if derived else None
     try:
         if rank == 0:

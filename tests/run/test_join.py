@@ -29,6 +29,8 @@ def test_slurm_coordinator_is_the_first_node_on_a_port_of_the_job_and_step():
     assert all(61440 <= int(address.split(":")[1]) <= 65535 for address in (first, second))
     given = {**slurm, "JAX_COORDINATOR_PORT": "1234"}
     assert distributed.coordinator_address(cluster, given) == "node007:1234"
+    given = {**slurm, "JAX_COORDINATOR_ADDRESS": "head:99"}
+    assert distributed.coordinator_address(cluster, given) == "head:99"
     assert distributed.first_node("a1,b2") == "a1" and distributed.first_node("solo") == "solo"
     assert distributed.first_node("n[1,3-4]") == "n1"
     ompi = distributed.Cluster(None, 2, 1, "ompi")
