@@ -314,3 +314,15 @@ def test_asterix_spawn_in_gymnax_can_miss_the_last_free_row():
     )
     assert set(counts.tolist()) == {6, 8}
     assert 0.08 < np.mean(counts == 6) < 0.17  # 1 in 8
+
+
+def test_render_colours_cells_as_minatar_display_does():
+    seaborn = pytest.importorskip("seaborn")
+    env = envs.make("rl_jax/SpaceInvaders-MinAtar")
+    state, ts = env.reset(jax.random.key(0))
+    obs = np.asarray(ts.obs)
+    palette = [(0, 0, 0), *seaborn.color_palette("cubehelix", obs.shape[-1])]
+    # MinAtar's display: each cell in the colour of its highest set channel, black where none is
+    index = np.max(obs * np.arange(1, obs.shape[-1] + 1), axis=-1).astype(int)
+    expected = (np.asarray(palette)[index] * 255).round().astype(np.uint8)
+    np.testing.assert_array_equal(env.render(state)[::16, ::16], expected)
