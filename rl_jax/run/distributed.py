@@ -352,8 +352,11 @@ def handshake(cluster: Cluster, address: str, timeout: float, agreed: join.Finge
     host, _, port_text = address.rpartition(":")
     host, port = host.strip("[]"), int(port_text)
     rank, count = cluster.process_id, cluster.num_processes
-    derived = cluster.source == "slurm" and cluster.coordinator is None
-    derived = derived and not {"JAX_COORDINATOR_PORT", "JAX_COORDINATOR_ADDRESS"} & set(os.environ)
+    scheduled = cluster.source == "slurm" and cluster.coordinator is None
+    fixed = {"JAX_COORDINATOR_PORT", "JAX_COORDINATOR_ADDRESS"} & set(os.environ)
+    derived = scheduled and not fixed
+    if not scheduled:  # processes placed by hand may sit in different SLURM steps: one job
+        agreed = dataclasses.replace(agreed, job="")
     moved_to = join.port_file(agreed.resolved, agreed.job) if derived else None
     try:
         if rank == 0:

@@ -107,6 +107,29 @@ def test_a_run_directory_one_host_cannot_see_is_named(monkeypatch, tmp_path):
     assert results[0].startswith("the run directory is not shared between the processes' hosts")
 
 
+def test_a_process_of_another_slurm_step_is_turned_away_and_the_job_goes_on(tmp_path):
+    """Two steps (or jobs) that meet on one port: process 0 answers the stranger "not this job"
+    and keeps waiting for its own processes."""
+    port = launch.free_port()
+    mine = join.Fingerprint("c", "2", "run", str(tmp_path / "run"), "7.0.0")
+    stranger = join.Fingerprint("d", "3", "other", str(tmp_path / "other"), "7.1.0")
+    ended: list[BaseException] = []
+
+    def lead() -> None:
+        try:
+            join.lead(port, 2, mine, 3)
+        except (join.JoinError, TimeoutError) as error:
+            ended.append(error)
+
+    thread = threading.Thread(target=lead)
+    thread.start()
+    with pytest.raises(join.JoinError, match=r"process 0 of SLURM job step 7\.0\.0") as caught:
+        join.follow("localhost", port, 1, 2, stranger, 10)
+    assert caught.value.held
+    thread.join(timeout=30)
+    assert len(ended) == 1 and isinstance(ended[0], TimeoutError)  # not refused by the stranger
+
+
 def test_another_job_on_the_port_is_left_alone(tmp_path):
     """A port answered by something else (here a silent listener, as jax's service is to us):
     the process says so, and sends it nothing."""
