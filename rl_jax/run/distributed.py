@@ -254,7 +254,8 @@ def initialize(
     cluster: Cluster, timeout: float = DEFAULT_TIMEOUT, agreed: join.Fingerprint | None = None
 ) -> None:
     """``jax.distributed.initialize`` for ``cluster``, given ``timeout`` seconds for every
-    process to join, once the processes agreed on ``agreed`` (``rl_jax.run.join``: a
+    process to join, once the processes agreed on ``agreed`` (``rl_jax.run.join``; None, as
+    from ``rl_jax.train``: on the rank, the count and the job alone; a
     disagreement, a duplicate rank or a port held by another job is one line, ``UsageError``).
     jax ends a process that cannot join with a fatal log and a stack trace; a watchdog ends it
     a little earlier with one line instead."""
@@ -263,7 +264,8 @@ def initialize(
     limit = int(timeout)
     address = coordinator_address(cluster)
     if address is not None:
-        address = handshake(cluster, address, timeout, agreed or join.fingerprint([]))
+        agreed = agreed or join.Fingerprint(job=join.job_key())
+        address = handshake(cluster, address, timeout, agreed)
     _joined[:] = [cluster]
     watchdog = processes.Watchdog(timeout, lambda: _join_failed(cluster, timeout))
     with watchdog:

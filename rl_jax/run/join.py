@@ -222,6 +222,8 @@ class PortTaken(OSError):
 
 def _write_nonce(resolved: str) -> tuple[Path, str]:
     folder, nonce = nearest(resolved), secrets.token_hex(8)
+    if not resolved:
+        return folder, ""  # no run directory to check (the Python API)
     try:
         (folder / (NONCE_PREFIX + nonce)).write_text("")
     except OSError:
