@@ -88,15 +88,21 @@ class Networks(NamedTuple):
         return (self.high - self.low) / 2.0
 
 
-def bounds(action_space: Space, learner: str) -> tuple[tuple[float, ...], tuple[float, ...]]:
-    """The action bounds as tuples; ``TypeError`` unless a bounded 1-D ``Box``."""
+def bounded_box(action_space: Space, learner: str) -> Box:
+    """``action_space`` itself; ``TypeError`` unless a bounded 1-D ``Box``."""
     if (
         not isinstance(action_space, Box)
         or not action_space.bounded
         or len(action_space.shape) != 1
     ):
         raise TypeError(f"{learner} needs a bounded 1-D Box action space, got {action_space}")
-    return tuple(float(x) for x in action_space.low), tuple(float(x) for x in action_space.high)
+    return action_space
+
+
+def bounds(action_space: Space, learner: str) -> tuple[tuple[float, ...], tuple[float, ...]]:
+    """The action bounds as tuples; ``TypeError`` unless a bounded 1-D ``Box``."""
+    box = bounded_box(action_space, learner)
+    return tuple(float(x) for x in box.low), tuple(float(x) for x in box.high)
 
 
 def row(x: np.ndarray, like: jax.Array) -> jax.Array:

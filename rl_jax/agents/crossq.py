@@ -74,7 +74,8 @@ class Agent:
 def make_networks(config: Config) -> Networks:
     """The actor and the batch-renormalised critics for ``config.env_id`` (cached)."""
     action_space = episodes.make_eval_env(config).action_space()
-    low, high = actor_critic.bounds(action_space, "CrossQ")
+    box = actor_critic.bounded_box(action_space, "CrossQ")
+    low, high = actor_critic.bounds(box, "CrossQ")
     dtype = jnp.dtype(config.compute_dtype)
     init = config.network_init
     actor = networks.Actor(config.actor_hidden, low, high, init, dtype, config.actor_activation)
@@ -86,7 +87,7 @@ def make_networks(config: Config) -> Networks:
         "batch_renorm",
         renorm_warmup=config.renorm_warmup,
     )
-    return Networks(actor, critic, action_space.low.copy(), action_space.high.copy())
+    return Networks(actor, critic, box.low.copy(), box.high.copy())
 
 
 def act(agent: Agent, obs: jax.Array, config: Config) -> jax.Array:
@@ -186,7 +187,11 @@ def critic_step(
     )
     critic_lr = rate(hparams.critic_lr)
     critics, opt = _adam(grads, agent.critic_opt, agent.critics, critic_lr, config.adam_b1)
-    return agent.replace(critics=critics, critic_opt=opt, critic_stats=stats), loss, q_tm1
+    return (
+        dataclasses.replace(agent, critics=critics, critic_opt=opt, critic_stats=stats),
+        loss,
+        q_tm1,
+    )
 
 
 def actor_step(
@@ -197,7 +202,7 @@ def actor_step(
     loss, grads = jax.value_and_grad(actor_loss_fn)(agent.actor, agent, obs, nets)
     actor_lr = rate(hparams.actor_lr)
     actor, opt = _adam(grads, agent.actor_opt, agent.actor, actor_lr, config.adam_b1)
-    return agent.replace(actor=actor, actor_opt=opt), loss
+    return dataclasses.replace(agent, actor=actor, actor_opt=opt), loss
 
 
 def update(

@@ -305,7 +305,11 @@ def critic_step(
     (loss, q_tm1), grads = jax.value_and_grad(critic_loss_fn, has_aux=True)(agent.critics, *inputs)
     critics, opt = adam_step(grads, agent.critic_opt, agent.critics, hparams.critic_lr)
     targets = polyak_update(agent.target_critics, critics, hparams.tau)
-    return agent.replace(critics=critics, critic_opt=opt, target_critics=targets), loss, q_tm1
+    return (
+        dataclasses.replace(agent, critics=critics, critic_opt=opt, target_critics=targets),
+        loss,
+        q_tm1,
+    )
 
 
 def actor_and_temperature_step(
@@ -321,14 +325,14 @@ def actor_and_temperature_step(
     inputs = (agent.critics, obs, key, alpha_of(agent), nets)
     (loss, log_pi), grads = jax.value_and_grad(actor_loss_fn, has_aux=True)(agent.actor, *inputs)
     actor, actor_opt = adam_step(grads, agent.actor_opt, agent.actor, hparams.actor_lr)
-    agent = agent.replace(actor=actor, actor_opt=actor_opt)
+    agent = dataclasses.replace(agent, actor=actor, actor_opt=actor_opt)
     target_entropy = hparams.target_entropy_per_dim * nets.low.shape[0]
     alpha_loss, alpha_grad = jax.value_and_grad(sac_parts.temperature_loss)(
         agent.log_alpha, log_pi, target_entropy
     )
     if config.learn_temperature:
         log_alpha, opt = adam_step(alpha_grad, agent.alpha_opt, agent.log_alpha, hparams.alpha_lr)
-        agent = agent.replace(log_alpha=log_alpha, alpha_opt=opt)
+        agent = dataclasses.replace(agent, log_alpha=log_alpha, alpha_opt=opt)
     return agent, (loss, alpha_loss, squashed_gaussian.entropy_estimate(log_pi))
 
 
@@ -423,7 +427,9 @@ def observe(
     if agent.obs_stats is None:
         return agent
     mask = jnp.ones(transitions.obs.shape[:1], jnp.float32)
-    return agent.replace(obs_stats=normalization.update(agent.obs_stats, transitions.obs, mask))
+    return dataclasses.replace(
+        agent, obs_stats=normalization.update(agent.obs_stats, transitions.obs, mask)
+    )
 
 
 LEARNER = offpolicy.Learner(init_agent, explore, act, update, METRICS, observe=observe)

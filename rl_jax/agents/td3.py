@@ -138,7 +138,8 @@ class Agent:
 def make_networks(config: Config) -> Networks:
     """The networks for ``config.env_id`` (cached: called at every trace)."""
     action_space = episodes.make_eval_env(config).action_space()
-    low, high = actor_critic.bounds(action_space, "TD3/DDPG")
+    box = actor_critic.bounded_box(action_space, "TD3/DDPG")
+    low, high = actor_critic.bounds(box, "TD3/DDPG")
     dtype = jnp.dtype(config.compute_dtype)
     actor = networks.Actor(
         config.actor_hidden,
@@ -158,7 +159,7 @@ def make_networks(config: Config) -> Networks:
         config.critic_norm,
         config.network,
     )
-    return Networks(actor, critic, action_space.low.copy(), action_space.high.copy())
+    return Networks(actor, critic, box.low.copy(), box.high.copy())
 
 
 # ---- acting -------------------------------------------------------------------------------------
@@ -197,11 +198,14 @@ def observe(
     config: Config,
     hparams: Hyperparams,
 ) -> Agent:
-    """Every env step: the running statistics take in the observations acted on."""
-    if not config.standardizes_obs:
+    """Every env step: the running statistics (kept with ``standardizes_obs``) take in the
+    observations acted on."""
+    if agent.obs_stats is None:
         return agent
     mask = jnp.ones(transitions.obs.shape[:1], jnp.float32)
-    return agent.replace(obs_stats=normalization.update(agent.obs_stats, transitions.obs, mask))
+    return dataclasses.replace(
+        agent, obs_stats=normalization.update(agent.obs_stats, transitions.obs, mask)
+    )
 
 
 def init_agent(
@@ -268,7 +272,7 @@ def critic_step(
     critics, critic_opt = injected_step(
         optax.adam, grads, agent.critic_opt, agent.critics, learning_rate=rate(hparams.critic_lr)
     )
-    return agent.replace(critics=critics, critic_opt=critic_opt), loss, q_tm1
+    return dataclasses.replace(agent, critics=critics, critic_opt=critic_opt), loss, q_tm1
 
 
 def actor_step(
@@ -279,7 +283,8 @@ def actor_step(
     actor, actor_opt = injected_step(
         optax.adam, grads, agent.actor_opt, agent.actor, learning_rate=rate(hparams.actor_lr)
     )
-    agent = agent.replace(
+    agent = dataclasses.replace(
+        agent,
         actor=actor,
         actor_opt=actor_opt,
         target_actor=polyak_update(agent.target_actor, actor, hparams.tau),

@@ -30,7 +30,7 @@ from __future__ import annotations
 
 import dataclasses
 import functools
-from typing import NamedTuple
+from typing import NamedTuple, cast
 
 import jax
 import jax.numpy as jnp
@@ -130,7 +130,8 @@ class Networks(NamedTuple):
 def make_networks(config: Config) -> Networks:
     """TD7's networks for ``config.env_id`` (cached)."""
     action_space = episodes.make_eval_env(config).action_space()
-    low, high = actor_critic.bounds(action_space, "TD7")
+    box = actor_critic.bounded_box(action_space, "TD7")
+    low, high = actor_critic.bounds(box, "TD7")
     dtype = jnp.dtype(config.compute_dtype)
     init, act_fn = config.network_init, config.actor_activation
     actor = networks.Actor(config.actor_hidden, low, high, init, dtype, act_fn)
@@ -138,7 +139,7 @@ def make_networks(config: Config) -> Networks:
     encoder = networks.StateActionEncoder(
         config.embedding_hidden, config.embedding_dim, init, dtype, config.critic_activation
     )
-    nets = actor_critic.Networks(actor, critic, action_space.low.copy(), action_space.high.copy())
+    nets = actor_critic.Networks(actor, critic, box.low.copy(), box.high.copy())
     return Networks(nets, encoder)
 
 
@@ -190,7 +191,7 @@ def observe(
         config,
         hparams.checkpoint_reset_weight,
     )
-    return agent.replace(checkpoint=checkpoint)
+    return dataclasses.replace(agent, checkpoint=checkpoint)
 
 
 def init_agent(
@@ -270,8 +271,9 @@ def encoder_loss_fn(
     online: Params, batch: CriticBatch, sale: networks.StateActionEncoder
 ) -> jax.Array:
     """SALE's loss: ``g(f(s), a)`` against ``f(s')`` of the same (online) encoder, stopped."""
-    zs_t = sale.apply(online, batch.next_obs, method="embed_state")
-    zsa_tm1 = sale.apply(online, batch.obs, batch.action)[1]
+    # flax types apply's result as the output or a pair with updated state; SALE has none
+    zs_t = cast(jax.Array, sale.apply(online, batch.next_obs, method="embed_state"))
+    _, zsa_tm1 = cast(tuple[jax.Array, jax.Array], sale.apply(online, batch.obs, batch.action))
     return td7_parts.sale_loss(zsa_tm1, zs_t)
 
 
@@ -289,7 +291,8 @@ def encoder_step(
     encoders = agent.encoders
     loss, grads = jax.value_and_grad(encoder_loss_fn)(encoders.online, batch, nets.sale)
     online, opt = _adam(grads, encoders.opt, encoders.online, rate(hparams.encoder_lr))
-    return agent.replace(encoders=encoders.replace(online=online, opt=opt)), loss
+    encoders = dataclasses.replace(encoders, online=online, opt=opt)
+    return dataclasses.replace(agent, encoders=encoders), loss
 
 
 def critic_step(
@@ -308,7 +311,12 @@ def critic_step(
     )
     critics, opt = _adam(grads, agent.critic_opt, agent.critics, rate(hparams.critic_lr))
     values = agent.value_range.seeing(target_range)
-    return agent.replace(critics=critics, critic_opt=opt, value_range=values), loss, q_tm1, td_tm1
+    return (
+        dataclasses.replace(agent, critics=critics, critic_opt=opt, value_range=values),
+        loss,
+        q_tm1,
+        td_tm1,
+    )
 
 
 def actor_step(
@@ -319,13 +327,14 @@ def actor_step(
     args = (agent.actor, agent.critics, agent.encoders.fixed, obs, nets)
     loss, grads = jax.value_and_grad(actor_loss_fn)(*args)
     actor, opt = _adam(grads, agent.actor_opt, agent.actor, rate(hparams.actor_lr))
-    return agent.replace(actor=actor, actor_opt=opt), loss
+    return dataclasses.replace(agent, actor=actor, actor_opt=opt), loss
 
 
 def copy_targets(agent: Agent) -> Agent:
     """TD7's periodic copies: targets <- online, fixed target encoder <- fixed <- online, and
     the value-clipping range renewed."""
-    return agent.replace(
+    return dataclasses.replace(
+        agent,
         target_actor=agent.actor,
         target_critics=agent.critics,
         value_range=agent.value_range.renewed(),

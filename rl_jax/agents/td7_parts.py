@@ -29,7 +29,8 @@ Naming as rlax (and ``td3``): ``td_tm1`` is the TD error of the transition's sta
 
 from __future__ import annotations
 
-from typing import Protocol
+import dataclasses
+from typing import Protocol, cast
 
 import jax
 import jax.numpy as jnp
@@ -94,7 +95,7 @@ class Encoders:
 
     def renewed(self) -> Encoders:
         """At a target update: fixed target <- fixed <- online."""
-        return self.replace(fixed_target=self.fixed, fixed=self.online)
+        return dataclasses.replace(self, fixed_target=self.fixed, fixed=self.online)
 
 
 @struct.dataclass
@@ -116,19 +117,22 @@ class ValueRange:
 
     def seeing(self, target_range: tuple[jax.Array, jax.Array]) -> ValueRange:
         low, high = target_range
-        return self.replace(
-            seen_min=jnp.minimum(self.seen_min, low), seen_max=jnp.maximum(self.seen_max, high)
+        return dataclasses.replace(
+            self,
+            seen_min=jnp.minimum(self.seen_min, low),
+            seen_max=jnp.maximum(self.seen_max, high),
         )
 
     def renewed(self) -> ValueRange:
         """At a target update: the bounds become the extremes seen so far."""
-        return self.replace(low=self.seen_min, high=self.seen_max)
+        return dataclasses.replace(self, low=self.seen_min, high=self.seen_max)
 
 
 # ---- SALE's embeddings of a fixed encoder, and LAP's replay --------------------------------------
 def embed_state(encoder: StateActionEncoder, params: Params, obs: jax.Array) -> jax.Array:
     """``z_s = f(obs)`` of a fixed encoder (no gradient into its parameters)."""
-    return encoder.apply(jax.lax.stop_gradient(params), obs, method="embed_state")
+    z_s = encoder.apply(jax.lax.stop_gradient(params), obs, method="embed_state")
+    return cast(jax.Array, z_s)
 
 
 def embeddings(
@@ -137,6 +141,7 @@ def embeddings(
     """The critics' extra input ``[z_sa, z_s]`` of a fixed encoder."""
     zs = embed_state(encoder, params, obs)
     zsa = encoder.apply(jax.lax.stop_gradient(params), zs, action, method="embed_pair")
+    zsa = cast(jax.Array, zsa)
     return jnp.concatenate([zsa, zs], axis=-1)
 
 

@@ -320,7 +320,7 @@ def train_iteration(
         agent = learner.observe(
             state.agent, transition, ts.info["episode_return"], done, state.clock, config, hparams
         )
-        state = state.replace(agent=agent)
+        state = dataclasses.replace(state, agent=agent)
     agent, buffer, metrics, updates = _updates(learner, config, hparams, state, update_key, buffer)
     noise = jnp.where(jnp.reshape(done, done.shape + (1,) * (noise.ndim - 1)), 0.0, noise)
     clock = Clock(
@@ -328,7 +328,8 @@ def train_iteration(
         updates=state.clock.updates + updates,
         iterations=state.clock.iterations + 1,
     )
-    state = state.replace(
+    state = dataclasses.replace(
+        state,
         agent=agent,
         buffer=buffer,
         env_state=env_state,
@@ -373,7 +374,7 @@ def train_chunk(
     train_return = jnp.where(
         count > 0, jnp.sum(return_sums) / jnp.maximum(count, 1), state.train_return
     )
-    state = state.replace(key=key, train_return=train_return)
+    state = dataclasses.replace(state, key=key, train_return=train_return)
     chunk_metrics = ChunkMetrics(
         env_steps=state.clock.env_steps,
         updates=state.clock.updates,

@@ -19,6 +19,7 @@ update, which dominates with buffers of 10^5-10^6 transitions.
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Callable
 from typing import Generic, cast
 
@@ -138,7 +139,8 @@ def _row_slots(prioritized: PrioritizedBuffer, row: jax.Array) -> jax.Array:
 def _set_priorities(
     prioritized: PrioritizedBuffer, slots: jax.Array, powered: jax.Array
 ) -> PrioritizedBuffer:
-    return prioritized.replace(
+    return dataclasses.replace(
+        prioritized,
         sums=tree_set(prioritized.sums, slots, powered, jnp.add),
         mins=tree_set(prioritized.mins, slots, powered, jnp.minimum),
     )
@@ -149,7 +151,7 @@ def add(
 ) -> PrioritizedBuffer[Item]:
     """Write one row (``rl_jax.training.replay.add``) with the largest priority so far."""
     slots = _row_slots(prioritized, prioritized.buffer.position)
-    prioritized = prioritized.replace(buffer=replay.add(prioritized.buffer, batch))
+    prioritized = dataclasses.replace(prioritized, buffer=replay.add(prioritized.buffer, batch))
     powered = jnp.full(slots.shape, prioritized.max_priority**alpha, jnp.float32)
     return _set_priorities(prioritized, slots, powered)
 
@@ -187,8 +189,8 @@ def update_priorities(
     priorities = priorities.astype(jnp.float32)
     slots = rows * prioritized.buffer.width + columns
     prioritized = _set_priorities(prioritized, slots, priorities**alpha)
-    return prioritized.replace(
-        max_priority=jnp.maximum(prioritized.max_priority, jnp.max(priorities))
+    return dataclasses.replace(
+        prioritized, max_priority=jnp.maximum(prioritized.max_priority, jnp.max(priorities))
     )
 
 
@@ -197,7 +199,7 @@ def reset_max_priority(prioritized: PrioritizedBuffer, alpha: ArrayLike) -> Prio
     largest ever given), as TD7 does at each target update: early large errors, long since
     corrected, no longer make every new transition a favourite. Read from the leaves' p^alpha."""
     powered = jnp.max(prioritized.sums[prioritized.leaves :])
-    return prioritized.replace(max_priority=powered ** (1.0 / alpha))
+    return dataclasses.replace(prioritized, max_priority=powered ** (1.0 / alpha))
 
 
 def nbytes(example: object, capacity: int, width: int) -> int:
