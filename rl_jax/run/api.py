@@ -43,7 +43,7 @@ from rl_jax.run.run_dir import CURVES_FILE, read_run_record, recorded_env
 from rl_jax.run.runner import run
 from rl_jax.run.spec import RunSpec
 from rl_jax.training.algorithm import Algorithm
-from rl_jax.training.episodes import episode_returns
+from rl_jax.training.episodes import episode_returns, recurrent_episode_returns
 from rl_jax.training.jax_setup import configure_jax, cpu_count
 from rl_jax.training.params import dataclass_from_dict
 
@@ -99,7 +99,10 @@ class Run:
         returns = {}
         for seed in self.seeds:
             loaded = LoadedPolicy(self.run_dir, seed, None, which, self.learner, self.env_id)
-            totals = evaluate_policy(loaded.env(), loaded.act(), jax.random.key(key), episodes)
+            initial = loaded.initial_policy_state()
+            totals = evaluate_policy(
+                loaded.env(), loaded.act(), jax.random.key(key), episodes, initial
+            )
             returns[seed] = float(np.mean(totals))
         return returns
 
@@ -257,11 +260,23 @@ def open_run(
 
 
 def evaluate_policy(
-    env: envs.Environment, act: Callable[[jax.Array], jax.Array], key: jax.Array, episodes: int
+    env: envs.Environment,
+    act: Callable[..., object],
+    key: jax.Array,
+    episodes: int,
+    initial_policy_state: object | None = None,
 ) -> np.ndarray:
     """``[episodes]`` undiscounted returns of ``act`` (one observation -> its action) in
     ``env``, all episodes vmapped in one jitted while loop (each stops at termination or the
-    env's step limit): ``rl_jax.training.episodes.episode_returns``."""
+    env's step limit): ``rl_jax.training.episodes.episode_returns``. With
+    ``initial_policy_state`` (a recurrent policy's, one env's), ``act`` maps ``(policy_state,
+    obs) -> (action, policy_state)`` and each episode starts from that state."""
+    if initial_policy_state is not None:
+        initial = initial_policy_state
+        run_all = jax.jit(
+            lambda key: recurrent_episode_returns(jax.vmap(act), initial, env, key, episodes)
+        )
+        return np.asarray(run_all(key))
     run_all = jax.jit(lambda key: episode_returns(jax.vmap(act), env, key, episodes))
     return np.asarray(run_all(key))
 

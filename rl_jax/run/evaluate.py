@@ -35,6 +35,7 @@ from rl_jax.run.api import evaluate_policy as returns_of
 from rl_jax.run.policy import (
     LoadedPolicy,
     Policy,
+    RecurrentPolicy,
     add_run_choice,
     command_line_env,
     command_line_learner,
@@ -61,7 +62,8 @@ class Evaluation:
 
 def evaluate_policy(loaded: LoadedPolicy, episodes: int, key: int = KEY) -> np.ndarray:
     """Returns ``[episodes]`` of ``loaded``'s deterministic policy in the run's env."""
-    return returns_of(loaded.env(), loaded.act(), jax.random.key(key), episodes)
+    initial = loaded.initial_policy_state()
+    return returns_of(loaded.env(), loaded.act(), jax.random.key(key), episodes, initial)
 
 
 def gymnasium_id(env_id: str) -> str:
@@ -98,6 +100,8 @@ def _play(
     returns = np.zeros(episodes)
     for episode in range(episodes):
         obs, _ = env.reset(seed=key + episode)
+        if isinstance(policy, RecurrentPolicy):
+            policy.reset()
         done = False
         while not done:
             obs, reward, terminated, truncated, _ = env.step(policy(obs))
@@ -111,7 +115,9 @@ def _in_gymnasium(loaded: LoadedPolicy, episodes: int) -> tuple[str, np.ndarray]
     env_id = gymnasium_id(loaded.env_id)
     keywords = envs.parse_keywords(getattr(loaded.config, "env_kwargs", ""))
     keywords = {name: value for name, value in keywords.items() if name not in OWN_KEYWORDS}
-    policy = Policy(loaded)
+    policy = (
+        RecurrentPolicy(loaded) if loaded.initial_policy_state() is not None else Policy(loaded)
+    )
     env = gymnasium.make(env_id, **keywords)
     try:
         shape = tuple(env.observation_space.shape or ())

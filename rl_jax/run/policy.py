@@ -40,7 +40,15 @@ from rl_jax.run.metrics import METRICS_FILE, read_rows
 from rl_jax.run.plan import make_plan
 from rl_jax.run.run_dir import CHECKPOINT_DIR, identity_hash, read_run_record, recorded_env
 from rl_jax.run.spec import RunSpec
-from rl_jax.training.algorithm import Algorithm, Config, PolicyFn, TrainState, hooks
+from rl_jax.training.algorithm import (
+    Algorithm,
+    Config,
+    PolicyFn,
+    PolicyState,
+    TrainState,
+    hooks,
+)
+from rl_jax.training.episodes import batched_policy_state, reset_policy_state
 from rl_jax.training.jax_setup import configure
 from rl_jax.training.params import dataclass_from_dict
 
@@ -140,8 +148,13 @@ class LoadedPolicy:
         return hooks(self.algorithm).make_env(self.config)
 
     def act(self) -> PolicyFn:
-        """The pure ``obs -> action`` JAX function (actions as the env of ``env()`` takes)."""
+        """The pure ``obs -> action`` JAX function (actions as the env of ``env()`` takes); for
+        a recurrent learner ``(policy_state, obs) -> (action, policy_state)``."""
         return self.algorithm.policy(self.state, self.config)
+
+    def initial_policy_state(self) -> PolicyState | None:
+        """One env's policy state at an episode start; None for a feed-forward policy."""
+        return hooks(self.algorithm).initial_policy_state(self.config)
 
     def describe(self) -> str:
         """One phrase naming the policy: best or latest, seed, config, step and eval return."""
@@ -201,6 +214,80 @@ class Policy:
         return f"<Policy: {self.loaded.describe()} of {self.loaded.run_dir}>"
 
 
+class RecurrentPolicy:
+    """The ``Policy`` of a recurrent learner: a callable that keeps the policy's state from
+    one call to the next (numpy in, numpy out; one observation or a batch ``[N, ...]``, the
+    batch's size kept until the next ``reset``).
+
+    Call ``reset()`` at every episode start; for a batch of envs that end at different times,
+    ``reset(done)`` gives a fresh state to the envs where ``done [N]`` is true only::
+
+        policy = rl_jax.load_policy("runs/rppo_cartpole_novel")
+        env = gymnasium.make("CartPole-v1")  # with the run's masking of the velocities
+        obs, _ = env.reset(seed=0)
+        policy.reset()
+        for _ in range(500):
+            obs, reward, terminated, truncated, _ = env.step(policy(obs))
+            if terminated or truncated:
+                obs, _ = env.reset()
+                policy.reset()
+    """
+
+    def __init__(self, loaded: LoadedPolicy):
+        self.loaded = loaded
+        env = loaded.env()
+        space = env.observation_space()
+        self.observation_shape = tuple(space.shape)
+        self._dtype = np.dtype(space.dtype)
+        step = loaded.act()
+        initial = loaded.initial_policy_state()
+        self._initial = initial
+        values = getattr(env, "action_values", None)
+        table = None if values is None else jnp.asarray(values)
+        step_legal: Callable[..., tuple[jax.Array, PolicyState]] = step
+
+        def batched(
+            policy_state: PolicyState, obs: jax.Array, legal: jax.Array | None
+        ) -> tuple[jax.Array, PolicyState]:
+            if legal is None:
+                action, policy_state = jax.vmap(step)(policy_state, obs)
+            else:
+                action, policy_state = jax.vmap(step_legal)(policy_state, obs, legal)
+            return (action if table is None else table[action]), policy_state
+
+        self._act = jax.jit(batched)
+        self._reset = jax.jit(lambda done, ps: reset_policy_state(done, ps, initial))
+        self._state: PolicyState | None = None  # made at the first call after a reset
+
+    def reset(self, done: npt.ArrayLike | None = None) -> None:
+        """A fresh policy state: for every env, or (a batch) for those where ``done``."""
+        if done is None or self._state is None:
+            self._state = None
+            return
+        self._state = self._reset(jnp.asarray(np.asarray(done, dtype=bool)), self._state)
+
+    def __call__(self, obs: npt.ArrayLike, legal: npt.ArrayLike | None = None) -> np.ndarray:
+        obs = np.asarray(obs, dtype=self._dtype)
+        single = obs.shape == self.observation_shape
+        if not single and obs.shape[1:] != self.observation_shape:
+            raise ValueError(
+                f"expected an observation of shape {self.observation_shape} or a batch "
+                f"[N, *{self.observation_shape}], got shape {obs.shape}"
+            )
+        batch = obs[None] if single else obs
+        if self._state is None:
+            self._state = batched_policy_state(self._initial, batch.shape[0])
+        if legal is not None:
+            legal = np.asarray(legal, dtype=bool)
+            legal = legal[None] if single else legal
+        action, self._state = self._act(self._state, batch, legal)
+        action = np.asarray(action)
+        return action[0] if single else action
+
+    def __repr__(self) -> str:
+        return f"<RecurrentPolicy: {self.loaded.describe()} of {self.loaded.run_dir}>"
+
+
 def add_run_choice(parser: argparse.ArgumentParser, seed_help: str) -> None:
     """The ``--seed``, ``--config`` and ``--algo`` options of the commands that load a run's
     policies."""
@@ -248,8 +335,9 @@ def load_policy(
     config: int | None = None,
     algorithm: str | Algorithm | None = None,
     env: str | None = None,
-) -> Policy:
-    """The trained policy of a run as a numpy ``obs -> action`` callable.
+) -> Policy | RecurrentPolicy:
+    """The trained policy of a run as a numpy ``obs -> action`` callable (a ``RecurrentPolicy``,
+    which keeps its state between calls and has ``reset()``, for a recurrent learner).
 
     ``seed``: which seed (default: the one with the best eval return); ``which``: "best" (the
     policy of that seed's best evaluation) or "latest" (its latest checkpoint); ``config``: the
@@ -258,7 +346,10 @@ def load_policy(
     comes from a module of your own (``MODULE:ID``, as ``--env`` names it).
     """
     configure()
-    return Policy(LoadedPolicy(Path(run_dir), seed, config, which, algorithm, env))
+    loaded = LoadedPolicy(Path(run_dir), seed, config, which, algorithm, env)
+    if loaded.initial_policy_state() is not None:
+        return RecurrentPolicy(loaded)
+    return Policy(loaded)
 
 
 def _index(tree: Tree, run: tuple[int, int]) -> Tree:

@@ -66,9 +66,18 @@ _GL_MARKERS = ("OpenGL", "EGL", "GLFW", "glGetError", "mjr_makeContext", "osmesa
 
 
 def rollout(
-    env: Environment, act: Callable[[jax.Array], jax.Array], key: jax.Array, episodes: int
+    env: Environment,
+    act: Callable[..., object],
+    key: jax.Array,
+    episodes: int,
+    initial_policy_state: object | None = None,
 ) -> list[dict[str, Any]]:
-    """``episodes`` episodes of ``act`` in ``env``: per episode the states and total reward."""
+    """``episodes`` episodes of ``act`` in ``env``: per episode the states and total reward.
+    With ``initial_policy_state`` (a recurrent policy's, one env's) ``act`` maps
+    ``(policy_state, obs[, legal])`` to ``(action, policy_state)``, the state starting each
+    episode from it."""
+    if initial_policy_state is not None:
+        return _recurrent_rollout(env, act, key, episodes, initial_policy_state)
     params = env.default_params
     reset = jax.jit(lambda key: env.reset(key, params))
     masked = has_action_mask(env)  # then the policy is given each obs's legal actions
@@ -87,6 +96,45 @@ def rollout(
             key, key_step = jax.random.split(key)
             legal = timestep.info[ACTION_MASK] if masked else None
             state, timestep = step(key_step, state, timestep.obs, legal)
+            states.append(jax.device_get(state))
+            total += float(timestep.reward)
+            if bool(timestep.terminated) or bool(timestep.truncated):
+                break
+        results.append({"states": states, "return": total})
+    return results
+
+
+def _recurrent_rollout(
+    env: Environment,
+    act: Callable[..., tuple[jax.Array, object]],
+    key: jax.Array,
+    episodes: int,
+    initial: object,
+) -> list[dict[str, object]]:
+    """``rollout`` of a recurrent policy: its state starts every episode from ``initial``."""
+    params = env.default_params
+    reset = jax.jit(lambda key: env.reset(key, params))
+    masked = has_action_mask(env)
+
+    def choose(policy_state: object, obs: jax.Array, legal: jax.Array | None):
+        return act(policy_state, obs) if legal is None else act(policy_state, obs, legal)
+
+    def advance(key, state, policy_state, obs, legal):
+        action, policy_state = choose(policy_state, obs, legal)
+        state, timestep = env.step(key, state, action, params)
+        return state, timestep, policy_state
+
+    step = jax.jit(advance)
+    results = []
+    for _ in range(episodes):
+        key, key_reset = jax.random.split(key)
+        state, timestep = reset(key_reset)
+        policy_state = initial
+        states, total = [jax.device_get(state)], 0.0
+        for _ in range(env.max_episode_steps):
+            key, key_step = jax.random.split(key)
+            legal = timestep.info[ACTION_MASK] if masked else None
+            state, timestep, policy_state = step(key_step, state, policy_state, timestep.obs, legal)
             states.append(jax.device_get(state))
             total += float(timestep.reward)
             if bool(timestep.terminated) or bool(timestep.truncated):
@@ -197,7 +245,8 @@ def write_gif(
         loaded = LoadedPolicy(Path(run_dir), seed, config_index, which, algorithm, env)
         played = loaded.env()
         act = loaded.act()
-        episodes_data = rollout(played, act, jax.random.key(loaded.seed), episodes)
+        initial = loaded.initial_policy_state()
+        episodes_data = rollout(played, act, jax.random.key(loaded.seed), episodes, initial)
         frames = [f for episode in episodes_data for f in episode_frames(played, episode["states"])]
         path = Path(out) if out is not None else free_gif_path(Path(run_dir))
         replaced = path.exists()

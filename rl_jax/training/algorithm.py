@@ -98,6 +98,9 @@ class DataclassState(Protocol):
 TrainState: TypeAlias = DataclassState | tuple[object, ...]
 #: ``obs -> action`` of a deterministic policy.
 PolicyFn: TypeAlias = Callable[[jax.Array], jax.Array]
+#: What a recurrent policy carries from one step of an episode to the next (one env's): a pytree
+#: of arrays, e.g. an LSTM's ``(c, h)``.
+PolicyState: TypeAlias = object
 
 
 class Algorithm(Protocol):
@@ -125,7 +128,9 @@ class Algorithm(Protocol):
         """``config.iterations_per_chunk`` train iterations, then one evaluation. Pure."""
 
     def policy(self, state: TrainState, config: Config) -> PolicyFn:
-        """A pure ``obs -> action`` function of the deterministic policy (for eval and GIFs)."""
+        """A pure ``obs -> action`` function of the deterministic policy (for eval and GIFs);
+        for a recurrent learner (``OptionalHooks.initial_policy_state``) a pure
+        ``(policy_state, obs) -> (action, policy_state)``."""
 
 
 @runtime_checkable
@@ -208,6 +213,14 @@ class OptionalHooks(Generic[ConfigT]):
         than a vmap (``rl_jax.training.parallel``: faster for conv nets on CPU). Default: no."""
         return False
 
+    def initial_policy_state(self, config: ConfigT) -> PolicyState | None:
+        """The state a recurrent policy starts each episode with, for one env (a pytree of
+        arrays), or None (the default): the policy is feed-forward. Where it is not None, the
+        learner's ``policy(state, config)`` maps ``(policy_state, obs[, legal])`` to
+        ``(action, policy_state)``, and whoever acts (evaluation, GIFs, ``load_policy``) gives
+        each env this state again at every episode start."""
+        return None
+
     def defines_hook(self, name: str) -> bool:
         """Whether the algorithm defines the hook ``name`` itself rather than taking its
         default here."""
@@ -230,6 +243,7 @@ HOOKS = (
     "warm_up_steps",
     "replay_capacity",
     "loop_seeds",
+    "initial_policy_state",
 )
 
 

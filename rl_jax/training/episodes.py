@@ -18,6 +18,9 @@ from rl_jax import envs
 from rl_jax.envs.core.preprocessing import ACTION_MASK
 from rl_jax.training.replay import Transition
 
+#: One env's (or, with a leading axis, a batch's) recurrent policy state: a pytree of arrays.
+PolicyState = object
+
 
 class EnvConfig(Hashable, Protocol):
     """What a learner's config offers the env builders (frozen, so hashable: they cache)."""
@@ -138,4 +141,81 @@ def _masked_episode_returns(
     alive = jnp.ones(episodes, jnp.bool_)
     total = jnp.zeros(episodes, jnp.float32)
     carry = (jnp.int32(0), env_state, ts.obs, ts.info[mask_key], alive, total)
+    return jax.lax.while_loop(running, step, carry)[-1]
+
+
+# ---- recurrent policies ------------------------------------------------------------------------
+def batched_policy_state(initial: PolicyState, count: int) -> PolicyState:
+    """``count`` copies (leading axis) of one env's initial policy state."""
+    return jax.tree.map(lambda leaf: jnp.broadcast_to(leaf, (count, *jnp.shape(leaf))), initial)
+
+
+def reset_policy_state(
+    starts: jax.Array, policy_state: PolicyState, initial: PolicyState
+) -> PolicyState:
+    """``policy_state [N, ...]`` with the envs where ``starts [N]`` (an episode begins: after an
+    autoreset, ``terminated | truncated``) given ``initial`` (one env's) again."""
+
+    def reset(leaf: jax.Array, first: jax.Array) -> jax.Array:
+        where = jnp.reshape(starts, starts.shape + (1,) * (leaf.ndim - starts.ndim))
+        return jnp.where(where, first, leaf)
+
+    return jax.tree.map(reset, policy_state, initial)
+
+
+def evaluate_recurrent(
+    act: Callable[..., tuple[jax.Array, PolicyState]],
+    initial: PolicyState,
+    agent: object,
+    config: EnvConfig,
+    key: jax.Array,
+) -> jax.Array:
+    """``evaluate`` for a recurrent policy ``act(agent, policy_state [N, ...], obs [N, ...],
+    config[, legal [N, A]]) -> (actions, policy_state)``: each episode starts from ``initial``
+    (one env's state)."""
+    env = make_eval_env(config)
+    if envs.has_action_mask(env):
+        masked = lambda ps, obs, legal: act(agent, ps, obs, config, legal)  # noqa: E731
+        returns = recurrent_episode_returns(masked, initial, env, key, config.num_eval_envs)
+        return jnp.mean(returns)
+    plain = lambda ps, obs: act(agent, ps, obs, config)  # noqa: E731
+    return jnp.mean(recurrent_episode_returns(plain, initial, env, key, config.num_eval_envs))
+
+
+def recurrent_episode_returns(
+    policy: Callable[..., tuple[jax.Array, PolicyState]],
+    initial: PolicyState,
+    env: envs.Environment,
+    key: jax.Array,
+    episodes: int,
+) -> jax.Array:
+    """``episode_returns`` of a recurrent policy ``(policy_state [N, ...], obs [N, ...][, legal
+    [N, A]]) -> (actions [N, ...], policy_state)``: every episode starts from ``initial`` (one
+    env's state), which the policy then carries from step to step."""
+    reset_key, step_key = jax.random.split(key)
+    env_state, ts = jax.vmap(env.reset)(jax.random.split(reset_key, episodes))
+    masked = envs.has_action_mask(env)
+
+    def running(carry):
+        time, _, _, _, _, alive, _ = carry
+        return jnp.logical_and(time < env.max_episode_steps, jnp.any(alive))
+
+    def step(carry):
+        time, env_state, policy_state, obs, legal, alive, total = carry
+        keys = jax.random.split(jax.random.fold_in(step_key, time), episodes)
+        if masked:
+            action, policy_state = policy(policy_state, obs, legal)
+        else:
+            action, policy_state = policy(policy_state, obs)
+        env_state, ts = jax.vmap(env.step)(keys, env_state, action)
+        total = total + jnp.where(alive, ts.reward, 0.0)
+        alive = jnp.logical_and(alive, ~jnp.logical_or(ts.terminated, ts.truncated))
+        legal = ts.info[ACTION_MASK] if masked else None
+        return time + 1, env_state, policy_state, ts.obs, legal, alive, total
+
+    alive = jnp.ones(episodes, jnp.bool_)
+    total = jnp.zeros(episodes, jnp.float32)
+    legal = ts.info[ACTION_MASK] if masked else None
+    policy_state = batched_policy_state(initial, episodes)
+    carry = (jnp.int32(0), env_state, policy_state, ts.obs, legal, alive, total)
     return jax.lax.while_loop(running, step, carry)[-1]
