@@ -362,7 +362,7 @@ def handshake(cluster: Cluster, address: str, timeout: float, agreed: join.Finge
     moved_to = join.port_file(agreed.resolved, agreed.job) if derived else None
     try:
         if rank == 0:
-            port = _lead(port, count, agreed, timeout, moved_to)
+            port = _lead(host, port, count, agreed, timeout, moved_to)
         else:
             moved = None if moved_to is None else lambda: join.read_port(moved_to)
             port = join.follow(host, port, rank, count, agreed, timeout, moved)
@@ -374,7 +374,12 @@ def handshake(cluster: Cluster, address: str, timeout: float, agreed: join.Finge
 
 
 def _lead(
-    port: int, count: int, agreed: join.Fingerprint, timeout: float, moved_to: Path | None
+    host: str,
+    port: int,
+    count: int,
+    agreed: join.Fingerprint,
+    timeout: float,
+    moved_to: Path | None,
 ) -> int:
     """Process 0's side of the handshake; returns the port it held."""
     try:
@@ -383,7 +388,7 @@ def _lead(
     except join.PortTaken:
         pass
     try:  # held here: by another process 0 of this run (a duplicate rank), or not ours
-        join.follow("localhost", port, 0, count, agreed, join.SEE_SECONDS)
+        join.follow(host, port, 0, count, agreed, join.SEE_SECONDS)
     except join.JoinError as error:
         if not error.held or moved_to is None:
             raise
