@@ -333,3 +333,53 @@ def test_the_lead_names_the_process_whose_signal_stops_the_run(monkeypatch):
     assert processes.stopped_by(asked=1, requeue=2) == "SIGTERM or SIGINT on process 1"
     monkeypatch.setattr(processes, "_last_agreed", [np.array([[0, 0, 0], [0, 1, 1], [0, 1, 1]])])
     assert processes.stopped_by(asked=1, requeue=2) == "SIGUSR1 on processes 1, 2"
+
+
+def can_hide_folders() -> bool:
+    """Whether this process may mount over a folder in a namespace of its own (root, or user
+    namespaces): how a host that does not share a folder is played here."""
+    try:
+        done = subprocess.run(
+            ["unshare", "-m", "--map-root-user", "true"], capture_output=True, timeout=30
+        )
+    except (OSError, subprocess.SubprocessError):
+        return False
+    return done.returncode == 0
+
+
+@pytest.mark.slow
+@pytest.mark.skipif(not can_hide_folders(), reason="needs unshare -m (a mount namespace)")
+def test_a_run_directory_another_process_cannot_see_stops_both_with_one_line(tmp_path):
+    """Process 1 runs in a mount namespace where an empty tmpfs covers the folder that holds
+    the run directory: the same path, another file system, as on a host that does not share
+    it."""
+    port = launch.free_port()
+    out = ["--seeds", "2", "--out", str(tmp_path / "run")]
+    hidden = f'mount -t tmpfs none "{tmp_path}" && exec "$@"'  # the same path, an empty folder
+    command = [sys.executable, str(SCRIPT), *TINY, *out, *places(port, 1)]
+    started = time.monotonic()
+    processes = [
+        subprocess.Popen(
+            [sys.executable, str(SCRIPT), *TINY, *out, *places(port, 0)],
+            cwd=tmp_path,
+            env={**ENV, "RL_JAX_CPU_DEVICES": "1"},
+            stdout=subprocess.PIPE,
+            stderr=subprocess.PIPE,
+            text=True,
+        ),
+        subprocess.Popen(
+            ["unshare", "-m", "--map-root-user", "sh", "-c", hidden, "sh", *command],
+            cwd="/",
+            env={**ENV, "RL_JAX_CPU_DEVICES": "1"},
+            stdout=subprocess.PIPE,
+            stderr=subprocess.PIPE,
+            text=True,
+        ),
+    ]
+    ended = []
+    for process in processes:
+        stdout, stderr = process.communicate(timeout=120)
+        ended.append(subprocess.CompletedProcess(process.args, process.returncode, stdout, stderr))
+    assert time.monotonic() - started < 30
+    assert_one_line_each(ended, "the run directory is not shared between the processes' hosts")
+    assert list(tmp_path.iterdir()) == []
