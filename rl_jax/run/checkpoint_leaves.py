@@ -9,7 +9,7 @@ layout is described in one line instead of being cast to.
 from __future__ import annotations
 
 import json
-from typing import Any
+from typing import Any, TypeGuard
 
 import jax
 import numpy as np
@@ -17,7 +17,7 @@ import numpy as np
 from rl_jax.errors import CheckpointError
 
 
-def is_key(leaf: object) -> bool:
+def is_key(leaf: object) -> TypeGuard[jax.Array]:
     """Whether ``leaf`` is a typed PRNG key array (saved as its key data)."""
     return hasattr(leaf, "dtype") and jax.dtypes.issubdtype(leaf.dtype, jax.dtypes.prng_key)
 
@@ -40,7 +40,9 @@ def leaf_record(path: str, leaf: object) -> dict[str, Any]:
     return {"path": path, "kind": "json", "value": leaf}
 
 
-def split_state(state: object) -> tuple[dict[str, jax.Array], list[dict[str, Any]]]:
+def split_state(
+    state: object,
+) -> tuple[dict[str, jax.Array | np.ndarray], list[dict[str, Any]]]:
     """The saveable arrays (keyed ``leaf_00000``...) and the per-leaf records."""
     arrays, records = {}, []
     for index, (path, leaf) in enumerate(jax.tree_util.tree_flatten_with_path(state)[0]):

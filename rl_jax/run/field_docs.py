@@ -36,7 +36,10 @@ def _class_field_docs(cls: type) -> dict[str, str]:
         source = textwrap.dedent(inspect.getsource(cls))
     except (OSError, TypeError):
         return {}
-    body = ast.parse(source).body[0].body
+    definition = ast.parse(source).body[0]
+    if not isinstance(definition, ast.ClassDef):
+        return {}
+    body = definition.body
     comments, lines = _comments(source), source.splitlines()
     docs = {}
     for index, node in enumerate(body):
@@ -52,7 +55,7 @@ def _class_field_docs(cls: type) -> dict[str, str]:
         elif node.end_lineno in comments:
             docs[node.target.id] = comments[node.end_lineno]
         else:
-            above = []
+            above: list[str] = []
             line = node.lineno - 1
             while line in comments and lines[line - 1].lstrip().startswith("#"):
                 above.insert(0, comments[line])

@@ -65,7 +65,7 @@ def parser_for(default: FieldValue) -> Callable[[str], FieldValue]:
     comma-separated tuple, or a string.
     """
     kind = kind_of(default)
-    if kind == "tuple":
+    if isinstance(default, tuple):  # kind "tuple"
         # An empty default says nothing of its elements: widths and sizes are whole numbers.
         element = parser_for(default[0]) if default else parse_int
 
@@ -78,7 +78,7 @@ def parser_for(default: FieldValue) -> Callable[[str], FieldValue]:
 
 
 def _metavar(default: FieldValue) -> str:
-    if kind_of(default) == "tuple":
+    if isinstance(default, tuple):  # kind "tuple"
         return f"{kind_of(default[0]).upper() if default else 'X'},..."
     return kind_of(default).upper()
 

@@ -322,8 +322,9 @@ def _origin(module: types.ModuleType, attribute: str | None) -> Origin:
     name = module.__name__
     if name == _PACKAGE or name.startswith(_PACKAGE + "."):
         return Origin(BUILTIN)
-    if name == "__main__" and getattr(module, "__file__", None):
-        return Origin("file", str(Path(module.__file__).absolute()), attribute)
+    file = getattr(module, "__file__", None)
+    if name == "__main__" and file:
+        return Origin("file", str(Path(file).absolute()), attribute)
     return Origin("module", name, attribute)
 
 

@@ -422,8 +422,11 @@ def with_newer_fields(saved: dict[str, Any], wanted: dict[str, Any]) -> dict[str
     if isinstance(saved.get("config"), dict) and isinstance(wanted.get("config"), dict):
         upgraded["config"] = _upgraded(saved["config"], wanted["config"])
     saved_hparams, wanted_hparams = saved.get("hparams"), wanted.get("hparams")
-    comparable = isinstance(saved_hparams, list) and isinstance(wanted_hparams, list)
-    if comparable and len(saved_hparams) == len(wanted_hparams):
+    if (
+        isinstance(saved_hparams, list)
+        and isinstance(wanted_hparams, list)
+        and len(saved_hparams) == len(wanted_hparams)
+    ):
         upgraded["hparams"] = [
             _upgraded(old, new) for old, new in zip(saved_hparams, wanted_hparams, strict=True)
         ]

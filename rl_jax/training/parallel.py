@@ -27,6 +27,7 @@ Usage::
 from __future__ import annotations
 
 import dataclasses
+import functools
 from collections.abc import Callable, Sequence
 from typing import Any, TypeAlias, TypeVar
 
@@ -126,7 +127,7 @@ def seed_loop(chunk_one: Chunk, axes: Axes, num_seeds: int) -> Chunk:
 
     def looped(state: TrainState, hp: Hyperparams) -> tuple[TrainState, ChunkMetrics]:
         outputs = [
-            chunk_one(map_axes(lambda axis, leaf, i=i: _take(axis, leaf, i), axes, state), hp)
+            chunk_one(map_axes(functools.partial(_take, index=i), axes, state), hp)
             for i in range(num_seeds)
         ]
         states = [output[0] for output in outputs]
@@ -300,8 +301,8 @@ class Program:
             function, mesh=self.mesh, in_specs=in_specs, out_specs=out_specs, check_vma=False
         )
 
-    def _build(self, hparams: Hyperparams) -> None:
-        """The jitted init and chunk, shared by every ``Program`` of the same algorithm, config
+    def _build(self, hparams: Hyperparams) -> tuple[jax.stages.Wrapped, jax.stages.Wrapped]:
+        """The jitted ``(init, chunk)``, shared by every ``Program`` of the same algorithm, config
         and layout in this process (a resumed or repeated run does not trace again)."""
         if self._key_impl is None:  # a restored state trains before any init: the default
             self._key_impl = jax.random.key_impl(jax.random.key(0))
@@ -318,6 +319,7 @@ class Program:
             _PROGRAMS[key] = self._programs(hparams)
         self._init, self._chunk = _PROGRAMS[key]
         self._program_key = key
+        return _PROGRAMS[key]
 
     def _programs(self, hparams: Hyperparams) -> tuple[jax.stages.Wrapped, jax.stages.Wrapped]:
         algorithm, config = self.algorithm, self.config
@@ -375,30 +377,27 @@ class Program:
         ``[H]``-stacked hyperparameters."""
         self._check(keys.shape[0], hparams)
         self._key_impl = jax.random.key_impl(keys)
-        if self._init is None:
-            self._build(hparams)
+        init = self._init if self._init is not None else self._build(hparams)[0]
         key_data = _pad_edge(_host(keys), (self.layout.padded_seeds,))
         placed_keys = self._put(key_data, self.sharding(PartitionSpec(AXES[1])))
-        return self._init(placed_keys, self._placed(hparams))
+        return init(placed_keys, self._placed(hparams))
 
     def train_chunk(
         self, state: TrainState, hparams: Hyperparams
     ) -> tuple[TrainState, ChunkMetrics]:
         """One chunk for every run (metrics leaves ``[H_padded, S_padded]``; ``gather`` cuts
         them). ``state`` is donated: use the returned one."""
-        if self._chunk is None:
-            self._build(hparams)
-        return self._chunk(state, self._placed(hparams))
+        chunk = self._chunk if self._chunk is not None else self._build(hparams)[1]
+        return chunk(state, self._placed(hparams))
 
     def compile(self, state: TrainState, hparams: Hyperparams) -> Chunk:
         """The chunk compiled ahead of time (to time compilation apart from training):
         ``compiled(state, hparams) -> (state, metrics)``."""
-        if self._chunk is None:
-            self._build(hparams)
+        chunk = self._chunk if self._chunk is not None else self._build(hparams)[1]
         key = self._program_key
         assert key is not None  # set by _build
         if key not in _COMPILED:
-            lowered = self._chunk.lower(state, self._placed(hparams))
+            lowered = chunk.lower(state, self._placed(hparams))
             _COMPILED[key] = lowered.compile()
         compiled = _COMPILED[key]
         return lambda state, hparams: compiled(state, self._placed(hparams))

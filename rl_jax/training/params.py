@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import dataclasses
 import itertools
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from typing import TYPE_CHECKING, Any, TypeAlias, TypeVar
 
 import jax
@@ -67,7 +67,7 @@ def stack(hparams_list: Sequence[T]) -> T:
 # ---- grids ----------------------------------------------------------------------------------
 
 
-def product(values: dict[str, Sequence[Any]]) -> list[dict[str, Any]]:
+def product(values: Mapping[str, Sequence[Any]]) -> list[dict[str, Any]]:
     """Every combination of the named values, ``{name: value}`` each, first name slowest."""
     names = list(values)
     return [
@@ -76,7 +76,7 @@ def product(values: dict[str, Sequence[Any]]) -> list[dict[str, Any]]:
     ]
 
 
-def expand(base: D, values: dict[str, Sequence[Any]]) -> list[D]:
+def expand(base: D, values: Mapping[str, Sequence[Any]]) -> list[D]:
     """``base`` (a dataclass) with each combination of ``product(values)`` replaced in it."""
     return [dataclasses.replace(base, **point) for point in product(values)]
 
