@@ -26,6 +26,7 @@ readability) happens before the first write.
 from __future__ import annotations
 
 import dataclasses
+import functools
 import io
 import os
 import subprocess
@@ -279,9 +280,8 @@ def _train(session: Session, start: Start, stop: GracefulStop, progress: Progres
         session.updates = int(np.max(metrics.updates))
         session.write(metric_rows(metrics, spec, chunk, session.wall_clock(), grid))
         check_finite(session, metrics, finite)
-        session.best.observe(
-            metrics.eval_return, metrics.env_steps, lambda state=state: _best(plan, state, session)
-        )
+        fetch = functools.partial(_best, plan, state, session)  # this chunk's state
+        session.best.observe(metrics.eval_return, metrics.env_steps, fetch)
         progress.update(session.step, session.updates, metrics.eval_return)
         if not estimated and chunk + 1 < plan.chunks:
             estimated = estimate_remaining(
