@@ -23,6 +23,10 @@ class Trajectory(NamedTuple):
     mask: jax.Array  # [T, N] float32, 1 on steps inside an episode
 
 
+#: A rollout's loop state: (time [], env states, obs [N, ...], alive [N], the trajectory so far)
+Carry = tuple[jax.Array, object, jax.Array, jax.Array, Trajectory]
+
+
 @functools.lru_cache(maxsize=64)
 def make_network(config: Config) -> networks.StochasticPolicy:
     space = episodes.make_eval_env(config).action_space()
@@ -101,11 +105,11 @@ def rollout(
         mask=jnp.zeros((horizon, count), jnp.float32),
     )
 
-    def running(carry):
+    def running(carry: Carry) -> jax.Array:
         time, _, _, alive, _ = carry
         return jnp.logical_and(time < horizon, jnp.any(alive))
 
-    def step(carry):
+    def step(carry: Carry) -> Carry:
         time, env_state, obs, alive, trajectory = carry
         action_key, step_key = jax.random.split(jax.random.fold_in(key, time))
         policy = policy_outputs(params, obs_stats, obs, config)
