@@ -24,9 +24,8 @@ work on it. Progress is one line per ``log_interval`` seconds when the output is
 from __future__ import annotations
 
 import os
-from collections.abc import Callable
 from pathlib import Path
-from typing import Any
+from typing import Any, cast
 
 import jax
 import numpy as np
@@ -42,7 +41,7 @@ from rl_jax.run.render import write_gif
 from rl_jax.run.run_dir import CURVES_FILE, read_run_record, recorded_env
 from rl_jax.run.runner import run
 from rl_jax.run.spec import RunSpec
-from rl_jax.training.algorithm import Algorithm
+from rl_jax.training.algorithm import Algorithm, PolicyFn, RecurrentPolicyFn
 from rl_jax.training.episodes import episode_returns, recurrent_episode_returns
 from rl_jax.training.jax_setup import configure_jax, cpu_count
 from rl_jax.training.params import dataclass_from_dict
@@ -261,7 +260,7 @@ def open_run(
 
 def evaluate_policy(
     env: envs.Environment,
-    act: Callable[..., object],
+    act: PolicyFn | RecurrentPolicyFn,
     key: jax.Array,
     episodes: int,
     initial_policy_state: object | None = None,
@@ -272,12 +271,13 @@ def evaluate_policy(
     ``initial_policy_state`` (a recurrent policy's, one env's), ``act`` maps ``(policy_state,
     obs) -> (action, policy_state)`` and each episode starts from that state."""
     if initial_policy_state is not None:
-        initial = initial_policy_state
+        initial, recurrent = initial_policy_state, cast(RecurrentPolicyFn, act)
         run_all = jax.jit(
-            lambda key: recurrent_episode_returns(jax.vmap(act), initial, env, key, episodes)
+            lambda key: recurrent_episode_returns(jax.vmap(recurrent), initial, env, key, episodes)
         )
         return np.asarray(run_all(key))
-    run_all = jax.jit(lambda key: episode_returns(jax.vmap(act), env, key, episodes))
+    feed_forward = cast(PolicyFn, act)
+    run_all = jax.jit(lambda key: episode_returns(jax.vmap(feed_forward), env, key, episodes))
     return np.asarray(run_all(key))
 
 

@@ -24,7 +24,7 @@ from __future__ import annotations
 import argparse
 from collections.abc import Callable
 from pathlib import Path
-from typing import Any
+from typing import Any, cast
 
 import jax
 import jax.numpy as jnp
@@ -45,6 +45,7 @@ from rl_jax.training.algorithm import (
     Config,
     PolicyFn,
     PolicyState,
+    RecurrentPolicyFn,
     TrainState,
     hooks,
 )
@@ -239,12 +240,11 @@ class RecurrentPolicy:
         space = env.observation_space()
         self.observation_shape = tuple(space.shape)
         self._dtype = np.dtype(space.dtype)
-        step = loaded.act()
+        step = cast(RecurrentPolicyFn, loaded.act())
         initial = loaded.initial_policy_state()
         self._initial = initial
         values = getattr(env, "action_values", None)
         table = None if values is None else jnp.asarray(values)
-        step_legal: Callable[..., tuple[jax.Array, PolicyState]] = step
 
         def batched(
             policy_state: PolicyState, obs: jax.Array, legal: jax.Array | None
@@ -252,7 +252,7 @@ class RecurrentPolicy:
             if legal is None:
                 action, policy_state = jax.vmap(step)(policy_state, obs)
             else:
-                action, policy_state = jax.vmap(step_legal)(policy_state, obs, legal)
+                action, policy_state = jax.vmap(step)(policy_state, obs, legal)
             return (action if table is None else table[action]), policy_state
 
         self._act = jax.jit(batched)

@@ -35,7 +35,7 @@ import traceback
 import warnings
 from collections.abc import Callable, Iterator
 from pathlib import Path
-from typing import Any
+from typing import Any, cast
 
 import imageio.v2 as imageio
 import jax
@@ -51,7 +51,7 @@ from rl_jax.run.policy import (
     command_line_env,
     command_line_learner,
 )
-from rl_jax.training.algorithm import Algorithm
+from rl_jax.training.algorithm import Algorithm, PolicyFn, RecurrentPolicyFn
 from rl_jax.training.jax_setup import configure
 
 NO_OPENGL = (
@@ -67,7 +67,7 @@ _GL_MARKERS = ("OpenGL", "EGL", "GLFW", "glGetError", "mjr_makeContext", "osmesa
 
 def rollout(
     env: Environment,
-    act: Callable[..., object],
+    act: PolicyFn | RecurrentPolicyFn,
     key: jax.Array,
     episodes: int,
     initial_policy_state: object | None = None,
@@ -77,14 +77,15 @@ def rollout(
     ``(policy_state, obs[, legal])`` to ``(action, policy_state)``, the state starting each
     episode from it."""
     if initial_policy_state is not None:
-        return _recurrent_rollout(env, act, key, episodes, initial_policy_state)
+        recurrent = cast(RecurrentPolicyFn, act)
+        return _recurrent_rollout(env, recurrent, key, episodes, initial_policy_state)
     params = env.default_params
     reset = jax.jit(lambda key: env.reset(key, params))
     masked = has_action_mask(env)  # then the policy is given each obs's legal actions
-    act_legal: Callable[..., jax.Array] = act
+    act_legal = cast(Callable[..., jax.Array], act)
 
     def choose(obs: jax.Array, legal: jax.Array | None) -> jax.Array:
-        return act(obs) if legal is None else act_legal(obs, legal)
+        return act_legal(obs) if legal is None else act_legal(obs, legal)
 
     step = jax.jit(lambda key, state, obs, legal: env.step(key, state, choose(obs, legal), params))
     results = []

@@ -101,6 +101,8 @@ PolicyFn: TypeAlias = Callable[[jax.Array], jax.Array]
 #: What a recurrent policy carries from one step of an episode to the next (one env's): a pytree
 #: of arrays, e.g. an LSTM's ``(c, h)``.
 PolicyState: TypeAlias = object
+#: ``(policy_state, obs[, legal]) -> (action, policy_state)`` of a recurrent policy.
+RecurrentPolicyFn: TypeAlias = Callable[..., tuple[jax.Array, PolicyState]]
 
 
 class Algorithm(Protocol):
