@@ -48,9 +48,10 @@ def algorithm_reference(algorithm: object) -> str:
     if isinstance(algorithm, types.ModuleType):
         return algorithm.__name__
     module = sys.modules.get(type(algorithm).__module__)
-    for attribute, value in vars(module or types.ModuleType("none")).items():
-        if value is algorithm:
-            return f"{module.__name__}:{attribute}"
+    if module is not None:
+        for attribute, value in vars(module).items():
+            if value is algorithm:
+                return f"{module.__name__}:{attribute}"
     raise RunError(f"algorithm {algorithm!r} is not a module or a module-level object")
 
 

@@ -205,7 +205,7 @@ class Session:
         began = time.perf_counter()  # the copy to the host is part of a checkpoint's cost
         with processes.waiting("a checkpoint"):
             runs = self.plan.program.unpad(state, hparams)  # every process takes part
-        if self.checkpointer is None:  # not the lead
+        if self.checkpointer is None or self.log is None:  # not the lead (which has both)
             self.saved_step, self.last_save = self.step, time.perf_counter()
             return
         self.log.flush()  # rows up to this step are on disk before the checkpoint exists
