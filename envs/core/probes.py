@@ -21,6 +21,10 @@ Observations are ``(1,)`` float32. Importing this module registers the ``rl_jax/
 ``rl_jax/Probe*Discrete-v0`` are the discrete-action versions (``DISCRETE_ACTIONS`` = 5 actions:
 index 3 stands for 0.5, the best action of ``ActionReward``).
 
+``RememberFirst`` (``rl_jax/ProbeRememberFirst-v0``, ``...Discrete-v0`` with two actions) probes
+memory: the reward depends on the first observation only, which a feed-forward policy no longer
+sees when it is paid.
+
 ``FatalIllegalActions`` (``rl_jax/ProbeFatalIllegalActions-v0``) probes the legal-action mask
 (``info["action_mask"]``): an illegal action terminates with a large negative reward.
 """
@@ -169,6 +173,45 @@ class Termination(Truncation):
 
 
 @struct.dataclass
+class RememberFirstState(ProbeState):
+    """``RememberFirst``'s state: the position and the first observation's sign."""
+
+    first: Array  # [] float32, -1 or 1
+
+
+class RememberFirst(Probe):
+    """A memory probe: the first observation is -1 or 1 (equal chance), every later one 0; the
+    last of ``length`` steps pays ``first * a`` and terminates, the others pay 0. A policy that
+    remembers the first observation earns 1 (action ``first``); a feed-forward one sees 0 on the
+    step that pays and earns 0 at best."""
+
+    length = 3
+    max_episode_steps = 3
+
+    def reset_env(self, key, params):
+        """Observe the first sign; the episode's later observations are 0."""
+        first = jnp.where(jax.random.bernoulli(key), 1.0, -1.0).astype(jnp.float32)
+        state = RememberFirstState(time=jnp.int32(0), position=first, first=first)
+        return state, first[None]
+
+    def state_from_vector(self, vector, params=None):
+        """Start at the first sign given in ``vector``."""
+        first = jnp.sign(jnp.asarray(vector, jnp.float32).reshape(()))
+        state = RememberFirstState(time=jnp.int32(0), position=first, first=first)
+        return state, first[None]
+
+    def step_env(self, key, state, action, params):
+        """Pay ``first * a`` on the last step, which terminates; 0 and observation 0 before."""
+        last = state.time + 1 >= self.length
+        reward = jnp.where(last, state.first * self.action_value(action), 0.0)
+        next_state = RememberFirstState(
+            time=state.time + 1, position=jnp.zeros((), jnp.float32), first=state.first
+        )
+        zero = jnp.zeros((1,), jnp.float32)
+        return next_state, zero, reward.astype(jnp.float32), last, {}
+
+
+@struct.dataclass
 class IllegalActionsState(EnvState):
     """``FatalIllegalActions``'s state: which actions are legal now."""
 
@@ -299,6 +342,13 @@ class DiscreteTermination(_Discrete, Termination):
     """``Termination`` with discrete actions."""
 
 
+class DiscreteRememberFirst(RememberFirst):
+    """``RememberFirst`` with two discrete actions, standing for -1 and 1."""
+
+    def __init__(self, num_actions: int | None = 2):
+        super().__init__(num_actions)
+
+
 PROBE_IDS = {
     "rl_jax/ProbeConstantReward-v0": "rl_jax.envs.core.probes:ConstantReward",
     "rl_jax/ProbeActionReward-v0": "rl_jax.envs.core.probes:ActionReward",
@@ -311,6 +361,8 @@ PROBE_IDS = {
     "rl_jax/ProbeTruncationDiscrete-v0": "rl_jax.envs.core.probes:DiscreteTruncation",
     "rl_jax/ProbeTerminationDiscrete-v0": "rl_jax.envs.core.probes:DiscreteTermination",
     "rl_jax/ProbeFatalIllegalActions-v0": "rl_jax.envs.core.probes:FatalIllegalActions",
+    "rl_jax/ProbeRememberFirst-v0": "rl_jax.envs.core.probes:RememberFirst",
+    "rl_jax/ProbeRememberFirstDiscrete-v0": "rl_jax.envs.core.probes:DiscreteRememberFirst",
 }
 for _env_id, _entry_point in PROBE_IDS.items():
     register(_env_id, _entry_point)

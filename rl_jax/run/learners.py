@@ -60,6 +60,7 @@ ALGORITHMS: dict[str, str | Algorithm] = {
     "reinforce": "rl_jax.agents.reinforce:reinforce",
     "sac": "rl_jax.agents.sac:sac",
     "ppo": "rl_jax.agents.ppo:ppo",
+    "recurrent_ppo": "rl_jax.agents.recurrent_ppo:recurrent_ppo",
 }
 
 #: Where the built-in learners live: the only modules a run's record may make us import.

@@ -1,0 +1,569 @@
+"""Recurrent PPO: PPO (``rl_jax.agents.ppo``) whose actor and critic read a recurrent core, an
+LSTM or a GRU (flax's ``OptimizedLSTMCell`` / ``GRUCell``), for envs that show only part of
+their state (``rl_jax/CartPoleNoVel-v1``, the POPGym memory tasks).
+
+The network: observation -> ``hidden`` layers -> the cell (its carry the policy's state) -> a
+linear policy head and a linear value head, both on the cell's output. Every env carries its
+own state, zero at each episode start.
+
+One *iteration*: ``num_envs`` envs (autoreset) each take ``num_steps`` steps with the current
+stochastic policy, keeping the state the cell had before every step (after the reset where an
+episode started) and whether the step's observation starts an episode. Advantages are PPO's
+GAE(lambda) over the whole rollout (``ppo_losses``; truncations bootstrap from the value of the
+true final observation, read with the state the cell reached on the step that ended there). The
+rollout is then cut into sequences of ``seq_len`` steps of one env, each with the state it started
+from; ``num_epochs`` passes each shuffle the ``num_envs * num_steps / seq_len`` sequences into
+``num_minibatches`` minibatches of whole sequences. The loss (PPO's clipped surrogate, value
+loss and entropy bonus) unrolls the cell over every sequence from its stored state: truncated
+backpropagation through time, no gradient into the stored state, the state reset to zero where
+an episode starts inside a sequence, exactly as while acting.
+
+A module of its own rather than a PPO option: the recurrent state runs through every function
+of PPO (the rollout carries it, the batch is made of sequences rather than steps, the loss
+unrolls a scan, the deterministic policy returns a state) and would add a branch to each;
+``ppo.py`` stays the readable feed-forward reference. What the two share is imported: the
+losses and GAE (``ppo_losses``), the action distributions (``ppo_networks``,
+``policy_gradient``) and the optimizer step (``common``).
+
+Not supported (refused where they matter): legal-action masks, observation and reward
+normalisation, frames.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+from collections.abc import Callable
+from typing import NamedTuple, cast
+
+import flax.linen as nn
+import jax
+import jax.numpy as jnp
+import optax
+from flax import struct
+
+from rl_jax import envs
+from rl_jax.agents import ppo_losses as losses
+from rl_jax.agents.common import clip_by_global_norm, injected_step, linearly_decayed
+from rl_jax.agents.policy_gradient import entropy, log_prob
+from rl_jax.agents.ppo_networks import deterministic_action, sample_action, to_env_action
+from rl_jax.envs.core.wrappers import StatisticsState
+from rl_jax.training import episodes, networks, params, validation
+from rl_jax.training.algorithm import ChunkMetrics, RecipeBook
+from rl_jax.training.networks import Params
+from rl_jax.training.params import Scalar
+from rl_jax.training.recipes import Recipe, Recipes, Setting
+
+__all__ = ["Config", "Hyperparams", "recurrent_ppo"]
+
+CELLS = ("lstm", "gru")
+#: A cell's carry for one env: an LSTM's ``(c, h)``, a GRU's ``h``; with leading axes, many.
+Carry = tuple[jax.Array, jax.Array] | jax.Array
+
+
+@dataclasses.dataclass(frozen=True, kw_only=True)
+class Config:
+    """Static settings (changing one recompiles)."""
+
+    env_id: str
+    num_envs: int = 8  # envs stepped together (vmapped), each with its own episode and state
+    num_steps: int = 32  # steps of every env per rollout: a batch is num_envs * num_steps
+    seq_len: int = 32  # steps per training sequence (BPTT length); must divide num_steps
+    num_epochs: int = 4  # passes over each batch
+    num_minibatches: int = 1  # minibatches of whole sequences per pass (must split them evenly)
+    iterations_per_chunk: int = 1  # rollouts and updates per compiled call; eval after each call
+    num_eval_envs: int = 10  # episodes of the deterministic policy per evaluation
+    cell: str = "lstm"  # the recurrent cell: "lstm" or "gru"
+    cell_size: int = 64  # features of the cell's state
+    hidden: tuple[int, ...] = ()  # layers between the observation and the cell
+    activation: str = "tanh"  # of those layers: see rl_jax.training.networks.ACTIVATIONS
+    initial_std: float = 1.0  # Gaussian policy: the state-independent std before training
+    normalize_advantages: bool = True  # standardise the advantages of each minibatch
+    # the env's constructor keywords, "name=value, name=value": envs.make(env_id, **them)
+    env_kwargs: str = ""
+
+    def __post_init__(self) -> None:
+        envs.parse_keywords(self.env_kwargs)  # a ValueError names what is wrong
+        for name in ("num_envs", "num_steps", "seq_len", "num_epochs", "num_minibatches"):
+            if getattr(self, name) < 1:
+                raise ValueError(f"{name} must be >= 1, got {getattr(self, name)}")
+        for name in ("iterations_per_chunk", "num_eval_envs", "cell_size"):
+            if getattr(self, name) < 1:
+                raise ValueError(f"{name} must be >= 1, got {getattr(self, name)}")
+        if self.num_steps % self.seq_len:
+            raise ValueError(f"seq_len ({self.seq_len}) must divide num_steps ({self.num_steps})")
+        if self.num_sequences % self.num_minibatches:
+            raise ValueError(
+                f"num_minibatches ({self.num_minibatches}) must divide the "
+                f"{self.num_sequences} sequences of num_envs x num_steps / seq_len"
+            )
+        if self.cell not in CELLS:
+            raise ValueError(f"cell must be one of {list(CELLS)}, got {self.cell!r}")
+        if self.activation not in networks.ACTIVATIONS:
+            raise ValueError(f"activation must be one of {list(networks.ACTIVATIONS)}")
+        if self.initial_std <= 0.0:
+            raise ValueError(f"initial_std must be > 0, got {self.initial_std}")
+
+    @property
+    def batch_size(self) -> int:
+        """Env steps per rollout: ``num_envs * num_steps``."""
+        return self.num_envs * self.num_steps
+
+    @property
+    def num_sequences(self) -> int:
+        """Training sequences per rollout: ``batch_size / seq_len``."""
+        return self.batch_size // self.seq_len
+
+    def make_env(self) -> envs.Environment:
+        """The registered env with ``env_kwargs``."""
+        return envs.make(self.env_id, **envs.parse_keywords(self.env_kwargs))
+
+
+@struct.dataclass
+class Hyperparams(params.HyperparamsMethods):
+    """What a sweep may vary without recompiling."""
+
+    learning_rate: Scalar = 3e-4  # Adam step size at the start
+    lr_decay_steps: Scalar = 0.0  # env steps over which the rate falls to 0 (0: constant)
+    gamma: Scalar = 0.99  # discount
+    gae_lambda: Scalar = 0.95  # GAE's lambda: 0 one-step TD errors, 1 Monte-Carlo returns
+    clip_eps: Scalar = 0.2  # the surrogate's ratio is clipped to [1 - clip_eps, 1 + clip_eps]
+    vf_coef: Scalar = 0.5  # weight of the value loss
+    ent_coef: Scalar = 0.0  # weight of the policy's mean entropy, subtracted from the loss
+    max_grad_norm: Scalar = 0.5  # clip the gradient's global norm to this (0: no clipping)
+    adam_eps: Scalar = 1e-5  # Adam's epsilon
+
+
+# rl-baselines3-zoo's ppo_lstm settings for CartPoleNoVel-v1, in this learner's terms: 8 envs x 32
+# steps, 20 epochs over the 256 steps in one minibatch, a 64-unit LSTM, gamma 0.98, lambda 0.8,
+# no entropy bonus and the rate 1e-3 falling to 0 over the 100k steps. The zoo also decays the
+# clip range and normalises observations, which this learner does not.
+CARTPOLE_NOVEL_CONFIG: dict[str, Setting] = {
+    "num_envs": 8,
+    "num_steps": 32,
+    "seq_len": 32,
+    "num_epochs": 20,
+    "num_minibatches": 1,
+    "iterations_per_chunk": 10,
+    "cell": "lstm",
+    "cell_size": 64,
+}
+CARTPOLE_NOVEL_HPARAMS: dict[str, Setting] = {
+    "learning_rate": 1e-3,
+    "lr_decay_steps": 100_000.0,
+    "gamma": 0.98,
+    "gae_lambda": 0.8,
+    "ent_coef": 0.0,
+}
+
+RECIPES = Recipes(
+    Recipe(
+        "default",
+        "RL Zoo's ppo_lstm: 8 envs x 32 steps, 20 epochs, LSTM 64, rate 1e-3 to 0 over 100k",
+        CARTPOLE_NOVEL_CONFIG,
+        CARTPOLE_NOVEL_HPARAMS,
+        envs=("rl_jax/CartPoleNoVel-v1",),
+        total_steps=100_000,
+    ),
+)
+
+
+# ---- the network -------------------------------------------------------------------------------
+def _layer(features: int, gain: float) -> nn.Dense:
+    init = nn.initializers.orthogonal(gain)
+    return nn.Dense(features, kernel_init=init, bias_init=nn.initializers.zeros)
+
+
+class RecurrentActorCritic(nn.Module):
+    """``(carry, obs) -> (carry, {"logits" | "mean", "std"; "value"})`` for one step."""
+
+    cell: str
+    cell_size: int
+    hidden: tuple[int, ...] = ()
+    action_dim: int = 1
+    num_actions: int | None = None  # set: categorical
+    activation: str = "tanh"
+    initial_std: float = 1.0
+
+    @nn.compact
+    def __call__(self, carry: Carry, obs: jax.Array) -> tuple[Carry, dict[str, jax.Array]]:
+        function = networks.ACTIVATIONS[self.activation][0]
+        x = obs
+        for width in self.hidden:
+            x = function(_layer(width, 2.0**0.5)(x))
+        if self.cell == "lstm":
+            lstm_carry = cast(tuple[jax.Array, jax.Array], carry)
+            carry, x = nn.OptimizedLSTMCell(self.cell_size)(lstm_carry, x)
+        else:
+            carry, x = nn.GRUCell(self.cell_size)(carry, x)
+        out = {"value": _layer(1, 1.0)(x)[..., 0]}
+        if self.num_actions is not None:
+            return carry, {**out, "logits": _layer(self.num_actions, 0.01)(x)}
+        mean = _layer(self.action_dim, 0.01)(x)
+        start = jnp.log(jnp.float32(self.initial_std))
+        log_std = self.param("log_std", lambda _, shape: jnp.full(shape, start), (self.action_dim,))
+        return carry, {**out, "mean": mean, "std": jnp.broadcast_to(jnp.exp(log_std), mean.shape)}
+
+
+@functools.lru_cache(maxsize=64)
+def make_network(config: Config) -> RecurrentActorCritic:
+    """The network for ``config`` (cached: called at every trace)."""
+    space = episodes.make_eval_env(config).action_space()
+    discrete = isinstance(space, envs.Discrete)
+    return RecurrentActorCritic(
+        cell=config.cell,
+        cell_size=config.cell_size,
+        hidden=config.hidden,
+        action_dim=1 if discrete else space.shape[0],
+        num_actions=space.n if isinstance(space, envs.Discrete) else None,
+        activation=config.activation,
+        initial_std=config.initial_std,
+    )
+
+
+def initial_carry(config: Config) -> Carry:
+    """One env's state at an episode start: zeros."""
+    zeros = jnp.zeros((config.cell_size,), jnp.float32)
+    return (zeros, zeros) if config.cell == "lstm" else zeros
+
+
+def apply(
+    params: Params, carry: Carry, obs: jax.Array, config: Config
+) -> tuple[Carry, dict[str, jax.Array]]:
+    """One step of the network on a batch: ``carry [B, ...], obs [B, ...]``."""
+    net = make_network(config)
+    return cast(tuple[Carry, dict[str, jax.Array]], net.apply(params, carry, obs))
+
+
+def unroll(
+    params: Params, carry: Carry, obs: jax.Array, starts: jax.Array, config: Config
+) -> dict[str, jax.Array]:
+    """The network over sequences, time first: ``obs [L, B, ...]`` from ``carry [B, ...]``, the
+    state reset to zero before every step where ``starts [L, B]`` (an episode begins there);
+    outputs ``[L, B, ...]``."""
+    initial = initial_carry(config)
+
+    def step(carry: Carry, inputs: tuple[jax.Array, jax.Array]):
+        obs, start = inputs
+        carry = cast(Carry, episodes.reset_policy_state(start, carry, initial))
+        return apply(params, carry, obs, config)
+
+    return jax.lax.scan(step, carry, (obs, starts))[1]
+
+
+# ---- state ----------------------------------------------------------------------------------
+@struct.dataclass
+class Agent:
+    """What learns: the network's parameters and Adam's state."""
+
+    params: Params
+    opt_state: optax.OptState  # optax inject_hyperparams(adam) state: holds the rate in use
+
+
+@struct.dataclass
+class Clock:
+    """Counters that depend only on the config (kept unbatched by ``rl_jax.training.parallel``)."""
+
+    env_steps: jax.Array  # [] int32
+    updates: jax.Array  # [] int32
+    iterations: jax.Array  # [] int32
+
+
+@struct.dataclass
+class TrainState:
+    """Everything of one seed's run."""
+
+    agent: Agent
+    env_state: StatisticsState  # [num_envs, ...] of the train env
+    obs: jax.Array  # [num_envs, *obs_shape], the observation the next action answers
+    carry: Carry  # [num_envs, cell_size] each env's state before acting on obs
+    start: jax.Array  # [num_envs] bool, obs begins an episode
+    key: jax.Array
+    clock: Clock
+    train_return: jax.Array  # [] float32, mean return of the episodes ended in the last chunk
+
+
+class Rollout(NamedTuple):
+    """``num_steps`` steps of every env, leaves ``[T, N, ...]``."""
+
+    obs: jax.Array
+    carry: Carry  # the state the cell had before acting on obs
+    start: jax.Array  # bool, obs begins an episode (the state above is then the initial one)
+    action: jax.Array
+    log_mu: jax.Array
+    v_tm1: jax.Array
+    v_t: jax.Array  # values of the true next observations
+    r_t: jax.Array
+    terminated: jax.Array
+    truncated: jax.Array
+    episode_return: jax.Array
+
+
+class Sequences(NamedTuple):
+    """What a gradient step learns from: whole sequences, leaves ``[S, L, ...]``."""
+
+    obs: jax.Array
+    start: jax.Array
+    action: jax.Array
+    log_mu: jax.Array
+    advantage: jax.Array
+    target: jax.Array
+
+
+# ---- acting ---------------------------------------------------------------------------------
+def act(agent: Agent, carry: Carry, obs: jax.Array, config: Config) -> tuple[jax.Array, Carry]:
+    """The deterministic policy on a batch: ``(actions, next carry)``."""
+    carry, policy = apply(agent.params, carry, obs, config)
+    space = episodes.make_eval_env(config).action_space()
+    return deterministic_action(policy, space), carry
+
+
+def collect(state: TrainState, key: jax.Array, config: Config) -> tuple[TrainState, Rollout]:
+    """``num_steps`` steps of every env; the state restarts where an episode ended."""
+    env = episodes.make_train_env(config)
+    space = env.action_space()
+    initial = initial_carry(config)
+    agent = state.agent
+
+    def step(carry_in, step_key):
+        env_state, obs, carry, start = carry_in
+        action_key, env_key = jax.random.split(step_key)
+        next_carry, policy = apply(agent.params, carry, obs, config)
+        action = sample_action(policy, action_key)
+        keys = jax.random.split(env_key, config.num_envs)
+        env_state, ts = jax.vmap(env.step)(keys, env_state, to_env_action(action, space))
+        _, final = apply(agent.params, next_carry, ts.info["final_obs"], config)
+        ended = jnp.logical_or(ts.terminated, ts.truncated)
+        row = Rollout(
+            obs=obs,
+            carry=carry,
+            start=start,
+            action=action,
+            log_mu=log_prob(policy, action),
+            v_tm1=policy["value"],
+            v_t=final["value"],
+            r_t=ts.reward,
+            terminated=ts.terminated,
+            truncated=ts.truncated,
+            episode_return=jnp.where(ended, ts.info["episode_return"], 0.0),
+        )
+        next_carry = episodes.reset_policy_state(ended, next_carry, initial)
+        return (env_state, ts.obs, next_carry, ended), row
+
+    keys = jax.random.split(key, config.num_steps)
+    first = (state.env_state, state.obs, state.carry, state.start)
+    (env_state, obs, carry, start), rollout = jax.lax.scan(step, first, keys)
+    state = dataclasses.replace(state, env_state=env_state, obs=obs, carry=carry, start=start)
+    return state, rollout
+
+
+def to_sequences(tree, config: Config):
+    """Leaves ``[T, N, ...]`` -> ``[N * T / L, L, ...]``: each env's rollout cut into sequences
+    of ``L = seq_len`` steps."""
+    length = config.seq_len
+
+    def cut(x: jax.Array) -> jax.Array:
+        x = jnp.swapaxes(x, 0, 1)  # [N, T, ...]
+        return x.reshape(config.num_sequences, length, *x.shape[2:])
+
+    return jax.tree.map(cut, tree)
+
+
+# ---- learning -------------------------------------------------------------------------------
+def loss_fn(
+    params: Params, batch: Sequences, carry: Carry, hparams: Hyperparams, config: Config
+) -> tuple[jax.Array, dict[str, jax.Array]]:
+    """``(loss, metrics)`` of a minibatch of sequences ``[B, L, ...]`` from their initial
+    states ``carry [B, ...]`` (constants: truncated backpropagation through time)."""
+    time_first = jax.tree.map(lambda x: jnp.swapaxes(x, 0, 1), batch)
+    carry = jax.lax.stop_gradient(carry)
+    policy = unroll(params, carry, time_first.obs, time_first.start, config)
+    log_pi = log_prob(policy, time_first.action)
+    advantage = time_first.advantage
+    if config.normalize_advantages:
+        advantage = losses.normalize_advantages(advantage)
+    policy_loss = losses.clipped_surrogate_loss(
+        log_pi, time_first.log_mu, advantage, hparams.clip_eps
+    )
+    value_loss = losses.value_loss(policy["value"], time_first.target)
+    mean_entropy = jnp.mean(entropy(policy))
+    total = policy_loss + hparams.vf_coef * value_loss - hparams.ent_coef * mean_entropy
+    metrics = {"policy_loss": policy_loss, "value_loss": value_loss, "entropy": mean_entropy}
+    return total, {
+        **metrics,
+        **losses.policy_statistics(log_pi, time_first.log_mu, hparams.clip_eps),
+    }
+
+
+def gradient_step(
+    agent: Agent,
+    batch: Sequences,
+    carry: Carry,
+    hparams: Hyperparams,
+    config: Config,
+    rate: jax.Array,
+) -> tuple[Agent, dict[str, jax.Array]]:
+    """One Adam step on a minibatch of sequences, the gradient clipped by its global norm."""
+    grads, metrics = jax.grad(loss_fn, has_aux=True)(agent.params, batch, carry, hparams, config)
+    grads, metrics["grad_norm"] = clip_by_global_norm(grads, hparams.max_grad_norm)
+    params, opt_state = injected_step(
+        optax.adam, grads, agent.opt_state, agent.params, learning_rate=rate, eps=hparams.adam_eps
+    )
+    return dataclasses.replace(agent, params=params, opt_state=opt_state), metrics
+
+
+def update(
+    agent: Agent,
+    batch: Sequences,
+    carry: Carry,
+    key: jax.Array,
+    hparams: Hyperparams,
+    config: Config,
+    rate: jax.Array,
+) -> tuple[Agent, dict[str, jax.Array]]:
+    """``num_epochs`` passes over the sequences, each shuffled into ``num_minibatches``
+    minibatches of whole sequences; metrics are the means over all steps."""
+    count = config.num_minibatches
+
+    def epoch(agent: Agent, epoch_key: jax.Array):
+        order = jax.random.permutation(epoch_key, config.num_sequences)
+        split = jax.tree.map(lambda x: x[order].reshape(count, -1, *x.shape[1:]), (batch, carry))
+        return jax.lax.scan(
+            lambda a, bc: gradient_step(a, bc[0], bc[1], hparams, config, rate), agent, split
+        )
+
+    agent, metrics = jax.lax.scan(epoch, agent, jax.random.split(key, config.num_epochs))
+    return agent, jax.tree.map(jnp.mean, metrics)
+
+
+def train_iteration(state: TrainState, config: Config, hparams: Hyperparams):
+    """One rollout, its advantages, and the updates on its sequences."""
+    key, collect_key, update_key = jax.random.split(state.key, 3)
+    state, rollout = collect(state, collect_key, config)
+    ended = jnp.logical_or(rollout.terminated, rollout.truncated)
+    discount_t = hparams.gamma * (1.0 - rollout.terminated.astype(jnp.float32))
+    trace_t = hparams.gamma * hparams.gae_lambda * (1.0 - ended.astype(jnp.float32))
+    advantage = losses.generalized_advantage_estimates(
+        rollout.r_t, discount_t, rollout.v_tm1, rollout.v_t, trace_t
+    )
+    target = advantage + rollout.v_tm1
+    steps = Sequences(rollout.obs, rollout.start, rollout.action, rollout.log_mu, advantage, target)
+    batch = to_sequences(steps, config)
+    # each sequence's initial state: the stored state at its first step
+    initial_states = jax.tree.map(lambda x: x[:, 0], to_sequences(rollout.carry, config))
+    rate = linearly_decayed(hparams.learning_rate, state.clock.env_steps, hparams.lr_decay_steps)
+    agent, metrics = update(state.agent, batch, initial_states, update_key, hparams, config, rate)
+    clock = Clock(
+        env_steps=state.clock.env_steps + config.batch_size,
+        updates=state.clock.updates + config.num_epochs * config.num_minibatches,
+        iterations=state.clock.iterations + 1,
+    )
+    state = dataclasses.replace(state, agent=agent, key=key, clock=clock)
+    metrics = {**metrics, "learning_rate": rate}
+    return state, (metrics, (jnp.sum(rollout.episode_return), jnp.sum(ended)))
+
+
+def init(key: jax.Array, config: Config, hparams: Hyperparams) -> TrainState:
+    """A fresh state for one seed and one hyperparameter set."""
+    env = episodes.make_train_env(config)
+    if envs.has_action_mask(env):
+        raise ValueError(f"recurrent_ppo does not read action masks, which {config.env_id} has")
+    agent_key, env_key, key = jax.random.split(key, 3)
+    env_state, ts = jax.vmap(env.reset)(jax.random.split(env_key, config.num_envs))
+    carry = cast(Carry, episodes.batched_policy_state(initial_carry(config), config.num_envs))
+    params = make_network(config).init(agent_key, carry, ts.obs)
+    optimizer = optax.inject_hyperparams(optax.adam)(hparams.learning_rate, eps=hparams.adam_eps)
+    return TrainState(
+        agent=Agent(params, optimizer.init(params)),
+        env_state=env_state,
+        obs=ts.obs,
+        carry=carry,
+        start=jnp.ones(config.num_envs, jnp.bool_),
+        key=key,
+        clock=Clock(env_steps=jnp.int32(0), updates=jnp.int32(0), iterations=jnp.int32(0)),
+        train_return=jnp.float32(jnp.nan),
+    )
+
+
+def train_chunk(
+    state: TrainState, config: Config, hparams: Hyperparams
+) -> tuple[TrainState, ChunkMetrics]:
+    """``iterations_per_chunk`` iterations, then one evaluation. Pure; jit outside."""
+    state, (metrics, (return_sums, counts)) = jax.lax.scan(
+        lambda s, _: train_iteration(s, config, hparams),
+        state,
+        None,
+        length=config.iterations_per_chunk,
+    )
+    eval_key, key = jax.random.split(state.key)
+    eval_return = episodes.evaluate_recurrent(
+        act, initial_carry(config), state.agent, config, eval_key
+    )
+    count = jnp.sum(counts)
+    train_return = jnp.where(
+        count > 0, jnp.sum(return_sums) / jnp.maximum(count, 1), state.train_return
+    )
+    state = dataclasses.replace(state, key=key, train_return=train_return)
+    return state, ChunkMetrics(
+        env_steps=state.clock.env_steps,
+        updates=state.clock.updates,
+        eval_return=eval_return,
+        train_return=train_return,
+        extra=jax.tree.map(jnp.mean, metrics),
+    )
+
+
+# ---- the Algorithm object -------------------------------------------------------------------
+class RecurrentPPO(RecipeBook):
+    """Recurrent PPO as an ``rl_jax.training.algorithm.Algorithm`` with a recurrent policy."""
+
+    name = "recurrent_ppo"
+    config_type, hparams_type = Config, Hyperparams
+    recipes = RECIPES
+    ranges = {
+        "gae_lambda": validation.UNIT,
+        "clip_eps": validation.POSITIVE,
+        "adam_eps": validation.POSITIVE,
+    }
+
+    def init(self, key: jax.Array, config: Config, hparams: Hyperparams) -> TrainState:
+        """``init``."""
+        return init(key, config, hparams)
+
+    def train_chunk(
+        self, state: TrainState, config: Config, hparams: Hyperparams
+    ) -> tuple[TrainState, ChunkMetrics]:
+        """``train_chunk``."""
+        return train_chunk(state, config, hparams)
+
+    def env_steps_per_chunk(self, config: Config) -> int:
+        """``batch_size * iterations_per_chunk``."""
+        return config.batch_size * config.iterations_per_chunk
+
+    def initial_policy_state(self, config: Config) -> Carry:
+        """The cell's zero state: the policy is recurrent."""
+        return initial_carry(config)
+
+    def policy(
+        self, state: TrainState, config: Config
+    ) -> Callable[[Carry, jax.Array], tuple[jax.Array, Carry]]:
+        """``(carry, obs) -> (action, carry)`` of the deterministic policy, for one env."""
+        agent = state.agent
+
+        def step(carry: Carry, obs: jax.Array) -> tuple[jax.Array, Carry]:
+            batch = jax.tree.map(lambda x: x[None], (carry, obs))
+            action, carry = act(agent, batch[0], batch[1], config)
+            return action[0], jax.tree.map(lambda x: x[0], carry)
+
+        return step
+
+    def make_env(self, config: Config) -> envs.Environment:
+        """The env as the policy sees it (``episodes.make_eval_env``)."""
+        return episodes.make_eval_env(config)
+
+
+recurrent_ppo = RecurrentPPO()
+default_config, default_hyperparams = (
+    recurrent_ppo.default_config,
+    recurrent_ppo.default_hyperparams,
+)

@@ -1,0 +1,180 @@
+"""Recurrent PPO (``rl_jax.agents.recurrent_ppo``): the state restarts exactly at episode starts,
+training sequences replay what acting computed from their stored initial states, the gradient of
+the scanned loss equals that of a step-by-step Python unroll, and a memory probe that no
+feed-forward policy can solve is solved by it and not by PPO."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import rl_jax
+import rl_jax.envs.core.probes  # noqa: F401  (registers the probes)
+from rl_jax.agents import ppo_losses as losses
+from rl_jax.agents import recurrent_ppo as rppo
+from rl_jax.agents.policy_gradient import entropy, log_prob
+from rl_jax.agents.ppo import ppo
+from rl_jax.run import learners
+from rl_jax.training.algorithm import hooks
+
+PROBE = "rl_jax/ProbeRememberFirstDiscrete-v0"  # first obs +-1, then 0; the 3rd step pays
+
+
+def probe_config(cell: str = "lstm", **overrides) -> rppo.Config:
+    settings = dict(
+        cell=cell,
+        num_envs=16,
+        num_steps=12,
+        seq_len=6,
+        num_epochs=4,
+        num_minibatches=2,
+        cell_size=16,
+        iterations_per_chunk=5,
+        num_eval_envs=64,
+    )
+    return rppo.recurrent_ppo.default_config(PROBE, **{**settings, **overrides})
+
+
+def flat(carry) -> jax.Array:
+    """An LSTM's (c, h) or a GRU's h as one array [..., features]."""
+    return jnp.concatenate(jax.tree.leaves(carry), axis=-1)
+
+
+@pytest.mark.parametrize("cell", ["lstm", "gru"])
+def test_the_state_restarts_exactly_at_episode_starts(cell):
+    config = probe_config(cell, seq_len=4)
+    hparams = rppo.recurrent_ppo.default_hyperparams(PROBE)
+    state = rppo.init(jax.random.key(0), config, hparams)
+    _, rollout = jax.jit(lambda s: rppo.collect(s, jax.random.key(1), config))(state)
+    # the probe's episodes are 3 steps long: starts at steps 0, 3, 6, 9 of every env
+    expected = np.tile((np.arange(config.num_steps) % 3 == 0)[:, None], (1, config.num_envs))
+    np.testing.assert_array_equal(rollout.start, expected)
+    carry = flat(rollout.carry)
+    np.testing.assert_array_equal(carry[expected], 0.0)
+    assert np.all(np.abs(np.asarray(carry[~expected])).max(axis=-1) > 0)
+    # elsewhere the state is the cell's output of the step before: nothing else touches it
+    previous = jax.tree.map(lambda x: x[:-1], rollout.carry)
+    stepped = jax.vmap(lambda c, o: rppo.apply(state.agent.params, c, o, config)[0])(
+        previous, rollout.obs[:-1]
+    )
+    np.testing.assert_allclose(
+        flat(stepped)[~expected[1:]], carry[1:][~expected[1:]], rtol=1e-5, atol=1e-6
+    )
+
+
+def test_sequences_replay_what_acting_computed_from_their_stored_states():
+    """seq_len 4 over 3-step episodes: starts fall inside sequences, and the unroll resets."""
+    config = probe_config("lstm", seq_len=4)
+    hparams = rppo.recurrent_ppo.default_hyperparams(PROBE)
+    state = rppo.init(jax.random.key(0), config, hparams)
+    _, rollout = jax.jit(lambda s: rppo.collect(s, jax.random.key(1), config))(state)
+    fields = (rollout.obs, rollout.start, rollout.v_tm1, rollout.log_mu, rollout.action)
+    obs, start, v_tm1, log_mu, action = rppo.to_sequences(fields, config)
+    initial = jax.tree.map(lambda x: x[:, 0], rppo.to_sequences(rollout.carry, config))
+    time_first = lambda x: jnp.swapaxes(x, 0, 1)  # noqa: E731
+    policy = rppo.unroll(state.agent.params, initial, time_first(obs), time_first(start), config)
+    np.testing.assert_allclose(policy["value"], time_first(v_tm1), rtol=1e-5, atol=1e-6)
+    replayed = log_prob(policy, time_first(action))
+    np.testing.assert_allclose(replayed, time_first(log_mu), rtol=1e-5, atol=1e-6)
+    # and the sequences are each env's steps in order
+    np.testing.assert_array_equal(obs[1], np.asarray(rollout.obs)[4:8, 0])
+
+
+def reference_loss(params, batch, carry, hparams, config):
+    """``rppo.loss_fn`` written as a Python loop over the steps of every sequence."""
+    zero = rppo.initial_carry(config)
+    outputs = []
+    for t in range(batch.obs.shape[1]):
+        start = batch.start[:, t]
+        carry = jax.tree.map(
+            lambda c, z, start=start: jnp.where(start[:, None], z[None], c), carry, zero
+        )
+        carry, out = rppo.make_network(config).apply(params, carry, batch.obs[:, t])
+        outputs.append(out)
+    policy = {k: jnp.stack([o[k] for o in outputs], axis=1) for k in outputs[0]}
+    log_pi = log_prob(policy, batch.action)
+    advantage = losses.normalize_advantages(batch.advantage)
+    policy_loss = losses.clipped_surrogate_loss(log_pi, batch.log_mu, advantage, hparams.clip_eps)
+    value_loss = losses.value_loss(policy["value"], batch.target)
+    mean_entropy = jnp.mean(entropy(policy))
+    return policy_loss + hparams.vf_coef * value_loss - hparams.ent_coef * mean_entropy
+
+
+@pytest.mark.parametrize("cell", ["lstm", "gru"])
+def test_the_gradient_through_a_sequence_matches_a_step_by_step_unroll(cell):
+    config = probe_config(cell, cell_size=8)
+    hparams = rppo.recurrent_ppo.default_hyperparams(PROBE, ent_coef=0.05)
+    state = rppo.init(jax.random.key(0), config, hparams)
+    keys = jax.random.split(jax.random.key(2), 8)
+    batch_size, length = 3, 7
+    batch = rppo.Sequences(
+        obs=jax.random.normal(keys[0], (batch_size, length, 1)),
+        start=jnp.zeros((batch_size, length), bool).at[:, 0].set(True).at[1, 4].set(True),
+        action=jax.random.randint(keys[1], (batch_size, length), 0, 2),
+        log_mu=jnp.log(jax.random.uniform(keys[2], (batch_size, length), minval=0.3, maxval=0.7)),
+        advantage=jax.random.normal(keys[3], (batch_size, length)),
+        target=jax.random.normal(keys[4], (batch_size, length)),
+    )
+    carry = jax.tree.map(
+        lambda z: jax.random.normal(keys[5], (batch_size, *z.shape)), rppo.initial_carry(config)
+    )
+    batch = batch._replace(start=batch.start.at[0, 0].set(False))  # one stored state kept
+    params = state.agent.params
+    scanned = jax.grad(lambda p: rppo.loss_fn(p, batch, carry, hparams, config)[0])(params)
+    looped = jax.grad(lambda p: reference_loss(p, batch, carry, hparams, config))(params)
+    for a, b in zip(jax.tree.leaves(scanned), jax.tree.leaves(looped), strict=True):
+        np.testing.assert_allclose(a, b, rtol=1e-4, atol=1e-6)
+    assert max(float(jnp.max(jnp.abs(g))) for g in jax.tree.leaves(scanned)) > 0
+
+
+def train(algorithm, config, hparams, chunks: int) -> float:
+    state = algorithm.init(jax.random.key(0), config, hparams)
+    chunk = jax.jit(lambda s: algorithm.train_chunk(s, config, hparams))
+    for _ in range(chunks):
+        state, metrics = chunk(state)
+    return float(metrics.eval_return)
+
+
+@pytest.mark.parametrize("cell", ["lstm", "gru"])
+def test_recurrent_ppo_remembers_the_first_observation(cell):
+    """3,840 env steps: every evaluation episode paid 1."""
+    hparams = rppo.recurrent_ppo.default_hyperparams(PROBE, learning_rate=3e-3, ent_coef=0.01)
+    assert train(rppo.recurrent_ppo, probe_config(cell), hparams, 4) >= 0.95
+
+
+def test_feed_forward_ppo_cannot():
+    """The same budget: PPO sees 0 on the step that pays, so it can only guess (mean ~0)."""
+    settings = dict(num_envs=16, num_steps=12, num_epochs=4, num_minibatches=2, hidden=(16,))
+    config = ppo.default_config(PROBE, iterations_per_chunk=5, num_eval_envs=64, **settings)
+    hparams = ppo.default_hyperparams(PROBE, learning_rate=3e-3)
+    assert train(ppo, config, hparams, 4) < 0.5
+
+
+def test_it_is_registered_with_a_recipe_and_a_recurrent_policy():
+    assert learners.ALGORITHMS["recurrent_ppo"] == "rl_jax.agents.recurrent_ppo:recurrent_ppo"
+    assert rl_jax.recurrent_ppo is rppo.recurrent_ppo
+    config = rppo.recurrent_ppo.default_config("rl_jax/CartPoleNoVel-v1")
+    assert (config.num_envs, config.num_steps, config.num_epochs) == (8, 32, 20)
+    carry = hooks(rppo.recurrent_ppo).initial_policy_state(config)
+    assert [x.shape for x in jax.tree.leaves(carry)] == [(64,), (64,)]
+    with pytest.raises(ValueError, match="seq_len"):
+        dataclasses.replace(config, seq_len=5)
+
+
+def test_its_policy_acts_from_one_observation_and_a_state():
+    config = probe_config("gru")
+    hparams = rppo.recurrent_ppo.default_hyperparams(PROBE, learning_rate=3e-3, ent_coef=0.01)
+    state = rppo.init(jax.random.key(0), config, hparams)
+    chunk = jax.jit(lambda s: rppo.train_chunk(s, config, hparams))
+    for _ in range(4):
+        state, _ = chunk(state)
+    step = jax.jit(rppo.recurrent_ppo.policy(state, config))
+    for first in (-1.0, 1.0):
+        carry = rppo.recurrent_ppo.initial_policy_state(config)
+        for obs in (first, 0.0, 0.0):
+            action, carry = step(carry, jnp.array([obs], jnp.float32))
+        assert int(action) == (1 if first > 0 else 0)  # index 1 stands for +1
