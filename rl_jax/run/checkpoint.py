@@ -31,7 +31,7 @@ import os
 import shutil
 import sys
 import time
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from importlib.metadata import version
 from pathlib import Path
 from typing import Any, NamedTuple, TypeVar
@@ -364,23 +364,27 @@ def _quiet_orbax() -> Iterator[None]:
         logger.setLevel(level)
 
 
+class _ClosedLoopFilter:
+    """An unraisable hook that drops ``RuntimeError('Event loop is closed')`` reports and
+    hands every other report to the hook installed before it."""
+
+    def __init__(self, previous: Callable[[sys.UnraisableHookArgs], object]) -> None:
+        self.previous = previous
+
+    def __call__(self, unraisable: sys.UnraisableHookArgs) -> None:
+        error = unraisable.exc_value
+        if isinstance(error, RuntimeError) and str(error) == "Event loop is closed":
+            return
+        self.previous(unraisable)
+
+
 def _ignore_closed_loop_reports() -> None:
     """When a read fails, orbax closes its event loop while tensorstore callbacks of the other
     reads are pending; each then reports an unraisable ``RuntimeError('Event loop is closed')``
     on stderr, during the failure and after it. They say nothing beyond the error we raise:
     drop just those reports."""
-    previous = sys.unraisablehook
-    if getattr(previous, "ignores_closed_loop", False):
-        return
-
-    def hook(unraisable: sys.UnraisableHookArgs) -> None:
-        error = unraisable.exc_value
-        if isinstance(error, RuntimeError) and str(error) == "Event loop is closed":
-            return
-        previous(unraisable)
-
-    hook.ignores_closed_loop = True
-    sys.unraisablehook = hook
+    if not isinstance(sys.unraisablehook, _ClosedLoopFilter):
+        sys.unraisablehook = _ClosedLoopFilter(sys.unraisablehook)
 
 
 def set_aside(directory: str | Path, step: int) -> Path:
