@@ -139,11 +139,12 @@ def train(algorithm, config, hparams, chunks: int) -> float:
     return float(metrics.eval_return)
 
 
-@pytest.mark.parametrize("cell", ["lstm", "gru"])
-def test_recurrent_ppo_remembers_the_first_observation(cell):
+@pytest.mark.parametrize(("cell", "normalize_obs"), [("lstm", False), ("gru", True)])
+def test_recurrent_ppo_remembers_the_first_observation(cell, normalize_obs):
     """3,840 env steps: every evaluation episode paid 1."""
     hparams = rppo.recurrent_ppo.default_hyperparams(PROBE, learning_rate=3e-3, ent_coef=0.01)
-    assert train(rppo.recurrent_ppo, probe_config(cell), hparams, 4) >= 0.95
+    config = probe_config(cell, normalize_obs=normalize_obs)
+    assert train(rppo.recurrent_ppo, config, hparams, 4) >= 0.95
 
 
 def test_feed_forward_ppo_cannot():
@@ -159,6 +160,7 @@ def test_it_is_registered_with_a_recipe_and_a_recurrent_policy():
     assert rl_jax.recurrent_ppo is rppo.recurrent_ppo
     config = rppo.recurrent_ppo.default_config("rl_jax/CartPoleNoVel-v1")
     assert (config.num_envs, config.num_steps, config.num_epochs) == (8, 32, 20)
+    assert config.normalize_obs and config.cell == "lstm"
     carry = hooks(rppo.recurrent_ppo).initial_policy_state(config)
     assert [x.shape for x in jax.tree.leaves(carry)] == [(64,), (64,)]
     with pytest.raises(ValueError, match="seq_len"):
