@@ -6,6 +6,7 @@ feed-forward policy can solve is solved by it and not by PPO."""
 from __future__ import annotations
 
 import dataclasses
+import functools
 
 import jax
 import jax.numpy as jnp
@@ -180,3 +181,66 @@ def test_its_policy_acts_from_one_observation_and_a_state():
         for obs in (first, 0.0, 0.0):
             action, carry = step(carry, jnp.array([obs], jnp.float32))
         assert int(action) == (1 if first > 0 else 0)  # index 1 stands for +1
+
+
+# ---- the probes: known values (every episode is one step: the state is always the zero one) ----
+PROBE_GAMMA = 0.5
+
+
+@functools.cache
+def probe_run(env_id: str):
+    settings = dict(num_envs=8, num_steps=16, seq_len=8, num_epochs=4, num_minibatches=2)
+    config = rppo.recurrent_ppo.default_config(
+        env_id, **settings, iterations_per_chunk=60, cell_size=32, hidden=(32,), num_eval_envs=4
+    )
+    hparams = rppo.recurrent_ppo.default_hyperparams(
+        gamma=PROBE_GAMMA, learning_rate=3e-3, ent_coef=0.0
+    )
+    state = rppo.init(jax.random.key(0), config, hparams)
+    chunk = jax.jit(lambda s: rppo.train_chunk(s, config, hparams))
+    for _ in range(2):
+        state, metrics = chunk(state)
+    return state, config, metrics
+
+
+def outputs_at(state, config, values: list[float]) -> dict:
+    carry = rppo.initial_carry(config)
+    carry = jax.tree.map(lambda z: jnp.broadcast_to(z, (len(values), *z.shape)), carry)
+    obs = jnp.asarray(values, jnp.float32)[:, None]
+    return rppo.apply(state.agent.params, carry, obs, config)[1]
+
+
+def test_critic_learns_the_values_of_the_termination_probe():
+    state, config, _ = probe_run("rl_jax/ProbeTermination-v0")
+    got = np.asarray(outputs_at(state, config, [0.0, 1.0])["value"])
+    np.testing.assert_allclose(got, [0.0, 1.0], atol=0.05)
+
+
+def test_a_truncation_bootstraps_from_the_final_observation_with_the_state_reached():
+    """As sb3-contrib's RecurrentPPO does: the value of the true final observation, read with
+    the state the cell reached on the step that the time limit cut (the episode would have gone
+    on with it), while the next step starts from the zero state."""
+    config = rppo.recurrent_ppo.default_config(
+        "rl_jax/ProbeTruncation-v0", num_envs=16, num_steps=4, seq_len=4, cell_size=8
+    )
+    state = rppo.init(jax.random.key(0), config, rppo.recurrent_ppo.default_hyperparams())
+    _, rollout = jax.jit(lambda s: rppo.collect(s, jax.random.key(1), config))(state)
+    assert np.all(np.asarray(rollout.truncated)) and not np.any(np.asarray(rollout.terminated))
+    assert np.all(np.asarray(rollout.start)) and np.all(np.asarray(flat(rollout.carry)) == 0)
+    params = state.agent.params
+    for t in range(config.num_steps):
+        reached, _ = rppo.apply(
+            params, jax.tree.map(lambda x, t=t: x[t], rollout.carry), rollout.obs[t], config
+        )
+        final_obs = 1.0 - rollout.obs[t]  # the probe flips its observation, then the limit cuts
+        _, expected = rppo.apply(params, reached, final_obs, config)
+        np.testing.assert_allclose(rollout.v_t[t], expected["value"], rtol=1e-5, atol=1e-6)
+    zero = jax.tree.map(lambda x: x[0], rollout.carry)
+    _, from_zero = rppo.apply(params, zero, 1.0 - rollout.obs[0], config)
+    assert not np.allclose(rollout.v_t[0], from_zero["value"])
+
+
+def test_policy_finds_the_best_action_of_the_action_reward_probe():
+    state, config, metrics = probe_run("rl_jax/ProbeActionReward-v0")
+    assert float(outputs_at(state, config, [0.0])["mean"][0, 0]) == pytest.approx(0.5, abs=0.1)
+    assert float(metrics.eval_return) == pytest.approx(1.0, abs=0.01)
