@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import dataclasses
 import functools
+import json
 
 import jax
 import jax.numpy as jnp
@@ -244,3 +245,32 @@ def test_policy_finds_the_best_action_of_the_action_reward_probe():
     state, config, metrics = probe_run("rl_jax/ProbeActionReward-v0")
     assert float(outputs_at(state, config, [0.0])["mean"][0, 0]) == pytest.approx(0.5, abs=0.1)
     assert float(metrics.eval_return) == pytest.approx(1.0, abs=0.01)
+
+
+def test_a_resumed_run_equals_one_that_never_stopped_and_its_policy_remembers(tmp_path):
+    """The cell's state of every env is in the checkpoint: two seeds, 2 chunks straight vs 1
+    chunk then a resume; the loaded policy then answers the probe from its memory."""
+    config = {"num_envs": 16, "num_steps": 12, "seq_len": 6, "num_minibatches": 2}
+    config |= {"cell_size": 16, "iterations_per_chunk": 5, "num_eval_envs": 64}
+    hparams = {"learning_rate": 3e-3, "ent_coef": 0.01}
+    chunk = 16 * 12 * 5
+    common = dict(seeds=2, config=config, hparams=hparams, quiet=True)
+    straight = rl_jax.train(
+        "recurrent_ppo", PROBE, total_steps=2 * chunk, out=tmp_path / "a", **common
+    )
+    rl_jax.train("recurrent_ppo", PROBE, total_steps=chunk, out=tmp_path / "b", **common)
+    resumed = rl_jax.resume(tmp_path / "b", total_steps=2 * chunk, quiet=True)
+
+    def rows(run):
+        lines = (run.run_dir / "metrics.jsonl").read_text().splitlines()
+        return [json.loads(line) for line in lines]
+
+    keep = ("step", "seed", "eval_return", "train_return", "policy_loss")
+    assert [{k: r.get(k) for k in keep} for r in rows(resumed)] == [
+        {k: r.get(k) for k in keep} for r in rows(straight)
+    ]
+    policy = rl_jax.load_policy(tmp_path / "a")
+    for first in (-1.0, 1.0):
+        policy.reset()
+        actions = [int(policy(np.array([obs], np.float32))) for obs in (first, 0.0, 0.0)]
+        assert actions[-1] == (1 if first > 0 else 0)
