@@ -18,6 +18,7 @@ import recurrent_learner as learner
 
 import rl_jax
 import rl_jax.agents.ppo
+import rl_jax.envs.core.probes  # noqa: F401  (registers the probes)
 from rl_jax.run import api, render
 from rl_jax.run.policy import LoadedPolicy, Policy, RecurrentPolicy
 from rl_jax.run.runner import run
@@ -136,3 +137,20 @@ def test_gif_rollouts_carry_the_state(run_dir):
     )
     assert [episode["return"] for episode in played] == [0.0, 0.0, 0.0]
     assert all(len(episode["states"]) >= 2 for episode in played)
+
+
+def test_a_recurrent_policy_is_given_the_legal_actions_where_the_env_has_a_mask():
+    """The highest legal action, chosen from the mask alone (the observation ignored), never
+    dies in the fatal-actions probe; the state still counts the steps."""
+    env = rl_jax.envs.make("rl_jax/ProbeFatalIllegalActions-v0")
+
+    def policy(counter, obs, legal):
+        highest = legal.shape[-1] - 1 - jnp.argmax(legal[..., ::-1], axis=-1)
+        return highest.astype(jnp.int32), counter + 1.0
+
+    returns = jax.jit(
+        lambda key: episodes.recurrent_episode_returns(policy, jnp.float32(0), env, key, 16)
+    )(jax.random.key(0))
+    assert np.all(np.asarray(returns) > 0)  # an illegal action pays -10 and ends the episode
+    played = render.rollout(env, policy, jax.random.key(1), 2, jnp.float32(0))
+    assert all(episode["return"] > 0 for episode in played)
