@@ -28,6 +28,7 @@ from pathlib import Path
 from typing import TypedDict, cast
 
 from rl_jax.errors import RunError
+from rl_jax.run.run_dir import write_json_atomic
 
 LEASE_FILE = "lease.json"
 
@@ -66,7 +67,7 @@ class Lease:
         while not self._stop.wait(HEARTBEAT_SECONDS):
             if _read(self.path).get("token") != self.owner["token"]:
                 return  # taken over (this process was thought gone): never write over it
-            _write(self.path, {**self.owner, "heartbeat": time.time()})
+            write_json_atomic(self.path, {**self.owner, "heartbeat": time.time()})
 
     def release(self) -> None:
         """Stop the heartbeat and remove the lease if it is still this process's."""
@@ -104,7 +105,8 @@ def acquire(run_dir: Path, command: str = "") -> Lease:
     held = _wait_for_stale(path)
     if held is not None:
         raise RunError(_refusal(run_dir, held))
-    _write(path, owner)  # the former owner is gone: take over, then check no one else did
+    # the former owner is gone: take over, then check that no one else did
+    write_json_atomic(path, owner)
     if _read(path).get("token") != owner["token"]:
         raise RunError(_refusal(run_dir, _read(path)))
     return Lease(run_dir, owner)
@@ -165,12 +167,6 @@ def _read(path: Path) -> Holder:
     except (OSError, ValueError):
         return {}
     return cast(Holder, value) if isinstance(value, dict) else {}
-
-
-def _write(path: Path, owner: Holder) -> None:
-    temporary = path.with_name(f"{path.name}.{os.getpid()}.tmp")
-    temporary.write_text(json.dumps(owner))
-    os.replace(temporary, path)
 
 
 def _refusal(run_dir: Path, held: Holder) -> str:

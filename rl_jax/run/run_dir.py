@@ -157,8 +157,9 @@ def environment_record() -> dict[str, object]:
 
 
 def write_json_atomic(path: Path, payload: Mapping[str, object]) -> None:
-    """Write JSON through a temporary file and a rename, so a crash never leaves half a file."""
-    temporary = path.with_name(path.name + ".tmp")
+    """Write JSON through a temporary file and a rename, so a crash never leaves half a file
+    (the temporary file is this process's own: two writers never share one)."""
+    temporary = path.with_name(f"{path.name}.{os.getpid()}.tmp")
     temporary.write_text(json.dumps(payload, indent=2, sort_keys=False) + "\n")
     os.replace(temporary, path)
 
