@@ -529,10 +529,7 @@ def train_chunk(
     eval_return = episodes.evaluate_recurrent(
         act, initial_carry(config), state.agent, config, eval_key
     )
-    count = jnp.sum(counts)
-    train_return = jnp.where(
-        count > 0, jnp.sum(return_sums) / jnp.maximum(count, 1), state.train_return
-    )
+    train_return = episodes.mean_return(return_sums, counts, state.train_return)
     state = dataclasses.replace(state, key=key, train_return=train_return)
     return state, ChunkMetrics(
         env_steps=state.clock.env_steps,

@@ -219,3 +219,10 @@ def recurrent_episode_returns(
     policy_state = batched_policy_state(initial, episodes)
     carry = (jnp.int32(0), env_state, policy_state, ts.obs, legal, alive, total)
     return jax.lax.while_loop(running, step, carry)[-1]
+
+
+def mean_return(return_sums: jax.Array, counts: jax.Array, previous: jax.Array) -> jax.Array:
+    """The mean return of the episodes that ended in a chunk (``return_sums`` and ``counts`` per
+    iteration and env), or ``previous`` where none ended: a chunk's ``train_return``."""
+    count = jnp.sum(counts)
+    return jnp.where(count > 0, jnp.sum(return_sums) / jnp.maximum(count, 1), previous)

@@ -32,7 +32,13 @@ from rl_jax import envs
 from rl_jax.envs.core.wrappers import ACTION_MASK, FINAL_ACTION_MASK, StatisticsState
 from rl_jax.training import replay
 from rl_jax.training.algorithm import ChunkMetrics, Hyperparams, PolicyFn, RecipeBook
-from rl_jax.training.episodes import evaluate, example_transition, make_eval_env, make_train_env
+from rl_jax.training.episodes import (
+    evaluate,
+    example_transition,
+    make_eval_env,
+    make_train_env,
+    mean_return,
+)
 from rl_jax.training.replay import ReplayBuffer, Transition
 
 if TYPE_CHECKING:
@@ -371,10 +377,7 @@ def train_chunk(
     )
     eval_key, key = jax.random.split(state.key)
     eval_return = evaluate(learner.act, state.agent, config, eval_key)
-    count = jnp.sum(episode_counts)
-    train_return = jnp.where(
-        count > 0, jnp.sum(return_sums) / jnp.maximum(count, 1), state.train_return
-    )
+    train_return = mean_return(return_sums, episode_counts, state.train_return)
     state = dataclasses.replace(state, key=key, train_return=train_return)
     chunk_metrics = ChunkMetrics(
         env_steps=state.clock.env_steps,
