@@ -11,9 +11,10 @@ requeued or restarted job continues by itself:
   ``HEARTBEAT_SECONDS``, and a newcomer that sees no new heartbeat for ``STALE_SECONDS`` takes
   the lease (it waits that long at most, and only when the lease's last heartbeat is recent).
 
-The file is created with ``O_CREAT | O_EXCL`` and replaced through a rename, both atomic on local
-file systems and on NFS (v3 and later) and Lustre, where ``flock`` may not reach other hosts; a
-lease taken over is read back to check that this process won.
+The file is published whole with a hard link, which fails where the name exists, and replaced
+through a rename, both atomic on local file systems and on NFS (v3 and later) and Lustre, where
+``flock`` may not reach other hosts; a lease taken over is read back to check that this process
+won.
 """
 
 from __future__ import annotations
@@ -113,13 +114,17 @@ def acquire(run_dir: Path, command: str = "") -> Lease:
 
 
 def _create(path: Path, owner: Holder) -> bool:
-    """Create the lease file exclusively; False if it exists."""
+    """Publish the lease file whole, only if none exists; False if one does. The file is
+    written under a name of this process's first and then hard-linked into place, which fails
+    where the name exists (on NFS too): no one ever reads a lease half written."""
+    written = path.with_name(f"{path.name}.{os.getpid()}.new")
+    written.write_text(json.dumps(owner))
     try:
-        handle = os.open(path, os.O_CREAT | os.O_EXCL | os.O_WRONLY, 0o644)
+        os.link(written, path)
     except FileExistsError:
         return False
-    with os.fdopen(handle, "w") as file:
-        json.dump(owner, file)
+    finally:
+        written.unlink(missing_ok=True)
     return True
 
 
