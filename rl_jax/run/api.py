@@ -23,7 +23,6 @@ work on it. Progress is one line per ``log_interval`` seconds when the output is
 
 from __future__ import annotations
 
-import os
 from pathlib import Path
 from typing import Any, cast
 
@@ -43,7 +42,7 @@ from rl_jax.run.runner import run
 from rl_jax.run.spec import RunSpec
 from rl_jax.training.algorithm import Algorithm, PolicyFn, RecurrentPolicyFn
 from rl_jax.training.episodes import episode_returns, recurrent_episode_returns
-from rl_jax.training.jax_setup import configure_jax, cpu_count
+from rl_jax.training.jax_setup import configure_jax, wanted_cpu_devices
 from rl_jax.training.params import dataclass_from_dict
 
 
@@ -285,7 +284,7 @@ def _use_every_core(quiet: bool) -> None:
     """The CLI's device layout (``jax_setup.configure_jax``: a JAX device per CPU core), and a
     line when JAX started earlier in this process with fewer devices than that."""
     configure_jax()
-    wanted = int(os.environ.get("RL_JAX_CPU_DEVICES", cpu_count()))
+    wanted = wanted_cpu_devices()
     if quiet or jax.default_backend() != "cpu" or jax.local_device_count() >= wanted:
         return
     print(

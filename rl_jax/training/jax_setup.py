@@ -68,4 +68,9 @@ def cpu_count() -> int:
 def configure_jax() -> None:
     """Compilation cache on and one JAX device per CPU core (seeds and configs are sharded over
     them), before anything starts JAX. ``RL_JAX_CPU_DEVICES`` overrides the device count."""
-    configure(cpu_devices=int(os.environ.get("RL_JAX_CPU_DEVICES", cpu_count())))
+    configure(cpu_devices=wanted_cpu_devices())
+
+
+def wanted_cpu_devices() -> int:
+    """The CPU devices ``configure_jax`` asks for: one per core, or ``RL_JAX_CPU_DEVICES``."""
+    return int(os.environ.get("RL_JAX_CPU_DEVICES", cpu_count()))
