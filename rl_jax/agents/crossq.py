@@ -31,7 +31,7 @@ from rl_jax.agents.actor_critic import (
     Networks,
     Rate,
 )
-from rl_jax.agents.common import linearly_decayed, optimizer_step
+from rl_jax.agents.common import injected_step, linearly_decayed
 from rl_jax.envs.core.spaces import Space
 from rl_jax.training import batch_renorm, episodes, networks, offpolicy, replay, validation
 from rl_jax.training.networks import Params
@@ -168,7 +168,7 @@ def _adam(
     """Adam at ``rate`` and ``b1``, both written into the injected state (which a checkpoint
     records) before the step reads them."""
     beta1 = jnp.asarray(b1, jnp.float32)
-    return optimizer_step(adam(rate, beta1), grads, opt_state, params, learning_rate=rate, b1=beta1)
+    return injected_step(optax.adam, grads, opt_state, params, learning_rate=rate, b1=beta1)
 
 
 def critic_step(

@@ -42,7 +42,7 @@ from jax.typing import ArrayLike
 
 from rl_jax.agents import sac_parts
 from rl_jax.agents.actor_critic import CriticBatch, every_policy_delay, gather_batch
-from rl_jax.agents.common import optimizer_step, polyak_update
+from rl_jax.agents.common import injected_step, polyak_update
 from rl_jax.envs.core.spaces import Box, Space
 from rl_jax.errors import UsageError
 from rl_jax.training import (
@@ -271,7 +271,7 @@ def adam_step(
 ) -> tuple[optax.Params, optax.OptState]:
     """``(params, opt_state)`` after one Adam step at ``rate``, written into the state first;
     the state's own ``b1`` (set at init) and other numbers are the step's."""
-    return optimizer_step(adam(rate), grads, opt_state, params, learning_rate=rate)
+    return injected_step(optax.adam, grads, opt_state, params, learning_rate=rate)
 
 
 def sample(
