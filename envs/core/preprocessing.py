@@ -44,7 +44,7 @@ from flax import struct
 
 from rl_jax.envs.core.core import Array, Environment, TimeStep
 from rl_jax.envs.core.spaces import Box, Discrete, Space
-from rl_jax.envs.core.wrappers import ACTION_MASK, AutoReset, Wrapper, reset_after
+from rl_jax.envs.core.wrappers import ACTION_MASK, AutoReset, Wrapper, _select, reset_after
 
 LIVES = "lives"  # info key: int32 [], the lives left
 
@@ -75,11 +75,6 @@ def action_mask(
     if ACTION_MASK in info:
         return info[ACTION_MASK]
     return jnp.ones((*batch_shape, num_actions), jnp.bool_)
-
-
-def _select(pred: Array, on_true: Any, on_false: Any) -> Any:
-    """``where(pred, a, b)`` over matching pytrees; ``pred`` is a scalar per env."""
-    return jax.tree.map(lambda a, b: jnp.where(pred, a, b), on_true, on_false)
 
 
 class _SameLimit(Wrapper):
@@ -250,10 +245,6 @@ class FrameSkip(Wrapper):
         obs = jnp.maximum(last, before_last) if self.max_pool else last
         return state, TimeStep(obs, reward, terminated, truncated, info)
 
-    def reset_after(self, key, state, timestep: TimeStep, params=None):
-        """The env's ``reset_after`` (the state is the env's own)."""
-        return reset_after(self.env, key, state, timestep, params)
-
 
 # ---- sticky actions -----------------------------------------------------------------------------
 @struct.dataclass
@@ -348,10 +339,6 @@ class TransformReward(_SameLimit):
         """Step the env and transform its reward."""
         state, ts = self.env.step(key, state, action, params)
         return state, ts._replace(reward=jnp.asarray(self.func(ts.reward), jnp.float32))
-
-    def reset_after(self, key, state, timestep: TimeStep, params=None):
-        """The env's ``reset_after`` (the state is the env's own)."""
-        return reset_after(self.env, key, state, timestep, params)
 
 
 class ClipReward(TransformReward):
