@@ -119,8 +119,8 @@ class OneDeckTask(CardTask[CardState]):
         return state, self.first_observation(cards)
 
     def first_observation(self, cards: Array) -> Array:
-        """What the agent sees after the reset (each task defines it)."""
-        raise NotImplementedError
+        """What the agent sees after the reset: by default the first card's suit."""
+        return one_hot(suit_of(cards[0]), SUITS)
 
 
 class RepeatPrevious(OneDeckTask):
@@ -132,10 +132,6 @@ class RepeatPrevious(OneDeckTask):
     """
 
     k = 4
-
-    def first_observation(self, cards: Array) -> Array:
-        """The first card's suit."""
-        return one_hot(suit_of(cards[0]), SUITS)
 
     def step_env(self, key: PRNGKey, state: CardState, action: Array, params: EnvParams):
         """Score the answer for card ``t - k`` (from step ``k`` on), deal card ``t``."""
@@ -155,10 +151,6 @@ class RepeatFirst(OneDeckTask):
     Each step (t = 1..51) scores the answer, ``+-1/51``, and deals card ``t``. Terminates at step
     51, when one card is left.
     """
-
-    def first_observation(self, cards: Array) -> Array:
-        """The first card's suit: the one to repeat."""
-        return one_hot(suit_of(cards[0]), SUITS)
 
     def step_env(self, key: PRNGKey, state: CardState, action: Array, params: EnvParams):
         """Score the answer for the first card, deal card ``t``."""
