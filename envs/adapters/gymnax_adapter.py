@@ -175,11 +175,12 @@ def from_gymnax(
         raise UnsupportedEnvError(
             f"unknown gymnax env {name!r}; gymnax has {gymnax.registered_envs}"
         )
-    probe = gymnax.make(name)[1]
-    fields = {field.name for field in dataclasses.fields(probe)}
+    gymnax_env, params = gymnax.make(name)
+    fields = {field.name for field in dataclasses.fields(params)}
     overrides = {key: value for key, value in kwargs.items() if key in fields}
     constructor = {key: value for key, value in kwargs.items() if key not in fields}
-    gymnax_env, params = gymnax.make(name, **constructor)
+    if constructor:  # built again only where a keyword is the constructor's
+        gymnax_env, params = gymnax.make(name, **constructor)
     if overrides:
         params = params.replace(**overrides)
     limit = (
