@@ -223,16 +223,15 @@ def _choose(argv: list[str], algorithm: Algorithm | None, env_id: str | None) ->
     pre = OneLineParser(add_help=False)
     _add_choice_flags(pre)
     pre.add_argument("--resume", type=Path, default=None)
-    pre.add_argument("--recipe", default=None)
-    known, _ = pre.parse_known_args(argv)
+    recipe, rest = recipe_choice.split_recipe(argv)
     # --algo, --env and --resume stay in argv for the learner's parser, which lists them too
-    rest = _without_recipe(argv)
+    known, _ = pre.parse_known_args(rest)
     record = read_run_record(known.resume) if known.resume else None
     given = known.env is not None or record is not None
     if algorithm is not None and env_id is not None:
         if record is not None and record.get("learner") == "builtin":
             algorithm = recipe_choice.resumed_learner(algorithm, record["identity"]["algorithm"])
-        algorithm, recipe = recipe_choice.script_recipe(algorithm, known.recipe)
+        algorithm, recipe = recipe_choice.script_recipe(algorithm, recipe)
         env = envs.core.registry.resolve_id(env_id)
         return Choice(algorithm, env, False, recipe, record, tuple(rest), given)
     wants_help = bool({"-h", "--help"} & set(argv))
@@ -252,20 +251,7 @@ def _choose(argv: list[str], algorithm: Algorithm | None, env_id: str | None) ->
     if env_name is None:
         env_name = help_env(algorithm)
     env = envs.core.registry.resolve_id(env_name)
-    return Choice(algorithm, env, True, known.recipe, record, tuple(rest), given)
-
-
-def _without_recipe(argv: list[str]) -> list[str]:
-    """``argv`` without ``--recipe NAME`` / ``--recipe=NAME`` (read by ``_choose``)."""
-    rest, skip = [], False
-    for word in argv:
-        if skip:
-            skip = False
-        elif word == "--recipe":
-            skip = True
-        elif not word.startswith("--recipe="):
-            rest.append(word)
-    return rest
+    return Choice(algorithm, env, True, recipe, record, tuple(rest), given)
 
 
 #: Where ``help_env`` looks when a learner's recipes name no env: continuous, then discrete.

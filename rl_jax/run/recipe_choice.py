@@ -97,11 +97,17 @@ def _former_spellings() -> dict[str, tuple[str, str]]:
 def take_recipe(argv: list[str], algorithm: Algorithm, env_id: str) -> tuple[Recipe, list[str]]:
     """``--recipe NAME`` of ``algorithm``'s recipes for ``env_id`` (else its ``"default"``),
     taken out of ``argv`` (``recipe_named`` says what is refused)."""
+    name, rest = split_recipe(argv)
+    resuming = any(arg == "--resume" or arg.startswith("--resume=") for arg in rest)
+    return recipe_named(algorithm, env_id, name, resuming), rest
+
+
+def split_recipe(argv: list[str]) -> tuple[str | None, list[str]]:
+    """``--recipe NAME`` taken out of ``argv``: ``(NAME or None, the rest in order)``."""
     pre = argparse.ArgumentParser(add_help=False)
     pre.add_argument("--recipe", default=None)
     known, rest = pre.parse_known_args(argv)
-    resuming = any(arg == "--resume" or arg.startswith("--resume=") for arg in rest)
-    return recipe_named(algorithm, env_id, known.recipe, resuming), rest
+    return known.recipe, rest
 
 
 def other_learners_recipes(algorithm: Algorithm, env_id: str) -> str:
