@@ -44,7 +44,14 @@ from flax import struct
 
 from rl_jax.envs.core.core import Array, Environment, TimeStep
 from rl_jax.envs.core.spaces import Box, Discrete, Space
-from rl_jax.envs.core.wrappers import ACTION_MASK, AutoReset, Wrapper, _select, reset_after
+from rl_jax.envs.core.wrappers import (
+    ACTION_MASK,
+    AutoReset,
+    SameLimit,
+    Wrapper,
+    _select,
+    reset_after,
+)
 
 LIVES = "lives"  # info key: int32 [], the lives left
 
@@ -77,19 +84,6 @@ def action_mask(
     return jnp.ones((*batch_shape, num_actions), jnp.bool_)
 
 
-class _SameLimit(Wrapper):
-    """A wrapper whose episode limit is its env's: setting it sets the env's, which truncates."""
-
-    @property
-    def max_episode_steps(self) -> int:
-        """The wrapped env's episode limit."""
-        return self.env.max_episode_steps
-
-    @max_episode_steps.setter
-    def max_episode_steps(self, value: int) -> None:
-        self.env.max_episode_steps = value
-
-
 def _refuse_autoreset_below(env: Environment, wrapper: str) -> None:
     inner: Environment = env
     while isinstance(inner, Wrapper):
@@ -115,7 +109,7 @@ class FrameStackState:
         return self.env_state.time
 
 
-class FrameStack(_SameLimit):
+class FrameStack(SameLimit):
     """The last ``stack_size`` observations as one, as gymnasium's ``FrameStackObservation``.
 
     ``obs`` is ``[stack_size, *obs_shape]``, the newest last (``axis=0``, gymnasium's layout), or
@@ -261,7 +255,7 @@ class StickyState:
         return self.env_state.time
 
 
-class StickyActions(_SameLimit):
+class StickyActions(SameLimit):
     """With probability ``repeat_action_probability`` the env executes its previous action
     instead of the agent's (Machado et al. 2018, as gymnasium's ``StickyAction`` with its
     default duration of one step): ALE's v5 envs use 0.25, MinAtar 0.1.
@@ -327,7 +321,7 @@ class StickyActions(_SameLimit):
 
 
 # ---- rewards ------------------------------------------------------------------------------------
-class TransformReward(_SameLimit):
+class TransformReward(SameLimit):
     """``reward = func(reward)`` on every step (gymnasium's ``TransformReward``); ``func`` maps
     a float32 ``[]`` array to one, in JAX."""
 
@@ -375,7 +369,7 @@ class EpisodicLifeState:
         return self.env_state.time
 
 
-class EpisodicLife(_SameLimit):
+class EpisodicLife(SameLimit):
     """A lost life ends the learner's episode as terminated, while the game goes on (DQN's
     Atari setting; SB3's ``EpisodicLifeEnv``). For envs that report ``info["lives"]``.
 

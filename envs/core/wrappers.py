@@ -374,7 +374,20 @@ class FlattenObservation(Wrapper):
         return state, self._flatten(ts)
 
 
-class MaskObservation(Wrapper):
+class SameLimit(Wrapper):
+    """A wrapper whose episode limit is its env's: setting it sets the env's, which truncates."""
+
+    @property
+    def max_episode_steps(self) -> int:
+        """The wrapped env's episode limit."""
+        return self.env.max_episode_steps
+
+    @max_episode_steps.setter
+    def max_episode_steps(self, value: int) -> None:
+        self.env.max_episode_steps = value
+
+
+class MaskObservation(SameLimit):
     """Shows the learner only the entries ``keep`` of a one-dimensional Box observation, making
     the env partially observed (velocities hidden, for instance).
 
@@ -400,15 +413,6 @@ class MaskObservation(Wrapper):
         self.zero_others = zero_others
         self._kept = np.zeros(size, np.bool_)
         self._kept[list(self.keep)] = True
-
-    @property
-    def max_episode_steps(self) -> int:
-        """The wrapped env's episode limit."""
-        return self.env.max_episode_steps
-
-    @max_episode_steps.setter
-    def max_episode_steps(self, value: int) -> None:
-        self.env.max_episode_steps = value
 
     def observation_space(self, params=None) -> Space:
         """The kept entries' bounds (or, with ``zero_others``, the wrapped env's space)."""
