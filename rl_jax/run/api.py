@@ -60,11 +60,14 @@ class Run:
         env: str | None = None,
     ):
         self.run_dir = Path(run_dir)
-        self.learner = algorithm
         self.record = read_run_record(self.run_dir)
         identity = self.record["identity"]
-        if algorithm is not None:  # named by the user: its module may register the run's env
-            for_run(self.record, self.run_dir, algorithm, how="algorithm=")
+        # named by the user, resolved and checked once (its module may register the run's env)
+        self.learner: Algorithm | None = (
+            None
+            if algorithm is None
+            else for_run(self.record, self.run_dir, algorithm, "algorithm=")
+        )
         self.algorithm: str = identity["algorithm"]
         self.env_id: str = recorded_env(identity["env_id"], self.run_dir, env, how="env=")
         self.seeds: list[int] = [identity["base_seed"] + s for s in range(identity["seeds"])]
