@@ -112,8 +112,14 @@ class Environment(Generic[StateT, ParamsT]):
         raise NotImplementedError(f"{type(self).__name__} cannot start from a given state")
 
     def empty_info(self) -> dict[str, Array]:
-        """The info dict ``reset`` returns: same keys/shapes/dtypes as ``step``'s info."""
+        """The info dict of a first timestep: same keys/shapes/dtypes as ``step``'s info."""
         return {}
+
+    def first_info(self, state: StateT) -> dict[str, Array]:
+        """The info dict of the first timestep of an episode starting in ``state``:
+        ``empty_info()`` unless an env reports something at the start (the legal actions of
+        an env with an action mask)."""
+        return self.empty_info()
 
     # ---- the public API -----------------------------------------------------------------------
     def reset(self, key: PRNGKey, params: ParamsT | None = None) -> tuple[StateT, TimeStep]:
@@ -123,7 +129,7 @@ class Environment(Generic[StateT, ParamsT]):
         """
         params = self.default_params if params is None else params
         state, obs = self.reset_env(key, params)
-        return state, self._first_timestep(obs)
+        return state, self._first_timestep(state, obs)
 
     def step(
         self, key: PRNGKey, state: StateT, action: Array, params: ParamsT | None = None
@@ -170,15 +176,15 @@ class Environment(Generic[StateT, ParamsT]):
         """Start from an exact state vector (see ``state_from_vector``)."""
         params = self.default_params if params is None else params
         state, obs = self.state_from_vector(jnp.asarray(vector), params)
-        return state, self._first_timestep(obs)
+        return state, self._first_timestep(state, obs)
 
-    def _first_timestep(self, obs: Array) -> TimeStep:
+    def _first_timestep(self, state: StateT, obs: Array) -> TimeStep:
         return TimeStep(
             obs=obs,
             reward=jnp.zeros((), jnp.float32),
             terminated=jnp.zeros((), jnp.bool_),
             truncated=jnp.zeros((), jnp.bool_),
-            info=self.empty_info(),
+            info=self.first_info(state),
         )
 
     # ---- rendering (host side, optional) ------------------------------------------------------

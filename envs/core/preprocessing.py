@@ -18,7 +18,7 @@ Two entries of the timestep ``info`` are part of the env contract here:
   timestep, its reset's included (as ALE's gymnasium envs do). ``EpisodicLife`` reads it.
 * ``info["action_mask"]`` (bool ``[n]`` for a ``Discrete(n)`` action space): the legal actions
   of the state the timestep's ``obs`` shows, on every timestep, its reset's included (an env
-  overrides ``reset`` to report its first state's mask; ``empty_info`` holds all True). A
+  reports its first state's mask through ``first_info``; ``empty_info`` holds all True). A
   learner acts, and bootstraps, only over legal actions (``rl_jax.agents.q_learning``'s
   ``masked_argmax``/``masked_max``, ``rl_jax.agents.policy_gradient``'s masked categorical);
   ``action_mask`` reads it, all True for an env without one.

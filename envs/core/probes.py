@@ -278,15 +278,9 @@ class FatalIllegalActions(Environment):
         """Start with the legal actions given as a 0/1 vector (not all 0)."""
         return self._at(jnp.asarray(vector).reshape(self.num_actions) > 0.5, jnp.int32(0))
 
-    def reset(self, key, params=None):
-        """Start an episode; the first timestep's ``info`` holds its legal actions."""
-        state, ts = super().reset(key, params)
-        return state, ts._replace(info={ACTION_MASK: state.legal})
-
-    def reset_to(self, vector, params=None):
-        """Start from given legal actions, reported in the first timestep's ``info``."""
-        state, ts = super().reset_to(vector, params)
-        return state, ts._replace(info={ACTION_MASK: state.legal})
+    def first_info(self, state):
+        """The first timestep's ``info`` holds the episode's first legal actions."""
+        return {ACTION_MASK: state.legal}
 
     def step_env(self, key, state, action, params):
         """Pay ``(a + 1) / n`` for a legal ``a`` and draw the next legal actions; an illegal
