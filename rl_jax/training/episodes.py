@@ -78,11 +78,8 @@ def evaluate(
     autoreset); [] float32. For an env with an action mask it is
     ``act(agent, obs, config, legal [N, A])``, so that it chooses among the legal actions."""
     env = make_eval_env(config)
-    if envs.has_action_mask(env):
-        masked_policy = lambda obs, legal: act(agent, obs, config, legal)  # noqa: E731
-        return jnp.mean(episode_returns(masked_policy, env, key, config.num_eval_envs))
-    returns = episode_returns(lambda obs: act(agent, obs, config), env, key, config.num_eval_envs)
-    return jnp.mean(returns)
+    policy = lambda obs, *legal: act(agent, obs, config, *legal)  # noqa: E731
+    return jnp.mean(episode_returns(policy, env, key, config.num_eval_envs))
 
 
 def episode_returns(
@@ -91,57 +88,10 @@ def episode_returns(
     """Undiscounted returns ``[episodes]`` of ``policy`` (``obs [N, ...] -> actions [N, ...]``)
     in ``env``: one fresh copy per episode, all stepped together until the last one ends. For
     an env with a legal-action mask (``envs.has_action_mask``) the policy is called as
-    ``policy(obs, legal)``, ``legal`` the bool ``[N, A]`` mask of ``obs``."""
-    reset_key, step_key = jax.random.split(key)
-    env_state, ts = jax.vmap(env.reset)(jax.random.split(reset_key, episodes))
-    if envs.has_action_mask(env):
-        return _masked_episode_returns(policy, env, step_key, env_state, ts, episodes)
-    alive = jnp.ones(episodes, jnp.bool_)
-    total = jnp.zeros(episodes, jnp.float32)
-
-    def running(carry):
-        time, _, _, alive, _ = carry
-        return jnp.logical_and(time < env.max_episode_steps, jnp.any(alive))
-
-    def step(carry):
-        time, env_state, obs, alive, total = carry
-        keys = jax.random.split(jax.random.fold_in(step_key, time), episodes)
-        env_state, ts = jax.vmap(env.step)(keys, env_state, policy(obs))
-        total = total + jnp.where(alive, ts.reward, 0.0)
-        alive = jnp.logical_and(alive, ~jnp.logical_or(ts.terminated, ts.truncated))
-        return time + 1, env_state, ts.obs, alive, total
-
-    carry = (jnp.int32(0), env_state, ts.obs, alive, total)
-    return jax.lax.while_loop(running, step, carry)[-1]
-
-
-def _masked_episode_returns(
-    policy: Callable[[jax.Array, jax.Array], jax.Array],
-    env: envs.Environment,
-    step_key: jax.Array,
-    env_state: object,
-    ts: envs.TimeStep,
-    episodes: int,
-) -> jax.Array:
-    """``episode_returns`` for an env with an action mask: the policy sees each obs's mask."""
-    mask_key = ACTION_MASK
-
-    def running(carry):
-        time, _, _, _, alive, _ = carry
-        return jnp.logical_and(time < env.max_episode_steps, jnp.any(alive))
-
-    def step(carry):
-        time, env_state, obs, legal, alive, total = carry
-        keys = jax.random.split(jax.random.fold_in(step_key, time), episodes)
-        env_state, ts = jax.vmap(env.step)(keys, env_state, policy(obs, legal))
-        total = total + jnp.where(alive, ts.reward, 0.0)
-        alive = jnp.logical_and(alive, ~jnp.logical_or(ts.terminated, ts.truncated))
-        return time + 1, env_state, ts.obs, ts.info[mask_key], alive, total
-
-    alive = jnp.ones(episodes, jnp.bool_)
-    total = jnp.zeros(episodes, jnp.float32)
-    carry = (jnp.int32(0), env_state, ts.obs, ts.info[mask_key], alive, total)
-    return jax.lax.while_loop(running, step, carry)[-1]
+    ``policy(obs, legal)``, ``legal`` the bool ``[N, A]`` mask of ``obs``. The loop is
+    ``recurrent_episode_returns``'s, with no policy state to carry."""
+    stateless = lambda policy_state, *obs_legal: (policy(*obs_legal), policy_state)  # noqa: E731
+    return recurrent_episode_returns(stateless, (), env, key, episodes)
 
 
 # ---- recurrent policies ------------------------------------------------------------------------
@@ -174,12 +124,8 @@ def evaluate_recurrent(
     config[, legal [N, A]]) -> (actions, policy_state)``: each episode starts from ``initial``
     (one env's state)."""
     env = make_eval_env(config)
-    if envs.has_action_mask(env):
-        masked = lambda ps, obs, legal: act(agent, ps, obs, config, legal)  # noqa: E731
-        returns = recurrent_episode_returns(masked, initial, env, key, config.num_eval_envs)
-        return jnp.mean(returns)
-    plain = lambda ps, obs: act(agent, ps, obs, config)  # noqa: E731
-    return jnp.mean(recurrent_episode_returns(plain, initial, env, key, config.num_eval_envs))
+    policy = lambda ps, obs, *legal: act(agent, ps, obs, config, *legal)  # noqa: E731
+    return jnp.mean(recurrent_episode_returns(policy, initial, env, key, config.num_eval_envs))
 
 
 def recurrent_episode_returns(
