@@ -87,10 +87,8 @@ class Config:
 
     def __post_init__(self) -> None:
         envs.parse_keywords(self.env_kwargs)  # a ValueError names what is wrong
-        for name in ("num_envs", "num_steps", "seq_len", "num_epochs", "num_minibatches"):
-            if getattr(self, name) < 1:
-                raise ValueError(f"{name} must be >= 1, got {getattr(self, name)}")
-        for name in ("iterations_per_chunk", "num_eval_envs", "cell_size"):
+        counts = ("num_envs", "num_steps", "seq_len", "num_epochs", "num_minibatches")
+        for name in (*counts, "iterations_per_chunk", "num_eval_envs", "cell_size"):
             if getattr(self, name) < 1:
                 raise ValueError(f"{name} must be >= 1, got {getattr(self, name)}")
         if self.num_steps % self.seq_len:
