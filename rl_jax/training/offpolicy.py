@@ -422,10 +422,6 @@ class OffPolicyAlgorithm(RecipeBook[ConfigT]):
 
         return policy
 
-    def make_env(self, config: ConfigT) -> envs.Environment:
-        """The env the policy acts in: the config's own (``OffPolicyConfig.make_env``)."""
-        return config.make_env()
-
     def warm_up_steps(self, config: ConfigT) -> int:
         """The config's ``learning_starts``: env steps of random actions before any update."""
         return config.learning_starts
