@@ -8,6 +8,10 @@ import gymnasium
 import jax
 import jax.numpy as jnp
 import numpy as np
+import numpy.typing as npt
+
+#: A box's dtype unless it names one.
+_FLOAT32 = np.dtype(np.float32)
 
 
 class Space:
@@ -38,17 +42,26 @@ class Box(Space):
     low: np.ndarray
     high: np.ndarray
     shape: tuple[int, ...] = ()
-    dtype: np.dtype = field(default_factory=lambda: np.dtype(np.float32))
+    dtype: np.dtype = _FLOAT32
 
-    def __post_init__(self) -> None:
-        shape = tuple(self.shape) or np.broadcast(np.asarray(self.low), np.asarray(self.high)).shape
-        low = np.broadcast_to(np.asarray(self.low, self.dtype), shape).copy()
-        high = np.broadcast_to(np.asarray(self.high, self.dtype), shape).copy()
-        if np.any(low > high):
-            raise ValueError(f"Box low must be <= high, got {low} and {high}")
+    # Written out rather than generated: the bounds may be scalars or any array-like (a jax
+    # array too), broadcast to ``shape`` here, while the fields always hold numpy arrays.
+    def __init__(
+        self,
+        low: npt.ArrayLike,
+        high: npt.ArrayLike,
+        shape: tuple[int, ...] = (),
+        dtype: np.dtype = _FLOAT32,
+    ) -> None:
+        shape = tuple(shape) or np.broadcast(np.asarray(low), np.asarray(high)).shape
+        low_array = np.broadcast_to(np.asarray(low, dtype), shape).copy()
+        high_array = np.broadcast_to(np.asarray(high, dtype), shape).copy()
+        if np.any(low_array > high_array):
+            raise ValueError(f"Box low must be <= high, got {low_array} and {high_array}")
         object.__setattr__(self, "shape", shape)
-        object.__setattr__(self, "low", low)
-        object.__setattr__(self, "high", high)
+        object.__setattr__(self, "low", low_array)
+        object.__setattr__(self, "high", high_array)
+        object.__setattr__(self, "dtype", dtype)
 
     @property
     def bounded(self) -> bool:
