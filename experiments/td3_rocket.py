@@ -6,7 +6,7 @@ before it moves anything: exploration here is temporally correlated (AR(1) noise
 correlation 0.98 and std 0.5, the discrete Ornstein-Uhlenbeck process of the original DDPG), and
 gamma is 0.995 (at 0.99 creeping towards the origin scores as well as arriving). 4 envs stepped
 together, one gradient update per env step, 64x64 networks, otherwise the TD3 paper's settings
-(td3's recipe for the env in rl_jax/agents/td3_recipes.py, with the measurements behind it).
+(td3's recipe for the env in rl_jax/agents/td3.py, with the measurements behind it).
 Known shortfall: from (1, 0) the learned policies do not yet all settle inside |x|, |v| < 0.05
 (tests/agents/test_td3_slow.py).
 Episodes end after 500 steps, on leaving |x|, |v| <= 2 (-500) or on reaching the goal (+500).

@@ -52,16 +52,16 @@ def test_another_seed_set_changes_only_the_first_seed():
 
 def test_the_gpu_recipe_is_the_candidate_that_reached_the_goal():
     """td3_cheetah.py --recipe gpu trains the loop that bench/gpu_recipe.py timed on the H100."""
-    from rl_jax.agents import td3_recipes
+    from rl_jax.agents import td3
 
     args = gpu_recipe.flags("e64-b1024-u32", dry=False)
     values = dict(zip(args[::2], args[1::2], strict=True))
-    config = td3_recipes.GPU_CHEETAH_CONFIG
+    config = td3.GPU_CHEETAH_CONFIG
     assert int(values["--num-envs"]) == config["num_envs"]
     assert int(values["--batch-size"]) == config["batch_size"]
     assert int(values["--updates-per-iteration"]) == config["updates_per_iteration"]
     assert int(values["--iterations-per-chunk"]) == config["iterations_per_chunk"]
     assert int(values["--buffer-size"]) == config["buffer_size"]
-    assert float(values["--actor-lr"]) == td3_recipes.FAST_CHEETAH_HPARAMS["actor_lr"]
-    assert float(values["--critic-lr"]) == td3_recipes.FAST_CHEETAH_HPARAMS["critic_lr"]
+    assert float(values["--actor-lr"]) == td3.FAST_CHEETAH_HPARAMS["actor_lr"]
+    assert float(values["--critic-lr"]) == td3.FAST_CHEETAH_HPARAMS["critic_lr"]
     assert config["actor_hidden"] == config["critic_hidden"] == (128, 128)  # the script's default

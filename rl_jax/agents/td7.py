@@ -46,7 +46,6 @@ from rl_jax.agents.actor_critic import (
 )
 from rl_jax.agents.common import injected_step, linearly_decayed
 from rl_jax.agents.td7_parts import Encoders, ValueRange
-from rl_jax.agents.td7_recipes import TD7_RECIPES
 from rl_jax.envs.core.spaces import Space
 from rl_jax.training import (
     episodes,
@@ -61,6 +60,7 @@ from rl_jax.training.offpolicy import Clock
 from rl_jax.training.params import Scalar
 from rl_jax.training.policy_checkpoints import PolicyCheckpoint
 from rl_jax.training.prioritized import PrioritizedBuffer
+from rl_jax.training.recipes import Recipe, Recipes
 from rl_jax.training.replay import Transition
 
 
@@ -392,13 +392,44 @@ LEARNER = offpolicy.Learner(
 )
 
 
+# ---- recipes ------------------------------------------------------------------------------------
+# TD7's published settings, which are the Config and Hyperparams defaults, and the same learner at
+# CPU sizes.
+RECIPES = Recipes(
+    Recipe(
+        "default",
+        "TD7's published settings: 256x256 networks, 256-d embeddings, LAP, hard target copies "
+        "every 250 updates, value clipping, policy checkpoints on the TD3 paper's loop, rate 3e-4",
+    ),
+    # TD7's own sizes are too slow for a CPU (docs/learners/td7.md#how-the-recipes-were-chosen).
+    Recipe(
+        "cpu",
+        "TD7 at CPU sizes: 128x128 networks, 128-d embeddings, the half-cheetah CPU loop (4 envs "
+        "x 4 updates, batch 128, 10,000 warm-up steps), rate 3e-4",
+        {
+            "num_envs": 4,
+            "updates_per_iteration": 4,
+            "iterations_per_chunk": 1250,
+            "batch_size": 128,
+            "learning_starts": 10_000,
+            "actor_hidden": (128, 128),
+            "critic_hidden": (128, 128),
+            "embedding_dim": 128,
+            "embedding_hidden": (128, 128),
+        },
+        throughput=(61.0, 5),  # measured: docs/learners/td7.md#how-the-recipes-were-chosen
+    ),
+)
+
+
+# ---- the Algorithm object -----------------------------------------------------------------------
 class TD7(offpolicy.OffPolicyAlgorithm[Config]):
     """TD7 as an ``rl_jax.training.algorithm.Algorithm``; its policy acts with the checkpoint
     (``act``)."""
 
     name = "td7"
     config_type, hparams_type = Config, Hyperparams
-    recipes = TD7_RECIPES
+    recipes = RECIPES
     learner = LEARNER
     ranges = {"lap_alpha": validation.UNIT, "checkpoint_reset_weight": validation.NON_NEGATIVE}
 

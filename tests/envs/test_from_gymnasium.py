@@ -17,8 +17,7 @@ import pytest
 
 import rl_jax
 from rl_jax import envs
-from rl_jax.agents.td3 import td3
-from rl_jax.agents.td3_recipes import RECIPES
+from rl_jax.agents.td3 import ENV_CONFIGS, td3
 from rl_jax.envs.adapters.gymnasium_host import LOST_KEY, HostGymnasiumEnv
 from rl_jax.envs.core.registry import UnsupportedEnvError
 from rl_jax.errors import guard
@@ -352,7 +351,7 @@ def test_td3_learns_gymnasium_pendulum_and_resumes_without_its_host_state(tmp_pa
     Then a resume as in a new process (a new adapter and pool: every env's episode is cut)
     trains on to finite results."""
     env_id, out = "gymnasium:Pendulum-v1", tmp_path / "run"
-    config = {**RECIPES["rl_jax/Pendulum-v1"], "iterations_per_chunk": 250}
+    config = {**ENV_CONFIGS["rl_jax/Pendulum-v1"], "iterations_per_chunk": 250}
     run = rl_jax.train("td3", env_id, seeds=3, total_steps=6000, out=out, config=config, quiet=True)
     rows = read_rows(out / METRICS_FILE)
     untrained = np.mean([row["eval_return"] for row in rows if row["step"] == 1000])
