@@ -26,6 +26,7 @@ import subprocess
 import sys
 import threading
 from pathlib import Path
+from typing import TypedDict
 
 import jax
 import jaxlib
@@ -153,7 +154,17 @@ def _declare(library: ctypes.CDLL) -> None:
 
 
 _lock = threading.Lock()
-_state: dict[str, object] = {}  # "library" or "error", then "notified"
+
+
+class _LoadState(TypedDict, total=False):
+    """What ``load`` found: the library or the error, then whether the fallback was told."""
+
+    library: ctypes.CDLL
+    error: FfiUnavailable
+    notified: bool
+
+
+_state: _LoadState = {}
 
 
 def load() -> ctypes.CDLL:
