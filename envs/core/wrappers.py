@@ -279,7 +279,10 @@ class RescaleAction(Wrapper):
 
     def to_env_action(self, action: Array) -> Array:
         """Map an action in [-1, 1] linearly onto the wrapped env's ``[low, high]``."""
-        return self._low + (jnp.asarray(action, jnp.float32) + 1.0) * 0.5 * (self._high - self._low)
+        # jnp on the left: numpy defers to jax's operators here anyway, so the result is a jax
+        # array, and the annotation says so.
+        low = jnp.asarray(self._low)
+        return low + (jnp.asarray(action, jnp.float32) + 1.0) * 0.5 * (self._high - self._low)
 
     def step(self, key, state, action, params=None):
         """Step the wrapped env with the action mapped from [-1, 1] onto its bounds."""
@@ -309,7 +312,7 @@ class DiscretizeActions(Wrapper):
             grids = [np.asarray(values, np.float32)] * dims
         mesh = np.meshgrid(*grids, indexing="ij")
         table = np.stack([m.reshape(-1) for m in mesh], axis=-1)  # [n_actions, dims]
-        self._table = table.reshape((table.shape[0],) + tuple(space.shape))
+        self._table: np.ndarray = table.reshape((table.shape[0],) + tuple(space.shape))
         self._space_shape = space.shape
 
     @property
@@ -336,6 +339,8 @@ class FlattenObservation(Wrapper):
     def observation_space(self, params=None) -> Space:
         """The wrapped env's observation box flattened to one dimension."""
         space = self.env.observation_space(params)
+        if not isinstance(space, Box):
+            raise TypeError(f"FlattenObservation needs a Box observation space, got {space}")
         return Box(space.low.reshape(-1), space.high.reshape(-1), (int(np.prod(space.shape)),))
 
     def _flatten(self, ts: TimeStep) -> TimeStep:
