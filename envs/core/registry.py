@@ -11,7 +11,7 @@ from typing import Any
 from rl_jax.envs.core.core import Environment
 
 # id -> "module:factory". Factories take keyword arguments (e.g. ``backend=`` for MuJoCo envs).
-_ENTRY_POINTS: dict[str, str] = {
+_ENTRY_POINTS: dict[str, str | Callable[..., Environment]] = {
     "rl_jax/Rocket-v0": "rl_jax.envs.classic.rocket:Rocket",
     "rl_jax/RocketSettle-v0": "rl_jax.envs.classic.rocket:RocketSettle",
     "rl_jax/CartPole-v1": "rl_jax.envs.classic.cartpole:CartPole",
@@ -190,7 +190,14 @@ def max_episode_steps(name: str) -> int:
     """The env's static episode limit, without importing its module when it is known."""
     env_id = resolve_id(name)
     if env_id not in _MAX_EPISODE_STEPS:
-        _MAX_EPISODE_STEPS[env_id] = int(factory(env_id).max_episode_steps)
+        # An Environment class has the limit; a function that builds one may not.
+        limit = getattr(factory(env_id), "max_episode_steps", None)
+        if limit is None:
+            raise UnsupportedEnvError(
+                f"environment {env_id!r} has no max_episode_steps on its factory: register it "
+                "with max_episode_steps="
+            )
+        _MAX_EPISODE_STEPS[env_id] = int(limit)
     return _MAX_EPISODE_STEPS[env_id]
 
 
@@ -212,17 +219,19 @@ def parse_keywords(text: str) -> dict[str, Any]:
         raise ValueError(f"env keywords must read name=value, name=value; got {text!r}")
     keywords: dict[str, Any] = {}
     for keyword in call.keywords:
-        if keyword.arg in keywords:
-            raise ValueError(f"env keyword {keyword.arg!r} is given twice in {text!r}")
+        name = keyword.arg
+        assert name is not None  # ``**mapping``, refused above
+        if name in keywords:
+            raise ValueError(f"env keyword {name!r} is given twice in {text!r}")
         if isinstance(keyword.value, ast.Name):
-            keywords[keyword.arg] = keyword.value.id
+            keywords[name] = keyword.value.id
             continue
         try:
-            keywords[keyword.arg] = ast.literal_eval(keyword.value)
+            keywords[name] = ast.literal_eval(keyword.value)
         except ValueError:
             value = ast.get_source_segment(f"f({text})", keyword.value)
             raise ValueError(
-                f"env keyword {keyword.arg}: {value} is not a Python literal (a number, "
+                f"env keyword {name}: {value} is not a Python literal (a number, "
                 "True/False, a string or a tuple of them)"
             ) from None
     return keywords
