@@ -1,6 +1,6 @@
 """DQN on rl_jax/CartPole-v1, all seeds as one compiled program.
 
-The recipe is rl_jax.agents.dqn_recipes' "rl_jax/CartPole-v1": a 64x64 Q-network, Adam 3e-3, Huber
+The recipe is rl_jax.agents.dqn's "rl_jax/CartPole-v1": a 64x64 Q-network, Adam 3e-3, Huber
 loss, 3-step returns, batch 64, 4 envs with one gradient update per 2 env steps, a hard target copy
 every 100 updates, epsilon falling from 1 to 0.01 over the first 8,000 env steps, and TD7's policy
 checkpoints: the greedy policy that evaluation, best/, --gif and load_policy use is the last copy

@@ -10,7 +10,7 @@ two uint8 stacks); the plan counts it before anything is allocated. The options 
 experiments/dqn_cartpole.py apply: --double, --dueling, --n-step 3, --prioritized, and DrQ's random
 shifts of the sampled frames (--augment-shift 4: up to 4 pixels each way, in the loss only; on
 CartPole it stopped learning). The recipe
-(rl_jax.agents.dqn_recipes) uses Double DQN with 3-step returns, a target update every 500
+(in rl_jax.agents.dqn) uses Double DQN with 3-step returns, a target update every 500
 updates, LayerNorm in the 256-unit layer (--norm none: without), rate 5e-4 falling linearly to 0
 over the 200k steps (--lr-decay-steps 0: constant) and one batch-32 update per 4 env steps, and
 its torso sees only the 36 rows of the frame that CartPole ever draws on (--no-crop-drawn-rows:

@@ -1,7 +1,7 @@
 """DQN on the 1-D rocket (rl_jax/Rocket-v0) with thrust discretised to {-1, 0, +1}.
 
 The rocket's continuous thrust goes through envs.DiscretizeActions with --action-bins values
-(3: full thrust either way, or none). Recipe: rl_jax.agents.dqn_recipes, "rl_jax/Rocket-v0"
+(3: full thrust either way, or none). Recipe: rl_jax.agents.dqn's "rl_jax/Rocket-v0"
 (CartPole's network and loop, epsilon decaying over 50,000 env steps). Episodes last up to 500
 steps; the goal tolerance is tight, so a good policy mostly earns the shaping reward for approaching
 the origin slowly. --gif renders the final policy with its x(t), v(t) plot.

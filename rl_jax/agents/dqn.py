@@ -17,9 +17,9 @@ ended an episode and bootstraps from that step's true next observation unless th
 ``envs.DiscretizeActions`` with ``action_bins`` values per dimension (3 bins: the rocket's thrust
 in {-1, 0, +1}).
 
-Beside this module: its settings (``dqn_config``: ``Config``, ``PixelConfig`` for envs seen as
-frames, ``Hyperparams``), its replay (``dqn_replay``), its recipes per env (``dqn_recipes``) and
-its pure maths (``q_learning``). Usage is TD3's::
+Here: its settings (``Config``, ``PixelConfig`` for envs seen as frames, ``Hyperparams``), its
+network, update and acting, its recipes per env and the learner object. Beside it: its replay
+(``dqn_parts``) and its pure maths (``q_learning``). Usage is TD3's::
 
     config = dqn.default_config("rl_jax/CartPole-v1", double=True, n_step=3)
     hparams = dqn.default_hyperparams("rl_jax/CartPole-v1")
@@ -29,6 +29,7 @@ its pure maths (``q_learning``). Usage is TD3's::
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 from collections.abc import Callable
 from typing import Any, cast
@@ -40,10 +41,9 @@ from flax import struct
 from jax.typing import ArrayLike
 
 from rl_jax import envs
+from rl_jax.agents import dqn_parts
 from rl_jax.agents.common import injected_step, linearly_decayed, polyak_update
-from rl_jax.agents.dqn_config import PIXEL_ENVS, Config, Hyperparams, PixelConfig
-from rl_jax.agents.dqn_recipes import RECIPES
-from rl_jax.agents.dqn_replay import Buffer, add_to_buffer, init_buffer, replay_for
+from rl_jax.agents.dqn_parts import Buffer
 from rl_jax.agents.q_learning import (
     double_q_values,
     greedy_values,
@@ -55,12 +55,157 @@ from rl_jax.agents.q_learning import (
     n_step_target,
     q_learning_loss,
 )
-from rl_jax.training import augment, episodes, networks, offpolicy, policy_checkpoints, validation
-from rl_jax.training.offpolicy import Clock, TrainState
+from rl_jax.training import (
+    augment,
+    conv,
+    episodes,
+    networks,
+    offpolicy,
+    params,
+    policy_checkpoints,
+    validation,
+)
+from rl_jax.training.episodes import ImageObservations
+from rl_jax.training.offpolicy import Clock, OffPolicyConfig, TrainState
 from rl_jax.training.policy_checkpoints import PolicyCheckpoint
+from rl_jax.training.recipes import Recipe, Recipes, Setting
 from rl_jax.training.replay import NStepBatch, Transition
 
 
+# ---- settings -----------------------------------------------------------------------------------
+@dataclasses.dataclass(frozen=True, kw_only=True)
+class Config(OffPolicyConfig):
+    """Static settings of DQN (the loop's are in ``OffPolicyConfig``)."""
+
+    hidden: tuple[int, ...] = (120, 84)  # hidden ReLU layers of the Q-network
+    double: bool = False  # Double DQN targets: the online net's argmax, valued by the target net
+    dueling: bool = False  # dueling head: q = v + a - mean(a)
+    n_step: int = 1  # rewards summed before bootstrapping (a window stops at an episode's end)
+    prioritized: bool = False  # proportional prioritized replay with importance weights
+    target_update_period: int = 500  # gradient updates between target steps of size tau
+    action_bins: int = 3  # values per action dim when the env's actions are continuous
+    network_init: str = "fan_in_uniform"  # see rl_jax.training.networks
+    norm: str = "none"  # "layer": LayerNorm before each hidden ReLU of the Q-network
+    # TD7's policy checkpoints (rl_jax.training.policy_checkpoints): the training envs act
+    # (epsilon-greedily) with a frozen copy of the Q-network for an assessment of
+    # checkpoint_episodes episodes (1 before env step checkpoint_episodes_from); if none returned
+    # less than the checkpoint's score, the copy becomes the checkpoint, whose greedy policy is
+    # what evaluation, best/ and loaded policies use. Updates go on meanwhile.
+    policy_checkpoints: bool = False
+    checkpoint_episodes: int = 20  # policy_checkpoints: episodes per assessment (TD7: 20)
+    checkpoint_episodes_from: int = 750_000  # policy_checkpoints: env step of the switch
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        if self.norm not in ("none", "layer"):
+            raise ValueError(f"norm must be 'none' or 'layer', got {self.norm!r}")
+        if self.n_step < 1 or self.target_update_period < 1:
+            raise ValueError("n_step and target_update_period must be >= 1")
+        if self.checkpoint_episodes < 1 or self.checkpoint_episodes_from < 0:
+            raise ValueError("checkpoint_episodes must be >= 1, checkpoint_episodes_from >= 0")
+        if self.action_bins < 2:
+            raise ValueError(f"action_bins must be >= 2, got {self.action_bins}")
+        if self.network_init not in networks.INITS:
+            raise ValueError(f"network_init must be one of {networks.INITS}")
+
+    def make_env(self) -> envs.Environment:
+        """The registered env; a continuous one with its actions discretised."""
+        env = super().make_env()
+        if isinstance(env.action_space(), envs.Box):
+            env = envs.DiscretizeActions(env, self.action_bins)
+        return env
+
+
+#: Envs observed as stacked frames: their config is a ``PixelConfig``.
+PIXEL_ENVS = ("rl_jax/CartPolePixels-v1",)
+
+
+@dataclasses.dataclass(frozen=True, kw_only=True)
+class PixelConfig(Config, ImageObservations):
+    """DQN on frames (``PIXEL_ENVS``): the frame geometry and a conv torso before ``hidden``.
+
+    The replay keeps each frame once per step and rebuilds stacks when sampling
+    (``rl_jax.training.frame_replay``). The default torso is the 2013 DQN paper's (16 8x8/4, 32
+    4x4/2, then 256 units), not Nature DQN's (32 8x8/4, 64 4x4/2, 64 3x3/1, 512): its gradient
+    step costs about a third as much on a CPU, and CartPole's frames are simple."""
+
+    hidden: tuple[int, ...] = (256,)  # hidden ReLU layers after the conv torso
+    frame_size: int = 84  # frames are frame_size x frame_size grayscale pixels
+    frame_stack: int = 4  # the last frame_stack frames are the observation's channels
+    conv_layers: tuple[int, ...] = (16, 8, 4, 32, 4, 2)  # (features, kernel, stride) per layer
+    # Seeds as an unrolled loop in the one program (training.parallel.seed_loop), not a vmap:
+    # XLA's CPU backend runs the conv torso's batched (vmapped) gradients slower than a loop of
+    # unbatched ones.
+    loop_seeds: bool = True
+    # The torso sees only the rows the env ever draws on (its ``drawn_rows``; CartPole: 31 of 84,
+    # grown to 36 that the conv stack reads whole). The other rows are white in every frame, so
+    # the network loses nothing while its convolutions cost 36/84 as much. Off by default: runs
+    # saved before it existed see the whole frame.
+    crop_drawn_rows: bool = False
+    # DrQ's random shifts (rl_jax.training.augment): every sampled stack, obs and next_obs
+    # apart, is moved by up to augment_shift pixels in each axis (edges repeated) before the
+    # Q-networks see it, in the loss only; acting and evaluation see the frames as they are.
+    # DrQ used 4 at 84x84. 0: off (the update is then the same program as before it existed).
+    # On CartPole's frames 4 stopped learning altogether.
+    augment_shift: int = 0
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        if self.frame_size < 1 or self.frame_stack < 1:
+            raise ValueError("frame_size and frame_stack must be >= 1")
+        if not 0 <= self.augment_shift < self.frame_size:
+            raise ValueError(
+                f"augment_shift must be in 0..{self.frame_size - 1}, got {self.augment_shift}"
+            )
+        conv.check_conv_layers(self.conv_layers, self.frame_size)
+        given = {"frame_size", "frame_stack"} & set(envs.parse_keywords(self.env_kwargs))
+        if given:
+            name = sorted(given)[0]
+            raise ValueError(
+                f"{name} is a config field here: --{name.replace('_', '-')}, not --env-kwargs"
+            )
+        first, stop = self.conv_rows() or (0, self.frame_size)
+        conv.check_conv_layers(self.conv_layers, stop - first)
+
+    def make_env(self) -> envs.Environment:
+        return envs.make(
+            self.env_id,
+            frame_size=self.frame_size,
+            frame_stack=self.frame_stack,
+            **envs.parse_keywords(self.env_kwargs),
+        )
+
+    def conv_rows(self) -> tuple[int, ...]:
+        """``(first, stop)``, the frame rows the conv torso sees, or ``()`` for all."""
+        env = self.make_env()
+        if not self.crop_drawn_rows or not hasattr(env, "drawn_rows"):
+            return ()
+        return conv.covering_rows(self.conv_layers, *env.drawn_rows(), self.frame_size)
+
+
+@struct.dataclass
+class Hyperparams(params.HyperparamsMethods):
+    """What a sweep may vary without recompiling. Defaults: CleanRL's classic-control DQN."""
+
+    learning_rate: ArrayLike = 2.5e-4  # Adam step size
+    lr_decay_steps: ArrayLike = 0.0  # env steps (all envs) for the rate to fall to 0 (0: constant)
+    gamma: ArrayLike = 0.99  # discount
+    tau: ArrayLike = 1.0  # target step every target_update_period updates (1: hard copy)
+    epsilon_start: ArrayLike = 1.0  # exploration rate at env step 0
+    epsilon_end: ArrayLike = 0.05  # exploration rate after epsilon_decay_steps
+    epsilon_decay_steps: ArrayLike = 250_000.0  # env steps (all envs) of the linear epsilon decay
+    huber_delta: ArrayLike = 1.0  # TD errors beyond this are penalised linearly, not squared
+    max_grad_norm: ArrayLike = 10.0  # gradients are clipped to this global norm
+    priority_alpha: ArrayLike = 0.6  # prioritized: P(i) proportional to priority_i^alpha
+    priority_beta_start: ArrayLike = 0.4  # prioritized: importance-weight exponent at the start
+    priority_beta_steps: ArrayLike = 500_000.0  # prioritized: env steps for beta to rise to 1
+    priority_eps: ArrayLike = 1e-6  # prioritized: priority = |TD error| + eps
+    # policy_checkpoints: the checkpoint's score is multiplied by this when assessments lengthen
+    # to checkpoint_episodes (TD7: 0.9)
+    checkpoint_reset_weight: ArrayLike = 0.9
+
+
+# ---- state and network --------------------------------------------------------------------------
 @struct.dataclass
 class Agent:
     online: optax.Params  # Q-network parameters
@@ -87,6 +232,26 @@ def make_network(config: Config) -> networks.QNetwork:
         conv_rows=config.conv_rows() if pixels else (),
         norm=config.norm,
     )
+
+
+# ---- the replay (dqn_parts) ---------------------------------------------------------------------
+def replay_for(config: Config) -> dqn_parts.Replay:
+    """The one place where the config picks DQN's replay: ``Config.prioritized`` rows, frames
+    kept apart for a ``PixelConfig``."""
+    frames = isinstance(config, PixelConfig)
+    return dqn_parts.make_replay(config, config.n_step, config.prioritized, frames)
+
+
+def init_buffer(example: Transition, config: Config) -> Buffer:
+    """``replay_for(config).init``, as the loop calls it."""
+    return replay_for(config).init(example)
+
+
+def add_to_buffer(
+    buffer: Buffer, transitions: Transition, config: Config, hparams: Hyperparams
+) -> Buffer:
+    """``replay_for(config).add``, as the loop calls it."""
+    return replay_for(config).add(buffer, transitions, hparams)
 
 
 # ---- losses on networks, one update ------------------------------------------------------------
@@ -293,6 +458,96 @@ LEARNER = offpolicy.Learner(
     init_buffer,
     add_to_buffer,
     observe,
+)
+
+
+# ---- recipes ------------------------------------------------------------------------------------
+# Each env's default on top of the Config and Hyperparams defaults (CleanRL's classic-control
+# DQN), each with the reason it was chosen and a link to the runs that chose it.
+
+# The classic-control base: wider layers, a faster rate and a short epsilon decay (as in
+# rl-baselines3-zoo's tuned DQN), with 4 envs and one update per 2 env steps.
+_CLASSIC: dict[str, Setting] = {
+    "num_envs": 4,
+    "updates_per_iteration": 2,
+    "iterations_per_chunk": 1000,
+    "learning_starts": 1000,
+    "buffer_size": 100_000,
+    "batch_size": 64,
+    "hidden": (256, 256),
+    "target_update_period": 100,
+}
+# CartPole: the policy a run ends with is TD7's checkpoint, since the greedy policy alone keeps
+# collapsing and recovering after it first scores 500 (RESULTS.md#dqn-on-cartpole).
+_CARTPOLE: dict[str, Setting] = {
+    **_CLASSIC,
+    "hidden": (64, 64),  # enough here, at a fraction of 256x256's cost
+    "n_step": 3,
+    "policy_checkpoints": True,
+    "checkpoint_episodes": 20,  # TD7's; fewer let checkpoints short of 500 through
+    "checkpoint_episodes_from": 20_000,
+}
+_CONFIGS: dict[str, dict[str, Setting]] = {
+    "rl_jax/CartPole-v1": _CARTPOLE,
+    # Pixels: the settings that got the conv torso learning (RESULTS.md#dqn-from-pixels).
+    "rl_jax/CartPolePixels-v1": {
+        **_CLASSIC,
+        "hidden": (256,),
+        "buffer_size": 50_000,  # frame pairs: about 0.7 GB per seed
+        "batch_size": 32,
+        "updates_per_iteration": 1,  # one update per 4 env steps
+        "double": True,
+        "n_step": 3,
+        "target_update_period": 500,
+        "crop_drawn_rows": True,  # the other rows are always white: the same net, cheaper
+        "norm": "layer",  # learns faster than without
+    },
+    "rl_jax/InvertedPendulum-v5": _CLASSIC,
+    "rl_jax/Rocket-v0": {**_CLASSIC, "action_bins": 3},
+    # The settle variant: finer thrust and LayerNorm bring every seed to rest
+    # (RESULTS.md#the-rocket).
+    "rl_jax/RocketSettle-v0": {**_CLASSIC, "action_bins": 5, "norm": "layer"},
+}
+_FAST_DECAY = {"learning_rate": 1e-3, "epsilon_decay_steps": 8000.0, "epsilon_end": 0.04}
+_HPARAMS: dict[str, dict[str, float]] = {
+    # A constant rate (the checkpoint keeps what was learned); epsilon 0.01 after 8k steps, so
+    # that the training episodes that assess a copy are nearly its greedy policy's.
+    "rl_jax/CartPole-v1": {**_FAST_DECAY, "learning_rate": 3e-3, "epsilon_end": 0.01},
+    # The rate falls to 0 over the script's 200k steps, so that the policy the run ends with is a
+    # settled one: at a constant rate it kept collapsing and recovering.
+    "rl_jax/CartPolePixels-v1": {**_FAST_DECAY, "learning_rate": 5e-4, "lr_decay_steps": 200_000.0},
+    "rl_jax/InvertedPendulum-v5": _FAST_DECAY,
+    "rl_jax/Rocket-v0": {"learning_rate": 1e-3, "epsilon_decay_steps": 50_000.0},
+    # gamma 0.995 as TD3's rocket recipe: at 0.99 creeping in scores about as well as arriving.
+    "rl_jax/RocketSettle-v0": {
+        "learning_rate": 1e-3,
+        "epsilon_decay_steps": 50_000.0,
+        "gamma": 0.995,
+    },
+}
+
+_ABOUT = {
+    "rl_jax/CartPole-v1": "64x64, 3-step returns, rate 3e-3, TD7's policy checkpoints",
+    "rl_jax/CartPolePixels-v1": "conv torso, Double DQN, 3-step returns, LayerNorm, rate to 0",
+    "rl_jax/InvertedPendulum-v5": "the classic-control base: 256x256, 4 envs, rate 1e-3",
+    "rl_jax/Rocket-v0": "the classic-control base, thrust {-1, 0, +1}",
+    "rl_jax/RocketSettle-v0": "thrust {-1, -0.5, 0, 0.5, 1}, LayerNorm, gamma 0.995",
+}
+# (env steps/s per seed, seeds) for run plans' estimates, measured as
+# docs/learners/dqn.md#how-the-recipes-were-chosen says
+_THROUGHPUT = {"rl_jax/CartPolePixels-v1": (117.0, 3)}
+RECIPES = Recipes(
+    *(
+        Recipe(
+            "default",
+            about,
+            _CONFIGS[env_id],
+            _HPARAMS.get(env_id, {}),
+            envs=(env_id,),
+            throughput=_THROUGHPUT.get(env_id),
+        )
+        for env_id, about in _ABOUT.items()
+    )
 )
 
 

@@ -1,55 +1,78 @@
-"""DQN's replay, picked once per config by ``replay_for``: rows of transitions, uniform or
-prioritized (``Config.prioritized``: ``rl_jax.training.prioritized``), laid out flat or, for a
-``PixelConfig``, beside frames kept once, whose stacks are rebuilt when sampled
-(``rl_jax.training.frame_replay``). A sample is a batch of ``n_step`` windows
-(``rl_jax.training.replay``) with its importance weights.
+"""DQN's replay, picked once per config by ``make_replay``: rows of transitions, uniform or
+prioritized (``rl_jax.training.prioritized``), laid out flat or beside frames kept once, whose
+stacks are rebuilt when sampled (``rl_jax.training.frame_replay``). A sample is a batch of
+``n_step`` windows (``rl_jax.training.replay``) with its importance weights.
+
+It reads the loop's settings (``OffPolicyConfig``: batch and buffer sizes, the update clock) and
+is told the rest (``n_step``, prioritized or not, frames or not) by ``rl_jax.agents.dqn``, whose
+``Config`` it does not import.
 """
 
 from __future__ import annotations
 
 import dataclasses
 from collections.abc import Callable
-from typing import NamedTuple, cast
+from typing import NamedTuple, Protocol, cast
 
 import jax
 import jax.numpy as jnp
+from jax.typing import ArrayLike
 
-from rl_jax.agents.dqn_config import Config, Hyperparams, PixelConfig
 from rl_jax.training import frame_replay, offpolicy, prioritized, replay
 from rl_jax.training.frame_replay import FrameReplay, FrameRow
+from rl_jax.training.offpolicy import OffPolicyConfig
 from rl_jax.training.prioritized import PrioritizedBuffer
 from rl_jax.training.replay import NStepBatch, ReplayBuffer, Transition
 
-#: One stored row: a transition, or with a ``PixelConfig`` its ``FrameRow`` (frames kept apart).
+#: One stored row: a transition, or with frames its ``FrameRow`` (frames kept apart).
 Row = Transition | FrameRow
-#: The transition rows: uniform, or prioritized with ``Config.prioritized``.
+#: The transition rows: uniform, or prioritized.
 Rows = ReplayBuffer | PrioritizedBuffer
-#: DQN's replay: the rows, or with a ``PixelConfig`` the rows and the frames they point into.
+#: DQN's replay: the rows, or with frames the rows and the frames they point into.
 Buffer = Rows | FrameReplay
 #: ``(rows, columns)`` of the sampled transitions in the buffer, each ``[B]``.
 Indices = tuple[jax.Array, jax.Array]
+
+
+class ReplayHparams(Protocol):
+    """The hyperparameters the replay reads (DQN's ``Hyperparams`` has them): the discount of
+    its n-step returns and prioritized replay's settings."""
+
+    @property
+    def gamma(self) -> ArrayLike: ...
+    @property
+    def priority_alpha(self) -> ArrayLike: ...
+    @property
+    def priority_beta_start(self) -> ArrayLike: ...
+    @property
+    def priority_beta_steps(self) -> ArrayLike: ...
+    @property
+    def priority_eps(self) -> ArrayLike: ...
 
 
 # ---- the rows: uniform or prioritized -----------------------------------------------------------
 class RowKind(NamedTuple):
     """How the transition rows are kept, drawn from and told the TD errors. Each kind's
     functions take the ``Rows`` union and are only ever given their own kind of rows
-    (``replay_for`` pairs them), so they narrow it with ``cast``."""
+    (``make_replay`` pairs them), so they narrow it with ``cast``."""
 
-    init: Callable[[Row, Config], Rows]  # (example row, config) -> rows
-    add: Callable[[Rows, Row, Hyperparams], Rows]  # (rows, batch of rows [N, ...], hparams) -> rows
+    init: Callable[[Row, OffPolicyConfig], Rows]  # (example row, config) -> rows
+    # (rows, batch of rows [N, ...], hparams) -> rows
+    add: Callable[[Rows, Row, ReplayHparams], Rows]
     # (rows, key, config, hparams, update_index) -> (rows [B], columns [B], weights [B])
-    draw: Callable[[Rows, jax.Array, Config, Hyperparams, jax.Array], tuple[jax.Array, ...]]
+    draw: Callable[
+        [Rows, jax.Array, OffPolicyConfig, ReplayHparams, jax.Array], tuple[jax.Array, ...]
+    ]
     storage: Callable[[Rows], ReplayBuffer]  # the plain ReplayBuffer under the rows
     # (rows, indices, td_error [B], hparams) -> rows
-    reprioritize: Callable[[Rows, Indices, jax.Array, Hyperparams], Rows]
+    reprioritize: Callable[[Rows, Indices, jax.Array, ReplayHparams], Rows]
 
 
 def _draw_uniform(
     rows: Rows,
     key: jax.Array,
-    config: Config,
-    hparams: Hyperparams,
+    config: OffPolicyConfig,
+    hparams: ReplayHparams,
     update_index: jax.Array,
 ) -> tuple[jax.Array, ...]:
     rows_drawn, columns = replay.sample_indices(cast(ReplayBuffer, rows), key, config.batch_size)
@@ -59,8 +82,8 @@ def _draw_uniform(
 def _draw_prioritized(
     rows: Rows,
     key: jax.Array,
-    config: Config,
-    hparams: Hyperparams,
+    config: OffPolicyConfig,
+    hparams: ReplayHparams,
     update_index: jax.Array,
 ) -> tuple[jax.Array, ...]:
     env_steps = offpolicy.env_steps_at_update(update_index, config)
@@ -71,7 +94,7 @@ def _draw_prioritized(
 
 
 def _reprioritize(
-    rows: Rows, indices: Indices, td_error: jax.Array, hparams: Hyperparams
+    rows: Rows, indices: Indices, td_error: jax.Array, hparams: ReplayHparams
 ) -> PrioritizedBuffer:
     """The sampled transitions' priorities become ``|TD error| + eps``."""
     priorities = jnp.abs(td_error) + hparams.priority_eps
@@ -137,7 +160,8 @@ FRAMES = Layout(
 class Replay(NamedTuple):
     """DQN's buffer functions for one config: rows of one kind in one layout."""
 
-    config: Config
+    config: OffPolicyConfig  # the loop's settings: batch and buffer sizes, the update clock
+    n_step: int  # rewards summed before bootstrapping
     kind: RowKind
     layout: Layout
 
@@ -145,13 +169,13 @@ class Replay(NamedTuple):
         """An empty buffer for transitions shaped like ``example``."""
         return self.layout.init(example, lambda row: self.kind.init(row, self.config))
 
-    def add(self, buffer: Buffer, transitions: Transition, hparams: Hyperparams) -> Buffer:
+    def add(self, buffer: Buffer, transitions: Transition, hparams: ReplayHparams) -> Buffer:
         """``buffer`` with one env step of all envs (``transitions`` leaves ``[N, ...]``)."""
         add_rows = lambda rows, batch: self.kind.add(rows, batch, hparams)  # noqa: E731
         return self.layout.add(buffer, transitions, add_rows)
 
     def sample(
-        self, buffer: Buffer, key: jax.Array, hparams: Hyperparams, update_index: jax.Array
+        self, buffer: Buffer, key: jax.Array, hparams: ReplayHparams, update_index: jax.Array
     ) -> tuple[NStepBatch, jax.Array, Indices]:
         """``(batch, weights [B], (rows, columns))``."""
         rows_buffer = self.layout.rows_of(buffer)
@@ -159,34 +183,22 @@ class Replay(NamedTuple):
             rows_buffer, key, self.config, hparams, update_index
         )
         window, stored = replay.gather_windows(
-            self.kind.storage(rows_buffer), rows, columns, self.config.n_step
+            self.kind.storage(rows_buffer), rows, columns, self.n_step
         )
         window = self.layout.transitions(buffer, window, rows, columns)
         return replay.n_step_batch(window, stored, hparams.gamma), weights, (rows, columns)
 
     def write_priorities(
-        self, buffer: Buffer, indices: Indices, td_error: jax.Array, hparams: Hyperparams
+        self, buffer: Buffer, indices: Indices, td_error: jax.Array, hparams: ReplayHparams
     ) -> Buffer:
         """With ``prioritized``: the sampled transitions' priorities from their TD errors."""
         rows = self.kind.reprioritize(self.layout.rows_of(buffer), indices, td_error, hparams)
         return self.layout.with_rows(buffer, rows)
 
 
-def replay_for(config: Config) -> Replay:
-    """The one place where the config picks DQN's replay."""
-    kind = PRIORITIZED if config.prioritized else UNIFORM
-    layout = FRAMES if isinstance(config, PixelConfig) else FLAT
-    return Replay(config, kind, layout)
-
-
-# ---- the off-policy loop's buffer functions (offpolicy.Learner) --------------------------------
-def init_buffer(example: Transition, config: Config) -> Buffer:
-    """``replay_for(config).init``, as the loop calls it."""
-    return replay_for(config).init(example)
-
-
-def add_to_buffer(
-    buffer: Buffer, transitions: Transition, config: Config, hparams: Hyperparams
-) -> Buffer:
-    """``replay_for(config).add``, as the loop calls it."""
-    return replay_for(config).add(buffer, transitions, hparams)
+def make_replay(config: OffPolicyConfig, n_step: int, prioritized: bool, frames: bool) -> Replay:
+    """The one place where the settings pick DQN's replay: ``n_step`` windows, rows prioritized
+    or uniform, with frames kept apart (stacked frames as observations) or not."""
+    kind = PRIORITIZED if prioritized else UNIFORM
+    layout = FRAMES if frames else FLAT
+    return Replay(config, n_step, kind, layout)
