@@ -29,7 +29,7 @@ def programs(run_dir: Path = RUN) -> tuple[dict, tuple]:
     batch for every seed of the run (seeds vmapped)."""
     import jax
 
-    from rl_jax.agents import reinforce_policy
+    from rl_jax.agents import reinforce
     from rl_jax.envs.core.wrappers import Wrapper
     from rl_jax.run.policy import LoadedPolicy
     from rl_jax.training import episodes
@@ -42,7 +42,7 @@ def programs(run_dir: Path = RUN) -> tuple[dict, tuple]:
     env = episodes.make_eval_env(config)
 
     def program(which_env):
-        one = lambda p, s, k: reinforce_policy.rollout(p, k, config, s, env=which_env)
+        one = lambda p, s, k: reinforce.rollout(p, k, config, s, env=which_env)
         return jax.jit(jax.vmap(one))
 
     return {SKIP: program(env), FULL: program(Wrapper(env))}, (params, stats)

@@ -1,7 +1,7 @@
 """REINFORCE on the MuJoCo inverted double pendulum (rl_jax/InvertedDoublePendulum-v5).
 
 Same learner as reinforce_pendulum.py; the double pendulum is much harder for a Monte-Carlo
-policy gradient, so the recipe (rl_jax.agents.reinforce_recipes) uses 32 episodes per update, a
+policy gradient, so the recipe (in rl_jax.agents.reinforce) uses 32 episodes per update, a
 64x64 tanh policy with a small state-free std (0.2 at the start), a learned value baseline on its
 own 64x64 torso, standardised observations and returns, and gradients clipped to norm 0.5. The
 learning rate (1.5e-3) decays linearly to 0 over 300 updates, the default budget (9.6M step slots =

@@ -2,7 +2,7 @@
 
 The network our users started from (gymnasium's REINFORCE tutorial): two tanh layers of 16 and 32
 units, a mean head and a softplus std head (std floor 1e-6 on the std), AdamW. The recipe in
-rl_jax.agents.reinforce_recipes adds what makes it reliable across seeds: 16 whole episodes per
+rl_jax.agents.reinforce adds what makes it reliable across seeds: 16 whole episodes per
 update (vmapped envs, masked after each episode's end), normalised returns and a rate of 3e-3 that
 decays linearly to 0 over the default budget of 300 updates (4.8M step slots), so that the policy a
 run ends with is a settled one. The logged `step` counts env step slots (16 x 1,000 per update; see

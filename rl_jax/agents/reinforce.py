@@ -27,13 +27,15 @@ logged ``step``, ``--total-steps``) counts env step *slots*: ``num_envs * max_ep
 update, the most a batch can take (exact once episodes run to the time limit, an overcount while
 they end early). The real count of env steps inside episodes is logged as ``env_steps_taken``.
 
-Beside this module: its settings (``reinforce_config``), its policy network and the episodes it
-collects (``reinforce_policy``), its recipes per env (``reinforce_recipes``) and its pure maths
-(``policy_gradient``).
+Here: its settings (``Config``, ``Hyperparams``), its policy network, the loss and update, its
+recipes per env and the learner object. Beside it: the policy's outputs, sampling and the
+episodes it collects (``reinforce_parts``) and its pure maths (``policy_gradient``).
 """
 
 from __future__ import annotations
 
+import dataclasses
+import functools
 from collections.abc import Callable
 
 import jax
@@ -43,6 +45,7 @@ from flax import struct
 from jax.typing import ArrayLike
 
 from rl_jax import envs
+from rl_jax.agents import reinforce_parts
 from rl_jax.agents.common import clip_by_global_norm, injected_step, linearly_decayed
 from rl_jax.agents.policy_gradient import (
     entropy,
@@ -51,19 +54,121 @@ from rl_jax.agents.policy_gradient import (
     policy_gradient_loss,
     reward_to_go,
 )
-from rl_jax.agents.reinforce_config import Config, Hyperparams
-from rl_jax.agents.reinforce_policy import (
-    Trajectory,
-    make_network,
-    policy_outputs,
-    rollout,
-    to_env_action,
-)
-from rl_jax.agents.reinforce_recipes import RECIPES
-from rl_jax.training import episodes, normalization
+from rl_jax.agents.reinforce_parts import Trajectory, to_env_action
+from rl_jax.training import episodes, networks, normalization, params
 from rl_jax.training.algorithm import ChunkMetrics, RecipeBook
+from rl_jax.training.recipes import Recipe, Recipes, Setting
+
+# ---- settings -------------------------------------------------------------------------------
+BASELINES = ("none", "mean", "value")
 
 
+@dataclasses.dataclass(frozen=True, kw_only=True)
+class Config:
+    """Static settings of REINFORCE (changing one recompiles)."""
+
+    env_id: str
+    num_envs: int = 16  # episodes per update, collected by vmapped envs
+    iterations_per_chunk: int = 20  # updates per compiled call; eval after each chunk
+    num_eval_envs: int = 10  # episodes of the deterministic policy per evaluation
+    hidden: tuple[int, ...] = (16, 32)  # the policy's torso
+    activation: str = "tanh"  # see rl_jax.training.networks.ACTIVATIONS
+    baseline: str = "none"  # "none", "mean" (batch mean of returns) or "value" (learned)
+    normalize_returns: bool = False  # standardise the returns over each batch
+    std_floor: float = 1e-6  # Gaussian policy: the std's lower bound
+    std_mode: str = "state"  # Gaussian std: "state" (a head) or "param" (learned, state-free)
+    initial_std: float = 1.0  # with std_mode "param": the std before training
+    value_hidden: tuple[int, ...] = ()  # baseline "value": its own torso (empty: shares policy's)
+    normalize_obs: bool = False  # standardise observations by running mean and variance
+    network_init: str = "fan_in_uniform"  # see rl_jax.training.networks
+    squash_mean: bool = False  # Gaussian policy: the mean is tanh-squashed into the action bounds
+    # the env's constructor keywords, "name=value, name=value": envs.make(env_id, **them)
+    env_kwargs: str = ""
+
+    def __post_init__(self) -> None:
+        envs.parse_keywords(self.env_kwargs)  # a ValueError names what is wrong
+        for name in ("num_envs", "iterations_per_chunk", "num_eval_envs"):
+            if getattr(self, name) < 1:
+                raise ValueError(f"{name} must be >= 1, got {getattr(self, name)}")
+        if self.baseline not in BASELINES:
+            raise ValueError(f"baseline must be one of {BASELINES}, got {self.baseline!r}")
+        if self.activation not in networks.ACTIVATIONS:
+            raise ValueError(f"activation must be one of {list(networks.ACTIVATIONS)}")
+        if self.std_mode not in ("state", "param"):
+            raise ValueError(f"std_mode must be 'state' or 'param', got {self.std_mode!r}")
+        if self.initial_std <= 0.0:
+            raise ValueError(f"initial_std must be > 0, got {self.initial_std}")
+        if self.std_floor <= 0.0:
+            raise ValueError(f"std_floor must be > 0, got {self.std_floor}")
+        if self.network_init not in networks.INITS:
+            raise ValueError(f"network_init must be one of {networks.INITS}")
+
+    def make_env(self) -> envs.Environment:
+        return envs.make(self.env_id, **envs.parse_keywords(self.env_kwargs))
+
+
+@struct.dataclass
+class Hyperparams(params.HyperparamsMethods):
+    """What a sweep may vary without recompiling. Defaults: gymnasium's REINFORCE tutorial."""
+
+    learning_rate: ArrayLike = 1e-4  # AdamW step size
+    weight_decay: ArrayLike = 0.01  # AdamW's decoupled weight decay (torch's default)
+    gamma: ArrayLike = 0.99  # discount of the reward-to-go
+    value_coef: ArrayLike = 0.5  # weight of the value head's loss (baseline "value")
+    entropy_coef: ArrayLike = 0.0  # weight of the policy's mean entropy, subtracted from the loss
+    max_grad_norm: ArrayLike = 0.0  # clip the gradient's global norm to this (0: no clipping)
+    lr_decay_updates: ArrayLike = 0.0  # updates for the rate to fall linearly to 0 (0: constant)
+
+
+# ---- the policy network (reinforce_parts) ---------------------------------------------------
+@functools.lru_cache(maxsize=64)
+def make_network(config: Config) -> networks.StochasticPolicy:
+    space = episodes.make_eval_env(config).action_space()
+    discrete = isinstance(space, envs.Discrete)
+    return networks.StochasticPolicy(
+        hidden=config.hidden,
+        action_dim=1 if discrete else space.shape[0],
+        num_actions=space.n if discrete else None,
+        std_floor=config.std_floor,
+        value=config.baseline == "value",
+        activation=config.activation,
+        initializer=config.network_init,
+        std_mode=config.std_mode,
+        initial_std=config.initial_std,
+        value_hidden=config.value_hidden,
+    )
+
+
+def policy_outputs(
+    params: optax.Params,
+    obs_stats: normalization.RunningStats | None,
+    obs: jax.Array,
+    config: Config,
+) -> dict[str, jax.Array]:
+    """The network's outputs on (standardised, when there are statistics) observations; with
+    ``squash_mean`` the Gaussian's mean inside the action bounds
+    (``reinforce_parts.policy_outputs``)."""
+    space = episodes.make_eval_env(config).action_space() if config.squash_mean else None
+    squash_into = space if isinstance(space, envs.Box) else None
+    return reinforce_parts.policy_outputs(make_network(config), params, obs_stats, obs, squash_into)
+
+
+def rollout(
+    params: optax.Params,
+    key: jax.Array,
+    config: Config,
+    obs_stats: normalization.RunningStats | None = None,
+    env: envs.Environment | None = None,
+) -> Trajectory:
+    """``num_envs`` whole episodes, stopping as soon as all have ended (raw observations are
+    stored; the policy acts on them standardised by ``obs_stats`` when given). ``env``: the env
+    to run instead of the config's (as ``episodes.make_eval_env`` builds it)."""
+    env = episodes.make_eval_env(config) if env is None else env
+    policy_of = lambda obs: policy_outputs(params, obs_stats, obs, config)  # noqa: E731
+    return reinforce_parts.run_episodes(policy_of, key, env, config.num_envs)
+
+
+# ---- state ----------------------------------------------------------------------------------
 @struct.dataclass
 class Agent:
     params: optax.Params  # policy (and value head) parameters
@@ -117,7 +222,7 @@ def loss_fn(
     return total, {"loss": loss, "value_loss": value_loss, "entropy": mean_entropy}
 
 
-# ---- acting and rollouts ----------------------------------------------------------------------
+# ---- acting and rollouts --------------------------------------------------------------------
 def act(agent: Agent, obs: jax.Array, config: Config) -> jax.Array:
     """The deterministic policy: the Gaussian's mean (clipped) or the most likely action."""
     policy = policy_outputs(agent.params, agent.obs_stats, obs, config)
@@ -127,7 +232,7 @@ def act(agent: Agent, obs: jax.Array, config: Config) -> jax.Array:
     return to_env_action(policy["mean"], space)
 
 
-# ---- training ---------------------------------------------------------------------------------
+# ---- training -------------------------------------------------------------------------------
 def _adamw(learning_rate: ArrayLike, weight_decay: ArrayLike) -> optax.GradientTransformation:
     return optax.adamw(learning_rate, weight_decay=weight_decay)
 
@@ -227,7 +332,56 @@ def step_slots_per_update(config: Config) -> int:
     return config.num_envs * episodes.make_eval_env(config).max_episode_steps
 
 
-# ---- the Algorithm object ---------------------------------------------------------------------
+# ---- recipes --------------------------------------------------------------------------------
+# Each env's default on top of the Config and Hyperparams defaults (gymnasium's REINFORCE
+# tutorial), each with the reason it was chosen. The runs that chose them:
+# RESULTS.md#reinforces-recipes-how-they-were-chosen.
+
+_CONFIGS: dict[str, dict[str, Setting]] = {
+    # The tutorial's network, with 16 episodes per update and normalised returns (and a 10x
+    # larger rate, below)
+    "rl_jax/InvertedPendulum-v5": {"num_envs": 16, "normalize_returns": True},
+    "rl_jax/InvertedDoublePendulum-v5": {
+        "num_envs": 32,
+        "hidden": (64, 64),
+        "baseline": "value",
+        "value_hidden": (64, 64),
+        "normalize_returns": True,
+        "normalize_obs": True,
+        # A small state-free exploration std: with a larger one the noisy training episodes end
+        # early, and the gradient only ever sees short episodes.
+        "std_mode": "param",
+        "initial_std": 0.2,
+        "squash_mean": True,  # an unbounded mean could leave the action bounds and stay there
+    },
+    "rl_jax/CartPole-v1": {"num_envs": 16, "normalize_returns": True},  # untuned
+}
+_HPARAMS: dict[str, dict[str, float]] = {
+    # A fast rate that reaches 1,000 early, falling to 0 over the script's 300 updates so that
+    # the policy stops collapsing and recovering.
+    "rl_jax/InvertedPendulum-v5": {"learning_rate": 3e-3, "lr_decay_updates": 300.0},
+    "rl_jax/InvertedDoublePendulum-v5": {
+        "learning_rate": 1.5e-3,  # faster than 1e-3, steadier than 3e-3
+        "max_grad_norm": 0.5,
+        "lr_decay_updates": 300.0,  # = the script's default budget: the final policy settles
+    },
+    "rl_jax/CartPole-v1": {"learning_rate": 1e-3},
+}
+
+_ABOUT = {
+    "rl_jax/InvertedPendulum-v5": "gymnasium's tutorial network, 16 envs, rate 3e-3 to 0",
+    "rl_jax/InvertedDoublePendulum-v5": "64x64, value baseline, 32 envs, rate 1.5e-3 to 0",
+    "rl_jax/CartPole-v1": "the tutorial's network, 16 envs, rate 1e-3 (untuned)",
+}
+RECIPES = Recipes(
+    *(
+        Recipe("default", about, _CONFIGS[env_id], _HPARAMS.get(env_id, {}), envs=(env_id,))
+        for env_id, about in _ABOUT.items()
+    )
+)
+
+
+# ---- the Algorithm object -------------------------------------------------------------------
 class Reinforce(RecipeBook):
     """REINFORCE as an ``rl_jax.training.algorithm.Algorithm``."""
 

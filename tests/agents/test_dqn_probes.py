@@ -18,7 +18,7 @@ import numpy as np
 import pytest
 
 import rl_jax.envs.core.probes  # noqa: F401  (registers the probe ids)
-from rl_jax.agents import dqn, reinforce, reinforce_policy
+from rl_jax.agents import dqn, reinforce
 from rl_jax.envs.core.probes import Truncation
 
 GAMMA = 0.5
@@ -100,16 +100,14 @@ def train_reinforce(env_id: str):
 
 def test_reinforce_gaussian_policy_finds_the_best_action():
     config, state, metrics = train_reinforce("rl_jax/ProbeActionReward-v0")
-    policy = reinforce_policy.make_network(config).apply(state.agent.params, jnp.zeros((1, 1)))
+    policy = reinforce.make_network(config).apply(state.agent.params, jnp.zeros((1, 1)))
     assert abs(float(policy["mean"][0, 0]) - 0.5) < TOL
     assert float(metrics.eval_return) > 1.0 - TOL**2
 
 
 def test_reinforce_categorical_policy_finds_the_best_action():
     config, state, metrics = train_reinforce("rl_jax/ProbeActionRewardDiscrete-v0")
-    logits = reinforce_policy.make_network(config).apply(state.agent.params, jnp.zeros((1, 1)))[
-        "logits"
-    ]
+    logits = reinforce.make_network(config).apply(state.agent.params, jnp.zeros((1, 1)))["logits"]
     probabilities = np.asarray(jax.nn.softmax(logits[0]))
     assert probabilities.argmax() == 3 and probabilities[3] > 0.8, probabilities
     assert float(metrics.eval_return) == pytest.approx(1.0)

@@ -11,7 +11,7 @@ from jax.test_util import check_grads
 from scipy import stats
 
 import rl_jax.envs.core.probes  # noqa: F401  (registers the probe ids)
-from rl_jax.agents import common, policy_gradient, reinforce, reinforce_policy
+from rl_jax.agents import common, policy_gradient, reinforce, reinforce_parts
 from rl_jax.agents.reinforce import Trajectory
 from rl_jax.training import networks
 
@@ -96,7 +96,7 @@ def test_batch_gradient_matches_the_analytic_gaussian_bandit_gradient():
     ``grad J = d J / d(mu, sigma) . d(mu, sigma) / d theta``. The estimate from N episodes must
     agree within 4 standard errors of its own per-episode spread, in every coordinate."""
     config = reinforce.default_config("rl_jax/ProbeActionReward-v0", hidden=(4,))
-    network = reinforce_policy.make_network(config)
+    network = reinforce.make_network(config)
     obs = jnp.full((1, 1, 1), 0.3)
     params = network.init(jax.random.key(3), obs[0, 0])
     hparams = reinforce.default_hyperparams(gamma=GAMMA)
@@ -109,7 +109,7 @@ def test_batch_gradient_matches_the_analytic_gaussian_bandit_gradient():
     analytic = flat(jax.grad(objective)(params))
 
     def one_episode_gradient(key):
-        action = reinforce_policy.sample_action(network.apply(params, obs), key)
+        action = reinforce_parts.sample_action(network.apply(params, obs), key)
         trajectory = Trajectory(obs, action, -((action[..., 0] - TARGET) ** 2), jnp.ones((1, 1)))
         gradient = jax.grad(lambda p: -reinforce.loss_fn(p, trajectory, hparams, config)[0])
         return flat(gradient(params))
@@ -121,9 +121,7 @@ def test_batch_gradient_matches_the_analytic_gaussian_bandit_gradient():
     standard_error = per_episode.std(axis=0) / np.sqrt(count)
     assert np.all(np.abs(estimate - analytic) < 4 * standard_error + 1e-6), (estimate, analytic)
     # The batch loss over all N episodes at once is the same estimate (the mean over episodes).
-    actions = jax.vmap(lambda k: reinforce_policy.sample_action(network.apply(params, obs), k))(
-        keys
-    )
+    actions = jax.vmap(lambda k: reinforce_parts.sample_action(network.apply(params, obs), k))(keys)
     batch = Trajectory(
         jnp.broadcast_to(obs[0], (1, count, 1)),
         actions[:, 0, 0][None],
@@ -141,10 +139,8 @@ def test_batch_gradient_matches_the_analytic_gaussian_bandit_gradient():
 @pytest.fixture(scope="module")
 def cartpole_rollout():
     config = reinforce.default_config("rl_jax/CartPole-v1", num_envs=6, baseline="value")
-    params = reinforce_policy.make_network(config).init(jax.random.key(5), jnp.zeros(4))
-    trajectory = jax.jit(reinforce_policy.rollout, static_argnums=2)(
-        params, jax.random.key(6), config
-    )
+    params = reinforce.make_network(config).init(jax.random.key(5), jnp.zeros(4))
+    trajectory = jax.jit(reinforce.rollout, static_argnums=2)(params, jax.random.key(6), config)
     return config, params, trajectory
 
 
@@ -173,12 +169,10 @@ def test_rollout_on_mujoco_c_skipping_ended_envs_equals_stepping_them_all():
 
     env_id = "rl_jax/InvertedDoublePendulum-v5"
     config = reinforce.default_config(env_id, num_envs=8, normalize_obs=False)
-    params = reinforce_policy.make_network(config).init(jax.random.key(5), jnp.zeros(9))
-    skipping = jax.jit(lambda p, k: reinforce_policy.rollout(p, k, config))(
-        params, jax.random.key(6)
-    )
+    params = reinforce.make_network(config).init(jax.random.key(5), jnp.zeros(9))
+    skipping = jax.jit(lambda p, k: reinforce.rollout(p, k, config))(params, jax.random.key(6))
     wrapped = Wrapper(episodes.make_eval_env(config))
-    stepping = jax.jit(lambda p, k: reinforce_policy.rollout(p, k, config, env=wrapped))
+    stepping = jax.jit(lambda p, k: reinforce.rollout(p, k, config, env=wrapped))
     stepping = stepping(params, jax.random.key(6))
     lengths = np.asarray(skipping.mask).sum(axis=0)
     assert len(set(lengths.tolist())) > 1  # episodes end at different steps
@@ -206,7 +200,7 @@ def test_mean_baseline_equals_centred_returns(cartpole_rollout):
     config_mean = reinforce.default_config(
         "rl_jax/CartPole-v1", num_envs=6, baseline="mean", normalize_returns=False
     )
-    network = reinforce_policy.make_network(config_mean)
+    network = reinforce.make_network(config_mean)
     params = network.init(jax.random.key(7), jnp.zeros(4))
     hparams = reinforce.default_hyperparams(gamma=GAMMA)
     loss, _ = reinforce.loss_fn(params, trajectory, hparams, config_mean)
@@ -266,7 +260,7 @@ def test_normalized_observations_reach_the_policy_and_the_stats_learn_the_batch(
     state = reinforce.init(jax.random.key(0), config, hparams)
     stats = state.agent.obs_stats
     # Jitted: op by op, the rollout's scan and the update took ~2x as long to dispatch.
-    rollout = jax.jit(reinforce_policy.rollout, static_argnums=2)
+    rollout = jax.jit(reinforce.rollout, static_argnums=2)
     trajectory = rollout(state.agent.params, jax.random.key(1), config, stats)
     agent, metrics = jax.jit(reinforce.update, static_argnums=3)(
         state.agent, trajectory, hparams, config
@@ -280,13 +274,13 @@ def test_normalized_observations_reach_the_policy_and_the_stats_learn_the_batch(
 def test_squashed_mean_stays_inside_the_action_bounds_and_equals_tanh_of_the_head():
     config = reinforce.Config(env_id="rl_jax/InvertedDoublePendulum-v5", hidden=(8,))
     squashed = dataclasses.replace(config, squash_mean=True)
-    params = reinforce_policy.make_network(config).init(jax.random.PRNGKey(0), jnp.zeros(9))
+    params = reinforce.make_network(config).init(jax.random.PRNGKey(0), jnp.zeros(9))
     # Scale the mean head up so the raw mean lies far outside [-1, 1] for many observations.
     head = params["params"]["Dense_0"]
     params = {"params": {**params["params"], "Dense_0": jax.tree.map(lambda w: 1e3 * w, head)}}
     obs = jax.random.normal(jax.random.PRNGKey(1), (256, 9))
-    raw = reinforce_policy.policy_outputs(params, None, obs, config)["mean"]
-    mean = reinforce_policy.policy_outputs(params, None, obs, squashed)["mean"]
+    raw = reinforce.policy_outputs(params, None, obs, config)["mean"]
+    mean = reinforce.policy_outputs(params, None, obs, squashed)["mean"]
     assert np.abs(np.asarray(raw)).max() > 10.0
     np.testing.assert_allclose(mean, np.tanh(np.asarray(raw)), rtol=1e-5, atol=1e-6)
     assert np.all(np.abs(np.asarray(mean)) <= 1.0)  # tanh rounds to 1 in float32 past ~9

@@ -1,18 +1,19 @@
-"""REINFORCE's policy: its network (``networks.StochasticPolicy`` for the env's action space), its
-outputs on observations, sampling an action, and the whole episodes it collects (``rollout``).
+"""REINFORCE's policy parts: the outputs of its network (``networks.StochasticPolicy``) on
+observations, sampling an action, and the whole episodes a policy collects (``run_episodes``).
+They are told the network, the action bounds and the env by ``rl_jax.agents.reinforce``, whose
+``Config`` they do not import.
 """
 
 from __future__ import annotations
 
-import functools
-from typing import NamedTuple
+from collections.abc import Callable
+from typing import NamedTuple, cast
 
 import jax
 import jax.numpy as jnp
 import optax
 
 from rl_jax import envs
-from rl_jax.agents.reinforce_config import Config
 from rl_jax.training import episodes, networks, normalization
 
 
@@ -27,42 +28,27 @@ class Trajectory(NamedTuple):
 Carry = tuple[jax.Array, object, jax.Array, jax.Array, Trajectory]
 
 
-@functools.lru_cache(maxsize=64)
-def make_network(config: Config) -> networks.StochasticPolicy:
-    space = episodes.make_eval_env(config).action_space()
-    discrete = isinstance(space, envs.Discrete)
-    return networks.StochasticPolicy(
-        hidden=config.hidden,
-        action_dim=1 if discrete else space.shape[0],
-        num_actions=space.n if discrete else None,
-        std_floor=config.std_floor,
-        value=config.baseline == "value",
-        activation=config.activation,
-        initializer=config.network_init,
-        std_mode=config.std_mode,
-        initial_std=config.initial_std,
-        value_hidden=config.value_hidden,
-    )
-
-
 def policy_outputs(
+    network: networks.StochasticPolicy,
     params: optax.Params,
     obs_stats: normalization.RunningStats | None,
     obs: jax.Array,
-    config: Config,
+    squash_into: envs.Box | None = None,
 ) -> dict[str, jax.Array]:
     """The network's outputs on (standardised, when there are statistics) observations.
 
-    With ``squash_mean`` the Gaussian's mean is ``tanh`` of the head mapped onto the action
-    bounds. Why: an unbounded mean can drift past a bound in most states; every sample is then
-    clipped to the same action, the return stops depending on the sample and the score-function
-    gradient that would bring the mean back averages to zero (a double-pendulum seed sat at
-    return ~130 for 100 updates this way, half its actions at +-1)."""
-    policy = make_network(config).apply(params, normalization.normalize(obs_stats, obs))
-    if config.squash_mean and "mean" in policy:
-        space = episodes.make_eval_env(config).action_space()
+    With ``squash_into`` (the action space; REINFORCE's ``squash_mean``) the Gaussian's mean is
+    ``tanh`` of the head mapped onto the action bounds. Why: an unbounded mean can drift past a
+    bound in most states; every sample is then clipped to the same action, the return stops
+    depending on the sample and the score-function gradient that would bring the mean back
+    averages to zero (a double-pendulum seed sat at return ~130 for 100 updates this way, half
+    its actions at +-1)."""
+    outputs = network.apply(params, normalization.normalize(obs_stats, obs))
+    policy = cast(dict[str, jax.Array], outputs)  # the outputs' names -> arrays
+    if squash_into is not None and "mean" in policy:
         shape = policy["mean"].shape
-        low, high = (jnp.broadcast_to(jnp.float32(b), shape) for b in (space.low, space.high))
+        bounds = (squash_into.low, squash_into.high)
+        low, high = (jnp.broadcast_to(jnp.float32(b), shape) for b in bounds)
         policy = {**policy, "mean": low + (high - low) * (jnp.tanh(policy["mean"]) + 1.0) / 2.0}
     return policy
 
@@ -82,18 +68,15 @@ def to_env_action(action: jax.Array, space: envs.Space) -> jax.Array:
     return action
 
 
-def rollout(
-    params: optax.Params,
+def run_episodes(
+    policy_of: Callable[[jax.Array], dict[str, jax.Array]],
     key: jax.Array,
-    config: Config,
-    obs_stats: normalization.RunningStats | None = None,
-    env: envs.Environment | None = None,
+    env: envs.Environment,
+    count: int,
 ) -> Trajectory:
-    """``num_envs`` whole episodes, stopping as soon as all have ended (raw observations are
-    stored; the policy acts on them standardised by ``obs_stats`` when given). ``env``: the env
-    to run instead of the config's (as ``episodes.make_eval_env`` builds it)."""
-    env = episodes.make_eval_env(config) if env is None else env
-    space, count = env.action_space(), config.num_envs
+    """``count`` whole episodes of vmapped ``env``, stopping as soon as all have ended;
+    ``policy_of(obs [N, ...])`` is the policy's outputs on the stored observations."""
+    space = env.action_space()
     horizon = env.max_episode_steps
     reset_key, key = jax.random.split(key)
     env_state, ts = jax.vmap(env.reset)(jax.random.split(reset_key, count))
@@ -112,7 +95,7 @@ def rollout(
     def step(carry: Carry) -> Carry:
         time, env_state, obs, alive, trajectory = carry
         action_key, step_key = jax.random.split(jax.random.fold_in(key, time))
-        policy = policy_outputs(params, obs_stats, obs, config)
+        policy = policy_of(obs)
         action = sample_action(policy, action_key).astype(empty.action.dtype)
         keys = jax.random.split(step_key, count)
         # Envs whose episode ended keep their state; the MuJoCo C backends skip their physics
