@@ -1,7 +1,7 @@
 """PPO (Schulman et al. 2017): clipped-surrogate policy optimisation on GAE advantages.
 
 One *iteration*: ``num_envs`` vmapped envs (autoreset) each take ``num_steps`` steps with the
-current stochastic policy; the rollout's advantages come from GAE(lambda) (``ppo_losses``),
+current stochastic policy; the rollout's advantages come from GAE(lambda) (``ppo_parts``),
 bootstrapping at the rollout's end and through time-limit truncations from the value of the true
 final observation (``info["final_obs"]``), and from nothing after a termination. Then
 ``num_epochs`` passes over the ``num_envs * num_steps`` batch, each shuffled into
@@ -18,13 +18,17 @@ rewards divided by a running std of discounted returns (``normalize_rewards``).
 A *chunk* (one compiled call) is ``iterations_per_chunk`` iterations under ``lax.scan``, then one
 evaluation of the deterministic policy (the Gaussian's clipped mean, or the most likely action):
 ``num_envs * num_steps * iterations_per_chunk`` env steps and ``num_epochs * num_minibatches``
-gradient steps per iteration. Settings are in ``ppo_config``, the network in ``ppo_networks``,
-the recipes in ``ppo_recipes``.
+gradient steps per iteration.
+
+Here: its settings (``Config``, ``PixelConfig`` for envs seen as frames, ``Hyperparams``), the
+network built for a config, the loss, rollouts and updates, its recipes per env and the learner
+object. Beside it: the maths and the actor-critic network module (``ppo_parts``).
 """
 
 from __future__ import annotations
 
 import dataclasses
+import functools
 from collections.abc import Callable
 from typing import Any, NamedTuple
 
@@ -34,29 +38,188 @@ import optax
 from flax import struct
 
 from rl_jax import envs
-from rl_jax.agents import ppo_losses as losses
+from rl_jax.agents import ppo_parts
 from rl_jax.agents.common import clip_by_global_norm, injected_step, linearly_decayed
 from rl_jax.agents.policy_gradient import entropy, log_prob
-from rl_jax.agents.ppo_config import PIXEL_ENVS, Config, Hyperparams, PixelConfig
-from rl_jax.agents.ppo_networks import (
+from rl_jax.agents.ppo_parts import (
+    ActorCritic,
     deterministic_action,
-    make_network,
-    outputs,
     sample_action,
     to_env_action,
-    value,
 )
-from rl_jax.agents.ppo_recipes import RECIPES
 from rl_jax.envs.core.preprocessing import ACTION_MASK
 from rl_jax.envs.core.wrappers import StatisticsState
-from rl_jax.training import episodes, normalization, validation
+from rl_jax.training import conv, episodes, networks, normalization, params, validation
 from rl_jax.training.algorithm import ChunkMetrics, RecipeBook
+from rl_jax.training.episodes import ImageObservations
 from rl_jax.training.networks import Params
 from rl_jax.training.normalization import RunningStats
+from rl_jax.training.params import Scalar
+from rl_jax.training.recipes import Recipe, Recipes, Setting
 
 __all__ = ["PIXEL_ENVS", "Config", "Hyperparams", "PixelConfig", "ppo"]
 
 
+# ---- settings -------------------------------------------------------------------------------
+@dataclasses.dataclass(frozen=True, kw_only=True)
+class Config:
+    """Static settings (changing one recompiles)."""
+
+    env_id: str
+    num_envs: int = 8  # envs stepped together (vmapped), each with its own episode
+    num_steps: int = 128  # steps of every env per rollout: a batch is num_envs * num_steps
+    num_epochs: int = 4  # passes over each batch
+    num_minibatches: int = 4  # gradient steps per pass (they must split the batch evenly)
+    iterations_per_chunk: int = 1  # rollouts and updates per compiled call; eval after each call
+    num_eval_envs: int = 10  # episodes of the deterministic policy per evaluation
+    hidden: tuple[int, ...] = (
+        64,
+        64,
+    )  # hidden layers of the actor and of the critic (each its own)
+    activation: str = "tanh"  # see rl_jax.training.networks.ACTIVATIONS
+    initial_std: float = 1.0  # Gaussian policy: the state-independent std before training
+    normalize_obs: bool = False  # standardise observations by running mean and variance
+    normalize_rewards: bool = False  # divide rewards by a running std of discounted returns
+    normalize_advantages: bool = True  # standardise the advantages of each minibatch
+    clip_value_loss: bool = True  # keep the value within value_clip_eps of its old value
+    # the env's constructor keywords, "name=value, name=value": envs.make(env_id, **them)
+    env_kwargs: str = ""
+
+    def __post_init__(self) -> None:
+        envs.parse_keywords(self.env_kwargs)  # a ValueError names what is wrong
+        for name in (
+            "num_envs",
+            "num_steps",
+            "num_epochs",
+            "num_minibatches",
+            "iterations_per_chunk",
+            "num_eval_envs",
+        ):
+            if getattr(self, name) < 1:
+                raise ValueError(f"{name} must be >= 1, got {getattr(self, name)}")
+        if self.batch_size % self.num_minibatches:
+            raise ValueError(
+                f"num_minibatches ({self.num_minibatches}) must divide the batch of num_envs x "
+                f"num_steps = {self.batch_size} env steps"
+            )
+        if self.activation not in networks.ACTIVATIONS:
+            raise ValueError(f"activation must be one of {list(networks.ACTIVATIONS)}")
+        if self.initial_std <= 0.0:
+            raise ValueError(f"initial_std must be > 0, got {self.initial_std}")
+
+    @property
+    def batch_size(self) -> int:
+        return self.num_envs * self.num_steps
+
+    def make_env(self) -> envs.Environment:
+        return envs.make(self.env_id, **envs.parse_keywords(self.env_kwargs))
+
+
+#: Envs observed as stacked frames: their config is a ``PixelConfig``.
+PIXEL_ENVS = ("rl_jax/CartPolePixels-v1",)
+
+
+@dataclasses.dataclass(frozen=True, kw_only=True)
+class PixelConfig(Config, ImageObservations):
+    """PPO on frames (``PIXEL_ENVS``): a conv torso (``conv.ConvTorso``, DQN's) and the
+    ``hidden`` layers after it are shared by actor and critic, each then one linear head (as in
+    the PPO paper's Atari network). Observations are not standardised: the torso scales the
+    uint8 pixels to [0, 1] itself."""
+
+    hidden: tuple[int, ...] = (256,)
+    activation: str = "relu"
+    frame_size: int = 84  # frames are frame_size x frame_size grayscale pixels
+    frame_stack: int = 4  # the last frame_stack frames are the observation's channels
+    # (features, kernel, stride) per conv layer: the 2013 DQN paper's torso, as DQN's pixel config
+    conv_layers: tuple[int, ...] = (16, 8, 4, 32, 4, 2)
+    # the torso sees only the frame rows the env ever draws on (as DQN's crop_drawn_rows)
+    crop_drawn_rows: bool = True
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        if self.normalize_obs:
+            raise ValueError(
+                "normalize_obs is for vector observations; frames are scaled to [0, 1]"
+            )
+        if self.frame_size < 1 or self.frame_stack < 1:
+            raise ValueError("frame_size and frame_stack must be >= 1")
+        conv.check_conv_layers(self.conv_layers, self.frame_size)
+        first, stop = self.conv_rows() or (0, self.frame_size)
+        conv.check_conv_layers(self.conv_layers, stop - first)
+
+    def conv_rows(self) -> tuple[int, ...]:
+        """``(first, stop)``, the frame rows the conv torso sees, or ``()`` for all."""
+        env = self.make_env()
+        if not self.crop_drawn_rows or not hasattr(env, "drawn_rows"):
+            return ()
+        return conv.covering_rows(self.conv_layers, *env.drawn_rows(), self.frame_size)
+
+    def make_env(self) -> envs.Environment:
+        return envs.make(
+            self.env_id,
+            frame_size=self.frame_size,
+            frame_stack=self.frame_stack,
+            **envs.parse_keywords(self.env_kwargs),
+        )
+
+
+@struct.dataclass
+class Hyperparams(params.HyperparamsMethods):
+    """What a sweep may vary without recompiling."""
+
+    learning_rate: Scalar = 2.5e-4  # Adam step size at the start
+    lr_decay_steps: Scalar = (
+        0.0  # env steps (one seed, all envs) over which it falls to 0 (0: constant)
+    )
+    gamma: Scalar = 0.99  # discount
+    gae_lambda: Scalar = 0.95  # GAE's lambda: 0 one-step TD errors, 1 Monte-Carlo returns
+    clip_eps: Scalar = 0.2  # the surrogate's ratio is clipped to [1 - clip_eps, 1 + clip_eps]
+    value_clip_eps: Scalar = 0.2  # clip_value_loss: how far a value may move from its old value
+    vf_coef: Scalar = 0.5  # weight of the value loss
+    ent_coef: Scalar = 0.01  # weight of the policy's mean entropy, subtracted from the loss
+    max_grad_norm: Scalar = 0.5  # clip the gradient's global norm to this (0: no clipping)
+    adam_eps: Scalar = 1e-5  # Adam's epsilon (PPO implementations use 1e-5, not optax's 1e-8)
+    reward_clip: Scalar = 10.0  # normalize_rewards: scaled rewards are clipped to +-this (0: not)
+
+
+# ---- the network (ppo_parts) ----------------------------------------------------------------
+@functools.lru_cache(maxsize=64)
+def make_network(config: Config) -> ActorCritic:
+    """The network for ``config`` (cached: called at every trace)."""
+    space = episodes.make_eval_env(config).action_space()
+    discrete = isinstance(space, envs.Discrete)
+    conv_layers = config.conv_layers if isinstance(config, PixelConfig) else ()
+    return ActorCritic(
+        hidden=config.hidden,
+        action_dim=1 if discrete else space.shape[0],
+        num_actions=space.n if discrete else None,
+        activation=config.activation,
+        initial_std=config.initial_std,
+        conv_layers=conv_layers,
+        conv_rows=config.conv_rows() if conv_layers else (),
+    )
+
+
+def outputs(
+    params: Params,
+    obs_stats: RunningStats | None,
+    obs: jax.Array,
+    config: Config,
+    legal: jax.Array | None = None,
+) -> dict[str, jax.Array]:
+    """The network's outputs on observations standardised by ``obs_stats`` (``None``: as they
+    are), the categorical over the ``legal`` actions alone where given (``ppo_parts.outputs``)."""
+    return ppo_parts.outputs(make_network(config), params, obs_stats, obs, legal)
+
+
+def value(
+    params: Params, obs_stats: RunningStats | None, obs: jax.Array, config: Config
+) -> jax.Array:
+    """The critic alone on (standardised) observations: ``[...]``."""
+    return ppo_parts.value(make_network(config), params, obs_stats, obs)
+
+
+# ---- state ----------------------------------------------------------------------------------
 @struct.dataclass
 class Agent:
     params: Params  # actor-critic parameters
@@ -131,18 +294,20 @@ def loss_fn(
     log_pi = log_prob(policy, batch.action)
     advantage = batch.advantage
     if config.normalize_advantages:
-        advantage = losses.normalize_advantages(advantage)
-    policy_loss = losses.clipped_surrogate_loss(log_pi, batch.log_mu, advantage, hparams.clip_eps)
+        advantage = ppo_parts.normalize_advantages(advantage)
+    policy_loss = ppo_parts.clipped_surrogate_loss(
+        log_pi, batch.log_mu, advantage, hparams.clip_eps
+    )
     if config.clip_value_loss:
-        value_loss = losses.clipped_value_loss(
+        value_loss = ppo_parts.clipped_value_loss(
             policy["value"], batch.value, batch.target, hparams.value_clip_eps
         )
     else:
-        value_loss = losses.value_loss(policy["value"], batch.target)
+        value_loss = ppo_parts.value_loss(policy["value"], batch.target)
     mean_entropy = jnp.mean(entropy(policy))
     total = policy_loss + hparams.vf_coef * value_loss - hparams.ent_coef * mean_entropy
     metrics = {"policy_loss": policy_loss, "value_loss": value_loss, "entropy": mean_entropy}
-    return total, {**metrics, **losses.policy_statistics(log_pi, batch.log_mu, hparams.clip_eps)}
+    return total, {**metrics, **ppo_parts.policy_statistics(log_pi, batch.log_mu, hparams.clip_eps)}
 
 
 # ---- acting and rollouts ----------------------------------------------------------------------
@@ -207,13 +372,15 @@ def targets(
     r_t = rollout.r_t
     if config.normalize_rewards:
         assert state.discounted_return is not None  # kept with normalize_rewards
-        g_t, carry = losses.discounted_returns(r_t, ended, state.discounted_return, hparams.gamma)
+        g_t, carry = ppo_parts.discounted_returns(
+            r_t, ended, state.discounted_return, hparams.gamma
+        )
         assert state.return_stats is not None  # kept with normalize_rewards
-        r_t, stats = losses.scale_rewards(r_t, g_t, state.return_stats, hparams.reward_clip)
+        r_t, stats = ppo_parts.scale_rewards(r_t, g_t, state.return_stats, hparams.reward_clip)
         state = dataclasses.replace(state, return_stats=stats, discounted_return=carry)
     discount_t = hparams.gamma * (1.0 - rollout.terminated.astype(jnp.float32))
     trace_t = hparams.gamma * hparams.gae_lambda * (1.0 - ended.astype(jnp.float32))
-    advantage = losses.generalized_advantage_estimates(
+    advantage = ppo_parts.generalized_advantage_estimates(
         r_t, discount_t, rollout.v_tm1, rollout.v_t, trace_t
     )
     return advantage, advantage + rollout.v_tm1, state
@@ -357,6 +524,130 @@ def train_chunk(
         train_return=train_return,
         extra=jax.tree.map(jnp.mean, metrics),
     )
+
+
+# ---- recipes --------------------------------------------------------------------------------
+# Whole, named settings per env (rl_jax.training.recipes), over the defaults of Config and
+# Hyperparams. Envs without a recipe of their own train on those defaults. How they were chosen:
+# docs/learners/ppo.md#how-the-recipes-were-chosen.
+
+MUJOCO = tuple(
+    f"rl_jax/{name}-v5"
+    for name in (
+        "InvertedPendulum",
+        "InvertedDoublePendulum",
+        "HalfCheetah",
+        "Hopper",
+        "Walker2d",
+        "Swimmer",
+        "Reacher",
+        "Ant",
+        "Humanoid",
+    )
+)
+
+# CleanRL's ppo_continuous_action.py (its Args and make_env), setting by setting: the reference
+# the MuJoCo rows compare with.
+CLEANRL_CONFIG: dict[str, Setting] = {
+    "num_envs": 1,
+    "num_steps": 2048,
+    "num_epochs": 10,
+    "num_minibatches": 32,
+    "iterations_per_chunk": 5,  # evaluated every 10,240 env steps
+    "hidden": (64, 64),
+    "activation": "tanh",
+    "initial_std": 1.0,
+    "normalize_obs": True,
+    "normalize_rewards": True,
+    "normalize_advantages": True,
+    "clip_value_loss": True,
+}
+CLEANRL_HPARAMS: dict[str, Setting] = {
+    "learning_rate": 3e-4,
+    "lr_decay_steps": 1_000_000.0,
+    "gamma": 0.99,
+    "gae_lambda": 0.95,
+    "clip_eps": 0.2,
+    "value_clip_eps": 0.2,
+    "vf_coef": 0.5,
+    "ent_coef": 0.0,
+    "max_grad_norm": 0.5,
+    "adam_eps": 1e-5,
+    "reward_clip": 10.0,
+}
+
+# Vectorised: CleanRL's 2,048-step batch from 64 envs x 32 steps, chosen on half cheetah by
+# return against wall-clock (RESULTS.md#ppos-vectorised-recipe).
+MUJOCO_CONFIG: dict[str, Setting] = {
+    **CLEANRL_CONFIG,
+    "num_envs": 64,
+    "num_steps": 32,
+    "iterations_per_chunk": 10,  # 10 evaluation episodes cost about 10,240 steps of training
+}
+
+# CartPole: rl-baselines3-zoo's tuned settings, chosen over three others by 30-seed runs
+# (RESULTS.md#sac-and-ppo-first-measurements-and-ppo-on-cartpole).
+CARTPOLE_CONFIG: dict[str, Setting] = {
+    "num_envs": 16,
+    "num_steps": 32,
+    "num_epochs": 10,
+    "num_minibatches": 2,
+    "iterations_per_chunk": 10,  # evaluated every 5,120 env steps
+    "clip_value_loss": False,
+}
+CARTPOLE_HPARAMS: dict[str, Setting] = {
+    "learning_rate": 1e-3,
+    "lr_decay_steps": 100_000.0,
+    "gamma": 0.98,
+    "gae_lambda": 0.8,
+    "ent_coef": 0.0,
+}
+
+# Frames: DQN's conv torso at DQN's pixel budget, otherwise untuned (RESULTS.md#ppo-from-pixels).
+PIXELS_CONFIG: dict[str, Setting] = {
+    "normalize_rewards": True,  # unscaled, the value loss's gradient fills the clipped norm
+    "num_envs": 8,
+    "num_steps": 128,
+    "num_epochs": 4,
+    "num_minibatches": 4,
+    "iterations_per_chunk": 5,
+}
+PIXELS_HPARAMS: dict[str, Setting] = {"learning_rate": 2.5e-4, "lr_decay_steps": 200_000.0}
+
+RECIPES = Recipes(
+    Recipe(
+        "default",
+        "16 envs x 32 steps, 10 epochs x 2 minibatches, rate 1e-3 to 0 over 100k steps",
+        CARTPOLE_CONFIG,
+        CARTPOLE_HPARAMS,
+        envs=("rl_jax/CartPole-v1",),
+        total_steps=100_000,
+    ),
+    Recipe(
+        "default",
+        "conv torso shared by actor and critic, 8 envs x 128 steps (untuned)",
+        PIXELS_CONFIG,
+        PIXELS_HPARAMS,
+        envs=("rl_jax/CartPolePixels-v1",),
+        total_steps=200_000,
+    ),
+    Recipe(
+        "default",
+        "64 envs x 32 steps, 10 epochs x 32 minibatches, CleanRL's rates and norms",
+        MUJOCO_CONFIG,
+        CLEANRL_HPARAMS,
+        envs=MUJOCO,
+        total_steps=1_000_000,
+    ),
+    Recipe(
+        "cleanrl",
+        "CleanRL's ppo_continuous_action.py: 1 env x 2048 steps, 10 epochs x 32 minibatches",
+        CLEANRL_CONFIG,
+        CLEANRL_HPARAMS,
+        envs=MUJOCO,
+        total_steps=1_000_000,
+    ),
+)
 
 
 # ---- the Algorithm object ---------------------------------------------------------------------

@@ -9,7 +9,7 @@ own state, zero at each episode start.
 One *iteration*: ``num_envs`` envs (autoreset) each take ``num_steps`` steps with the current
 stochastic policy, keeping the state the cell had before every step (after the reset where an
 episode started) and whether the step's observation starts an episode. Advantages are PPO's
-GAE(lambda) over the whole rollout (``ppo_losses``; truncations bootstrap from the value of the
+GAE(lambda) over the whole rollout (``ppo_parts``; truncations bootstrap from the value of the
 true final observation, read with the state the cell reached on the step that ended there). The
 rollout is then cut into sequences of ``seq_len`` steps of one env, each with the state it started
 from; ``num_epochs`` passes each shuffle the ``num_envs * num_steps / seq_len`` sequences into
@@ -22,8 +22,8 @@ A module of its own rather than a PPO option: the recurrent state runs through e
 of PPO (the rollout carries it, the batch is made of sequences rather than steps, the loss
 unrolls a scan, the deterministic policy returns a state) and would add a branch to each;
 ``ppo.py`` stays the readable feed-forward reference. What the two share is imported: the
-losses and GAE (``ppo_losses``), the action distributions (``ppo_networks``,
-``policy_gradient``) and the optimizer step (``common``).
+losses, GAE and the action distributions (``ppo_parts``, ``policy_gradient``) and the optimizer
+step (``common``).
 
 Options: observations standardised by running statistics (``normalize_obs``: acting and
 learning on one batch use the statistics from before it, as in PPO). Not supported: legal-action
@@ -44,10 +44,10 @@ import optax
 from flax import struct
 
 from rl_jax import envs
-from rl_jax.agents import ppo_losses as losses
+from rl_jax.agents import ppo_parts
 from rl_jax.agents.common import clip_by_global_norm, injected_step, linearly_decayed
 from rl_jax.agents.policy_gradient import entropy, log_prob
-from rl_jax.agents.ppo_networks import deterministic_action, sample_action, to_env_action
+from rl_jax.agents.ppo_parts import deterministic_action, sample_action, to_env_action
 from rl_jax.envs.core.wrappers import StatisticsState
 from rl_jax.training import episodes, networks, normalization, params, validation
 from rl_jax.training.algorithm import ChunkMetrics, RecipeBook
@@ -401,17 +401,17 @@ def loss_fn(
     log_pi = log_prob(policy, time_first.action)
     advantage = time_first.advantage
     if config.normalize_advantages:
-        advantage = losses.normalize_advantages(advantage)
-    policy_loss = losses.clipped_surrogate_loss(
+        advantage = ppo_parts.normalize_advantages(advantage)
+    policy_loss = ppo_parts.clipped_surrogate_loss(
         log_pi, time_first.log_mu, advantage, hparams.clip_eps
     )
-    value_loss = losses.value_loss(policy["value"], time_first.target)
+    value_loss = ppo_parts.value_loss(policy["value"], time_first.target)
     mean_entropy = jnp.mean(entropy(policy))
     total = policy_loss + hparams.vf_coef * value_loss - hparams.ent_coef * mean_entropy
     metrics = {"policy_loss": policy_loss, "value_loss": value_loss, "entropy": mean_entropy}
     return total, {
         **metrics,
-        **losses.policy_statistics(log_pi, time_first.log_mu, hparams.clip_eps),
+        **ppo_parts.policy_statistics(log_pi, time_first.log_mu, hparams.clip_eps),
     }
 
 
@@ -465,7 +465,7 @@ def train_iteration(state: TrainState, config: Config, hparams: Hyperparams):
     ended = jnp.logical_or(rollout.terminated, rollout.truncated)
     discount_t = hparams.gamma * (1.0 - rollout.terminated.astype(jnp.float32))
     trace_t = hparams.gamma * hparams.gae_lambda * (1.0 - ended.astype(jnp.float32))
-    advantage = losses.generalized_advantage_estimates(
+    advantage = ppo_parts.generalized_advantage_estimates(
         rollout.r_t, discount_t, rollout.v_tm1, rollout.v_t, trace_t
     )
     target = advantage + rollout.v_tm1

@@ -18,7 +18,7 @@ from jax.test_util import check_grads
 from scipy import stats
 
 import rl_jax.envs.core.probes  # noqa: F401  (registers the probe ids)
-from rl_jax.agents import policy_gradient, ppo, ppo_losses, ppo_networks
+from rl_jax.agents import policy_gradient, ppo, ppo_parts
 from rl_jax.envs.core.probes import Truncation
 from rl_jax.training import normalization, parallel, params
 
@@ -91,15 +91,15 @@ def test_gae_with_lambda_one_and_zero_values_is_the_discounted_return_to_the_epi
     zeros = jnp.zeros_like(r)
     discount = GAMMA * jnp.ones_like(r)
     trace = GAMMA * (1.0 - ended)
-    got = ppo_losses.generalized_advantage_estimates(r, discount, zeros, zeros, trace)
+    got = ppo_parts.generalized_advantage_estimates(r, discount, zeros, zeros, trace)
     np.testing.assert_allclose(got[:, 0], [1 + GAMMA * 2, 2, 3 + GAMMA * 4, 4], rtol=1e-6)
     # A truncation at step 1 with its final observation worth 10: only step 1 bootstraps from it
     # (and step 0 through it); a termination there would not.
     v_t = zeros.at[1, 0].set(10.0)
-    got = ppo_losses.generalized_advantage_estimates(r, discount, zeros, v_t, trace)
+    got = ppo_parts.generalized_advantage_estimates(r, discount, zeros, v_t, trace)
     np.testing.assert_allclose(got[:2, 0], [1 + GAMMA * (2 + GAMMA * 10), 2 + GAMMA * 10], 1e-6)
     terminal = discount.at[1, 0].set(0.0)
-    got = ppo_losses.generalized_advantage_estimates(r, terminal, zeros, v_t, trace)
+    got = ppo_parts.generalized_advantage_estimates(r, terminal, zeros, v_t, trace)
     np.testing.assert_allclose(got[:2, 0], [1 + GAMMA * 2, 2], rtol=1e-6)
 
 
@@ -113,14 +113,14 @@ def test_discounted_returns_restart_after_episode_ends_and_scale_rewards_by_thei
         carry = GAMMA * carry + r[t]
         expected[t] = carry
         carry = np.where(ended[t], 0.0, carry)
-    g, got_carry = ppo_losses.discounted_returns(jnp.asarray(r), jnp.asarray(ended), g_0, GAMMA)
+    g, got_carry = ppo_parts.discounted_returns(jnp.asarray(r), jnp.asarray(ended), g_0, GAMMA)
     np.testing.assert_allclose(g, expected, rtol=1e-5)
     np.testing.assert_allclose(got_carry, carry, rtol=1e-5)
-    scaled, new_stats = ppo_losses.scale_rewards(
+    scaled, new_stats = ppo_parts.scale_rewards(
         jnp.asarray(r), g, normalization.init(1), jnp.float32(0.0)
     )
     np.testing.assert_allclose(scaled, r / np.sqrt(np.var(expected) + 1e-8), rtol=1e-3)
-    clipped, _ = ppo_losses.scale_rewards(jnp.asarray(r), g, normalization.init(1), 0.1)
+    clipped, _ = ppo_parts.scale_rewards(jnp.asarray(r), g, normalization.init(1), 0.1)
     assert float(jnp.max(jnp.abs(clipped))) == pytest.approx(0.1)
     assert float(new_stats.count) == pytest.approx(21.0, abs=1e-3)
 
@@ -131,12 +131,12 @@ def test_clipped_surrogate_at_exact_values_and_its_gradient_stops_where_clipped(
     adv = jnp.array([1.0, 1.0, -1.0, -1.0, 2.0])
     log_mu = jnp.zeros(5)
     # max(-A r, -A clip(r)): -0.5, -1.2 (clipped), 0.8 (clipped), 1.5, -2.2
-    loss = ppo_losses.clipped_surrogate_loss(jnp.log(ratio), log_mu, adv, 0.2)
+    loss = ppo_parts.clipped_surrogate_loss(jnp.log(ratio), log_mu, adv, 0.2)
     assert float(loss) == pytest.approx((-0.5 - 1.2 + 0.8 + 1.5 - 2.2) / 5, abs=1e-6)
-    grad = jax.grad(ppo_losses.clipped_surrogate_loss)(jnp.log(ratio), log_mu, adv, 0.2)
+    grad = jax.grad(ppo_parts.clipped_surrogate_loss)(jnp.log(ratio), log_mu, adv, 0.2)
     # d(-A r)/d log pi = -A r where the unclipped term is the max, 0 where the clip holds it
     np.testing.assert_allclose(grad, np.array([-0.5, 0.0, 0.0, 1.5, -2.2]) / 5, atol=1e-6)
-    statistics = ppo_losses.policy_statistics(jnp.log(ratio), log_mu, 0.2)
+    statistics = ppo_parts.policy_statistics(jnp.log(ratio), log_mu, 0.2)
     assert float(statistics["clip_fraction"]) == pytest.approx(0.8)
     kl = np.mean((np.asarray(ratio) - 1) - np.log(np.asarray(ratio)))
     assert float(statistics["approx_kl"]) == pytest.approx(kl, rel=1e-5)
@@ -146,16 +146,16 @@ def test_value_loss_clipped_and_plain_at_exact_values():
     v, v_old, target = jnp.array([0.5, 0.1, -0.5]), jnp.zeros(3), jnp.ones(3)
     # v 0.5 clips to 0.2: max(0.25, 0.64); 0.1 is inside the clip: 0.81; -0.5 -> -0.2: max(2.25,
     # 1.44)
-    clipped = ppo_losses.clipped_value_loss(v, v_old, target, 0.2)
+    clipped = ppo_parts.clipped_value_loss(v, v_old, target, 0.2)
     assert float(clipped) == pytest.approx(0.5 * (0.64 + 0.81 + 2.25) / 3, rel=1e-6)
-    assert float(ppo_losses.value_loss(v, target)) == pytest.approx(0.5 * (0.25 + 0.81 + 2.25) / 3)
-    grad = jax.grad(ppo_losses.clipped_value_loss)(v, v_old, target, 0.2)
+    assert float(ppo_parts.value_loss(v, target)) == pytest.approx(0.5 * (0.25 + 0.81 + 2.25) / 3)
+    grad = jax.grad(ppo_parts.clipped_value_loss)(v, v_old, target, 0.2)
     np.testing.assert_allclose(grad, [0.0, (0.1 - 1.0) / 3, (-0.5 - 1.0) / 3], rtol=1e-6)
 
 
 def test_normalized_advantages_have_zero_mean_and_unit_std():
     adv = jax.random.normal(jax.random.key(0), (64,)) * 5.0 + 3.0
-    got = ppo_losses.normalize_advantages(adv)
+    got = ppo_parts.normalize_advantages(adv)
     assert float(jnp.mean(got)) == pytest.approx(0.0, abs=1e-5)
     assert float(jnp.std(got)) == pytest.approx(1.0, abs=1e-4)
 
@@ -163,7 +163,7 @@ def test_normalized_advantages_have_zero_mean_and_unit_std():
 # ---- the policy and the whole loss ------------------------------------------------------------
 def test_gaussian_log_prob_and_entropy_of_the_network_equal_scipy():
     config = ppo.default_config("rl_jax/Pendulum-v1", initial_std=0.7, hidden=(8,))
-    net = ppo_networks.make_network(config)
+    net = ppo.make_network(config)
     obs = jax.random.normal(jax.random.key(0), (5, 3))
     net_params = net.init(jax.random.key(1), obs)
     net_params["params"]["log_std"] = jnp.array([np.log(0.3)], jnp.float32)
@@ -184,13 +184,13 @@ def test_gaussian_log_prob_and_entropy_of_the_network_equal_scipy():
 def test_loss_gradient_matches_finite_differences(env_id):
     config = ppo.default_config(env_id, hidden=(8,), clip_value_loss=True)
     hparams = ppo.default_hyperparams(ent_coef=0.01)
-    net = ppo_networks.make_network(config)
+    net = ppo.make_network(config)
     keys = jax.random.split(jax.random.key(3), 5)
     obs_dim = 3 if env_id == "rl_jax/Pendulum-v1" else 4
     obs = jax.random.normal(keys[0], (16, obs_dim))
     net_params = net.init(keys[1], obs)
     out = net.apply(net_params, obs)
-    action = ppo_networks.sample_action(out, keys[2])
+    action = ppo_parts.sample_action(out, keys[2])
     # Behaviour log-probs and old values a little away from the current ones: ratios and value
     # changes inside the clip ranges, away from the clip's kinks.
     log_mu = policy_gradient.log_prob(out, action) + 0.05 * jax.random.normal(keys[3], (16,))
@@ -222,7 +222,7 @@ def test_rollout_steps_the_env_with_clipped_actions_and_keeps_unclipped_log_prob
     rollout = collect(state.agent, state.env_state, state.obs, jax.random.key(1), config)[-1]
     action = np.asarray(rollout.action)
     assert np.any(np.abs(action) > 2.0)  # beyond Pendulum's torque bounds of +-2
-    out = ppo_networks.outputs(state.agent.params, None, rollout.obs, config)
+    out = ppo.outputs(state.agent.params, None, rollout.obs, config)
     expected = stats.norm.logpdf(action, np.asarray(out["mean"]), 3.0).sum(axis=-1)
     np.testing.assert_allclose(rollout.log_mu, expected, rtol=1e-5)
     # The env stepped with the clipped torque: Pendulum's reward is -(theta^2 + 0.1 theta_dot^2
@@ -242,7 +242,7 @@ def test_rollout_values_the_true_final_observation_at_truncation():
     rollout = collect(state.agent, state.env_state, state.obs, jax.random.key(1), config)[-1]
     assert np.all(np.asarray(rollout.truncated)) and not np.any(np.asarray(rollout.terminated))
     final_obs = 1.0 - rollout.obs  # the probe flips its observation, then the time limit cuts
-    expected = ppo_networks.value(state.agent.params, None, final_obs, config)
+    expected = ppo.value(state.agent.params, None, final_obs, config)
     np.testing.assert_allclose(rollout.v_t, expected, rtol=1e-6)
     # The next step starts from a fresh coin flip, not from the final observation, half the time.
     assert 0.25 < np.mean(np.asarray(rollout.obs[1:]) != np.asarray(final_obs[:-1])) < 0.75
@@ -277,7 +277,7 @@ def _probe_run(env_id: str, chunks: int = 3):
 def test_critic_learns_probe_values_bootstrapping_through_truncation_not_termination(env_id):
     state, config, _ = _probe_run(env_id)
     obs = jnp.array([[0.0], [1.0]])
-    got = np.asarray(ppo_networks.value(state.agent.params, None, obs, config))
+    got = np.asarray(ppo.value(state.agent.params, None, obs, config))
     terminal = env_id.endswith("Termination-v0")
     expected = np.array([Truncation.true_q(p, PROBE_GAMMA, terminal) for p in (0.0, 1.0)])
     np.testing.assert_allclose(got, expected, atol=0.05)
@@ -291,7 +291,7 @@ def test_critic_learns_probe_values_bootstrapping_through_truncation_not_termina
 
 def test_policy_finds_the_best_action_of_the_action_reward_probe():
     state, config, metrics = _probe_run("rl_jax/ProbeActionReward-v0")
-    out = ppo_networks.outputs(state.agent.params, None, jnp.zeros((1, 1)), config)
+    out = ppo.outputs(state.agent.params, None, jnp.zeros((1, 1)), config)
     assert float(out["mean"][0, 0]) == pytest.approx(0.5, abs=0.1)
     assert float(metrics.eval_return) == pytest.approx(1.0, abs=0.01)
     assert int(metrics.env_steps) == 3 * 60 * 8 * 16

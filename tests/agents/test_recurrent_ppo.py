@@ -16,7 +16,7 @@ import pytest
 
 import rl_jax
 import rl_jax.envs.core.probes  # noqa: F401  (registers the probes)
-from rl_jax.agents import ppo_losses as losses
+from rl_jax.agents import ppo_parts
 from rl_jax.agents import recurrent_ppo as rppo
 from rl_jax.agents.policy_gradient import entropy, log_prob
 from rl_jax.agents.ppo import ppo
@@ -99,9 +99,11 @@ def reference_loss(params, batch, carry, hparams, config):
         outputs.append(out)
     policy = {k: jnp.stack([o[k] for o in outputs], axis=1) for k in outputs[0]}
     log_pi = log_prob(policy, batch.action)
-    advantage = losses.normalize_advantages(batch.advantage)
-    policy_loss = losses.clipped_surrogate_loss(log_pi, batch.log_mu, advantage, hparams.clip_eps)
-    value_loss = losses.value_loss(policy["value"], batch.target)
+    advantage = ppo_parts.normalize_advantages(batch.advantage)
+    policy_loss = ppo_parts.clipped_surrogate_loss(
+        log_pi, batch.log_mu, advantage, hparams.clip_eps
+    )
+    value_loss = ppo_parts.value_loss(policy["value"], batch.target)
     mean_entropy = jnp.mean(entropy(policy))
     return policy_loss + hparams.vf_coef * value_loss - hparams.ent_coef * mean_entropy
 
