@@ -67,6 +67,7 @@ adapter, not vmappable); gymnasium's ``info`` dicts are dropped (their keys vary
 from __future__ import annotations
 
 import copy
+import dataclasses
 import functools
 from collections.abc import Callable
 from typing import Any, NamedTuple
@@ -217,7 +218,8 @@ class HostGymnasiumEnv(Environment[HostEnvState, EnvParams]):
         reward = jax.lax.bitcast_convert_type(row[OUT_REWARD], jnp.float32)
         obs = jax.lax.bitcast_convert_type(row[OUT_OBS:], jnp.float32)
         obs = obs.reshape(self._observation_space.shape)
-        new_state = state.replace(
+        new_state = dataclasses.replace(
+            state,
             time=state.time + 1,
             handle=row[HANDLE],
             obs=obs,
@@ -326,9 +328,11 @@ def register_gymnasium_id(name: str) -> str:
     line before anything compiles."""
     env_id = name.removeprefix(ID_PREFIX)
     source = _source_from_id(env_id, None, {})
-    observation_space_from(source.first_env.observation_space, env_id)
-    action_space_from(source.first_env.action_space, env_id)
-    source.first_env.close()
+    first_env = source.first_env
+    assert first_env is not None  # _source_from_id always makes one
+    observation_space_from(first_env.observation_space, env_id)
+    action_space_from(first_env.action_space, env_id)
+    first_env.close()
     factory = functools.partial(from_gymnasium, env_id)
     registry.register(name, factory, max_episode_steps=source.max_episode_steps)
     return name
