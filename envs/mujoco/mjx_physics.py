@@ -69,7 +69,7 @@ class MjxPhysics(Physics):
         # so one template Data serves every env and only the state travels between steps.
         self._template = mjx.make_data(self.mjx_model, impl="jax")
         self.chunk = chunk
-        self._chunked_step = self._make_chunked_step() if chunk else None
+        self._chunked_step = self._make_chunked_step(chunk) if chunk else None
 
     def from_qpos_qvel(self, qpos: Any, qvel: Any, qacc_warmstart: Any = None) -> tuple:
         """Physics state ``(qpos, qvel, qacc_warmstart)`` in float32; the warm start defaults to
@@ -88,7 +88,7 @@ class MjxPhysics(Physics):
             data = data.replace(ctrl=jnp.asarray(ctrl, jnp.float32))
         return data
 
-    def _make_chunked_step(self) -> Any:
+    def _make_chunked_step(self, chunk: int) -> Any:
         stepper = custom_vmap(lambda state, ctrl: self._step(state, ctrl))
 
         @stepper.def_vmap
@@ -97,10 +97,10 @@ class MjxPhysics(Physics):
                 x if batched else jnp.broadcast_to(x, (axis_size, *x.shape))
             )
             args = jax.tree.map(broadcast, (state, ctrl), tuple(in_batched))
-            if axis_size <= self.chunk:
+            if axis_size <= chunk:
                 out = self._batched_step(*args)
             else:
-                out = _map_in_chunks(lambda a: self._batched_step(*a), args, axis_size, self.chunk)
+                out = _map_in_chunks(lambda a: self._batched_step(*a), args, axis_size, chunk)
             return out, jax.tree.map(lambda _: True, out)
 
         return stepper
@@ -157,7 +157,12 @@ class MjxPhysics(Physics):
 
     def to_numpy(self, state: tuple) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Host side: ``(qpos, qvel, qacc_warmstart)`` widened to float64."""
-        return tuple(np.asarray(x, np.float64) for x in state)
+        qpos, qvel, warm = state
+        return (
+            np.asarray(qpos, np.float64),
+            np.asarray(qvel, np.float64),
+            np.asarray(warm, np.float64),
+        )
 
     def qpos_qvel(self, state: tuple) -> tuple[Array, Array]:
         """``(qpos, qvel)`` of a state (already float32)."""
