@@ -261,9 +261,11 @@ SMALL_CHOLESKY_MAX = 16
 
 
 def _unrolled_cholesky_lower(a: Array) -> list[list[Array]]:
-    """Lower Cholesky factor of one small SPD matrix as nested lists of scalars."""
+    """Lower Cholesky factor of one small SPD matrix as nested lists of scalars (zero above the
+    diagonal)."""
     n = a.shape[-1]
-    lower = [[None] * n for _ in range(n)]
+    zero = jnp.zeros_like(a[..., 0, 0])
+    lower = [[zero] * n for _ in range(n)]
     for j in range(n):
         diagonal = a[..., j, j] - sum(
             (lower[j][k] ** 2 for k in range(j)), jnp.zeros_like(a[..., 0, 0])
