@@ -10,7 +10,7 @@ from run_helpers import leaves_bytes, snapshot
 
 from rl_jax.agents.td3 import ddpg, td3
 from rl_jax.errors import guard
-from rl_jax.run import cli
+from rl_jax.run import cli, command
 from rl_jax.run.checkpoint import Checkpointer
 from rl_jax.run.plan import make_plan
 from rl_jax.run.run_dir import CHECKPOINT_DIR
@@ -32,19 +32,11 @@ def run_cli(algorithm, env_id, argv) -> int:
 
 def final_state(run_dir: Path, algorithm=td3, env_id=ENV_ID):
     """The latest checkpoint of a run directory, and its step."""
-    args, names = _parsed(algorithm, env_id)
-    spec = cli.build_spec(args, algorithm, env_id, cli.Defaults(), names, [])
+    spec = command.spec_for(algorithm, env_id, FLAGS)
     plan = make_plan(dataclasses.replace(spec, out=run_dir))
     with Checkpointer(run_dir / CHECKPOINT_DIR, read_only=True) as checkpointer:
         state, meta = checkpointer.restore(plan.template)
     return state, meta["step"]
-
-
-def _parsed(algorithm, env_id):
-    parser, config_names, hparam_names = cli.build_parser(
-        algorithm, env_id, "", cli.Defaults(), choose=False
-    )
-    return parser.parse_args(FLAGS), (config_names, hparam_names)
 
 
 @pytest.fixture(scope="module")
@@ -117,8 +109,7 @@ def best_policies(run_dir: Path):
     """The ``agent`` of the best-policy checkpoint of a run and its metadata."""
     from rl_jax.run.best import BEST_DIR, policy_part
 
-    args, names = _parsed(td3, ENV_ID)
-    spec = cli.build_spec(args, td3, ENV_ID, cli.Defaults(), names, [])
+    spec = command.spec_for(td3, ENV_ID, FLAGS)
     plan = make_plan(dataclasses.replace(spec, out=run_dir))
     with Checkpointer(run_dir / BEST_DIR, read_only=True) as checkpointer:
         part, meta = checkpointer.restore(policy_part(plan.template, ("agent",)))
@@ -217,8 +208,7 @@ def test_load_policy_refuses_what_the_run_does_not_have(runs):
 
 
 def final_state_at(run_dir: Path, step: int):
-    args, names = _parsed(td3, ENV_ID)
-    spec = cli.build_spec(args, td3, ENV_ID, cli.Defaults(), names, [])
+    spec = command.spec_for(td3, ENV_ID, FLAGS)
     plan = make_plan(dataclasses.replace(spec, out=run_dir))
     with Checkpointer(run_dir / CHECKPOINT_DIR, read_only=True) as checkpointer:
         return checkpointer.restore(plan.template, step=step)

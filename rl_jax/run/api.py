@@ -31,7 +31,7 @@ import numpy as np
 
 from rl_jax import envs
 from rl_jax.errors import RunError
-from rl_jax.run import cli, learners, plots, recipe_choice
+from rl_jax.run import command, learners, plots, recipe_choice
 from rl_jax.run import distributed as joining
 from rl_jax.run.learners import for_run
 from rl_jax.run.metrics import METRICS_FILE, read_rows
@@ -185,15 +185,15 @@ def train(
             joining.initialize(cluster, join.timeout)
         except RuntimeError as error:
             raise RunError(f"cannot join the other processes: {error}") from None
-    learner = cli.resolve_algorithm(algorithm)
-    chosen = recipe_choice.take_recipe(["--recipe", recipe] if recipe else [], learner, env_id)[0]
+    learner = learners.resolve(algorithm)
+    chosen = recipe_choice.recipe_named(learner, env_id, recipe or None)
     base_config, base_hparams = recipe_choice.recipe_settings(learner, env_id, chosen)
     total_steps = total_steps or chosen.total_steps
-    chosen_config = cli.replace_fields(base_config, dict(config or {}), "config")
-    chosen_hparams = cli.replace_fields(base_hparams, dict(hparams or {}), "hyperparameters")
-    cli.validate_settings(learner, chosen_config, [chosen_hparams])
-    cli.check_env_fits(learner, chosen_config, chosen_hparams)
-    run_dir = Path(out) if out is not None else cli.default_run_dir(env_id, learner.name)
+    chosen_config = command.replace_fields(base_config, dict(config or {}), "config")
+    chosen_hparams = command.replace_fields(base_hparams, dict(hparams or {}), "hyperparameters")
+    command.validate_settings(learner, chosen_config, [chosen_hparams])
+    command.check_env_fits(learner, chosen_config, chosen_hparams)
+    run_dir = Path(out) if out is not None else command.default_run_dir(env_id, learner.name)
     named = algorithm if isinstance(algorithm, str) else learner.name
     env_hint = f", env={env_id!r}" if envs.core.registry.names_a_module(env_id) else ""
     spec = RunSpec(

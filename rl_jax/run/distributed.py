@@ -30,7 +30,7 @@ import os
 import socket
 import subprocess
 import sys
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 
 import jax
@@ -145,14 +145,18 @@ def take(argv: list[str]) -> tuple[Options, list[str]]:
     parser = OneLineParser(add_help=False)
     add_flags(parser)
     known, rest = parser.parse_known_args(argv)
-    options = Options(
+    return options_from(known), rest
+
+
+def options_from(known: argparse.Namespace) -> Options:
+    """The distribution flags of a namespace that ``add_flags``'s parser filled."""
+    return Options(
         known.distributed,
         known.coordinator,
         known.num_processes,
         known.process_id,
         known.collective_timeout,
     )
-    return options, rest
 
 
 def without_flags(argv: list[str]) -> list[str]:
@@ -242,12 +246,19 @@ def _from_flags(options: Options) -> Cluster | None:
 def start(argv: list[str]) -> list[str]:
     """Take the distribution flags out of ``argv`` and, if they ask for several processes, join
     them (before JAX starts: device count and compilation cache first). Returns the rest."""
-    options, rest = take(argv)
-    cluster = resolve(options)
+    given, rest = take(argv)
+    begin(given, rest)
+    return rest
+
+
+def begin(given: Options, argv: Sequence[str]) -> None:
+    """JAX's settings and, if ``given`` asks for several processes, the processes joined
+    (before JAX starts: device count and compilation cache first). ``argv``: the command line,
+    which every process must share (its distribution flags aside)."""
+    cluster = resolve(given)
     configure_jax()
     if cluster is not None:
-        initialize(cluster, options.timeout, join.fingerprint(without_flags(rest)))
-    return rest
+        initialize(cluster, given.timeout, join.fingerprint(without_flags(list(argv))))
 
 
 def initialize(

@@ -10,8 +10,6 @@ former spelling is one line saying what to type instead.
 
 from __future__ import annotations
 
-import argparse
-
 from rl_jax.errors import UsageError
 from rl_jax.run import learners
 from rl_jax.run.learners import ALGORITHMS
@@ -92,22 +90,6 @@ def _former_spellings() -> dict[str, tuple[str, str]]:
             spelling = learner if recipe == "default" else f"{learner}-{recipe}"
             spellings.setdefault(spelling, (learner, recipe))
     return spellings
-
-
-def take_recipe(argv: list[str], algorithm: Algorithm, env_id: str) -> tuple[Recipe, list[str]]:
-    """``--recipe NAME`` of ``algorithm``'s recipes for ``env_id`` (else its ``"default"``),
-    taken out of ``argv`` (``recipe_named`` says what is refused)."""
-    name, rest = split_recipe(argv)
-    resuming = any(arg == "--resume" or arg.startswith("--resume=") for arg in rest)
-    return recipe_named(algorithm, env_id, name, resuming), rest
-
-
-def split_recipe(argv: list[str]) -> tuple[str | None, list[str]]:
-    """``--recipe NAME`` taken out of ``argv``: ``(NAME or None, the rest in order)``."""
-    pre = argparse.ArgumentParser(add_help=False)
-    pre.add_argument("--recipe", default=None)
-    known, rest = pre.parse_known_args(argv)
-    return known.recipe, rest
 
 
 def other_learners_recipes(algorithm: Algorithm, env_id: str) -> str:

@@ -31,6 +31,7 @@ from rl_jax.errors import (
 )
 from rl_jax.run import (
     cli,
+    command,
     distributed,
     flags,
     learners,
@@ -146,7 +147,7 @@ def sweep_record(out: Path) -> dict[str, Any]:
 
 
 def build_specs(
-    argv: list[str], description: str
+    argv: list[str],
 ) -> tuple[list[RunSpec], list[str], Path, argparse.Namespace]:
     """One RunSpec per shape of the grid, with its hyperparameter grid inside."""
     sweep_args, rest = parse_args(argv)
@@ -164,30 +165,27 @@ def build_specs(
     if not sweep_args.algo or not sweep_args.env:
         raise UsageError("--algo and --env are required")
 
-    algorithm = algorithm or cli.resolve_algorithm(sweep_args.algo)
+    algorithm = algorithm or learners.resolve(sweep_args.algo)
     sweep_args.learner = str(learners.origin_of(algorithm))
     sweep_args.algo = learners.origin_of(algorithm).spelling(algorithm.name)
     env_id = envs.core.registry.resolve_id(sweep_args.env)
-    recipe, rest = recipe_choice.take_recipe(rest, algorithm, env_id)
-    parser, config_names, hparam_names = cli.build_parser(
-        algorithm, env_id, description, cli.Defaults(), choose=False, recipe=recipe
-    )
-    args = parser.parse_args(rest)
-    out = args.resume or args.out or default_out(env_id, algorithm.name)
-    args.resume, args.out = None, None
+    line = command.read(rest)
+    recipe = recipe_choice.recipe_named(algorithm, env_id, line.recipe, line.resume is not None)
+    out = line.resume or line.out or default_out(env_id, algorithm.name)
+    line = dataclasses.replace(line, resume=None, out=None)
     named = learners.cli_args(algorithm)
-    names = (config_names, hparam_names)
-    base = cli.build_spec(args, algorithm, env_id, cli.Defaults(), names, [], recipe)
+    choice = command.Choice(algorithm, env_id, recipe, chosen=False)
+    base = command.run_spec(line, choice, command.Defaults())
     axes = [parse_axis(spec, base.config, base.hparams[0]) for spec in sweep_args.grid]
     static = [axis for axis in axes if axis.static]
     dynamic = [axis for axis in axes if not axis.static]
     specs, labels = [], []
     for point in combos(static):
-        config = cli.replace_fields(base.config, point, "config")
+        config = command.replace_fields(base.config, point, "config")
         hparams = [
-            cli.replace_fields(base.hparams[0], p, "hyperparameters") for p in combos(dynamic)
+            command.replace_fields(base.hparams[0], p, "hyperparameters") for p in combos(dynamic)
         ]
-        cli.validate_settings(algorithm, config, hparams)
+        command.validate_settings(algorithm, config, hparams)
         label = shape_label(point, static)
         specs.append(
             dataclasses.replace(
@@ -198,8 +196,8 @@ def build_specs(
                 resume=resume and (Path(out) / label / "config.json").is_file(),
                 grid_fields=tuple(axis.fields[0] for axis in dynamic),
                 grid_names=tuple(axis.name for axis in dynamic),  # lr, not actor_lr
-                command=shlex.join([*cli.program(), *sys.argv[1:]]),
-                resume_command=shlex.join([*cli.program(), "--resume", str(out), *named]),
+                command=shlex.join([*command.program(), *sys.argv[1:]]),
+                resume_command=shlex.join([*command.program(), "--resume", str(out), *named]),
                 throughput=None,
             )
         )
@@ -215,7 +213,7 @@ def _resumed_learner(saved: dict[str, Any], named: str | None, out: Path) -> Alg
     # A sweep recorded before "learner" was kept ran a built-in or a registered name.
     recorded = saved.get("learner") or ("builtin" if saved["algo"] in BUILTIN_NAMES else None)
     if named is not None:  # any spelling of the sweep's learner: each shape's run checks it
-        learner = cli.resolve_algorithm(named)
+        learner = learners.resolve(named)
         given = learners.origin_of(learner)
         builtin = (given.kind == learners.BUILTIN, recorded == learners.BUILTIN)
         if recorded is not None and builtin[0] != builtin[1]:
@@ -226,7 +224,7 @@ def _resumed_learner(saved: dict[str, Any], named: str | None, out: Path) -> Alg
             )
         return learner
     if recorded == learners.BUILTIN:
-        return cli.resolve_algorithm(saved["algo"])
+        return learners.resolve(saved["algo"])
     raise RunError(
         f"{out} is a sweep of the learner {recorded or saved['algo']}, which a resume does not "
         f"import by itself; name it again: --algo {shlex.quote(saved['algo'])}"
@@ -235,7 +233,7 @@ def _resumed_learner(saved: dict[str, Any], named: str | None, out: Path) -> Alg
 
 def default_out(env_id: str, algorithm_name: str) -> Path:
     """The default directory of a sweep: ``runs/<env>__<algo>-sweep__<time>/``."""
-    return cli.default_run_dir(env_id, f"{algorithm_name}-sweep")
+    return command.default_run_dir(env_id, f"{algorithm_name}-sweep")
 
 
 def write_record(out: Path, argv: list[str], sweep_args: argparse.Namespace) -> None:
@@ -288,7 +286,7 @@ def run_sweep(argv: list[str], description: str = "") -> int:
     and the shapes are shared out between the processes where that is faster
     (``rl_jax.run.sweep_shapes``)."""
     started = time.perf_counter()
-    specs, labels, out, sweep_args = build_specs(argv, description)
+    specs, labels, out, sweep_args = build_specs(argv)
     lead = processes.is_lead()
     notify = print if lead else _silent
     if lead:

@@ -16,7 +16,7 @@ from run_helpers import leaves_bytes
 from rl_jax.agents import dqn as dqn_module
 from rl_jax.agents.dqn import PixelConfig, dqn
 from rl_jax.errors import guard
-from rl_jax.run import cli
+from rl_jax.run import cli, command
 from rl_jax.run.checkpoint import Checkpointer
 from rl_jax.run.plan import make_plan
 from rl_jax.run.run_dir import CHECKPOINT_DIR
@@ -270,8 +270,7 @@ FLAGS = [
 
 
 def _final_state(run_dir):
-    parser, *names = cli.build_parser(dqn, ENV_ID, "", cli.Defaults(), choose=False)
-    spec = cli.build_spec(parser.parse_args(FLAGS), dqn, ENV_ID, cli.Defaults(), names, [])
+    spec = command.spec_for(dqn, ENV_ID, FLAGS)
     plan = make_plan(dataclasses.replace(spec, out=run_dir))
     with Checkpointer(run_dir / CHECKPOINT_DIR, read_only=True) as checkpointer:
         return checkpointer.restore(plan.template)[0]

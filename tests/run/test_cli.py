@@ -17,7 +17,7 @@ from child_env import python_path
 from run_helpers import leaves_bytes, snapshot
 
 from rl_jax import errors
-from rl_jax.run import cli, field_docs, flags, learners, recipe_choice
+from rl_jax.run import cli, command, field_docs, flags, learners, recipe_choice
 from rl_jax.run.checkpoint import Checkpointer
 from rl_jax.run.plan import make_plan
 from rl_jax.run.run_dir import CHECKPOINT_DIR, identity_hash
@@ -89,7 +89,8 @@ def test_help_documents_every_flag(capsys):
     assert "--learning-rate FLOAT Adam learning rate. (default: 0.01)" in text
     assert "--hidden-sizes INT,... Widths of the policy's hidden layers. (default: 8)" in text
     assert "--deterministic-init, --no-deterministic-init" in text
-    parser, _, _ = cli.build_parser(fake, fake.ENV_ID, "", cli.Defaults(), choose=False)
+    choice = command.choose(command.read([]), fake, fake.ENV_ID)
+    parser, _, _ = command.help_parser(choice, "", cli.Defaults())
     for action in parser._actions:
         assert action.help and action.help.strip(), action.option_strings
 
@@ -136,11 +137,11 @@ def test_grid_parsing_checks_names_and_types():
 
 
 def test_default_run_dir_names_env_algorithm_and_time(tmp_path, monkeypatch):
-    monkeypatch.setattr(cli, "RUNS_ROOT", tmp_path)
-    first = cli.default_run_dir("rl_jax/HalfCheetah-v5", "td3")
+    monkeypatch.setattr(command, "RUNS_ROOT", tmp_path)
+    first = command.default_run_dir("rl_jax/HalfCheetah-v5", "td3")
     assert first.parent == tmp_path and first.name.startswith("HalfCheetah-v5__td3__")
     first.mkdir()
-    assert cli.default_run_dir("rl_jax/HalfCheetah-v5", "td3") != first
+    assert command.default_run_dir("rl_jax/HalfCheetah-v5", "td3") != first
 
 
 # ---- subprocesses: a real run, then every bad input ----------------------------------------
@@ -259,21 +260,26 @@ BAD_INPUTS = {
 }
 
 
+def recipe_of(argv, algorithm, env_id):
+    """The recipe that a script of ``algorithm`` on ``env_id`` runs for ``argv``."""
+    return command.choose(command.read(argv), algorithm, env_id).recipe
+
+
 def test_a_recipe_is_whole_and_an_unknown_one_is_one_error():
     from rl_jax.agents.td3 import td3
 
     cheetah = "rl_jax/HalfCheetah-v5"
-    recipe, rest = recipe_choice.take_recipe(["--recipe", "gpu", "--seeds", "2"], td3, cheetah)
-    assert (recipe.name, recipe.total_steps, rest) == ("gpu", 250_000, ["--seeds", "2"])
-    default, rest = recipe_choice.take_recipe(["--seeds", "2"], td3, cheetah)
+    recipe = recipe_of(["--recipe", "gpu", "--seeds", "2"], td3, cheetah)
+    assert (recipe.name, recipe.total_steps) == ("gpu", 250_000)
+    default = recipe_of(["--seeds", "2"], td3, cheetah)
     assert default.name == "default" and default.throughput == (280.0, 5)
-    assert recipe_choice.take_recipe(["--recipe=default"], td3, cheetah)[0] is default
+    assert recipe_of(["--recipe=default"], td3, cheetah) is default
     with pytest.raises(cli.UsageError, match="--recipe short: td3 has no such recipe for rl_jax/"):
-        recipe_choice.take_recipe(["--recipe", "short"], td3, cheetah)
+        recipe_of(["--recipe", "short"], td3, cheetah)
     # a learner without recipes has only its defaults
-    assert recipe_choice.take_recipe([], fake, fake.ENV_ID)[0].name == "default"
+    assert recipe_of([], fake, fake.ENV_ID).name == "default"
     with pytest.raises(cli.UsageError, match="known: default$"):
-        recipe_choice.take_recipe(["--recipe", "paper"], fake, fake.ENV_ID)
+        recipe_of(["--recipe", "paper"], fake, fake.ENV_ID)
 
 
 def test_algo_picks_the_learner_and_recipe_one_of_its_recipes():
@@ -509,8 +515,8 @@ def test_train_py_offers_the_learners_recipes_as_whole_recipes():
     from rl_jax.agents.td3 import ddpg, td3
 
     hopper, cheetah = "rl_jax/Hopper-v5", "rl_jax/HalfCheetah-v5"
-    chosen, rest = recipe_choice.take_recipe(["--recipe", "paper", "--seeds", "2"], td3, hopper)
-    assert rest == ["--seeds", "2"] and chosen.throughput is None
+    chosen = recipe_of(["--recipe", "paper", "--seeds", "2"], td3, hopper)
+    assert chosen.name == "paper" and chosen.throughput is None
     config, hparams = recipe_choice.recipe_settings(td3, hopper, chosen)
     rates = hparams.to_dict()
     # the TD3 paper's loop, networks and rates, where Hopper's own recipe is the CPU one
@@ -534,9 +540,10 @@ def test_train_py_offers_the_learners_recipes_as_whole_recipes():
     assert (ddpg_config.num_critics, ddpg_config.policy_delay, ddpg_config.num_envs) == (1, 1, 1)
     assert float(ddpg.default_hyperparams(hopper, "paper").target_noise) == 0.0
     with pytest.raises(cli.UsageError, match="starts a new run"):
-        recipe_choice.take_recipe(["--recipe", "paper", "--resume", "runs/x"], td3, hopper)
+        recipe_choice.recipe_named(td3, hopper, "paper", resuming=True)
     # --help lists them with their summaries
-    parser, _, _ = cli.build_parser(td3, hopper, "", cli.Defaults(), True)
+    choice = command.choose(command.read(["--algo", "td3", "--env", hopper]), None, None)
+    parser, _, _ = command.help_parser(choice, "", cli.Defaults())
     text = " ".join(parser.format_help().split())
     assert "paper: the TD3 repository's recipe since 2019" in text
     assert "paper-2018: the settings of the TD3 paper's own runs" in text

@@ -15,7 +15,7 @@ from child_env import python_path
 
 from rl_jax.agents.dqn import dqn
 from rl_jax.agents.td3 import td3
-from rl_jax.run import cli
+from rl_jax.run import command
 from rl_jax.run.checkpoint import Checkpointer
 from rl_jax.run.divergence import DivergenceError, check_finite
 from rl_jax.run.plan import make_plan
@@ -27,11 +27,7 @@ ENV_ID = "rl_jax/Pendulum-v1"
 
 def _latest(run_dir: Path):
     """The latest checkpoint of ``run_dir``, restored as the resume of it would."""
-    parser, config_names, hparam_names = cli.build_parser(
-        td3, ENV_ID, "", cli.Defaults(), choose=False
-    )
-    args = parser.parse_args(["--resume", str(run_dir)])
-    spec = cli.build_spec(args, td3, ENV_ID, cli.Defaults(), (config_names, hparam_names), [])
+    spec = command.spec_for(td3, ENV_ID, ["--resume", str(run_dir)])
     with Checkpointer(run_dir / CHECKPOINT_DIR, read_only=True) as checkpointer:
         state, _ = checkpointer.restore(make_plan(spec).template)
     return state

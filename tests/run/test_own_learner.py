@@ -213,9 +213,9 @@ def test_register_algorithm_names_a_learner_of_ones_own(runs):
     record = json.loads((root / "whole" / "config.json").read_text())
     learners.register_algorithm("sarsa", f"{EXAMPLE}:learner")
     try:
-        learner = cli.resolve_algorithm("sarsa")
+        learner = learners.resolve("sarsa")
         assert learner.name == "expected_sarsa"
-        assert cli.resolve_algorithm(learner) is learner  # the object itself, from Python
+        assert learners.resolve(learner) is learner  # the object itself, from Python
         # Registered in this process, so named: the run opens without algorithm=.
         assert learners.for_run(record, root / "whole") is learner
     finally:
