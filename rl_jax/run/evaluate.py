@@ -40,7 +40,7 @@ from rl_jax.run.policy import (
     command_line_env,
     command_line_learner,
 )
-from rl_jax.training.algorithm import Algorithm
+from rl_jax.training.algorithm import Algorithm, TakesEnvKeywords
 from rl_jax.training.jax_setup import configure
 
 KEY = 20_251_125  # evaluation episodes' key: none of a run's own evaluations draws it
@@ -113,7 +113,10 @@ def _play(
 def _in_gymnasium(loaded: LoadedPolicy, episodes: int) -> tuple[str, np.ndarray]:
     """``loaded``'s policy in gymnasium's twin of the run's env: its id and the returns."""
     env_id = gymnasium_id(loaded.env_id)
-    keywords = envs.parse_keywords(getattr(loaded.config, "env_kwargs", ""))
+    config = loaded.config
+    keywords = envs.parse_keywords(
+        config.env_kwargs if isinstance(config, TakesEnvKeywords) else ""
+    )
     keywords = {name: value for name, value in keywords.items() if name not in OWN_KEYWORDS}
     policy = (
         RecurrentPolicy(loaded) if loaded.initial_policy_state() is not None else Policy(loaded)

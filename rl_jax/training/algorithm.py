@@ -151,6 +151,32 @@ class CountsEnvs(Protocol):
     def num_envs(self) -> int: ...
 
 
+@runtime_checkable
+class DrawsBatches(Protocol):
+    """A config that says how many transitions each gradient update draws."""
+
+    @property
+    def batch_size(self) -> int: ...
+
+
+@runtime_checkable
+class TakesEnvKeywords(Protocol):
+    """A config that passes keywords to its registered env (``env_kwargs``: ``"name=value,..."``,
+    ``rl_jax.envs.parse_keywords``)."""
+
+    @property
+    def env_kwargs(self) -> str: ...
+
+
+@runtime_checkable
+class SharesClock(Protocol):
+    """A train state whose ``clock`` (the step counters) every seed of a run shares: kept
+    unbatched and replicated rather than stacked per seed (``rl_jax.training.parallel``)."""
+
+    @property
+    def clock(self) -> object: ...
+
+
 #: A learner's own ``Config`` type, in the hooks it defines.
 ConfigT = TypeVar("ConfigT", bound=Config)
 
@@ -210,6 +236,11 @@ class OptionalHooks(Generic[ConfigT]):
         None, no replay buffer."""
         return None
 
+    def replay_batch(self, config: ConfigT) -> int | None:
+        """Transitions each update draws from the replay buffer, which must hold at least that
+        many. Default: the config's ``batch_size`` where it has one, else None."""
+        return config.batch_size if isinstance(config, DrawsBatches) else None
+
     def loop_seeds(self, config: ConfigT) -> bool:
         """Whether the seeds of a run go through the one program as an unrolled loop rather
         than a vmap (``rl_jax.training.parallel``: faster for conv nets on CPU). Default: no."""
@@ -244,6 +275,7 @@ HOOKS = (
     "envs_per_seed",
     "warm_up_steps",
     "replay_capacity",
+    "replay_batch",
     "loop_seeds",
     "initial_policy_state",
 )

@@ -199,7 +199,9 @@ class Simba(nn.Module):
         )
 
 
-def _torso_and_head(module: nn.Module, outputs: int, output_gain: float) -> nn.Module:
+def _torso_and_head(
+    module: Actor | Critic, outputs: int, output_gain: float, renorm_warmup: int = 100_000
+) -> nn.Module:
     """``module``'s MLP, or its ``Simba`` when ``module.architecture`` says so."""
     args = (
         module.hidden,
@@ -213,7 +215,7 @@ def _torso_and_head(module: nn.Module, outputs: int, output_gain: float) -> nn.M
         return Simba(*args)
     if module.architecture != "mlp":
         raise ValueError(f"unknown architecture {module.architecture!r}; one of {ARCHITECTURES}")
-    return MLP(*args, module.norm, getattr(module, "renorm_warmup", 100_000))
+    return MLP(*args, module.norm, renorm_warmup)
 
 
 def avg_l1_norm(x: jax.Array, eps: float = 1e-8) -> jax.Array:
@@ -307,7 +309,7 @@ class Critic(nn.Module):
         """``embeddings``: SALE's ``[z_sa, z_s]``, which join the state-action features;
         ``train``: batch renormalisation's mode."""
         x = _with_embeddings(self, jnp.concatenate([obs, action], axis=-1), embeddings)
-        body = _torso_and_head(self, 1, 1.0)
+        body = _torso_and_head(self, 1, 1.0, self.renorm_warmup)
         return (body(x, train) if self.norm == "batch_renorm" else body(x))[..., 0]
 
 

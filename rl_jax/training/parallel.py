@@ -37,7 +37,14 @@ import numpy as np
 from jax.experimental import multihost_utils
 from jax.sharding import Mesh, NamedSharding, PartitionSpec
 
-from rl_jax.training.algorithm import Algorithm, ChunkMetrics, Config, Hyperparams, TrainState
+from rl_jax.training.algorithm import (
+    Algorithm,
+    ChunkMetrics,
+    Config,
+    Hyperparams,
+    SharesClock,
+    TrainState,
+)
 from rl_jax.training.device_layout import AXES, plan_layout
 
 _PROGRAMS: dict[tuple, tuple[jax.stages.Wrapped, jax.stages.Wrapped]] = {}  # see Program._build
@@ -61,7 +68,7 @@ def seed_keys(seeds: Sequence[int]) -> jax.Array:
 def state_axes(state: TrainState) -> Axes:
     """vmap axes for a train state: 0 everywhere, ``None`` for the shared ``clock``."""
     axes = jax.tree.map(lambda _: 0, state)
-    if hasattr(axes, SHARED_FIELD):
+    if isinstance(state, SharesClock) and dataclasses.is_dataclass(axes):
         axes = dataclasses.replace(axes, **{SHARED_FIELD: None})
     return axes
 

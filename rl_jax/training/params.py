@@ -12,7 +12,7 @@ from __future__ import annotations
 import dataclasses
 import itertools
 from collections.abc import Mapping, Sequence
-from typing import TYPE_CHECKING, Any, TypeAlias, TypeVar
+from typing import TYPE_CHECKING, Any, ClassVar, Protocol, TypeAlias, TypeVar, runtime_checkable
 
 import jax
 import numpy as np
@@ -29,6 +29,15 @@ _DTYPES = {"f": np.float32, "i": np.int32, "u": np.int32, "b": np.bool_}
 
 T = TypeVar("T")  # hyperparameters, a pytree of them or a dataclass: what goes in comes out
 D = TypeVar("D", bound="DataclassInstance")
+
+
+@runtime_checkable
+class RetiresFields(Protocol):
+    """A ``Config`` or ``Hyperparams`` class that lists fields it no longer has: ``RETIRED`` maps
+    each to the value that meant "off" and what became of the setting."""
+
+    RETIRED: ClassVar[Mapping[str, tuple[object, str]]]
+
 
 #: A hyperparameter's value: a Python number, or an array leaf (stacked: ``[H]``).
 Scalar: TypeAlias = float | jax.Array
@@ -117,7 +126,8 @@ def dataclass_from_dict(template: D, values: dict[str, Any]) -> D:
     recorded before it went still load; at another value it is an error that says where the
     setting went."""
     values = dict(values)
-    for name, (off, moved) in getattr(type(template), "RETIRED", {}).items():
+    retired = template.RETIRED if isinstance(template, RetiresFields) else {}
+    for name, (off, moved) in retired.items():
         if name in values and not _same(values.pop(name), off):
             raise RunError(f"this run set {name}, which {moved}: it cannot be continued here")
     names = {f.name for f in dataclasses.fields(template)}

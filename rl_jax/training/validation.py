@@ -6,7 +6,8 @@ of range is refused with one line naming the flag and its range, e.g.
 ``--gamma must be in [0, 1], got 2``.
 
 Some limits depend on another field: the replay buffer must hold a batch and the random warm-up
-(``buffer_too_small``); ``out_of_range`` reports them after the fields' own ranges.
+(``buffer_too_small``, which asks the learner's hooks for all three); ``check_ranges`` reports
+them after the config's own ranges.
 
 ``check_ranges`` applies the table to a run's config and every hyperparameter config of a grid;
 ``runner.prepare`` calls it, so scripts, ``--grid`` sweeps and the Python API are all checked
@@ -23,7 +24,7 @@ from typing import TYPE_CHECKING, NamedTuple
 import numpy as np
 
 from rl_jax.errors import RunError
-from rl_jax.training.algorithm import Algorithm, hooks
+from rl_jax.training.algorithm import Algorithm, Config, hooks
 
 if TYPE_CHECKING:
     from _typeshed import DataclassInstance
@@ -104,8 +105,7 @@ def range_of(name: str, algorithm: Algorithm | None = None) -> Range | None:
 
 def out_of_range(instance: DataclassInstance, algorithm: Algorithm | None = None) -> str | None:
     """The first field of a ``Config``/``Hyperparams`` dataclass outside its range, as the
-    one-line message (flag, range, value), then a buffer too small for the config's batch or
-    warm-up (``buffer_too_small``); None when all hold."""
+    one-line message (flag, range, value); None when all hold."""
     for field in dataclasses.fields(instance):
         rule = range_of(field.name, algorithm)
         value = getattr(instance, field.name)
@@ -124,12 +124,12 @@ def out_of_range(instance: DataclassInstance, algorithm: Algorithm | None = None
         number = float(array)
         if not math.isfinite(number) or not rule.holds(number):
             return f"{flag} must be {rule}, got {_number(number)}"
-    return buffer_too_small(instance)
+    return None
 
 
-def buffer_too_small(config: DataclassInstance) -> str | None:
-    """The one-line message when a config's replay buffer (``buffer_size``) is smaller than a
-    batch (``batch_size``) or than the random warm-up (``learning_starts``); None otherwise.
+def buffer_too_small(config: Config, algorithm: Algorithm) -> str | None:
+    """The one-line message when a config's replay buffer (the ``replay_capacity`` hook) is smaller
+    than a batch (``replay_batch``) or than the random warm-up (``warm_up_steps``); None otherwise.
 
     A buffer smaller than a batch makes every update draw repeats of the same few transitions;
     one smaller than the warm-up overwrites the warm-up's random transitions before the first
@@ -139,15 +139,16 @@ def buffer_too_small(config: DataclassInstance) -> str | None:
     ``num_envs`` is; the size asked for is checked, not the multiple of ``num_envs`` the buffer
     rounds it up to, so that the rule is the one the message states.
     """
-    size = _count(config, "buffer_size")
+    book = hooks(algorithm)
+    size = book.replay_capacity(config)
     if size is None:
         return None
-    batch = _count(config, "batch_size") or 0
-    warm_up = _count(config, "learning_starts") or 0
+    batch = book.replay_batch(config) or 0
+    warm_up = book.warm_up_steps(config)
     if size >= max(batch, warm_up):
         return None
     if warm_up > batch:
-        envs = _count(config, "num_envs")
+        envs = book.envs_per_seed(config)
         together = f", of all {envs} envs together," if envs and envs > 1 else ""
         why = (
             f"--learning-starts: the random warm-up's transitions{together} would be "
@@ -158,21 +159,13 @@ def buffer_too_small(config: DataclassInstance) -> str | None:
     return f"--buffer-size must be >= {batch} ({why}), got {size}"
 
 
-def _count(config: DataclassInstance, name: str) -> int | None:
-    """An integer config field, or None where the config has no such field."""
-    value = getattr(config, name, None)
-    if isinstance(value, bool) or not isinstance(value, (int, np.integer)):
-        return None
-    return int(value)
-
-
 def check_ranges(
     algorithm: Algorithm, config: DataclassInstance, hparams_list: Iterable[DataclassInstance]
 ) -> None:
     """``RangeError`` naming the first value of ``config`` or of any hyperparameter config (a
     grid has several) outside its range."""
     hparams_list = list(hparams_list)
-    problem = out_of_range(config, algorithm)
+    problem = out_of_range(config, algorithm) or buffer_too_small(config, algorithm)
     if problem:
         raise RangeError(problem)
     for index, hparams in enumerate(hparams_list):

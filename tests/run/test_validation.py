@@ -228,13 +228,17 @@ def test_the_python_api_path_checks_ranges_before_writing(tmp_path):
 
 def test_the_buffer_must_hold_a_batch_and_the_warm_up_and_may_equal_them(tmp_path):
     config = td3.default_config("rl_jax/Pendulum-v1", learning_starts=1000, batch_size=256)
-    too_small = validation.buffer_too_small
+
+    def too_small(config, algorithm=td3):
+        return validation.buffer_too_small(config, algorithm)
+
     assert too_small(dataclasses.replace(config, buffer_size=1000)) is None
     assert "must be >= 1000 " in too_small(dataclasses.replace(config, buffer_size=999))
     no_warm_up = dataclasses.replace(config, learning_starts=0)
     assert too_small(dataclasses.replace(no_warm_up, buffer_size=256)) is None
     assert "must be >= 256 " in too_small(dataclasses.replace(no_warm_up, buffer_size=255))
-    assert too_small(reinforce.default_config("rl_jax/CartPole-v1")) is None  # no buffer
+    # no buffer: reinforce's hooks say so
+    assert too_small(reinforce.default_config("rl_jax/CartPole-v1"), reinforce) is None
     # The Python API path (runner.prepare) refuses it too, before anything is written.
     out = tmp_path / "run"
     spec = _spec([td3.default_hyperparams("rl_jax/Pendulum-v1")], out)
