@@ -327,6 +327,7 @@ class MujocoEnv(Environment[MujocoState, Any]):
         action = jnp.asarray(action, jnp.float32)
         physics, measurement = self.physics.step(state.physics, action, active)
         if self.remembers:
+            assert isinstance(state, RememberingState)  # _state makes one when the env remembers
             extras = {**measurement.extras, REMEMBERED_KEY: state.memory}
             measurement = measurement._replace(extras=extras)
         obs = self.observe(measurement)
@@ -362,13 +363,15 @@ class MujocoEnv(Environment[MujocoState, Any]):
         """Observation at the model's default pose (host-side float64 forward pass)."""
         data = mujoco.MjData(self.model)
         mujoco.mj_forward(self.model, data)
-        as32 = lambda x: np.asarray(x, np.float32)
-        extras = {name: as32(extra_field(name, data, np)) for name in self.extras}
-        qpos, qvel = as32(data.qpos), as32(data.qvel)
-        measurement = Measurement(qpos, qvel, np.zeros_like(qpos), extras, np.bool_(False))
         # Envs may be built while a learner's init is traced (jax.eval_shape of the state):
         # computed eagerly, this stays a constant instead of becoming a tracer.
         with jax.ensure_compile_time_eval():
+            # float32 jax arrays, as the measurement of a step holds
+            as32 = lambda x: jnp.asarray(np.asarray(x, np.float32))
+            extras = {name: as32(extra_field(name, data, np)) for name in self.extras}
+            qpos, qvel = as32(data.qpos), as32(data.qvel)
+            diverged = jnp.zeros((), jnp.bool_)
+            measurement = Measurement(qpos, qvel, jnp.zeros_like(qpos), extras, diverged)
             self._initial_memory = np.asarray(self.remember(measurement), np.float32)
             return np.asarray(self.observe(measurement), np.float32)
 
@@ -390,7 +393,8 @@ class MujocoEnv(Environment[MujocoState, Any]):
         key_qpos, key_qvel = jax.random.split(key)
         scale = params.reset_noise_scale
         nq, nv = self._init_qpos.shape[0], self.model.nv
-        qpos = self._init_qpos + jax.random.uniform(key_qpos, (nq,), jnp.float32, -scale, scale)
+        noise = jax.random.uniform(key_qpos, (nq,), jnp.float32, -scale, scale)
+        qpos = jnp.asarray(self._init_qpos) + noise
         if self.qvel_noise == "uniform":
             qvel = jax.random.uniform(key_qvel, (nv,), jnp.float32, -scale, scale)
         else:

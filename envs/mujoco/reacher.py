@@ -108,6 +108,6 @@ class Reacher(MujocoEnv):
         key_qpos, key_goal, key_qvel = jax.random.split(key, 3)
         nq, nv = self._init_qpos.shape[0], self.model.nv
         noise = jax.random.uniform(key_qpos, (nq,), jnp.float32, -_ARM_QPOS_NOISE, _ARM_QPOS_NOISE)
-        qpos = (self._init_qpos + noise).at[2:].set(sample_goal(key_goal))
+        qpos = (jnp.asarray(self._init_qpos) + noise).at[2:].set(sample_goal(key_goal))
         qvel = jax.random.uniform(key_qvel, (nv,), jnp.float32, -_ARM_QVEL_NOISE, _ARM_QVEL_NOISE)
         return qpos, qvel.at[2:].set(0.0)
