@@ -64,7 +64,7 @@ class Hopper(MujocoEnv):
         "reward_survive",
     )
     camera = {"trackbodyid": 2, "distance": 3.0, "lookat": (0.0, 0.0, 1.15), "elevation": -20.0}
-    params_type = HopperParams
+    params_type: type = HopperParams  # as MujocoEnv's: Walker2d, a subclass, sets its own
     qvel_noise = "uniform"
     current_positions = 1  # x
     range_keywords = {
