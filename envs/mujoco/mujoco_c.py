@@ -64,8 +64,8 @@ class MujocoCPhysics(Physics):
         if all(isinstance(p, np.ndarray | float | int) for p in parts):
             vector = np.concatenate([np.asarray(p, np.float64) for p in parts], axis=-1)
             return jnp.asarray(float64_to_bits(vector))
-        vector = jnp.concatenate([jnp.asarray(p, jnp.float32) for p in parts], axis=-1)
-        bits = float32_to_float64_bits(vector)
+        vector32 = jnp.concatenate([jnp.asarray(p, jnp.float32) for p in parts], axis=-1)
+        bits = float32_to_float64_bits(vector32)
         return bits.reshape(*bits.shape[:-2], 2 * bits.shape[-2])
 
     def to_numpy(self, state: Array) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
