@@ -309,7 +309,7 @@ class FatalIllegalActions(Environment):
 DISCRETE_ACTIONS = 5
 
 
-class _Discrete:
+class _Discrete(Probe):
     """Mixed in first: the probe with ``DISCRETE_ACTIONS`` discrete actions by default."""
 
     def __init__(self, num_actions: int | None = DISCRETE_ACTIONS):
