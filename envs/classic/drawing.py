@@ -32,8 +32,11 @@ class Canvas:
         """Height in pixels."""
         return self.pixels.shape[0]
 
-    def _window(self, low: Point, high: Point) -> tuple[slice, slice, np.ndarray, np.ndarray]:
-        """Rows/columns covering the box ``low..high``, with their pixel-centre coordinates."""
+    def _window(
+        self, low: Point | np.ndarray, high: Point | np.ndarray
+    ) -> tuple[slice, slice, np.ndarray, np.ndarray]:
+        """Rows/columns covering the box ``low..high`` (two points, or two arrays of ``(x, y)``),
+        with their pixel-centre coordinates."""
         x0 = int(np.clip(np.floor(low[0]), 0, self.width))
         x1 = int(np.clip(np.ceil(high[0]) + 1, 0, self.width))
         y0 = int(np.clip(np.floor(low[1]), 0, self.height))
