@@ -252,7 +252,11 @@ class GymnasiumEnv(gymnasium.Env):
         """The state as gymnasium's ``env.unwrapped.state`` vector (classic envs)."""
         if self._jax_state is None:
             return None
-        return np.asarray(self.jax_env.state_to_vector(self._jax_state))
+        # Only the classic envs define it (Environment does not): others have no ``state``.
+        to_vector = getattr(self.jax_env, "state_to_vector", None)
+        if to_vector is None:
+            raise AttributeError(f"{type(self.jax_env).__name__} has no state vector")
+        return np.asarray(to_vector(self._jax_state))
 
     @state.setter
     def state(self, vector: Any) -> None:

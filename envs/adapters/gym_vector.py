@@ -23,6 +23,7 @@ from rl_jax.envs.adapters.gym_adapter import (
     take_state_vector,
 )
 from rl_jax.envs.core import registry
+from rl_jax.envs.core.spaces import Discrete
 
 
 class GymnasiumVectorEnv(gymnasium.vector.VectorEnv):
@@ -177,8 +178,7 @@ class GymnasiumVectorEnv(gymnasium.vector.VectorEnv):
         if array.size != int(np.prod(expected)):
             raise ValueError(f"expected actions of shape {expected}, got {array.shape}")
         array = array.reshape(expected)
-        integer_space = np.issubdtype(np.dtype(space.dtype), np.integer)
-        if integer_space and (
+        if isinstance(space, Discrete) and (
             not np.issubdtype(array.dtype, np.integer) or array.min() < 0 or array.max() >= space.n
         ):
             raise ValueError(f"expected integer actions in [0, {space.n}), got {actions!r}")
