@@ -60,6 +60,9 @@ from rl_jax.envs.classic.drawing import Canvas
 from rl_jax.envs.core.core import Array, Environment, EnvParams, EnvState, PRNGKey
 from rl_jax.envs.core.spaces import Box
 
+#: A params field: a numpy float32 scalar as built, a jax array once jitted or vmapped.
+Float32 = Array | np.float32
+
 
 def _f32(value: float):
     return struct.field(default_factory=lambda: np.float32(value))
@@ -77,22 +80,23 @@ class RocketState(EnvState):
 class RocketParams(EnvParams):
     """The rocket's step length, goal and crash bounds and reward weights (vmappable)."""
 
-    dt: Array = _f32(0.01)  # seconds per agent step (one RK4 step)
-    goal_tolerance: Array = _f32(1e-8)  # |x| and |v| at most this: goal reached
-    bound: Array = _f32(2.0)  # |x| or |v| above this: crashed
-    away_penalty: Array = _f32(10.0)  # weight of |v| when moving away from the origin
-    approach_weight: Array = _f32(1.0)  # weight of 1 / (v^2 + 1) while not moving away
-    crash_penalty: Array = _f32(500.0)
-    goal_bonus: Array = _f32(500.0)  # paid once, on the step that reaches the goal box
-    goal_terminates: Array = _f32(1.0)  # 1: reaching the goal box ends the episode, 0: it does not
-    settle_bonus: Array = _f32(0.0)  # paid on every step that ends inside the goal box
-    precision_weight: Array = _f32(0.0)  # weight of exp(-(|x| + |v|) / precision_scale)
-    precision_scale: Array = _f32(0.05)
-    near_start_fraction: Array = _f32(0.0)  # share of resets near the goal (RocketSettle only)
-    near_start_range: Array = _f32(0.05)  # those start uniform in |x|, |v| <= this
+    dt: Float32 = _f32(0.01)  # seconds per agent step (one RK4 step)
+    goal_tolerance: Float32 = _f32(1e-8)  # |x| and |v| at most this: goal reached
+    bound: Float32 = _f32(2.0)  # |x| or |v| above this: crashed
+    away_penalty: Float32 = _f32(10.0)  # weight of |v| when moving away from the origin
+    approach_weight: Float32 = _f32(1.0)  # weight of 1 / (v^2 + 1) while not moving away
+    crash_penalty: Float32 = _f32(500.0)
+    goal_bonus: Float32 = _f32(500.0)  # paid once, on the step that reaches the goal box
+    # 1: reaching the goal box ends the episode, 0: it does not
+    goal_terminates: Float32 = _f32(1.0)
+    settle_bonus: Float32 = _f32(0.0)  # paid on every step that ends inside the goal box
+    precision_weight: Float32 = _f32(0.0)  # weight of exp(-(|x| + |v|) / precision_scale)
+    precision_scale: Float32 = _f32(0.05)
+    near_start_fraction: Float32 = _f32(0.0)  # share of resets near the goal (RocketSettle only)
+    near_start_range: Float32 = _f32(0.05)  # those start uniform in |x|, |v| <= this
 
 
-def rk4_step(state: Array, thrust: Array, dt: Array) -> Array:
+def rk4_step(state: Array, thrust: Array, dt: Float32) -> Array:
     """One classical RK4 step of ``d/dt (x, v) = (v, u)`` with ``u`` held over the step.
 
     For this system RK4 is exact up to rounding (the solution is a quadratic in t).
@@ -108,7 +112,7 @@ def rk4_step(state: Array, thrust: Array, dt: Array) -> Array:
     return state + dt / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
 
 
-def in_goal_box(x: Array, v: Array, tolerance: float | Array) -> Array:
+def in_goal_box(x: Array, v: Array, tolerance: float | Float32) -> Array:
     """Whether ``(x, v)`` lies inside the goal box ``|x|, |v| <= tolerance``."""
     return (jnp.abs(x) <= tolerance) & (jnp.abs(v) <= tolerance)
 
