@@ -192,11 +192,11 @@ def make_network(config: Config) -> ActorCritic:
     return ActorCritic(
         hidden=config.hidden,
         action_dim=1 if discrete else space.shape[0],
-        num_actions=space.n if discrete else None,
+        num_actions=space.n if isinstance(space, envs.Discrete) else None,
         activation=config.activation,
         initial_std=config.initial_std,
         conv_layers=conv_layers,
-        conv_rows=config.conv_rows() if conv_layers else (),
+        conv_rows=config.conv_rows() if isinstance(config, PixelConfig) and conv_layers else (),
     )
 
 

@@ -243,7 +243,8 @@ def value(
     net: ActorCritic, params: Params, obs_stats: RunningStats | None, obs: jax.Array
 ) -> jax.Array:
     """The critic alone on (standardised) observations: ``[...]``."""
-    return net.apply(params, normalization.normalize(obs_stats, obs), method=ActorCritic.value)
+    values = net.apply(params, normalization.normalize(obs_stats, obs), method=ActorCritic.value)
+    return cast(jax.Array, values)
 
 
 def sample_action(policy: dict[str, jax.Array], key: jax.Array) -> jax.Array:

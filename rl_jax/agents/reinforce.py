@@ -128,7 +128,7 @@ def make_network(config: Config) -> networks.StochasticPolicy:
     return networks.StochasticPolicy(
         hidden=config.hidden,
         action_dim=1 if discrete else space.shape[0],
-        num_actions=space.n if discrete else None,
+        num_actions=space.n if isinstance(space, envs.Discrete) else None,
         std_floor=config.std_floor,
         value=config.baseline == "value",
         activation=config.activation,
