@@ -188,10 +188,10 @@ def choose(line: CommandLine, algorithm: Algorithm | None, env_id: str | None) -
         assert record is not None and line.resume is not None  # checked above
         algorithm = learners.for_run(record, line.resume, how="--algo")
     env_name = env_id or line.env
-    if record is not None:  # after the learner, whose module may register the run's env
+    if record is not None and line.resume is not None:  # after the learner, which may register it
         env_name = recorded_env(record["identity"]["env_id"], line.resume, env_name, "--env")
     given = env_name is not None
-    env = envs.core.registry.resolve_id(env_name if given else help_env(algorithm))
+    env = envs.core.registry.resolve_id(env_name if env_name is not None else help_env(algorithm))
     recipe = recipe_choice.recipe_named(algorithm, env, name, record is not None)
     return Choice(algorithm, env, recipe, True, given, record)
 

@@ -68,7 +68,7 @@ def seed_keys(seeds: Sequence[int]) -> jax.Array:
 def state_axes(state: TrainState) -> Axes:
     """vmap axes for a train state: 0 everywhere, ``None`` for the shared ``clock``."""
     axes = jax.tree.map(lambda _: 0, state)
-    if isinstance(state, SharesClock) and dataclasses.is_dataclass(axes):
+    if isinstance(state, SharesClock):
         axes = dataclasses.replace(axes, **{SHARED_FIELD: None})
     return axes
 

@@ -126,7 +126,9 @@ def dataclass_from_dict(template: D, values: dict[str, Any]) -> D:
     recorded before it went still load; at another value it is an error that says where the
     setting went."""
     values = dict(values)
-    retired = template.RETIRED if isinstance(template, RetiresFields) else {}
+    retired: Mapping[str, tuple[object, str]] = (
+        template.RETIRED if isinstance(template, RetiresFields) else {}
+    )
     for name, (off, moved) in retired.items():
         if name in values and not _same(values.pop(name), off):
             raise RunError(f"this run set {name}, which {moved}: it cannot be continued here")

@@ -24,7 +24,7 @@ from typing import TYPE_CHECKING, NamedTuple
 import numpy as np
 
 from rl_jax.errors import RunError
-from rl_jax.training.algorithm import Algorithm, Config, hooks
+from rl_jax.training.algorithm import Algorithm, hooks
 
 if TYPE_CHECKING:
     from _typeshed import DataclassInstance
@@ -127,7 +127,7 @@ def out_of_range(instance: DataclassInstance, algorithm: Algorithm | None = None
     return None
 
 
-def buffer_too_small(config: Config, algorithm: Algorithm) -> str | None:
+def buffer_too_small(config: DataclassInstance, algorithm: Algorithm) -> str | None:
     """The one-line message when a config's replay buffer (the ``replay_capacity`` hook) is smaller
     than a batch (``replay_batch``) or than the random warm-up (``warm_up_steps``); None otherwise.
 
