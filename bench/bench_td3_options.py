@@ -106,7 +106,7 @@ def update_gflop(config: Any, learner_name: str = "td3") -> float:
     import jax
     import jax.numpy as jnp
 
-    from rl_jax.run.cli import resolve_algorithm
+    from rl_jax.run.learners import resolve as resolve_algorithm
 
     learner = resolve_algorithm(learner_name)
     module = importlib.import_module(type(learner).__module__)
@@ -125,7 +125,7 @@ def worker(recipe: dict[str, Any], chunks: int) -> dict[str, Any]:
     the end of each chunk (from two chunk lengths: the time per iteration is the difference of
     their chunk times over the difference of their iterations), and its update's FLOPs."""
     from bench import cheetah_recipe
-    from rl_jax.run.cli import resolve_algorithm
+    from rl_jax.run.learners import resolve as resolve_algorithm
 
     short = recipe["iterations_per_chunk"]
     runs = [

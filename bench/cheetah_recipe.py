@@ -46,7 +46,7 @@ def make_runner(recipe: dict[str, Any], seeds: int, hparam_sets: int = 1) -> tup
     """``(runner, state, hparams, config)`` for ``seeds`` x ``hparam_sets`` runs of a recipe
     (hyperparameter sets identical: the grid benchmark measures cost, not learning); the
     recipe's ``"learner"`` (default ``"td3"``) names its learner."""
-    from rl_jax.run.cli import resolve_algorithm
+    from rl_jax.run.learners import resolve as resolve_algorithm
     from rl_jax.training import episodes, parallel, params
 
     # JSON gives lists; the static config must be hashable (it keys the compiled program)

@@ -49,7 +49,7 @@ def tree_bytes(tree: object) -> int:
 
 def run_bytes(name: str, algorithm_name: str, env_id: str, recipe: str | None = None) -> RunBytes:
     """The sizes of one run of ``algorithm_name`` on ``env_id`` under ``recipe``."""
-    from rl_jax.run.cli import resolve_algorithm
+    from rl_jax.run.learners import resolve as resolve_algorithm
 
     algorithm = resolve_algorithm(algorithm_name)
     config, hparams = recipe_settings(algorithm, env_id, hooks(algorithm).recipe(env_id, recipe))

@@ -25,9 +25,10 @@ from typing import NoReturn
 from rl_jax.errors import UsageError, exit_now
 from rl_jax.run import command, distributed, processes, runner
 from rl_jax.run.command import Defaults, program
+from rl_jax.run.learners import resolve as resolve_algorithm
 from rl_jax.training.algorithm import Algorithm
 
-__all__ = ["Defaults", "UsageError", "main", "program", "run_experiment"]
+__all__ = ["Defaults", "UsageError", "main", "program", "resolve_algorithm", "run_experiment"]
 
 
 def run_experiment(

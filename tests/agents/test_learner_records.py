@@ -24,7 +24,7 @@ import jax
 import numpy as np
 import pytest
 
-from rl_jax.run.cli import resolve_algorithm
+from rl_jax.run.learners import resolve as resolve_algorithm
 from rl_jax.training import jax_setup, parallel, params
 
 RECORDS = Path(__file__).resolve().parents[1] / "data" / "learner_records.json"
