@@ -161,7 +161,9 @@ class Environment(Generic[StateT, ParamsT]):
         new_state, timestep = self.step(key, state, action, params)
         return keep_active(active, new_state, state), timestep
 
-    def _timestep(self, state: StateT, obs, reward, terminated, info) -> tuple[StateT, TimeStep]:
+    def _timestep(
+        self, state: StateT, obs: Array, reward: Array, terminated: Array, info: dict[str, Array]
+    ) -> tuple[StateT, TimeStep]:
         truncated = state.time >= self.max_episode_steps
         timestep = TimeStep(
             obs=obs,

@@ -42,7 +42,7 @@ import jax.numpy as jnp
 import numpy as np
 from flax import struct
 
-from rl_jax.envs.core.core import Array, Environment, TimeStep
+from rl_jax.envs.core.core import Array, Environment, EnvParams, PRNGKey, TimeStep
 from rl_jax.envs.core.spaces import Box, Discrete, Space
 from rl_jax.envs.core.wrappers import (
     ACTION_MASK,
@@ -142,7 +142,7 @@ class FrameStack(SameLimit):
         self.axis = axis
         self._space = space
 
-    def observation_space(self, params=None) -> Space:
+    def observation_space(self, params: EnvParams | None = None) -> Space:
         """The wrapped env's box, ``stack_size`` times along ``axis``."""
         low = np.stack([self._space.low] * self.stack_size, axis=self.axis)
         high = np.stack([self._space.high] * self.stack_size, axis=self.axis)
@@ -160,26 +160,34 @@ class FrameStack(SameLimit):
         frames = jnp.concatenate([before, ts.obs[None]], axis=0)
         return FrameStackState(env_state, frames), ts._replace(obs=self._stacked(frames))
 
-    def reset(self, key, params=None):
+    def reset(self, key: PRNGKey, params: EnvParams | None = None):
         """Reset the env; the stack is its first observation after the padding."""
         return self._start(*self.env.reset(key, params))
 
-    def reset_to(self, vector, params=None):
+    def reset_to(self, vector: Array, params: EnvParams | None = None):
         """Start the env from an exact state, padded as a reset is."""
         return self._start(*self.env.reset_to(vector, params))
 
-    def reset_after(self, key, state: FrameStackState, timestep: TimeStep, params=None):
+    def reset_after(
+        self,
+        key: PRNGKey,
+        state: FrameStackState,
+        timestep: TimeStep,
+        params: EnvParams | None = None,
+    ):
         """The env's ``reset_after``, with the stack padded as after a reset."""
         inner = timestep._replace(obs=state.frames[-1])
         return self._start(*reset_after(self.env, key, state.env_state, inner, params))
 
-    def step(self, key, state: FrameStackState, action, params=None):
+    def step(
+        self, key: PRNGKey, state: FrameStackState, action: Array, params: EnvParams | None = None
+    ):
         """Step the env; the oldest observation leaves the stack and the new one joins it."""
         env_state, ts = self.env.step(key, state.env_state, action, params)
         frames = jnp.concatenate([state.frames[1:], ts.obs[None]], axis=0)
         return FrameStackState(env_state, frames), ts._replace(obs=self._stacked(frames))
 
-    def render(self, state: FrameStackState, params=None):
+    def render(self, state: FrameStackState, params: EnvParams | None = None):
         """RGB frame of the wrapped env's state."""
         return self.env.render(state.env_state, params)
 
@@ -220,13 +228,16 @@ class FrameSkip(Wrapper):
         if "skip" in self.__dict__:
             self.env.max_episode_steps = value * self.skip
 
-    def step(self, key, state, action, params=None):
+    def step(self, key: PRNGKey, state: object, action: Array, params: EnvParams | None = None):
         """Play ``action`` for up to ``skip`` frames; returns the step's state and timestep."""
         keys = jax.random.split(key, self.skip)
         state, ts = self.env.step(keys[0], state, action, params)
         first = (state, ts.obs, ts.obs, ts.reward, ts.terminated, ts.truncated, ts.info)
 
-        def frame(carry, frame_key):
+        def frame(
+            carry: tuple[object, Array, Array, Array, Array, Array, dict[str, Array]],
+            frame_key: PRNGKey,
+        ):
             state, last, before_last, reward, terminated, truncated, info = carry
             active = ~(terminated | truncated)
             state, ts = self.env.step_active(frame_key, state, action, active, params)
@@ -294,19 +305,23 @@ class StickyActions(SameLimit):
         has_last = jnp.asarray(self.reset_action is not None)
         return StickyState(env_state, last, has_last), ts
 
-    def reset(self, key, params=None):
+    def reset(self, key: PRNGKey, params: EnvParams | None = None):
         """Reset the env; the previous action is ``reset_action`` (by default none)."""
         return self._start(*self.env.reset(key, params))
 
-    def reset_to(self, vector, params=None):
+    def reset_to(self, vector: Array, params: EnvParams | None = None):
         """Start the env from an exact state, with the previous action as after a reset."""
         return self._start(*self.env.reset_to(vector, params))
 
-    def reset_after(self, key, state: StickyState, timestep: TimeStep, params=None):
+    def reset_after(
+        self, key: PRNGKey, state: StickyState, timestep: TimeStep, params: EnvParams | None = None
+    ):
         """The env's ``reset_after``, with the previous action as after a reset."""
         return self._start(*reset_after(self.env, key, state.env_state, timestep, params))
 
-    def step(self, key, state: StickyState, action, params=None):
+    def step(
+        self, key: PRNGKey, state: StickyState, action: Array, params: EnvParams | None = None
+    ):
         """Execute the previous action with the sticky probability, else ``action``."""
         stick_key, env_key = jax.random.split(key)
         stuck = state.has_last & (jax.random.uniform(stick_key) < self.repeat_action_probability)
@@ -315,7 +330,7 @@ class StickyActions(SameLimit):
         env_state, ts = self.env.step(env_key, state.env_state, executed, params)
         return StickyState(env_state, executed, jnp.asarray(True)), ts
 
-    def render(self, state: StickyState, params=None):
+    def render(self, state: StickyState, params: EnvParams | None = None):
         """RGB frame of the wrapped env's state."""
         return self.env.render(state.env_state, params)
 
@@ -329,7 +344,7 @@ class TransformReward(SameLimit):
         super().__init__(env)
         self.func = func
 
-    def step(self, key, state, action, params=None):
+    def step(self, key: PRNGKey, state: object, action: Array, params: EnvParams | None = None):
         """Step the env and transform its reward."""
         state, ts = self.env.step(key, state, action, params)
         return state, ts._replace(reward=jnp.asarray(self.func(ts.reward), jnp.float32))
@@ -393,15 +408,21 @@ class EpisodicLife(SameLimit):
         lives = jnp.asarray(ts.info[LIVES], jnp.int32)
         return EpisodicLifeState(env_state, lives, jnp.asarray(False)), ts
 
-    def reset(self, key, params=None):
+    def reset(self, key: PRNGKey, params: EnvParams | None = None):
         """Reset the env: a new game."""
         return self._start(*self.env.reset(key, params))
 
-    def reset_to(self, vector, params=None):
+    def reset_to(self, vector: Array, params: EnvParams | None = None):
         """Start a new game from an exact state."""
         return self._start(*self.env.reset_to(vector, params))
 
-    def reset_after(self, key, state: EpisodicLifeState, timestep: TimeStep, params=None):
+    def reset_after(
+        self,
+        key: PRNGKey,
+        state: EpisodicLifeState,
+        timestep: TimeStep,
+        params: EnvParams | None = None,
+    ):
         """Go on from ``state`` after a lost life (``timestep``'s obs and info, reward 0, both
         flags False); after the game's end, the env's own ``reset_after``: a new game."""
         zero = jnp.zeros((), jnp.bool_)
@@ -411,7 +432,9 @@ class EpisodicLife(SameLimit):
         new_game = self._start(*reset_after(self.env, key, state.env_state, timestep, params))
         return _select(state.game_over, new_game, (state, going_on))
 
-    def step(self, key, state: EpisodicLifeState, action, params=None):
+    def step(
+        self, key: PRNGKey, state: EpisodicLifeState, action: Array, params: EnvParams | None = None
+    ):
         """Step the env; a life lost terminates the learner's episode, not the game."""
         env_state, ts = self.env.step(key, state.env_state, action, params)
         lives = jnp.asarray(ts.info[LIVES], jnp.int32)
@@ -419,6 +442,6 @@ class EpisodicLife(SameLimit):
         terminated = ts.terminated | (lives < state.lives)
         return EpisodicLifeState(env_state, lives, game_over), ts._replace(terminated=terminated)
 
-    def render(self, state: EpisodicLifeState, params=None):
+    def render(self, state: EpisodicLifeState, params: EnvParams | None = None):
         """RGB frame of the wrapped env's state."""
         return self.env.render(state.env_state, params)

@@ -14,7 +14,7 @@ import jax.numpy as jnp
 import numpy as np
 from flax import struct
 
-from rl_jax.envs.core.core import Array, Environment, PRNGKey, TimeStep
+from rl_jax.envs.core.core import Array, Environment, EnvParams, ParamsT, PRNGKey, StateT, TimeStep
 from rl_jax.envs.core.spaces import Box, Discrete, Space
 
 ACTION_MASK = "action_mask"  # info key: bool [n], the legal actions of the timestep's obs
@@ -35,7 +35,7 @@ def reset_after(
     return env.reset_after(key, state, timestep, params)  # type: ignore[attr-defined]
 
 
-class Wrapper(Environment):
+class Wrapper(Environment[StateT, ParamsT]):
     """Delegates everything to the wrapped env; subclasses override what they change."""
 
     def __init__(self, env: Environment):
@@ -59,11 +59,11 @@ class Wrapper(Environment):
         """The wrapped env's default params."""
         return self.env.default_params
 
-    def observation_space(self, params=None) -> Space:
+    def observation_space(self, params: ParamsT | None = None) -> Space:
         """The wrapped env's observation space (wrappers that change observations override this)."""
         return self.env.observation_space(params)
 
-    def action_space(self, params=None) -> Space:
+    def action_space(self, params: ParamsT | None = None) -> Space:
         """The wrapped env's action space (wrappers that change actions override this)."""
         return self.env.action_space(params)
 
@@ -71,15 +71,17 @@ class Wrapper(Environment):
         """The wrapped env's reset info: same keys, shapes and dtypes as its step info."""
         return self.env.empty_info()
 
-    def reset(self, key, params=None):
+    def reset(self, key: PRNGKey, params: ParamsT | None = None):
         """Reset the wrapped env; returns ``(state, timestep)``."""
         return self.env.reset(key, params)
 
-    def step(self, key, state, action, params=None):
+    def step(self, key: PRNGKey, state: StateT, action: Array, params: ParamsT | None = None):
         """Step the wrapped env; returns ``(state, timestep)``."""
         return self.env.step(key, state, action, params)
 
-    def reset_after(self, key, state, timestep: TimeStep, params=None):
+    def reset_after(
+        self, key: PRNGKey, state: StateT, timestep: TimeStep, params: ParamsT | None = None
+    ):
         """The start after an episode that ended in ``state`` (``reset_after``): the wrapped
         env's, which may continue a game after a lost life, where this wrapper keeps the env's
         state and reset as they are; else this wrapper's own ``reset``. A wrapper that changes
@@ -88,11 +90,11 @@ class Wrapper(Environment):
             return self.reset(key, params)
         return reset_after(self.env, key, state, timestep, params)
 
-    def reset_to(self, vector, params=None):
+    def reset_to(self, vector: Array, params: ParamsT | None = None):
         """Start the wrapped env from an exact state vector (``Environment.reset_to``)."""
         return self.env.reset_to(vector, params)
 
-    def render(self, state, params=None):
+    def render(self, state: StateT, params: ParamsT | None = None):
         """RGB frame of the wrapped env's state."""
         return self.env.render(state, params)
 
@@ -132,25 +134,27 @@ class AutoReset(Wrapper):
         return info
 
     @staticmethod
-    def _first(state, ts: TimeStep):
+    def _first(state: object, ts: TimeStep):
         info = {**ts.info, "final_obs": ts.obs}
         if ACTION_MASK in info:
             info[FINAL_ACTION_MASK] = info[ACTION_MASK]
         return state, ts._replace(info=info)
 
-    def reset(self, key, params=None):
+    def reset(self, key: PRNGKey, params: EnvParams | None = None):
         """Reset; ``info["final_obs"]`` is the first observation itself."""
         return self._first(*self.env.reset(key, params))
 
-    def reset_to(self, vector, params=None):
+    def reset_to(self, vector: Array, params: EnvParams | None = None):
         """Start from an exact state; ``info["final_obs"]`` is the first observation itself."""
         return self._first(*self.env.reset_to(vector, params))
 
-    def reset_after(self, key, state, timestep: TimeStep, params=None):
+    def reset_after(
+        self, key: PRNGKey, state: object, timestep: TimeStep, params: EnvParams | None = None
+    ):
         """The wrapped env's ``reset_after``, with ``final_obs`` its first observation."""
         return self._first(*reset_after(self.env, key, state, timestep, params))
 
-    def step(self, key, state, action, params=None):
+    def step(self, key: PRNGKey, state: object, action: Array, params: EnvParams | None = None):
         """Step, and where the episode ended (terminated or truncated) start a new one at once.
 
         The returned ``obs`` is then the new episode's first observation, while
@@ -208,25 +212,33 @@ class EpisodeStatistics(Wrapper):
             "episode_done": jnp.zeros((), jnp.bool_),
         }
 
-    def _wrap(self, env_state, ts: TimeStep) -> tuple[StatisticsState, TimeStep]:
+    def _wrap(self, env_state: object, ts: TimeStep) -> tuple[StatisticsState, TimeStep]:
         zero_f, zero_i = jnp.zeros((), jnp.float32), jnp.zeros((), jnp.int32)
         state = StatisticsState(env_state, zero_f, zero_i, zero_f, zero_i)
         info = {**ts.info, "episode_return": zero_f, "episode_length": zero_i}
         return state, ts._replace(info={**info, "episode_done": jnp.zeros((), jnp.bool_)})
 
-    def reset(self, key, params=None):
+    def reset(self, key: PRNGKey, params: EnvParams | None = None):
         """Reset the wrapped env with zeroed episode totals."""
         return self._wrap(*self.env.reset(key, params))
 
-    def reset_to(self, vector, params=None):
+    def reset_to(self, vector: Array, params: EnvParams | None = None):
         """Start the wrapped env from an exact state, with zeroed episode totals."""
         return self._wrap(*self.env.reset_to(vector, params))
 
-    def reset_after(self, key, state: StatisticsState, timestep: TimeStep, params=None):
+    def reset_after(
+        self,
+        key: PRNGKey,
+        state: StatisticsState,
+        timestep: TimeStep,
+        params: EnvParams | None = None,
+    ):
         """The wrapped env's ``reset_after``, with zeroed episode totals."""
         return self._wrap(*reset_after(self.env, key, state.env_state, timestep, params))
 
-    def step(self, key, state: StatisticsState, action, params=None):
+    def step(
+        self, key: PRNGKey, state: StatisticsState, action: Array, params: EnvParams | None = None
+    ):
         """Step and add the reward to the running totals.
 
         On the step that ends an episode, ``info`` reports its return and length with
@@ -252,7 +264,7 @@ class EpisodeStatistics(Wrapper):
         }
         return new_state, ts._replace(info=info)
 
-    def render(self, state: StatisticsState, params=None):
+    def render(self, state: StatisticsState, params: EnvParams | None = None):
         """RGB frame of the wrapped env's state."""
         return self.env.render(state.env_state, params)
 
@@ -272,7 +284,7 @@ class RescaleAction(Wrapper):
         self._low = np.asarray(space.low, np.float32)
         self._high = np.asarray(space.high, np.float32)
 
-    def action_space(self, params=None) -> Space:
+    def action_space(self, params: EnvParams | None = None) -> Space:
         """The box [-1, 1] in every action dimension."""
         shape = self._low.shape
         return Box(-np.ones(shape, np.float32), np.ones(shape, np.float32), shape)
@@ -284,7 +296,7 @@ class RescaleAction(Wrapper):
         low = jnp.asarray(self._low)
         return low + (jnp.asarray(action, jnp.float32) + 1.0) * 0.5 * (self._high - self._low)
 
-    def step(self, key, state, action, params=None):
+    def step(self, key: PRNGKey, state: object, action: Array, params: EnvParams | None = None):
         """Step the wrapped env with the action mapped from [-1, 1] onto its bounds."""
         return self.env.step(key, state, self.to_env_action(action), params)
 
@@ -320,7 +332,7 @@ class DiscretizeActions(Wrapper):
         """``[n, *action_shape]``: the continuous action each index stands for."""
         return self._table
 
-    def action_space(self, params=None) -> Space:
+    def action_space(self, params: EnvParams | None = None) -> Space:
         """A ``Discrete`` space with one action per row of the action table."""
         return Discrete(self._table.shape[0])
 
@@ -328,7 +340,7 @@ class DiscretizeActions(Wrapper):
         """The continuous action (row of the table) that a discrete action index stands for."""
         return jnp.asarray(self._table)[jnp.asarray(action, jnp.int32)]
 
-    def step(self, key, state, action, params=None):
+    def step(self, key: PRNGKey, state: object, action: Array, params: EnvParams | None = None):
         """Step the wrapped env with the continuous action the discrete index stands for."""
         return self.env.step(key, state, self.to_env_action(action), params)
 
@@ -336,7 +348,7 @@ class DiscretizeActions(Wrapper):
 class FlattenObservation(Wrapper):
     """Reshapes observations (and ``info["final_obs"]`` if present) to one dimension."""
 
-    def observation_space(self, params=None) -> Space:
+    def observation_space(self, params: EnvParams | None = None) -> Space:
         """The wrapped env's observation box flattened to one dimension."""
         space = self.env.observation_space(params)
         if not isinstance(space, Box):
@@ -356,24 +368,26 @@ class FlattenObservation(Wrapper):
             info["final_obs"] = info["final_obs"].reshape(-1)
         return info
 
-    def reset(self, key, params=None):
+    def reset(self, key: PRNGKey, params: EnvParams | None = None):
         """Reset with a flattened observation."""
         state, ts = self.env.reset(key, params)
         return state, self._flatten(ts)
 
-    def reset_to(self, vector, params=None):
+    def reset_to(self, vector: Array, params: EnvParams | None = None):
         """Start from an exact state, with a flattened observation."""
         state, ts = self.env.reset_to(vector, params)
         return state, self._flatten(ts)
 
-    def reset_after(self, key, state, timestep: TimeStep, params=None):
+    def reset_after(
+        self, key: PRNGKey, state: object, timestep: TimeStep, params: EnvParams | None = None
+    ):
         """The wrapped env's ``reset_after`` (given the observation in its shape), flattened."""
         shape = self.env.observation_space(params).shape
         inner = timestep._replace(obs=timestep.obs.reshape(shape))
         state, ts = reset_after(self.env, key, state, inner, params)
         return state, self._flatten(ts)
 
-    def step(self, key, state, action, params=None):
+    def step(self, key: PRNGKey, state: object, action: Array, params: EnvParams | None = None):
         """Step with a flattened observation (and ``final_obs``)."""
         state, ts = self.env.step(key, state, action, params)
         return state, self._flatten(ts)
@@ -419,7 +433,7 @@ class MaskObservation(SameLimit):
         self._kept = np.zeros(size, np.bool_)
         self._kept[list(self.keep)] = True
 
-    def observation_space(self, params=None) -> Space:
+    def observation_space(self, params: EnvParams | None = None) -> Space:
         """The kept entries' bounds (or, with ``zero_others``, the wrapped env's space)."""
         space = self.env.observation_space(params)
         if self.zero_others or not isinstance(space, Box):
@@ -439,22 +453,24 @@ class MaskObservation(SameLimit):
             return info
         return {**info, "final_obs": self.mask(info["final_obs"])}
 
-    def _masked(self, state, ts: TimeStep):
+    def _masked(self, state: object, ts: TimeStep):
         return state, ts._replace(obs=self.mask(ts.obs), info=self._mask_info(ts.info))
 
     def empty_info(self) -> dict[str, Array]:
         """The wrapped env's reset info, with ``final_obs`` (if any) masked too."""
         return self._mask_info(dict(self.env.empty_info()))
 
-    def reset(self, key, params=None):
+    def reset(self, key: PRNGKey, params: EnvParams | None = None):
         """Reset; the learner sees the masked first observation."""
         return self._masked(*self.env.reset(key, params))
 
-    def reset_to(self, vector, params=None):
+    def reset_to(self, vector: Array, params: EnvParams | None = None):
         """Start from an exact state of the wrapped env; the observation is masked."""
         return self._masked(*self.env.reset_to(vector, params))
 
-    def reset_after(self, key, state, timestep: TimeStep, params=None):
+    def reset_after(
+        self, key: PRNGKey, state: object, timestep: TimeStep, params: EnvParams | None = None
+    ):
         """The wrapped env's ``reset_after``, masked. It gets the observation in its own shape
         with the kept entries in place and zeros for the others (which the mask drops again)."""
         size = self._kept.shape[0]
@@ -466,10 +482,17 @@ class MaskObservation(SameLimit):
         inner = timestep._replace(obs=obs)
         return self._masked(*reset_after(self.env, key, state, inner, params))
 
-    def step(self, key, state, action, params=None):
+    def step(self, key: PRNGKey, state: object, action: Array, params: EnvParams | None = None):
         """Step the wrapped env; the observation (and ``final_obs``) is masked."""
         return self._masked(*self.env.step(key, state, action, params))
 
-    def step_active(self, key, state, action, active, params=None):
+    def step_active(
+        self,
+        key: PRNGKey,
+        state: object,
+        action: Array,
+        active: Array,
+        params: EnvParams | None = None,
+    ):
         """The wrapped env's ``step_active`` (which may skip the inactive envs' work), masked."""
         return self._masked(*self.env.step_active(key, state, action, active, params))
