@@ -36,7 +36,7 @@ import jax.numpy as jnp
 import numpy as np
 from flax import struct
 
-from rl_jax.envs.core.core import Array, Environment, EnvParams, EnvState, float32_field
+from rl_jax.envs.core.core import Array, Environment, EnvParams, EnvState, PRNGKey, float32_field
 from rl_jax.envs.core.preprocessing import ACTION_MASK
 from rl_jax.envs.core.registry import register
 from rl_jax.envs.core.spaces import Box, Discrete, Space
@@ -56,7 +56,7 @@ class ProbeParams(EnvParams):
     pass
 
 
-class Probe(Environment):
+class Probe(Environment[ProbeState, ProbeParams]):
     """Shared plumbing: a scalar position observed as ``(1,)``, continuous or discrete actions."""
 
     max_episode_steps = 1
@@ -71,11 +71,11 @@ class Probe(Environment):
         """The empty params of every probe."""
         return ProbeParams()
 
-    def observation_space(self, params=None) -> Space:
+    def observation_space(self, params: ProbeParams | None = None) -> Space:
         """One observation value in [-1, 1]."""
         return Box(-1.0, 1.0, (1,))
 
-    def action_space(self, params=None) -> Space:
+    def action_space(self, params: ProbeParams | None = None) -> Space:
         """One action in [-1, 1], or ``Discrete(num_actions)`` for a discrete probe."""
         if self.num_actions is None:
             return Box(-1.0, 1.0, (1,))
@@ -92,17 +92,23 @@ class Probe(Environment):
         """The first observation value of an episode (0 unless a probe overrides it)."""
         return jnp.zeros((), jnp.float32)
 
-    def reset_env(self, key, params):
+    def reset_env(self, key: PRNGKey, params: ProbeParams):
         """Start at ``start_position``; the observation is that value."""
         position = self.start_position(key)
         return ProbeState(time=jnp.int32(0), position=position), position[None]
 
-    def state_from_vector(self, vector, params=None):
+    def state_from_vector(self, vector: Array, params: ProbeParams | None = None):
         """Start at the one observation value given in ``vector``."""
         position = jnp.asarray(vector, jnp.float32).reshape(())
         return ProbeState(time=jnp.int32(0), position=position), position[None]
 
-    def _next(self, state: ProbeState, position: Array, reward: Array, terminated: bool | Array):
+    def _next(
+        self,
+        state: ProbeState,
+        position: float | Array,
+        reward: float | Array,
+        terminated: bool | Array,
+    ):
         next_state = ProbeState(time=state.time + 1, position=jnp.asarray(position, jnp.float32))
         terminated = jnp.asarray(terminated, jnp.bool_)
         return next_state, next_state.position[None], jnp.asarray(reward, jnp.float32), terminated
@@ -111,7 +117,7 @@ class Probe(Environment):
 class ConstantReward(Probe):
     """One step, reward 1, terminal. Q(s, a) = 1 for every action."""
 
-    def step_env(self, key, state, action, params):
+    def step_env(self, key: PRNGKey, state: ProbeState, action: Array, params: ProbeParams):
         """Reward 1, then the episode terminates."""
         return (*self._next(state, 0.0, 1.0, True), {})
 
@@ -121,7 +127,7 @@ class ActionReward(Probe):
 
     best_action = 0.5
 
-    def step_env(self, key, state, action, params):
+    def step_env(self, key: PRNGKey, state: ProbeState, action: Array, params: ProbeParams):
         """Reward ``1 - (action - best_action)^2``, then the episode terminates."""
         reward = 1.0 - (self.action_value(action) - self.best_action) ** 2
         return (*self._next(state, 0.0, reward, True), {})
@@ -132,7 +138,7 @@ class TwoStep(Probe):
 
     max_episode_steps = 2
 
-    def step_env(self, key, state, action, params):
+    def step_env(self, key: PRNGKey, state: ProbeState, action: Array, params: ProbeParams):
         """Reward 0 on the first step and 1 on the second, which terminates."""
         at_end = state.position >= 0.5
         return (*self._next(state, 1.0, jnp.where(at_end, 1.0, 0.0), at_end), {})
@@ -145,11 +151,11 @@ class Truncation(Probe):
 
     terminal = False
 
-    def start_position(self, key):
+    def start_position(self, key: Array):
         """0 or 1 with equal chance."""
         return jax.random.bernoulli(key).astype(jnp.float32)
 
-    def step_env(self, key, state, action, params):
+    def step_env(self, key: PRNGKey, state: ProbeState, action: Array, params: ProbeParams):
         """Flip the position (0 <-> 1) and pay the old one; the episode is terminal only when
         ``terminal`` is set (``Termination``), otherwise the time limit truncates it.
         """
@@ -188,20 +194,21 @@ class RememberFirst(Probe):
     length = 3
     max_episode_steps = 3
 
-    def reset_env(self, key, params):
+    def reset_env(self, key: PRNGKey, params: ProbeParams):
         """Observe the first sign; the episode's later observations are 0."""
         first = jnp.where(jax.random.bernoulli(key), 1.0, -1.0).astype(jnp.float32)
         state = RememberFirstState(time=jnp.int32(0), position=first, first=first)
         return state, first[None]
 
-    def state_from_vector(self, vector, params=None):
+    def state_from_vector(self, vector: Array, params: ProbeParams | None = None):
         """Start at the first sign given in ``vector``."""
         first = jnp.sign(jnp.asarray(vector, jnp.float32).reshape(()))
         state = RememberFirstState(time=jnp.int32(0), position=first, first=first)
         return state, first[None]
 
-    def step_env(self, key, state, action, params):
+    def step_env(self, key: PRNGKey, state: ProbeState, action: Array, params: ProbeParams):
         """Pay ``first * a`` on the last step, which terminates; 0 and observation 0 before."""
+        assert isinstance(state, RememberFirstState)  # reset_env and state_from_vector make one
         last = state.time + 1 >= self.length
         reward = jnp.where(last, state.first * self.action_value(action), 0.0)
         next_state = RememberFirstState(
@@ -225,7 +232,7 @@ class IllegalActionsParams(EnvParams):
     illegal_reward: Array = float32_field(-10.0)
 
 
-class FatalIllegalActions(Environment):
+class FatalIllegalActions(Environment[IllegalActionsState, IllegalActionsParams]):
     """An env with a legal-action mask whose illegal actions are fatal: taking one pays
     ``illegal_reward`` (-10) and terminates.
 
@@ -249,12 +256,12 @@ class FatalIllegalActions(Environment):
         """An illegal action pays -10."""
         return IllegalActionsParams()
 
-    def observation_space(self, params=None) -> Space:
+    def observation_space(self, params: IllegalActionsParams | None = None) -> Space:
         """The legal-action mask as 0/1 floats."""
         shape = (self.num_actions,)
         return Box(np.zeros(shape, np.float32), np.ones(shape, np.float32), shape)
 
-    def action_space(self, params=None) -> Space:
+    def action_space(self, params: IllegalActionsParams | None = None) -> Space:
         """``Discrete(num_actions)``."""
         return Discrete(self.num_actions)
 
@@ -270,19 +277,21 @@ class FatalIllegalActions(Environment):
     def _at(self, legal: Array, time: Array) -> tuple[IllegalActionsState, Array]:
         return IllegalActionsState(time=time, legal=legal), legal.astype(jnp.float32)
 
-    def reset_env(self, key, params):
+    def reset_env(self, key: PRNGKey, params: IllegalActionsParams):
         """A fresh draw of legal actions; the observation is the mask."""
         return self._at(self.draw_legal(key), jnp.int32(0))
 
-    def state_from_vector(self, vector, params=None):
+    def state_from_vector(self, vector: Array, params: IllegalActionsParams | None = None):
         """Start with the legal actions given as a 0/1 vector (not all 0)."""
         return self._at(jnp.asarray(vector).reshape(self.num_actions) > 0.5, jnp.int32(0))
 
-    def first_info(self, state):
+    def first_info(self, state: IllegalActionsState):
         """The first timestep's ``info`` holds the episode's first legal actions."""
         return {ACTION_MASK: state.legal}
 
-    def step_env(self, key, state, action, params):
+    def step_env(
+        self, key: PRNGKey, state: IllegalActionsState, action: Array, params: IllegalActionsParams
+    ):
         """Pay ``(a + 1) / n`` for a legal ``a`` and draw the next legal actions; an illegal
         action pays ``illegal_reward`` and terminates."""
         action = jnp.asarray(action, jnp.int32)
