@@ -14,7 +14,7 @@ call) also splits keys only for the envs it resets, which is what makes it cheap
 from __future__ import annotations
 
 from collections.abc import Callable
-from typing import Any
+from typing import Any, TypeVar
 
 import jax
 import jax.numpy as jnp
@@ -22,11 +22,14 @@ import jax.numpy as jnp
 from rl_jax.envs.core.core import Array, Environment, TimeStep
 from rl_jax.envs.core.wrappers import ACTION_MASK, FINAL_ACTION_MASK, reset_after
 
+#: What ``_reset_some``'s ``keys_for`` gives and its ``reset`` takes: keys, or keys and slots.
+KeysT = TypeVar("KeysT")
+
 
 def select_envs(mask: Array, on_true: Any, on_false: Any) -> Any:
     """Per-env choice between two batched pytrees; ``mask`` is ``[num_envs]`` bool."""
 
-    def pick(a, b):
+    def pick(a: Array, b: Array) -> Array:
         return jnp.where(mask.reshape(mask.shape + (1,) * (a.ndim - 1)), a, b)
 
     return jax.tree.map(pick, on_true, on_false)
@@ -37,7 +40,13 @@ def default_max_resets(num_envs: int) -> int:
     return max(1, -(-num_envs // 16))
 
 
-def _reset_some(reset, keys_for, mask: Array, current: Any, max_resets: int | None) -> Any:
+def _reset_some(
+    reset: Callable[[KeysT], object],
+    keys_for: Callable[[int, Array | None], KeysT],
+    mask: Array,
+    current: Any,
+    max_resets: int | None,
+) -> Any:
     """``current`` with the masked envs replaced by ``reset(keys_for(slots))``.
 
     ``keys_for(n, index)`` gives the keys for ``n`` reset slots; ``index`` holds the env of each
@@ -113,7 +122,7 @@ def autoreset_step(
     done = jnp.logical_or(timestep.terminated, timestep.truncated)
     masked = ACTION_MASK in timestep.info
 
-    def reset(slots):
+    def reset(slots: tuple[Array, Array | None]):
         # reset_after continues where an env goes on after an episode's end (a lost life); the
         # ended states and timesteps of the reset envs are gathered for it.
         reset_keys, index = slots
