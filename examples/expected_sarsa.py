@@ -72,7 +72,7 @@ class ExpectedSarsa:
 
     def network(self, config: Config) -> nn.Module:
         """Q(s, .): Dense, LayerNorm and ReLU per hidden layer, then one value per action."""
-        space = episodes.make_eval_env(config).action_space()
+        space = episodes.action_space(config)
         if not isinstance(space, envs.Discrete):  # rl_jax reports it as one line, before a run
             raise TypeError(f"expected SARSA needs discrete actions, not {space}")
         layers = [f for width in config.hidden for f in (nn.Dense(width), nn.LayerNorm(), nn.relu)]

@@ -73,7 +73,7 @@ class Agent:
 @functools.lru_cache(maxsize=64)
 def make_networks(config: Config) -> Networks:
     """The actor and the batch-renormalised critics for ``config.env_id`` (cached)."""
-    action_space = episodes.make_eval_env(config).action_space()
+    action_space = episodes.action_space(config)
     box = actor_critic.bounded_box(action_space, "CrossQ")
     low, high = actor_critic.bounds(box, "CrossQ")
     dtype = jnp.dtype(config.compute_dtype)

@@ -219,7 +219,7 @@ class Agent:
 @functools.lru_cache(maxsize=64)
 def make_network(config: Config) -> networks.QNetwork:
     """The Q-network for ``config`` (cached: called at every trace)."""
-    space = episodes.make_eval_env(config).action_space()
+    space = episodes.action_space(config)
     if not isinstance(space, envs.Discrete):
         raise TypeError(f"DQN needs a discrete action space, got {space}")
     pixels = isinstance(config, PixelConfig)

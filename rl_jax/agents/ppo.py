@@ -186,7 +186,7 @@ class Hyperparams(params.HyperparamsMethods):
 @functools.lru_cache(maxsize=64)
 def make_network(config: Config) -> ActorCritic:
     """The network for ``config`` (cached: called at every trace)."""
-    space = episodes.make_eval_env(config).action_space()
+    space = episodes.action_space(config)
     discrete = isinstance(space, envs.Discrete)
     conv_layers = config.conv_layers if isinstance(config, PixelConfig) else ()
     return ActorCritic(
@@ -314,7 +314,7 @@ def loss_fn(
 def act(agent: Agent, obs: jax.Array, config: Config, legal: jax.Array | None = None) -> jax.Array:
     """The deterministic policy: the Gaussian's mean (clipped) or the most likely (legal,
     given the env's mask ``legal``) action."""
-    space = episodes.make_eval_env(config).action_space()
+    space = episodes.action_space(config)
     return deterministic_action(outputs(agent.params, agent.obs_stats, obs, config, legal), space)
 
 

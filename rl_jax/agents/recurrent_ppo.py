@@ -211,7 +211,7 @@ class RecurrentActorCritic(nn.Module):
 @functools.lru_cache(maxsize=64)
 def make_network(config: Config) -> RecurrentActorCritic:
     """The network for ``config`` (cached: called at every trace)."""
-    space = episodes.make_eval_env(config).action_space()
+    space = episodes.action_space(config)
     discrete = isinstance(space, envs.Discrete)
     return RecurrentActorCritic(
         cell=config.cell,
@@ -329,7 +329,7 @@ class Sequences(NamedTuple):
 def act(agent: Agent, carry: Carry, obs: jax.Array, config: Config) -> tuple[jax.Array, Carry]:
     """The deterministic policy on a batch: ``(actions, next carry)``."""
     carry, policy = apply(agent.params, carry, obs, config, agent.obs_stats)
-    space = episodes.make_eval_env(config).action_space()
+    space = episodes.action_space(config)
     return deterministic_action(policy, space), carry
 
 

@@ -123,7 +123,7 @@ class Hyperparams(params.HyperparamsMethods):
 # ---- the policy network (reinforce_parts) ---------------------------------------------------
 @functools.lru_cache(maxsize=64)
 def make_network(config: Config) -> networks.StochasticPolicy:
-    space = episodes.make_eval_env(config).action_space()
+    space = episodes.action_space(config)
     discrete = isinstance(space, envs.Discrete)
     return networks.StochasticPolicy(
         hidden=config.hidden,
@@ -148,7 +148,7 @@ def policy_outputs(
     """The network's outputs on (standardised, when there are statistics) observations; with
     ``squash_mean`` the Gaussian's mean inside the action bounds
     (``reinforce_parts.policy_outputs``)."""
-    space = episodes.make_eval_env(config).action_space() if config.squash_mean else None
+    space = episodes.action_space(config) if config.squash_mean else None
     squash_into = space if isinstance(space, envs.Box) else None
     return reinforce_parts.policy_outputs(make_network(config), params, obs_stats, obs, squash_into)
 
@@ -228,7 +228,7 @@ def act(agent: Agent, obs: jax.Array, config: Config) -> jax.Array:
     policy = policy_outputs(agent.params, agent.obs_stats, obs, config)
     if "logits" in policy:
         return jnp.argmax(policy["logits"], axis=-1).astype(jnp.int32)
-    space = episodes.make_eval_env(config).action_space()
+    space = episodes.action_space(config)
     return to_env_action(policy["mean"], space)
 
 
@@ -288,11 +288,11 @@ def train_iteration(
 
 def init(key: jax.Array, config: Config, hparams: Hyperparams) -> TrainState:
     """A fresh state for one seed and one hyperparameter set."""
-    env = episodes.make_eval_env(config)
+    obs_space = episodes.observation_space(config)
     agent_key, key = jax.random.split(key)
-    params = make_network(config).init(agent_key, jnp.zeros(env.observation_space().shape))
+    params = make_network(config).init(agent_key, jnp.zeros(obs_space.shape))
     optimizer = optax.inject_hyperparams(_adamw)(hparams.learning_rate, hparams.weight_decay)
-    obs_dim = env.observation_space().shape[0]
+    obs_dim = obs_space.shape[0]
     obs_stats = normalization.init(obs_dim) if config.normalize_obs else None
     return TrainState(
         agent=Agent(params, optimizer.init(params), obs_stats),

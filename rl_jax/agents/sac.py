@@ -209,7 +209,7 @@ def build_networks(config: Config, action_space: Space) -> Networks:
 @functools.lru_cache(maxsize=64)
 def make_networks(config: Config) -> Networks:
     """The networks for ``config.env_id`` (cached: called at every trace)."""
-    return build_networks(config, episodes.make_eval_env(config).action_space())
+    return build_networks(config, episodes.action_space(config))
 
 
 def actor_outputs(nets: Networks, actor: Params, obs: jax.Array):

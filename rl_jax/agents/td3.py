@@ -137,7 +137,7 @@ class Agent:
 @functools.lru_cache(maxsize=64)
 def make_networks(config: Config) -> Networks:
     """The networks for ``config.env_id`` (cached: called at every trace)."""
-    action_space = episodes.make_eval_env(config).action_space()
+    action_space = episodes.action_space(config)
     box = actor_critic.bounded_box(action_space, "TD3/DDPG")
     low, high = actor_critic.bounds(box, "TD3/DDPG")
     dtype = jnp.dtype(config.compute_dtype)

@@ -129,7 +129,7 @@ class Networks(NamedTuple):
 @functools.lru_cache(maxsize=64)
 def make_networks(config: Config) -> Networks:
     """TD7's networks for ``config.env_id`` (cached)."""
-    action_space = episodes.make_eval_env(config).action_space()
+    action_space = episodes.action_space(config)
     box = actor_critic.bounded_box(action_space, "TD7")
     low, high = actor_critic.bounds(box, "TD7")
     dtype = jnp.dtype(config.compute_dtype)

@@ -52,6 +52,18 @@ def make_eval_env(config: EnvConfig) -> envs.Environment:
     return env
 
 
+def action_space(config: EnvConfig) -> envs.Space:
+    """The space of one action of the env the policy acts in (``make_eval_env``'s): what a
+    learner sizes and bounds its network's outputs by."""
+    return make_eval_env(config).action_space()
+
+
+def observation_space(config: EnvConfig) -> envs.Space:
+    """The space of one observation the policy sees (flattened to one axis unless the config
+    reads images): what a learner sizes its network's inputs by."""
+    return make_eval_env(config).observation_space()
+
+
 @functools.lru_cache(maxsize=64)
 def make_train_env(config: EnvConfig) -> envs.Environment:
     """Training stack: statistics outside autoreset so they see the step that ended an episode."""
