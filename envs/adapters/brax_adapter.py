@@ -47,7 +47,7 @@ class BraxEnvState(EnvState):
     brax_state: Any  # brax.envs.base.State
 
 
-class FromBrax(Environment):
+class FromBrax(Environment[BraxEnvState, EnvParams]):
     """A brax env as an rl_jax ``Environment``: no dynamic params, brax's metrics in ``info``.
 
     Brax's own code relies on implicit rank promotion, so its calls are traced with it allowed
@@ -70,11 +70,11 @@ class FromBrax(Environment):
         """Empty params: a brax env has no dynamic params of ours."""
         return EnvParams()
 
-    def observation_space(self, params=None) -> Box:
+    def observation_space(self, params: EnvParams | None = None) -> Box:
         """An unbounded box shaped like the brax env's observation."""
         return Box(-np.inf, np.inf, self._obs_shape)
 
-    def action_space(self, params=None) -> Box:
+    def action_space(self, params: EnvParams | None = None) -> Box:
         """The box [-1, 1] of the brax env's action size (brax's convention)."""
         size = self.brax_env.action_size
         return Box(-np.ones(size, np.float32), np.ones(size, np.float32), (size,))
@@ -88,13 +88,13 @@ class FromBrax(Environment):
             name: jnp.asarray(brax_state.metrics[name], jnp.float32) for name in self._metric_names
         }
 
-    def reset_env(self, key: PRNGKey, params) -> tuple[BraxEnvState, Array]:
+    def reset_env(self, key: PRNGKey, params: EnvParams) -> tuple[BraxEnvState, Array]:
         """brax's ``reset``; the observation is its ``obs``."""
         with jax.numpy_rank_promotion("allow"):
             brax_state = self.brax_env.reset(key)
         return BraxEnvState(time=jnp.zeros((), jnp.int32), brax_state=brax_state), brax_state.obs
 
-    def step_env(self, key: PRNGKey, state: BraxEnvState, action: Array, params):
+    def step_env(self, key: PRNGKey, state: BraxEnvState, action: Array, params: EnvParams):
         """brax's ``step``: its ``done`` becomes ``terminated`` and its metrics the info."""
         with jax.numpy_rank_promotion("allow"):
             brax_state = self.brax_env.step(state.brax_state, action)
@@ -103,7 +103,9 @@ class FromBrax(Environment):
         return next_state, brax_state.obs, brax_state.reward, terminated, self._info(brax_state)
 
 
-def make_brax(name: str, backend: str = "mjx", max_episode_steps: int = 1000, **kwargs) -> FromBrax:
+def make_brax(
+    name: str, backend: str = "mjx", max_episode_steps: int = 1000, **kwargs: object
+) -> FromBrax:
     """``brax.envs.get_environment(name, backend=...)`` wrapped as an rl_jax env."""
     from brax import envs as brax_envs  # heavy: loads every brax env; imported on first use
 

@@ -38,7 +38,7 @@ import numpy as np
 
 from rl_jax.envs.core import registry
 from rl_jax.envs.core.batched import reset_where, select_envs
-from rl_jax.envs.core.core import Environment
+from rl_jax.envs.core.core import Array, Environment, EnvParams, PRNGKey
 
 # gymnasium's reward thresholds for the references of our ids (its registry is the source).
 _REWARD_THRESHOLDS = {
@@ -92,7 +92,7 @@ class _Programs(NamedTuple):
 
 
 def _split_reset(env: Environment):
-    def reset(key, params):
+    def reset(key: PRNGKey, params: EnvParams | None):
         key, subkey = jax.random.split(key)
         state, timestep = env.reset(subkey, params)
         return key, state, timestep
@@ -101,7 +101,7 @@ def _split_reset(env: Environment):
 
 
 def _split_step(env: Environment):
-    def step(key, state, action, params):
+    def step(key: PRNGKey, state: object, action: Array, params: EnvParams | None):
         key, subkey = jax.random.split(key)
         state, timestep = env.step(subkey, state, action, params)
         return key, state, timestep
@@ -113,10 +113,12 @@ def _vector_step(env: Environment):
     """NEXT_STEP autoreset: an env whose last step ended is reset now and its action ignored."""
     step = jax.vmap(_split_step(env), (0, 0, 0, None))
 
-    def vector_step(keys, states, pending, actions, params):
+    def vector_step(
+        keys: Array, states: object, pending: Array, actions: Array, params: EnvParams | None
+    ):
         new_keys, stepped, timestep = step(keys, states, actions, params)
 
-        def reset(pending_keys):
+        def reset(pending_keys: Array):
             # The same split of each key as a lone env's reset() (and as the step above).
             _, reset_states, reset_timestep = jax.vmap(_split_reset(env), (0, None))(
                 pending_keys, params

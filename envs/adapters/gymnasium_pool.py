@@ -112,7 +112,9 @@ class HostPool:
         output[OUT_OBS:] = obs.reshape(-1).view(np.uint32)
         return output
 
-    def _episode_of(self, handle: np.ndarray, seed, time: int, obs: np.ndarray) -> _Episode | None:
+    def _episode_of(
+        self, handle: np.ndarray, seed: int | np.integer, time: int, obs: np.ndarray
+    ) -> _Episode | None:
         """The episode ``handle`` names, running at step ``time`` (started now if it has not
         been, and ``handle`` filled in); None when this pool does not hold it at that step."""
         if handle[1] == NOT_STARTED and time == 0:

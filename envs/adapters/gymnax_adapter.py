@@ -108,21 +108,21 @@ class FromGymnax(Environment):
         """gymnax's params, ``max_steps_in_episode`` set to this env's limit."""
         return self._params
 
-    def observation_space(self, params=None) -> Space:
+    def observation_space(self, params: object | None = None) -> Space:
         """gymnax's observation space as a float32 Box."""
         return self._observation_space
 
-    def action_space(self, params=None) -> Space:
+    def action_space(self, params: object | None = None) -> Space:
         """gymnax's action space: a Discrete or a Box."""
         return self._action_space
 
-    def reset_env(self, key: PRNGKey, params) -> tuple[GymnaxState, Array]:
+    def reset_env(self, key: PRNGKey, params: object) -> tuple[GymnaxState, Array]:
         """gymnax's ``reset_env`` with the key as gymnax's ``reset`` passes it."""
         obs, inner = self.gymnax_env.reset_env(key, params)
         state = GymnaxState(time=jnp.zeros((), jnp.int32), inner=inner)
         return state, jnp.asarray(obs, jnp.float32)
 
-    def step_env(self, key: PRNGKey, state: GymnaxState, action: Array, params):
+    def step_env(self, key: PRNGKey, state: GymnaxState, action: Array, params: object):
         """gymnax's ``step_env`` with the key gymnax's ``step`` gives it; no reset inside."""
         key_step, _ = jax.random.split(key)  # gymnax's step: (key_step, key_reset)
         obs, inner, reward, done, _ = self.gymnax_env.step_env(
@@ -131,7 +131,7 @@ class FromGymnax(Environment):
         next_state = GymnaxState(time=state.time + 1, inner=inner)
         return next_state, jnp.asarray(obs, jnp.float32), reward, done, {}
 
-    def render(self, state: GymnaxState, params=None) -> np.ndarray:
+    def render(self, state: GymnaxState, params: object | None = None) -> np.ndarray:
         """A grid observation (H x W x C, as MinAtar's) drawn as MinAtar's own display draws it:
         each cell in the colour of its highest set channel, black where none is; 16 px a cell."""
         params = self.default_params if params is None else params
