@@ -195,7 +195,9 @@ class CartPolePixels(Environment[CartPolePixelsState, CartPoleParams]):
         """The cart-pole's physical state vector (the frames are derived from it)."""
         return self.physics.state_to_vector(state.physics)
 
-    def step_env(self, key: PRNGKey, state: CartPolePixelsState, action: Array, params):
+    def step_env(
+        self, key: PRNGKey, state: CartPolePixelsState, action: Array, params: CartPoleParams
+    ):
         """Step the cart-pole, draw the new frame and push it onto the stack (oldest frame out).
 
         Reward and termination are CartPole's own.
