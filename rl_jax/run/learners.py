@@ -61,6 +61,7 @@ ALGORITHMS: dict[str, str | Algorithm] = {
     "sac": "rl_jax.agents.sac:sac",
     "ppo": "rl_jax.agents.ppo:ppo",
     "recurrent_ppo": "rl_jax.agents.recurrent_ppo:recurrent_ppo",
+    "pqn": "rl_jax.agents.pqn:pqn",
 }
 
 #: Where the built-in learners live: the only modules a run's record may make us import.
