@@ -72,6 +72,7 @@ import jax
 import jax.numpy as jnp
 import mujoco
 import numpy as np
+from jax.typing import ArrayLike
 
 from rl_jax.envs.core.registry import BackendError
 from rl_jax.envs.mujoco import mujoco_ffi_build
@@ -277,7 +278,9 @@ def _unrolled_cholesky_lower(a: Array) -> list[list[Array]]:
     return lower
 
 
-def _small_cho_factor(a, lower=False, overwrite_a=False, check_finite=True):
+def _small_cho_factor(
+    a: Array, lower: bool = False, overwrite_a: bool = False, check_finite: bool = True
+) -> tuple[Array, bool]:
     """``jax.scipy.linalg.cho_factor`` for small matrices: the same factor, unrolled.
 
     XLA:CPU runs a batched ``cho_factor`` as one LAPACK call per matrix, whose per-call overhead
@@ -294,22 +297,27 @@ def _small_cho_factor(a, lower=False, overwrite_a=False, check_finite=True):
     return (factor if lower else jnp.swapaxes(factor, -1, -2)), lower
 
 
-def _small_cho_solve(c_and_lower, b, overwrite_b=False, check_finite=True):
+def _small_cho_solve(
+    c_and_lower: tuple[Array, bool],
+    b: Array,
+    overwrite_b: bool = False,
+    check_finite: bool = True,
+) -> Array:
     """``jax.scipy.linalg.cho_solve`` for factors of ``_small_cho_factor`` (vector or matrix b)."""
     del overwrite_b, check_finite
     c, lower = c_and_lower
     factor = c if lower else jnp.swapaxes(c, -1, -2)  # L with A = L L^T
     n = factor.shape[-1]
-    y = [None] * n
+    y: dict[int, Array] = {}
     for i in range(n):  # L y = b
         y[i] = (b[i] - sum((factor[i, k] * y[k] for k in range(i)), jnp.zeros_like(b[i]))) / factor[
             i, i
         ]
-    x = [None] * n
+    x: dict[int, Array] = {}
     for i in reversed(range(n)):  # L^T x = y
         tail = sum((factor[k, i] * x[k] for k in range(i + 1, n)), jnp.zeros_like(b[i]))
         x[i] = (y[i] - tail) / factor[i, i]
-    return jnp.stack(x)
+    return jnp.stack([x[i] for i in range(n)])
 
 
 @contextlib.contextmanager
@@ -323,15 +331,18 @@ def small_cholesky() -> Any:
     linalg = jax.scipy.linalg
     original_factor, original_solve = linalg.cho_factor, linalg.cho_solve
 
-    def cho_factor(a, *args, **kwargs):
-        if a.ndim == 2 and a.shape[-1] <= SMALL_CHOLESKY_MAX:
-            return _small_cho_factor(a, *args, **kwargs)
+    def cho_factor(a: ArrayLike, *args: bool, **kwargs: bool) -> tuple[Array, bool]:
+        if jnp.ndim(a) == 2 and jnp.shape(a)[-1] <= SMALL_CHOLESKY_MAX:
+            return _small_cho_factor(jnp.asarray(a), *args, **kwargs)
         return original_factor(a, *args, **kwargs)
 
-    def cho_solve(c_and_lower, b, *args, **kwargs):
-        c = c_and_lower[0]
-        if c.ndim == 2 and c.shape[-1] <= SMALL_CHOLESKY_MAX and b.ndim in (1, 2):
-            return _small_cho_solve(c_and_lower, b, *args, **kwargs)
+    def cho_solve(
+        c_and_lower: tuple[ArrayLike, bool], b: ArrayLike, *args: bool, **kwargs: bool
+    ) -> Array:
+        c, lower = c_and_lower
+        if jnp.ndim(c) == 2 and jnp.shape(c)[-1] <= SMALL_CHOLESKY_MAX and jnp.ndim(b) in (1, 2):
+            small = (jnp.asarray(c), lower)
+            return _small_cho_solve(small, jnp.asarray(b), *args, **kwargs)
         return original_solve(c_and_lower, b, *args, **kwargs)
 
     linalg.cho_factor, linalg.cho_solve = cho_factor, cho_solve
