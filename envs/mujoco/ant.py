@@ -54,7 +54,7 @@ class AntParams(MujocoParams):
     contact_force_max: Array = float32_field(1.0)
 
 
-class Ant(MujocoEnv):
+class Ant(MujocoEnv[AntParams]):
     """gymnasium's Ant-v5; the module docstring gives its observation, reward and termination."""
 
     xml_file = "ant.xml"
@@ -120,7 +120,7 @@ class Ant(MujocoEnv):
         size = self.observed_qpos_size + self.model.nv
         return size + 6 * (self.model.nbody - 1) * self.include_cfrc_ext
 
-    def _contact_forces(self, measurement: Measurement, params) -> Array:
+    def _contact_forces(self, measurement: Measurement, params: AntParams) -> Array:
         forces = measurement.extras["cfrc_ext"]
         return jnp.clip(forces, params.contact_force_min, params.contact_force_max)
 
@@ -137,7 +137,7 @@ class Ant(MujocoEnv):
         """The main body's x, y position, which the next step's velocity is measured from."""
         return measurement.extras["xpos"][self.main_body, :2]
 
-    def evaluate(self, measurement: Measurement, action: Array, params):
+    def evaluate(self, measurement: Measurement, action: Array, params: AntParams):
         """Ant-v5's reward (forward velocity, healthy bonus, control and contact costs), its
         termination when unhealthy and gymnasium's info terms.
         """

@@ -28,7 +28,7 @@ class HalfCheetahParams(MujocoParams):
     ctrl_cost_weight: Array = float32_field(0.1)
 
 
-class HalfCheetah(MujocoEnv):
+class HalfCheetah(MujocoEnv[HalfCheetahParams]):
     """gymnasium's HalfCheetah-v5; the module docstring gives its observation and reward."""
 
     xml_file = "half_cheetah.xml"
@@ -54,7 +54,7 @@ class HalfCheetah(MujocoEnv):
         """``[qpos, qvel]``, the root's x left out unless asked."""
         return jnp.concatenate([self.observed_qpos(measurement), measurement.qvel])
 
-    def evaluate(self, measurement: Measurement, action: Array, params):
+    def evaluate(self, measurement: Measurement, action: Array, params: HalfCheetahParams):
         """Forward velocity minus the control cost of the raw action; the cheetah never
         terminates.
         """

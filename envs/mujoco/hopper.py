@@ -14,7 +14,7 @@ default pose; 1,000-step limit.
 
 from __future__ import annotations
 
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import jax.numpy as jnp
 from flax import struct
@@ -22,6 +22,9 @@ from flax import struct
 from rl_jax.envs.core.core import Array, float32_field
 from rl_jax.envs.mujoco.mujoco_backend import Measurement
 from rl_jax.envs.mujoco.mujoco_env import MujocoEnv, MujocoParams
+
+if TYPE_CHECKING:  # walker2d imports this module; Walker2d runs the hopper's step on its params
+    from rl_jax.envs.mujoco.walker2d import Walker2dParams
 
 _VELOCITY_CLIP = 10.0  # gymnasium clips the observed velocities (not those of the health check)
 
@@ -94,10 +97,11 @@ class Hopper(MujocoEnv):
         qpos = self.observed_qpos(measurement)
         return jnp.concatenate([qpos, jnp.clip(measurement.qvel, -_VELOCITY_CLIP, _VELOCITY_CLIP)])
 
-    def is_healthy(self, measurement: Measurement, params) -> Array:
+    def is_healthy(self, measurement: Measurement, params: HopperParams | Walker2dParams) -> Array:
         """Whether height, torso angle and the rest of the state all lie inside their open
         healthy ranges.
         """
+        assert isinstance(params, HopperParams)  # Walker2d, whose params are not, overrides this
         z, angle = measurement.qpos[1], measurement.qpos[2]
         state = jnp.concatenate([measurement.qpos[2:], measurement.qvel])
         healthy_state = jnp.all(
@@ -107,7 +111,9 @@ class Hopper(MujocoEnv):
         healthy_angle = (params.healthy_angle_min < angle) & (angle < params.healthy_angle_max)
         return healthy_state & healthy_z & healthy_angle
 
-    def evaluate(self, measurement: Measurement, action: Array, params):
+    def evaluate(
+        self, measurement: Measurement, action: Array, params: HopperParams | Walker2dParams
+    ):
         """Hopper-v5's reward (forward velocity, healthy bonus, control cost), its termination
         when unhealthy and gymnasium's info terms.
         """

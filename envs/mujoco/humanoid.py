@@ -62,7 +62,7 @@ class HumanoidParams(MujocoParams):
     healthy_z_max: Array = float32_field(2.0)
 
 
-class Humanoid(MujocoEnv):
+class Humanoid(MujocoEnv[HumanoidParams]):
     """gymnasium's Humanoid-v5; the module docstring gives its observation, reward and
     termination.
     """
@@ -153,7 +153,7 @@ class Humanoid(MujocoEnv):
         weights = (mass / mass.sum()).astype(np.float32)
         return jnp.sum(weights[:, None] * measurement.extras["xipos"], axis=0)[:2]
 
-    def evaluate(self, measurement: Measurement, action: Array, params):
+    def evaluate(self, measurement: Measurement, action: Array, params: HumanoidParams):
         """Humanoid-v5's reward (centre-of-mass velocity, healthy bonus, control and clipped
         contact costs), its termination when unhealthy and gymnasium's info terms.
         """

@@ -39,7 +39,7 @@ class InvertedDoublePendulumParams(MujocoParams):
     velocity_weight_2: Array = float32_field(5e-3)
 
 
-class InvertedDoublePendulum(MujocoEnv):
+class InvertedDoublePendulum(MujocoEnv[InvertedDoublePendulumParams]):
     """gymnasium's InvertedDoublePendulum-v5; the module docstring gives its observation and
     reward.
     """
@@ -78,7 +78,9 @@ class InvertedDoublePendulum(MujocoEnv):
             ]
         )
 
-    def evaluate(self, measurement: Measurement, action: Array, params):
+    def evaluate(
+        self, measurement: Measurement, action: Array, params: InvertedDoublePendulumParams
+    ):
         """Alive bonus minus the tip's distance and the hinges' velocity penalties; terminated
         when the tip drops to ``min_tip_height``.
         """

@@ -28,7 +28,7 @@ class InvertedPendulumParams(MujocoParams):
     healthy_reward: Array = float32_field(1.0)
 
 
-class InvertedPendulum(MujocoEnv):
+class InvertedPendulum(MujocoEnv[InvertedPendulumParams]):
     """gymnasium's InvertedPendulum-v5; the module docstring gives its observation and reward."""
 
     xml_file = "inverted_pendulum.xml"
@@ -51,7 +51,7 @@ class InvertedPendulum(MujocoEnv):
         """``[qpos, qvel]``."""
         return jnp.concatenate([measurement.qpos, measurement.qvel])
 
-    def evaluate(self, measurement: Measurement, action: Array, params):
+    def evaluate(self, measurement: Measurement, action: Array, params: InvertedPendulumParams):
         """``healthy_reward`` per step while the pole stays within ``max_pole_angle``; 0 and
         terminated once it leaves.
         """

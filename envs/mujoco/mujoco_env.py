@@ -53,6 +53,7 @@ from rl_jax.envs.core.core import (
     Environment,
     EnvParams,
     EnvState,
+    ParamsT,
     PRNGKey,
     TimeStep,
     keep_active,
@@ -124,7 +125,7 @@ class MujocoParams(EnvParams):
     reset_noise_scale: Array
 
 
-class MujocoEnv(Environment[MujocoState, Any]):
+class MujocoEnv(Environment[MujocoState, ParamsT]):
     """Subclasses set the class attributes and implement the four hooks at the bottom."""
 
     xml_file: str = ""
@@ -226,11 +227,11 @@ class MujocoEnv(Environment[MujocoState, Any]):
         """Length of the observation vector (each env defines it)."""
         raise NotImplementedError
 
-    def observation_space(self, params=None) -> Box:
+    def observation_space(self, params: ParamsT | None = None) -> Box:
         """An unbounded box of ``obs_size`` values, as gymnasium's."""
         return Box(-np.inf, np.inf, (self.obs_size,))
 
-    def action_space(self, params=None) -> Box:
+    def action_space(self, params: ParamsT | None = None) -> Box:
         """The actuators' control ranges from the model."""
         low, high = np.asarray(self.model.actuator_ctrlrange, np.float32).T
         return Box(low, high, low.shape)
@@ -241,18 +242,18 @@ class MujocoEnv(Environment[MujocoState, Any]):
         return {**info, DIVERGED_KEY: jnp.zeros((), jnp.bool_)}
 
     # ---- reset --------------------------------------------------------------------------------
-    def reset(self, key: PRNGKey, params=None) -> tuple[MujocoState, TimeStep]:
+    def reset(self, key: PRNGKey, params: ParamsT | None = None) -> tuple[MujocoState, TimeStep]:
         """Start an episode from ``sample_start``'s random ``(qpos, qvel)``."""
         params = self.default_params if params is None else params
         qpos, qvel = self.sample_start(key, params)
         return self.start_from_physics(self.physics.from_qpos_qvel(qpos, qvel), params)
 
-    def reset_env(self, key: PRNGKey, params) -> tuple[MujocoState, Array]:
+    def reset_env(self, key: PRNGKey, params: ParamsT) -> tuple[MujocoState, Array]:
         """``reset``'s state and first observation."""
         state, timestep = self.reset(key, params)
         return state, timestep.obs
 
-    def reset_to(self, vector: Any, params=None) -> tuple[MujocoState, TimeStep]:
+    def reset_to(self, vector: Any, params: ParamsT | None = None) -> tuple[MujocoState, TimeStep]:
         """Start from ``[qpos, qvel(, qacc_warmstart)]``, with optional leading batch axes.
 
         A float64 numpy vector is kept bit for bit on the C backend (do not wrap it in
@@ -275,12 +276,16 @@ class MujocoEnv(Environment[MujocoState, Any]):
             start = jax.vmap(start)
         return start(physics)
 
-    def state_from_vector(self, vector: Any, params=None) -> tuple[MujocoState, Array]:
+    def state_from_vector(
+        self, vector: Any, params: ParamsT | None = None
+    ) -> tuple[MujocoState, Array]:
         """``reset_to``'s state and first observation, from ``[qpos, qvel(, qacc_warmstart)]``."""
         state, timestep = self.reset_to(vector, params)
         return state, timestep.obs
 
-    def start_from_physics(self, physics: Any, params=None) -> tuple[MujocoState, TimeStep]:
+    def start_from_physics(
+        self, physics: Any, params: ParamsT | None = None
+    ) -> tuple[MujocoState, TimeStep]:
         """First timestep of an episode starting at a backend physics state (one env)."""
         params = self.default_params if params is None else params
         if self.forward_at_reset:
@@ -309,21 +314,30 @@ class MujocoEnv(Environment[MujocoState, Any]):
 
     # ---- step ---------------------------------------------------------------------------------
     def step_env(
-        self, key: PRNGKey, state: MujocoState, action: Array, params
+        self, key: PRNGKey, state: MujocoState, action: Array, params: ParamsT
     ) -> tuple[MujocoState, Array, Array, Array, dict[str, Array]]:
         """Apply the action for ``frame_skip`` substeps; reward, termination and info from
         ``evaluate``, or the divergence handling of the module docstring.
         """
         return self._step_env(state, action, params)
 
-    def step_active(self, key, state, action, active, params=None):
+    def step_active(
+        self,
+        key: PRNGKey,
+        state: MujocoState,
+        action: Array,
+        active: Array,
+        params: ParamsT | None = None,
+    ):
         """``Environment.step_active``: the MuJoCo C backends step only the active envs (the
         others' physics is not computed at all); MJX computes them and discards the result."""
         params = self.default_params if params is None else params
         new_state, *rest = self._step_env(state, action, params, jnp.asarray(active, jnp.bool_))
         return self._timestep(keep_active(active, new_state, state), *rest)
 
-    def _step_env(self, state: MujocoState, action: Array, params, active: Array | None = None):
+    def _step_env(
+        self, state: MujocoState, action: Array, params: ParamsT, active: Array | None = None
+    ):
         action = jnp.asarray(action, jnp.float32)
         physics, measurement = self.physics.step(state.physics, action, active)
         if self.remembers:
@@ -376,7 +390,9 @@ class MujocoEnv(Environment[MujocoState, Any]):
             return np.asarray(self.observe(measurement), np.float32)
 
     # ---- rendering ----------------------------------------------------------------------------
-    def render(self, state: MujocoState, params=None, width: int = 320, height: int = 240):
+    def render(
+        self, state: MujocoState, params: ParamsT | None = None, width: int = 320, height: int = 240
+    ):
         """RGB frame ``[height, width, 3]`` uint8 of one unbatched state (host side)."""
         qpos, qvel, _ = self.physics.to_numpy(state.physics)
         if self._scene is None:
@@ -388,9 +404,11 @@ class MujocoEnv(Environment[MujocoState, Any]):
     #: +-``reset_noise_scale``); qpos is always uniform in +-``reset_noise_scale`` around qpos0.
     qvel_noise = "normal"
 
-    def sample_start(self, key: PRNGKey, params) -> tuple[Array, Array]:
+    def sample_start(self, key: PRNGKey, params: ParamsT) -> tuple[Array, Array]:
         """float32 ``(qpos, qvel)`` of a random start, as gymnasium's ``reset_model``."""
         key_qpos, key_qvel = jax.random.split(key)
+        # every env that keeps this start has MujocoParams (Reacher, whose are not, overrides it)
+        assert isinstance(params, MujocoParams)
         scale = params.reset_noise_scale
         nq, nv = self._init_qpos.shape[0], self.model.nv
         noise = jax.random.uniform(key_qpos, (nq,), jnp.float32, -scale, scale)
@@ -416,7 +434,7 @@ class MujocoEnv(Environment[MujocoState, Any]):
         raise NotImplementedError
 
     def evaluate(
-        self, measurement: Measurement, action: Array, params
+        self, measurement: Measurement, action: Array, params: ParamsT
     ) -> tuple[Array, Array, dict[str, Array]]:
         """``(reward, terminated, info)`` of a step; ``info`` has exactly ``info_keys``."""
         raise NotImplementedError

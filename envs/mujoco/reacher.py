@@ -48,7 +48,7 @@ def sample_goal(key: PRNGKey) -> Array:
     return jnp.where(inside[first], candidates[first], 0.0)
 
 
-class Reacher(MujocoEnv):
+class Reacher(MujocoEnv[ReacherParams]):
     """gymnasium's Reacher-v5; the module docstring gives its observation and reward."""
 
     xml_file = "reacher.xml"
@@ -93,7 +93,7 @@ class Reacher(MujocoEnv):
             ]
         )
 
-    def evaluate(self, measurement: Measurement, action: Array, params):
+    def evaluate(self, measurement: Measurement, action: Array, params: ReacherParams):
         """Minus the fingertip's distance to the target minus the control cost; never terminates."""
         distance = jnp.linalg.norm(self._fingertip_to_target(measurement))
         reward_dist = -distance * params.reward_dist_weight
@@ -101,7 +101,7 @@ class Reacher(MujocoEnv):
         info = {"reward_dist": reward_dist, "reward_ctrl": reward_ctrl}
         return reward_dist + reward_ctrl, jnp.zeros((), jnp.bool_), info
 
-    def sample_start(self, key: PRNGKey, params) -> tuple[Array, Array]:
+    def sample_start(self, key: PRNGKey, params: ReacherParams) -> tuple[Array, Array]:
         """Arm joints uniform around the default pose, a target drawn in the disc of radius 0.2,
         and small uniform arm velocities (the target's are 0), as gymnasium's ``reset_model``.
         """

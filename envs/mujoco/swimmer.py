@@ -27,7 +27,7 @@ class SwimmerParams(MujocoParams):
     ctrl_cost_weight: Array = float32_field(1e-4)
 
 
-class Swimmer(MujocoEnv):
+class Swimmer(MujocoEnv[SwimmerParams]):
     """gymnasium's Swimmer-v5; the module docstring gives its observation and reward."""
 
     xml_file = "swimmer.xml"
@@ -61,7 +61,7 @@ class Swimmer(MujocoEnv):
         """``[qpos, qvel]``, the root's x, y left out unless asked."""
         return jnp.concatenate([self.observed_qpos(measurement), measurement.qvel])
 
-    def evaluate(self, measurement: Measurement, action: Array, params):
+    def evaluate(self, measurement: Measurement, action: Array, params: SwimmerParams):
         """Forward velocity minus the control cost; the swimmer never terminates."""
         x_velocity, y_velocity = measurement.qpos_change[:2] / self.dt
         forward_reward = params.forward_reward_weight * x_velocity
