@@ -14,7 +14,7 @@ default pose; 1,000-step limit.
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING, Any
+from typing import Any, Protocol
 
 import jax.numpy as jnp
 from flax import struct
@@ -22,9 +22,6 @@ from flax import struct
 from rl_jax.envs.core.core import Array, float32_field
 from rl_jax.envs.mujoco.mujoco_backend import Measurement
 from rl_jax.envs.mujoco.mujoco_env import MujocoEnv, MujocoParams
-
-if TYPE_CHECKING:  # walker2d imports this module; Walker2d runs the hopper's step on its params
-    from rl_jax.envs.mujoco.walker2d import Walker2dParams
 
 _VELOCITY_CLIP = 10.0  # gymnasium clips the observed velocities (not those of the health check)
 
@@ -46,6 +43,26 @@ class HopperParams(MujocoParams):
     healthy_angle_max: Array = float32_field(0.2)
     healthy_state_min: Array = float32_field(-100.0)
     healthy_state_max: Array = float32_field(100.0)
+
+
+class HopperLikeParams(Protocol):
+    """What the hopper's step reads of its params: ``HopperParams``, or ``Walker2dParams`` on
+    ``Walker2d``, which runs this step with its own health check."""
+
+    @property
+    def forward_reward_weight(self) -> Array: ...
+    @property
+    def ctrl_cost_weight(self) -> Array: ...
+    @property
+    def healthy_reward(self) -> Array: ...
+    @property
+    def healthy_z_min(self) -> Array: ...
+    @property
+    def healthy_z_max(self) -> Array: ...
+    @property
+    def healthy_angle_min(self) -> Array: ...
+    @property
+    def healthy_angle_max(self) -> Array: ...
 
 
 class Hopper(MujocoEnv):
@@ -97,7 +114,7 @@ class Hopper(MujocoEnv):
         qpos = self.observed_qpos(measurement)
         return jnp.concatenate([qpos, jnp.clip(measurement.qvel, -_VELOCITY_CLIP, _VELOCITY_CLIP)])
 
-    def is_healthy(self, measurement: Measurement, params: HopperParams | Walker2dParams) -> Array:
+    def is_healthy(self, measurement: Measurement, params: HopperLikeParams) -> Array:
         """Whether height, torso angle and the rest of the state all lie inside their open
         healthy ranges.
         """
@@ -111,9 +128,7 @@ class Hopper(MujocoEnv):
         healthy_angle = (params.healthy_angle_min < angle) & (angle < params.healthy_angle_max)
         return healthy_state & healthy_z & healthy_angle
 
-    def evaluate(
-        self, measurement: Measurement, action: Array, params: HopperParams | Walker2dParams
-    ):
+    def evaluate(self, measurement: Measurement, action: Array, params: HopperLikeParams):
         """Hopper-v5's reward (forward velocity, healthy bonus, control cost), its termination
         when unhealthy and gymnasium's info terms.
         """

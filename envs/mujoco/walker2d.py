@@ -17,7 +17,7 @@ from __future__ import annotations
 from flax import struct
 
 from rl_jax.envs.core.core import Array, float32_field
-from rl_jax.envs.mujoco.hopper import Hopper, HopperParams
+from rl_jax.envs.mujoco.hopper import Hopper, HopperLikeParams
 from rl_jax.envs.mujoco.mujoco_backend import Measurement
 from rl_jax.envs.mujoco.mujoco_env import MujocoParams
 
@@ -56,7 +56,7 @@ class Walker2d(Hopper):
         "healthy_angle_range": ("healthy_angle_min", "healthy_angle_max"),
     }
 
-    def is_healthy(self, measurement: Measurement, params: HopperParams | Walker2dParams) -> Array:
+    def is_healthy(self, measurement: Measurement, params: HopperLikeParams) -> Array:
         """Whether height and torso angle both lie inside their open healthy ranges."""
         z, angle = measurement.qpos[1], measurement.qpos[2]
         healthy_z = (params.healthy_z_min < z) & (z < params.healthy_z_max)
