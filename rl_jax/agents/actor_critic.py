@@ -35,10 +35,10 @@ class ActorCriticConfig(OffPolicyConfig):
     critic_hidden: tuple[int, ...] = (256, 256)  # hidden layer widths of each critic
     num_critics: int = 2  # critics; the target takes the min over them (TD3 2, DDPG 1)
     policy_delay: int = 2  # critic updates per actor (and target) update; DDPG 1
-    network_init: str = "fan_in_uniform"  # see rl_jax.training.networks
+    network_init: networks.Initializer = "fan_in_uniform"  # see rl_jax.training.networks
     compute_dtype: str = "float32"  # matmul dtype ("bfloat16" trades precision for speed)
-    actor_activation: str = "relu"  # hidden nonlinearity of the actor: relu, tanh or elu
-    critic_activation: str = "relu"  # of the critics
+    actor_activation: networks.Activation = "relu"  # the actor's nonlinearity: relu, tanh, elu
+    critic_activation: networks.Activation = "relu"  # of the critics
 
     def __post_init__(self) -> None:
         super().__post_init__()

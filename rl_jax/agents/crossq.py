@@ -77,16 +77,22 @@ def make_networks(config: Config) -> Networks:
     box = actor_critic.bounded_box(action_space, "CrossQ")
     low, high = actor_critic.bounds(box, "CrossQ")
     dtype = jnp.dtype(config.compute_dtype)
-    init = config.network_init
-    actor = networks.Actor(config.actor_hidden, low, high, init, dtype, config.actor_activation)
-    critic = networks.Critic(
-        config.critic_hidden,
-        init,
-        dtype,
-        config.critic_activation,
-        "batch_renorm",
+    actor_layers = networks.Layers(
+        hidden=config.actor_hidden,
+        activation=config.actor_activation,
+        initializer=config.network_init,
+        dtype=dtype,
+    )
+    critic_layers = networks.Layers(
+        hidden=config.critic_hidden,
+        activation=config.critic_activation,
+        initializer=config.network_init,
+        norm="batch_renorm",
+        dtype=dtype,
         renorm_warmup=config.renorm_warmup,
     )
+    actor = networks.Actor(layers=actor_layers, action_low=low, action_high=high)
+    critic = networks.Critic(layers=critic_layers)
     return Networks(actor, critic, box.low.copy(), box.high.copy())
 
 

@@ -84,8 +84,8 @@ class Config(OffPolicyConfig):
     prioritized: bool = False  # proportional prioritized replay with importance weights
     target_update_period: int = 500  # gradient updates between target steps of size tau
     action_bins: int = 3  # values per action dim when the env's actions are continuous
-    network_init: str = "fan_in_uniform"  # see rl_jax.training.networks
-    norm: str = "none"  # "layer": LayerNorm before each hidden ReLU of the Q-network
+    network_init: networks.Initializer = "fan_in_uniform"  # see rl_jax.training.networks
+    norm: networks.Norm = "none"  # "layer": LayerNorm before each hidden ReLU of the Q-network
     # TD7's policy checkpoints (rl_jax.training.policy_checkpoints): the training envs act
     # (epsilon-greedily) with a frozen copy of the Q-network for an assessment of
     # checkpoint_episodes episodes (1 before env step checkpoint_episodes_from); if none returned
@@ -223,14 +223,15 @@ def make_network(config: Config) -> networks.QNetwork:
     if not isinstance(space, envs.Discrete):
         raise TypeError(f"DQN needs a discrete action space, got {space}")
     pixels = isinstance(config, PixelConfig)
+    layers = networks.Layers(
+        hidden=config.hidden, initializer=config.network_init, norm=config.norm
+    )
     return networks.QNetwork(
-        config.hidden,
-        space.n,
-        config.dueling,
-        config.network_init,
+        layers=layers,
+        num_actions=space.n,
+        dueling=config.dueling,
         conv_layers=config.conv_layers if pixels else (),
         conv_rows=config.conv_rows() if pixels else (),
-        norm=config.norm,
     )
 
 

@@ -76,7 +76,7 @@ class Config:
         64,
         64,
     )  # hidden layers of the actor and of the critic (each its own)
-    activation: str = "tanh"  # see rl_jax.training.networks.ACTIVATIONS
+    activation: networks.Activation = "tanh"  # see rl_jax.training.networks.ACTIVATIONS
     initial_std: float = 1.0  # Gaussian policy: the state-independent std before training
     normalize_obs: bool = False  # standardise observations by running mean and variance
     normalize_rewards: bool = False  # divide rewards by a running std of discounted returns
@@ -127,7 +127,7 @@ class PixelConfig(Config, ImageObservations):
     uint8 pixels to [0, 1] itself."""
 
     hidden: tuple[int, ...] = (256,)
-    activation: str = "relu"
+    activation: networks.Activation = "relu"
     frame_size: int = 84  # frames are frame_size x frame_size grayscale pixels
     frame_stack: int = 4  # the last frame_stack frames are the observation's channels
     # (features, kernel, stride) per conv layer: the 2013 DQN paper's torso, as DQN's pixel config
@@ -189,11 +189,13 @@ def make_network(config: Config) -> ActorCritic:
     space = episodes.action_space(config)
     discrete = isinstance(space, envs.Discrete)
     conv_layers = config.conv_layers if isinstance(config, PixelConfig) else ()
+    layers = networks.Layers(
+        hidden=config.hidden, activation=config.activation, initializer="orthogonal"
+    )
     return ActorCritic(
-        hidden=config.hidden,
+        layers=layers,
         action_dim=1 if discrete else space.shape[0],
         num_actions=space.n if isinstance(space, envs.Discrete) else None,
-        activation=config.activation,
         initial_std=config.initial_std,
         conv_layers=conv_layers,
         conv_rows=config.conv_rows() if isinstance(config, PixelConfig) and conv_layers else (),

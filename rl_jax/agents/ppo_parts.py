@@ -161,38 +161,49 @@ def _layer(features: int, gain: float) -> nn.Dense:
     )
 
 
+def check_orthogonal_layers(layers: networks.Layers, owner: str) -> None:
+    """``ValueError`` unless ``layers`` are what PPO's networks build: orthogonal float32 layers
+    without norm (only ``hidden`` and ``activation`` may vary)."""
+    plain = networks.Layers(layers.hidden, activation=layers.activation, initializer="orthogonal")
+    if layers != plain:
+        raise ValueError(
+            f"{owner}'s layers are orthogonal float32 MLP layers without norm (only hidden and "
+            f"activation vary), got {layers}"
+        )
+
+
 class _Torso(nn.Module):
     """Hidden layers, each orthogonal at gain sqrt(2) and then the nonlinearity."""
 
-    hidden: tuple[int, ...]
-    activation: str
+    layers: networks.Layers
 
     @nn.compact
     def __call__(self, x: jax.Array) -> jax.Array:
-        function = networks.ACTIVATIONS[self.activation][0]
-        for width in self.hidden:
+        function = networks.ACTIVATIONS[self.layers.activation][0]
+        for width in self.layers.hidden:
             x = function(_layer(width, HIDDEN_GAIN)(x))
         return x
 
 
 class ActorCritic(nn.Module):
-    """``obs -> {"logits" | "mean", "std"; "value"}``; ``value(obs)`` runs the critic alone."""
+    """``obs -> {"logits" | "mean", "std"; "value"}``; ``value(obs)`` runs the critic alone.
+    ``layers``: the hidden layers of each torso (see ``check_orthogonal_layers``)."""
 
-    hidden: tuple[int, ...]
+    layers: networks.Layers
     action_dim: int = 1
     num_actions: int | None = None  # set: categorical
-    activation: str = "tanh"
     initial_std: float = 1.0
     conv_layers: tuple[int, ...] = ()  # set: obs are frames [..., H, W, C], torso shared
     conv_rows: tuple[int, ...] = ()  # (first, stop): the frame rows the conv torso sees
 
     def setup(self) -> None:
+        check_orthogonal_layers(self.layers, "ActorCritic")
         outputs = self.num_actions if self.num_actions is not None else self.action_dim
-        self.actor_torso = _Torso(self.hidden, self.activation)
+        self.actor_torso = _Torso(layers=self.layers)
         if self.conv_layers:
             self.conv = conv.ConvTorso(self.conv_layers, "orthogonal", rows=self.conv_rows)
         else:
-            self.critic_torso = _Torso(self.hidden, self.activation)
+            self.critic_torso = _Torso(layers=self.layers)
         self.policy_head = _layer(outputs, POLICY_GAIN)
         self.value_head = _layer(1, VALUE_GAIN)
         if self.num_actions is None:

@@ -35,7 +35,7 @@ from __future__ import annotations
 import dataclasses
 import functools
 from collections.abc import Callable
-from typing import NamedTuple, cast
+from typing import Literal, NamedTuple, cast
 
 import flax.linen as nn
 import jax
@@ -75,10 +75,10 @@ class Config:
     num_minibatches: int = 1  # minibatches of whole sequences per pass (must split them evenly)
     iterations_per_chunk: int = 1  # rollouts and updates per compiled call; eval after each call
     num_eval_envs: int = 10  # episodes of the deterministic policy per evaluation
-    cell: str = "lstm"  # the recurrent cell: "lstm" or "gru"
+    cell: Literal["lstm", "gru"] = "lstm"  # the recurrent cell: "lstm" or "gru"
     cell_size: int = 64  # features of the cell's state
     hidden: tuple[int, ...] = ()  # layers between the observation and the cell
-    activation: str = "tanh"  # of those layers: see rl_jax.training.networks.ACTIVATIONS
+    activation: networks.Activation = "tanh"  # of those layers: see networks.ACTIVATIONS
     initial_std: float = 1.0  # Gaussian policy: the state-independent std before training
     normalize_obs: bool = False  # standardise observations by running mean and variance
     normalize_advantages: bool = True  # standardise the advantages of each minibatch
@@ -178,21 +178,22 @@ def _layer(features: int, gain: float) -> nn.Dense:
 
 
 class RecurrentActorCritic(nn.Module):
-    """``(carry, obs) -> (carry, {"logits" | "mean", "std"; "value"})`` for one step."""
+    """``(carry, obs) -> (carry, {"logits" | "mean", "std"; "value"})`` for one step. ``layers``:
+    the hidden layers before the cell (``ppo_parts.check_orthogonal_layers``)."""
 
-    cell: str
+    cell: Literal["lstm", "gru"]
     cell_size: int
-    hidden: tuple[int, ...] = ()
+    layers: networks.Layers = networks.Layers((), activation="tanh", initializer="orthogonal")
     action_dim: int = 1
     num_actions: int | None = None  # set: categorical
-    activation: str = "tanh"
     initial_std: float = 1.0
 
     @nn.compact
     def __call__(self, carry: Carry, obs: jax.Array) -> tuple[Carry, dict[str, jax.Array]]:
-        function = networks.ACTIVATIONS[self.activation][0]
+        ppo_parts.check_orthogonal_layers(self.layers, "RecurrentActorCritic")
+        function = networks.ACTIVATIONS[self.layers.activation][0]
         x = obs
-        for width in self.hidden:
+        for width in self.layers.hidden:
             x = function(_layer(width, 2.0**0.5)(x))
         if self.cell == "lstm":
             lstm_carry = cast(tuple[jax.Array, jax.Array], carry)
@@ -213,13 +214,15 @@ def make_network(config: Config) -> RecurrentActorCritic:
     """The network for ``config`` (cached: called at every trace)."""
     space = episodes.action_space(config)
     discrete = isinstance(space, envs.Discrete)
+    layers = networks.Layers(
+        hidden=config.hidden, activation=config.activation, initializer="orthogonal"
+    )
     return RecurrentActorCritic(
         cell=config.cell,
         cell_size=config.cell_size,
-        hidden=config.hidden,
+        layers=layers,
         action_dim=1 if discrete else space.shape[0],
         num_actions=space.n if isinstance(space, envs.Discrete) else None,
-        activation=config.activation,
         initial_std=config.initial_std,
     )
 

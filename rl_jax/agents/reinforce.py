@@ -72,15 +72,15 @@ class Config:
     iterations_per_chunk: int = 20  # updates per compiled call; eval after each chunk
     num_eval_envs: int = 10  # episodes of the deterministic policy per evaluation
     hidden: tuple[int, ...] = (16, 32)  # the policy's torso
-    activation: str = "tanh"  # see rl_jax.training.networks.ACTIVATIONS
+    activation: networks.Activation = "tanh"  # see rl_jax.training.networks.ACTIVATIONS
     baseline: str = "none"  # "none", "mean" (batch mean of returns) or "value" (learned)
     normalize_returns: bool = False  # standardise the returns over each batch
     std_floor: float = 1e-6  # Gaussian policy: the std's lower bound
-    std_mode: str = "state"  # Gaussian std: "state" (a head) or "param" (learned, state-free)
+    std_mode: networks.StdMode = "state"  # Gaussian std: "state" (a head) or "param" (state-free)
     initial_std: float = 1.0  # with std_mode "param": the std before training
     value_hidden: tuple[int, ...] = ()  # baseline "value": its own torso (empty: shares policy's)
     normalize_obs: bool = False  # standardise observations by running mean and variance
-    network_init: str = "fan_in_uniform"  # see rl_jax.training.networks
+    network_init: networks.Initializer = "fan_in_uniform"  # see rl_jax.training.networks
     squash_mean: bool = False  # Gaussian policy: the mean is tanh-squashed into the action bounds
     # the env's constructor keywords, "name=value, name=value": envs.make(env_id, **them)
     env_kwargs: str = ""
@@ -125,14 +125,15 @@ class Hyperparams(params.HyperparamsMethods):
 def make_network(config: Config) -> networks.StochasticPolicy:
     space = episodes.action_space(config)
     discrete = isinstance(space, envs.Discrete)
+    layers = networks.Layers(
+        hidden=config.hidden, activation=config.activation, initializer=config.network_init
+    )
     return networks.StochasticPolicy(
-        hidden=config.hidden,
+        layers=layers,
         action_dim=1 if discrete else space.shape[0],
         num_actions=space.n if isinstance(space, envs.Discrete) else None,
         std_floor=config.std_floor,
         value=config.baseline == "value",
-        activation=config.activation,
-        initializer=config.network_init,
         std_mode=config.std_mode,
         initial_std=config.initial_std,
         value_hidden=config.value_hidden,

@@ -80,23 +80,23 @@ class Config(OffPolicyConfig):
     critic_hidden: tuple[int, ...] = (256, 256)  # hidden layer widths of each critic
     num_critics: int = 2  # critics; the target and the actor take their min
     policy_delay: int = 1  # critic updates per actor and temperature update (the paper: 1)
-    network_init: str = "fan_in_uniform"  # see rl_jax.training.networks
+    network_init: networks.Initializer = "fan_in_uniform"  # see rl_jax.training.networks
     compute_dtype: str = "float32"  # matmul dtype ("bfloat16" trades precision for speed)
     # Rewards summed before bootstrapping (windows of n_step steps of one env, cut at an
     # episode's end; the steps inside a window add no entropy bonus). 1: the paper's targets.
     n_step: int = 1
-    actor_activation: str = "relu"  # hidden nonlinearity of the actor: relu, tanh or elu
-    critic_activation: str = "relu"  # of the critics
+    actor_activation: networks.Activation = "relu"  # the actor's nonlinearity: relu, tanh, elu
+    critic_activation: networks.Activation = "relu"  # of the critics
     # "layer": a LayerNorm between each hidden linear layer of the critics and its
     # nonlinearity (RLPD, BRO). "none": the paper's.
-    critic_norm: str = "none"
-    actor_norm: str = "none"  # the actor's: "none" or "layer"
+    critic_norm: networks.Norm = "none"
+    actor_norm: networks.Norm = "none"  # the actor's: "none" or "layer"
     # Adam's first-moment decay for actor and critics (the temperature's Adam keeps 0.9)
     adam_b1: float = 0.9
     # "simba" (SimBa): observations standardised by running statistics, then a linear layer,
     # one pre-LayerNorm residual block per entry of actor_hidden / critic_hidden (all one
     # width), a LayerNorm and the output layer. "mlp": the paper's MLPs.
-    network: str = "mlp"
+    network: networks.Architecture = "mlp"
     # observations standardised by running statistics for the MLPs too (SimBa always does)
     normalize_obs: bool = False
     # False: the temperature stays at initial_alpha (the first SAC paper's fixed alpha)
@@ -184,25 +184,29 @@ def build_networks(config: Config, action_space: Space) -> Networks:
     ):
         raise TypeError(f"SAC needs a bounded 1-D Box action space, got {action_space}")
     dtype, init = jnp.dtype(config.compute_dtype), config.network_init
-    actor = GaussianActor(
+    actor_layers = networks.Layers(
         hidden=config.actor_hidden,
-        action_dim=action_space.shape[0],
-        initializer=init,
-        dtype=dtype,
         activation=config.actor_activation,
+        initializer=init,
         norm=config.actor_norm,
         architecture=config.network,
+        dtype=dtype,
+    )
+    critic_layers = networks.Layers(
+        hidden=config.critic_hidden,
+        activation=config.critic_activation,
+        initializer=init,
+        norm=config.critic_norm,
+        architecture=config.network,
+        dtype=dtype,
+    )
+    actor = GaussianActor(
+        layers=actor_layers,
+        action_dim=action_space.shape[0],
         log_std_min=config.log_std_min,
         log_std_max=config.log_std_max,
     )
-    critic = networks.Critic(
-        hidden=config.critic_hidden,
-        initializer=init,
-        dtype=dtype,
-        activation=config.critic_activation,
-        norm=config.critic_norm,
-        architecture=config.network,
-    )
+    critic = networks.Critic(layers=critic_layers)
     return Networks(actor, critic, action_space.low.copy(), action_space.high.copy())
 
 

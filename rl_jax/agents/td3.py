@@ -65,13 +65,13 @@ class Config(ActorCriticConfig):
     n_step: int = 1
     # "layer": a LayerNorm between each hidden linear layer of the critics and its nonlinearity,
     # which keeps Q-values bounded at high update rates (RLPD, BRO). "none": the paper's critics.
-    critic_norm: str = "none"
-    actor_norm: str = "none"  # the actor's: "none" or "layer"
+    critic_norm: networks.Norm = "none"
+    actor_norm: networks.Norm = "none"  # the actor's: "none" or "layer"
     # "simba" (SimBa): observations standardised by running statistics, then for actor and
     # critics a linear layer, one pre-LayerNorm residual block per entry of actor_hidden /
     # critic_hidden (LN -> dense(4w) -> relu -> dense(w), plus the skip; the entries are the
     # width w, all equal), a LayerNorm and the output layer. "mlp": the paper's MLPs.
-    network: str = "mlp"
+    network: networks.Architecture = "mlp"
     # Observations standardised by running statistics (as "simba" does) for the paper's MLPs too:
     # the statistics take in every observation acted on and go with the policy. Observations
     # whose entries differ in scale by orders of magnitude (Humanoid's contact forces) need it.
@@ -141,24 +141,24 @@ def make_networks(config: Config) -> Networks:
     box = actor_critic.bounded_box(action_space, "TD3/DDPG")
     low, high = actor_critic.bounds(box, "TD3/DDPG")
     dtype = jnp.dtype(config.compute_dtype)
-    actor = networks.Actor(
-        config.actor_hidden,
-        low,
-        high,
-        config.network_init,
-        dtype,
-        config.actor_activation,
-        config.actor_norm,
-        config.network,
+    actor_layers = networks.Layers(
+        hidden=config.actor_hidden,
+        activation=config.actor_activation,
+        initializer=config.network_init,
+        norm=config.actor_norm,
+        architecture=config.network,
+        dtype=dtype,
     )
-    critic = networks.Critic(
-        config.critic_hidden,
-        config.network_init,
-        dtype,
-        config.critic_activation,
-        config.critic_norm,
-        config.network,
+    critic_layers = networks.Layers(
+        hidden=config.critic_hidden,
+        activation=config.critic_activation,
+        initializer=config.network_init,
+        norm=config.critic_norm,
+        architecture=config.network,
+        dtype=dtype,
     )
+    actor = networks.Actor(layers=actor_layers, action_low=low, action_high=high)
+    critic = networks.Critic(layers=critic_layers)
     return Networks(actor, critic, box.low.copy(), box.high.copy())
 
 

@@ -69,7 +69,7 @@ class Config(ActorCriticConfig):
     """Static settings of TD7; defaults: its published ones (sfujim/TD7), on the TD3 paper's loop
     (one env, one update per env step, batch 256, 25,000 random steps)."""
 
-    critic_activation: str = "elu"  # TD7's critics (and encoders) use ELU
+    critic_activation: networks.Activation = "elu"  # TD7's critics (and encoders) use ELU
     embedding_dim: int = 256  # size of z_s and z_sa
     embedding_hidden: tuple[int, ...] = (256, 256)  # hidden widths of f and of g
     target_update_period: int = 250  # updates between hard target copies
@@ -133,12 +133,24 @@ def make_networks(config: Config) -> Networks:
     box = actor_critic.bounded_box(action_space, "TD7")
     low, high = actor_critic.bounds(box, "TD7")
     dtype = jnp.dtype(config.compute_dtype)
-    init, act_fn = config.network_init, config.actor_activation
-    actor = networks.Actor(config.actor_hidden, low, high, init, dtype, act_fn)
-    critic = networks.Critic(config.critic_hidden, init, dtype, config.critic_activation)
-    encoder = networks.StateActionEncoder(
-        config.embedding_hidden, config.embedding_dim, init, dtype, config.critic_activation
+    init = config.network_init
+    actor_layers = networks.Layers(
+        hidden=config.actor_hidden,
+        activation=config.actor_activation,
+        initializer=init,
+        dtype=dtype,
     )
+    critic_layers = networks.Layers(
+        hidden=config.critic_hidden,
+        activation=config.critic_activation,
+        initializer=init,
+        dtype=dtype,
+    )
+    # SALE's encoders use the critics' nonlinearity (TD7's elu by default)
+    encoder_layers = dataclasses.replace(critic_layers, hidden=config.embedding_hidden)
+    actor = networks.Actor(layers=actor_layers, action_low=low, action_high=high)
+    critic = networks.Critic(layers=critic_layers)
+    encoder = networks.StateActionEncoder(layers=encoder_layers, embedding_dim=config.embedding_dim)
     nets = actor_critic.Networks(actor, critic, box.low.copy(), box.high.copy())
     return Networks(nets, encoder)
 

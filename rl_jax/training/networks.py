@@ -30,12 +30,16 @@ State-action embeddings (TD7's SALE, ``StateActionEncoder``): actor and critic t
 embeddings beside their raw inputs. The raw input first goes through one linear layer scaled by
 ``avg_l1_norm`` (so neither part dominates the concatenation by scale), then the embeddings are
 appended and the usual MLP follows.
+
+Every network takes its hidden layers as one ``Layers`` spec (widths, nonlinearity,
+initialisation, normalisation, architecture, compute dtype), checked once where it is made.
 """
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Callable, Mapping
-from typing import Any, TypeAlias
+from typing import Any, Literal, TypeAlias, get_args
 
 import flax.linen as nn
 import jax
@@ -48,12 +52,58 @@ from rl_jax.training.conv import INITS, ConvTorso, uniform_init
 #: A network's variables as flax keeps them (``{"params": ..., "batch_stats": ...}``).
 Params: TypeAlias = Mapping[str, Any]
 
-#: hidden-layer nonlinearities, with the orthogonal gain that keeps activations' scale
-ACTIVATIONS = {"relu": (nn.relu, 2.0**0.5), "tanh": (nn.tanh, 5.0 / 3.0), "elu": (nn.elu, 2.0**0.5)}
+#: weight initialisation schemes (see the module docstring)
+Initializer: TypeAlias = Literal["fan_in_uniform", "orthogonal"]
+#: hidden-layer nonlinearities (the keys of ``ACTIVATIONS``)
+Activation: TypeAlias = Literal["relu", "tanh", "elu"]
 #: normalisation of an MLP's hidden layers (see the module docstring)
-NORMS = ("none", "layer", "batch_renorm")
+Norm: TypeAlias = Literal["none", "layer", "batch_renorm"]
 #: the torso of actor and critic: plain MLP or SimBa's residual blocks
-ARCHITECTURES = ("mlp", "simba")
+Architecture: TypeAlias = Literal["mlp", "simba"]
+#: a Gaussian policy's std: a "state"-dependent head or a learned, state-free "param"
+StdMode: TypeAlias = Literal["state", "param"]
+
+#: hidden-layer nonlinearities, with the orthogonal gain that keeps activations' scale
+ACTIVATIONS: dict[Activation, tuple[Callable[[jax.Array], jax.Array], float]] = {
+    "relu": (nn.relu, 2.0**0.5),
+    "tanh": (nn.tanh, 5.0 / 3.0),
+    "elu": (nn.elu, 2.0**0.5),
+}
+NORMS: tuple[Norm, ...] = get_args(Norm)
+ARCHITECTURES: tuple[Architecture, ...] = get_args(Architecture)
+
+
+@dataclasses.dataclass(frozen=True)
+class Layers:
+    """A network's hidden layers: ``hidden`` widths, each ``activation`` after a linear layer
+    initialised by ``initializer``, normalised by ``norm`` (batch renormalisation warming up over
+    ``renorm_warmup`` updates), as an ``architecture`` ("mlp", or SimBa's residual blocks), with
+    matmuls in ``dtype`` (parameters stay float32). Frozen and hashable, like the modules that hold
+    it; an unknown option is a ``ValueError`` here, where the spec is made."""
+
+    hidden: tuple[int, ...]
+    activation: Activation = "relu"
+    initializer: Initializer = "fan_in_uniform"
+    norm: Norm = "none"
+    architecture: Architecture = "mlp"
+    dtype: DTypeLike = jnp.float32
+    renorm_warmup: int = 100_000
+
+    def __post_init__(self) -> None:
+        if self.initializer not in INITS:
+            raise ValueError(f"unknown initializer {self.initializer!r}; choose one of {INITS}")
+        if self.activation not in ACTIVATIONS:
+            raise ValueError(
+                f"unknown activation {self.activation!r}; choose one of {list(ACTIVATIONS)}"
+            )
+        if self.norm not in NORMS:
+            raise ValueError(f"unknown norm {self.norm!r}; choose one of {NORMS}")
+        if self.architecture not in ARCHITECTURES:
+            raise ValueError(
+                f"unknown architecture {self.architecture!r}; choose one of {ARCHITECTURES}"
+            )
+        if self.architecture == "simba":
+            check_architecture("simba", {"hidden": self.hidden}, (self.norm,))
 
 
 def check_architecture(
@@ -72,7 +122,9 @@ def check_architecture(
             raise ValueError("network='simba' has its own LayerNorms: leave the norms 'none'")
 
 
-def dense(features: int, fan_in: int, initializer: str, gain: float, dtype: DTypeLike) -> nn.Dense:
+def dense(
+    features: int, fan_in: int, initializer: Initializer, gain: float, dtype: DTypeLike
+) -> nn.Dense:
     """A linear layer initialised by the named scheme (``gain`` only matters for orthogonal)."""
     if initializer == "fan_in_uniform":
         bound = 1.0 / fan_in**0.5
@@ -89,12 +141,7 @@ def _float32(x: jax.Array) -> jax.Array:
     return x.astype(jnp.promote_types(x.dtype, jnp.float32))
 
 
-def _check_norm(norm: str) -> None:
-    if norm not in NORMS:
-        raise ValueError(f"unknown norm {norm!r}; choose one of {NORMS}")
-
-
-def _activation(name: str):
+def _activation(name: Activation) -> tuple[Callable[[jax.Array], jax.Array], float]:
     if name not in ACTIVATIONS:
         raise ValueError(f"unknown activation {name!r}; choose one of {list(ACTIVATIONS)}")
     return ACTIVATIONS[name]
@@ -102,59 +149,56 @@ def _activation(name: str):
 
 class Torso(nn.Module):
     """Hidden layers only: ``[..., in] -> [..., hidden[-1]]`` (the input itself if none).
-    ``norm="layer"``: dense -> LayerNorm -> nonlinearity in each layer, as ``MLP``'s."""
+    ``norm="layer"``: dense -> LayerNorm -> nonlinearity in each layer, as ``MLP``'s. Plain
+    layers: the spec's norm is "none" or "layer" and its architecture "mlp"."""
 
-    hidden: tuple[int, ...]
-    initializer: str = "fan_in_uniform"
-    activation: str = "relu"
-    dtype: DTypeLike = jnp.float32
-    norm: str = "none"  # "none" or "layer"
+    layers: Layers
 
     @nn.compact
     def __call__(self, x: jax.Array) -> jax.Array:
-        if self.norm not in ("none", "layer"):
-            raise ValueError(f"a Torso's norm is 'none' or 'layer', got {self.norm!r}")
-        function, gain = _activation(self.activation)
-        for width in self.hidden:
-            x = dense(width, x.shape[-1], self.initializer, gain, self.dtype)(x)
-            if self.norm == "layer":
-                x = nn.LayerNorm(dtype=self.dtype)(x)
+        spec = self.layers
+        if spec.norm not in ("none", "layer"):
+            raise ValueError(f"a Torso's norm is 'none' or 'layer', got {spec.norm!r}")
+        if spec.architecture != "mlp":
+            raise ValueError(f"a Torso's architecture is 'mlp', got {spec.architecture!r}")
+        function, gain = _activation(spec.activation)
+        for width in spec.hidden:
+            x = dense(width, x.shape[-1], spec.initializer, gain, spec.dtype)(x)
+            if spec.norm == "layer":
+                x = nn.LayerNorm(dtype=spec.dtype)(x)
             x = function(x)
         return x
 
 
 class MLP(nn.Module):
-    """Hidden layers (ReLU by default), linear output. Parameters float32; ``dtype`` is the
-    compute dtype. ``norm="layer"``: dense -> LayerNorm -> nonlinearity in each hidden layer;
+    """The hidden ``layers`` (ReLU by default), then a linear output of ``outputs`` (orthogonal
+    init: at ``output_gain``). Parameters float32; ``layers.dtype`` is the compute dtype.
+    ``norm="layer"``: dense -> LayerNorm -> nonlinearity in each hidden layer;
     ``"batch_renorm"``: BatchRenorm on the input and after each nonlinearity (``train`` picks its
-    mode, ``renorm_warmup`` its warm-up)."""
+    mode, ``layers.renorm_warmup`` its warm-up). The spec's architecture is not read here:
+    ``MLP`` and ``Simba`` are the two architectures."""
 
-    hidden: tuple[int, ...]
+    layers: Layers
     outputs: int
-    initializer: str = "fan_in_uniform"
     output_gain: float = 1.0
-    dtype: DTypeLike = jnp.float32
-    activation: str = "relu"
-    norm: str = "none"
-    renorm_warmup: int = 100_000
 
     @nn.compact
     def __call__(self, x: jax.Array, train: bool = False) -> jax.Array:
         # The layers sit directly in this module (not in a Torso): parameter names stay
         # Dense_0 .. Dense_k, as saved checkpoints have them (norm layers add their own).
-        _check_norm(self.norm)
-        function, gain = _activation(self.activation)
-        renorm = self.norm == "batch_renorm"
+        spec = self.layers
+        function, gain = _activation(spec.activation)
+        renorm = spec.norm == "batch_renorm"
         if renorm:
-            x = BatchRenorm(self.renorm_warmup, self.dtype)(x, train)
-        for width in self.hidden:
-            x = dense(width, x.shape[-1], self.initializer, gain, self.dtype)(x)
-            if self.norm == "layer":
-                x = nn.LayerNorm(dtype=self.dtype)(x)
+            x = BatchRenorm(spec.renorm_warmup, spec.dtype)(x, train)
+        for width in spec.hidden:
+            x = dense(width, x.shape[-1], spec.initializer, gain, spec.dtype)(x)
+            if spec.norm == "layer":
+                x = nn.LayerNorm(dtype=spec.dtype)(x)
             x = function(x)
             if renorm:
-                x = BatchRenorm(self.renorm_warmup, self.dtype)(x, train)
-        x = dense(self.outputs, x.shape[-1], self.initializer, self.output_gain, self.dtype)(x)
+                x = BatchRenorm(spec.renorm_warmup, spec.dtype)(x, train)
+        x = dense(self.outputs, x.shape[-1], spec.initializer, self.output_gain, spec.dtype)(x)
         return _float32(x)
 
 
@@ -162,9 +206,9 @@ class SimbaBlock(nn.Module):
     """SimBa's pre-LayerNorm residual block: ``x + dense(w)(act(dense(4w)(LN(x))))``."""
 
     width: int
-    initializer: str = "fan_in_uniform"
+    initializer: Initializer = "fan_in_uniform"
     dtype: DTypeLike = jnp.float32
-    activation: str = "relu"
+    activation: Activation = "relu"
 
     @nn.compact
     def __call__(self, x: jax.Array) -> jax.Array:
@@ -176,46 +220,37 @@ class SimbaBlock(nn.Module):
 
 class Simba(nn.Module):
     """SimBa's network in ``MLP``'s place: ``dense(w)``, one ``SimbaBlock`` per entry of
-    ``hidden`` (all entries equal ``w``), LayerNorm, linear output."""
+    ``layers.hidden`` (all entries equal ``w``), LayerNorm, linear output of ``outputs``. The
+    blocks bring their own LayerNorms: the spec's norm is not read."""
 
-    hidden: tuple[int, ...]
+    layers: Layers
     outputs: int
-    initializer: str = "fan_in_uniform"
     output_gain: float = 1.0
-    dtype: DTypeLike = jnp.float32
-    activation: str = "relu"
 
     @nn.compact
     def __call__(self, x: jax.Array) -> jax.Array:
-        if not self.hidden or len(set(self.hidden)) != 1:
-            raise ValueError(f"SimBa blocks share one width, got hidden {self.hidden}")
-        width = self.hidden[0]
-        x = dense(width, x.shape[-1], self.initializer, 1.0, self.dtype)(x)
-        for _ in self.hidden:
-            x = SimbaBlock(width, self.initializer, self.dtype, self.activation)(x)
-        x = nn.LayerNorm(dtype=self.dtype)(x)
+        spec = self.layers
+        if not spec.hidden or len(set(spec.hidden)) != 1:
+            raise ValueError(f"SimBa blocks share one width, got hidden {spec.hidden}")
+        width = spec.hidden[0]
+        x = dense(width, x.shape[-1], spec.initializer, 1.0, spec.dtype)(x)
+        for _ in spec.hidden:
+            block = SimbaBlock(
+                width, initializer=spec.initializer, dtype=spec.dtype, activation=spec.activation
+            )
+            x = block(x)
+        x = nn.LayerNorm(dtype=spec.dtype)(x)
         return _float32(
-            dense(self.outputs, width, self.initializer, self.output_gain, self.dtype)(x)
+            dense(self.outputs, width, spec.initializer, self.output_gain, spec.dtype)(x)
         )
 
 
-def _torso_and_head(
-    module: Actor | Critic, outputs: int, output_gain: float, renorm_warmup: int = 100_000
-) -> nn.Module:
-    """``module``'s MLP, or its ``Simba`` when ``module.architecture`` says so."""
-    args = (
-        module.hidden,
-        outputs,
-        module.initializer,
-        output_gain,
-        module.dtype,
-        module.activation,
-    )
-    if module.architecture == "simba":
-        return Simba(*args)
-    if module.architecture != "mlp":
-        raise ValueError(f"unknown architecture {module.architecture!r}; one of {ARCHITECTURES}")
-    return MLP(*args, module.norm, renorm_warmup)
+def torso_and_head(layers: Layers, outputs: int, output_gain: float) -> MLP | Simba:
+    """The hidden ``layers`` and a linear output of ``outputs``: an ``MLP``, or a ``Simba`` when
+    ``layers.architecture`` says so. Only the ``MLP`` takes ``train``."""
+    if layers.architecture == "simba":
+        return Simba(layers=layers, outputs=outputs, output_gain=output_gain)
+    return MLP(layers=layers, outputs=outputs, output_gain=output_gain)
 
 
 def avg_l1_norm(x: jax.Array, eps: float = 1e-8) -> jax.Array:
@@ -225,19 +260,16 @@ def avg_l1_norm(x: jax.Array, eps: float = 1e-8) -> jax.Array:
 
 class StateActionEncoder(nn.Module):
     """TD7's SALE encoders: ``embed_state`` ``f(s) = avg_l1_norm(MLP(s))`` and ``embed_pair``
-    ``g(z_s, a) = MLP([z_s, a])``, both of ``embedding_dim`` outputs; ``g(f(s), a)`` learns to
-    predict ``f(s')``. ``__call__`` gives ``(z_s, z_sa)``."""
+    ``g(z_s, a) = MLP([z_s, a])``, both MLPs of the hidden ``layers`` (TD7's nonlinearity is
+    elu) and ``embedding_dim`` outputs; ``g(f(s), a)`` learns to predict ``f(s')``.
+    ``__call__`` gives ``(z_s, z_sa)``."""
 
-    hidden: tuple[int, ...]
+    layers: Layers
     embedding_dim: int
-    initializer: str = "fan_in_uniform"
-    dtype: DTypeLike = jnp.float32
-    activation: str = "elu"
 
     def setup(self) -> None:
-        args = (self.embedding_dim, self.initializer, 1.0, self.dtype, self.activation)
-        self.state_mlp = MLP(self.hidden, *args)
-        self.pair_mlp = MLP(self.hidden, *args)
+        self.state_mlp = MLP(layers=self.layers, outputs=self.embedding_dim)
+        self.pair_mlp = MLP(layers=self.layers, outputs=self.embedding_dim)
 
     def embed_state(self, obs: jax.Array) -> jax.Array:
         return avg_l1_norm(self.state_mlp(obs))
@@ -250,34 +282,30 @@ class StateActionEncoder(nn.Module):
         return zs, self.embed_pair(zs, action)
 
 
-def _with_embeddings(module: nn.Module, x: jax.Array, embeddings: jax.Array | None) -> jax.Array:
-    """``[avg_l1_norm(dense(x)), embeddings]`` (a ``Dense_0`` of the first hidden width in
-    ``module``), or ``x`` unchanged without embeddings."""
+def _with_embeddings(layers: Layers, x: jax.Array, embeddings: jax.Array | None) -> jax.Array:
+    """``[avg_l1_norm(dense(x)), embeddings]`` (a ``Dense_0`` of the first hidden width in the
+    calling module), or ``x`` unchanged without embeddings."""
     if embeddings is None:
         return x
-    width = module.hidden[0] if module.hidden else x.shape[-1]
-    layer = dense(width, x.shape[-1], module.initializer, 1.0, module.dtype)
-    return jnp.concatenate([avg_l1_norm(layer(x)), embeddings.astype(module.dtype)], axis=-1)
+    width = layers.hidden[0] if layers.hidden else x.shape[-1]
+    layer = dense(width, x.shape[-1], layers.initializer, 1.0, layers.dtype)
+    return jnp.concatenate([avg_l1_norm(layer(x)), embeddings.astype(layers.dtype)], axis=-1)
 
 
 class Actor(nn.Module):
     """Deterministic policy ``obs [..., obs_dim] -> action [..., action_dim]`` inside the bounds:
-    a tanh squashes the MLP output and an affine map stretches [-1, 1] onto [low, high]."""
+    a tanh squashes the output of the hidden ``layers`` (an ``MLP`` or ``Simba``) and an affine
+    map stretches [-1, 1] onto [low, high]."""
 
-    hidden: tuple[int, ...]
+    layers: Layers
     action_low: tuple[float, ...]
     action_high: tuple[float, ...]
-    initializer: str = "fan_in_uniform"
-    dtype: DTypeLike = jnp.float32
-    activation: str = "relu"
-    norm: str = "none"  # see MLP
-    architecture: str = "mlp"  # or "simba"
 
     @nn.compact
     def __call__(self, obs: jax.Array, zs: jax.Array | None = None) -> jax.Array:
         """``zs``: the SALE state embedding, which joins the observation's features."""
-        x = _with_embeddings(self, obs, zs)
-        raw = _torso_and_head(self, len(self.action_low), 0.01)(x)
+        x = _with_embeddings(self.layers, obs, zs)
+        raw = torso_and_head(self.layers, len(self.action_low), 0.01)(x)
         # Bounds get explicit leading axes: no silent rank promotion against a batch.
         bounds_shape = (1,) * (raw.ndim - 1) + (len(self.action_low),)
         low = jnp.reshape(jnp.asarray(self.action_low, raw.dtype), bounds_shape)
@@ -286,17 +314,12 @@ class Actor(nn.Module):
 
 
 class Critic(nn.Module):
-    """Action value ``(obs [..., obs_dim], action [..., action_dim]) -> q [...]``; the action
-    enters at the first layer together with the observation (as in TD3, unlike the original DDPG).
+    """Action value ``(obs [..., obs_dim], action [..., action_dim]) -> q [...]`` through the
+    hidden ``layers`` (an ``MLP`` or ``Simba``); the action enters at the first layer together
+    with the observation (as in TD3, unlike the original DDPG).
     """
 
-    hidden: tuple[int, ...]
-    initializer: str = "fan_in_uniform"
-    dtype: DTypeLike = jnp.float32
-    activation: str = "relu"
-    norm: str = "none"  # see MLP
-    architecture: str = "mlp"  # or "simba"
-    renorm_warmup: int = 100_000  # norm "batch_renorm": see MLP
+    layers: Layers
 
     @nn.compact
     def __call__(
@@ -308,35 +331,41 @@ class Critic(nn.Module):
     ) -> jax.Array:
         """``embeddings``: SALE's ``[z_sa, z_s]``, which join the state-action features;
         ``train``: batch renormalisation's mode."""
-        x = _with_embeddings(self, jnp.concatenate([obs, action], axis=-1), embeddings)
-        body = _torso_and_head(self, 1, 1.0, self.renorm_warmup)
-        return (body(x, train) if self.norm == "batch_renorm" else body(x))[..., 0]
+        x = _with_embeddings(self.layers, jnp.concatenate([obs, action], axis=-1), embeddings)
+        body = torso_and_head(self.layers, 1, 1.0)
+        if isinstance(body, MLP) and self.layers.norm == "batch_renorm":
+            return body(x, train)[..., 0]
+        return body(x)[..., 0]
 
 
 class QNetwork(nn.Module):
     """Action values of a discrete action space: ``obs [..., obs_dim] -> q [..., num_actions]``
-    (or ``obs [..., H, W, C]`` through a ``ConvTorso`` when ``conv_layers`` is set).
+    (or ``obs [..., H, W, C]`` through a ``ConvTorso`` when ``conv_layers`` is set), through a
+    ``Torso`` of the hidden ``layers``.
 
     ``dueling`` (Wang et al. 2016): the torso feeds a state-value head ``v`` and an advantage head
     ``a``, combined as ``q = v + a - mean(a)`` (the mean makes the split identifiable).
-    ``norm="layer"``: LayerNorm before each hidden ReLU (as PQN's Q-network)."""
+    ``norm="layer"``: LayerNorm before each hidden nonlinearity (as PQN's Q-network)."""
 
-    hidden: tuple[int, ...]
+    layers: Layers
     num_actions: int
     dueling: bool = False
-    initializer: str = "fan_in_uniform"
-    dtype: DTypeLike = jnp.float32
     conv_layers: tuple[int, ...] = ()  # set: obs are images [..., H, W, C], see ConvTorso
     conv_rows: tuple[int, ...] = ()  # (first, stop): the image rows the ConvTorso sees
-    norm: str = "none"  # "layer": LayerNorm in each hidden layer after the conv torso
 
     @nn.compact
     def __call__(self, obs: jax.Array) -> jax.Array:
+        spec = self.layers
         if self.conv_layers:
-            torso = ConvTorso(self.conv_layers, self.initializer, self.dtype, self.conv_rows)
+            torso = ConvTorso(
+                self.conv_layers,
+                initializer=spec.initializer,
+                dtype=spec.dtype,
+                rows=self.conv_rows,
+            )
             obs = torso(obs)
-        x = Torso(self.hidden, self.initializer, "relu", self.dtype, self.norm)(obs)
-        head = lambda outputs: dense(outputs, x.shape[-1], self.initializer, 1.0, self.dtype)  # noqa: E731
+        x = Torso(layers=spec)(obs)
+        head = lambda outputs: dense(outputs, x.shape[-1], spec.initializer, 1.0, spec.dtype)  # noqa: E731
         if not self.dueling:
             return _float32(head(self.num_actions)(x))
         value, advantage = head(1)(x), head(self.num_actions)(x)
@@ -344,41 +373,41 @@ class QNetwork(nn.Module):
 
 
 class StochasticPolicy(nn.Module):
-    """A policy network for policy-gradient learners: a torso and heads on its features.
+    """A policy network for policy-gradient learners: a ``Torso`` of the hidden ``layers`` and
+    float32 heads on its features.
 
     ``num_actions`` set: a categorical policy, ``logits [..., num_actions]``. Otherwise a diagonal
     Gaussian over ``action_dim`` dims: ``mean`` and ``std``. ``std_mode="state"``: a state-dependent
     head, ``std = softplus(raw) + std_floor``; ``"param"``: one learned log-std per action dim,
     independent of the state (initially ``initial_std``), ``std = exp(log_std) + std_floor``. The
     floor keeps the std, and so the log-density, finite. ``value`` adds a state-value head
-    ``[...]``: on the policy's features, or on a torso of its own when ``value_hidden`` is given
-    (the value loss then does not shape the policy's features). Returns a dict.
+    ``[...]``: on the policy's features, or on a torso of its own (``layers`` but
+    ``value_hidden`` widths) when ``value_hidden`` is given (the value loss then does not shape
+    the policy's features). Returns a dict.
     """
 
-    hidden: tuple[int, ...]
+    layers: Layers
     action_dim: int = 1
     num_actions: int | None = None
     std_floor: float = 1e-3
     value: bool = False
-    activation: str = "tanh"
-    initializer: str = "fan_in_uniform"
-    std_mode: str = "state"
+    std_mode: StdMode = "state"
     initial_std: float = 1.0
     value_hidden: tuple[int, ...] = ()
 
     @nn.compact
     def __call__(self, obs: jax.Array) -> dict[str, jax.Array]:
-        x = Torso(self.hidden, self.initializer, self.activation)(obs)
-        head = lambda outputs: dense(outputs, x.shape[-1], self.initializer, 0.01, jnp.float32)  # noqa: E731
+        init = self.layers.initializer
+        x = Torso(layers=self.layers)(obs)
+        head = lambda outputs: dense(outputs, x.shape[-1], init, 0.01, jnp.float32)  # noqa: E731
         if self.num_actions is not None:
             out = {"logits": head(self.num_actions)(x)}
         else:
             out = {"mean": head(self.action_dim)(x), "std": self._std(x, head)}
         if self.value and self.value_hidden:
-            features = Torso(self.value_hidden, self.initializer, self.activation)(obs)
-            out["value"] = dense(1, self.value_hidden[-1], self.initializer, 1.0, jnp.float32)(
-                features
-            )[..., 0]
+            value_layers = dataclasses.replace(self.layers, hidden=self.value_hidden)
+            features = Torso(layers=value_layers)(obs)
+            out["value"] = dense(1, self.value_hidden[-1], init, 1.0, jnp.float32)(features)[..., 0]
         elif self.value:
             out["value"] = head(1)(x)[..., 0]
         return out

@@ -22,7 +22,7 @@ import math
 import flax.linen as nn
 import jax
 import jax.numpy as jnp
-from jax.typing import ArrayLike, DTypeLike
+from jax.typing import ArrayLike
 
 from rl_jax.training import networks
 
@@ -78,30 +78,18 @@ def rescale(a: jax.Array, low: ArrayLike, high: ArrayLike) -> jax.Array:
 # ---- the network head ----------------------------------------------------------------------------
 class GaussianActor(nn.Module):
     """``obs [..., obs_dim] -> (mean, log_std)``, each ``[..., action_dim]``, pre-tanh; the
-    log-std clipped to ``[log_std_min, log_std_max]``. The torso is ``networks.MLP`` (with its
-    ``norm``: "layer" or "batch_renorm", the latter taking ``train``) or SimBa's blocks; one
-    linear output layer gives both halves."""
+    log-std clipped to ``[log_std_min, log_std_max]``. The hidden ``layers`` are a
+    ``networks.MLP`` (with its ``norm``: "layer" or "batch_renorm", the latter taking ``train``)
+    or SimBa's blocks; one linear output layer gives both halves."""
 
-    hidden: tuple[int, ...]
+    layers: networks.Layers
     action_dim: int
-    initializer: str = "fan_in_uniform"
-    dtype: DTypeLike = jnp.float32
-    activation: str = "relu"
-    norm: str = "none"  # see networks.MLP
-    architecture: str = "mlp"  # or "simba"
-    renorm_warmup: int = 100_000  # norm "batch_renorm": see networks.MLP
     log_std_min: float = LOG_STD_MIN
     log_std_max: float = LOG_STD_MAX
 
     @nn.compact
     def __call__(self, obs: jax.Array, train: bool = False) -> tuple[jax.Array, jax.Array]:
-        outputs, args = 2 * self.action_dim, (self.initializer, 0.01, self.dtype, self.activation)
-        if self.architecture == "simba":
-            raw = networks.Simba(self.hidden, outputs, *args)(obs)
-        elif self.architecture == "mlp":
-            mlp = networks.MLP(self.hidden, outputs, *args, self.norm, self.renorm_warmup)
-            raw = mlp(obs, train)
-        else:
-            raise ValueError(f"unknown architecture {self.architecture!r}")
+        body = networks.torso_and_head(self.layers, 2 * self.action_dim, 0.01)
+        raw = body(obs, train) if isinstance(body, networks.MLP) else body(obs)
         mean, log_std = jnp.split(raw, 2, axis=-1)
         return mean, jnp.clip(log_std, self.log_std_min, self.log_std_max)

@@ -235,7 +235,7 @@ def test_network_loss_check_grads(setup):
     with jax.enable_x64(True):
         to64 = lambda tree: jax.tree.map(lambda x: x.astype(jnp.float64), tree)  # noqa: E731
         for dueling in (False, True):
-            net = networks.QNetwork((8,), 5, dueling=dueling, dtype=jnp.float64)
+            net = networks.QNetwork(networks.Layers((8,), dtype=jnp.float64), 5, dueling=dueling)
             online, target = (
                 to64(net.init(k, jnp.zeros(1))) for k in jax.random.split(jax.random.key(2))
             )
@@ -254,11 +254,13 @@ def test_network_loss_check_grads(setup):
 
 
 def test_dueling_head_is_value_plus_centred_advantage():
-    net = networks.QNetwork((8,), 4, dueling=True)
+    net = networks.QNetwork(networks.Layers((8,)), 4, dueling=True)
     params = net.init(jax.random.key(3), jnp.zeros(2))
     obs = jax.random.normal(jax.random.key(4), (5, 2))
     q = net.apply(params, obs)
-    features = networks.Torso((8,)).apply({"params": params["params"]["Torso_0"]}, obs)
+    features = networks.Torso(networks.Layers((8,))).apply(
+        {"params": params["params"]["Torso_0"]}, obs
+    )
     value_head, advantage_head = params["params"]["Dense_0"], params["params"]["Dense_1"]
     value = features @ value_head["kernel"] + value_head["bias"][None, :]
     advantage = features @ advantage_head["kernel"] + advantage_head["bias"][None, :]
@@ -269,7 +271,7 @@ def test_dueling_head_is_value_plus_centred_advantage():
 
 
 def test_layer_norm_q_network_normalises_each_hidden_layer_before_its_relu():
-    net = networks.QNetwork((8, 6), 3, norm="layer")
+    net = networks.QNetwork(networks.Layers((8, 6), norm="layer"), 3)
     params = net.init(jax.random.key(3), jnp.zeros(2))["params"]
     torso = params["Torso_0"]
     assert set(torso) == {"Dense_0", "LayerNorm_0", "Dense_1", "LayerNorm_1"}
@@ -284,7 +286,9 @@ def test_layer_norm_q_network_normalises_each_hidden_layer_before_its_relu():
     expected = x @ np.asarray(head["kernel"], np.float64) + np.asarray(head["bias"], np.float64)
     np.testing.assert_allclose(net.apply({"params": params}, obs), expected, rtol=1e-4, atol=1e-5)
     # Off, the parameters are the ones saved runs have.
-    plain = networks.QNetwork((8, 6), 3).init(jax.random.key(3), jnp.zeros(2))["params"]
+    plain = networks.QNetwork(networks.Layers((8, 6)), 3).init(jax.random.key(3), jnp.zeros(2))[
+        "params"
+    ]
     assert set(plain["Torso_0"]) == {"Dense_0", "Dense_1"}
     with pytest.raises(ValueError, match="norm must be"):
         dqn.default_config("rl_jax/CartPole-v1", norm="batch")

@@ -56,8 +56,10 @@ def test_covering_rows_grow_the_band_to_a_height_the_conv_stack_reads_whole(
 
 def test_a_torso_that_sees_some_rows_equals_the_torso_on_those_rows():
     rows = (5, 29)
-    cropped = networks.QNetwork((8,), 2, conv_layers=(4, 8, 4, 6, 3, 1), conv_rows=rows)
-    whole = networks.QNetwork((8,), 2, conv_layers=(4, 8, 4, 6, 3, 1))
+    cropped = networks.QNetwork(
+        networks.Layers((8,)), 2, conv_layers=(4, 8, 4, 6, 3, 1), conv_rows=rows
+    )
+    whole = networks.QNetwork(networks.Layers((8,)), 2, conv_layers=(4, 8, 4, 6, 3, 1))
     frames = jax.random.randint(jax.random.key(0), (3, 36, 40, 2), 0, 256).astype(jnp.uint8)
     params = cropped.init(jax.random.key(1), frames)
     assert params["params"]["Torso_0"]["Dense_0"]["kernel"].shape == (3 * 7 * 6, 8)
@@ -126,7 +128,9 @@ def test_the_augmented_update_sees_shifted_frames_and_acting_does_not():
 
 
 def test_q_network_on_frames_has_the_right_shapes_for_any_batch_dims():
-    net = networks.QNetwork((32,), 2, dueling=True, conv_layers=(16, 8, 4, 32, 4, 2))
+    net = networks.QNetwork(
+        networks.Layers((32,)), 2, dueling=True, conv_layers=(16, 8, 4, 32, 4, 2)
+    )
     frames = jax.random.randint(jax.random.key(0), (2, 3, 44, 44, 4), 0, 256).astype(jnp.uint8)
     params = jax.jit(net.init)(jax.random.key(1), frames[0, 0])
     assert params["params"]["ConvTorso_0"]["Conv_1"]["kernel"].shape == (4, 4, 16, 32)
@@ -179,7 +183,7 @@ def test_matmul_conv_equals_flax_conv_and_its_gradients(kernel, stride, size):
 
 
 def test_conv_q_network_gradients_match_finite_differences():
-    net = networks.QNetwork((6,), 3, conv_layers=(3, 3, 2, 4, 2, 1))
+    net = networks.QNetwork(networks.Layers((6,)), 3, conv_layers=(3, 3, 2, 4, 2, 1))
     frames = jax.random.uniform(jax.random.key(0), (2, 9, 9, 2), minval=0.0, maxval=255.0)
     params = net.init(jax.random.key(1), frames)
 

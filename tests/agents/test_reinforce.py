@@ -18,6 +18,10 @@ from rl_jax.training import networks
 GAMMA = 0.9
 
 
+#: a policy's hidden layers as REINFORCE's defaults make them: tanh
+TANH_16_32 = networks.Layers((16, 32), activation="tanh")
+
+
 def test_reward_to_go_with_masks_equals_a_python_loop():
     rng = np.random.default_rng(0)
     horizon, count = 7, 5
@@ -68,8 +72,8 @@ def test_gaussian_and_categorical_log_probs_equal_closed_forms():
 
 def test_std_floor_bounds_the_std_and_leaves_the_mean_alone():
     obs = jax.random.normal(jax.random.key(1), (8, 3))
-    low = networks.StochasticPolicy((16, 32), action_dim=2, std_floor=1e-6)
-    high = networks.StochasticPolicy((16, 32), action_dim=2, std_floor=0.5)
+    low = networks.StochasticPolicy(TANH_16_32, action_dim=2, std_floor=1e-6)
+    high = networks.StochasticPolicy(TANH_16_32, action_dim=2, std_floor=0.5)
     params = low.init(jax.random.key(2), obs)
     # Push the std head's raw output far negative: the std is then the floor.
     params = jax.tree_util.tree_map_with_path(
@@ -246,7 +250,9 @@ def test_learning_rate_decays_linearly_to_zero_or_stays_constant():
 
 
 def test_state_independent_std_starts_at_initial_std_for_every_obs():
-    network = networks.StochasticPolicy((8,), action_dim=3, std_mode="param", initial_std=0.5)
+    network = networks.StochasticPolicy(
+        networks.Layers((8,), activation="tanh"), action_dim=3, std_mode="param", initial_std=0.5
+    )
     obs = jax.random.normal(jax.random.key(0), (4, 2))
     out = network.apply(network.init(jax.random.key(1), obs), obs)
     np.testing.assert_allclose(out["std"], np.full((4, 3), 0.5 + 1e-3), rtol=1e-6)

@@ -113,8 +113,20 @@ def build_networks(config: Config) -> Networks:
     ``ACTION_SPACE`` (asymmetric bounds, which no registered env has) instead of the env's."""
     low, high = actor_critic.bounds(ACTION_SPACE, "TD3/DDPG")
     dtype, init = jnp.dtype(config.compute_dtype), config.network_init
-    actor = networks.Actor(config.actor_hidden, low, high, init, dtype, config.actor_activation)
-    critic = networks.Critic(config.critic_hidden, init, dtype, config.critic_activation)
+    actor_layers = networks.Layers(
+        hidden=config.actor_hidden,
+        activation=config.actor_activation,
+        initializer=init,
+        dtype=dtype,
+    )
+    critic_layers = networks.Layers(
+        hidden=config.critic_hidden,
+        activation=config.critic_activation,
+        initializer=init,
+        dtype=dtype,
+    )
+    actor = networks.Actor(layers=actor_layers, action_low=low, action_high=high)
+    critic = networks.Critic(layers=critic_layers)
     return Networks(actor, critic, ACTION_SPACE.low.copy(), ACTION_SPACE.high.copy())
 
 

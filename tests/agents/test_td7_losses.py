@@ -190,7 +190,8 @@ def test_sale_networks_read_normalised_features_and_the_embeddings(sale_setup):
     np.testing.assert_allclose(np.mean(np.abs(zs), axis=-1), 1.0, rtol=1e-5)  # AvgL1Norm'd
     features = networks.avg_l1_norm(batch.obs @ first["kernel"] + first["bias"][None])
     mlp = {"params": actor["params"]["MLP_0"]}
-    raw = networks.MLP((8, 8), 1, output_gain=0.01).apply(mlp, jnp.concatenate([features, zs], -1))
+    actor_mlp = networks.MLP(networks.Layers((8, 8)), 1, output_gain=0.01)
+    raw = actor_mlp.apply(mlp, jnp.concatenate([features, zs], -1))
     got = td7.policy_action(td7.make_networks(SALE_CONFIG), actor, fixed, batch.obs)
     # tanh stretched onto Pendulum's [-2, 2]
     np.testing.assert_allclose(got, 2.0 * jnp.tanh(raw), rtol=1e-5, atol=1e-6)

@@ -78,7 +78,7 @@ def test_the_layer_updates_its_statistics_only_in_training_mode():
 
 
 def test_batch_renorm_sits_on_the_input_and_after_each_nonlinearity():
-    mlp = networks.MLP((8, 6), 1, norm="batch_renorm")
+    mlp = networks.MLP(networks.Layers((8, 6), norm="batch_renorm"), 1)
     x = jax.random.normal(jax.random.key(1), (5, 3))
     variables = mlp.init(jax.random.key(2), x)
     names = sorted(variables["params"])
@@ -109,7 +109,7 @@ def test_batch_renorm_sits_on_the_input_and_after_each_nonlinearity():
 def test_the_joint_pass_is_one_training_pass_over_both_halves():
     """CrossQ's pass over ``[(s, a); (s', a')]``: its values and statistics are those of one
     training-mode pass of each stacked critic over the 2B rows together, split back in two."""
-    critic = networks.Critic((8,), norm="batch_renorm", renorm_warmup=0)
+    critic = networks.Critic(networks.Layers((8,), norm="batch_renorm", renorm_warmup=0))
     keys = jax.random.split(jax.random.key(3), 5)
     obs, next_obs = jax.random.normal(keys[0], (2, 5, 3))
     action, next_action = jax.random.uniform(keys[1], (2, 5, 2))

@@ -15,12 +15,12 @@ def _kernels_and_biases(mlp_params):
 
 
 def test_actor_is_tanh_stretched_onto_asymmetric_bounds():
-    actor = networks.Actor((8,), action_low=(0.0, -3.0), action_high=(1.0, 1.0))
+    actor = networks.Actor(networks.Layers((8,)), action_low=(0.0, -3.0), action_high=(1.0, 1.0))
     obs = 50.0 * jax.random.normal(jax.random.key(0), (64, 4))
     params = actor.init(jax.random.key(1), obs)
     action = np.asarray(actor.apply(params, obs))
     mlp_params = {"params": params["params"]["MLP_0"]}
-    raw = networks.MLP((8,), 2, output_gain=0.01).apply(mlp_params, obs)
+    raw = networks.MLP(networks.Layers((8,)), 2, output_gain=0.01).apply(mlp_params, obs)
     expected = np.array([0.0, -3.0]) + (np.tanh(np.asarray(raw)) + 1) / 2 * np.array([1.0, 4.0])
     np.testing.assert_allclose(action, expected, rtol=1e-6, atol=1e-6)
     assert np.all(action >= [0.0, -3.0]) and np.all(action <= [1.0, 1.0])
@@ -28,7 +28,7 @@ def test_actor_is_tanh_stretched_onto_asymmetric_bounds():
 
 
 def test_fan_in_uniform_init_matches_torch_linear_default():
-    mlp = networks.MLP((256, 64), 3)
+    mlp = networks.MLP(networks.Layers((256, 64)), 3)
     params = jax.jit(mlp.init)(jax.random.key(0), jnp.zeros((1, 17)))
     for kernel, bias in _kernels_and_biases(params):
         bound = 1.0 / np.sqrt(kernel.shape[0])
@@ -39,7 +39,7 @@ def test_fan_in_uniform_init_matches_torch_linear_default():
 
 
 def test_orthogonal_init_has_orthogonal_columns_gain_and_zero_bias():
-    mlp = networks.MLP((32,), 4, initializer="orthogonal", output_gain=0.5)
+    mlp = networks.MLP(networks.Layers((32,), initializer="orthogonal"), 4, output_gain=0.5)
     params = mlp.init(jax.random.key(0), jnp.zeros((1, 16)))
     (hidden, hidden_bias), (out, out_bias) = _kernels_and_biases(params)
     # 16 x 32: the rows are orthonormal x gain (wide matrix); 32 x 4: columns are.
@@ -50,11 +50,11 @@ def test_orthogonal_init_has_orthogonal_columns_gain_and_zero_bias():
 
 def test_unknown_initializer_is_rejected():
     with pytest.raises(ValueError, match="unknown initializer"):
-        networks.MLP((4,), 1, initializer="xavier").init(jax.random.key(0), jnp.zeros(2))
+        networks.Layers((4,), initializer="xavier")  # type: ignore[arg-type]
 
 
 def test_stacked_critics_are_independent_and_match_one_by_one_apply():
-    critic = networks.Critic((16, 16))
+    critic = networks.Critic(networks.Layers((16, 16)))
     obs, action = jnp.ones((5, 3)), jnp.linspace(-1, 1, 10).reshape(5, 2)
     params = networks.init_stacked(critic, jax.random.key(0), 2, obs[0], action[0])
     assert all(leaf.shape[0] == 2 for leaf in jax.tree.leaves(params))
@@ -68,8 +68,8 @@ def test_stacked_critics_are_independent_and_match_one_by_one_apply():
 
 def test_bfloat16_compute_keeps_float32_params_and_outputs():
     obs, action = jax.random.normal(jax.random.key(2), (8, 3)), jnp.zeros((8, 1))
-    full = networks.Critic((32, 32))
-    half = networks.Critic((32, 32), dtype=jnp.bfloat16)
+    full = networks.Critic(networks.Layers((32, 32)))
+    half = networks.Critic(networks.Layers((32, 32), dtype=jnp.bfloat16))
     params = full.init(jax.random.key(0), obs, action)
     assert {leaf.dtype for leaf in jax.tree.leaves(half.init(jax.random.key(0), obs, action))} == {
         jnp.dtype(jnp.float32)
@@ -88,7 +88,7 @@ def _layer_norm(x, eps=1e-6):
 
 @pytest.mark.parametrize("activation", ["relu", "elu"])
 def test_layer_norm_sits_between_each_hidden_dense_and_its_nonlinearity(activation):
-    mlp = networks.MLP((8, 6), 2, activation=activation, norm="layer")
+    mlp = networks.MLP(networks.Layers((8, 6), activation=activation, norm="layer"), 2)
     x = jax.random.normal(jax.random.key(0), (5, 3))
     params = mlp.init(jax.random.key(1), x)
     layers = params["params"]
@@ -115,14 +115,16 @@ def test_layer_norm_sits_between_each_hidden_dense_and_its_nonlinearity(activati
 def test_layer_norm_critic_and_actor_keep_the_plain_dense_parameters():
     # The Dense layers keep their names and initial values: a LayerNorm adds parameters only.
     obs, action = jnp.ones((4, 3)), jnp.zeros((4, 1))
-    plain = networks.Critic((16, 16)).init(jax.random.key(0), obs, action)
-    normed = networks.Critic((16, 16), norm="layer").init(jax.random.key(0), obs, action)
+    plain = networks.Critic(networks.Layers((16, 16))).init(jax.random.key(0), obs, action)
+    normed = networks.Critic(networks.Layers((16, 16), norm="layer")).init(
+        jax.random.key(0), obs, action
+    )
     for name, layer in plain["params"]["MLP_0"].items():
         jax.tree.map(np.testing.assert_array_equal, layer, normed["params"]["MLP_0"][name])
-    actor = networks.Actor((16,), (-1.0,), (1.0,), norm="layer")
+    actor = networks.Actor(networks.Layers((16,), norm="layer"), (-1.0,), (1.0,))
     assert "LayerNorm_0" in actor.init(jax.random.key(0), obs)["params"]["MLP_0"]
     with pytest.raises(ValueError, match="unknown norm"):
-        networks.MLP((4,), 1, norm="group").init(jax.random.key(0), jnp.zeros(2))
+        networks.Layers((4,), norm="group")  # type: ignore[arg-type]
 
 
 def _relu_block(x, block):
@@ -148,7 +150,7 @@ def test_simba_block_shapes_and_its_skip_path():
 
 
 def test_simba_is_linear_then_blocks_then_layer_norm_then_head():
-    net = networks.Simba((8, 8), 3)
+    net = networks.Simba(networks.Layers((8, 8)), 3)
     x = jax.random.normal(jax.random.key(2), (4, 5))
     params = net.init(jax.random.key(3), x)["params"]
     assert sorted(params) == ["Dense_0", "Dense_1", "LayerNorm_0", "SimbaBlock_0", "SimbaBlock_1"]
@@ -163,14 +165,44 @@ def test_simba_is_linear_then_blocks_then_layer_norm_then_head():
     out = h @ np.asarray(params["Dense_1"]["kernel"]) + np.asarray(params["Dense_1"]["bias"])
     np.testing.assert_allclose(net.apply({"params": params}, x), out, rtol=1e-5, atol=1e-5)
     with pytest.raises(ValueError, match="one width"):
-        networks.Simba((8, 4), 1).init(jax.random.key(0), x)
+        networks.Simba(networks.Layers((8, 4)), 1).init(jax.random.key(0), x)
 
 
 def test_actor_and_critic_take_simba_in_place_of_the_mlp():
     obs, action = jnp.ones((4, 3)), jnp.zeros((4, 1))
-    critic = networks.Critic((8, 8), architecture="simba").init(jax.random.key(0), obs, action)
+    critic = networks.Critic(networks.Layers((8, 8), architecture="simba")).init(
+        jax.random.key(0), obs, action
+    )
     assert list(critic["params"]) == ["Simba_0"]
-    actor = networks.Actor((8,), (-1.0,), (1.0,), architecture="simba")
+    actor = networks.Actor(networks.Layers((8,), architecture="simba"), (-1.0,), (1.0,))
     params = actor.init(jax.random.key(0), obs)
     assert list(params["params"]) == ["Simba_0"]
     assert np.all(np.abs(actor.apply(params, obs)) <= 1.0)
+
+
+def test_layers_spec_is_hashable_and_refuses_unknown_options_where_it_is_made():
+    spec = networks.Layers((8, 8), activation="elu", norm="layer")
+    assert spec == networks.Layers((8, 8), activation="elu", norm="layer")
+    assert hash(spec) == hash(networks.Layers((8, 8), activation="elu", norm="layer"))
+    assert networks.Critic(spec) == networks.Critic(spec)  # modules holding it compare equal
+    for bad, message in [
+        ({"activation": "gelu"}, "unknown activation"),
+        ({"norm": "group"}, "unknown norm"),
+        ({"architecture": "resnet"}, "unknown architecture"),
+        ({"initializer": "xavier"}, "unknown initializer"),
+    ]:
+        with pytest.raises(ValueError, match=message):
+            networks.Layers((8,), **bad)
+    # SimBa's blocks share one width and bring their own LayerNorms
+    with pytest.raises(ValueError, match="one width"):
+        networks.Layers((8, 4), architecture="simba")
+    with pytest.raises(ValueError, match="own LayerNorms"):
+        networks.Layers((8, 8), architecture="simba", norm="layer")
+
+
+def test_torso_refuses_what_plain_hidden_layers_cannot_be():
+    x = jnp.zeros((2, 3))
+    with pytest.raises(ValueError, match="norm is 'none' or 'layer'"):
+        networks.Torso(networks.Layers((4,), norm="batch_renorm")).init(jax.random.key(0), x)
+    with pytest.raises(ValueError, match="architecture is 'mlp'"):
+        networks.Torso(networks.Layers((4,), architecture="simba")).init(jax.random.key(0), x)
