@@ -198,7 +198,8 @@ class PixelConfig(ImageConfig):
 
 @struct.dataclass
 class Hyperparams(params.HyperparamsMethods):
-    """What a sweep may vary without recompiling. Defaults: the paper's CartPole settings."""
+    """What a sweep may vary without recompiling. Defaults: the paper's CartPole rates, with a
+    constant rate, unscaled rewards and epsilon ending at 0.05; each env's recipe sets its own."""
 
     learning_rate: Scalar = 1e-4  # the optimizer's step size at the start
     lr_decay_steps: Scalar = 0.0  # env steps (one seed, all envs) for it to fall to 0 (0: constant)
