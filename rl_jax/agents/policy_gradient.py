@@ -17,7 +17,7 @@ from jax.typing import ArrayLike
 def reward_to_go(r_t: jax.Array, mask: jax.Array, gamma: ArrayLike) -> jax.Array:
     """``G_t = mask_t (r_t + gamma G_{t+1})`` backwards over axis 0: ``[T, N] -> [T, N]``."""
 
-    def back(g_next, inputs):
+    def back(g_next: jax.Array, inputs: tuple[jax.Array, jax.Array]) -> tuple[jax.Array, jax.Array]:
         r, m = inputs
         g = m * (r + gamma * g_next)
         return g, g

@@ -33,15 +33,16 @@ import contextlib
 import math
 import traceback
 import warnings
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterable, Iterator, Sequence
 from pathlib import Path
-from typing import Any, cast
+from typing import Any, Protocol, cast, runtime_checkable
 
 import imageio.v2 as imageio
 import jax
 import numpy as np
+import numpy.typing as npt
 
-from rl_jax.envs.core.core import Environment
+from rl_jax.envs.core.core import Environment, TimeStep
 from rl_jax.envs.core.preprocessing import ACTION_MASK, has_action_mask
 from rl_jax.envs.core.wrappers import Wrapper
 from rl_jax.errors import OneLineParser, RenderError, exit_now, guard, positive_int
@@ -120,7 +121,13 @@ def _recurrent_rollout(
     def choose(policy_state: object, obs: jax.Array, legal: jax.Array | None):
         return act(policy_state, obs) if legal is None else act(policy_state, obs, legal)
 
-    def advance(key, state, policy_state, obs, legal):
+    def advance(
+        key: jax.Array,
+        state: object,
+        policy_state: object,
+        obs: jax.Array,
+        legal: jax.Array | None,
+    ) -> tuple[object, TimeStep, object]:
         action, policy_state = choose(policy_state, obs, legal)
         state, timestep = env.step(key, state, action, params)
         return state, timestep, policy_state
@@ -160,6 +167,23 @@ def _has_own(env: Environment, name: str) -> bool:
     return any(name in vars(cls) for cls in type(env).__mro__)
 
 
+@runtime_checkable
+class RendersEpisodes(Protocol):
+    """An env that draws a whole episode at once (its frames may depend on the episode's
+    course, as the rocket's trail does) rather than one ``render(state)`` per state."""
+
+    def render_episode(
+        self, states: Sequence[object], params: object
+    ) -> Iterable[npt.ArrayLike]: ...
+
+
+@runtime_checkable
+class PlotsEpisodes(Protocol):
+    """An env that plots an episode's course beside its GIF (``policy_episode.png``)."""
+
+    def episode_plot(self, states: Sequence[object], params: object, path: Path) -> None: ...
+
+
 @contextlib.contextmanager
 def opengl_errors() -> Iterator[None]:
     """Turn a missing OpenGL backend, at MuJoCo's import or at rendering, into ``RenderError``."""
@@ -184,7 +208,7 @@ def episode_frames(env: Environment, states: list[Any]) -> list[np.ndarray]:
     params = inner.default_params
     with opengl_errors():
         try:
-            if _has_own(inner, "render_episode"):
+            if isinstance(inner, RendersEpisodes):
                 return [np.asarray(f) for f in inner.render_episode(inner_states, params)]
             return [np.asarray(inner.render(state, params)) for state in inner_states]
         except NotImplementedError:
@@ -223,7 +247,7 @@ MAX_GIF_FPS = 50.0
 def save_gif(frames: list[np.ndarray], path: Path, fps: float, max_frames: int = 600) -> None:
     """Write frames as a looping GIF in real time; long episodes keep every k-th frame."""
     every = max(1, math.ceil(len(frames) / max_frames), math.ceil(fps / MAX_GIF_FPS))
-    kept = [np.asarray(frame, np.uint8) for frame in frames[::every]]
+    kept: list[npt.ArrayLike] = [np.asarray(frame, np.uint8) for frame in frames[::every]]
     imageio.mimsave(path, kept, duration=1000.0 * every / fps, loop=0)
 
 
@@ -277,7 +301,7 @@ def free_gif_path(run_dir: Path) -> Path:
 
 def _save_episode_plot(env: Environment, states: list[Any], gif_path: Path) -> Path | None:
     inner, inner_states = _innermost(env, states, "episode_plot")
-    if not _has_own(inner, "episode_plot"):
+    if not isinstance(inner, PlotsEpisodes):
         return None
     path = gif_path.with_name(gif_path.stem + "_episode.png")
     inner.episode_plot(inner_states, inner.default_params, path)
