@@ -35,7 +35,7 @@ from __future__ import annotations
 import dataclasses
 import functools
 from collections.abc import Callable
-from typing import Literal, NamedTuple, cast
+from typing import Literal, NamedTuple, TypeVar, cast
 
 import flax.linen as nn
 import jax
@@ -343,7 +343,9 @@ def collect(state: TrainState, key: jax.Array, config: Config) -> tuple[TrainSta
     initial = initial_carry(config)
     agent = state.agent
 
-    def step(carry_in, step_key):
+    def step(
+        carry_in: tuple[StatisticsState, jax.Array, Carry, jax.Array], step_key: jax.Array
+    ) -> tuple[tuple[StatisticsState, jax.Array, Carry, jax.Array], Rollout]:
         env_state, obs, carry, start = carry_in
         action_key, env_key = jax.random.split(step_key)
         next_carry, policy = apply(agent.params, carry, obs, config, agent.obs_stats)
@@ -375,7 +377,11 @@ def collect(state: TrainState, key: jax.Array, config: Config) -> tuple[TrainSta
     return state, rollout
 
 
-def to_sequences(tree, config: Config):
+#: A pytree of arrays, kept in its own structure by ``to_sequences``.
+R = TypeVar("R")
+
+
+def to_sequences(tree: R, config: Config) -> R:
     """Leaves ``[T, N, ...]`` -> ``[N * T / L, L, ...]``: each env's rollout cut into sequences
     of ``L = seq_len`` steps."""
     length = config.seq_len

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import functools
 from collections.abc import Callable, Hashable
-from typing import Protocol
+from typing import Protocol, TypeVar
 
 import jax
 import jax.numpy as jnp
@@ -20,6 +20,8 @@ from rl_jax.training.replay import Transition
 
 #: One env's (or, with a leading axis, a batch's) recurrent policy state: a pytree of arrays.
 PolicyState = object
+#: One policy state's type, kept through a function that only resets some of its envs.
+S = TypeVar("S")
 
 
 class EnvConfig(Hashable, Protocol):
@@ -112,9 +114,7 @@ def batched_policy_state(initial: PolicyState, count: int) -> PolicyState:
     return jax.tree.map(lambda leaf: jnp.broadcast_to(leaf, (count, *jnp.shape(leaf))), initial)
 
 
-def reset_policy_state(
-    starts: jax.Array, policy_state: PolicyState, initial: PolicyState
-) -> PolicyState:
+def reset_policy_state(starts: jax.Array, policy_state: S, initial: S) -> S:
     """``policy_state [N, ...]`` with the envs where ``starts [N]`` (an episode begins: after an
     autoreset, ``terminated | truncated``) given ``initial`` (one env's) again."""
 
@@ -154,11 +154,14 @@ def recurrent_episode_returns(
     env_state, ts = jax.vmap(env.reset)(jax.random.split(reset_key, episodes))
     masked = envs.has_action_mask(env)
 
-    def running(carry):
+    #: (step, env states, policy states, observations, legal actions, alive, returns)
+    Loop = tuple[jax.Array, object, object, jax.Array, jax.Array | None, jax.Array, jax.Array]
+
+    def running(carry: Loop) -> jax.Array:
         time, _, _, _, _, alive, _ = carry
         return jnp.logical_and(time < env.max_episode_steps, jnp.any(alive))
 
-    def step(carry):
+    def step(carry: Loop) -> Loop:
         time, env_state, policy_state, obs, legal, alive, total = carry
         keys = jax.random.split(jax.random.fold_in(step_key, time), episodes)
         if masked:
@@ -175,7 +178,7 @@ def recurrent_episode_returns(
     total = jnp.zeros(episodes, jnp.float32)
     legal = ts.info[ACTION_MASK] if masked else None
     policy_state = batched_policy_state(initial, episodes)
-    carry = (jnp.int32(0), env_state, policy_state, ts.obs, legal, alive, total)
+    carry: Loop = (jnp.int32(0), env_state, policy_state, ts.obs, legal, alive, total)
     return jax.lax.while_loop(running, step, carry)[-1]
 
 
