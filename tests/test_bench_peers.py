@@ -31,6 +31,7 @@ ACTOR = [(OBS, WIDTH), (WIDTH, WIDTH), (WIDTH, 2 * ACTION)]  # mean and log-std 
 CRITIC = [(OBS + ACTION, WIDTH), (WIDTH, WIDTH), (WIDTH, 1)]
 
 
+@pytest.mark.slow  # compiles SAC's update to count its flops: ~11 s
 def test_sac_update_flops_equal_a_hand_count():
     """Critic step: the actor forward on s' (the bootstrap action), both target critics
     forward, both critics forward and backward (weight gradients, and input gradients below

@@ -248,7 +248,15 @@ def test_c_backend_non_finite_physics_ends_the_episode(env_id, backend):
     assert not np.asarray(ts.info["physics_diverged"]).any()
 
 
-@pytest.mark.parametrize("env_id", mjx_params(ENV_IDS))
+# The inverted pendulum's MJX step is checked in every run; half cheetah's (~13 s of MJX
+# compilation on a cold cache) with the slow tests, with the other slow MJX envs.
+@pytest.mark.parametrize(
+    "env_id",
+    [
+        pytest.param(env_id, marks=pytest.mark.slow) if env_id == "HalfCheetah-v5" else env_id
+        for env_id in mjx_params(ENV_IDS)
+    ],
+)
 def test_mjx_backend_non_finite_physics_ends_the_episode(env_id):
     env, start, step = engine(env_id, "mjx")
     vectors, actions, rows = diverging_starts(env, BATCH)

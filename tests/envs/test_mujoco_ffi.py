@@ -287,7 +287,8 @@ def test_an_empty_batch_steps_to_empty_results():
     [
         ("mujoco_ffi", "rl_jax/HalfCheetah-v5"),
         ("mujoco_callback", "rl_jax/HalfCheetah-v5"),
-        ("mjx", "rl_jax/InvertedPendulum-v5"),
+        # ~40 s of MJX compilation on a CPU with a cold cache: with the slow tests
+        pytest.param("mjx", "rl_jax/InvertedPendulum-v5", marks=pytest.mark.slow),
     ],
 )
 def test_step_active_steps_the_active_envs_exactly_and_keeps_the_others(backend, env_id):
