@@ -13,7 +13,7 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parent.parent
 PACKAGES = ("rl_jax", "envs")
-THRESHOLD = 93.8  # percent of public names with a docstring; raise it, never lower it
+THRESHOLD = 96.7  # percent of public names with a docstring; raise it, never lower it
 SLACK = 1.0  # percentage points above THRESHOLD before the test asks for it to be raised
 
 Definition = ast.FunctionDef | ast.AsyncFunctionDef | ast.ClassDef

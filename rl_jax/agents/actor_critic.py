@@ -85,6 +85,7 @@ class Networks(NamedTuple):
 
     @property
     def half_range(self) -> np.ndarray:
+        """Half the width of the action bounds, ``[action_dim]``."""
         return (self.high - self.low) / 2.0
 
 
@@ -161,11 +162,13 @@ class CriticBatch(NamedTuple):
 
     @classmethod
     def one_step(cls, batch: Transition, gamma: Scalar) -> CriticBatch:
+        """From one-step transitions: ``discount_t`` is ``gamma``, 0 where terminated."""
         discount_t = gamma * (1.0 - batch.terminated.astype(jnp.float32))
         return cls(batch.obs, batch.action, batch.reward, discount_t, batch.next_obs)
 
     @classmethod
     def n_step(cls, batch: replay.NStepBatch) -> CriticBatch:
+        """From an n-step window: its rewards and discounts folded into one return."""
         r_t, discount_t = replay.fold_n_step(batch.r_t, batch.discount_t)
         return cls(batch.obs, batch.action, r_t, discount_t, batch.next_obs)
 

@@ -63,6 +63,8 @@ class Hyperparams(ActorCriticHyperparams):
 
 @struct.dataclass
 class Agent:
+    """Parameters, optimizer states and the critics' batch statistics (CrossQ keeps no targets)."""
+
     actor: Params
     critics: Params  # parameters, leaves [num_critics, ...]
     actor_opt: optax.OptState
@@ -124,6 +126,7 @@ def adam(learning_rate: Scalar, b1: Scalar = 0.9) -> optax.GradientTransformatio
 def init_agent(
     key: jax.Array, config: Config, hparams: Hyperparams, obs_space: Space, action_space: Space
 ) -> Agent:
+    """A fresh agent: new actor and critics, their Adam states and batch statistics."""
     nets = make_networks(config)
     actor_key, critic_key = jax.random.split(key)
     obs = jnp.zeros(obs_space.shape, jnp.float32)

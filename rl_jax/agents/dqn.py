@@ -168,6 +168,7 @@ class PixelConfig(Config, ImageObservations):
         conv.check_conv_layers(self.conv_layers, stop - first)
 
     def make_env(self) -> envs.Environment:
+        """The registered env rendering ``frame_stack`` stacked frames of ``frame_size`` pixels."""
         return envs.make(
             self.env_id,
             frame_size=self.frame_size,
@@ -208,6 +209,9 @@ class Hyperparams(params.HyperparamsMethods):
 # ---- state and network --------------------------------------------------------------------------
 @struct.dataclass
 class Agent:
+    """The online and target Q-networks, the optimizer state and, with ``policy_checkpoints``,
+    the checkpoint."""
+
     online: optax.Params  # Q-network parameters
     target: optax.Params  # target Q-network parameters
     opt_state: optax.InjectStatefulHyperparamsState  # holds the learning rate and clip norm
@@ -348,6 +352,8 @@ def update(
 
 # ---- acting -------------------------------------------------------------------------------------
 def epsilon_at(env_steps: jax.Array, hparams: Hyperparams) -> jax.Array:
+    """The exploration rate after ``env_steps``: linear from ``epsilon_start`` to
+    ``epsilon_end`` over ``epsilon_decay_steps``, then constant."""
     return linear_schedule(
         hparams.epsilon_start, hparams.epsilon_end, env_steps, hparams.epsilon_decay_steps
     )
@@ -440,6 +446,8 @@ def init_agent(
     obs_space: envs.Space,
     action_space: envs.Space,
 ) -> Agent:
+    """A fresh agent: the target network a copy of the online one (and a checkpoint of
+    it with ``policy_checkpoints``)."""
     online = make_network(config).init(key, jnp.zeros(obs_space.shape, jnp.float32))
     optimizer = optax.inject_hyperparams(_optimizer)(hparams.learning_rate, hparams.max_grad_norm)
     opt_state = optimizer.init(online)

@@ -39,15 +39,29 @@ class ReplayHparams(Protocol):
     its n-step returns and prioritized replay's settings."""
 
     @property
-    def gamma(self) -> ArrayLike: ...
+    def gamma(self) -> ArrayLike:
+        """The discount of the n-step returns."""
+        ...
+
     @property
-    def priority_alpha(self) -> ArrayLike: ...
+    def priority_alpha(self) -> ArrayLike:
+        """Prioritized: ``P(i)`` proportional to ``priority_i^alpha``."""
+        ...
+
     @property
-    def priority_beta_start(self) -> ArrayLike: ...
+    def priority_beta_start(self) -> ArrayLike:
+        """Prioritized: the importance-weight exponent at the start."""
+        ...
+
     @property
-    def priority_beta_steps(self) -> ArrayLike: ...
+    def priority_beta_steps(self) -> ArrayLike:
+        """Prioritized: the env steps for beta to rise to 1."""
+        ...
+
     @property
-    def priority_eps(self) -> ArrayLike: ...
+    def priority_eps(self) -> ArrayLike:
+        """Prioritized: added to ``|TD error|`` to make a priority."""
+        ...
 
 
 # ---- the rows: uniform or prioritized -----------------------------------------------------------

@@ -88,6 +88,8 @@ def entropy(policy: dict[str, jax.Array]) -> jax.Array:
 
 
 def log_prob(policy: dict[str, jax.Array], action: jax.Array) -> jax.Array:
+    """Log-probability of ``action`` under each distribution: ``[...]`` (a diagonal
+    Gaussian's sums over its dims)."""
     if "logits" in policy:
         return categorical_log_prob(policy["logits"], action)
     return gaussian_log_prob(action, policy["mean"], policy["std"])

@@ -109,9 +109,11 @@ class Config:
 
     @property
     def batch_size(self) -> int:
+        """Transitions per rollout: ``num_envs * num_steps``."""
         return self.num_envs * self.num_steps
 
     def make_env(self) -> envs.Environment:
+        """The registered env, built with ``env_kwargs``."""
         return envs.make(self.env_id, **envs.parse_keywords(self.env_kwargs))
 
 
@@ -155,6 +157,7 @@ class PixelConfig(Config, ImageObservations):
         return conv.covering_rows(self.conv_layers, *env.drawn_rows(), self.frame_size)
 
     def make_env(self) -> envs.Environment:
+        """The registered env rendering ``frame_stack`` stacked frames of ``frame_size`` pixels."""
         return envs.make(
             self.env_id,
             frame_size=self.frame_size,
@@ -224,6 +227,9 @@ def value(
 # ---- state ----------------------------------------------------------------------------------
 @struct.dataclass
 class Agent:
+    """Actor-critic parameters, the optimizer state and, with ``normalize_obs``, observation
+    statistics."""
+
     params: Params  # actor-critic parameters
     opt_state: optax.OptState  # optax inject_hyperparams(adam) state: holds the rate in use
     obs_stats: RunningStats | None = None  # with normalize_obs, else None
@@ -240,6 +246,8 @@ class Clock:
 
 @struct.dataclass
 class TrainState:
+    """One seed's training state: the agent, the train envs and their last observations."""
+
     agent: Agent
     env_state: StatisticsState  # [num_envs, ...] of the train env (episodes.make_train_env)
     obs: jax.Array  # [num_envs, *obs_shape], the observation the next action answers
@@ -435,6 +443,8 @@ IterationMetrics = tuple[dict[str, jax.Array], tuple[jax.Array, jax.Array]]
 def train_iteration(
     state: TrainState, config: Config, hparams: Hyperparams
 ) -> tuple[TrainState, IterationMetrics]:
+    """One rollout, its GAE advantages and targets, and the epochs of minibatch updates;
+    also the rollout's summed episode returns and ended-episode count."""
     key, collect_key, update_key = jax.random.split(state.key, 3)
     env_state, obs, legal, rollout = collect(
         state.agent, state.env_state, state.obs, collect_key, config, state.action_mask
@@ -675,14 +685,17 @@ class PPO(RecipeBook):
         return PixelConfig(env_id=env_id, **values)
 
     def init(self, key: jax.Array, config: Config, hparams: Hyperparams) -> TrainState:
+        """A fresh state for one seed and one hyperparameter set."""
         return init(key, config, hparams)
 
     def train_chunk(
         self, state: TrainState, config: Config, hparams: Hyperparams
     ) -> tuple[TrainState, ChunkMetrics]:
+        """``iterations_per_chunk`` iterations, then one evaluation."""
         return train_chunk(state, config, hparams)
 
     def env_steps_per_chunk(self, config: Config) -> int:
+        """Env steps per seed in one chunk: ``batch_size * iterations_per_chunk``."""
         return config.batch_size * config.iterations_per_chunk
 
     def policy(self, state: TrainState, config: Config) -> Callable[..., jax.Array]:
@@ -691,6 +704,7 @@ class PPO(RecipeBook):
         return lambda obs, legal=None: act(state.agent, obs, config, legal)
 
     def make_env(self, config: Config) -> envs.Environment:
+        """The env the policy acts in, for rendering."""
         return episodes.make_eval_env(config)
 
 

@@ -197,6 +197,8 @@ class ActorCritic(nn.Module):
     conv_rows: tuple[int, ...] = ()  # (first, stop): the frame rows the conv torso sees
 
     def setup(self) -> None:
+        """Builds the torsos (one conv torso shared on frames), the heads and, for a
+        Gaussian, the learned log-std."""
         check_orthogonal_layers(self.layers, "ActorCritic")
         outputs = self.num_actions if self.num_actions is not None else self.action_dim
         self.actor_torso = _Torso(layers=self.layers)
@@ -228,6 +230,7 @@ class ActorCritic(nn.Module):
         return {**out, "mean": mean, "std": std}
 
     def value(self, obs: jax.Array) -> jax.Array:
+        """The critic's values ``[...]`` of ``obs``."""
         if self.conv_layers:
             return self.value_head(self.actor_torso(self.conv(obs)))[..., 0]
         return self.value_head(self.critic_torso(obs))[..., 0]

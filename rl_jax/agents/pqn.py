@@ -123,9 +123,11 @@ class Config:
 
     @property
     def batch_size(self) -> int:
+        """Transitions per rollout: ``num_envs * num_steps``."""
         return self.num_envs * self.num_steps
 
     def make_env(self) -> envs.Environment:
+        """The registered env, built with ``env_kwargs``."""
         return envs.make(self.env_id, **envs.parse_keywords(self.env_kwargs))
 
 
@@ -181,6 +183,7 @@ class PixelConfig(ImageConfig):
         conv.check_conv_layers(self.conv_layers, stop - first)
 
     def conv_rows(self) -> tuple[int, ...]:
+        """``(first, stop)``, the frame rows the conv torso sees, or ``()`` for all."""
         env = self.make_env()
         if not self.crop_drawn_rows or not hasattr(env, "drawn_rows"):
             return ()
@@ -188,6 +191,7 @@ class PixelConfig(ImageConfig):
         return conv.covering_rows(self.conv_layers, first, stop, self.frame_size)
 
     def make_env(self) -> envs.Environment:
+        """The registered env rendering ``frame_stack`` stacked frames of ``frame_size`` pixels."""
         return envs.make(
             self.env_id,
             frame_size=self.frame_size,
@@ -301,6 +305,8 @@ def q_values(params: optax.Params, obs: jax.Array, config: Config) -> jax.Array:
 # ---- state ----------------------------------------------------------------------------------
 @struct.dataclass
 class Agent:
+    """The Q-network's parameters and the optimizer state."""
+
     params: optax.Params  # the Q-network's parameters
     opt_state: optax.OptState  # optax inject_hyperparams(radam or adam) state: the rate in use
 
@@ -316,6 +322,8 @@ class Clock:
 
 @struct.dataclass
 class TrainState:
+    """One seed's training state: the agent, the train envs and their last observations."""
+
     agent: Agent
     env_state: StatisticsState  # [num_envs, ...] of the train env (episodes.make_train_env)
     obs: jax.Array  # [num_envs, *obs_shape], the observation the next action answers
@@ -469,6 +477,8 @@ IterationMetrics = tuple[dict[str, jax.Array], tuple[jax.Array, jax.Array]]
 def train_iteration(
     state: TrainState, config: Config, hparams: Hyperparams
 ) -> tuple[TrainState, IterationMetrics]:
+    """One epsilon-greedy rollout, its Q(lambda) targets and the epochs of minibatch
+    updates; also the rollout's summed episode returns and ended-episode count."""
     key, collect_key, update_key = jax.random.split(state.key, 3)
     epsilon = epsilon_at(state.clock.env_steps, hparams)
     env_state, obs, legal, rollout = collect(
@@ -652,14 +662,17 @@ class PQN(RecipeBook[Config]):
         return Config(env_id=env_id, **values)  # type: ignore[arg-type]
 
     def init(self, key: jax.Array, config: Config, hparams: Hyperparams) -> TrainState:
+        """A fresh state for one seed and one hyperparameter set."""
         return init(key, config, hparams)
 
     def train_chunk(
         self, state: TrainState, config: Config, hparams: Hyperparams
     ) -> tuple[TrainState, ChunkMetrics]:
+        """``iterations_per_chunk`` iterations, then one evaluation."""
         return train_chunk(state, config, hparams)
 
     def env_steps_per_chunk(self, config: Config) -> int:
+        """Env steps per seed in one chunk: ``batch_size * iterations_per_chunk``."""
         return config.batch_size * config.iterations_per_chunk
 
     def policy(self, state: TrainState, config: Config) -> Callable[..., jax.Array]:
@@ -668,6 +681,7 @@ class PQN(RecipeBook[Config]):
         return lambda obs, legal=None: act(state.agent, obs, config, legal)
 
     def make_env(self, config: Config) -> envs.Environment:
+        """The env the policy acts in, for rendering."""
         return episodes.make_eval_env(config)
 
 

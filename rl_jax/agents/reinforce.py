@@ -104,6 +104,7 @@ class Config:
             raise ValueError(f"network_init must be one of {networks.INITS}")
 
     def make_env(self) -> envs.Environment:
+        """The registered env, built with ``env_kwargs``."""
         return envs.make(self.env_id, **envs.parse_keywords(self.env_kwargs))
 
 
@@ -123,6 +124,8 @@ class Hyperparams(params.HyperparamsMethods):
 # ---- the policy network (reinforce_parts) ---------------------------------------------------
 @functools.lru_cache(maxsize=64)
 def make_network(config: Config) -> networks.StochasticPolicy:
+    """The policy network (with a value head for ``baseline="value"``) for ``config``
+    (cached: called at every trace)."""
     space = episodes.action_space(config)
     discrete = isinstance(space, envs.Discrete)
     layers = networks.Layers(
@@ -172,6 +175,9 @@ def rollout(
 # ---- state ----------------------------------------------------------------------------------
 @struct.dataclass
 class Agent:
+    """Policy parameters, the optimizer state and, with ``normalize_obs``, observation
+    statistics."""
+
     params: optax.Params  # policy (and value head) parameters
     opt_state: optax.InjectStatefulHyperparamsState  # adamw's: holds the rates in use
     obs_stats: normalization.RunningStats | None = None  # with normalize_obs, else None
@@ -186,6 +192,8 @@ class Clock:
 
 @struct.dataclass
 class TrainState:
+    """One seed's training state: the agent, its key and counts."""
+
     agent: Agent
     key: jax.Array
     clock: Clock
@@ -273,6 +281,7 @@ def update(
 def train_iteration(
     state: TrainState, config: Config, hparams: Hyperparams
 ) -> tuple[TrainState, dict[str, jax.Array]]:
+    """One batch of ``num_envs`` episodes and one update on it."""
     key, rollout_key = jax.random.split(state.key)
     trajectory = rollout(state.agent.params, rollout_key, config, state.agent.obs_stats)
     agent, metrics = update(state.agent, trajectory, hparams, config, state.clock.updates)
@@ -391,11 +400,13 @@ class Reinforce(RecipeBook):
     recipes = RECIPES
 
     def init(self, key: jax.Array, config: Config, hparams: Hyperparams) -> TrainState:
+        """A fresh state for one seed and one hyperparameter set."""
         return init(key, config, hparams)
 
     def train_chunk(
         self, state: TrainState, config: Config, hparams: Hyperparams
     ) -> tuple[TrainState, ChunkMetrics]:
+        """``iterations_per_chunk`` rollouts and updates, then one evaluation."""
         return train_chunk(state, config, hparams)
 
     def env_steps_per_chunk(self, config: Config) -> int:
@@ -407,6 +418,7 @@ class Reinforce(RecipeBook):
         return lambda obs: act(state.agent, obs, config)
 
     def make_env(self, config: Config) -> envs.Environment:
+        """The env the policy acts in, for rendering."""
         return episodes.make_eval_env(config)
 
 

@@ -18,6 +18,8 @@ from rl_jax.training import episodes, networks, normalization
 
 
 class Trajectory(NamedTuple):
+    """``N`` whole episodes, time-major; the steps after an episode ends are masked out."""
+
     obs: jax.Array  # [T, N, obs_dim]
     action: jax.Array  # [T, N, *action_shape]
     reward: jax.Array  # [T, N], 0 where masked
@@ -61,6 +63,7 @@ def sample_action(policy: dict[str, jax.Array], key: jax.Array) -> jax.Array:
 
 
 def to_env_action(action: jax.Array, space: envs.Space) -> jax.Array:
+    """``action`` as the env takes it: clipped to a ``Box``'s bounds, else unchanged."""
     if isinstance(space, envs.Box):
         leading = (1,) * (action.ndim - len(space.shape))
         low, high = (jnp.reshape(bound, leading + space.shape) for bound in (space.low, space.high))

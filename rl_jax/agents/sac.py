@@ -398,6 +398,7 @@ def explore(
 def init_agent(
     key: jax.Array, config: Config, hparams: Hyperparams, obs_space: Space, action_space: Space
 ) -> Agent:
+    """A fresh agent: targets copies of the critics, the temperature at ``initial_alpha``."""
     nets = make_networks(config)
     actor_key, critic_key = jax.random.split(key)
     obs = jnp.zeros(obs_space.shape, jnp.float32)

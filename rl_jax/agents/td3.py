@@ -124,6 +124,8 @@ class Hyperparams(ActorCriticHyperparams):
 
 @struct.dataclass
 class Agent:
+    """Parameters, targets, optimizer states and, where kept, observation statistics."""
+
     actor: Params  # actor parameters
     critics: Params  # critic parameters, leaves [num_critics, ...]
     target_actor: Params
@@ -211,6 +213,7 @@ def observe(
 def init_agent(
     key: jax.Array, config: Config, hparams: Hyperparams, obs_space: Space, action_space: Space
 ) -> Agent:
+    """A fresh agent: targets copies of the actor and critics."""
     nets = make_networks(config)
     actor_key, critic_key = jax.random.split(key)
     obs = jnp.zeros(obs_space.shape, jnp.float32)

@@ -105,6 +105,9 @@ class Policy:
 
 @struct.dataclass
 class Agent:
+    """Parameters, targets, optimizer states, SALE's encoders, the policy checkpoint and the
+    bounds of value clipping."""
+
     actor: Params
     critics: Params  # leaves [num_critics, ...]
     target_actor: Params
@@ -116,6 +119,7 @@ class Agent:
     value_range: ValueRange
 
     def current_policy(self) -> Policy:
+        """The policy acting now: the actor and the fixed encoder."""
         return Policy(actor=self.actor, encoder=self.encoders.fixed)
 
 
@@ -209,6 +213,8 @@ def observe(
 def init_agent(
     key: jax.Array, config: Config, hparams: Hyperparams, obs_space: Space, action_space: Space
 ) -> Agent:
+    """A fresh agent: targets and all encoders copies of the new ones, a checkpoint of the
+    new policy, value bounds at ``[0, 0]``."""
     nets, sale = make_networks(config)
     actor_key, critic_key = jax.random.split(key)
     obs = jnp.zeros(obs_space.shape, jnp.float32)

@@ -110,12 +110,14 @@ class ValueRange:
 
     @classmethod
     def initial(cls) -> ValueRange:
+        """``[0, 0]`` bounds, with extremes that any target replaces."""
         zero = jnp.float32(0.0)
         no_min = jnp.float32(policy_checkpoints.NO_EPISODE)
         no_max = jnp.float32(policy_checkpoints.NO_SCORE)
         return cls(low=zero, high=zero, seen_min=no_min, seen_max=no_max)
 
     def seeing(self, target_range: tuple[jax.Array, jax.Array]) -> ValueRange:
+        """The extremes widened to the ``(min, max)`` of a batch's targets."""
         low, high = target_range
         return dataclasses.replace(
             self,
@@ -146,6 +148,7 @@ def embeddings(
 
 
 def init_buffer(example: Transition, config: OffPolicyConfig) -> PrioritizedBuffer:
+    """An empty LAP replay: a prioritized buffer of ``buffer_size`` transitions."""
     return prioritized.init(example, config.buffer_size, config.num_envs)
 
 
@@ -153,7 +156,9 @@ class LapHyperparams(Protocol):
     """What LAP's replay reads of the learner's hyperparameters."""
 
     @property
-    def lap_alpha(self) -> Scalar: ...
+    def lap_alpha(self) -> Scalar:
+        """``P(i)`` proportional to ``max(|TD error|, 1)^lap_alpha``."""
+        ...
 
 
 def add_to_buffer(

@@ -24,7 +24,9 @@ class RunSoFar(Protocol):
     """What the check reads of a run in progress (``rl_jax.run.runner.Session`` is one)."""
 
     @property
-    def spec(self) -> RunSpec: ...
+    def spec(self) -> RunSpec:
+        """The run's spec: algorithm, seeds and hyperparameter sets."""
+        ...
 
     @property
     def step(self) -> int:

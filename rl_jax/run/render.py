@@ -172,16 +172,18 @@ class RendersEpisodes(Protocol):
     """An env that draws a whole episode at once (its frames may depend on the episode's
     course, as the rocket's trail does) rather than one ``render(state)`` per state."""
 
-    def render_episode(
-        self, states: Sequence[object], params: object
-    ) -> Iterable[npt.ArrayLike]: ...
+    def render_episode(self, states: Sequence[object], params: object) -> Iterable[npt.ArrayLike]:
+        """The episode's frames, ``(H, W, 3)`` uint8 each, from its states."""
+        ...
 
 
 @runtime_checkable
 class PlotsEpisodes(Protocol):
     """An env that plots an episode's course beside its GIF (``policy_episode.png``)."""
 
-    def episode_plot(self, states: Sequence[object], params: object, path: Path) -> None: ...
+    def episode_plot(self, states: Sequence[object], params: object, path: Path) -> None:
+        """Saves a plot of the episode's course to ``path``."""
+        ...
 
 
 @contextlib.contextmanager
