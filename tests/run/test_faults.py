@@ -227,9 +227,9 @@ def test_a_kill_during_a_checkpoint_write_leaves_a_run_the_same_command_continue
 @pytest.mark.parametrize("seed", [0, 1])
 @pytest.mark.parametrize("rank", [0, 1])
 def test_a_process_killed_while_compiling_is_continued_by_the_same_command(root, rank, seed):
-    """SIGKILL to process ``rank`` a random 0 .. 0.5 s after the lead said it compiles (the
-    compile takes over a second here): nothing trained, no checkpoint, and the same command
-    starts the run over to the same end."""
+    """SIGKILL to process ``rank`` a random 0 .. 0.3 s after the lead said it compiles (the
+    compile takes 0.7 to 1.3 s here, from the persistent compilation cache or not): nothing
+    trained, no checkpoint, and the same command starts the run over to the same end."""
     rng = random.Random(seed)
     out = f"compiling-{rank}-{seed}"
     args = [*TINY, "--out", out]
@@ -239,11 +239,11 @@ def test_a_process_killed_while_compiling_is_continued_by_the_same_command(root,
             break
     else:
         raise AssertionError("the run ended before it compiled")
-    time.sleep(rng.uniform(0.0, 0.5))
+    time.sleep(rng.uniform(0.0, 0.3))
     rank_process(job, rank).kill()
     said, rest = ends_with_one_line(job)
     assert names_the_loss(said, rank), said
-    assert "step " not in rest  # landed before the first chunk ended
+    assert "step " not in rest, "the kill landed after the compilation"
     metrics = root / out / "metrics.jsonl"
     assert not metrics.exists() or not metrics.read_text()
     assert not list((root / out / CHECKPOINT_DIR).glob("[0-9]*"))
@@ -366,7 +366,8 @@ def test_another_flag_on_one_process_stops_both_with_one_line_within_30_s(tmp_pa
 )
 def test_when_process_0_is_killed_while_compiling_process_1_ends_with_one_line(root):
     """By hand (no launcher to filter process 1's stderr); aimed as the compilation kills above,
-    a random 0 .. 0.5 s after the lead said it compiles."""
+    a random 0 .. 0.3 s after the lead said it compiles. A kill that misses its aim fails the
+    test (``pytest.fail``, not the assertion that the xfail expects)."""
     rng = random.Random(0)
     job = by_hand_job(root, launch.free_port(), [*TINY, "--out", "lead-killed"])
     for line in job[0].stdout:
@@ -374,13 +375,15 @@ def test_when_process_0_is_killed_while_compiling_process_1_ends_with_one_line(r
             break
     else:
         raise AssertionError("the run ended before it compiled")
-    time.sleep(rng.uniform(0.0, 0.5))
+    time.sleep(rng.uniform(0.0, 0.3))
     job[0].kill()
     started = time.monotonic()
     _out, err = job[1].communicate(timeout=300)
     job[0].communicate(timeout=60)
-    assert time.monotonic() - started < 60
-    assert not list((root / "lead-killed" / CHECKPOINT_DIR).glob("[0-9]*"))  # before chunk 1
+    if time.monotonic() - started > 60:
+        pytest.fail("process 1 took over 60 s to end")
+    if list((root / "lead-killed" / CHECKPOINT_DIR).glob("[0-9]*")):
+        pytest.fail("the kill landed after the compilation")
     lines = err.strip().splitlines()
     assert job[1].returncode == 1 and len(lines) == 1 and "stack trace" not in err, err
     assert lines[0].startswith("error: process 1 lost contact with another process of the run")
