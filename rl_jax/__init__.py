@@ -1,12 +1,12 @@
-"""rl_jax: pure-functional RL learners (TD3, DDPG, TD7, CrossQ, SAC, PPO, DQN, REINFORCE),
-jit-compiled with vmapped envs.
+"""rl_jax: pure-functional RL learners (TD3, DDPG, TD7, CrossQ, SAC, PPO, recurrent PPO, DQN, PQN,
+REINFORCE), jit-compiled with vmapped envs.
 
 What a user imports: ``train``, ``resume``, ``open_run`` and ``Run`` (``rl_jax.run.api``),
 ``load_policy`` (``rl_jax.run.policy``) and the learners ``td3``, ``ddpg``, ``td7``, ``crossq``,
-``sac``, ``ppo``, ``recurrent_ppo``, ``dqn`` and ``reinforce`` (``rl_jax.agents``). The package:
-``agents`` (the learners), ``training`` (what makes the compiled program), ``run`` (what touches
-disk, terminal and processes) and ``envs`` (the environments: ``from rl_jax import envs``, then
-``envs.make``).
+``sac``, ``ppo``, ``recurrent_ppo``, ``dqn``, ``pqn`` and ``reinforce`` (``rl_jax.agents``). The
+package: ``agents`` (the learners), ``training`` (what makes the compiled program), ``run`` (what
+touches disk, terminal and processes) and ``envs`` (the environments: ``from rl_jax import envs``,
+then ``envs.make``).
 """
 
 import importlib
@@ -31,6 +31,7 @@ __all__ = [
     "load_policy",
     "open_run",
     "ppo",
+    "pqn",
     "recurrent_ppo",
     "reinforce",
     "resume",
@@ -48,6 +49,7 @@ _LAZY = {
     "reinforce": "rl_jax.agents.reinforce",
     "ppo": "rl_jax.agents.ppo",
     "recurrent_ppo": "rl_jax.agents.recurrent_ppo",
+    "pqn": "rl_jax.agents.pqn",
     "sac": "rl_jax.agents.sac",
     "load_policy": "rl_jax.run.policy",
     "train": "rl_jax.run.api",
