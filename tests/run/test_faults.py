@@ -174,19 +174,26 @@ def test_a_process_killed_during_training_is_continued_by_the_same_command(root,
 # ---- 2. a kill during a checkpoint write -------------------------------------------------------
 
 
+def checkpoint_entries(run_dir: Path) -> set[str]:
+    """What ``run_dir``'s checkpoint folders hold now."""
+    now: set[str] = set()
+    for folder in (CHECKPOINT_DIR, BEST_DIR):
+        with contextlib.suppress(FileNotFoundError):
+            now |= {f"{folder}/{entry.name}" for entry in os.scandir(run_dir / folder)}
+    return now
+
+
 def kill_during_a_write(job: subprocess.Popen, run_dir: Path, rank: int, write: int, delay: float):
     """Watch ``run_dir``'s checkpoint folders and SIGKILL process ``rank`` ``delay`` seconds
-    after the ``write``-th checkpoint write began (its temporary directory appeared)."""
-    present: set[str] = set()
+    after the ``write``-th checkpoint write of ``job`` began (a temporary directory appeared:
+    one left by an earlier kill is no write of this job, until it is cleared and made again)."""
+    present = checkpoint_entries(run_dir)
     began = 0
     deadline = time.monotonic() + 120
     while began < write:
         assert job.poll() is None, "the run ended before the write aimed at"
         assert time.monotonic() < deadline, "no checkpoint write began"
-        now = set()
-        for folder in (CHECKPOINT_DIR, BEST_DIR):
-            with contextlib.suppress(FileNotFoundError):
-                now |= {f"{folder}/{e.name}" for e in os.scandir(run_dir / folder)}
+        now = checkpoint_entries(run_dir)
         began += sum(TMP_MARKER in name for name in now - present)
         present = now
         time.sleep(0.002)
@@ -195,28 +202,31 @@ def kill_during_a_write(job: subprocess.Popen, run_dir: Path, rank: int, write: 
 
 
 @pytest.mark.parametrize("seed", [0, 1, 2])
-def test_a_kill_during_a_checkpoint_write_leaves_a_run_the_same_command_continues(root, seed):
-    """SIGKILL to process 0, the writer, inside a checkpoint write; the same command then
-    continues the run to the uninterrupted run's end, and clears what the write left.
+def test_kills_during_checkpoint_writes_leave_a_run_the_same_command_continues(root, seed):
+    """SIGKILL to process 0, the writer, inside a checkpoint write, twice in a row (the second
+    in the session that continues from what the first left); the same command then continues
+    the run to the uninterrupted run's end, and clears what the writes left.
 
     Aim: with ``--checkpoint-interval 0`` the lead writes a checkpoint after every chunk (and
     the best policies before it when they improve), 20 to 200 ms each here. The test polls
     ``checkpoints/`` and ``best/`` every 2 ms for orbax's temporary step directory
     (``<step>.orbax-checkpoint-tmp``, renamed to ``<step>`` once complete) and kills a random
     0 .. 30 ms after the n-th one appeared (n random in 1 .. 8). Whether the kill landed inside
-    a write is read from the files: such a temporary directory left behind. Measured on a
-    2-core machine shared with other jobs: 13 of 13 kills of process 0 left one (3 in best/,
-    10 in checkpoints/), and the test asserts it. Process 1 is not aimed at: its kill, timed
-    the same way, left one 0 times in 12 (the lead finishes a write without its peer).
+    a write is read from the files: such a temporary directory left behind (a continued run
+    clears those as it opens its checkpoints). Measured on a 2-core machine shared with other
+    jobs, before this test: 13 of 13 kills of process 0 left one (3 in best/, 10 in
+    checkpoints/); the test asserts it of each kill. Process 1 is not aimed at: its kill,
+    timed the same way, left one 0 times in 12 (the lead finishes a write without its peer).
     """
     rng = random.Random(seed)
     out = f"cut-{seed}"
     args = [*TINY, "--out", out]
-    job = launched(args, root)
-    kill_during_a_write(job, root / out, 0, rng.randint(1, 8), rng.uniform(0.0, 0.03))
-    said, _ = ends_with_one_line(job)
-    assert names_the_loss(said, 0), said
-    assert left_temporaries(root / out), "the kill landed outside a checkpoint write"
+    for _ in range(2):
+        job = launched(args, root)
+        kill_during_a_write(job, root / out, 0, rng.randint(1, 8), rng.uniform(0.0, 0.03))
+        said, _ = ends_with_one_line(job)
+        assert names_the_loss(said, 0), said
+        assert left_temporaries(root / out), "the kill landed outside a checkpoint write"
     continues_to_the_same_end(root, args)
     assert not left_temporaries(root / out)
 
