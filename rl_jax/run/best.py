@@ -18,13 +18,13 @@ import dataclasses
 import math
 from collections.abc import Callable
 from pathlib import Path
-from typing import Any
+from typing import Any, Protocol, runtime_checkable
 
 import jax
 import numpy as np
 
 from rl_jax.run.checkpoint import Checkpointer
-from rl_jax.training.algorithm import Algorithm, TrainState, hooks
+from rl_jax.training.algorithm import Algorithm, HoldsAgent, TrainState, hooks
 
 BEST_DIR = "best"
 
@@ -33,7 +33,7 @@ def policy_fields(algorithm: Algorithm, state: TrainState) -> tuple[str, ...]:
     """The train-state fields the deterministic policy reads (empty: no best tracking)."""
     fields = hooks(algorithm).policy_fields
     if fields is None:
-        fields = ("agent",) if hasattr(state, "agent") else ()
+        fields = ("agent",) if isinstance(state, HoldsAgent) else ()
     return tuple(fields)
 
 
@@ -44,10 +44,17 @@ def policy_part(state: TrainState, fields: tuple[str, ...]) -> dict[str, object]
 
 def with_policy_part(state: TrainState, part: dict[str, object]) -> TrainState:
     """``state`` with the fields of ``part`` replaced (NamedTuple or dataclass states)."""
-    if hasattr(state, "_replace"):
+    if isinstance(state, _NamedTuple):
         return state._replace(**part)
     assert not isinstance(state, tuple)  # a NamedTuple has _replace
     return dataclasses.replace(state, **part)
+
+
+@runtime_checkable
+class _NamedTuple(Protocol):
+    """A NamedTuple state: fields replaced by ``_replace``."""
+
+    def _replace(self, **fields: object) -> TrainState: ...
 
 
 class BestPolicies:

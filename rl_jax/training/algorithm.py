@@ -169,6 +169,15 @@ class TakesEnvKeywords(Protocol):
 
 
 @runtime_checkable
+class HoldsAgent(Protocol):
+    """A train state whose ``agent`` holds what its policy reads (every built-in learner's):
+    without a ``policy_fields`` hook, the best policy kept per seed is its ``agent``."""
+
+    @property
+    def agent(self) -> object: ...
+
+
+@runtime_checkable
 class SharesClock(Protocol):
     """A train state whose ``clock`` (the step counters) every seed of a run shares: kept
     unbatched and replicated rather than stacked per seed (``rl_jax.training.parallel``)."""
