@@ -279,13 +279,12 @@ class QNetwork(nn.Module):
 @functools.lru_cache(maxsize=64)
 def make_network(config: Config) -> QNetwork:
     """The Q-network for ``config`` (cached: called at every trace)."""
-    env = episodes.make_eval_env(config)
-    space = env.action_space()
+    space = episodes.action_space(config)
     if not isinstance(space, envs.Discrete):
         raise TypeError(f"PQN needs discrete actions, not {space}")
     if not isinstance(config, ImageConfig):
         return QNetwork(space.n, config.hidden, config.layer_norm)
-    obs_space = env.observation_space()
+    obs_space = episodes.observation_space(config)
     high = float(np.max(obs_space.high)) if isinstance(obs_space, envs.Box) else 255.0
     return QNetwork(
         space.n,
