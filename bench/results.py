@@ -700,7 +700,8 @@ def _fmt(value: float) -> str:
 def per_seed_text(values: list[float], limit: int = 150) -> str:
     """Each seed's value in seed order, " / "-separated; a list longer than ``limit`` characters
     (30 seeds) is written with each run of equal values as one ``value (xN)``, so that the table
-    cell stays short and still gives every seed's value."""
+    cell stays short and still gives every seed's value. Where even that is too long (30
+    different values), the values are rounded to whole numbers and "/"-separated."""
     texts = [_fmt(v) for v in values]
     plain = " / ".join(texts)
     if len(plain) <= limit:
@@ -711,7 +712,10 @@ def per_seed_text(values: list[float], limit: int = 150) -> str:
             runs[-1] = (text, runs[-1][1] + 1)
         else:
             runs.append((text, 1))
-    return " / ".join(text if count == 1 else f"{text} (x{count})" for text, count in runs)
+    collapsed = " / ".join(text if count == 1 else f"{text} (x{count})" for text, count in runs)
+    if len(collapsed) <= limit:
+        return collapsed
+    return "/".join(f"{value:,.0f}" for value in values)
 
 
 def row_cells(name: str, row: Row, summary: dict[str, Any], measured: dict[str, Any]) -> str:
