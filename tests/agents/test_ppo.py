@@ -344,6 +344,7 @@ def test_one_chunk_runs_and_is_finite(env_id, overrides):
         assert float(state.agent.obs_stats.count) == pytest.approx(expected, abs=1e-3)
 
 
+@pytest.mark.slow  # ~6 s; PPO's run path is checked in-process by its other tests
 def test_train_script_runs_ppo_on_cartpole(tmp_path):
     out = tmp_path / "run"
     path = os.pathsep.join(filter(None, [str(ROOT), os.environ.get("PYTHONPATH")]))

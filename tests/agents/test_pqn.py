@@ -264,6 +264,7 @@ def metric_rows(run_dir: Path) -> list[dict[str, float]]:
 
 
 # ---- MinAtar -----------------------------------------------------------------------------------
+@pytest.mark.slow  # ~6 s of compiling; MinAtar itself is stepped in tests/envs/test_gymnax.py
 def test_one_minatar_chunk_compiles_and_runs():
     config = pqn.default_config(
         "rl_jax/Breakout-MinAtar",

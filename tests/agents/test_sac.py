@@ -381,6 +381,7 @@ def test_a_run_recorded_while_crossq_was_sacs_opens_and_resumes(tmp_path):
         rl_jax.open_run(crossq_run).policy(seed=0)
 
 
+@pytest.mark.slow  # ~7 s; SAC's CLI path is the one every learner shares (tests/run/test_cli.py)
 def test_command_line_trains_pendulum(tmp_path):
     env = {
         **os.environ,
