@@ -701,8 +701,8 @@ def per_seed_text(values: list[float], limit: int = 150) -> str:
     """Each seed's value in seed order, " / "-separated; a list longer than ``limit`` characters
     (30 seeds) is written with each run of equal values as one ``value (xN)``, so that the table
     cell stays short and still gives every seed's value. Where even that is too long (30
-    different values), the values are rounded to whole numbers and comma-separated (spaces let
-    the cell wrap on a narrow page)."""
+    different values), the values are rounded to whole numbers, still " / "-separated (the form
+    ``bench.figure_data`` reads back; spaces let the cell wrap on a narrow page)."""
     texts = [_fmt(v) for v in values]
     plain = " / ".join(texts)
     if len(plain) <= limit:
@@ -716,7 +716,7 @@ def per_seed_text(values: list[float], limit: int = 150) -> str:
     collapsed = " / ".join(text if count == 1 else f"{text} (x{count})" for text, count in runs)
     if len(collapsed) <= limit:
         return collapsed
-    return ", ".join(f"{value:.0f}" for value in values)
+    return " / ".join(f"{value:,.0f}" for value in values)
 
 
 def row_cells(name: str, row: Row, summary: dict[str, Any], measured: dict[str, Any]) -> str:

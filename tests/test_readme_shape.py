@@ -143,10 +143,10 @@ def test_a_30_seed_row_keeps_every_seed_in_a_short_cell():
         expanded += [value] * (int(count.rstrip(")")) if count else 1)
     assert expanded == [f"{value:,.0f}" for value in finals]
     assert results.per_seed_text([1.0, 1.0, 2.5]) == "1.0 / 1.0 / 2.5"  # short lists as they were
-    # 30 different values: whole numbers, comma-separated, every seed in order
+    # 30 different values: whole numbers, every seed in order, in the form figures read back
     spread = [40.0 + 0.3 * seed for seed in range(30)]
     compact = results.per_seed_text(spread)
-    assert len(compact) <= 150 and compact.split(", ") == [f"{v:.0f}" for v in spread]
+    assert len(compact) <= 150 and compact.split(" / ") == [f"{v:,.0f}" for v in spread]
     summary = {
         "seeds": list(range(30)),
         "env_steps": 60_000,
