@@ -50,7 +50,7 @@ from rl_jax.agents.ppo_parts import (
 from rl_jax.envs.core.preprocessing import ACTION_MASK
 from rl_jax.envs.core.wrappers import StatisticsState
 from rl_jax.training import conv, episodes, networks, normalization, params, validation
-from rl_jax.training.algorithm import ChunkMetrics, RecipeBook
+from rl_jax.training.algorithm import ChunkMetrics, Clock, RecipeBook
 from rl_jax.training.episodes import ImageObservations
 from rl_jax.training.networks import Params
 from rl_jax.training.normalization import RunningStats
@@ -233,15 +233,6 @@ class Agent:
     params: Params  # actor-critic parameters
     opt_state: optax.OptState  # optax inject_hyperparams(adam) state: holds the rate in use
     obs_stats: RunningStats | None = None  # with normalize_obs, else None
-
-
-@struct.dataclass
-class Clock:
-    """Counters that depend only on the config (kept unbatched by ``rl_jax.training.parallel``)."""
-
-    env_steps: jax.Array  # [] int32, env steps of one seed so far (all its envs)
-    updates: jax.Array  # [] int32, gradient steps so far
-    iterations: jax.Array  # [] int32
 
 
 @struct.dataclass

@@ -61,7 +61,7 @@ from rl_jax.agents.q_learning import (
 from rl_jax.envs.core.preprocessing import ACTION_MASK
 from rl_jax.envs.core.wrappers import FINAL_ACTION_MASK, StatisticsState
 from rl_jax.training import conv, episodes, params, validation
-from rl_jax.training.algorithm import ChunkMetrics, RecipeBook
+from rl_jax.training.algorithm import ChunkMetrics, Clock, RecipeBook
 from rl_jax.training.episodes import ImageObservations
 from rl_jax.training.params import Scalar
 from rl_jax.training.recipes import Recipe, Recipes, Setting
@@ -308,15 +308,6 @@ class Agent:
 
     params: optax.Params  # the Q-network's parameters
     opt_state: optax.OptState  # optax inject_hyperparams(radam or adam) state: the rate in use
-
-
-@struct.dataclass
-class Clock:
-    """Counters that depend only on the config (kept unbatched by ``rl_jax.training.parallel``)."""
-
-    env_steps: jax.Array  # [] int32, env steps of one seed so far (all its envs)
-    updates: jax.Array  # [] int32, gradient steps so far
-    iterations: jax.Array  # [] int32
 
 
 @struct.dataclass

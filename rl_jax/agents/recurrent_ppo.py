@@ -50,7 +50,7 @@ from rl_jax.agents.policy_gradient import entropy, log_prob
 from rl_jax.agents.ppo_parts import deterministic_action, sample_action, to_env_action
 from rl_jax.envs.core.wrappers import StatisticsState
 from rl_jax.training import episodes, networks, normalization, params, validation
-from rl_jax.training.algorithm import ChunkMetrics, RecipeBook
+from rl_jax.training.algorithm import ChunkMetrics, Clock, RecipeBook
 from rl_jax.training.networks import Params
 from rl_jax.training.normalization import RunningStats
 from rl_jax.training.params import Scalar
@@ -279,15 +279,6 @@ class Agent:
     params: Params
     opt_state: optax.OptState  # optax inject_hyperparams(adam) state: holds the rate in use
     obs_stats: RunningStats | None = None  # with normalize_obs, else None
-
-
-@struct.dataclass
-class Clock:
-    """Counters that depend only on the config (kept unbatched by ``rl_jax.training.parallel``)."""
-
-    env_steps: jax.Array  # [] int32
-    updates: jax.Array  # [] int32
-    iterations: jax.Array  # [] int32
 
 
 @struct.dataclass

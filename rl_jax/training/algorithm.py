@@ -39,6 +39,7 @@ from typing import (
 )
 
 import jax
+from flax import struct
 
 from rl_jax import envs
 from rl_jax.training.recipes import Recipe, Recipes, Setting
@@ -166,6 +167,16 @@ class TakesEnvKeywords(Protocol):
 
     @property
     def env_kwargs(self) -> str: ...
+
+
+@struct.dataclass
+class Clock:
+    """A train state's counters, which depend only on the config: every seed and hyperparameter
+    set of a run shares them (kept unbatched by ``rl_jax.training.parallel``: ``SharesClock``)."""
+
+    env_steps: jax.Array  # [] int32, env steps of one seed so far (all its envs)
+    updates: jax.Array  # [] int32, gradient updates so far
+    iterations: jax.Array  # [] int32
 
 
 @runtime_checkable

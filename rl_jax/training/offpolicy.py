@@ -31,7 +31,7 @@ from flax.typing import ArrayPytree
 from rl_jax import envs
 from rl_jax.envs.core.wrappers import ACTION_MASK, FINAL_ACTION_MASK, StatisticsState
 from rl_jax.training import replay
-from rl_jax.training.algorithm import ChunkMetrics, Hyperparams, PolicyFn, RecipeBook
+from rl_jax.training.algorithm import ChunkMetrics, Clock, Hyperparams, PolicyFn, RecipeBook
 from rl_jax.training.episodes import (
     evaluate,
     example_transition,
@@ -109,15 +109,6 @@ class OffPolicyConfig:
             raise ValueError(f"unknown {cls.__name__} field(s): {', '.join(unknown)}")
         tuples = {k: tuple(v) for k, v in values.items() if isinstance(v, list)}
         return cls(**{**values, **tuples})
-
-
-@struct.dataclass
-class Clock:
-    """Counters shared by every seed and hyperparameter set of a run (see module docstring)."""
-
-    env_steps: jax.Array  # [] int32, env steps so far, all envs of one run
-    updates: jax.Array  # [] int32, gradient updates so far
-    iterations: jax.Array  # [] int32
 
 
 @struct.dataclass
