@@ -67,17 +67,17 @@ TEST_WORKERS ?= 2
 test: install ## run the default (fast) test suite
 	$(BIN)/python -m pytest -q -n $(TEST_WORKERS) --dist loadfile --durations=20
 
-test-latest: ## the default suite against the newest jax, flax, optax, orbax, mujoco, gymnasium (.venv-latest)
+test-latest: ## the default suite against the newest jax, flax, optax, orbax, mujoco, gymnasium, pgx, mctx (.venv-latest)
 	@test -x $(LATEST_VENV)/bin/python || $(LATEST_PYTHON) -m venv $(LATEST_VENV)
 	$(LATEST_VENV)/bin/python -m pip install --quiet --disable-pip-version-check --upgrade \
 		jax jaxlib flax optax orbax-checkpoint mujoco mujoco-mjx brax "gymnasium[mujoco]" numpy \
 		matplotlib tensorboardX tqdm imageio pillow pygame-ce pytest pytest-timeout pytest-xdist scipy setuptools \
-		minatar seaborn six
+		minatar seaborn six pgx mctx
 	@# gymnax without its declared gymnasium<1.4, which would pull gymnasium back (see make install)
 	$(LATEST_VENV)/bin/python -m pip install --quiet --disable-pip-version-check --upgrade --no-deps gymnax
 	$(LATEST_VENV)/bin/python -m pip install --quiet --disable-pip-version-check --no-deps \
 		--no-build-isolation -e .
-	@$(LATEST_VENV)/bin/python -m pip list 2>/dev/null | grep -iE '^(jax|jaxlib|flax|optax|orbax-checkpoint|mujoco|mujoco-mjx|brax|gymnasium|gymnax|numpy) '
+	@$(LATEST_VENV)/bin/python -m pip list 2>/dev/null | grep -iE '^(jax|jaxlib|flax|optax|orbax-checkpoint|mujoco|mujoco-mjx|brax|gymnasium|gymnax|numpy|pgx|mctx) '
 	$(LATEST_VENV)/bin/python -m rl_jax.envs.mujoco.mujoco_ffi_build
 	$(LATEST_VENV)/bin/python -m pytest -q -n $(TEST_WORKERS) --dist loadfile
 
