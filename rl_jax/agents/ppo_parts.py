@@ -195,6 +195,7 @@ class ActorCritic(nn.Module):
     initial_std: float = 1.0
     conv_layers: tuple[int, ...] = ()  # set: obs are frames [..., H, W, C], torso shared
     conv_rows: tuple[int, ...] = ()  # (first, stop): the frame rows the conv torso sees
+    obs_high: float = 255.0  # images' largest value, scaled to 1 by the conv torso
 
     def setup(self) -> None:
         """Builds the torsos (one conv torso shared on frames), the heads and, for a
@@ -203,7 +204,9 @@ class ActorCritic(nn.Module):
         outputs = self.num_actions if self.num_actions is not None else self.action_dim
         self.actor_torso = _Torso(layers=self.layers)
         if self.conv_layers:
-            self.conv = conv.ConvTorso(self.conv_layers, "orthogonal", rows=self.conv_rows)
+            self.conv = conv.ConvTorso(
+                self.conv_layers, "orthogonal", rows=self.conv_rows, high=self.obs_high
+            )
         else:
             self.critic_torso = _Torso(layers=self.layers)
         self.policy_head = _layer(outputs, POLICY_GAIN)

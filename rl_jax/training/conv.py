@@ -147,7 +147,8 @@ class MatmulConv(nn.Module):
 
 
 class ConvTorso(nn.Module):
-    """Image features: ``[..., H, W, C]`` pixels in [0, 255] (uint8 frames) -> ``[..., F]``.
+    """Image features: ``[..., H, W, C]`` pixels in [0, ``high``] (uint8 frames: 255) ->
+    ``[..., F]``.
 
     The network scales pixels to [0, 1] itself, so observations stay uint8 in the env, the
     replay buffer and the train state (a quarter of float32's memory). ReLU conv layers with
@@ -159,13 +160,16 @@ class ConvTorso(nn.Module):
     initializer: str = "fan_in_uniform"
     dtype: DTypeLike = jnp.float32
     rows: tuple[int, ...] = ()  # (first, stop): the only rows the layers see; () all of them
+    # the observations' largest value, which the torso scales to 1: 255 for uint8 frames, 1 for
+    # MinAtar's grids of 0/1
+    high: float = 255.0
 
     @nn.compact
     def __call__(self, pixels: jax.Array) -> jax.Array:
         if self.rows:
             pixels = pixels[..., self.rows[0] : self.rows[1], :, :]
         check_conv_layers(self.layers, min(pixels.shape[-3], pixels.shape[-2]))
-        x = pixels.astype(self.dtype) / 255.0
+        x = pixels.astype(self.dtype) / self.high
         for index, (features, kernel, stride) in enumerate(conv_layer_specs(self.layers)):
             layer = MatmulConv(
                 features, kernel, stride, self.initializer, self.dtype, name=f"Conv_{index}"

@@ -352,6 +352,7 @@ class QNetwork(nn.Module):
     dueling: bool = False
     conv_layers: tuple[int, ...] = ()  # set: obs are images [..., H, W, C], see ConvTorso
     conv_rows: tuple[int, ...] = ()  # (first, stop): the image rows the ConvTorso sees
+    obs_high: float = 255.0  # images' largest value, scaled to 1 by the ConvTorso
 
     @nn.compact
     def __call__(self, obs: jax.Array) -> jax.Array:
@@ -362,6 +363,7 @@ class QNetwork(nn.Module):
                 initializer=spec.initializer,
                 dtype=spec.dtype,
                 rows=self.conv_rows,
+                high=self.obs_high,
             )
             obs = torso(obs)
         x = Torso(layers=spec)(obs)
