@@ -36,6 +36,7 @@ from typing import Any, cast
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 import optax
 from flax import struct
 from jax.typing import ArrayLike
@@ -184,6 +185,34 @@ class PixelConfig(Config, ImageObservations):
         return conv.covering_rows(self.conv_layers, *env.drawn_rows(), self.frame_size)
 
 
+#: Envs observed as images that are not frames (MinAtar's 10x10xC grids of 0/1): their config is
+#: an ``ImageConfig``.
+IMAGE_ENVS = tuple(
+    f"rl_jax/{game}-MinAtar" for game in ("Breakout", "SpaceInvaders", "Asterix", "Freeway")
+)
+
+
+@dataclasses.dataclass(frozen=True, kw_only=True)
+class ImageConfig(Config, ImageObservations):
+    """DQN on image observations (``IMAGE_ENVS``): a conv torso before ``hidden``, by default the
+    MinAtar paper's network (16 3x3 filters of stride 1, then 128 units). The replay keeps
+    whole observations; the torso scales them by the observation space's upper bound."""
+
+    hidden: tuple[int, ...] = (128,)  # hidden ReLU layers after the conv torso
+    conv_layers: tuple[int, ...] = (16, 3, 1)  # (features, kernel, stride) per layer
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        shape = self.make_env().observation_space().shape
+        if len(shape) != 3:
+            raise ValueError(f"{self.env_id} observations are not images: shape {shape}")
+        conv.check_conv_layers(self.conv_layers, min(shape[0], shape[1]))
+
+    def conv_rows(self) -> tuple[int, ...]:
+        """``()``: the torso sees the whole image."""
+        return ()
+
+
 @struct.dataclass
 class Hyperparams(params.HyperparamsMethods):
     """What a sweep may vary without recompiling. Defaults: CleanRL's classic-control DQN."""
@@ -226,17 +255,24 @@ def make_network(config: Config) -> networks.QNetwork:
     space = episodes.action_space(config)
     if not isinstance(space, envs.Discrete):
         raise TypeError(f"DQN needs a discrete action space, got {space}")
-    pixels = isinstance(config, PixelConfig)
     layers = networks.Layers(
         hidden=config.hidden, initializer=config.network_init, norm=config.norm
     )
     return networks.QNetwork(
-        layers=layers,
-        num_actions=space.n,
-        dueling=config.dueling,
-        conv_layers=config.conv_layers if pixels else (),
-        conv_rows=config.conv_rows() if pixels else (),
+        layers=layers, num_actions=space.n, dueling=config.dueling, **conv_settings(config)
     )
+
+
+def conv_settings(config: Config) -> dict[str, Any]:
+    """The ``networks.QNetwork`` fields of a config's conv torso (none for vector obs): layers,
+    rows and, for an ``ImageConfig``, the observations' largest value."""
+    if isinstance(config, PixelConfig):
+        return {"conv_layers": config.conv_layers, "conv_rows": config.conv_rows()}
+    if not isinstance(config, ImageConfig):
+        return {}
+    space = episodes.observation_space(config)
+    high = float(np.max(space.high)) if isinstance(space, envs.Box) else 255.0
+    return {"conv_layers": config.conv_layers, "obs_high": high}
 
 
 # ---- the replay (dqn_parts) ---------------------------------------------------------------------
@@ -535,6 +571,30 @@ _HPARAMS: dict[str, dict[str, float]] = {
     },
 }
 
+# MinAtar: the MinAtar paper's DQN (Young & Tian 2019, its repository's examples/dqn.py): the
+# 16x3x3 conv + 128 network, batch 32, a 100k replay filled with 5k random steps first, one update
+# per env step, a hard target copy every 1,000 updates, gamma 0.99, epsilon 1 to 0.1 over the
+# first 100k steps, step size 2.5e-4. The paper's RMSProp (alpha 0.95, centred) is Adam here, as
+# in all our DQN recipes. 4 envs with 4 updates per iteration keep one update per env step.
+MINATAR_CONFIG: dict[str, Setting] = {
+    "num_envs": 4,
+    "updates_per_iteration": 4,
+    "iterations_per_chunk": 12_500,  # evaluated every 50k env steps, 1% of the paper's budget
+    "learning_starts": 5000,
+    "buffer_size": 100_000,
+    "batch_size": 32,
+    "hidden": (128,),
+    "conv_layers": (16, 3, 1),
+    "target_update_period": 1000,
+}
+MINATAR_HPARAMS: dict[str, Setting] = {
+    "learning_rate": 2.5e-4,
+    "gamma": 0.99,
+    "epsilon_start": 1.0,
+    "epsilon_end": 0.1,
+    "epsilon_decay_steps": 100_000.0,
+}
+
 _ABOUT = {
     "rl_jax/CartPole-v1": "64x64, 3-step returns, rate 3e-3, TD7's policy checkpoints",
     "rl_jax/CartPolePixels-v1": "conv torso, Double DQN, 3-step returns, LayerNorm, rate to 0",
@@ -556,7 +616,15 @@ RECIPES = Recipes(
             throughput=_THROUGHPUT.get(env_id),
         )
         for env_id, about in _ABOUT.items()
-    )
+    ),
+    Recipe(
+        "default",
+        "the MinAtar paper's DQN: conv 16 3x3 + 128, batch 32, 100k replay, 1 update per step",
+        MINATAR_CONFIG,
+        MINATAR_HPARAMS,
+        envs=IMAGE_ENVS,
+        total_steps=5_000_000,
+    ),
 )
 
 
@@ -572,10 +640,13 @@ class DQN(offpolicy.OffPolicyAlgorithm[Config]):
     ranges = {"max_grad_norm": validation.POSITIVE}
 
     def default_config(self, env_id: str, recipe: str | None = None, **overrides: Any) -> Config:
-        """The recipe's ``Config``; a ``PixelConfig`` for the envs of ``PIXEL_ENVS``."""
-        if env_id not in PIXEL_ENVS:
+        """The recipe's ``Config``; a ``PixelConfig`` for the envs of ``PIXEL_ENVS``, an
+        ``ImageConfig`` for those of ``IMAGE_ENVS``."""
+        if env_id not in PIXEL_ENVS + IMAGE_ENVS:
             return super().default_config(env_id, recipe, **overrides)
         values = {**self.recipe(env_id, recipe).config, **overrides}
+        if env_id in IMAGE_ENVS:
+            return ImageConfig(env_id=env_id, **values)
         return PixelConfig(env_id=env_id, **values)
 
     def policy(self, state: TrainState, config: Config) -> Callable[..., jax.Array]:
