@@ -62,6 +62,8 @@ ALGORITHMS: dict[str, str | Algorithm] = {
     "ppo": "rl_jax.agents.ppo:ppo",
     "recurrent_ppo": "rl_jax.agents.recurrent_ppo:recurrent_ppo",
     "pqn": "rl_jax.agents.pqn:pqn",
+    "c51": "rl_jax.agents.distributional:c51",
+    "qrdqn": "rl_jax.agents.distributional:qrdqn",
 }
 
 #: Where the built-in learners live: the only modules a run's record may make us import.

@@ -1,0 +1,207 @@
+"""C51 and QR-DQN (``rl_jax.agents.distributional``): their settings and recipes, the bootstrap
+action (Double DQN's on the means), a few training chunks on CartPole (n-step, Double, PER) and
+on MinAtar with finite losses, acting and bootstrapping over legal actions only on an env whose
+illegal actions are fatal, and (slow) CartPole solved in most seeds at the recipe's budget."""
+
+import json
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import rl_jax.envs.core.probes  # noqa: F401  (registers the probe ids)
+from rl_jax.agents import distributional, dqn
+from rl_jax.agents.distributional import c51, qrdqn
+from rl_jax.envs.core.probes import FatalIllegalActions
+from rl_jax.run import learners
+
+CARTPOLE = "rl_jax/CartPole-v1"
+BOTH = pytest.mark.parametrize("algorithm", [c51, qrdqn], ids=["c51", "qrdqn"])
+
+
+# ---- settings -----------------------------------------------------------------------------------
+def test_recipes_and_config_types():
+    cartpole = c51.default_config(CARTPOLE)
+    assert type(cartpole) is distributional.Config
+    assert (cartpole.head, cartpole.num_atoms, cartpole.v_min, cartpole.v_max) == (
+        "categorical",
+        101,
+        -100.0,
+        100.0,
+    )
+    assert cartpole.n_step == 3 and cartpole.policy_checkpoints  # DQN's CartPole recipe
+    quantile = qrdqn.default_config("rl_jax/Breakout-MinAtar")
+    assert isinstance(quantile, distributional.ImageConfig)
+    assert isinstance(quantile, dqn.ImageConfig)
+    assert (quantile.head, quantile.num_atoms, quantile.conv_layers) == (
+        "quantile",
+        200,
+        (16, 3, 1),
+    )
+    assert float(qrdqn.default_hyperparams("rl_jax/Breakout-MinAtar").adam_eps) == pytest.approx(
+        0.01 / 32
+    )
+    pixels = c51.default_config("rl_jax/CartPolePixels-v1")
+    assert isinstance(pixels, distributional.PixelConfig) and pixels.head == "categorical"
+    # a head given explicitly wins over the learner's
+    assert c51.default_config(CARTPOLE, head="quantile").head == "quantile"
+
+
+def test_bad_settings_are_one_clear_error():
+    with pytest.raises(ValueError, match="head must be"):
+        c51.default_config(CARTPOLE, head="gaussian")
+    with pytest.raises(ValueError, match="dueling"):
+        c51.default_config(CARTPOLE, dueling=True)
+    with pytest.raises(ValueError, match="v_min"):
+        c51.default_config(CARTPOLE, v_min=5.0, v_max=5.0)
+    with pytest.raises(ValueError, match="num_atoms"):
+        qrdqn.default_config(CARTPOLE, num_atoms=1)
+
+
+def test_the_two_learners_are_registered_by_name():
+    assert learners.ALGORITHMS["c51"] == "rl_jax.agents.distributional:c51"
+    assert learners.ALGORITHMS["qrdqn"] == "rl_jax.agents.distributional:qrdqn"
+    assert (c51.name, qrdqn.name) == ("c51", "qrdqn")
+
+
+# ---- the bootstrap action -----------------------------------------------------------------------
+def test_bootstrap_action_is_the_argmax_of_the_means_of_the_selecting_net():
+    config = qrdqn.default_config(CARTPOLE, num_atoms=2)
+    # target net: action means 1.0, 2.0; online net: 3.0, 0.0
+    target_t = jnp.array([[[0.0, 2.0], [1.0, 3.0]]])
+    online_t = jnp.array([[[3.0, 3.0], [-1.0, 1.0]]])
+    assert int(distributional.bootstrap_actions(target_t, None, None, config)[0]) == 1
+    assert int(distributional.bootstrap_actions(target_t, online_t, None, config)[0]) == 0
+    # over legal actions only
+    legal = jnp.array([[False, True]])
+    assert int(distributional.bootstrap_actions(target_t, online_t, legal, config)[0]) == 1
+    # C51: the means on the support
+    categorical = c51.default_config(CARTPOLE, num_atoms=3, v_min=-1.0, v_max=1.0)
+    logits = jnp.log(jnp.array([[[0.8, 0.1, 0.1], [0.1, 0.1, 0.8]]]))
+    assert int(distributional.bootstrap_actions(logits, None, None, categorical)[0]) == 1
+
+
+# ---- a few chunks --------------------------------------------------------------------------------
+SMALL = {
+    "num_envs": 4,
+    "learning_starts": 64,
+    "batch_size": 16,
+    "buffer_size": 512,
+    "iterations_per_chunk": 40,
+    "num_eval_envs": 2,
+    "target_update_period": 10,
+}
+
+
+def _chunks(algorithm, env_id, count, **overrides):
+    config = algorithm.default_config(env_id, **{**SMALL, **overrides})
+    hparams = algorithm.default_hyperparams(env_id)
+    state = algorithm.init(jax.random.key(0), config, hparams)
+    chunk = jax.jit(algorithm.train_chunk, static_argnums=1)
+    for _ in range(count):
+        state, metrics = chunk(state, config, hparams)
+    return state, config, metrics
+
+
+def _assert_finite(state, metrics):
+    for name in ("loss", "q"):
+        assert np.isfinite(float(metrics.extra[name])), metrics.extra
+    for leaf in jax.tree.leaves(state.agent.online):
+        assert np.all(np.isfinite(leaf))
+
+
+@BOTH
+def test_cartpole_chunks_with_double_n_step_and_prioritized_replay(algorithm):
+    state, config, metrics = _chunks(
+        algorithm, CARTPOLE, 2, double=True, n_step=3, prioritized=True, hidden=(32, 32)
+    )
+    assert int(metrics.env_steps) == 2 * 4 * 40
+    _assert_finite(state, metrics)
+    assert float(metrics.extra["loss"]) > 0.0
+    # priorities came from the per-sample losses: no longer all the initial value
+    leaves = np.asarray(state.buffer.sums)[state.buffer.leaves :]
+    assert len(np.unique(leaves[leaves > 0.0])) > 2
+    out = distributional.distributions(state.agent.online, jnp.zeros((5, 4)), config)
+    assert out.shape == (5, 2, config.num_atoms)
+    assert state.agent.opt_state.hyperparams["adam_eps"].shape == ()
+
+
+@BOTH
+def test_minatar_chunk_on_the_conv_torso(algorithm):
+    state, config, metrics = _chunks(
+        algorithm, "rl_jax/Breakout-MinAtar", 1, hidden=(16,), conv_layers=(4, 3, 1)
+    )
+    assert isinstance(config, distributional.ImageConfig)
+    assert distributional.make_network(config).obs_high == 1.0  # MinAtar's grids of 0/1
+    assert state.obs.shape == (4, 10, 10, 4)
+    _assert_finite(state, metrics)
+
+
+# ---- action masks -------------------------------------------------------------------------------
+MASKED = "rl_jax/ProbeFatalIllegalActions-v0"
+GAMMA = 0.5
+
+
+@BOTH
+def test_masked_env_acting_and_bootstrapping_over_legal_actions_only(algorithm):
+    extra = {"v_min": -2.0, "v_max": 4.0} if algorithm is c51 else {"num_atoms": 16}
+    config = algorithm.default_config(
+        MASKED,
+        num_envs=8,
+        learning_starts=256,
+        batch_size=64,
+        buffer_size=8000,
+        iterations_per_chunk=250,
+        hidden=(32, 32),
+        target_update_period=1,
+        num_eval_envs=16,
+        **extra,
+    )
+    hparams = algorithm.default_hyperparams(
+        gamma=GAMMA,
+        tau=0.05,
+        learning_rate=1e-3,
+        epsilon_end=0.2,
+        epsilon_decay_steps=4000,
+        adam_eps=1e-8,
+    )
+    state = algorithm.init(jax.random.key(0), config, hparams)
+    chunk = jax.jit(algorithm.train_chunk, static_argnums=1)
+    for _ in range(4):
+        state, metrics = chunk(state, config, hparams)
+    assert state.action_mask is not None
+    # every transition of training (all in the buffer) took a legal action: none was fatal
+    assert int(jnp.sum(state.buffer.data.terminated)) == 0
+    optimum = 10 * FatalIllegalActions().best_reward()
+    assert float(metrics.eval_return) > 0.9 * optimum
+    subsets = np.array([[(s >> a) & 1 for a in range(4)] for s in range(1, 16)], bool)
+    legal = jnp.asarray(subsets)
+    actions = distributional.act(state.agent, legal.astype(jnp.float32), config, legal)
+    np.testing.assert_array_equal(actions, 3 - np.argmax(subsets[:, ::-1], axis=1))
+
+
+# ---- slow: CartPole at the recipe's budget -------------------------------------------------------
+@pytest.mark.slow
+@BOTH
+def test_cartpole_final_policy_scores_500_in_most_seeds(algorithm, tmp_path):
+    from rl_jax.run.runner import run
+    from rl_jax.run.spec import RunSpec
+
+    seeds, budget = 5, algorithm.recipe(CARTPOLE).total_steps
+    spec = RunSpec(
+        algorithm=algorithm,
+        env_id=CARTPOLE,
+        config=algorithm.default_config(CARTPOLE),
+        hparams=(algorithm.default_hyperparams(CARTPOLE),),
+        out=tmp_path / "run",
+        seeds=seeds,
+        total_steps=budget,
+        checkpoint_interval=0.0,
+        log_interval=1e9,
+    )
+    assert run(spec, notify=lambda message: None).step >= budget
+    rows = [json.loads(line) for line in (tmp_path / "run" / "metrics.jsonl").open()]
+    final = {seed: [r["eval_return"] for r in rows if r["seed"] == seed][-1] for seed in range(5)}
+    print(algorithm.name, "final eval returns per seed:", final)
+    assert sum(value >= 500.0 for value in final.values()) >= 4, final
