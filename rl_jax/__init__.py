@@ -19,6 +19,9 @@ import os
 # correctly, but a second run of any script would open with pages of alarming stderr (and a bad
 # flag would no longer be one line). Level 3 keeps only fatal C++ logs; failures still reach
 # Python as exceptions. It must be set before jax is imported. Set the variable to override.
+# Whether the user chose the level: rl_jax.run.aborts turns the log off in runs over several
+# processes unless they did.
+_cpp_log_level_chosen = "TF_CPP_MIN_LOG_LEVEL" in os.environ
 os.environ.setdefault("TF_CPP_MIN_LOG_LEVEL", "3")
 
 __version__ = "0.1.0"

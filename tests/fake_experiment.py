@@ -4,13 +4,11 @@ python tests/fake_experiment.py [flags]          the fake algorithm on its point
 python tests/fake_experiment.py --generic [...]  --algo/--env chosen on the command line
 """
 
-import os
 import sys
 from pathlib import Path
 
-# Real scripts import rl_jax first, which sets this before jax loads; this one imports the fake
-# learner (and so jax) first.
-os.environ.setdefault("TF_CPP_MIN_LOG_LEVEL", "3")
+# As real scripts do, rl_jax first: it sets jax's C++ log level before the fake learner loads jax.
+import rl_jax  # noqa: E402, F401
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 

@@ -45,7 +45,7 @@ from rl_jax.errors import (
     parse_int,
     positive_int,
 )
-from rl_jax.run import join, processes
+from rl_jax.run import aborts, join, processes
 from rl_jax.training.jax_setup import configure_jax
 
 #: Seconds a process waits for the others by default (joining, each exchange, exit).
@@ -279,6 +279,7 @@ def initialize(
         address = handshake(cluster, address, timeout, agreed)
     _joined[:] = [cluster]
     watchdog = processes.Watchdog(timeout, lambda: _join_failed(cluster, timeout))
+    aborts.quiet_runtime_log()
     with watchdog:
         jax.distributed.initialize(
             coordinator_address=address,
@@ -289,8 +290,17 @@ def initialize(
             heartbeat_timeout_seconds=limit + 60,
             shutdown_timeout_seconds=limit + 30,
         )
+    aborts.install(cluster.process_id, address or _jax_coordinator())
     processes.set_wait_limit(timeout)
     connect_quietly()
+
+
+def _jax_coordinator() -> str | None:
+    """The coordinator's ``HOST:PORT`` as jax found it itself (Open MPI), if it says."""
+    from jax._src import distributed as jax_distributed
+
+    address = getattr(getattr(jax_distributed, "global_state", None), "coordinator_address", None)
+    return address if isinstance(address, str) else None
 
 
 def _gather_over_every_device() -> None:
@@ -463,13 +473,7 @@ def guarded(function: Callable[[], int]) -> int:
         if not (jax.distributed.is_initialized() and is_lost_peer(error)):
             raise
         first = str(error).strip().splitlines()[0] if str(error).strip() else type(error).__name__
-        print(
-            f"error: process {jax.process_index()} lost contact with another process of the run "
-            f"({first[:160]}); stopping. The latest checkpoint is kept: start all processes "
-            "again with the same command to continue",
-            file=sys.stderr,
-            flush=True,
-        )
+        print(aborts.lost_contact_line(jax.process_index(), first), file=sys.stderr, flush=True)
         return 1
 
 

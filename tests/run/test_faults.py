@@ -28,8 +28,8 @@ Cases already covered elsewhere, not repeated here:
   ``test_join.py::test_a_count_mismatch_by_hand_stops_both_with_one_line`` (here: any other flag,
   which makes another command).
 
-The last test shows a flaw that the launcher hides (see its xfail reason): what process 1 prints
-on its own when process 0 is killed while compiling.
+The last test checks what process 1 prints on its own (no launcher to filter it) when process 0
+is killed while compiling or training: one line, ours, and status 1.
 """
 
 from __future__ import annotations
@@ -362,38 +362,34 @@ def test_another_flag_on_one_process_stops_both_with_one_line_within_30_s(tmp_pa
 # ---- what process 1 says when process 0 dies while compiling --------------------------------
 
 
-@pytest.mark.xfail(
-    strict=True,
-    raises=AssertionError,
-    reason="process 0 hosts jax's coordination service: when it dies while the processes "
-    "compile (no collective of ours under way to fail first), jax's distributed client in "
-    "process 1 ends the process itself, with a fatal log ('client.h:80] Terminating process "
-    "because the JAX distributed service detected fatal errors ...', gRPC details) and a C++ "
-    "'*** Check failure stack trace: ***', status -6 (SIGABRT), instead of one line and status 1 "
-    "as docs/cluster.md promises. Killed during training, process 1 mostly prints the same "
-    "fatal log before its own line. The launcher hides both (it shows only the error: lines of "
-    "the processes other than 0); processes started by hand or by SLURM show them.",
-)
-def test_when_process_0_is_killed_while_compiling_process_1_ends_with_one_line(root):
-    """By hand (no launcher to filter process 1's stderr); aimed as the compilation kills above,
-    a random 0 .. 0.3 s after the lead said it compiles. A kill that misses its aim fails the
-    test (``pytest.fail``, not the assertion that the xfail expects)."""
+@pytest.mark.parametrize("when", ["compiling", "training"])
+def test_when_process_0_is_killed_process_1_ends_with_one_line(root, when):
+    """By hand (no launcher to filter process 1's stderr), process 0 killed a random 0 .. 0.3 s
+    after it said it compiles, or once it trains. While compiling, no collective of ours is under
+    way to fail first: jax's client in process 1 notices the coordination service is gone and
+    aborts its process (a fatal log, a C++ stack trace, SIGABRT), unless ``rl_jax.run.aborts``
+    turns that into our one line and status 1. A compiling kill that misses its aim fails the
+    test."""
     rng = random.Random(0)
-    job = by_hand_job(root, launch.free_port(), [*TINY, "--out", "lead-killed"])
-    for line in job[0].stdout:
-        if line.startswith("compiling the train chunk"):
-            break
+    job = by_hand_job(root, launch.free_port(), [*TINY, "--out", f"lead-killed-{when}"])
+    if when == "compiling":
+        for line in job[0].stdout:
+            if line.startswith("compiling the train chunk"):
+                break
+        else:
+            raise AssertionError("the run ended before it compiled")
+        time.sleep(rng.uniform(0.0, 0.3))
     else:
-        raise AssertionError("the run ended before it compiled")
-    time.sleep(rng.uniform(0.0, 0.3))
+        wait_for_training(job[0])
     job[0].kill()
     started = time.monotonic()
     _out, err = job[1].communicate(timeout=300)
     job[0].communicate(timeout=60)
     if time.monotonic() - started > 60:
         pytest.fail("process 1 took over 60 s to end")
-    if list((root / "lead-killed" / CHECKPOINT_DIR).glob("[0-9]*")):
+    if when == "compiling" and list((root / f"lead-killed-{when}" / CHECKPOINT_DIR).glob("[0-9]*")):
         pytest.fail("the kill landed after the compilation")
     lines = err.strip().splitlines()
     assert job[1].returncode == 1 and len(lines) == 1 and "stack trace" not in err, err
     assert lines[0].startswith("error: process 1 lost contact with another process of the run")
+    assert lines[0].endswith("start all processes again with the same command to continue")
