@@ -1,4 +1,4 @@
-"""The off-policy training loop shared by TD3, DDPG, TD7, CrossQ, SAC and DQN.
+"""The off-policy training loop shared by TD3, DDPG, TD7, CrossQ, SAC, DQN and R2D2.
 
 One *iteration*: all ``num_envs`` envs act (uniformly random for the first ``learning_starts`` env
 steps, then the learner's exploration policy) and step once, the ``num_envs`` transitions go into
@@ -33,11 +33,14 @@ from rl_jax.envs.core.wrappers import ACTION_MASK, FINAL_ACTION_MASK, Statistics
 from rl_jax.training import replay
 from rl_jax.training.algorithm import ChunkMetrics, Clock, Hyperparams, PolicyFn, RecipeBook
 from rl_jax.training.episodes import (
+    batched_policy_state,
     evaluate,
+    evaluate_recurrent,
     example_transition,
     make_eval_env,
     make_train_env,
     mean_return,
+    reset_policy_state,
 )
 from rl_jax.training.replay import ReplayBuffer, Transition
 
@@ -119,7 +122,9 @@ class TrainState:
     buffer: ReplayBuffer  # of Transition, leaves [rows, num_envs, ...]
     env_state: StatisticsState  # [num_envs, ...] of the train env (make_train_env)
     obs: jax.Array  # [num_envs, *obs_shape], the observation the next action answers
-    noise: jax.Array  # [num_envs, *action_shape] float32, exploration state (see Learner)
+    # [num_envs, *action_shape] float32, exploration state (see Learner); for a recurrent
+    # learner (Learner.policy_state) each env's policy state, a pytree with leading axis num_envs
+    noise: ArrayPytree
     key: PRNGKey
     clock: Clock
     train_return: jax.Array  # [] float32, mean return of the episodes ended in the last chunk
@@ -173,6 +178,12 @@ class Learner(NamedTuple, Generic[AgentT, BufferT, ConfigT, HparamsT]):
         -> agent (optional): what the learner keeps of every env step besides the replay, before
         this iteration's updates (running observation statistics, returns of ended episodes:
         ``episode_return`` counts where ``done``); ``clock`` is before the step. None: nothing.
+    policy_state(config) -> one env's policy state at an episode start (optional): set, the
+        learner is recurrent. Its ``noise`` is then that state, carried by ``explore`` (also while
+        warming up, whose random actions do not replace it) and reset to this at episode starts;
+        each transition keeps the state its action was chosen with (``Transition.policy_state``,
+        stored-state replay); ``act`` is ``act(agent, policy_state [N, ...], obs [N, ...],
+        config) -> (actions, policy_state)``, evaluated with ``episodes.evaluate_recurrent``.
     """
 
     init_agent: Callable[[PRNGKey, ConfigT, HparamsT, envs.Space, envs.Space], AgentT]
@@ -194,6 +205,7 @@ class Learner(NamedTuple, Generic[AgentT, BufferT, ConfigT, HparamsT]):
         Callable[[AgentT, Transition, jax.Array, jax.Array, Clock, ConfigT, HparamsT], AgentT]
         | None
     ) = None
+    policy_state: Callable[[ConfigT], ArrayPytree] | None = None
 
 
 def buffer_nbytes(config: OffPolicyConfig) -> int:
@@ -215,12 +227,15 @@ def init(
     )
     buffer = learner.init_buffer(example_transition(env), config)
     zero = jnp.int32(0)
+    noise: ArrayPytree = jnp.zeros((config.num_envs, *env.action_space().shape), jnp.float32)
+    if learner.policy_state is not None:
+        noise = batched_policy_state(learner.policy_state(config), config.num_envs)
     return TrainState(
         agent=agent,
         buffer=buffer,
         env_state=env_state,
         obs=timestep.obs,
-        noise=jnp.zeros((config.num_envs, *env.action_space().shape), jnp.float32),
+        noise=noise,
         key=key,
         clock=Clock(env_steps=zero, updates=zero, iterations=zero),
         train_return=jnp.float32(jnp.nan),
@@ -245,6 +260,15 @@ def _choose_actions(
     (over the legal actions only, for an env with an action mask)."""
     warming_up = state.clock.env_steps < config.learning_starts
     legal = state.action_mask
+    if learner.policy_state is not None:  # the state follows the episode from its first step
+        choose = lambda: learner.explore(  # noqa: E731
+            state.agent, state.obs, state.noise, key, config, hparams, state.clock
+        )
+        return jax.lax.cond(
+            warming_up,
+            lambda: (random_actions(space, key, config.num_envs), choose()[1]),
+            choose,
+        )
     if legal is None:
         return jax.lax.cond(
             warming_up,
@@ -312,6 +336,8 @@ def train_iteration(
     )
     if state.action_mask is not None:
         transition = transition._replace(next_legal=ts.info[FINAL_ACTION_MASK])
+    if learner.policy_state is not None:
+        transition = transition._replace(policy_state=state.noise)
     buffer = learner.add_to_buffer(state.buffer, transition, config, hparams)
     done = jnp.logical_or(ts.terminated, ts.truncated)
     if learner.observe is not None:
@@ -320,7 +346,10 @@ def train_iteration(
         )
         state = dataclasses.replace(state, agent=agent)
     agent, buffer, metrics, updates = _updates(learner, config, hparams, state, update_key, buffer)
-    noise = jnp.where(jnp.reshape(done, done.shape + (1,) * (noise.ndim - 1)), 0.0, noise)
+    if learner.policy_state is None:
+        noise = jnp.where(jnp.reshape(done, done.shape + (1,) * (noise.ndim - 1)), 0.0, noise)
+    else:
+        noise = reset_policy_state(done, noise, learner.policy_state(config))
     clock = Clock(
         env_steps=state.clock.env_steps + config.num_envs,
         updates=state.clock.updates + updates,
@@ -367,7 +396,12 @@ def train_chunk(
         body, state, None, length=config.iterations_per_chunk
     )
     eval_key, key = jax.random.split(state.key)
-    eval_return = evaluate(learner.act, state.agent, config, eval_key)
+    if learner.policy_state is None:
+        eval_return = evaluate(learner.act, state.agent, config, eval_key)
+    else:
+        initial = learner.policy_state(config)
+        act: Callable[..., Any] = learner.act
+        eval_return = evaluate_recurrent(act, initial, state.agent, config, eval_key)
     train_return = mean_return(return_sums, episode_counts, state.train_return)
     state = dataclasses.replace(state, key=key, train_return=train_return)
     chunk_metrics = ChunkMetrics(

@@ -33,6 +33,9 @@ class Transition(NamedTuple):
     # [A] bool, the legal actions of next_obs, kept only for an env with an action mask (None:
     # no leaf, so the rows of other envs stay as they were)
     next_legal: jax.Array | None = None
+    # the policy state the action was chosen with, kept only by a recurrent learner's replay
+    # (offpolicy.Learner.policy_state; None: no leaf)
+    policy_state: object = None
 
 
 #: the stored pytree (one item, no batch axis): a ``Transition`` for the off-policy learners
