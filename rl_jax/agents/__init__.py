@@ -5,7 +5,9 @@ per env and the learner object. Beside it at most one ``<name>_parts`` module ho
 and building blocks, tested value by value and free of the learner's settings (it never imports its
 learner): ``td7_parts`` (LAP, SALE, value clipping, TD7's state beside its networks), ``sac_parts``
 (the soft target and losses), ``ppo_parts`` (advantages, losses and the actor-critic network),
-``dqn_parts`` (the replay, uniform or prioritized, flat or of frames), ``reinforce_parts`` (the
+``dqn_parts`` (the replay, uniform or prioritized, flat or of frames),
+``distributional_parts`` (the losses of ``distributional``, C51 and QR-DQN),
+``reinforce_parts`` (the
 policy's outputs, sampling and the episodes it collects).
 
 What several learners share: ``actor_critic`` (the deterministic actor-critics' settings, networks,
