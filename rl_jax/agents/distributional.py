@@ -219,7 +219,7 @@ def update(
     target = jax.lax.cond(
         due, lambda: polyak_update(agent.target, online, hparams.tau), lambda: agent.target
     )
-    agent = agent.replace(online=online, target=target, opt_state=opt_state)
+    agent = dataclasses.replace(agent, online=online, target=target, opt_state=opt_state)
     buffer = replay.write_priorities(buffer, indices, per_sample, hparams)
     return agent, buffer, {"loss": loss, "q": q, "epsilon": dqn.epsilon_at(env_steps, hparams)}
 
@@ -253,7 +253,8 @@ def explore(
 ) -> tuple[jax.Array, jax.Array]:
     """``(actions, noise)``: epsilon-greedy on the means, as DQN's ``explore`` (among the
     ``legal`` actions for an env with an action mask); ``noise`` is passed through."""
-    acting = agent.checkpoint.assessed if config.policy_checkpoints else agent.online
+    checkpoint = agent.checkpoint if config.policy_checkpoints else None
+    acting = agent.online if checkpoint is None else checkpoint.assessed
     q = q_values(acting, obs, config)
     everything = jnp.ones(q.shape, jnp.bool_)
     epsilon = dqn.epsilon_at(clock.env_steps, hparams)
@@ -277,7 +278,7 @@ def init_agent(
     agent = Agent(online=online, target=online, opt_state=optimizer.init(online))
     if config.policy_checkpoints:
         checkpoint = policy_checkpoints.init(online, config.num_envs, config.learning_starts)
-        agent = agent.replace(checkpoint=checkpoint)
+        agent = dataclasses.replace(agent, checkpoint=checkpoint)
     return agent
 
 
@@ -365,7 +366,7 @@ QR_RECIPES = Recipes(
 
 
 # ---- the Algorithm objects ------------------------------------------------------------------
-class DistributionalDQN(dqn.DQN):
+class DistributionalDQN(offpolicy.OffPolicyAlgorithm[Config]):
     """C51 or QR-DQN (by ``head``) as an ``rl_jax.training.algorithm.Algorithm``."""
 
     config_type, hparams_type = Config, Hyperparams
@@ -385,13 +386,20 @@ class DistributionalDQN(dqn.DQN):
             return PixelConfig(env_id=env_id, **values)
         return Config(env_id=env_id, **values)
 
-    def policy(self, state: TrainState, config: dqn.Config) -> Callable[..., jax.Array]:
+    def policy(self, state: TrainState, config: Config) -> Callable[..., jax.Array]:
         """``obs -> action index`` of the greedy policy on the means (with
         ``policy_checkpoints``, the checkpoint's); for an env with an action mask
         ``(obs, legal) -> action index``, the best legal action."""
-        config = cast(Config, config)
         params = dqn.policy_params(state.agent, config)
         return lambda obs, legal=None: greedy(params, obs, config, legal)
+
+    def make_env(self, config: Config) -> envs.Environment:
+        """The env the policy acts in, for rendering."""
+        return episodes.make_eval_env(config)
+
+    def loop_seeds(self, config: Config) -> bool:
+        """Seeds as an unrolled loop where a ``PixelConfig`` asks for it (as DQN's)."""
+        return isinstance(config, PixelConfig) and config.loop_seeds
 
 
 c51 = DistributionalDQN("c51", "categorical", C51_RECIPES)

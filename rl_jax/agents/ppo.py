@@ -219,8 +219,7 @@ def make_network(config: Config) -> ActorCritic:
     """The network for ``config`` (cached: called at every trace)."""
     space = episodes.action_space(config)
     discrete = isinstance(space, envs.Discrete)
-    images = isinstance(config, PixelConfig | ImageConfig)
-    conv_layers = config.conv_layers if images else ()
+    conv_layers = config.conv_layers if isinstance(config, PixelConfig | ImageConfig) else ()
     layers = networks.Layers(
         hidden=config.hidden, activation=config.activation, initializer="orthogonal"
     )
