@@ -28,6 +28,7 @@ __version__ = "0.1.0"
 
 __all__ = [
     "Run",
+    "c51",
     "crossq",
     "ddpg",
     "dqn",
@@ -35,6 +36,7 @@ __all__ = [
     "open_run",
     "ppo",
     "pqn",
+    "qrdqn",
     "recurrent_ppo",
     "reinforce",
     "resume",
@@ -53,6 +55,8 @@ _LAZY = {
     "ppo": "rl_jax.agents.ppo",
     "recurrent_ppo": "rl_jax.agents.recurrent_ppo",
     "pqn": "rl_jax.agents.pqn",
+    "c51": "rl_jax.agents.distributional",
+    "qrdqn": "rl_jax.agents.distributional",
     "sac": "rl_jax.agents.sac",
     "load_policy": "rl_jax.run.policy",
     "train": "rl_jax.run.api",
