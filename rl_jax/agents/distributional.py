@@ -198,10 +198,12 @@ def update(
     hparams: Hyperparams,
     update_index: jax.Array,
 ) -> tuple[Agent, Buffer, dict[str, jax.Array]]:
-    """One gradient update, then (when due) a target step and new priorities (each sample's
-    loss)."""
+    """One gradient update (on DrQ-shifted frames with a ``PixelConfig``'s ``augment_shift``),
+    then (when due) a target step and new priorities (each sample's loss)."""
     replay = dqn.replay_for(config)
     batch, weights, indices = replay.sample(buffer, key, hparams, update_index)
+    if isinstance(config, PixelConfig) and config.augment_shift:
+        batch = dqn.shifted_batch(batch, key, config.augment_shift)
     (loss, (per_sample, q)), grads = jax.value_and_grad(loss_fn, has_aux=True)(
         agent.online, agent.target, batch, weights, hparams, config
     )

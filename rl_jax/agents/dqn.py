@@ -349,7 +349,7 @@ def _gradient_step(
     return agent.replace(online=online, opt_state=opt_state)
 
 
-def _shifted(batch: NStepBatch, key: jax.Array, shift: int) -> NStepBatch:
+def shifted_batch(batch: NStepBatch, key: jax.Array, shift: int) -> NStepBatch:
     """DrQ's random shifts (``PixelConfig.augment_shift``): obs and next_obs apart."""
     obs_key, next_key = jax.random.split(jax.random.fold_in(key, 1))
     return batch._replace(
@@ -370,7 +370,7 @@ def update(
     replay = replay_for(config)
     batch, weights, indices = replay.sample(buffer, key, hparams, update_index)
     if isinstance(config, PixelConfig) and config.augment_shift:
-        batch = _shifted(batch, key, config.augment_shift)
+        batch = shifted_batch(batch, key, config.augment_shift)
     (loss, (td_error, q)), grads = jax.value_and_grad(loss_fn, has_aux=True)(
         agent.online, agent.target, batch, weights, hparams, config
     )

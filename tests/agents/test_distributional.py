@@ -138,6 +138,29 @@ def test_minatar_chunk_on_the_conv_torso(algorithm):
     _assert_finite(state, metrics)
 
 
+@BOTH
+def test_pixel_chunk_on_the_frame_replay(algorithm):
+    state, config, metrics = _chunks(
+        algorithm,
+        "rl_jax/CartPolePixels-v1",
+        1,
+        frame_size=36,
+        conv_layers=(8, 8, 4, 8, 3, 1),
+        hidden=(16,),
+        num_envs=2,
+        batch_size=8,
+        buffer_size=64,
+        double=True,
+        n_step=3,
+        prioritized=True,
+        augment_shift=2,
+    )
+    assert isinstance(config, distributional.PixelConfig)
+    assert state.obs.dtype == jnp.uint8 and state.buffer.frames.dtype == jnp.uint8
+    _assert_finite(state, metrics)
+    assert algorithm.policy(state, config)(state.obs[0]).shape == ()
+
+
 # ---- action masks -------------------------------------------------------------------------------
 MASKED = "rl_jax/ProbeFatalIllegalActions-v0"
 GAMMA = 0.5
