@@ -3,6 +3,7 @@ action (Double DQN's on the means), a few training chunks on CartPole (n-step, D
 on MinAtar with finite losses, acting and bootstrapping over legal actions only on an env whose
 illegal actions are fatal, and (slow) CartPole solved in most seeds at the recipe's budget."""
 
+import dataclasses
 import json
 
 import jax
@@ -12,9 +13,11 @@ import pytest
 
 import rl_jax.envs.core.probes  # noqa: F401  (registers the probe ids)
 from rl_jax.agents import distributional, dqn
+from rl_jax.agents import distributional_parts as parts
 from rl_jax.agents.distributional import c51, qrdqn
 from rl_jax.envs.core.probes import FatalIllegalActions
 from rl_jax.run import learners
+from rl_jax.training.replay import NStepBatch
 
 CARTPOLE = "rl_jax/CartPole-v1"
 BOTH = pytest.mark.parametrize("algorithm", [c51, qrdqn], ids=["c51", "qrdqn"])
@@ -80,6 +83,61 @@ def test_bootstrap_action_is_the_argmax_of_the_means_of_the_selecting_net():
     categorical = c51.default_config(CARTPOLE, num_atoms=3, v_min=-1.0, v_max=1.0)
     logits = jnp.log(jnp.array([[[0.8, 0.1, 0.1], [0.1, 0.1, 0.8]]]))
     assert int(distributional.bootstrap_actions(logits, None, None, categorical)[0]) == 1
+
+
+# ---- the loss on networks: terminal targets and Double DQN's bootstrap -------------------------
+def _batch_and_nets(algorithm, terminal, **overrides):
+    config = algorithm.default_config(CARTPOLE, hidden=(8,), **overrides)
+    hparams = algorithm.default_hyperparams(CARTPOLE)
+    net = distributional.make_network(config)
+    keys = jax.random.split(jax.random.key(1), 4)
+    online, target = (net.init(k, jnp.zeros(4)) for k in keys[:2])
+    batch = NStepBatch(
+        obs=jax.random.normal(keys[2], (3, 4)),
+        action=jnp.array([0, 1, 1]),
+        r_t=jnp.array([[1.0, 0.5], [2.0, 0.0], [-1.0, 1.0]]),
+        discount_t=jnp.zeros((3, 2)) if terminal else jnp.full((3, 2), 0.9),
+        next_obs=jax.random.normal(keys[3], (3, 4)),
+    )
+    return config, hparams, online, target, batch
+
+
+@BOTH
+def test_a_terminal_target_is_the_reward_alone(algorithm):
+    extra = {"num_atoms": 201} if algorithm is c51 else {}  # C51: an atom at every integer
+    config, hparams, online, target, batch = _batch_and_nets(algorithm, terminal=True, **extra)
+    weights = jnp.ones(3)
+    _, (per_sample, _) = distributional.loss_fn(online, target, batch, weights, hparams, config)
+    values = distributional.distributions(online, batch.obs, config)
+    rewards = batch.r_t[:, 0]  # d = 0 after the first step: later rewards do not count
+    if algorithm is qrdqn:
+        samples = jnp.broadcast_to(rewards[:, None], (3, config.num_atoms))
+        expected = parts.quantile_huber_loss(values, batch.action, samples, weights, 1.0)[1]
+    else:
+        # all mass on the atom of the reward
+        atoms = distributional.support(config)
+        target_probs = (jnp.abs(atoms[None, :] - rewards[:, None]) < 1e-3).astype(jnp.float32)
+        expected = parts.categorical_loss(values, batch.action, target_probs, weights)[1]
+    np.testing.assert_allclose(per_sample, expected, rtol=1e-5, atol=1e-6)
+
+
+def test_double_bootstraps_the_online_choice_valued_by_the_target_net():
+    config, hparams, online, target, batch = _batch_and_nets(
+        qrdqn, terminal=False, double=True, num_atoms=4, n_step=2
+    )
+    weights = jnp.ones(3)
+    _, (per_sample, _) = distributional.loss_fn(online, target, batch, weights, hparams, config)
+    chosen = jnp.argmax(distributional.q_values(online, batch.next_obs, config), axis=-1)
+    target_t = distributional.distributions(target, batch.next_obs, config)
+    total = batch.r_t[:, 0] + 0.9 * batch.r_t[:, 1]
+    samples = total[:, None] + 0.81 * parts.select_action(target_t, chosen)
+    values = distributional.distributions(online, batch.obs, config)
+    expected = parts.quantile_huber_loss(values, batch.action, samples, weights, 1.0)[1]
+    np.testing.assert_allclose(per_sample, expected, rtol=1e-5)
+    # without double the target net chooses: the two differ on these random nets
+    plain = dataclasses.replace(config, double=False)
+    _, (other, _) = distributional.loss_fn(online, target, batch, weights, hparams, plain)
+    assert not np.allclose(other, per_sample)
 
 
 # ---- a few chunks --------------------------------------------------------------------------------
