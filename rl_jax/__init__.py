@@ -1,12 +1,12 @@
-"""rl_jax: pure-functional RL learners (TD3, DDPG, TD7, CrossQ, SAC, PPO, recurrent PPO, DQN, PQN,
-REINFORCE), jit-compiled with vmapped envs.
+"""rl_jax: pure-functional RL learners (TD3, DDPG, TD7, CrossQ, SAC, PPO, recurrent PPO, DQN, R2D2,
+PQN, REINFORCE), jit-compiled with vmapped envs.
 
 What a user imports: ``train``, ``resume``, ``open_run`` and ``Run`` (``rl_jax.run.api``),
 ``load_policy`` (``rl_jax.run.policy``) and the learners ``td3``, ``ddpg``, ``td7``, ``crossq``,
-``sac``, ``ppo``, ``recurrent_ppo``, ``dqn``, ``pqn`` and ``reinforce`` (``rl_jax.agents``). The
-package: ``agents`` (the learners), ``training`` (what makes the compiled program), ``run`` (what
-touches disk, terminal and processes) and ``envs`` (the environments: ``from rl_jax import envs``,
-then ``envs.make``).
+``sac``, ``ppo``, ``recurrent_ppo``, ``dqn``, ``r2d2``, ``pqn`` and ``reinforce``
+(``rl_jax.agents``). The package: ``agents`` (the learners), ``training`` (what makes the
+compiled program), ``run`` (what touches disk, terminal and processes) and ``envs`` (the
+environments: ``from rl_jax import envs``, then ``envs.make``).
 """
 
 import importlib
@@ -37,6 +37,7 @@ __all__ = [
     "ppo",
     "pqn",
     "qrdqn",
+    "r2d2",
     "recurrent_ppo",
     "reinforce",
     "resume",
@@ -57,6 +58,7 @@ _LAZY = {
     "pqn": "rl_jax.agents.pqn",
     "c51": "rl_jax.agents.distributional",
     "qrdqn": "rl_jax.agents.distributional",
+    "r2d2": "rl_jax.agents.r2d2",
     "sac": "rl_jax.agents.sac",
     "load_policy": "rl_jax.run.policy",
     "train": "rl_jax.run.api",

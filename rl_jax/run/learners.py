@@ -62,6 +62,7 @@ ALGORITHMS: dict[str, str | Algorithm] = {
     "ppo": "rl_jax.agents.ppo:ppo",
     "recurrent_ppo": "rl_jax.agents.recurrent_ppo:recurrent_ppo",
     "pqn": "rl_jax.agents.pqn:pqn",
+    "r2d2": "rl_jax.agents.r2d2:r2d2",
     "c51": "rl_jax.agents.distributional:c51",
     "qrdqn": "rl_jax.agents.distributional:qrdqn",
 }

@@ -1,0 +1,421 @@
+"""R2D2 (Kapturowski et al. 2019): a recurrent DQN that learns from replayed sequences, for envs
+that show only part of their state (``rl_jax/CartPoleNoVel-v1``).
+
+The Q-network: observation -> ``hidden`` ReLU layers -> an LSTM (flax's ``OptimizedLSTMCell``,
+its carry the policy's state) -> a linear (or ``dueling``) head of one value per action. Every
+env carries its own state, zero at each episode start; acting is epsilon-greedy on the online
+network, epsilon falling linearly over env steps as DQN's.
+
+It runs on the shared off-policy loop (``rl_jax.training.offpolicy``) as a recurrent learner:
+the loop carries each env's state, resets it at episode starts and stores it with every step.
+The replay (``r2d2_parts``) writes, every ``seq_period`` steps, each env's last ``seq_len`` steps
+as a sequence with the state the policy had before its first step (stored state). One update
+samples ``batch_size`` sequences (uniform, or ``prioritized``: priority ``eta max|delta| + (1 -
+eta) mean|delta|`` over the sequence, with importance weights), and unrolls the online and the
+target network from the stored state, resetting it where an episode starts inside the sequence:
+
+- the first ``burn_in`` steps only refresh the state (no gradient, no loss);
+- on the rest, the loss is ``0.5 (y - q(a))^2`` with the n-step double-Q target
+  ``y = h(r_t + ... + gamma^k h^-1(q_target(s', argmax q_online(s'))))`` and ``h`` the invertible
+  value rescaling. A window stops at the first step that ended an episode and bootstraps from that
+  step's true next observation, read with the state reached on it, unless it terminated; it also
+  stops at the sequence's last step.
+
+The target network takes a step ``tau`` towards the online one every ``target_update_period``
+updates. Pixel envs and legal-action masks are not supported (refused).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+from collections.abc import Callable
+from typing import Any, cast
+
+import flax.linen as nn
+import jax
+import jax.numpy as jnp
+import optax
+from flax import struct
+from jax.typing import ArrayLike
+
+from rl_jax import envs
+from rl_jax.agents import r2d2_parts
+from rl_jax.agents.common import injected_step, linearly_decayed, polyak_update
+from rl_jax.agents.q_learning import linear_schedule
+from rl_jax.agents.r2d2_parts import Sequence, SequenceReplay
+from rl_jax.training import episodes, networks, offpolicy, params, validation
+from rl_jax.training.offpolicy import Clock, OffPolicyConfig, TrainState
+from rl_jax.training.recipes import Recipe, Recipes, Setting
+from rl_jax.training.replay import Transition
+
+__all__ = ["Config", "Hyperparams", "r2d2"]
+
+#: The LSTM's carry ``(c, h)`` for one env; with leading axes, many.
+Carry = tuple[jax.Array, jax.Array]
+
+
+# ---- settings -----------------------------------------------------------------------------------
+@dataclasses.dataclass(frozen=True, kw_only=True)
+class Config(OffPolicyConfig):
+    """Static settings of R2D2 (the loop's are in ``OffPolicyConfig``; ``batch_size`` counts
+    sequences, ``buffer_size`` env steps: the replay keeps ``buffer_size / seq_period``
+    sequences)."""
+
+    hidden: tuple[int, ...] = (64,)  # ReLU layers between the observation and the LSTM
+    cell_size: int = 64  # features of the LSTM's state
+    dueling: bool = True  # dueling head: q = v + a - mean(a) (the paper's)
+    seq_len: int = 20  # steps per replayed sequence, burn-in included (paper: 80 + 40)
+    seq_period: int = 10  # steps between sequence starts: overlap seq_len - seq_period
+    burn_in: int = 5  # first steps of a sequence that only refresh the state (paper: 40)
+    n_step: int = 3  # rewards summed before bootstrapping (paper: 5)
+    prioritized: bool = False  # prioritised sequences, with importance weights
+    target_update_period: int = 100  # gradient updates between target steps of size tau
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        if self.cell_size < 1 or self.n_step < 1 or self.target_update_period < 1:
+            raise ValueError("cell_size, n_step and target_update_period must be >= 1")
+        if not 0 <= self.burn_in < self.seq_len:
+            raise ValueError(f"burn_in must be in 0..seq_len - 1, got {self.burn_in}")
+        if not 1 <= self.seq_period <= self.seq_len:
+            raise ValueError(f"seq_period must be in 1..seq_len, got {self.seq_period}")
+        if self.learning_starts < self.seq_len * self.num_envs:
+            raise ValueError(
+                f"learning_starts must be >= seq_len x num_envs ({self.seq_len * self.num_envs})"
+                " env steps: updates need a first sequence in the replay"
+            )
+
+
+@struct.dataclass
+class Hyperparams(params.HyperparamsMethods):
+    """What a sweep may vary without recompiling."""
+
+    learning_rate: ArrayLike = 1e-3  # Adam step size (paper: 1e-4)
+    lr_decay_steps: ArrayLike = 0.0  # env steps (all envs) for the rate to fall to 0 (0: constant)
+    adam_eps: ArrayLike = 1e-3  # Adam's epsilon (the paper's)
+    gamma: ArrayLike = 0.99  # discount (paper: 0.997)
+    tau: ArrayLike = 1.0  # target step every target_update_period updates (1: hard copy)
+    epsilon_start: ArrayLike = 1.0  # exploration rate at env step 0
+    epsilon_end: ArrayLike = 0.01  # exploration rate after epsilon_decay_steps
+    epsilon_decay_steps: ArrayLike = 20_000.0  # env steps (all envs) of the linear decay
+    max_grad_norm: ArrayLike = 10.0  # gradients are clipped to this global norm
+    rescale_eps: ArrayLike = 1e-3  # eps of the value rescaling h (the paper's)
+    priority_eta: ArrayLike = 0.9  # prioritized: weight of the max |TD error| (the paper's)
+    priority_alpha: ArrayLike = 0.9  # prioritized: P(i) proportional to p_i^alpha (paper's)
+    priority_beta: ArrayLike = 0.6  # prioritized: importance-weight exponent (the paper's)
+    priority_eps: ArrayLike = 1e-6  # prioritized: added to every priority
+
+
+# ---- the network --------------------------------------------------------------------------------
+class RecurrentQNetwork(nn.Module):
+    """``(carry, obs [..., obs_dim]) -> (carry, q [..., num_actions])`` for one step: ``hidden``
+    ReLU layers, an LSTM, then a linear or dueling head."""
+
+    layers: networks.Layers
+    cell_size: int
+    num_actions: int
+    dueling: bool = True
+
+    @nn.compact
+    def __call__(self, carry: Carry, obs: jax.Array) -> tuple[Carry, jax.Array]:
+        x = networks.Torso(self.layers)(obs)
+        carry, x = nn.OptimizedLSTMCell(self.cell_size)(carry, x)
+        head = lambda outputs: networks.dense(  # noqa: E731
+            outputs, x.shape[-1], self.layers.initializer, 1.0, jnp.float32
+        )
+        if not self.dueling:
+            return carry, head(self.num_actions)(x)
+        value, advantage = head(1)(x), head(self.num_actions)(x)
+        return carry, value + advantage - jnp.mean(advantage, axis=-1, keepdims=True)
+
+
+@functools.lru_cache(maxsize=64)
+def make_network(config: Config) -> RecurrentQNetwork:
+    """The Q-network for ``config`` (cached: called at every trace)."""
+    space = episodes.action_space(config)
+    if not isinstance(space, envs.Discrete):
+        raise TypeError(f"R2D2 needs a discrete action space, got {space}")
+    layers = networks.Layers(hidden=config.hidden)
+    return RecurrentQNetwork(layers, config.cell_size, space.n, config.dueling)
+
+
+def initial_carry(config: Config) -> Carry:
+    """One env's state at an episode start: zeros."""
+    zeros = jnp.zeros((config.cell_size,), jnp.float32)
+    return zeros, zeros
+
+
+def apply(params: optax.Params, carry: Carry, obs: jax.Array, config: Config):
+    """One step of the network on a batch: ``(carry [B, ...], q [B, A])``."""
+    return cast(tuple[Carry, jax.Array], make_network(config).apply(params, carry, obs))
+
+
+def advance(
+    params: optax.Params, carry: Carry, obs: jax.Array, starts: jax.Array, config: Config
+) -> Carry:
+    """The state after the steps ``obs [T, B, ...]`` from ``carry [B, ...]``, reset to zero
+    before every step where ``starts [T, B]``: the burn-in (the caller stops its gradient)."""
+
+    def step(carry: Carry, inputs: tuple[jax.Array, jax.Array]) -> tuple[Carry, None]:
+        obs, start = inputs
+        carry = episodes.reset_policy_state(start, carry, initial_carry(config))
+        return apply(params, carry, obs, config)[0], None
+
+    return jax.lax.scan(step, carry, (obs, starts))[0]
+
+
+def unroll(
+    params: optax.Params,
+    carry: Carry,
+    steps: Transition,
+    starts: jax.Array,
+    config: Config,
+) -> tuple[jax.Array, jax.Array]:
+    """``(q, q_next)`` ``[T, B, A]`` over the steps (leaves ``[T, B, ...]``) from ``carry``:
+    ``q`` of each step's observation, ``q_next`` of its true next observation read with the
+    state reached on the step (before any reset), so that a truncation bootstraps as the episode
+    would have gone on."""
+
+    def step(carry: Carry, inputs: tuple[jax.Array, jax.Array, jax.Array]):
+        obs, next_obs, start = inputs
+        carry = episodes.reset_policy_state(start, carry, initial_carry(config))
+        carry, q = apply(params, carry, obs, config)
+        return carry, (q, apply(params, carry, next_obs, config)[1])
+
+    return jax.lax.scan(step, carry, (steps.obs, steps.next_obs, starts))[1]
+
+
+# ---- state and replay ---------------------------------------------------------------------------
+@struct.dataclass
+class Agent:
+    """The online and target Q-networks and the optimizer state."""
+
+    online: optax.Params
+    target: optax.Params
+    opt_state: optax.InjectStatefulHyperparamsState  # holds the learning rate
+
+
+def init_buffer(example: Transition, config: Config) -> SequenceReplay:
+    """An empty sequence replay; each step keeps the state its action was chosen with."""
+    example = example._replace(policy_state=initial_carry(config))
+    size = r2d2_parts.capacity(config.buffer_size, config.seq_period)
+    return r2d2_parts.init(
+        example, config.num_envs, config.seq_len, config.seq_period, size, config.prioritized
+    )
+
+
+def add_to_buffer(
+    buffer: SequenceReplay, transitions: Transition, config: Config, hparams: Hyperparams
+) -> SequenceReplay:
+    """One step of every env into the sequence replay."""
+    return r2d2_parts.add(buffer, transitions, hparams.priority_alpha)
+
+
+# ---- learning -----------------------------------------------------------------------------------
+def loss_fn(
+    online: optax.Params,
+    target: optax.Params,
+    batch: Sequence,
+    weights: jax.Array,
+    hparams: Hyperparams,
+    config: Config,
+) -> tuple[jax.Array, tuple[jax.Array, jax.Array]]:
+    """``(loss, (td_error [T - burn_in, B], mean q of the taken actions))`` of sequences
+    ``[B, L, ...]`` from their stored states."""
+    steps = jax.tree.map(lambda x: jnp.swapaxes(x, 0, 1), batch.steps)
+    starts = r2d2_parts.episode_starts(steps.terminated, steps.truncated)
+    warm, learn = config.burn_in, slice(config.burn_in, None)
+    carry = cast(Carry, batch.start_state)
+    online_carry = advance(online, carry, steps.obs[:warm], starts[:warm], config)
+    target_carry = advance(target, carry, steps.obs[:warm], starts[:warm], config)
+    online_carry, target_carry = jax.lax.stop_gradient((online_carry, target_carry))
+    steps = jax.tree.map(lambda x: x[learn], steps)
+    q, q_next_online = unroll(online, online_carry, steps, starts[learn], config)
+    _, q_next_target = unroll(target, target_carry, steps, starts[learn], config)
+    best = jnp.argmax(q_next_online, axis=-1)
+    v_t = jnp.take_along_axis(q_next_target, best[..., None], axis=-1)[..., 0]
+    ended = jnp.logical_or(steps.terminated, steps.truncated)
+    discount_t = hparams.gamma * (1.0 - steps.terminated.astype(jnp.float32))
+    y = r2d2_parts.rescaled_n_step_targets(
+        steps.reward, discount_t, v_t, ended, config.n_step, hparams.rescale_eps
+    )
+    action = steps.action.astype(jnp.int32)
+    q_taken = jnp.take_along_axis(q, action[..., None], axis=-1)[..., 0]
+    td_error = y - q_taken
+    loss = jnp.mean(weights * jnp.mean(0.5 * td_error**2, axis=0))
+    return loss, (td_error, jnp.mean(q_taken))
+
+
+def _optimizer(
+    learning_rate: ArrayLike, max_grad_norm: ArrayLike, adam_eps: ArrayLike
+) -> optax.GradientTransformation:
+    return optax.chain(
+        optax.clip_by_global_norm(max_grad_norm), optax.adam(learning_rate, eps=adam_eps)
+    )
+
+
+def update(
+    agent: Agent,
+    buffer: SequenceReplay,
+    key: jax.Array,
+    config: Config,
+    hparams: Hyperparams,
+    update_index: jax.Array,
+) -> tuple[Agent, SequenceReplay, dict[str, jax.Array]]:
+    """One gradient update on sampled sequences, then (when due) a target step and the
+    sequences' new priorities."""
+    batch, weights, indices = r2d2_parts.sample(
+        buffer, key, config.batch_size, hparams.priority_beta
+    )
+    (loss, (td_error, q)), grads = jax.value_and_grad(loss_fn, has_aux=True)(
+        agent.online, agent.target, batch, weights, hparams, config
+    )
+    env_steps = offpolicy.env_steps_at_update(update_index, config)
+    online, opt_state = injected_step(
+        _optimizer,
+        grads,
+        agent.opt_state,
+        agent.online,
+        learning_rate=linearly_decayed(hparams.learning_rate, env_steps, hparams.lr_decay_steps),
+        max_grad_norm=hparams.max_grad_norm,
+        adam_eps=hparams.adam_eps,
+    )
+    due = (update_index + 1) % config.target_update_period == 0
+    target = jax.lax.cond(
+        due, lambda: polyak_update(agent.target, online, hparams.tau), lambda: agent.target
+    )
+    priorities = r2d2_parts.sequence_priorities(td_error, hparams.priority_eta)
+    buffer = r2d2_parts.write_priorities(
+        buffer, indices, priorities + hparams.priority_eps, hparams.priority_alpha
+    )
+    agent = Agent(online=online, target=target, opt_state=opt_state)
+    return agent, buffer, {"loss": loss, "q": q, "epsilon": epsilon_at(env_steps, hparams)}
+
+
+# ---- acting -------------------------------------------------------------------------------------
+def epsilon_at(env_steps: jax.Array, hparams: Hyperparams) -> jax.Array:
+    """The exploration rate after ``env_steps``: linear from ``epsilon_start`` to
+    ``epsilon_end`` over ``epsilon_decay_steps``, then constant."""
+    return linear_schedule(
+        hparams.epsilon_start, hparams.epsilon_end, env_steps, hparams.epsilon_decay_steps
+    )
+
+
+def act(agent: Agent, carry: Carry, obs: jax.Array, config: Config) -> tuple[jax.Array, Carry]:
+    """Greedy actions ``[N]`` int32 of the online network, and the next states."""
+    carry, q = apply(agent.online, carry, obs, config)
+    return jnp.argmax(q, axis=-1).astype(jnp.int32), carry
+
+
+def explore(
+    agent: Agent,
+    obs: jax.Array,
+    carry: Carry,
+    key: jax.Array,
+    config: Config,
+    hparams: Hyperparams,
+    clock: Clock,
+) -> tuple[jax.Array, Carry]:
+    """``(actions, next states)``: epsilon-greedy on the online network; the loop's exploration
+    state is the LSTM's (``Learner.policy_state``)."""
+    greedy, carry = act(agent, carry, obs, config)
+    coin_key, action_key = jax.random.split(key)
+    num_actions = make_network(config).num_actions
+    uniform = jax.random.randint(action_key, greedy.shape, 0, num_actions, jnp.int32)
+    explore_now = jax.random.uniform(coin_key, greedy.shape) < epsilon_at(clock.env_steps, hparams)
+    return jnp.where(explore_now, uniform, greedy), carry
+
+
+def init_agent(
+    key: jax.Array,
+    config: Config,
+    hparams: Hyperparams,
+    obs_space: envs.Space,
+    action_space: envs.Space,
+) -> Agent:
+    """A fresh agent: the target network a copy of the online one."""
+    if envs.has_action_mask(episodes.make_eval_env(config)):
+        raise ValueError(f"r2d2 does not read action masks, which {config.env_id} has")
+    obs = jnp.zeros(obs_space.shape, jnp.float32)
+    online = make_network(config).init(key, initial_carry(config), obs)
+    optimizer = optax.inject_hyperparams(_optimizer)(
+        hparams.learning_rate, hparams.max_grad_norm, hparams.adam_eps
+    )
+    return Agent(online=online, target=online, opt_state=optimizer.init(online))
+
+
+LEARNER = offpolicy.Learner(
+    init_agent,
+    explore,
+    cast(Any, act),
+    update,
+    ("loss", "q", "epsilon"),
+    init_buffer,
+    add_to_buffer,
+    policy_state=initial_carry,
+)
+
+
+# ---- recipes ------------------------------------------------------------------------------------
+_CARTPOLE: dict[str, Setting] = {
+    "num_envs": 4,
+    "updates_per_iteration": 1,
+    "iterations_per_chunk": 2500,
+    "learning_starts": 2000,
+    "buffer_size": 100_000,
+    "batch_size": 32,
+}
+RECIPES = Recipes(
+    Recipe(
+        "default",
+        "LSTM 64 on a 64-unit layer, sequences of 20 (burn-in 5, overlap 10), 3-step targets, "
+        "rate 1e-3 to 0 over 100k steps",
+        _CARTPOLE,
+        {"lr_decay_steps": 100_000.0},
+        envs=("rl_jax/CartPoleNoVel-v1", "rl_jax/CartPole-v1"),
+        total_steps=100_000,
+    ),
+)
+
+
+# ---- the Algorithm object -----------------------------------------------------------------------
+class R2D2(offpolicy.OffPolicyAlgorithm[Config]):
+    """R2D2 as an ``rl_jax.training.algorithm.Algorithm`` with a recurrent policy."""
+
+    name = "r2d2"
+    config_type, hparams_type = Config, Hyperparams
+    recipes = RECIPES
+    learner = LEARNER
+    ranges = {
+        "max_grad_norm": validation.POSITIVE,
+        "rescale_eps": validation.POSITIVE,
+        "adam_eps": validation.POSITIVE,
+        "priority_eta": validation.UNIT,
+    }
+
+    def initial_policy_state(self, config: Config) -> Carry:
+        """The LSTM's zero state: the policy is recurrent."""
+        return initial_carry(config)
+
+    def policy(  # type: ignore[override]
+        self, state: TrainState, config: Config
+    ) -> Callable[[Carry, jax.Array], tuple[jax.Array, Carry]]:
+        """``(carry, obs) -> (action index, carry)`` of the greedy policy, for one env."""
+        agent = state.agent
+
+        def step(carry: Carry, obs: jax.Array) -> tuple[jax.Array, Carry]:
+            batch = jax.tree.map(lambda x: x[None], (carry, obs))
+            action, carry = act(agent, batch[0], batch[1], config)
+            return action[0], jax.tree.map(lambda x: x[0], carry)
+
+        return step
+
+    def make_env(self, config: Config) -> envs.Environment:
+        """The env as the policy sees it (``episodes.make_eval_env``)."""
+        return episodes.make_eval_env(config)
+
+
+r2d2 = R2D2()
+default_config, default_hyperparams = r2d2.default_config, r2d2.default_hyperparams
+init, train_chunk = r2d2.init, r2d2.train_chunk
