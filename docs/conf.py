@@ -52,7 +52,10 @@ autodoc_typehints_format = "short"
 # autodoc cannot link.
 nitpicky = True
 nitpick_ignore_regex = [
-    (r"py:.*", r"(jax|jaxlib|flax|optax|orbax|numpy|np|matplotlib|gymnasium|mujoco)(\..*)?"),
+    (
+        r"py:.*",
+        r"(jax|jaxlib|flax|optax|orbax|numpy|np|matplotlib|gymnasium|mujoco|pgx|mctx)(\..*)?",
+    ),
     (r"py:.*", r"(pathlib|collections|typing|typing_extensions|argparse|types)\..*"),
     (r"py:.*", r"(Path|Any|Callable|Array|PRNGKey|Self|TypeAlias|NamedTuple|Protocol)"),
     # pieces of a dataclass signature that Sphinx splits at its commas (``tuple[int, ...]``)
