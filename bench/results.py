@@ -511,6 +511,15 @@ ROWS: dict[str, Row] = {
         30,
         "the recurrent row above: the same budget with memory",
     ),
+    # The recurrent off-policy learner on the same task: the goal, 9 of 10 seeds at 500.
+    "r2d2-cartpole-novel": Row(
+        "R2D2, `rl_jax/CartPoleNoVel-v1`",
+        "train.py",
+        ("--algo", "r2d2", "--env", "rl_jax/CartPoleNoVel-v1", "--total-steps", "100000"),
+        10,
+        "500 is the maximum; the recurrent PPO row above at the same budget",
+        Goal(500.0, 9, "final"),
+    ),
     # PPO from CartPole's frames through DQN's conv torso: reported, without a goal.
     "ppo-cartpole-pixels": Row(
         "PPO from pixels, `rl_jax/CartPolePixels-v1`",
