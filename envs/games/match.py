@@ -17,6 +17,7 @@ be called on a finished state and must return some action there.
 from __future__ import annotations
 
 import dataclasses
+import functools
 from collections.abc import Callable
 
 import jax
@@ -89,6 +90,13 @@ class MatchResult:
         return "\n".join(lines)
 
 
+@functools.lru_cache(maxsize=16)
+def _compiled_match(env: pgx.Env, first: Player, second: Player, max_moves: int) -> Callable:
+    """The jitted, vmapped games of ``first`` against ``second``: kept, so that another match
+    of the same players (the same function objects) does not compile again."""
+    return jax.jit(jax.vmap(_game(env, first, second, max_moves)))
+
+
 def _game(env: pgx.Env, first: Player, second: Player, max_moves: int) -> Callable:
     """One game, from a key and whether the first player opens, to the first player's return
     and the number of moves played."""
@@ -134,10 +142,12 @@ def play_match(
     ``max_moves`` moves (no limit when None) ends there and is scored by the rewards so far."""
     if num_games < 1:
         raise ValueError(f"num_games must be at least 1, got {num_games}")
-    limit = jnp.iinfo(jnp.int32).max if max_moves is None else max_moves
+    if env.num_players != 2:
+        raise ValueError(f"a match needs a two-player game; {env.id} has {env.num_players}")
+    limit = int(jnp.iinfo(jnp.int32).max) if max_moves is None else max_moves
     first_opens = jnp.arange(num_games) % 2 == 0
     keys = jax.random.split(key, num_games)
-    totals, moves = jax.jit(jax.vmap(_game(env, first, second, limit)))(keys, first_opens)
+    totals, moves = _compiled_match(env, first, second, limit)(keys, first_opens)
     return MatchResult(
         outcomes=np.sign(np.asarray(totals)).astype(np.int32),
         first_moved=np.asarray(first_opens),

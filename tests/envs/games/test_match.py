@@ -93,6 +93,23 @@ def test_the_table_by_colour_with_its_elo_line():
     ]
 
 
-def test_no_games_is_refused():
+def test_no_games_and_one_player_games_are_refused():
     with pytest.raises(ValueError, match="num_games"):
         play_match(pgx.make("tic_tac_toe"), random_player, random_player, jax.random.key(0), 0)
+    with pytest.raises(ValueError, match="two-player"):
+        play_match(pgx.make("2048"), random_player, random_player, jax.random.key(0), 2)
+
+
+def test_a_second_match_of_the_same_players_reuses_its_program():
+    traces = []
+
+    def counting_player(state: pgx.State, key: jax.Array) -> jax.Array:
+        traces.append(None)  # runs when the program is traced, not when it runs
+        return random_player(state, key)
+
+    env = pgx.make("tic_tac_toe")
+    play_match(env, counting_player, random_player, jax.random.key(0), 4)
+    traced = len(traces)
+    assert traced > 0
+    play_match(env, counting_player, random_player, jax.random.key(1), 4)
+    assert len(traces) == traced
