@@ -96,7 +96,7 @@ def rescaled_n_step_targets(
 
 def sequence_priorities(td_error: jax.Array, eta: ArrayLike) -> jax.Array:
     """``eta max_t |delta| + (1 - eta) mean_t |delta|`` per sequence: ``[T, B] -> [B]``."""
-    size = jnp.abs(td_error)
+    size, eta = jnp.abs(td_error), jnp.asarray(eta)
     return eta * jnp.max(size, axis=0) + (1.0 - eta) * jnp.mean(size, axis=0)
 
 
@@ -208,7 +208,9 @@ def sample(
     """``(sequences [B, L, ...], importance weights [B], (rows, columns))``: uniform (weights
     1), or proportional to priority^alpha with weights of exponent ``beta``."""
     if isinstance(memory.sequences, PrioritizedBuffer):
-        rows, columns, weights = prioritized.sample_indices(memory.sequences, key, batch_size, beta)
+        rows, columns, weights = prioritized.sample_indices(
+            memory.sequences, key, batch_size, jnp.asarray(beta)
+        )
         buffer = memory.sequences.buffer
     else:
         buffer = cast(ReplayBuffer, memory.sequences)

@@ -188,8 +188,8 @@ class Learner(NamedTuple, Generic[AgentT, BufferT, ConfigT, HparamsT]):
 
     init_agent: Callable[[PRNGKey, ConfigT, HparamsT, envs.Space, envs.Space], AgentT]
     explore: Callable[
-        [AgentT, jax.Array, jax.Array, PRNGKey, ConfigT, HparamsT, Clock],
-        tuple[jax.Array, jax.Array],
+        [AgentT, jax.Array, ArrayPytree, PRNGKey, ConfigT, HparamsT, Clock],
+        tuple[jax.Array, ArrayPytree],
     ]
     act: Callable[[AgentT, jax.Array, ConfigT], jax.Array]
     update: Callable[
