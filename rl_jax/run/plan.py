@@ -19,8 +19,8 @@ from rl_jax.run.progress import Progress
 from rl_jax.run.spec import RunSpec
 from rl_jax.training import parallel, params
 from rl_jax.training.algorithm import Algorithm, Hyperparams, TrainState, hooks
-from rl_jax.training.device_layout import plan_layout
-from rl_jax.training.split_program import SplitLayout, SplitProgram
+from rl_jax.training.device_layout import MIN_BLOCK_SEEDS, plan_layout
+from rl_jax.training.split_program import SplitLayout, SplitProgram, split_layout
 
 #: The fewest chunks with which a run on CPU devices is split unevenly rather than padded: the
 #: split's extra compiles (one per block) must be paid back by its faster chunks (BENCHMARKS.md,
@@ -91,9 +91,16 @@ def choose_split(
     if layout == "split":
         return True
     padded = plan_layout(num_hparams, num_seeds, len(devices))
-    wasteful = padded.padding > 0 or padded.devices < min(len(devices), runs)
+    split = split_layout(num_hparams, num_seeds, len(devices))
+    # The split must leave the busiest device no more runs than padding does (3 seeds on 2
+    # devices pad to 2 + 2 rather than split as one block of 3: no block holds a lone seed),
+    # and either compute fewer runs or use more devices.
+    better = split.runs_per_device < padded.runs_per_device or (
+        split.runs_per_device == padded.runs_per_device
+        and (padded.padding > 0 or split.devices > padded.devices)
+    )
     on_cpu = all(d.platform == "cpu" for d in devices)
-    return wasteful and on_cpu and chunks is not None and chunks >= SPLIT_MIN_CHUNKS
+    return better and on_cpu and chunks is not None and chunks >= SPLIT_MIN_CHUNKS
 
 
 @dataclasses.dataclass
@@ -256,6 +263,7 @@ def format_plan(spec: RunSpec, plan: Plan) -> str:
         f"  train state {format_bytes(plan.state_bytes)} ({largest}); "
         f"{format_bytes(plan.available_bytes)} of memory available",
         f"  devices: {describe_layout(plan.program)}",
+        *seed_equality_lines(spec.seeds, bool(getattr(plan.program, "loop_seeds", False))),
         f"  run directory: {spec.out}",
     ]
     estimate = estimate_from_throughput(spec, plan)
@@ -282,6 +290,18 @@ def budget_line(total_steps: int, plan: Plan) -> str:
         f"{total_steps:,} env steps per seed round up to {plan.final_steps:,}, whole chunks: "
         f"{chunks}"
     )
+
+
+def seed_equality_lines(num_seeds: int, loop_seeds: bool) -> list[str]:
+    """Which other runs give a seed of this one the same numbers: with its seeds vmapped in
+    blocks of ``device_layout.MIN_BLOCK_SEEDS`` or more, every layout of the command, and not
+    the seed run alone. Nothing for one seed, or seeds computed in a loop (a learner's hook)."""
+    if num_seeds == 1 or loop_seeds:
+        return []
+    return [
+        f"  seeds: {MIN_BLOCK_SEEDS} or more per block: each seed's numbers are the same in every "
+        "layout of this command, not those of the seed run alone (--seeds 1)"
+    ]
 
 
 def describe_layout(program: parallel.Program | SplitProgram) -> str:

@@ -13,6 +13,20 @@ import numpy as np
 from jax.sharding import Mesh
 
 AXES = ("hparams", "seeds")
+#: The fewest seeds of a run's configuration a device computes together, once a run has that
+#: many: XLA compiles a vmap over one seed to other kernels than a vmap over several (its size-1
+#: axis folds away), which round differently, while blocks of 2, 3 or 5 seeds give the same
+#: numbers bit for bit on the locked jaxlib. With every block of a run at 2 seeds or more, a
+#: seed's numbers are the same in every layout of one command (1 device or many, 1 process or
+#: many, padded or split); a seed run alone (``--seeds 1``) is a block of one, and rounds
+#: otherwise.
+MIN_BLOCK_SEEDS = 2
+
+
+def block_seeds_floor(num_seeds: int) -> int:
+    """The fewest seeds any device's block of ``num_seeds`` seeds may hold (``MIN_BLOCK_SEEDS``,
+    or all of them when there are fewer)."""
+    return min(MIN_BLOCK_SEEDS, num_seeds)
 
 
 def mesh_shape(num_hparams: int, num_seeds: int, num_devices: int) -> tuple[int, int]:
@@ -75,11 +89,13 @@ def plan_layout(
 ) -> Layout:
     """The mesh for ``[H, S]`` runs on up to ``num_devices`` devices.
 
-    Without padding: ``mesh_shape``. With padding: the fewest runs per device (the wall-clock of
-    a chunk), then the fewest padded runs (memory), then the fewest devices, then seeds split
-    before hyperparameters. A single run stays on one device, unless ``min_devices`` asks for
-    more: a mesh over several processes uses every device, so that no process's devices sit
-    idle while it takes part in every call, padding where it must.
+    Without padding: ``mesh_shape``. With padding: among the layouts whose every block holds
+    ``block_seeds_floor`` seeds or more (so that a seed's numbers do not depend on the layout),
+    the fewest runs per device (the wall-clock of a chunk), then the fewest padded runs
+    (memory), then the fewest devices, then seeds split before hyperparameters. A single run
+    stays on one device, unless ``min_devices`` asks for more: a mesh over several processes
+    uses every device, so that no process's devices sit idle while it takes part in every call,
+    padding where it must.
     """
     if not pad:
         return Layout(num_hparams, num_seeds, *mesh_shape(num_hparams, num_seeds, num_devices))
@@ -89,6 +105,8 @@ def plan_layout(
             if used % seed_split:
                 continue
             layout = Layout(num_hparams, num_seeds, used // seed_split, seed_split)
+            if layout.padded_seeds // seed_split < block_seeds_floor(num_seeds):
+                continue
             total = layout.padded_hparams * layout.padded_seeds
             candidates.append(((layout.runs_per_device, total, used, -seed_split), layout))
     return min(candidates, key=lambda candidate: candidate[0])[1]

@@ -40,6 +40,7 @@ import numpy as np
 
 from rl_jax.training import parallel
 from rl_jax.training.algorithm import Algorithm, ChunkMetrics, Config, Hyperparams, TrainState
+from rl_jax.training.device_layout import block_seeds_floor
 from rl_jax.training.parallel import Tree
 
 #: a split's state on the devices: one ``[h, s]`` train state per group of blocks of one size
@@ -140,11 +141,14 @@ class SplitLayout:
 
 def split_layout(num_hparams: int, num_seeds: int, num_devices: int) -> SplitLayout:
     """Blocks as even as can be along the axis that leaves the busiest device the fewest runs
-    (seeds on a tie): 5 seeds on 2 devices as 3 + 2; 3 sets x 1 seed as sets 2 + 1.
+    (seeds on a tie): 5 seeds on 2 devices as 3 + 2; 3 sets x 1 seed as sets 2 + 1. A block of
+    seeds holds ``device_layout.block_seeds_floor`` of them or more: 3 seeds on 2 devices stay
+    one block of 3.
     """
     best: SplitLayout | None = None
     for axis, length in ((1, num_seeds), (0, num_hparams)):
-        used = min(length, num_devices)
+        fewest = block_seeds_floor(num_seeds) if axis == 1 else 1
+        used = max(1, min(length // fewest, num_devices))
         sizes = tuple(len(part) for part in np.array_split(np.arange(length), used))
         layout = SplitLayout(num_hparams, num_seeds, axis, sizes)
         if best is None or layout.runs_per_device < best.runs_per_device:

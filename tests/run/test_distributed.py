@@ -333,9 +333,9 @@ def rows(run_dir: Path) -> list[dict]:
     return [{k: v for k, v in json.loads(line).items() if k != "wall_time"} for line in lines]
 
 
-def final_state(run_dir: Path, step: int) -> list[bytes]:
+def final_state(run_dir: Path, step: int, seeds: int = 2) -> list[bytes]:
     config = dataclasses.replace(fake.default_config(), iterations_per_chunk=5)
-    spec = RunSpec(fake, fake.ENV_ID, config, (fake.default_hyperparams(),), run_dir, seeds=2)
+    spec = RunSpec(fake, fake.ENV_ID, config, (fake.default_hyperparams(),), run_dir, seeds=seeds)
     with Checkpointer(run_dir / CHECKPOINT_DIR, read_only=True) as checkpointer:
         assert checkpointer.latest_step() == step
         return leaves_bytes(checkpointer.restore(make_plan(spec).template)[0])
@@ -378,6 +378,70 @@ def test_two_processes_stopped_and_requeued_equal_one_process_on_two_devices(ref
     assert "devices: TFRT_CPU_0, TFRT_CPU_" in out  # one device of each process
     assert rows(root / "requeued") == rows(root / "single")
     assert final_state(root / "requeued", 300) == final_state(root / "single", 300)
+
+
+@pytest.mark.slow
+def test_three_seeds_give_the_same_numbers_in_every_layout(tmp_path):
+    """3 seeds of one command on 1 device, on 2 padded (2 + 2) or split (one block of 3), on 2
+    processes of one device, and on 2 processes started by hand that each take their default
+    devices (one per core, no ``RL_JAX_CPU_DEVICES``): every seed's metrics and the final
+    checkpoint are the same bit for bit, as no device ever holds a lone seed of the run
+    (``device_layout.MIN_BLOCK_SEEDS``), and the plan says so."""
+    from test_join import places
+
+    args = ["--seeds", "3", *TINY[2:]]
+
+    def alone(out: str, devices: str, *flags: str) -> str:
+        done = subprocess.run(
+            [sys.executable, str(SCRIPT), *args, "--out", out, *flags],
+            cwd=tmp_path,
+            env={**ENV, "RL_JAX_CPU_DEVICES": devices},
+            capture_output=True,
+            text=True,
+            timeout=900,
+        )
+        assert done.returncode == 0, done.stderr
+        return done.stdout
+
+    def by_hand(out: str, env: dict) -> str:
+        port = launch.free_port()
+        ranks = [
+            subprocess.Popen(
+                [sys.executable, str(SCRIPT), *args, "--out", out, *places(port, rank)],
+                cwd=tmp_path,
+                env=env,
+                stdout=subprocess.PIPE,
+                stderr=subprocess.PIPE,
+                text=True,
+            )
+            for rank in (0, 1)
+        ]
+        outputs = [rank.communicate(timeout=900) for rank in ranks]
+        for rank, (_out, err) in zip(ranks, outputs, strict=True):
+            assert rank.returncode == 0, err
+        return outputs[0][0]
+
+    plans = {
+        "one": alone("one", "1"),
+        "padded": alone("padded", "2"),
+        "split": alone("split", "2", "--layout", "split"),
+        "processes": by_hand("processes", {**ENV, "RL_JAX_CPU_DEVICES": "1"}),
+        "defaults": by_hand(
+            "defaults", {k: v for k, v in ENV.items() if k != "RL_JAX_CPU_DEVICES"}
+        ),
+    }
+    assert "(2 runs each; 1 padding copy of a run computed and dropped)" in plans["padded"]
+    assert "(3 runs, split unevenly: one program)" in plans["split"]
+    for name, printed in plans.items():
+        assert "  seeds: 2 or more per block: each seed's numbers are the same in every layout" in (
+            printed
+        ), name
+    expected = rows(tmp_path / "one")
+    assert sorted({row["seed"] for row in expected}) == [0, 1, 2]
+    state = final_state(tmp_path / "one", 300, seeds=3)
+    for name in list(plans)[1:]:
+        assert rows(tmp_path / name) == expected, name
+        assert final_state(tmp_path / name, 300, seeds=3) == state, name
 
 
 @pytest.mark.slow

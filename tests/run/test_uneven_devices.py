@@ -277,6 +277,14 @@ def test_layout_pads_onto_every_device_it_needs():
     spread = plan_layout(1, SEEDS, num_devices=4, min_devices=4)
     assert (spread.devices, spread.padded_seeds, spread.runs_per_device) == (4, 8, 2)
     assert plan_layout(1, 1, num_devices=2).devices == 1  # one run stays whole
+    # No block of one seed: 2 seeds stay together, 3 over 4 processes' devices pad to 2 each.
+    assert plan_layout(1, 2, num_devices=2).devices == 1
+    three = plan_layout(1, 3, num_devices=4, min_devices=4)
+    assert (three.devices, three.padded_seeds // three.seed_split, three.runs_per_device) == (
+        4,
+        2,
+        2,
+    )
     assert plan_layout(1, 1, num_devices=2, min_devices=2).padded_seeds == 2
     grid = plan_layout(3, SEEDS, num_devices=2)  # 15 runs: seeds split, 3 x 3 per device
     assert (grid.seed_split, grid.runs_per_device, grid.padding) == (2, 9, 3)
@@ -286,14 +294,13 @@ def test_layout_pads_onto_every_device_it_needs():
 @pytest.mark.slow
 @cpu_only
 def test_five_seeds_split_over_four_devices_equal_one_device(tmp_path):
-    """2 + 1 + 1 + 1 on 4 CPU devices: two programs (2 seeds on one device, 3 sharded over
-    three), and the same runs as on one device, to a
-    float tolerance: XLA compiles a block of one seed to other kernels than a batch (the eval
-    return 1 ulp apart), while the steps, seeds and counts stay exact."""
+    """--layout split on 4 CPU devices: 3 + 2 on two of them, as no block may hold a lone seed
+    (2 + 1 + 1 + 1 would: XLA compiles a block of one seed to other kernels, the eval return 1
+    ulp apart), and the same runs as on one device, bit for bit."""
     four = start(4, [job(tmp_path / "four", FAKE_TOTAL, layout="split")])
     one = start(1, [job(tmp_path / "one", FAKE_TOTAL)])
-    assert finish(four) == [[4, 5]] and finish(one) == [[1, 5]]
-    assert_same_runs([tmp_path / "one", tmp_path / "four"], "fake", FAKE_TOTAL, exact=False)
+    assert finish(four) == [[2, 5]] and finish(one) == [[1, 5]]
+    assert_same_runs([tmp_path / "one", tmp_path / "four"], "fake", FAKE_TOTAL)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -309,22 +316,25 @@ def test_split_layout_and_when_auto_splits():
         (range(1), range(3)),
         (range(1), range(3, 5)),
     ]
-    four = split_layout(1, SEEDS, 4)
-    assert four.sizes == (2, 1, 1, 1)
-    # one program per block size: 2 seeds on device 0, 3 seeds sharded over devices 1-3
-    assert four.shapes == 2 and four.groups == (
-        Group(Block(range(1), range(2)), range(1)),
-        Group(Block(range(1), range(2, 5)), range(1, 4)),
+    # no block of one seed (a lone seed rounds otherwise): 5 seeds on 4 devices as 3 + 2
+    assert split_layout(1, SEEDS, 4).sizes == (3, 2)
+    seven = split_layout(1, 7, 4)
+    assert seven.sizes == (3, 2, 2)
+    # one program per block size: 3 seeds on device 0, 4 seeds sharded over devices 1-2
+    assert seven.shapes == 2 and seven.groups == (
+        Group(Block(range(1), range(3)), range(1)),
+        Group(Block(range(1), range(3, 7)), range(1, 3)),
     )
-    assert split_layout(1, 2, 4).sizes == (1, 1)  # never an empty block
-    assert split_layout(1, 2, 4).shapes == 1
+    assert split_layout(1, 2, 4).sizes == (2,)  # never a lone seed, nor an empty block
+    assert split_layout(1, 3, 2).sizes == (3,)
+    assert split_layout(1, 1, 2).sizes == (1,)
     sets = split_layout(5, 1, 2).groups  # configs split 3 + 2: a group per size
     assert [(g.runs.hparams, g.devices) for g in sets] == [
         (range(3), range(1)),
         (range(3, 5), range(1, 2)),
     ]
-    grid = split_layout(3, 2, 2)  # seeds split: 3 configs x 1 seed per device
-    assert (grid.axis, grid.sizes, grid.runs_per_device) == (1, (1, 1), 3)
+    grid = split_layout(3, 2, 2)  # 2 seeds stay together: the configs split, 2 + 1
+    assert (grid.axis, grid.sizes, grid.runs_per_device) == (0, (2, 1), 4)
     configs = split_layout(3, 1, 2)  # one seed: the configs split, 2 + 1
     assert (configs.axis, configs.sizes, configs.runs_per_device) == (0, (2, 1), 2)
     cpus, gpus = [FakeDevice()] * 2, [FakeDevice("gpu")] * 2
@@ -335,7 +345,9 @@ def test_split_layout_and_when_auto_splits():
     assert not plan.choose_split("auto", 1, 6, cpus, enough)  # divides evenly
     assert not plan.choose_split("auto", 1, SEEDS, gpus, enough)  # devices of their own
     assert not plan.choose_split("auto", 1, 1, cpus, enough)  # one run stays whole
-    assert plan.choose_split("auto", 1, 6, [FakeDevice()] * 4, enough)  # 2+2+2 leaves one out
+    # 6 on 4: 2 + 2 + 2 either way (a fourth block would hold a lone seed)
+    assert not plan.choose_split("auto", 1, 6, [FakeDevice()] * 4, enough)
+    assert not plan.choose_split("auto", 1, 3, cpus, enough)  # 2 + 2 padded, not 3 on one
     assert plan.choose_split("split", 1, SEEDS, gpus, 1) and not plan.choose_split(
         "pad", 1, 5, cpus, enough
     )
