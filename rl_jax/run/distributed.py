@@ -27,6 +27,7 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import os
+import re
 import socket
 import subprocess
 import sys
@@ -335,14 +336,33 @@ def connect_quietly() -> None:
 def coordinator_address(cluster: Cluster, environ: Mapping[str, str] = os.environ) -> str | None:
     """``HOST:PORT`` of the coordinator: the flag's, or under SLURM the step's first node on a
     port derived from the job and the step (jax's own derivation takes the job alone, so two
-    steps of one job would meet on one port; ``JAX_COORDINATOR_PORT`` still sets it). None
-    where jax finds it itself (Open MPI)."""
-    if cluster.coordinator is not None or cluster.source != "slurm":
+    steps of one job would meet on one port; ``JAX_COORDINATOR_PORT`` still sets it), or under
+    Open MPI the launcher's host on the port jax derives from the job (``ompi_address``). Found
+    here, not by jax, so that the processes' handshake runs under every scheduler."""
+    if cluster.coordinator is not None or cluster.source not in ("slurm", "ompi"):
         return cluster.coordinator
     if environ.get("JAX_COORDINATOR_ADDRESS"):  # jax's own override of the whole address
         return environ["JAX_COORDINATOR_ADDRESS"]
+    if cluster.source == "ompi":
+        return ompi_address(environ)
     port = environ.get("JAX_COORDINATOR_PORT") or str(slurm_port(environ))
     return f"{first_node(environ['SLURM_STEP_NODELIST'])}:{port}"
+
+
+def ompi_address(environ: Mapping[str, str]) -> str | None:
+    """``HOST:PORT`` under Open MPI (4.x, ``OMPI_MCA_orte_hnp_uri`` such as
+    ``1531576320.0;tcp://10.96.0.1,10.148.0.1:34911``): the launcher's first address, and as
+    jax derives it, a port in 61440 .. 65535 from the job id (a multiple of 4,096), unless
+    ``JAX_COORDINATOR_PORT`` sets it. None when the URI cannot be read: jax then finds the
+    address itself, without our handshake."""
+    uri = environ.get("OMPI_MCA_orte_hnp_uri", "")
+    job, _, rest = uri.partition(".")
+    found = re.search(r"tcp://([^,:]+)|tcp6://\[([^,\]]+)", rest)
+    if not job.isdigit() or found is None:
+        return None
+    host = found.group(1) or f"[{found.group(2)}]"
+    port = environ.get("JAX_COORDINATOR_PORT") or str(61440 + (int(job) // 4096) % 4096)
+    return f"{host}:{port}"
 
 
 def slurm_port(environ: Mapping[str, str]) -> int:

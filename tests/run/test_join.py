@@ -3,12 +3,14 @@ threads, and with two processes started by hand, each case one line on every pro
 
 from __future__ import annotations
 
+import os
 import socket
 import subprocess
 import sys
 import threading
 import time
 from pathlib import Path
+from unittest import mock
 
 import pytest
 from test_distributed import ENV, SCRIPT
@@ -205,6 +207,52 @@ def test_processes_started_by_hand_that_disagree_stop_with_one_line(tmp_path, se
     assert time.monotonic() - started < 30
     assert_one_line_each(ended, expected)
     assert list(tmp_path.iterdir()) == []  # nothing written, not even the check's file
+
+
+def test_open_mpi_addresses_are_jaxs_and_its_processes_that_disagree_stop_with_one_line(
+    tmp_path,
+):
+    """Under Open MPI the address comes from the launcher's URI as jax derives it (so that our
+    handshake runs there too), and two ranks given different ``--seeds`` stop with one line."""
+    from jax._src.clusters.ompi_cluster import OmpiCluster
+
+    for uri in (
+        "1531576320.0;tcp://10.96.0.1,10.148.0.1,10.108.0.1:34911",
+        "1314521088.0;tcp6://[fe80::b9b:ac5d:9cf0:b858,2620:10d:c083:150e::3000:2]:43370",
+    ):
+        with mock.patch.dict(os.environ, {"OMPI_MCA_orte_hnp_uri": uri}):
+            theirs = OmpiCluster.get_coordinator_address(None, None)
+        host, port = theirs.rsplit(":", 1)
+        ours = distributed.ompi_address({"OMPI_MCA_orte_hnp_uri": uri})
+        assert ours in (theirs, f"[{host}]:{port}")
+    assert distributed.ompi_address({"OMPI_MCA_orte_hnp_uri": "garbled"}) is None
+    port = str(launch.free_port())
+
+    def rank(index: int, seeds: str) -> subprocess.Popen:
+        ompi = {
+            "OMPI_MCA_orte_hnp_uri": "1531576320.0;tcp://127.0.0.1:1",
+            "OMPI_COMM_WORLD_SIZE": "2",
+            "OMPI_COMM_WORLD_RANK": str(index),
+            "OMPI_COMM_WORLD_LOCAL_RANK": str(index),
+            "JAX_COORDINATOR_PORT": port,
+        }
+        return subprocess.Popen(
+            [sys.executable, str(SCRIPT), *TINY, "--seeds", seeds, "--out", "run", "--distributed"],
+            cwd=tmp_path,
+            env={**ENV, "RL_JAX_CPU_DEVICES": "1", **ompi},
+            stdout=subprocess.PIPE,
+            stderr=subprocess.PIPE,
+            text=True,
+        )
+
+    started = time.monotonic()
+    ranks = [rank(0, "2"), rank(1, "3")]
+    ended = []
+    for process in ranks:
+        out, err = process.communicate(timeout=120)
+        ended.append(subprocess.CompletedProcess(process.args, process.returncode, out, err))
+    assert time.monotonic() - started < 30
+    assert_one_line_each(ended, "--seeds differs")
 
 
 @pytest.mark.slow
