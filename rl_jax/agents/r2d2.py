@@ -110,24 +110,42 @@ class Hyperparams(params.HyperparamsMethods):
 # ---- the network --------------------------------------------------------------------------------
 class RecurrentQNetwork(nn.Module):
     """``(carry, obs [..., obs_dim]) -> (carry, q [..., num_actions])`` for one step: ``hidden``
-    ReLU layers, an LSTM, then a linear or dueling head."""
+    ReLU layers (``embed``), an LSTM (``recur``), then a linear or dueling head (``head``). The
+    three are methods of their own so that an unroll scans only the recurrence and runs the
+    layers before and after it as batched calls over all steps."""
 
     layers: networks.Layers
     cell_size: int
     num_actions: int
     dueling: bool = True
 
-    @nn.compact
-    def __call__(self, carry: Carry, obs: jax.Array) -> tuple[Carry, jax.Array]:
-        x = networks.Torso(self.layers)(obs)
-        carry, x = nn.OptimizedLSTMCell(self.cell_size)(carry, x)
-        head = lambda outputs: networks.dense(  # noqa: E731
-            outputs, x.shape[-1], self.layers.initializer, 1.0, jnp.float32
+    def setup(self) -> None:
+        self.torso = networks.Torso(self.layers)
+        self.cell = nn.OptimizedLSTMCell(self.cell_size)
+        dense = lambda outputs: networks.dense(  # noqa: E731
+            outputs, self.cell_size, self.layers.initializer, 1.0, jnp.float32
         )
-        if not self.dueling:
-            return carry, head(self.num_actions)(x)
-        value, advantage = head(1)(x), head(self.num_actions)(x)
-        return carry, value + advantage - jnp.mean(advantage, axis=-1, keepdims=True)
+        self.advantage = dense(self.num_actions)
+        self.value = dense(1) if self.dueling else None
+
+    def embed(self, obs: jax.Array) -> jax.Array:
+        """The hidden layers: ``[..., obs_dim] -> [..., features]``."""
+        return self.torso(obs)
+
+    def recur(self, carry: Carry, x: jax.Array) -> tuple[Carry, jax.Array]:
+        """One step of the LSTM: ``(carry, features) -> (carry, output)``."""
+        return self.cell(carry, x)
+
+    def head(self, x: jax.Array) -> jax.Array:
+        """The action values of the LSTM's outputs: ``[..., cell_size] -> [..., A]``."""
+        advantage = self.advantage(x)
+        if self.value is None:
+            return advantage
+        return self.value(x) + advantage - jnp.mean(advantage, axis=-1, keepdims=True)
+
+    def __call__(self, carry: Carry, obs: jax.Array) -> tuple[Carry, jax.Array]:
+        carry, x = self.recur(carry, self.embed(obs))
+        return carry, self.head(x)
 
 
 @functools.lru_cache(maxsize=64)
@@ -151,18 +169,30 @@ def apply(params: optax.Params, carry: Carry, obs: jax.Array, config: Config):
     return cast(tuple[Carry, jax.Array], make_network(config).apply(params, carry, obs))
 
 
+def _recurrence(
+    params: optax.Params, carry: Carry, x: jax.Array, starts: jax.Array, config: Config
+) -> tuple[Carry, tuple[jax.Array, Carry]]:
+    """The LSTM over features ``x [T, B, ...]`` from ``carry [B, ...]``, reset to zero before
+    every step where ``starts [T, B]``: ``(last carry, (outputs, carry reached on each step))``."""
+    net = make_network(config)
+
+    def step(carry: Carry, inputs: tuple[jax.Array, jax.Array]):
+        x, start = inputs
+        carry = episodes.reset_policy_state(start, carry, initial_carry(config))
+        carry, out = cast(tuple[Carry, jax.Array], net.apply(params, carry, x, method=net.recur))
+        return carry, (out, carry)
+
+    return jax.lax.scan(step, carry, (x, starts))
+
+
 def advance(
     params: optax.Params, carry: Carry, obs: jax.Array, starts: jax.Array, config: Config
 ) -> Carry:
     """The state after the steps ``obs [T, B, ...]`` from ``carry [B, ...]``, reset to zero
     before every step where ``starts [T, B]``: the burn-in (the caller stops its gradient)."""
-
-    def step(carry: Carry, inputs: tuple[jax.Array, jax.Array]) -> tuple[Carry, None]:
-        obs, start = inputs
-        carry = episodes.reset_policy_state(start, carry, initial_carry(config))
-        return apply(params, carry, obs, config)[0], None
-
-    return jax.lax.scan(step, carry, (obs, starts))[0]
+    net = make_network(config)
+    x = net.apply(params, obs, method=net.embed)
+    return _recurrence(params, carry, x, starts, config)[0]
 
 
 def unroll(
@@ -175,15 +205,12 @@ def unroll(
     """``(q, q_next)`` ``[T, B, A]`` over the steps (leaves ``[T, B, ...]``) from ``carry``:
     ``q`` of each step's observation, ``q_next`` of its true next observation read with the
     state reached on the step (before any reset), so that a truncation bootstraps as the episode
-    would have gone on."""
-
-    def step(carry: Carry, inputs: tuple[jax.Array, jax.Array, jax.Array]):
-        obs, next_obs, start = inputs
-        carry = episodes.reset_policy_state(start, carry, initial_carry(config))
-        carry, q = apply(params, carry, obs, config)
-        return carry, (q, apply(params, carry, next_obs, config)[1])
-
-    return jax.lax.scan(step, carry, (steps.obs, steps.next_obs, starts))[1]
+    would have gone on. Only the recurrence is a scan."""
+    net = make_network(config)
+    x = net.apply(params, steps.obs, method=net.embed)
+    _, (out, reached) = _recurrence(params, carry, x, starts, config)
+    q = net.apply(params, out, method=net.head)
+    return cast(jax.Array, q), apply(params, reached, steps.next_obs, config)[1]
 
 
 # ---- state and replay ---------------------------------------------------------------------------
