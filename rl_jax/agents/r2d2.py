@@ -191,7 +191,7 @@ def advance(
     """The state after the steps ``obs [T, B, ...]`` from ``carry [B, ...]``, reset to zero
     before every step where ``starts [T, B]``: the burn-in (the caller stops its gradient)."""
     net = make_network(config)
-    x = net.apply(params, obs, method=net.embed)
+    x = cast(jax.Array, net.apply(params, obs, method=net.embed))
     return _recurrence(params, carry, x, starts, config)[0]
 
 
@@ -207,7 +207,7 @@ def unroll(
     state reached on the step (before any reset), so that a truncation bootstraps as the episode
     would have gone on. Only the recurrence is a scan."""
     net = make_network(config)
-    x = net.apply(params, steps.obs, method=net.embed)
+    x = cast(jax.Array, net.apply(params, steps.obs, method=net.embed))
     _, (out, reached) = _recurrence(params, carry, x, starts, config)
     q = net.apply(params, out, method=net.head)
     return cast(jax.Array, q), apply(params, reached, steps.next_obs, config)[1]
