@@ -371,7 +371,9 @@ def _fresh_settings(
 
 
 def replace_fields(instance: D, values: Mapping[str, Any], what: str) -> D:
-    """``instance`` with ``values``; a value its field refuses is one ``UsageError``."""
+    """``instance`` with ``values``; a value its field refuses is one ``UsageError``. A list (as
+    JSON or a notebook gives a layer list) becomes a tuple: settings are hashed when compiled."""
+    values = {name: tuple(v) if isinstance(v, list) else v for name, v in values.items()}
     try:
         return dataclasses.replace(instance, **values)
     except (TypeError, ValueError) as error:

@@ -112,3 +112,15 @@ def test_the_readme_notebook_block_runs(tmp_path, monkeypatch, capsys):
     assert (tmp_path / "pendulum.gif").stat().st_size > 100
     assert namespace["same"].run_dir == namespace["run"].run_dir
     assert "final eval return at step 200 (2 seeds)" in capsys.readouterr().out
+
+
+def test_a_list_setting_from_a_notebook_or_json_becomes_a_tuple():
+    """``config={"hidden": [8]}`` (a notebook's or a JSON file's list) is hashed when compiled:
+    it is taken as the tuple its field holds, and checked as one."""
+    from rl_jax.agents import r2d2
+    from rl_jax.run.command import replace_fields
+    from rl_jax.training.validation import out_of_range
+
+    config = replace_fields(r2d2.default_config("rl_jax/CartPole-v1"), {"hidden": [8, 8]}, "config")
+    assert config.hidden == (8, 8) and hash(config)
+    assert out_of_range(config) is None
