@@ -1,0 +1,515 @@
+"""AlphaZero (Silver et al. 2018) with Gumbel root search (Danihelka et al. 2022, "Policy
+improvement by planning with Gumbel"), on pgx's two-player board games.
+
+The search is mctx's ``gumbel_muzero_policy`` and its model is the true game: the
+``recurrent_fn`` steps the pgx state, and the network only gives each new node its prior and
+value. An edge carries the mover's reward and a discount of -1 where the turn passes (+1 where
+the same player moves again, 0 where the game ends: ``alphazero_parts.edge_discount``), so
+every value in the tree is from the view of the player who chooses there.
+
+One *iteration*: ``num_envs`` games of self-play, vmapped, each from the opening to its end
+(``max_game_length`` moves, idle after the end); every move is the search's (Gumbel) sampled
+action with ``num_simulations`` simulations. Each position played is stored in a replay of
+finished games with two targets: the search's improved policy (mctx's ``action_weights``) and
+the game's final outcome from the view of the player to move there
+(``alphazero_parts.value_targets``). Then ``updates_per_iteration`` AdamW steps on batches of
+``batch_size`` positions drawn uniformly from the replay, on
+
+    loss = cross-entropy(improved policy, network policy) + value_coef * (v - z)^2.
+
+A *chunk* is ``iterations_per_chunk`` iterations, then one evaluation: the network's greedy
+policy (no search) against a uniformly random player, ``num_eval_games`` games in both colours;
+``eval_return`` is the mean outcome (1 win, 0 draw, -1 loss). Env steps are counted as move
+slots, ``num_envs * max_game_length`` per iteration (``moves_played`` in the metrics counts
+the moves made).
+
+The game is named by the env id ``pgx/GAME`` (``pgx/tic_tac_toe``) and resolved here with
+``pgx.make``: the env registry is not involved (docs/learners/alphazero.md says why). Usage::
+
+    config = alphazero.default_config("pgx/tic_tac_toe")
+    hparams = alphazero.default_hyperparams("pgx/tic_tac_toe")
+    state = alphazero.init(jax.random.key(0), config, hparams)
+    state, metrics = jax.jit(alphazero.train_chunk, static_argnums=1)(state, config, hparams)
+    player = alphazero.search_player(state.agent.params, config)  # for envs.games.match
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+from collections.abc import Callable
+from typing import NamedTuple, cast
+
+import flax.linen as nn
+import jax
+import jax.numpy as jnp
+import mctx
+import optax
+import pgx
+from flax import struct
+
+from rl_jax.agents import alphazero_parts as parts
+from rl_jax.agents.common import clip_by_global_norm, injected_step
+from rl_jax.envs.games.match import Player, random_player
+from rl_jax.training import params
+from rl_jax.training.algorithm import ChunkMetrics, Clock, RecipeBook
+from rl_jax.training.params import Scalar
+from rl_jax.training.recipes import Recipe, Recipes
+
+GAME_PREFIX = "pgx/"
+
+
+# ---- settings -------------------------------------------------------------------------------
+@dataclasses.dataclass(frozen=True, kw_only=True)
+class Config:
+    """Static settings (changing one recompiles)."""
+
+    env_id: str = "pgx/tic_tac_toe"  # pgx/GAME: the pgx game, pgx.make(GAME)
+    num_envs: int = 64  # self-play games played together (vmapped) per iteration
+    max_game_length: int = 9  # moves per self-play game at most (tic-tac-toe: 9)
+    num_simulations: int = 32  # simulations of the search at every self-play move
+    max_considered_actions: int = 16  # root actions Gumbel sampling considers
+    # self-play moves (from the opening) drawn from the search's improved policy rather than
+    # taken as the search's own choice: the games spread over all good lines, not one
+    sampled_moves: int = 9
+    buffer_size: int = 20_000  # positions the replay keeps (the oldest are overwritten)
+    batch_size: int = 256  # positions per gradient update
+    updates_per_iteration: int = 8  # gradient updates after each batch of self-play games
+    iterations_per_chunk: int = 4  # self-play batches and updates per compiled call
+    num_eval_games: int = 32  # games of the greedy network against a random player per eval
+    hidden: tuple[int, ...] = (128, 128)  # the torso's Dense + ReLU layers
+
+    def __post_init__(self) -> None:
+        if not self.env_id.startswith(GAME_PREFIX):
+            raise ValueError(f"AlphaZero plays pgx games, named pgx/GAME; got {self.env_id!r}")
+        for name in (
+            "num_envs",
+            "max_game_length",
+            "num_simulations",
+            "max_considered_actions",
+            "batch_size",
+            "updates_per_iteration",
+            "iterations_per_chunk",
+            "num_eval_games",
+        ):
+            if getattr(self, name) < 1:
+                raise ValueError(f"{name} must be >= 1, got {getattr(self, name)}")
+        if self.buffer_size < self.num_envs * self.max_game_length:
+            raise ValueError(
+                f"buffer_size ({self.buffer_size}) must hold one iteration's positions: "
+                f"num_envs x max_game_length = {self.num_envs * self.max_game_length}"
+            )
+
+    def make_game(self) -> pgx.Env:
+        """The pgx game ``env_id`` names."""
+        return _make_game(self.env_id.removeprefix(GAME_PREFIX))
+
+
+@functools.cache
+def _make_game(name: str) -> pgx.Env:
+    # one object per game, so that compiled matches keyed by it are reused
+    return pgx.make(name)
+
+
+@struct.dataclass
+class Hyperparams(params.HyperparamsMethods):
+    """What a sweep may vary without recompiling."""
+
+    learning_rate: Scalar = 1e-3  # AdamW's step size
+    weight_decay: Scalar = 1e-4  # AdamW's decoupled weight decay
+    value_coef: Scalar = 1.0  # weight of the value loss beside the policy loss
+    max_grad_norm: Scalar = 1.0  # clip the gradient's global norm to this (0: no clipping)
+    # chance that a self-play move is a uniformly random legal one: games where one side
+    # blunders teach the value of lost and won positions, which play between two equal and
+    # careful sides never reaches
+    random_move_prob: Scalar = 0.1
+
+
+# ---- the network and the state --------------------------------------------------------------
+class PolicyValueNet(nn.Module):
+    """Observations ``[N, *obs_shape]`` -> ``(logits [N, A], value [N] in [-1, 1])``: an MLP
+    torso on the flattened observation, a linear policy head and a tanh value head."""
+
+    num_actions: int
+    hidden: tuple[int, ...]
+
+    @nn.compact
+    def __call__(self, obs: jax.Array) -> tuple[jax.Array, jax.Array]:
+        x = obs.reshape(obs.shape[0], -1).astype(jnp.float32)
+        for width in self.hidden:
+            x = nn.relu(nn.Dense(width)(x))
+        logits = nn.Dense(self.num_actions)(x)
+        value = jnp.tanh(nn.Dense(1)(x))[:, 0]
+        return logits, value
+
+
+def evaluate_net(
+    network: PolicyValueNet, net_params: optax.Params, obs: jax.Array
+) -> tuple[jax.Array, jax.Array]:
+    """``(logits [N, A], value [N])`` of the network on observations ``[N, *obs_shape]``."""
+    logits, value = network.apply(net_params, obs)
+    return cast(jax.Array, logits), cast(jax.Array, value)
+
+
+def make_network(config: Config) -> PolicyValueNet:
+    """The policy and value network for the config's game."""
+    return PolicyValueNet(num_actions=config.make_game().num_actions, hidden=config.hidden)
+
+
+class Agent(NamedTuple):
+    """What the policy reads, and its optimizer."""
+
+    params: optax.Params
+    opt_state: optax.OptState
+
+
+class Replay(NamedTuple):
+    """Positions of finished self-play games, a ring of ``buffer_size`` rows."""
+
+    obs: jax.Array  # [C, *obs_shape]
+    legal: jax.Array  # [C, A] bool
+    policy: jax.Array  # [C, A] the search's improved policy
+    value: jax.Array  # [C] the final outcome for the player to move
+    weight: jax.Array  # [C] 1 for a position played, 0 for an idle step after a game's end
+    position: jax.Array  # [] int32, the next row to write
+    size: jax.Array  # [] int32, rows written so far (at most C)
+
+
+@struct.dataclass
+class TrainState:
+    """Everything one seed's run needs to go on."""
+
+    agent: Agent
+    replay: Replay
+    key: jax.Array
+    clock: Clock
+    moves_played: jax.Array  # [] int32, moves made in self-play so far
+
+
+# ---- the search -----------------------------------------------------------------------------
+def _recurrent_fn(network: PolicyValueNet, game: pgx.Env) -> mctx.RecurrentFn:
+    """mctx's model: the true game steps, the network values and guides the new node."""
+
+    def recurrent_fn(
+        net_params: optax.Params, key: jax.Array, action: jax.Array, state: pgx.State
+    ) -> tuple[mctx.RecurrentFnOutput, pgx.State]:
+        mover = state.current_player
+        next_state = jax.vmap(game.step)(state, action, jax.random.split(key, action.shape[0]))
+        logits, value = evaluate_net(network, net_params, next_state.observation)
+        reward = jnp.take_along_axis(next_state.rewards, mover[:, None], axis=1)[:, 0]
+        output = mctx.RecurrentFnOutput(
+            reward=reward,
+            discount=parts.edge_discount(mover, next_state.current_player, next_state.terminated),
+            prior_logits=parts.masked_logits(logits, next_state.legal_action_mask),
+            value=jnp.where(next_state.terminated, 0.0, value),
+        )
+        return output, next_state
+
+    return recurrent_fn
+
+
+def search(
+    net_params: optax.Params,
+    states: pgx.State,
+    key: jax.Array,
+    config: Config,
+    num_simulations: int | None = None,
+    gumbel_scale: float = 1.0,
+) -> mctx.PolicyOutput:
+    """Gumbel MuZero's root search from a batch of pgx states with the true game as the model;
+    ``num_simulations`` None: the config's. ``gumbel_scale`` 0 makes it deterministic."""
+    network, game = make_network(config), config.make_game()
+    logits, value = evaluate_net(network, net_params, states.observation)
+    root = mctx.RootFnOutput(prior_logits=logits, value=value, embedding=states)
+    return mctx.gumbel_muzero_policy(
+        net_params,
+        key,
+        root,
+        _recurrent_fn(network, game),
+        num_simulations or config.num_simulations,
+        invalid_actions=~states.legal_action_mask,
+        max_num_considered_actions=config.max_considered_actions,
+        gumbel_scale=gumbel_scale,
+    )
+
+
+def search_player(
+    net_params: optax.Params, config: Config, num_simulations: int | None = None
+) -> Player:
+    """A player for one pgx state (``envs.games.match.Player``): the deterministic search's
+    move (no Gumbel noise)."""
+
+    def player(state: pgx.State, key: jax.Array) -> jax.Array:
+        states = jax.tree.map(lambda leaf: leaf[None], state)
+        output = search(net_params, states, key, config, num_simulations, gumbel_scale=0.0)
+        return output.action[0].astype(jnp.int32)
+
+    return player
+
+
+def network_player(net_params: optax.Params, config: Config) -> Player:
+    """A player for one pgx state: the network's most likely legal move, without search."""
+    network = make_network(config)
+
+    def player(state: pgx.State, key: jax.Array) -> jax.Array:
+        del key
+        logits, _ = evaluate_net(network, net_params, state.observation[None])
+        return jnp.argmax(parts.masked_logits(logits[0], state.legal_action_mask)).astype(jnp.int32)
+
+    return player
+
+
+# ---- self-play and the replay ---------------------------------------------------------------
+class Positions(NamedTuple):
+    """The positions of one self-play batch, time-major ``[T, B, ...]``."""
+
+    obs: jax.Array
+    legal: jax.Array
+    policy: jax.Array  # the search's improved policy
+    player: jax.Array  # the player to move
+    rewards: jax.Array  # [T, B, P] what each player received from the move
+    alive: jax.Array  # 1 before the game ended
+
+
+def self_play(
+    net_params: optax.Params, key: jax.Array, config: Config, hparams: Hyperparams
+) -> Positions:
+    """``num_envs`` games from the opening, every move the search's, ``max_game_length`` steps."""
+    game = config.make_game()
+    init_key, key = jax.random.split(key)
+    states = jax.vmap(game.init)(jax.random.split(init_key, config.num_envs))
+
+    def move(states: pgx.State, step: tuple[jax.Array, jax.Array]) -> tuple[pgx.State, Positions]:
+        key, move_number = step
+        search_key, sample_key, random_key, step_key = jax.random.split(key, 4)
+        output = search(net_params, states, search_key, config)
+        sampled = jax.random.categorical(sample_key, jnp.log(output.action_weights))
+        action = jnp.where(move_number < config.sampled_moves, sampled, output.action)
+        random_keys = jax.random.split(random_key, (2, config.num_envs))
+        explore = jax.vmap(jax.random.uniform)(random_keys[0]) < hparams.random_move_prob
+        random_moves = jax.vmap(random_player)(states, random_keys[1])
+        action = jnp.where(explore, random_moves, action)
+        step_keys = jax.random.split(step_key, config.num_envs)
+        next_states = jax.vmap(game.step)(states, action, step_keys)
+        alive = ~(states.terminated | states.truncated)
+        played = Positions(
+            obs=states.observation,
+            legal=states.legal_action_mask,
+            policy=output.action_weights,
+            player=states.current_player,
+            rewards=next_states.rewards,
+            alive=alive.astype(jnp.float32),
+        )
+        return next_states, played
+
+    steps = (jax.random.split(key, config.max_game_length), jnp.arange(config.max_game_length))
+    _, positions = jax.lax.scan(move, states, steps)
+    return positions
+
+
+def replay_init(config: Config) -> Replay:
+    """An empty replay for the config's game."""
+    game, capacity = config.make_game(), config.buffer_size
+    obs = jax.eval_shape(game.init, jax.random.key(0)).observation
+    return Replay(
+        obs=jnp.zeros((capacity, *obs.shape), obs.dtype),
+        legal=jnp.zeros((capacity, game.num_actions), jnp.bool_),
+        policy=jnp.zeros((capacity, game.num_actions), jnp.float32),
+        value=jnp.zeros((capacity,), jnp.float32),
+        weight=jnp.zeros((capacity,), jnp.float32),
+        position=jnp.int32(0),
+        size=jnp.int32(0),
+    )
+
+
+def replay_add(replay: Replay, positions: Positions) -> Replay:
+    """The replay with a finished batch's positions and their targets written over its oldest."""
+    targets = parts.value_targets(positions.rewards, positions.player, positions.alive)
+    flat = jax.tree.map(
+        lambda x: x.reshape(-1, *x.shape[2:]),
+        (positions.obs, positions.legal, positions.policy, targets, positions.alive),
+    )
+    count, capacity = flat[-1].shape[0], replay.value.shape[0]
+    rows = (replay.position + jnp.arange(count)) % capacity
+    obs, legal, policy, value, weight = (
+        old.at[rows].set(new) for old, new in zip(replay[:5], flat, strict=True)
+    )
+    return Replay(
+        obs=obs,
+        legal=legal,
+        policy=policy,
+        value=value,
+        weight=weight,
+        position=(replay.position + count) % capacity,
+        size=jnp.minimum(replay.size + count, capacity),
+    )
+
+
+# ---- training -------------------------------------------------------------------------------
+def loss_fn(
+    net_params: optax.Params, batch: Replay, hparams: Hyperparams, config: Config
+) -> tuple[jax.Array, dict[str, jax.Array]]:
+    """``(loss, metrics)`` of a batch of replayed positions."""
+    logits, value = evaluate_net(make_network(config), net_params, batch.obs)
+    policy_loss = parts.policy_loss(logits, batch.policy, batch.legal, batch.weight)
+    value_loss = parts.value_loss(value, batch.value, batch.weight)
+    total = policy_loss + hparams.value_coef * value_loss
+    return total, {"policy_loss": policy_loss, "value_loss": value_loss}
+
+
+def _adamw(learning_rate: Scalar, weight_decay: Scalar) -> optax.GradientTransformation:
+    return optax.adamw(learning_rate, weight_decay=weight_decay)
+
+
+def update(
+    agent: Agent, replay: Replay, key: jax.Array, hparams: Hyperparams, config: Config
+) -> tuple[Agent, dict[str, jax.Array]]:
+    """One AdamW step on ``batch_size`` positions drawn uniformly from the replay."""
+    rows = jax.random.randint(key, (config.batch_size,), 0, jnp.maximum(replay.size, 1))
+    batch = Replay(*(field[rows] for field in replay[:5]), replay.position, replay.size)
+    grads, metrics = jax.grad(loss_fn, has_aux=True)(agent.params, batch, hparams, config)
+    grads, metrics["grad_norm"] = clip_by_global_norm(grads, hparams.max_grad_norm)
+    net_params, opt_state = injected_step(
+        _adamw,
+        grads,
+        agent.opt_state,
+        agent.params,
+        learning_rate=hparams.learning_rate,
+        weight_decay=hparams.weight_decay,
+    )
+    return Agent(net_params, opt_state), metrics
+
+
+def train_iteration(
+    state: TrainState, config: Config, hparams: Hyperparams
+) -> tuple[TrainState, dict[str, jax.Array]]:
+    """One batch of self-play games into the replay, then ``updates_per_iteration`` updates."""
+    key, play_key, update_key = jax.random.split(state.key, 3)
+    positions = self_play(state.agent.params, play_key, config, hparams)
+    replay = replay_add(state.replay, positions)
+
+    def one_update(agent: Agent, key: jax.Array) -> tuple[Agent, dict[str, jax.Array]]:
+        return update(agent, replay, key, hparams, config)
+
+    update_keys = jax.random.split(update_key, config.updates_per_iteration)
+    agent, metrics = jax.lax.scan(one_update, state.agent, update_keys)
+    clock = state.clock
+    state = TrainState(
+        agent=agent,
+        replay=replay,
+        key=key,
+        clock=Clock(
+            env_steps=clock.env_steps + config.num_envs * config.max_game_length,
+            updates=clock.updates + config.updates_per_iteration,
+            iterations=clock.iterations + 1,
+        ),
+        moves_played=state.moves_played + jnp.sum(positions.alive).astype(jnp.int32),
+    )
+    return state, jax.tree.map(jnp.mean, metrics)
+
+
+def evaluate(net_params: optax.Params, key: jax.Array, config: Config) -> jax.Array:
+    """The mean outcome (1 win, 0 draw, -1 loss) of the greedy network against a uniformly
+    random player over ``num_eval_games`` games, opening in every other one."""
+    game, learner = config.make_game(), network_player(net_params, config)
+    init_key, key = jax.random.split(key)
+    states = jax.vmap(game.init)(jax.random.split(init_key, config.num_eval_games))
+    opens = jnp.arange(config.num_eval_games) % 2 == 0
+    learner_id = jnp.where(opens, states.current_player, 1 - states.current_player)
+
+    def move(carry: tuple[pgx.State, jax.Array], key: jax.Array) -> tuple[tuple, None]:
+        states, total = carry
+        keys = jax.random.split(key, (2, config.num_eval_games))
+        ours = jax.vmap(learner)(states, keys[0])
+        theirs = jax.vmap(random_player)(states, keys[1])
+        action = jnp.where(states.current_player == learner_id, ours, theirs)
+        states = jax.vmap(game.step)(states, action, keys[1])
+        reward = jnp.take_along_axis(states.rewards, learner_id[:, None], axis=1)[:, 0]
+        return (states, total + reward), None
+
+    keys = jax.random.split(key, config.max_game_length)
+    (_, total), _ = jax.lax.scan(move, (states, jnp.zeros(config.num_eval_games)), keys)
+    return jnp.mean(total)
+
+
+def init(key: jax.Array, config: Config, hparams: Hyperparams) -> TrainState:
+    """A fresh state for one seed and one hyperparameter set."""
+    net_key, key = jax.random.split(key)
+    replay = replay_init(config)
+    net_params = make_network(config).init(net_key, replay.obs[:1])
+    optimizer = optax.inject_hyperparams(_adamw)(hparams.learning_rate, hparams.weight_decay)
+    zero = jnp.int32(0)
+    return TrainState(
+        agent=Agent(net_params, optimizer.init(net_params)),
+        replay=replay,
+        key=key,
+        clock=Clock(env_steps=zero, updates=zero, iterations=zero),
+        moves_played=zero,
+    )
+
+
+def train_chunk(
+    state: TrainState, config: Config, hparams: Hyperparams
+) -> tuple[TrainState, ChunkMetrics]:
+    """``iterations_per_chunk`` self-play batches and updates, then one evaluation. Pure."""
+    state, metrics = jax.lax.scan(
+        lambda s, _: train_iteration(s, config, hparams),
+        state,
+        None,
+        length=config.iterations_per_chunk,
+    )
+    eval_key, key = jax.random.split(state.key)
+    eval_return = evaluate(state.agent.params, eval_key, config)
+    state = dataclasses.replace(state, key=key)
+    extra = {**jax.tree.map(jnp.mean, metrics), "moves_played": state.moves_played}
+    return state, ChunkMetrics(
+        env_steps=state.clock.env_steps,
+        updates=state.clock.updates,
+        eval_return=eval_return,
+        train_return=jnp.float32(0.0),  # self-play is zero-sum: its mean return says nothing
+        extra=extra,
+    )
+
+
+# ---- the Algorithm object -------------------------------------------------------------------
+RECIPES = Recipes(
+    Recipe("default", "128x128 MLP, 64 games x 32 simulations", envs=("pgx/tic_tac_toe",)),
+)
+
+
+class AlphaZero(RecipeBook):
+    """AlphaZero as an ``rl_jax.training.algorithm.Algorithm`` (usable from Python; the run
+    machinery's env-based parts, evaluation and GIFs, do not take pgx games yet)."""
+
+    name = "alphazero"
+    config_type, hparams_type = Config, Hyperparams
+    recipes = RECIPES
+    policy_fields = ("agent",)
+
+    def init(self, key: jax.Array, config: Config, hparams: Hyperparams) -> TrainState:
+        """A fresh state for one seed and one hyperparameter set."""
+        return init(key, config, hparams)
+
+    def train_chunk(
+        self, state: TrainState, config: Config, hparams: Hyperparams
+    ) -> tuple[TrainState, ChunkMetrics]:
+        """``iterations_per_chunk`` self-play batches and updates, then one evaluation."""
+        return train_chunk(state, config, hparams)
+
+    def env_steps_per_chunk(self, config: Config) -> int:
+        """Move slots per chunk: ``num_envs * max_game_length * iterations_per_chunk``."""
+        return config.num_envs * config.max_game_length * config.iterations_per_chunk
+
+    def policy(self, state: TrainState, config: Config) -> Callable[..., jax.Array]:
+        """``(obs, legal) -> action``: the network's most likely legal move, without search."""
+        network = make_network(config)
+
+        def act(obs: jax.Array, legal: jax.Array) -> jax.Array:
+            logits, _ = evaluate_net(network, state.agent.params, obs[None])
+            return jnp.argmax(parts.masked_logits(logits[0], legal)).astype(jnp.int32)
+
+        return act
+
+
+alphazero = AlphaZero()
+default_config, default_hyperparams = alphazero.default_config, alphazero.default_hyperparams

@@ -1,0 +1,59 @@
+"""AlphaZero's maths, apart from the search and the game: the targets a finished self-play game
+gives its positions, the losses on them, and the discount of a search edge between two players.
+
+Time-major throughout: ``[T, B]`` is move ``t`` of game ``b``. A game's move ``t`` is made by
+``player_t`` (pgx's ``current_player`` before the move), and ``rewards_t[p]`` is what player
+``p`` received from that move (pgx's ``rewards`` after it: nonzero only on the move that ends a
+two-player game). ``alive_t`` is 1 for the moves made before the game ended and 0 for the idle
+steps after it.
+"""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+
+
+def value_targets(rewards_t: jax.Array, player_t: jax.Array, alive_t: jax.Array) -> jax.Array:
+    """``[T, B]`` value targets: the sum of the rewards that ``player_t``, the player to move at
+    ``t``, receives from move ``t`` to the game's end (undiscounted; 0 on idle steps).
+
+    In a two-player zero-sum game with a reward only at the end this is the final outcome from
+    the mover's view, so its sign flips from one move to the next (``rewards_t``: ``[T, B, P]``,
+    ``player_t``: ``[T, B]`` int, ``alive_t``: ``[T, B]`` 0/1)."""
+    received = rewards_t * alive_t[..., None]
+    to_go = jnp.flip(jnp.cumsum(jnp.flip(received, axis=0), axis=0), axis=0)  # [T, B, P]
+    mover_to_go = jnp.take_along_axis(to_go, player_t[..., None].astype(jnp.int32), axis=-1)
+    return jax.lax.stop_gradient(mover_to_go[..., 0] * alive_t)
+
+
+def edge_discount(mover: jax.Array, next_player: jax.Array, terminated: jax.Array) -> jax.Array:
+    """The discount of a search edge: -1 where the turn passes to the other player (the next
+    node's value is the opponent's), +1 where the same player moves again, 0 where the game
+    ended. mctx's backup ``reward + discount * value`` then values every edge for the player
+    who chose it."""
+    sign = jnp.where(next_player == mover, 1.0, -1.0)
+    return jnp.where(terminated, 0.0, sign).astype(jnp.float32)
+
+
+def masked_logits(logits: jax.Array, legal: jax.Array) -> jax.Array:
+    """Logits with the illegal actions at the dtype's lowest value (and the legal ones shifted
+    so that their largest is 0): a softmax over them puts no mass on illegal actions."""
+    shifted = logits - jnp.max(logits, axis=-1, keepdims=True)
+    return jnp.where(legal, shifted, jnp.finfo(logits.dtype).min)
+
+
+def policy_loss(
+    logits: jax.Array, target_probs: jax.Array, legal: jax.Array, weight: jax.Array
+) -> jax.Array:
+    """The weighted mean over positions of the cross-entropy ``-sum_a pi(a) log p(a)`` between the
+    search's improved policy ``target_probs`` ``[N, A]`` and the network's policy over the legal
+    actions (``logits``, ``legal`` ``[N, A]``, ``weight`` ``[N]``)."""
+    log_probs = jax.nn.log_softmax(masked_logits(logits, legal), axis=-1)
+    per_position = -jnp.sum(jnp.where(legal, target_probs * log_probs, 0.0), axis=-1)
+    return jnp.sum(weight * per_position) / jnp.maximum(jnp.sum(weight), 1.0)
+
+
+def value_loss(value: jax.Array, target: jax.Array, weight: jax.Array) -> jax.Array:
+    """The weighted mean squared error between the value head ``[N]`` and the outcomes ``[N]``."""
+    return jnp.sum(weight * (value - target) ** 2) / jnp.maximum(jnp.sum(weight), 1.0)
