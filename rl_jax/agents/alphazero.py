@@ -171,6 +171,7 @@ class Replay(NamedTuple):
     policy: jax.Array  # [C, A] the search's improved policy
     value: jax.Array  # [C] the final outcome for the player to move
     weight: jax.Array  # [C] 1 for a position played, 0 for an idle step after a game's end
+    value_weight: jax.Array  # [C] 1 where no random move followed it in its game
     position: jax.Array  # [] int32, the next row to write
     size: jax.Array  # [] int32, rows written so far (at most C)
 
@@ -269,6 +270,7 @@ class Positions(NamedTuple):
     player: jax.Array  # the player to move
     rewards: jax.Array  # [T, B, P] what each player received from the move
     alive: jax.Array  # 1 before the game ended
+    explored: jax.Array  # 1 where the move played was a random one
 
 
 def self_play(
@@ -299,6 +301,7 @@ def self_play(
             player=states.current_player,
             rewards=next_states.rewards,
             alive=alive.astype(jnp.float32),
+            explored=explore.astype(jnp.float32),
         )
         return next_states, played
 
@@ -317,6 +320,7 @@ def replay_init(config: Config) -> Replay:
         policy=jnp.zeros((capacity, game.num_actions), jnp.float32),
         value=jnp.zeros((capacity,), jnp.float32),
         weight=jnp.zeros((capacity,), jnp.float32),
+        value_weight=jnp.zeros((capacity,), jnp.float32),
         position=jnp.int32(0),
         size=jnp.int32(0),
     )
@@ -327,12 +331,19 @@ def replay_add(replay: Replay, positions: Positions) -> Replay:
     targets = parts.value_targets(positions.rewards, positions.player, positions.alive)
     flat = jax.tree.map(
         lambda x: x.reshape(-1, *x.shape[2:]),
-        (positions.obs, positions.legal, positions.policy, targets, positions.alive),
+        (
+            positions.obs,
+            positions.legal,
+            positions.policy,
+            targets,
+            positions.alive,
+            parts.played_on(positions.explored, positions.alive),
+        ),
     )
     count, capacity = flat[-1].shape[0], replay.value.shape[0]
     rows = (replay.position + jnp.arange(count)) % capacity
-    obs, legal, policy, value, weight = (
-        old.at[rows].set(new) for old, new in zip(replay[:5], flat, strict=True)
+    obs, legal, policy, value, weight, value_weight = (
+        old.at[rows].set(new) for old, new in zip(replay[:6], flat, strict=True)
     )
     return Replay(
         obs=obs,
@@ -340,6 +351,7 @@ def replay_add(replay: Replay, positions: Positions) -> Replay:
         policy=policy,
         value=value,
         weight=weight,
+        value_weight=value_weight,
         position=(replay.position + count) % capacity,
         size=jnp.minimum(replay.size + count, capacity),
     )
@@ -352,7 +364,7 @@ def loss_fn(
     """``(loss, metrics)`` of a batch of replayed positions."""
     logits, value = evaluate_net(make_network(config), net_params, batch.obs)
     policy_loss = parts.policy_loss(logits, batch.policy, batch.legal, batch.weight)
-    value_loss = parts.value_loss(value, batch.value, batch.weight)
+    value_loss = parts.value_loss(value, batch.value, batch.value_weight)
     total = policy_loss + hparams.value_coef * value_loss
     return total, {"policy_loss": policy_loss, "value_loss": value_loss}
 
@@ -366,7 +378,7 @@ def update(
 ) -> tuple[Agent, dict[str, jax.Array]]:
     """One AdamW step on ``batch_size`` positions drawn uniformly from the replay."""
     rows = jax.random.randint(key, (config.batch_size,), 0, jnp.maximum(replay.size, 1))
-    batch = Replay(*(field[rows] for field in replay[:5]), replay.position, replay.size)
+    batch = Replay(*(field[rows] for field in replay[:6]), replay.position, replay.size)
     grads, metrics = jax.grad(loss_fn, has_aux=True)(agent.params, batch, hparams, config)
     grads, metrics["grad_norm"] = clip_by_global_norm(grads, hparams.max_grad_norm)
     net_params, opt_state = injected_step(

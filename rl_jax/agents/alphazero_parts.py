@@ -27,6 +27,17 @@ def value_targets(rewards_t: jax.Array, player_t: jax.Array, alive_t: jax.Array)
     return jax.lax.stop_gradient(mover_to_go[..., 0] * alive_t)
 
 
+def played_on(explored_t: jax.Array, alive_t: jax.Array) -> jax.Array:
+    """``[T, B]`` 1 where the rest of the game, from move ``t`` on, was the learner's own play:
+    a position before an exploring (random) move, or the position where one was made, gets 0,
+    and so do idle steps. Only these positions' outcomes say what the learner's play is worth;
+    the outcome of a game a random move turned says what the random move was worth. A random
+    "move" drawn on an idle step after the game's end does not count."""
+    explored = explored_t * alive_t
+    explored_later = jnp.flip(jnp.cumsum(jnp.flip(explored, axis=0), axis=0), axis=0)
+    return jnp.where(explored_later > 0, 0.0, alive_t).astype(jnp.float32)
+
+
 def edge_discount(mover: jax.Array, next_player: jax.Array, terminated: jax.Array) -> jax.Array:
     """The discount of a search edge: -1 where the turn passes to the other player (the next
     node's value is the opponent's), +1 where the same player moves again, 0 where the game

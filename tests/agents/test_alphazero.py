@@ -62,6 +62,14 @@ def test_value_targets_of_hand_worked_games(jit: bool) -> None:
     np.testing.assert_array_equal(targets[:, 0], [1, -1, 1, -1, 1, 0, 0, 0, 0])
 
 
+def test_only_positions_played_on_without_a_random_move_carry_a_value_target() -> None:
+    _, _, alive = _game([0, 1, 0, 1, 0], winner=0)
+    explored = jnp.zeros_like(alive).at[2, 0].set(1.0).at[6, 0].set(1.0)  # move 3, an idle step
+    weights = parts.played_on(explored, alive)
+    np.testing.assert_array_equal(weights[:, 0], [0, 0, 0, 1, 1, 0, 0, 0, 0])
+    np.testing.assert_array_equal(parts.played_on(jnp.zeros_like(alive), alive), alive)
+
+
 def test_edge_discount_and_losses_exact() -> None:
     discount = parts.edge_discount(
         jnp.array([0, 0, 1, 1]), jnp.array([1, 0, 0, 0]), jnp.array([False, False, False, True])
@@ -99,6 +107,9 @@ def test_policy_target_is_the_searchs_improved_policy() -> None:
     np.testing.assert_array_equal(replay.policy[:rows], flat_policy)
     targets = parts.value_targets(positions.rewards, positions.player, positions.alive)
     np.testing.assert_array_equal(replay.value[:rows], targets.reshape(-1))
+    value_weight = parts.played_on(positions.explored, positions.alive)
+    np.testing.assert_array_equal(replay.value_weight[:rows], value_weight.reshape(-1))
+    np.testing.assert_array_equal(replay.weight[:rows], positions.alive.reshape(-1))
     # every game of tic-tac-toe ends within 9 moves, and each mover's target is the outcome
     # pgx gave that player on the last move
     last = jnp.sum(positions.alive, axis=0).astype(jnp.int32) - 1  # [B]
