@@ -94,6 +94,10 @@ class Config:
         ):
             if getattr(self, name) < 1:
                 raise ValueError(f"{name} must be >= 1, got {getattr(self, name)}")
+        # made here, outside any trace: pgx builds module-level arrays when a game's module is
+        # first imported, and built inside a jit they would leak as tracers (an unknown game is
+        # also named here, before anything compiles)
+        self.make_game()
         if self.buffer_size < self.num_envs * self.max_game_length:
             raise ValueError(
                 f"buffer_size ({self.buffer_size}) must hold one iteration's positions: "
