@@ -492,6 +492,23 @@ ROWS: dict[str, Row] = {
         "500 is the maximum; its goal: 29 of 30 seeds there, all 30 in one program in a minute",
         Goal(500.0, 29, "final", 1.0),
     ),
+    # Distributional Q-learning on CartPole at its recipes: 4 of 5 seeds at 500.
+    "c51-cartpole": Row(
+        "C51, `rl_jax/CartPole-v1`",
+        "train.py",
+        ("--algo", "c51", "--env", "rl_jax/CartPole-v1", "--total-steps", "100000"),
+        5,
+        "500 is the maximum; DQN's row above at its recipe",
+        Goal(500.0, 4, "final"),
+    ),
+    "qrdqn-cartpole": Row(
+        "QR-DQN, `rl_jax/CartPole-v1`",
+        "train.py",
+        ("--algo", "qrdqn", "--env", "rl_jax/CartPole-v1", "--total-steps", "100000"),
+        5,
+        "500 is the maximum; the C51 row above at the same budget",
+        Goal(500.0, 4, "final"),
+    ),
     # Memory: CartPole with its velocities hidden (rl_jax/CartPoleNoVel-v1, RL Zoo's
     # CartPoleNoVel-v1) can only be balanced by a policy that infers them from past
     # observations. The recurrent learner's goal is the issue's: 29 of 30 seeds at 500, all in
