@@ -186,9 +186,12 @@ def test_a_briefly_trained_network_beats_a_random_player() -> None:
         state, _ = _train_chunk()(state, config, hparams)
     player = alphazero.network_player(state.agent.params, config)
     result = match.play_match(
-        config.make_game(), player, match.random_player, jax.random.key(1), 100
+        config.make_game(), player, match.random_player, jax.random.key(1), 200
     )
-    assert result.wins > result.losses + 20, result.table()
+    # Two random players: wins - losses ~ 0 +- 13 over 200 games. Seeds 0-3 of this training
+    # scored +35 to +59 over 100 games (Intel Xeon): +30 over 200 leaves room for another
+    # CPU's float path.
+    assert result.wins > result.losses + 30, result.table()
 
 
 # ---- the goal (slow) -------------------------------------------------------------------
