@@ -382,7 +382,7 @@ def update(
 ) -> tuple[Agent, dict[str, jax.Array]]:
     """One AdamW step on ``batch_size`` positions drawn uniformly from the replay."""
     rows = jax.random.randint(key, (config.batch_size,), 0, jnp.maximum(replay.size, 1))
-    batch = Replay(*(field[rows] for field in replay[:6]), replay.position, replay.size)
+    batch = Replay._make([*(field[rows] for field in replay[:6]), replay.position, replay.size])
     grads, metrics = jax.grad(loss_fn, has_aux=True)(agent.params, batch, hparams, config)
     grads, metrics["grad_norm"] = clip_by_global_norm(grads, hparams.max_grad_norm)
     net_params, opt_state = injected_step(
