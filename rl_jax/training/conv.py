@@ -7,11 +7,11 @@ dense layers; and the initialisers the two modules share.
 from __future__ import annotations
 
 from collections.abc import Callable, Sequence
-from typing import Any
 
 import flax.linen as nn
 import jax
 import jax.numpy as jnp
+from jax.nn.initializers import Initializer
 from jax.typing import DTypeLike
 
 INITS = ("fan_in_uniform", "orthogonal")
@@ -79,7 +79,7 @@ def covering_rows(layers: Sequence[int], first: int, stop: int, size: int) -> tu
     return 0, size
 
 
-def _conv_inits(initializer: str, fan_in: int) -> tuple[Any, Any]:
+def _conv_inits(initializer: str, fan_in: int) -> tuple[Initializer, Initializer]:
     """Kernel and bias initializers of a conv layer, as ``dense``'s (PyTorch's ``nn.Conv2d``
     default bound 1/sqrt(fan_in) for ``fan_in_uniform``; orthogonal with the ReLU gain
     otherwise)."""

@@ -6,7 +6,6 @@ from __future__ import annotations
 
 import dataclasses
 from collections.abc import Sequence
-from typing import Any
 
 import jax
 import numpy as np
@@ -112,7 +111,9 @@ def plan_layout(
     return min(candidates, key=lambda candidate: candidate[0])[1]
 
 
-def make_mesh(num_hparams: int, num_seeds: int, devices: Sequence[Any] | None = None) -> Mesh:
+def make_mesh(
+    num_hparams: int, num_seeds: int, devices: Sequence[jax.Device] | None = None
+) -> Mesh:
     """A ``("hparams", "seeds")`` device mesh shaped by ``mesh_shape`` (no padding)."""
     devices = list(jax.devices() if devices is None else devices)
     hparam_split, seed_split = mesh_shape(num_hparams, num_seeds, len(devices))

@@ -21,7 +21,7 @@ from __future__ import annotations
 import dataclasses
 import json
 from collections.abc import Callable
-from typing import TYPE_CHECKING, Any, Generic, NamedTuple, TypeVar
+from typing import TYPE_CHECKING, Any, Generic, NamedTuple, Self, TypeAlias, TypeVar, cast
 
 import jax
 import jax.numpy as jnp
@@ -95,7 +95,7 @@ class OffPolicyConfig:
         actions) override."""
         return envs.make(self.env_id, **envs.parse_keywords(self.env_kwargs))
 
-    def to_dict(self) -> dict[str, Any]:
+    def to_dict(self) -> dict[str, object]:
         """The config's fields as a dict."""
         return dataclasses.asdict(self)
 
@@ -104,7 +104,7 @@ class OffPolicyConfig:
         return json.dumps(self.to_dict(), sort_keys=True)
 
     @classmethod
-    def from_dict(cls, values: dict[str, Any]):
+    def from_dict(cls, values: dict[str, Any]) -> Self:
         """Inverse of ``to_dict`` (JSON lists become tuples again); unknown keys are an error."""
         fields = {f.name: f for f in dataclasses.fields(cls)}
         unknown = sorted(set(values) - set(fields))
@@ -112,6 +112,11 @@ class OffPolicyConfig:
             raise ValueError(f"unknown {cls.__name__} field(s): {', '.join(unknown)}")
         tuples = {k: tuple(v) for k, v in values.items() if isinstance(v, list)}
         return cls(**{**values, **tuples})
+
+
+#: What the loop carries per env between steps for a learner's exploration: its noise
+#: ``[num_envs, *action_shape]``, or a recurrent learner's policy state (an LSTM's ``(c, h)``).
+ExplorationState: TypeAlias = jax.Array | tuple[jax.Array, ...]
 
 
 @struct.dataclass
@@ -124,7 +129,7 @@ class TrainState:
     obs: jax.Array  # [num_envs, *obs_shape], the observation the next action answers
     # [num_envs, *action_shape] float32, exploration state (see Learner); for a recurrent
     # learner (Learner.policy_state) each env's policy state, a pytree with leading axis num_envs
-    noise: ArrayPytree
+    noise: ExplorationState
     key: PRNGKey
     clock: Clock
     train_return: jax.Array  # [] float32, mean return of the episodes ended in the last chunk
@@ -205,7 +210,7 @@ class Learner(NamedTuple, Generic[AgentT, BufferT, ConfigT, HparamsT]):
         Callable[[AgentT, Transition, jax.Array, jax.Array, Clock, ConfigT, HparamsT], AgentT]
         | None
     ) = None
-    policy_state: Callable[[ConfigT], ArrayPytree] | None = None
+    policy_state: Callable[[ConfigT], ExplorationState] | None = None
 
 
 def buffer_nbytes(config: OffPolicyConfig) -> int:
@@ -227,9 +232,10 @@ def init(
     )
     buffer = learner.init_buffer(example_transition(env), config)
     zero = jnp.int32(0)
-    noise: ArrayPytree = jnp.zeros((config.num_envs, *env.action_space().shape), jnp.float32)
+    noise: ExplorationState = jnp.zeros((config.num_envs, *env.action_space().shape), jnp.float32)
     if learner.policy_state is not None:
-        noise = batched_policy_state(learner.policy_state(config), config.num_envs)
+        initial = learner.policy_state(config)
+        noise = cast(ExplorationState, batched_policy_state(initial, config.num_envs))
     return TrainState(
         agent=agent,
         buffer=buffer,
@@ -255,7 +261,7 @@ def _choose_actions(
     state: TrainState,
     key: PRNGKey,
     space: envs.Space,
-) -> tuple[jax.Array, jax.Array]:
+) -> tuple[jax.Array, ExplorationState]:
     """``(actions, noise)``: uniformly random while warming up, then the learner's choice
     (over the legal actions only, for an env with an action mask)."""
     warming_up = state.clock.env_steps < config.learning_starts
@@ -347,7 +353,8 @@ def train_iteration(
         state = dataclasses.replace(state, agent=agent)
     agent, buffer, metrics, updates = _updates(learner, config, hparams, state, update_key, buffer)
     if learner.policy_state is None:
-        noise = jnp.where(jnp.reshape(done, done.shape + (1,) * (noise.ndim - 1)), 0.0, noise)
+        array = cast(jax.Array, noise)  # a noise array: no policy state
+        noise = jnp.where(jnp.reshape(done, done.shape + (1,) * (array.ndim - 1)), 0.0, array)
     else:
         noise = reset_policy_state(done, noise, learner.policy_state(config))
     clock = Clock(
@@ -400,7 +407,7 @@ def train_chunk(
         eval_return = evaluate(learner.act, state.agent, config, eval_key)
     else:
         initial = learner.policy_state(config)
-        act: Callable[..., Any] = learner.act
+        act: Callable[..., tuple[jax.Array, ExplorationState]] = learner.act  # type: ignore[assignment]
         eval_return = evaluate_recurrent(act, initial, state.agent, config, eval_key)
     train_return = mean_return(return_sums, episode_counts, state.train_return)
     state = dataclasses.replace(state, key=key, train_return=train_return)
