@@ -258,8 +258,10 @@ def test_layout_pads_uneven_runs_to_use_every_device():
     assert device_layout.plan_layout(1, 4, num_devices=2).padding == 0
     grid = device_layout.plan_layout(3, 1, num_devices=2)  # 3 configs x 1 seed: split configs
     assert (grid.hparam_split, grid.padded_hparams, grid.runs_per_device) == (2, 4, 2)
-    six = device_layout.plan_layout(3, 2, num_devices=2)  # splits evenly: seeds first, no padding
-    assert (six.hparam_split, six.seed_split, six.padding) == (1, 2, 0)
+    # 3 configs x 2 seeds: the 2 seeds stay together (no block holds a lone seed), so the
+    # configs split, padded to 2 + 2
+    six = device_layout.plan_layout(3, 2, num_devices=2)
+    assert (six.hparam_split, six.seed_split, six.padding, six.runs_per_device) == (2, 1, 2, 4)
     unpadded = device_layout.plan_layout(1, 5, num_devices=2, pad=False)
     assert (unpadded.devices, unpadded.padding) == (1, 0)
     edge = parallel._pad_edge(np.arange(6).reshape(2, 3), (3, 4))
