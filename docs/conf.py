@@ -66,6 +66,8 @@ nitpick_ignore_regex = [
     (r"py:class", r"(rl_jax\.)?envs\.adapters\.gymnasium_host\.HostGymnasiumEnv"),
     (r"py:class", r"rl_jax\.training\.algorithm\.(DataclassState|ConfigT)"),
     (r"py:class", r"rl_jax\.run\.plots\.FinalResult"),
+    # a match's player (a Callable alias) and self-play's stored positions, in AlphaZero's API
+    (r"py:class", r"(Player|Positions)"),
 ]
 # RESULTS.md and BENCHMARKS.md, included as they are, skip heading levels here and there.
 suppress_warnings = ["myst.header"]
