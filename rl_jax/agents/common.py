@@ -53,6 +53,17 @@ def clip_by_global_norm(
     return jax.tree.map(lambda g: g * scale, grads), norm
 
 
+def clipped_adam(
+    learning_rate: ArrayLike, max_grad_norm: ArrayLike, adam_eps: ArrayLike
+) -> optax.GradientTransformation:
+    """Adam with its epsilon after clipping the gradients to a global norm: the optimizer of the
+    learners whose papers set Adam's epsilon (C51, QR-DQN, R2D2), as an
+    ``optax.inject_hyperparams`` factory of those three rates."""
+    return optax.chain(
+        optax.clip_by_global_norm(max_grad_norm), optax.adam(learning_rate, eps=adam_eps)
+    )
+
+
 def linearly_decayed(rate: ArrayLike, progress: ArrayLike, decay_length: ArrayLike) -> jax.Array:
     """``rate`` falling linearly to 0 over ``decay_length`` (env steps or updates, as
     ``progress``; constant if the length is <= 0). A rate that ends at 0 freezes the policy a run

@@ -44,7 +44,7 @@ from jax.typing import ArrayLike
 from rl_jax import envs
 from rl_jax.agents import distributional_parts as parts
 from rl_jax.agents import dqn
-from rl_jax.agents.common import injected_step, polyak_update
+from rl_jax.agents.common import clipped_adam, injected_step, polyak_update
 from rl_jax.agents.dqn import Agent
 from rl_jax.agents.dqn_parts import Buffer
 from rl_jax.agents.q_learning import masked_argmax, masked_epsilon_greedy
@@ -182,14 +182,6 @@ def loss_fn(
     return loss, (per_sample, jnp.mean(q_taken))
 
 
-def _optimizer(
-    learning_rate: ArrayLike, max_grad_norm: ArrayLike, adam_eps: ArrayLike
-) -> optax.GradientTransformation:
-    return optax.chain(
-        optax.clip_by_global_norm(max_grad_norm), optax.adam(learning_rate, eps=adam_eps)
-    )
-
-
 def update(
     agent: Agent,
     buffer: Buffer,
@@ -209,7 +201,7 @@ def update(
     )
     env_steps = offpolicy.env_steps_at_update(update_index, config)
     online, opt_state = injected_step(
-        _optimizer,
+        clipped_adam,
         grads,
         agent.opt_state,
         agent.online,
@@ -274,7 +266,7 @@ def init_agent(
     """A fresh agent: the target network a copy of the online one (and a checkpoint of it with
     ``policy_checkpoints``)."""
     online = make_network(config).init(key, jnp.zeros(obs_space.shape, jnp.float32))
-    optimizer = optax.inject_hyperparams(_optimizer)(
+    optimizer = optax.inject_hyperparams(clipped_adam)(
         hparams.learning_rate, hparams.max_grad_norm, hparams.adam_eps
     )
     agent = Agent(online=online, target=online, opt_state=optimizer.init(online))

@@ -41,7 +41,7 @@ from jax.typing import ArrayLike
 
 from rl_jax import envs
 from rl_jax.agents import r2d2_parts
-from rl_jax.agents.common import injected_step, linearly_decayed, polyak_update
+from rl_jax.agents.common import clipped_adam, injected_step, linearly_decayed, polyak_update
 from rl_jax.agents.q_learning import linear_schedule
 from rl_jax.agents.r2d2_parts import Sequence, SequenceReplay
 from rl_jax.training import episodes, networks, offpolicy, params, validation
@@ -274,14 +274,6 @@ def loss_fn(
     return loss, (td_error, jnp.mean(q_taken))
 
 
-def _optimizer(
-    learning_rate: ArrayLike, max_grad_norm: ArrayLike, adam_eps: ArrayLike
-) -> optax.GradientTransformation:
-    return optax.chain(
-        optax.clip_by_global_norm(max_grad_norm), optax.adam(learning_rate, eps=adam_eps)
-    )
-
-
 def update(
     agent: Agent,
     buffer: SequenceReplay,
@@ -300,7 +292,7 @@ def update(
     )
     env_steps = offpolicy.env_steps_at_update(update_index, config)
     online, opt_state = injected_step(
-        _optimizer,
+        clipped_adam,
         grads,
         agent.opt_state,
         agent.online,
@@ -366,7 +358,7 @@ def init_agent(
         raise ValueError(f"r2d2 does not read action masks, which {config.env_id} has")
     obs = jnp.zeros(obs_space.shape, jnp.float32)
     online = make_network(config).init(key, initial_carry(config), obs)
-    optimizer = optax.inject_hyperparams(_optimizer)(
+    optimizer = optax.inject_hyperparams(clipped_adam)(
         hparams.learning_rate, hparams.max_grad_norm, hparams.adam_eps
     )
     return Agent(online=online, target=online, opt_state=optimizer.init(online))
@@ -429,14 +421,7 @@ class R2D2(offpolicy.OffPolicyAlgorithm[Config]):
         self, state: TrainState, config: Config
     ) -> Callable[[Carry, jax.Array], tuple[jax.Array, Carry]]:
         """``(carry, obs) -> (action index, carry)`` of the greedy policy, for one env."""
-        agent = state.agent
-
-        def step(carry: Carry, obs: jax.Array) -> tuple[jax.Array, Carry]:
-            batch = jax.tree.map(lambda x: x[None], (carry, obs))
-            action, carry = act(agent, batch[0], batch[1], config)
-            return action[0], jax.tree.map(lambda x: x[0], carry)
-
-        return step
+        return episodes.one_env_recurrent_policy(act, state.agent, config)  # type: ignore[return-value]
 
     def make_env(self, config: Config) -> envs.Environment:
         """The env as the policy sees it (``episodes.make_eval_env``)."""

@@ -578,14 +578,7 @@ class RecurrentPPO(RecipeBook):
         self, state: TrainState, config: Config
     ) -> Callable[[Carry, jax.Array], tuple[jax.Array, Carry]]:
         """``(carry, obs) -> (action, carry)`` of the deterministic policy, for one env."""
-        agent = state.agent
-
-        def step(carry: Carry, obs: jax.Array) -> tuple[jax.Array, Carry]:
-            batch = jax.tree.map(lambda x: x[None], (carry, obs))
-            action, carry = act(agent, batch[0], batch[1], config)
-            return action[0], jax.tree.map(lambda x: x[0], carry)
-
-        return step
+        return episodes.one_env_recurrent_policy(act, state.agent, config)  # type: ignore[return-value]
 
     def make_env(self, config: Config) -> envs.Environment:
         """The env as the policy sees it (``episodes.make_eval_env``)."""

@@ -453,7 +453,7 @@ def _join_failed(cluster: Cluster, timeout: float) -> str:
     how = f"--process-id 0 .. {cluster.num_processes - 1} with the same --coordinator"
     if cluster.source != "flags":
         how = f"the {cluster.source} job's tasks"
-    if cluster.process_id != 0 and address and not reachable(address):
+    if cluster.process_id != 0 and address and not aborts.answers(address):
         return (
             f"cannot reach the coordinator {address} within {timeout:g} s (process 0 must be "
             "running there, and the port open)"
@@ -462,16 +462,6 @@ def _join_failed(cluster: Cluster, timeout: float) -> str:
         f"the {cluster.num_processes} processes did not all join within {timeout:g} s "
         f"(coordinator {address or 'of the scheduler'}); start all of them: {how}"
     )
-
-
-def reachable(address: str) -> bool:
-    """Whether something accepts connections at ``HOST:PORT``."""
-    host, _, port = address.rpartition(":")
-    try:
-        with socket.create_connection((host.strip("[]"), int(port)), timeout=2):
-            return True
-    except (OSError, ValueError):
-        return False
 
 
 # ---- running --------------------------------------------------------------------------------

@@ -125,6 +125,21 @@ def reset_policy_state(starts: jax.Array, policy_state: S, initial: S) -> S:
     return jax.tree.map(reset, policy_state, initial)
 
 
+def one_env_recurrent_policy(
+    act: Callable[..., tuple[jax.Array, PolicyState]], agent: object, config: object
+) -> Callable[[PolicyState, jax.Array], tuple[jax.Array, PolicyState]]:
+    """``(policy_state, obs) -> (action, policy_state)`` for one env, from a recurrent learner's
+    batched ``act(agent, policy_state [N, ...], obs [N, ...], config)``: what a learner's
+    ``policy`` hook returns for evaluation, GIFs and ``load_policy``."""
+
+    def step(policy_state: PolicyState, obs: jax.Array) -> tuple[jax.Array, PolicyState]:
+        batch = jax.tree.map(lambda x: x[None], (policy_state, obs))
+        action, policy_state = act(agent, batch[0], batch[1], config)
+        return action[0], jax.tree.map(lambda x: x[0], policy_state)
+
+    return step
+
+
 def evaluate_recurrent(
     act: Callable[..., tuple[jax.Array, PolicyState]],
     initial: PolicyState,
