@@ -160,6 +160,48 @@ _CROSSQ_CHEETAH = read_reference("crossq_simbav2", "rl_jax/HalfCheetah-v5").retu
 CROSSQ_CHEETAH_300K = tuple(float(value[0]) for value in mean_ci(_CROSSQ_CHEETAH[:, None]))
 
 
+# rl-baselines3-zoo's benchmark.md, its ppo_lstm row for PendulumNoVel-v1: RecurrentPPO trained for
+# 100k steps at hyperparams/ppo_lstm.yml's settings, its deterministic policy's mean over 750
+# episodes (150,000 steps) -217.933 +- 140.094; one trained agent ("not a quantitative benchmark").
+ZOO_PENDULUM_NOVEL = -217.933
+ZOO_PENDULUM_NOVEL_TEXT = (
+    "RL Zoo's RecurrentPPO (benchmark.md, ppo_lstm): -217.9 ± 140.1 at 100k, 1 agent on 750 "
+    "episodes"
+)
+
+# POPGym's memory tasks at Easy: (row suffix, env id, PPO + GRU's score in the POPGym paper). The
+# paper (Morad et al. 2023, arXiv 2303.01859) scores a model by its MMER, the best mean episodic
+# return during training, on popgym's returns, which ours are (envs/memory: every task's return
+# lies in [-1, 1], StatelessCartPole's in [0, 1]), so a figure is a goal as it stands. None: the
+# figure is not filled in yet, and the row has no goal until it is.
+POPGYM_PPO_GRU: tuple[tuple[str, str, float | None], ...] = (
+    ("repeat-previous-easy", "RepeatPreviousEasy-v0", None),
+    ("repeat-first-easy", "RepeatFirstEasy-v0", None),
+    ("count-recall-easy", "CountRecallEasy-v0", None),
+    ("autoencode-easy", "AutoencodeEasy-v0", None),
+    ("stateless-cartpole-easy", "StatelessCartPoleEasy-v0", None),
+)
+
+
+def _popgym_row(env: str, figure: float | None) -> Row:
+    """Recurrent PPO on POPGym's ``env`` at its recipe's budget (1,024,000 env steps; the
+    paper's runs were longer), 5 seeds; the goal: the mean final return at the paper's PPO + GRU
+    figure or above, where it is given."""
+    paper = (
+        f"POPGym paper's PPO + GRU: MMER {figure:.2f} (longer runs)"
+        if figure is not None
+        else "POPGym paper's PPO + GRU (MMER, longer runs): figure not filled in"
+    )
+    return Row(
+        f"Recurrent PPO, `rl_jax/{env}`",
+        "train.py",
+        ("--algo", "recurrent_ppo", "--env", f"rl_jax/{env}", "--total-steps", "1024000"),
+        5,
+        f"{paper}; returns on popgym's scale, 1 is the maximum",
+        Goal(figure, 5, "final", mean=True) if figure is not None else None,
+    )
+
+
 def _paper_curve(name: str, algo: str) -> str:
     curve = TD3_PAPER_CURVES[name]
     at = lambda steps: "{:,.4g} [{:,.4g}, {:,.4g}]".format(*curve[steps])
@@ -537,6 +579,38 @@ ROWS: dict[str, Row] = {
         "500 is the maximum; the recurrent PPO row above at the same budget",
         Goal(500.0, 9, "final"),
     ),
+    # Pendulum with its angular velocity hidden (RL Zoo's PendulumNoVel-v1) at the zoo's
+    # ppo_lstm settings (recurrent_ppo's recipe for it): the goal is the zoo's benchmark figure,
+    # as the mean final return of 10 seeds; feed-forward PPO at the same settings and budget
+    # (PPO has no recipe for it: the row's flags) shows what memory buys.
+    "recurrent-ppo-pendulum-novel": Row(
+        "Recurrent PPO, `rl_jax/PendulumNoVel-v1`",
+        "train.py",
+        ("--algo", "recurrent_ppo", "--env", "rl_jax/PendulumNoVel-v1", "--total-steps", "100000"),
+        10,
+        ZOO_PENDULUM_NOVEL_TEXT,
+        Goal(ZOO_PENDULUM_NOVEL, 10, "final", mean=True),
+    ),
+    "ppo-pendulum-novel": Row(
+        "PPO (feed-forward), `rl_jax/PendulumNoVel-v1`",
+        "train.py",
+        (
+            "--algo",
+            "ppo",
+            "--env",
+            "rl_jax/PendulumNoVel-v1",
+            *("--num-envs", "4", "--num-steps", "1024", "--num-epochs", "10"),
+            *("--num-minibatches", "32", "--iterations-per-chunk", "5"),
+            *("--learning-rate", "1e-3", "--gamma", "0.9", "--gae-lambda", "0.95"),
+            *("--clip-eps", "0.2", "--ent-coef", "0.0"),
+            "--total-steps",
+            "100000",
+        ),
+        10,
+        "the recurrent row above: the same settings and budget with memory",
+    ),
+    # POPGym's memory tasks at Easy (envs/memory), recurrent PPO at its POPGym recipe.
+    **{f"recurrent-ppo-{name}": _popgym_row(env, figure) for name, env, figure in POPGYM_PPO_GRU},
     # PPO from CartPole's frames through DQN's conv torso: reported, without a goal.
     "ppo-cartpole-pixels": Row(
         "PPO from pixels, `rl_jax/CartPolePixels-v1`",

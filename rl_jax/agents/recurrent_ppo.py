@@ -161,6 +161,68 @@ CARTPOLE_NOVEL_HPARAMS: dict[str, Setting] = {
     "ent_coef": 0.0,
 }
 
+# rl-baselines3-zoo's ppo_lstm settings for PendulumNoVel-v1 (hyperparams/ppo_lstm.yml): 4 envs x
+# 1024 steps, 10 epochs in minibatches of 128 steps (sb3-contrib's default batch_size: here 32
+# sequences of 128 steps, one per minibatch), gamma 0.9, lambda 0.95, no entropy bonus, the rate
+# 1e-3 and the clip range 0.2 constant, no VecNormalize; an LSTM of 64 as in the CartPoleNoVel
+# recipe (sb3-contrib's default of 256 takes 4 times as long on a CPU). No field for the zoo's gSDE
+# (use_sde, sde_sample_freq 4): the policy's noise is a state-independent Gaussian. Not here
+# either: MlpLstmPolicy's 64 x 64 heads after the LSTM and the critic's own LSTM.
+PENDULUM_NOVEL_CONFIG: dict[str, Setting] = {
+    "num_envs": 4,
+    "num_steps": 1024,
+    "seq_len": 128,
+    "num_epochs": 10,
+    "num_minibatches": 32,
+    "iterations_per_chunk": 5,  # 20,480 env steps per evaluation: 5 of them in 102,400 steps
+    "cell": "lstm",
+    "cell_size": 64,
+}
+PENDULUM_NOVEL_HPARAMS: dict[str, Setting] = {
+    "learning_rate": 1e-3,
+    "gamma": 0.9,
+    "gae_lambda": 0.95,
+    "clip_eps": 0.2,
+    "ent_coef": 0.0,
+}
+
+#: POPGym's memory tasks at Easy that the recipe below is written for.
+POPGYM_EASY = (
+    "rl_jax/RepeatPreviousEasy-v0",
+    "rl_jax/RepeatFirstEasy-v0",
+    "rl_jax/CountRecallEasy-v0",
+    "rl_jax/AutoencodeEasy-v0",
+    "rl_jax/StatelessCartPoleEasy-v0",
+)
+# POPGym's PPO with a GRU (popgym/baselines/ppo.py, on RLlib's PPO) in this learner's terms:
+# its GRU of 256 after a 128-unit layer, gamma 0.99, value-loss weight 1.0, no entropy bonus, and
+# RLlib's PPO defaults (lambda 1.0, clip 0.3, no gradient clipping). Scaled to a 2-core CPU:
+# 32 envs x 128 steps (theirs 64 x 1024), 4 epochs of 4 minibatches of 8 sequences of 128 steps
+# (theirs 30 of 8 x 8,192 steps, sequences up to 1,024) and the rate 5e-4 (theirs 5e-5, for
+# batches 16 times as large). Not here: RLlib's KL penalty and value clipping, the heads of
+# 2 x 128 LeakyReLU (ReLU here, no heads) and popgym's previous-action observation wrapper.
+POPGYM_CONFIG: dict[str, Setting] = {
+    "num_envs": 32,
+    "num_steps": 128,
+    "seq_len": 128,
+    "num_epochs": 4,
+    "num_minibatches": 4,
+    "iterations_per_chunk": 10,  # 40,960 env steps per evaluation
+    "cell": "gru",
+    "cell_size": 256,
+    "hidden": (128,),
+    "activation": "relu",
+}
+POPGYM_HPARAMS: dict[str, Setting] = {
+    "learning_rate": 5e-4,
+    "gamma": 0.99,
+    "gae_lambda": 1.0,
+    "clip_eps": 0.3,
+    "vf_coef": 1.0,
+    "ent_coef": 0.0,
+    "max_grad_norm": 0.0,
+}
+
 RECIPES = Recipes(
     Recipe(
         "default",
@@ -170,6 +232,23 @@ RECIPES = Recipes(
         CARTPOLE_NOVEL_HPARAMS,
         envs=("rl_jax/CartPoleNoVel-v1",),
         total_steps=100_000,
+    ),
+    Recipe(
+        "default",
+        "RL Zoo's ppo_lstm: 4 envs x 1024 steps, 10 epochs x 32 minibatches, LSTM 64, gamma 0.9, "
+        "lr 1e-3 (no gSDE)",
+        PENDULUM_NOVEL_CONFIG,
+        PENDULUM_NOVEL_HPARAMS,
+        envs=("rl_jax/PendulumNoVel-v1",),
+        total_steps=100_000,
+    ),
+    Recipe(
+        "default",
+        "POPGym's PPO + GRU 256 scaled to a CPU: 32 envs x 128 steps, 4 epochs x 4, lr 5e-4",
+        POPGYM_CONFIG,
+        POPGYM_HPARAMS,
+        envs=POPGYM_EASY,
+        total_steps=1_024_000,
     ),
 )
 
