@@ -35,7 +35,12 @@ from flax import struct
 
 from rl_jax import envs
 from rl_jax.agents import muzero_parts as parts
-from rl_jax.agents.common import clip_by_global_norm, injected_step, polyak_update
+from rl_jax.agents.common import (
+    clip_by_global_norm,
+    injected_step,
+    linearly_decayed,
+    polyak_update,
+)
 from rl_jax.envs.core.wrappers import StatisticsState
 from rl_jax.training import episodes, networks, params, validation
 from rl_jax.training.algorithm import ChunkMetrics, Clock, RecipeBook
@@ -118,7 +123,8 @@ class Config:
 class Hyperparams(params.HyperparamsMethods):
     """What a sweep may vary without recompiling."""
 
-    learning_rate: Scalar = 1e-3  # AdamW's step size
+    learning_rate: Scalar = 1e-3  # AdamW's step size at the start
+    lr_decay_steps: Scalar = 0.0  # env steps (one seed) over which it falls to 0 (0: constant)
     weight_decay: Scalar = 1e-4  # AdamW's decoupled weight decay
     max_grad_norm: Scalar = 5.0  # clip the gradient's global norm to this (0: no clipping)
     gamma: Scalar = 0.99  # discount, of the targets and inside the search
@@ -220,7 +226,7 @@ class Replay(NamedTuple):
     next_obs: jax.Array  # the true next observation (the one that ended an episode, there)
     policy: jax.Array  # [L, N, A] the search's improved policy
     root_value: jax.Array  # the search's value of obs
-    count: jax.Array  # [] int32, steps written per env so far
+    written: jax.Array  # [] int32, steps written per env so far
 
 
 @struct.dataclass
@@ -282,7 +288,7 @@ def act(agent: Agent, obs: jax.Array, config: Config) -> jax.Array:
 class Steps(NamedTuple):
     """``num_steps`` steps of every env, ``[T, N, ...]``: the replay's rows, and the returns."""
 
-    rows: Replay  # without its count (0)
+    rows: Replay  # its ``written`` is 0
     episode_return: jax.Array  # the return of an episode that ended at this step, else 0
 
 
@@ -308,7 +314,7 @@ def collect(state: TrainState, key: jax.Array, config: Config) -> tuple[TrainSta
             next_obs=ts.info["final_obs"],
             policy=output.action_weights,
             root_value=output.search_tree.summary().value,
-            count=jnp.int32(0),
+            written=jnp.int32(0),
         )
         return (env_state, ts.obs), Steps(row, jnp.where(ended, ts.info["episode_return"], 0.0))
 
@@ -329,30 +335,30 @@ def replay_init(config: Config, obs: jax.Array, num_actions: int) -> Replay:
         next_obs=jnp.zeros((rows, n, *obs.shape), obs.dtype),
         policy=jnp.zeros((rows, n, num_actions), jnp.float32),
         root_value=jnp.zeros((rows, n), jnp.float32),
-        count=jnp.int32(0),
+        written=jnp.int32(0),
     )
 
 
 def replay_add(replay: Replay, rows: Replay) -> Replay:
     """The replay with ``rows`` (``[T, N, ...]``) written over its oldest steps."""
     length, capacity = rows.action.shape[0], replay.action.shape[0]
-    index = (replay.count + jnp.arange(length)) % capacity
+    index = (replay.written + jnp.arange(length)) % capacity
     fields = [old.at[index].set(new) for old, new in zip(replay[:-1], rows[:-1], strict=True)]
-    return Replay(*fields, count=replay.count + length)
+    return Replay._make([*fields, replay.written + length])
 
 
 def sample_windows(replay: Replay, key: jax.Array, config: Config) -> Replay:
     """``batch_size`` windows of ``window`` consecutive steps of one env each, ``[W, B, ...]``,
     their first step drawn uniformly among those whose window has been written."""
     capacity = replay.action.shape[0]
-    oldest = jnp.maximum(replay.count - capacity, 0)
-    newest = jnp.maximum(replay.count - config.window, oldest)
+    oldest = jnp.maximum(replay.written - capacity, 0)
+    newest = jnp.maximum(replay.written - config.window, oldest)
     start_key, env_key = jax.random.split(key)
     start = jax.random.randint(start_key, (config.batch_size,), oldest, newest + 1)
     env = jax.random.randint(env_key, (config.batch_size,), 0, config.num_envs)
     time = (start[None] + jnp.arange(config.window)[:, None]) % capacity  # [W, B]
     fields = [field[time, env[None]] for field in replay[:-1]]
-    return Replay(*fields, count=replay.count)
+    return Replay._make([*fields, replay.written])
 
 
 # ---- training -------------------------------------------------------------------------------
@@ -410,9 +416,15 @@ def _adamw(learning_rate: Scalar, weight_decay: Scalar) -> optax.GradientTransfo
 
 
 def update(
-    agent: Agent, replay: Replay, key: jax.Array, hparams: Hyperparams, config: Config
+    agent: Agent,
+    replay: Replay,
+    key: jax.Array,
+    hparams: Hyperparams,
+    config: Config,
+    rate: jax.Array,
 ) -> tuple[Agent, dict[str, jax.Array]]:
-    """One AdamW step on ``batch_size`` windows, then the target network's EMA step."""
+    """One AdamW step at ``rate`` on ``batch_size`` windows, then the target network's EMA
+    step."""
     windows = sample_windows(replay, key, config)
     batch_targets = targets(agent, windows, hparams, config)
     grads, metrics = jax.grad(loss_fn, has_aux=True)(
@@ -424,7 +436,7 @@ def update(
         grads,
         agent.opt_state,
         agent.params,
-        learning_rate=hparams.learning_rate,
+        learning_rate=rate,
         weight_decay=hparams.weight_decay,
     )
     target = polyak_update(agent.target_params, net_params, hparams.tau)
@@ -442,9 +454,10 @@ def train_iteration(
     key, collect_key, update_key = jax.random.split(state.key, 3)
     state, steps = collect(state, collect_key, config)
     replay = replay_add(state.replay, steps.rows)
+    rate = linearly_decayed(hparams.learning_rate, state.clock.env_steps, hparams.lr_decay_steps)
 
     def one_update(agent: Agent, key: jax.Array) -> tuple[Agent, dict[str, jax.Array]]:
-        return update(agent, replay, key, hparams, config)
+        return update(agent, replay, key, hparams, config, rate)
 
     update_keys = jax.random.split(update_key, config.updates_per_iteration)
     agent, metrics = jax.lax.scan(one_update, state.agent, update_keys)
@@ -458,7 +471,11 @@ def train_iteration(
     )
     state = dataclasses.replace(state, agent=agent, replay=replay, key=key, clock=clock)
     ended = jnp.logical_or(steps.rows.terminated, steps.rows.truncated)
-    metrics = {**jax.tree.map(jnp.mean, metrics), "root_value": jnp.mean(steps.rows.root_value)}
+    metrics = {
+        **jax.tree.map(jnp.mean, metrics),
+        "learning_rate": rate,
+        "root_value": jnp.mean(steps.rows.root_value),
+    }
     return state, (metrics, (jnp.sum(steps.episode_return), jnp.sum(ended)))
 
 
@@ -508,7 +525,7 @@ def train_chunk(
 
 # ---- recipes --------------------------------------------------------------------------------
 CARTPOLE_CONFIG: dict[str, int] = {}
-CARTPOLE_HPARAMS: dict[str, float] = {}
+CARTPOLE_HPARAMS: dict[str, float] = {"lr_decay_steps": 100_000.0}
 
 RECIPES = Recipes(
     Recipe(

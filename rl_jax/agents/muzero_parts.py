@@ -47,7 +47,7 @@ def support_to_scalar(probs: jax.Array, support_size: int, eps: ArrayLike = 1e-3
     """``[..., 2 S + 1] -> [...]``: the inverse of ``scalar_to_support``, ``h^-1`` of the mean
     of a distribution on the integers ``-S .. S``."""
     support = jnp.arange(-support_size, support_size + 1, dtype=probs.dtype)
-    return inverse_value_rescale(jnp.sum(probs * support, axis=-1), eps)
+    return inverse_value_rescale(probs @ support, eps)
 
 
 def logits_to_scalar(logits: jax.Array, support_size: int, eps: ArrayLike = 1e-3) -> jax.Array:
@@ -84,7 +84,7 @@ def value_targets(
     A termination contributes nothing after its reward (the episode is over: zero after an
     end); a truncation bootstraps from ``v_next`` of the observation that ended it, so a time
     limit does not look like a failure."""
-    discount_t = gamma * (1.0 - terminated_t.astype(r_t.dtype))
+    discount_t = jnp.asarray(gamma) * (1.0 - terminated_t.astype(r_t.dtype))
     ended = jnp.logical_or(terminated_t, truncated_t)
     return jax.lax.stop_gradient(n_step_targets(r_t, discount_t, v_next_t, ended, n))
 

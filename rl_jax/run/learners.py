@@ -65,6 +65,7 @@ ALGORITHMS: dict[str, str | Algorithm] = {
     "r2d2": "rl_jax.agents.r2d2:r2d2",
     "c51": "rl_jax.agents.distributional:c51",
     "qrdqn": "rl_jax.agents.distributional:qrdqn",
+    "muzero": "rl_jax.agents.muzero:muzero",
 }
 
 #: Where the built-in learners live: the only modules a run's record may make us import.
