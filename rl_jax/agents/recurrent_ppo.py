@@ -3,7 +3,8 @@ LSTM or a GRU (flax's ``OptimizedLSTMCell`` / ``GRUCell``), for envs that show o
 their state (``rl_jax/CartPoleNoVel-v1``, the POPGym memory tasks).
 
 The network: observation -> ``hidden`` layers -> the cell (its carry the policy's state) -> a
-linear policy head and a linear value head, both on the cell's output. Every env carries its
+linear policy head and a linear value head, both on the cell's output, each after its own
+``head_hidden`` layers; with ``critic_cell`` the value reads a second cell. Every env carries its
 own state, zero at each episode start.
 
 One *iteration*: ``num_envs`` envs (autoreset) each take ``num_steps`` steps with the current
@@ -60,7 +61,9 @@ __all__ = ["Config", "Hyperparams", "recurrent_ppo"]
 
 CELLS = ("lstm", "gru")
 #: A cell's carry for one env: an LSTM's ``(c, h)``, a GRU's ``h``; with leading axes, many.
-Carry = tuple[jax.Array, jax.Array] | jax.Array
+CellCarry = tuple[jax.Array, jax.Array] | jax.Array
+#: The network's carry: its cell's, or with ``critic_cell`` the pair (the actor's, the critic's).
+Carry = CellCarry | tuple[CellCarry, CellCarry]
 
 
 @dataclasses.dataclass(frozen=True, kw_only=True)
@@ -78,6 +81,8 @@ class Config:
     cell: Literal["lstm", "gru"] = "lstm"  # the recurrent cell: "lstm" or "gru"
     cell_size: int = 64  # features of the cell's state
     hidden: tuple[int, ...] = ()  # layers between the observation and the cell
+    head_hidden: tuple[int, ...] = ()  # layers after the cell, the policy's and the value's own
+    critic_cell: bool = False  # the value has a cell of its own (sb3-contrib's enable_critic_lstm)
     activation: networks.Activation = "tanh"  # of those layers: see networks.ACTIVATIONS
     initial_std: float = 1.0  # Gaussian policy: the state-independent std before training
     normalize_obs: bool = False  # standardise observations by running mean and variance
@@ -261,14 +266,35 @@ def _layer(features: int, gain: float) -> nn.Dense:
 
 class RecurrentActorCritic(nn.Module):
     """``(carry, obs) -> (carry, {"logits" | "mean", "std"; "value"})`` for one step. ``layers``:
-    the hidden layers before the cell (``ppo_parts.check_orthogonal_layers``)."""
+    the hidden layers before the cell (``ppo_parts.check_orthogonal_layers``); ``head_hidden``:
+    the policy's and the value's own layers after it; ``critic_cell``: the value reads a second
+    cell of its own, and the carry is the pair ``(actor's, critic's)``."""
 
     cell: Literal["lstm", "gru"]
     cell_size: int
     layers: networks.Layers = networks.Layers((), activation="tanh", initializer="orthogonal")
+    head_hidden: tuple[int, ...] = ()
+    critic_cell: bool = False
     action_dim: int = 1
     num_actions: int | None = None  # set: categorical
     initial_std: float = 1.0
+
+    def _cell(
+        self, carry: CellCarry, x: jax.Array, name: str | None
+    ) -> tuple[CellCarry, jax.Array]:
+        if self.cell == "lstm":
+            lstm_carry = cast(tuple[jax.Array, jax.Array], carry)
+            return cast(
+                tuple[CellCarry, jax.Array],
+                nn.OptimizedLSTMCell(self.cell_size, name=name)(lstm_carry, x),
+            )
+        return cast(tuple[CellCarry, jax.Array], nn.GRUCell(self.cell_size, name=name)(carry, x))
+
+    def _head(self, x: jax.Array) -> jax.Array:
+        function = networks.ACTIVATIONS[self.layers.activation][0]
+        for width in self.head_hidden:
+            x = function(_layer(width, 2.0**0.5)(x))
+        return x
 
     @nn.compact
     def __call__(self, carry: Carry, obs: jax.Array) -> tuple[Carry, dict[str, jax.Array]]:
@@ -277,15 +303,19 @@ class RecurrentActorCritic(nn.Module):
         x = obs
         for width in self.layers.hidden:
             x = function(_layer(width, 2.0**0.5)(x))
-        if self.cell == "lstm":
-            lstm_carry = cast(tuple[jax.Array, jax.Array], carry)
-            carry, x = nn.OptimizedLSTMCell(self.cell_size)(lstm_carry, x)
+        if self.critic_cell:
+            actor_carry, critic_carry = cast(tuple[CellCarry, CellCarry], carry)
+            actor_carry, x_pi = self._cell(actor_carry, x, "actor_cell")
+            critic_carry, x_v = self._cell(critic_carry, x, "critic_cell")
+            carry = (actor_carry, critic_carry)
         else:
-            carry, x = nn.GRUCell(self.cell_size)(carry, x)
-        out = {"value": _layer(1, 1.0)(x)[..., 0]}
+            carry, x_pi = self._cell(cast(CellCarry, carry), x, None)
+            x_v = x_pi
+        x_pi, x_v = self._head(x_pi), self._head(x_v)
+        out = {"value": _layer(1, 1.0)(x_v)[..., 0]}
         if self.num_actions is not None:
-            return carry, {**out, "logits": _layer(self.num_actions, 0.01)(x)}
-        mean = _layer(self.action_dim, 0.01)(x)
+            return carry, {**out, "logits": _layer(self.num_actions, 0.01)(x_pi)}
+        mean = _layer(self.action_dim, 0.01)(x_pi)
         start = jnp.log(jnp.float32(self.initial_std))
         log_std = self.param("log_std", lambda _, shape: jnp.full(shape, start), (self.action_dim,))
         return carry, {**out, "mean": mean, "std": jnp.broadcast_to(jnp.exp(log_std), mean.shape)}
@@ -303,6 +333,8 @@ def make_network(config: Config) -> RecurrentActorCritic:
         cell=config.cell,
         cell_size=config.cell_size,
         layers=layers,
+        head_hidden=config.head_hidden,
+        critic_cell=config.critic_cell,
         action_dim=1 if discrete else space.shape[0],
         num_actions=space.n if isinstance(space, envs.Discrete) else None,
         initial_std=config.initial_std,
@@ -312,7 +344,8 @@ def make_network(config: Config) -> RecurrentActorCritic:
 def initial_carry(config: Config) -> Carry:
     """One env's state at an episode start: zeros."""
     zeros = jnp.zeros((config.cell_size,), jnp.float32)
-    return (zeros, zeros) if config.cell == "lstm" else zeros
+    one: CellCarry = (zeros, zeros) if config.cell == "lstm" else zeros
+    return (one, one) if config.critic_cell else one
 
 
 def apply(

@@ -108,9 +108,14 @@ def reference_loss(params, batch, carry, hparams, config):
     return policy_loss + hparams.vf_coef * value_loss - hparams.ent_coef * mean_entropy
 
 
-@pytest.mark.parametrize("cell", ["lstm", "gru"])
-def test_the_gradient_through_a_sequence_matches_a_step_by_step_unroll(cell):
-    config = probe_config(cell, cell_size=8)
+@pytest.mark.parametrize(
+    ("cell", "critic_cell", "head_hidden"), [("lstm", False, ()), ("gru", True, (4,))]
+)
+def test_the_gradient_through_a_sequence_matches_a_step_by_step_unroll(
+    cell, critic_cell, head_hidden
+):
+    """The GRU case also gives the value a cell of its own and both heads a layer."""
+    config = probe_config(cell, cell_size=8, critic_cell=critic_cell, head_hidden=head_hidden)
     hparams = rppo.recurrent_ppo.default_hyperparams(PROBE, ent_coef=0.05)
     state = rppo.init(jax.random.key(0), config, hparams)
     keys = jax.random.split(jax.random.key(2), 8)
