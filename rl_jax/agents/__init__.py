@@ -1,5 +1,6 @@
 """The learners, one module each: ``td3`` (TD3 and DDPG), ``td7``, ``crossq``, ``sac``, ``ppo``,
-``recurrent_ppo``, ``dqn``, ``r2d2`` (recurrent DQN), ``pqn`` and ``reinforce``. A learner's module
+``recurrent_ppo``, ``dqn``, ``r2d2`` (recurrent DQN), ``pqn``, ``reinforce``, ``alphazero`` (Gumbel
+search on pgx games) and ``muzero`` (Gumbel search on a learned model). A learner's module
 holds the whole learner: its settings (``Config``, ``Hyperparams``), its networks built for a
 config, its update, its recipes per env and the learner object. Beside it at most one
 ``<name>_parts`` module holds its pure maths and building blocks, tested value by value and free of
@@ -8,7 +9,9 @@ TD7's state beside its networks), ``sac_parts`` (the soft target and losses), ``
 (advantages, losses and the actor-critic network), ``dqn_parts`` (the replay, uniform or
 prioritized, flat or of frames), ``distributional_parts`` (the losses of ``distributional``, C51 and
 QR-DQN), ``r2d2_parts`` (value rescaling, sequence targets and priorities, the sequence replay),
-``reinforce_parts`` (the policy's outputs, sampling and the episodes it collects).
+``reinforce_parts`` (the policy's outputs, sampling and the episodes it collects),
+``alphazero_parts`` (self-play's targets and losses), ``muzero_parts`` (the categorical value
+transform, n-step targets and the unrolled loss).
 
 What several learners share: ``actor_critic`` (the deterministic actor-critics' settings, networks,
 exploration and targets), ``common`` (the optimizer step, rate schedules, gradient clipping, target

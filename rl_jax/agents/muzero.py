@@ -46,7 +46,7 @@ from rl_jax.training import episodes, networks, params, validation
 from rl_jax.training.algorithm import ChunkMetrics, Clock, RecipeBook
 from rl_jax.training.networks import Params
 from rl_jax.training.params import Scalar
-from rl_jax.training.recipes import Recipe, Recipes
+from rl_jax.training.recipes import Recipe, Recipes, Setting
 
 BOOTSTRAPS = ("target", "search")
 
@@ -73,7 +73,7 @@ class Config:
     warm_up: int = 1_000  # env steps per seed before the first update
     latent_size: int = 64  # the hidden state's width
     hidden: tuple[int, ...] = (64,)  # hidden layers of each of the three networks
-    value_support: int = 10  # values are categorical on the integers -S .. S after h
+    value_support: int = 20  # values are categorical on the integers -S .. S after h
     reward_support: int = 5  # rewards are categorical on -S .. S after h
     num_eval_envs: int = 10  # episodes of the deterministic search per evaluation
 
@@ -127,7 +127,7 @@ class Hyperparams(params.HyperparamsMethods):
     lr_decay_steps: Scalar = 0.0  # env steps (one seed) over which it falls to 0 (0: constant)
     weight_decay: Scalar = 1e-4  # AdamW's decoupled weight decay
     max_grad_norm: Scalar = 5.0  # clip the gradient's global norm to this (0: no clipping)
-    gamma: Scalar = 0.99  # discount, of the targets and inside the search
+    gamma: Scalar = 0.997  # discount, of the targets and inside the search
     value_coef: Scalar = 0.25  # weight of the value loss beside the policy and reward losses
     tau: Scalar = 0.01  # step of the target network towards the network, per update
 
@@ -524,13 +524,30 @@ def train_chunk(
 
 
 # ---- recipes --------------------------------------------------------------------------------
-CARTPOLE_CONFIG: dict[str, int] = {}
-CARTPOLE_HPARAMS: dict[str, float] = {"lr_decay_steps": 100_000.0}
+CARTPOLE_CONFIG: dict[str, Setting] = {
+    "num_envs": 16,
+    "num_steps": 4,
+    "num_simulations": 16,
+    "unroll_steps": 5,
+    "td_steps": 10,
+    "batch_size": 256,
+    "updates_per_iteration": 8,
+    "hidden": (64,),
+    "latent_size": 64,
+    "value_support": 20,  # h(1 / (1 - 0.997)) = 17.6
+    "reward_support": 5,
+}
+CARTPOLE_HPARAMS: dict[str, Setting] = {
+    "learning_rate": 1e-3,
+    "lr_decay_steps": 100_000.0,  # to 0 over the budget: the policy it reached stays
+    "gamma": 0.997,  # a ~300-step horizon: failures far ahead (a drift out of bounds) count
+    "value_coef": 1.0,
+}
 
 RECIPES = Recipes(
     Recipe(
         "default",
-        "16 envs x 4 steps, 16 simulations, K=5, n=10, 8 updates of 256 windows",
+        "16 envs x 4 steps, 16 simulations, K=5, n=10, gamma 0.997, 8 updates of 256 windows",
         CARTPOLE_CONFIG,
         CARTPOLE_HPARAMS,
         envs=("rl_jax/CartPole-v1",),

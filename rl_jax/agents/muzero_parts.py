@@ -130,7 +130,7 @@ def unroll_loss(
     ``obs [B, ...]`` is each unroll's first observation, ``actions [K, B]`` the actions taken
     from it, ``policy_targets [K + 1, B, A]`` the search's improved policies, ``value_targets
     [K + 1, B]`` and ``reward_targets [K, B]`` scalars, ``masks`` ``unroll_masks``'s ``(alive,
-    absorbing)``, ``support`` the ``(value, reward)`` support sizes. Per unroll,
+    absorbing)``, ``support`` the ``(value, reward)`` support sizes. Per unroll::
 
         sum_k w_k [alive_k CE(pi_k, p_k) + value_coef (alive_k + absorbing_k) CE(phi(z_k), v_k)
                    + (alive_{k-1} + absorbing_{k-1}) CE(phi(u_k), r_k)],
