@@ -68,6 +68,8 @@ class Config:
     # observation; "search", the root value the search had there when acting
     bootstrap: str = "target"
     buffer_size: int = 100_000  # steps the replay keeps, all envs (each env num_envs-th of it)
+    # draw windows by priority (priority_exponent, importance_exponent) rather than uniformly
+    prioritized: bool = False
     batch_size: int = 256  # windows per gradient update
     updates_per_iteration: int = 8  # gradient updates after each iteration's steps
     warm_up: int = 1_000  # env steps per seed before the first update
@@ -97,6 +99,11 @@ class Config:
                 raise ValueError(f"{name} must be >= 1, got {getattr(self, name)}")
         if self.bootstrap not in BOOTSTRAPS:
             raise ValueError(f"bootstrap must be one of {BOOTSTRAPS}, got {self.bootstrap!r}")
+        if self.replay_rows < self.num_steps:
+            raise ValueError(
+                f"buffer_size ({self.buffer_size}) must hold one iteration's num_steps "
+                f"({self.num_steps}) in each of the {self.num_envs} envs"
+            )
         if self.replay_rows <= self.window:
             raise ValueError(
                 f"buffer_size ({self.buffer_size}) must hold more than one window of "
@@ -130,6 +137,10 @@ class Hyperparams(params.HyperparamsMethods):
     gamma: Scalar = 0.997  # discount, of the targets and inside the search
     value_coef: Scalar = 0.25  # weight of the value loss beside the policy and reward losses
     tau: Scalar = 0.01  # step of the target network towards the network, per update
+    # prioritized: a window is drawn with chance priority^alpha, its priority the value error
+    # at its start when last drawn (new steps: the largest so far)
+    priority_exponent: Scalar = 0.6
+    importance_exponent: Scalar = 0.4  # prioritized: importance weights (count P)^-beta
 
 
 # ---- the networks ---------------------------------------------------------------------------
@@ -226,6 +237,7 @@ class Replay(NamedTuple):
     next_obs: jax.Array  # the true next observation (the one that ended an episode, there)
     policy: jax.Array  # [L, N, A] the search's improved policy
     root_value: jax.Array  # the search's value of obs
+    priority: jax.Array  # the value error of a window starting here, when it was last drawn
     written: jax.Array  # [] int32, steps written per env so far
 
 
@@ -314,6 +326,7 @@ def collect(state: TrainState, key: jax.Array, config: Config) -> tuple[TrainSta
             next_obs=ts.info["final_obs"],
             policy=output.action_weights,
             root_value=output.search_tree.summary().value,
+            priority=jnp.zeros(config.num_envs, jnp.float32),
             written=jnp.int32(0),
         )
         return (env_state, ts.obs), Steps(row, jnp.where(ended, ts.info["episode_return"], 0.0))
@@ -335,30 +348,65 @@ def replay_init(config: Config, obs: jax.Array, num_actions: int) -> Replay:
         next_obs=jnp.zeros((rows, n, *obs.shape), obs.dtype),
         policy=jnp.zeros((rows, n, num_actions), jnp.float32),
         root_value=jnp.zeros((rows, n), jnp.float32),
+        priority=jnp.zeros((rows, n), jnp.float32),
         written=jnp.int32(0),
     )
 
 
 def replay_add(replay: Replay, rows: Replay) -> Replay:
-    """The replay with ``rows`` (``[T, N, ...]``) written over its oldest steps."""
+    """The replay with ``rows`` (``[T, N, ...]``) written over its oldest steps, each with the
+    largest priority so far (at least 1): a new window is drawn soon."""
     length, capacity = rows.action.shape[0], replay.action.shape[0]
     index = (replay.written + jnp.arange(length)) % capacity
-    fields = [old.at[index].set(new) for old, new in zip(replay[:-1], rows[:-1], strict=True)]
-    return Replay._make([*fields, replay.written + length])
+    fields = [old.at[index].set(new) for old, new in zip(replay[:-2], rows[:-2], strict=True)]
+    highest = jnp.maximum(jnp.max(replay.priority), 1.0)
+    priority = replay.priority.at[index].set(highest)
+    return Replay._make([*fields, priority, replay.written + length])
 
 
-def sample_windows(replay: Replay, key: jax.Array, config: Config) -> Replay:
+class Drawn(NamedTuple):
+    """Where a batch of windows starts, ``[B]`` each, and their importance weights."""
+
+    row: jax.Array  # the ring row of the first step
+    env: jax.Array
+    weight: jax.Array
+
+
+def sample_windows(
+    replay: Replay, key: jax.Array, config: Config, hparams: Hyperparams
+) -> tuple[Replay, Drawn]:
     """``batch_size`` windows of ``window`` consecutive steps of one env each, ``[W, B, ...]``,
-    their first step drawn uniformly among those whose window has been written."""
+    their first step drawn among those whose window has been written: uniformly, or with
+    ``prioritized`` by priority (``draw_by_priority``)."""
     capacity = replay.action.shape[0]
-    oldest = jnp.maximum(replay.written - capacity, 0)
-    newest = jnp.maximum(replay.written - config.window, oldest)
-    start_key, env_key = jax.random.split(key)
-    start = jax.random.randint(start_key, (config.batch_size,), oldest, newest + 1)
-    env = jax.random.randint(env_key, (config.batch_size,), 0, config.num_envs)
-    time = (start[None] + jnp.arange(config.window)[:, None]) % capacity  # [W, B]
-    fields = [field[time, env[None]] for field in replay[:-1]]
-    return Replay._make([*fields, replay.written])
+    if config.prioritized:
+        drawn = draw_by_priority(replay, key, config, hparams)
+    else:
+        oldest = jnp.maximum(replay.written - capacity, 0)
+        newest = jnp.maximum(replay.written - config.window, oldest)
+        start_key, env_key = jax.random.split(key)
+        start = jax.random.randint(start_key, (config.batch_size,), oldest, newest + 1)
+        env = jax.random.randint(env_key, (config.batch_size,), 0, config.num_envs)
+        drawn = Drawn(start % capacity, env, jnp.ones(config.batch_size))
+    steps = (drawn.row[None] + jnp.arange(config.window)[:, None]) % capacity  # [W, B]
+    fields = [field[steps, drawn.env[None]] for field in replay[:-1]]
+    return Replay._make([*fields, replay.written]), drawn
+
+
+def draw_by_priority(replay: Replay, key: jax.Array, config: Config, hparams: Hyperparams) -> Drawn:
+    """Window starts drawn with chance ``priority^alpha`` among those whose window has been
+    written (``muzero_parts.start_probabilities``), and their importance weights."""
+    capacity = replay.action.shape[0]
+    time = parts.ring_times(replay.written, capacity)
+    valid = (time >= 0) & (time <= replay.written - config.window)
+    valid = jnp.broadcast_to(valid[:, None], replay.priority.shape)
+    probability, count = parts.start_probabilities(
+        replay.priority, valid, hparams.priority_exponent
+    )
+    drawn = jax.random.choice(key, probability.shape[0], (config.batch_size,), p=probability)
+    row, env = drawn // config.num_envs, drawn % config.num_envs
+    weight = parts.importance_weights(probability[drawn], count, hparams.importance_exponent)
+    return Drawn(row, env, weight)
 
 
 # ---- training -------------------------------------------------------------------------------
@@ -392,6 +440,7 @@ def loss_fn(
     targets: tuple[jax.Array, jax.Array, jax.Array],
     hparams: Hyperparams,
     config: Config,
+    weight: jax.Array | None = None,
 ) -> tuple[jax.Array, dict[str, jax.Array]]:
     """``(loss, metrics)`` of a batch of windows: ``muzero_parts.unroll_loss``."""
     k = config.unroll_steps
@@ -408,6 +457,7 @@ def loss_fn(
         parts.unroll_masks(windows.terminated[:k], windows.truncated[:k]),
         (config.value_support, config.reward_support),
         hparams.value_coef,
+        weight,
     )
 
 
@@ -422,13 +472,20 @@ def update(
     hparams: Hyperparams,
     config: Config,
     rate: jax.Array,
-) -> tuple[Agent, dict[str, jax.Array]]:
-    """One AdamW step at ``rate`` on ``batch_size`` windows, then the target network's EMA
-    step."""
-    windows = sample_windows(replay, key, config)
+) -> tuple[Agent, Replay, dict[str, jax.Array]]:
+    """One AdamW step at ``rate`` on ``batch_size`` windows, the target network's EMA step,
+    and with ``prioritized`` the drawn windows' new priorities: the network's value error at
+    their first step."""
+    windows, drawn = sample_windows(replay, key, config, hparams)
     batch_targets = targets(agent, windows, hparams, config)
+    if config.prioritized:
+        initial, _ = model_fns(agent.params, config)
+        value = parts.logits_to_scalar(initial(windows.obs[0])[2], config.value_support)
+        error = jax.lax.stop_gradient(jnp.abs(value - batch_targets[1][0]))
+        priority = replay.priority.at[drawn.row, drawn.env].set(error + 1e-3)
+        replay = replay._replace(priority=priority)
     grads, metrics = jax.grad(loss_fn, has_aux=True)(
-        agent.params, windows, batch_targets, hparams, config
+        agent.params, windows, batch_targets, hparams, config, drawn.weight
     )
     grads, metrics["grad_norm"] = clip_by_global_norm(grads, hparams.max_grad_norm)
     net_params, opt_state = injected_step(
@@ -440,7 +497,8 @@ def update(
         weight_decay=hparams.weight_decay,
     )
     target = polyak_update(agent.target_params, net_params, hparams.tau)
-    return Agent(net_params, target, opt_state, agent.gamma), metrics
+    agent = Agent(net_params, target, opt_state, agent.gamma)
+    return agent, replay, metrics
 
 
 IterationMetrics = tuple[dict[str, jax.Array], tuple[jax.Array, jax.Array]]
@@ -456,14 +514,22 @@ def train_iteration(
     replay = replay_add(state.replay, steps.rows)
     rate = linearly_decayed(hparams.learning_rate, state.clock.env_steps, hparams.lr_decay_steps)
 
-    def one_update(agent: Agent, key: jax.Array) -> tuple[Agent, dict[str, jax.Array]]:
-        return update(agent, replay, key, hparams, config, rate)
+    Carry = tuple[Agent, jax.Array]
+
+    def one_update(carry: Carry, key: jax.Array) -> tuple[Carry, dict[str, jax.Array]]:
+        agent, priority = carry
+        current = replay._replace(priority=priority)
+        agent, current, metrics = update(agent, current, key, hparams, config, rate)
+        return (agent, current.priority), metrics
 
     update_keys = jax.random.split(update_key, config.updates_per_iteration)
-    agent, metrics = jax.lax.scan(one_update, state.agent, update_keys)
+    (agent, priority), metrics = jax.lax.scan(
+        one_update, (state.agent, replay.priority), update_keys
+    )
     env_steps = state.clock.env_steps + config.num_envs * config.num_steps
     ready = env_steps >= max(config.warm_up, config.num_envs * config.window)
     agent = jax.tree.map(lambda new, old: jnp.where(ready, new, old), agent, state.agent)
+    replay = replay._replace(priority=jnp.where(ready, priority, replay.priority))
     clock = Clock(
         env_steps=env_steps,
         updates=state.clock.updates + jnp.where(ready, config.updates_per_iteration, 0),

@@ -107,6 +107,33 @@ def unroll_masks(terminated_t: jax.Array, truncated_t: jax.Array) -> tuple[jax.A
     return alive.astype(jnp.float32), absorbing.astype(jnp.float32)
 
 
+# ---- prioritised starts --------------------------------------------------------------------
+def ring_times(written: jax.Array, capacity: int) -> jax.Array:
+    """``[capacity]`` the step (counted from the first, 0) that each row of a ring holds after
+    ``written`` steps were written in order; negative for rows not yet written."""
+    rows = jnp.arange(capacity)
+    return written - 1 - jnp.mod(written - 1 - rows, capacity)
+
+
+def start_probabilities(
+    priority: jax.Array, valid: jax.Array, alpha: ArrayLike
+) -> tuple[jax.Array, jax.Array]:
+    """``(P, count)``: the chance ``p_i^alpha / sum_j p_j^alpha`` of drawing each entry of
+    ``priority`` among the ``valid`` ones (flattened), and how many are valid. ``alpha`` 0 is
+    uniform; where none is valid, all are drawn uniformly."""
+    scaled = jnp.where(valid, jnp.power(priority, alpha), 0.0).ravel()
+    total = jnp.sum(scaled)
+    scaled = jnp.where(total > 0.0, scaled, 1.0)
+    return scaled / jnp.sum(scaled), jnp.maximum(jnp.sum(valid), 1)
+
+
+def importance_weights(probability: jax.Array, count: jax.Array, beta: ArrayLike) -> jax.Array:
+    """``(count P_i)^-beta`` of the drawn entries, divided by their largest (Schaul et al.
+    2016): they undo the bias of drawing by priority, ``beta`` 1 fully."""
+    weight = jnp.power(count * jnp.maximum(probability, 1e-12), -jnp.asarray(beta))
+    return weight / jnp.max(weight)
+
+
 # ---- the loss ---------------------------------------------------------------------------------
 def categorical_cross_entropy(target_probs: jax.Array, logits: jax.Array) -> jax.Array:
     """``-sum_i p_i log softmax(logits)_i`` over the last axis."""
@@ -124,13 +151,16 @@ def unroll_loss(
     masks: tuple[jax.Array, jax.Array],
     support: tuple[int, int],
     value_coef: ArrayLike = 1.0,
+    sample_weight: jax.Array | None = None,
 ) -> tuple[jax.Array, dict[str, jax.Array]]:
     """MuZero's loss of a batch of ``K``-step unrolls, ``(mean over the batch, metrics)``.
 
     ``obs [B, ...]`` is each unroll's first observation, ``actions [K, B]`` the actions taken
     from it, ``policy_targets [K + 1, B, A]`` the search's improved policies, ``value_targets
     [K + 1, B]`` and ``reward_targets [K, B]`` scalars, ``masks`` ``unroll_masks``'s ``(alive,
-    absorbing)``, ``support`` the ``(value, reward)`` support sizes. Per unroll::
+    absorbing)``, ``support`` the ``(value, reward)`` support sizes, ``sample_weight [B]`` the
+    unrolls' weights in the mean (prioritised replay's importance weights; None: all 1). Per
+    unroll::
 
         sum_k w_k [alive_k CE(pi_k, p_k) + value_coef (alive_k + absorbing_k) CE(phi(z_k), v_k)
                    + (alive_{k-1} + absorbing_{k-1}) CE(phi(u_k), r_k)],
@@ -153,15 +183,17 @@ def unroll_loss(
                 scalar_to_support(reward, reward_support), reward_logits
             )
             reward_losses.append(reward_weight * reward_ce / steps)
-        weight = 1.0 if k == 0 else 1.0 / steps
+        step_weight = 1.0 if k == 0 else 1.0 / steps
         value = jnp.where(absorbing[k] > 0, 0.0, value_targets[k])
         value_ce = categorical_cross_entropy(scalar_to_support(value, value_support), value_logits)
-        value_losses.append(weight * (alive[k] + absorbing[k]) * value_ce)
+        value_losses.append(step_weight * (alive[k] + absorbing[k]) * value_ce)
         policy_ce = categorical_cross_entropy(policy_targets[k], policy_logits)
-        policy_losses.append(weight * alive[k] * policy_ce)
-    policy_loss = jnp.mean(jnp.sum(jnp.stack(policy_losses), axis=0))
-    value_loss = jnp.mean(jnp.sum(jnp.stack(value_losses), axis=0))
-    reward_loss = jnp.mean(jnp.sum(jnp.stack([jnp.zeros(obs.shape[:1]), *reward_losses]), axis=0))
+        policy_losses.append(step_weight * alive[k] * policy_ce)
+    weight = jnp.ones(obs.shape[:1]) if sample_weight is None else sample_weight
+    policy_loss = jnp.mean(weight * jnp.sum(jnp.stack(policy_losses), axis=0))
+    value_loss = jnp.mean(weight * jnp.sum(jnp.stack(value_losses), axis=0))
+    rewards = jnp.stack([jnp.zeros(obs.shape[:1]), *reward_losses])
+    reward_loss = jnp.mean(weight * jnp.sum(rewards, axis=0))
     total = policy_loss + value_coef * value_loss + reward_loss
     metrics = {"policy_loss": policy_loss, "value_loss": value_loss, "reward_loss": reward_loss}
     return total, metrics

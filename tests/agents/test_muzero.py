@@ -248,21 +248,73 @@ def test_policy_returns_legal_actions_and_a_search_without_noise_is_deterministi
     np.testing.assert_allclose(jnp.sum(outputs[0].action_weights, axis=-1), 1.0, rtol=1e-6)
 
 
+def filled_replay(config, steps):
+    """A replay of ``steps`` steps of 2 envs written 5 at a time: step s of env e has reward
+    100 e + s."""
+    replay = mz.replay_init(config, jnp.zeros(4), 2)
+    for first in range(0, steps, 5):
+        count = min(5, steps - first)
+        rows = [jnp.zeros((count, *x.shape[1:]), x.dtype) for x in replay[:-1]]
+        reward = jnp.arange(first, first + count, dtype=jnp.float32)[:, None]
+        reward = reward + 100.0 * jnp.arange(2)[None]
+        replay = mz.replay_add(replay, mz.Replay._make([*rows, 0])._replace(reward=reward))
+    return replay
+
+
 def test_windows_are_consecutive_steps_of_one_env():
     config, hparams, _ = tiny()
-    replay = mz.replay_init(config, jnp.zeros(4), 2)
-    rows = config.replay_rows
-    # 1.5 rings of steps: step s of env e has reward 100 e + s, so each window reads s, s + 1, ...
-    steps = int(rows * 1.5)
-    rewards = jnp.arange(steps, dtype=jnp.float32)[:, None] + 100.0 * jnp.arange(2)[None]
-    written = jax.tree.map(lambda x: jnp.zeros((steps, *x.shape[1:]), x.dtype), replay[:-1])
-    replay = mz.replay_add(replay, mz.Replay._make([*written, 0])._replace(reward=rewards))
-    windows = mz.sample_windows(replay, jax.random.key(0), config)
+    rows, steps = config.replay_rows, int(config.replay_rows * 1.5)
+    windows, drawn = mz.sample_windows(
+        filled_replay(config, steps), jax.random.key(0), config, hparams
+    )
     reward = np.asarray(windows.reward)
     assert reward.shape == (config.window, config.batch_size)
     np.testing.assert_array_equal(np.diff(reward, axis=0), 1.0)
     first = reward[0] % 100
     assert np.all(first >= steps - rows) and np.all(first <= steps - config.window)
+    np.testing.assert_array_equal(reward[0] // 100, drawn.env)
+    np.testing.assert_array_equal(drawn.weight, 1.0)  # uniform draws: no correction
+
+
+def test_ring_times_and_prioritised_draws_of_hand_worked_numbers():
+    np.testing.assert_array_equal(parts.ring_times(jnp.int32(7), 5), [5, 6, 2, 3, 4])
+    np.testing.assert_array_equal(parts.ring_times(jnp.int32(3), 5), [0, 1, 2, -2, -1])
+    priority = jnp.array([1.0, 2.0, 3.0, 9.0])
+    valid = jnp.array([True, True, True, False])
+    probability, count = parts.start_probabilities(priority, valid, 1.0)
+    np.testing.assert_allclose(probability, [1 / 6, 2 / 6, 3 / 6, 0.0], rtol=1e-6)
+    assert int(count) == 3
+    # (3 P)^-1 = 2, 1, 2/3, divided by the largest
+    weight = parts.importance_weights(probability[:3], count, 1.0)
+    np.testing.assert_allclose(weight, [1.0, 0.5, 1 / 3], rtol=1e-6)
+    uniform, _ = parts.start_probabilities(priority, valid, 0.0)
+    np.testing.assert_allclose(uniform, [1 / 3, 1 / 3, 1 / 3, 0.0], rtol=1e-6)
+
+
+def test_windows_are_drawn_by_priority():
+    config = mz.default_config(CARTPOLE, **TINY, prioritized=True)
+    hparams = mz.default_hyperparams(CARTPOLE)
+    replay = filled_replay(config, 30)  # 30 steps in a ring of 20 rows: steps 10 .. 29
+    # only the window from step 14 of env 1 (row 14) has a priority; step 28 could not start one
+    priority = jnp.zeros_like(replay.priority).at[14, 1].set(5.0).at[8, 0].set(7.0)
+    replay = replay._replace(priority=priority)
+    windows, drawn = mz.sample_windows(replay, jax.random.key(1), config, hparams)
+    np.testing.assert_array_equal(windows.reward[0], 114.0)
+    np.testing.assert_array_equal(drawn.row, 14)
+    np.testing.assert_array_equal(drawn.weight, 1.0)
+
+
+def test_a_prioritized_chunk_sets_the_drawn_windows_priorities_to_their_value_errors():
+    config = mz.default_config(CARTPOLE, **TINY, prioritized=True)
+    hparams = mz.default_hyperparams(CARTPOLE)
+    state = mz.init(jax.random.key(0), config, hparams)
+    state, metrics = jax.jit(mz.train_chunk, static_argnums=1)(state, config, hparams)
+    assert int(metrics.updates) > 0 and np.isfinite(float(metrics.extra["value_loss"]))
+    written = int(state.replay.written)  # 12 of the ring's 20 rows
+    priority = np.asarray(state.replay.priority)
+    # new steps enter at the largest priority (at least 1); drawn ones hold an error + 1e-3
+    assert np.all(priority[:written] > 0.0) and np.all(priority[written:] == 0.0)
+    assert len(np.unique(priority[:written])) > 1
 
 
 def test_a_tiny_run_trains_and_its_policy_loads(tmp_path):
