@@ -10,7 +10,8 @@ One *iteration*: ``num_envs`` vmapped envs (autoreset) each take ``num_steps`` s
 action the (Gumbel) search's with ``num_simulations`` simulations; the steps go into a ring of
 each env's trajectory with the search's improved policy and root value. Then
 ``updates_per_iteration`` AdamW steps, each on ``batch_size`` windows of ``unroll_steps + td_steps
-+ 1`` consecutive steps drawn uniformly: from the window's first observation the model unrolls
++ 1`` consecutive steps drawn uniformly (or, with ``prioritized``, by the value error at their
+start): from the window's first observation the model unrolls
 ``unroll_steps`` of the stored actions, trained towards the improved policies, the rewards and
 ``td_steps``-step value targets that bootstrap from the target network's value (an EMA of the
 network, step ``tau``) of the stored next observations (``muzero_parts.unroll_loss``).
