@@ -32,6 +32,12 @@ def _train_chunk() -> object:
     return jax.jit(alphazero.train_chunk, static_argnums=1)
 
 
+@functools.cache
+def _search() -> object:
+    """The search as one compiled program: run op by op, it compiles each of its many ops."""
+    return jax.jit(alphazero.search, static_argnums=3)
+
+
 def _game(movers: list[int], winner: int | None, length: int = 9) -> tuple[jax.Array, ...]:
     """``(rewards [T, 1, 2], player [T, 1], alive [T, 1])`` of one game whose moves are made by
     ``movers`` and which ``winner`` (a player id, None: a draw) wins with the last move."""
@@ -98,12 +104,12 @@ def test_policy_target_is_the_searchs_improved_policy() -> None:
     game = config.make_game()
     states = jax.vmap(game.init)(jax.random.split(init_key, config.num_envs))
     search_key = jax.random.split(jax.random.split(key, config.max_game_length)[0], 4)[0]
-    output = alphazero.search(state.agent.params, states, search_key, config)
+    output = _search()(state.agent.params, states, search_key, config)
     np.testing.assert_allclose(positions.policy[0], output.action_weights, rtol=1e-6)
     np.testing.assert_allclose(jnp.sum(positions.policy, axis=-1), 1.0, rtol=1e-5)
     assert not jnp.any(jnp.where(positions.legal, 0.0, positions.policy) > 0)
     # the replay stores exactly these targets, and the outcomes by the mover
-    replay = alphazero.replay_add(alphazero.replay_init(config), positions)
+    replay = jax.jit(alphazero.replay_add)(alphazero.replay_init(config), positions)
     rows = config.num_envs * config.max_game_length
     flat_policy = positions.policy.reshape(rows, -1)
     np.testing.assert_array_equal(replay.policy[:rows], flat_policy)
@@ -130,7 +136,7 @@ def test_search_finds_an_immediate_win() -> None:
         state = game.step(state, jnp.int32(cell))
     net_params = alphazero.init(jax.random.key(1), config, alphazero.default_hyperparams())
     states = jax.tree.map(lambda leaf: leaf[None], state)
-    output = alphazero.search(net_params.agent.params, states, jax.random.key(2), config)
+    output = _search()(net_params.agent.params, states, jax.random.key(2), config)
     assert int(jnp.argmax(output.action_weights[0])) == 2
     assert float(output.action_weights[0, 2]) > 0.5
 
