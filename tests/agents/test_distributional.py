@@ -187,11 +187,21 @@ def test_cartpole_chunks_with_double_n_step_and_prioritized_replay(algorithm):
 
 @BOTH
 def test_minatar_chunk_on_the_conv_torso(algorithm):
+    """Both learners build MinAtar's image config, network and state; C51 trains a chunk on it.
+    The two differ only in the head and the loss (test_distributional_parts.py checks both),
+    which QR-DQN trains on a conv torso in ``test_pixel_chunk_on_the_frame_replay``: a second
+    whole-learner compile here would check nothing more."""
+    overrides = {**SMALL, "hidden": (16,), "conv_layers": (4, 3, 1)}
+    config = algorithm.default_config("rl_jax/Breakout-MinAtar", **overrides)
+    assert isinstance(config, distributional.ImageConfig)
+    assert distributional.make_network(config).obs_high == 1.0  # MinAtar's grids of 0/1
+    if algorithm is qrdqn:
+        hparams = algorithm.default_hyperparams("rl_jax/Breakout-MinAtar")
+        assert algorithm.init(jax.random.key(0), config, hparams).obs.shape == (4, 10, 10, 4)
+        return
     state, config, metrics = _chunks(
         algorithm, "rl_jax/Breakout-MinAtar", 1, hidden=(16,), conv_layers=(4, 3, 1)
     )
-    assert isinstance(config, distributional.ImageConfig)
-    assert distributional.make_network(config).obs_high == 1.0  # MinAtar's grids of 0/1
     assert state.obs.shape == (4, 10, 10, 4)
     _assert_finite(state, metrics)
 
