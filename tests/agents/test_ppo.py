@@ -202,8 +202,8 @@ def test_loss_gradient_matches_finite_differences(env_id):
         advantage=jax.random.normal(keys[4], (16,)),
         target=out["value"] + 1.0,
     )
-    check_grads(
-        lambda p: ppo.loss_fn(p, batch, hparams, config)[0],
+    check_grads(  # compiled: op by op, each of the loss's ops would compile on its own
+        jax.jit(lambda p: ppo.loss_fn(p, batch, hparams, config)[0]),
         (net_params,),
         order=1,
         modes=["rev"],
