@@ -36,8 +36,10 @@ def test_it_takes_an_immediate_win_and_values_it_exactly(tic_tac_toe):
     state = position(tic_tac_toe, [0, 3, 1, 4])  # X 0, 1 against O 3, 4: X wins at 2
     assert moves_over_keys(rollout_mcts.rollout_mcts_player(tic_tac_toe, 32), state) == {2}
     states = jax.tree.map(lambda leaf: leaf[None], state)
-    tree = rollout_mcts.search(tic_tac_toe, states, jax.random.key(2), 64)
-    summary = tree.summary()
+    # compiled: op by op, the search compiles each of its many ops on its own
+    summary = jax.jit(lambda s, k: rollout_mcts.search(tic_tac_toe, s, k, 64).summary())(
+        states, jax.random.key(2)
+    )
     # the win ends the game: its Q is the reward, 1, whatever the rollouts drew
     assert float(summary.qvalues[0, 2]) == 1.0
     # every simulation went to a legal move; the occupied cells were never tried
