@@ -279,7 +279,8 @@ def tiny_run(recipe=None, **overrides):
     """``(state, metrics)`` after one chunk of 100 iterations on Pendulum."""
     config = sac.default_config("rl_jax/Pendulum-v1", recipe, **TINY_LOOP, **overrides)
     hparams = sac.default_hyperparams("rl_jax/Pendulum-v1", recipe)
-    state = sac.init(jax.random.key(0), config, hparams)
+    # init compiled too: op by op, SimBa's initialisation compiles each of its many ops alone
+    state = jax.jit(sac.init, static_argnums=1)(jax.random.key(0), config, hparams)
     state, metrics = jax.jit(sac.train_chunk, static_argnums=1)(state, config, hparams)
     assert all(np.all(np.isfinite(np.asarray(x))) for x in jax.tree.leaves(state.agent))
     assert np.isfinite(float(metrics.eval_return)) and np.isfinite(metrics.extra["q"])
