@@ -170,9 +170,9 @@ CARTPOLE_NOVEL_HPARAMS: dict[str, Setting] = {
 # 1024 steps, 10 epochs in minibatches of 128 steps (sb3-contrib's default batch_size: here 32
 # sequences of 128 steps, one per minibatch), gamma 0.9, lambda 0.95, no entropy bonus, the rate
 # 1e-3 and the clip range 0.2 constant, no VecNormalize; an LSTM of 64 as in the CartPoleNoVel
-# recipe (sb3-contrib's default of 256 takes 4 times as long on a CPU). No field for the zoo's gSDE
-# (use_sde, sde_sample_freq 4): the policy's noise is a state-independent Gaussian. Not here
-# either: MlpLstmPolicy's 64 x 64 heads after the LSTM and the critic's own LSTM.
+# recipe (sb3-contrib's default of 256 takes 4 times as long on a CPU); MlpLstmPolicy's defaults
+# for the rest: the critic's own LSTM and 64 x 64 tanh layers for each head after it. No field for
+# the zoo's gSDE (use_sde, sde_sample_freq 4): the policy's noise is a state-independent Gaussian.
 PENDULUM_NOVEL_CONFIG: dict[str, Setting] = {
     "num_envs": 4,
     "num_steps": 1024,
@@ -182,6 +182,8 @@ PENDULUM_NOVEL_CONFIG: dict[str, Setting] = {
     "iterations_per_chunk": 5,  # 20,480 env steps per evaluation: 5 of them in 102,400 steps
     "cell": "lstm",
     "cell_size": 64,
+    "critic_cell": True,
+    "head_hidden": (64, 64),
 }
 PENDULUM_NOVEL_HPARAMS: dict[str, Setting] = {
     "learning_rate": 1e-3,
@@ -204,8 +206,8 @@ POPGYM_EASY = (
 # RLlib's PPO defaults (lambda 1.0, clip 0.3, no gradient clipping). Scaled to a 2-core CPU:
 # 32 envs x 128 steps (theirs 64 x 1024), 4 epochs of 4 minibatches of 8 sequences of 128 steps
 # (theirs 30 of 8 x 8,192 steps, sequences up to 1,024) and the rate 5e-4 (theirs 5e-5, for
-# batches 16 times as large). Not here: RLlib's KL penalty and value clipping, the heads of
-# 2 x 128 LeakyReLU (ReLU here, no heads) and popgym's previous-action observation wrapper.
+# batches 16 times as large), the heads' 2 x 128 layers each (ReLU for their LeakyReLU). Not
+# here: RLlib's KL penalty and value clipping, and popgym's previous-action observation wrapper.
 POPGYM_CONFIG: dict[str, Setting] = {
     "num_envs": 32,
     "num_steps": 128,
@@ -216,6 +218,7 @@ POPGYM_CONFIG: dict[str, Setting] = {
     "cell": "gru",
     "cell_size": 256,
     "hidden": (128,),
+    "head_hidden": (128, 128),
     "activation": "relu",
 }
 POPGYM_HPARAMS: dict[str, Setting] = {
@@ -240,8 +243,8 @@ RECIPES = Recipes(
     ),
     Recipe(
         "default",
-        "RL Zoo's ppo_lstm: 4 envs x 1024 steps, 10 epochs x 32 minibatches, LSTM 64, gamma 0.9, "
-        "lr 1e-3 (no gSDE)",
+        "RL Zoo's ppo_lstm: 4 envs x 1024 steps, 10 epochs x 32 minibatches, LSTM 64 and the "
+        "critic's own, gamma 0.9, lr 1e-3 (no gSDE)",
         PENDULUM_NOVEL_CONFIG,
         PENDULUM_NOVEL_HPARAMS,
         envs=("rl_jax/PendulumNoVel-v1",),
