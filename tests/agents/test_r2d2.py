@@ -278,11 +278,15 @@ def test_sequences_are_whole_with_their_stored_start_states(prioritize):
 
 def test_the_loop_stores_the_state_each_action_was_chosen_with():
     """While warming up (no updates, fixed parameters) the states kept with the recent steps are
-    the network's own unroll from the first of them, reset where episodes started."""
-    config = small_config(learning_starts=400, iterations_per_chunk=60, num_envs=3)
+    the network's own unroll from the first of them, reset where episodes started. Then the same
+    program (uniform replay) trains two more chunks with finite losses: the uniform half of
+    ``test_a_few_chunks_train_with_finite_losses``, without a program of its own."""
+    config = small_config(learning_starts=360, iterations_per_chunk=60, num_envs=3)
     hparams = r2d2.r2d2.default_hyperparams(ENV_ID)
     state = r2d2.init(jax.random.key(3), config, hparams)
-    state, _ = jax.jit(r2d2.train_chunk, static_argnums=1)(state, config, hparams)
+    chunk = jax.jit(r2d2.train_chunk, static_argnums=1)
+    state, metrics = chunk(state, config, hparams)
+    assert int(metrics.updates) == 0 and not config.prioritized
     recent = state.buffer.recent  # [N, L, ...]
     starts = r2d2_parts.episode_starts(recent.terminated.T, recent.truncated.T).T
     first = jax.tree.map(lambda x: x[:, 0], recent.policy_state)
@@ -292,6 +296,9 @@ def test_the_loop_stores_the_state_each_action_was_chosen_with():
             expected = jnp.where(starts[:, t, None], 0.0, expected)
             np.testing.assert_allclose(np.asarray(got[:, t]), expected, rtol=1e-5, atol=1e-6)
     assert np.any(np.asarray(starts)), "no episode ended inside the window"
+    for _ in range(2):  # updates from step 360 (iteration 120) on
+        state, metrics = chunk(state, config, hparams)
+    _assert_trained(state, metrics, 3 * 60 - config.learning_starts // config.num_envs)
 
 
 # ---- the learner ---------------------------------------------------------------------------------
@@ -309,17 +316,22 @@ def test_it_is_registered_with_recipes_and_a_recurrent_policy():
         dataclasses.replace(config, learning_starts=10)
 
 
-@pytest.mark.parametrize("prioritized", [False, True])
-def test_a_few_chunks_train_with_finite_losses(prioritized):
-    config = small_config(prioritized=prioritized, iterations_per_chunk=40)
+def _assert_trained(state, metrics, updates: int) -> None:
+    assert int(metrics.updates) == updates
+    assert np.isfinite(float(metrics.extra["loss"])) and np.isfinite(float(metrics.eval_return))
+    assert all(np.all(np.isfinite(x)) for x in jax.tree.leaves(state.agent.online))
+
+
+def test_a_few_chunks_train_with_finite_losses():
+    """Prioritized sequences; uniform ones train on in
+    ``test_the_loop_stores_the_state_each_action_was_chosen_with``."""
+    config = small_config(prioritized=True, iterations_per_chunk=40)
     hparams = r2d2.r2d2.default_hyperparams(ENV_ID)
     state = r2d2.init(jax.random.key(0), config, hparams)
     chunk = jax.jit(r2d2.train_chunk, static_argnums=1)
     for _ in range(2):
         state, metrics = chunk(state, config, hparams)
-    assert int(metrics.updates) == 2 * 40 - config.learning_starts // config.num_envs
-    assert np.isfinite(float(metrics.extra["loss"])) and np.isfinite(float(metrics.eval_return))
-    assert all(np.all(np.isfinite(x)) for x in jax.tree.leaves(state.agent.online))
+    _assert_trained(state, metrics, 2 * 40 - config.learning_starts // config.num_envs)
 
 
 def test_a_run_trains_resumes_and_its_loaded_policy_keeps_its_state(tmp_path):
