@@ -140,20 +140,32 @@ def test_the_gradient_through_a_sequence_matches_a_step_by_step_unroll(
     assert max(float(jnp.max(jnp.abs(g))) for g in jax.tree.leaves(scanned)) > 0
 
 
-def train(algorithm, config, hparams, chunks: int) -> float:
+def trained(algorithm, config, hparams, chunks: int) -> tuple:
+    """``(state, eval return)`` after ``chunks`` chunks from seed 0."""
     state = algorithm.init(jax.random.key(0), config, hparams)
     chunk = jax.jit(lambda s: algorithm.train_chunk(s, config, hparams))
     for _ in range(chunks):
         state, metrics = chunk(state)
-    return float(metrics.eval_return)
+    return state, float(metrics.eval_return)
+
+
+def train(algorithm, config, hparams, chunks: int) -> float:
+    return trained(algorithm, config, hparams, chunks)[1]
+
+
+@functools.cache
+def remembering_run(cell: str, normalize_obs: bool) -> tuple:
+    """``(state, config, eval return)`` of the memory probe after 4 chunks: one compiled program
+    for the test that it remembers and the test that its policy acts (the GRU's)."""
+    hparams = rppo.recurrent_ppo.default_hyperparams(PROBE, learning_rate=3e-3, ent_coef=0.01)
+    config = probe_config(cell, normalize_obs=normalize_obs)
+    return config, *trained(rppo.recurrent_ppo, config, hparams, 4)
 
 
 @pytest.mark.parametrize(("cell", "normalize_obs"), [("lstm", False), ("gru", True)])
 def test_recurrent_ppo_remembers_the_first_observation(cell, normalize_obs):
     """3,840 env steps: every evaluation episode paid 1."""
-    hparams = rppo.recurrent_ppo.default_hyperparams(PROBE, learning_rate=3e-3, ent_coef=0.01)
-    config = probe_config(cell, normalize_obs=normalize_obs)
-    assert train(rppo.recurrent_ppo, config, hparams, 4) >= 0.95
+    assert remembering_run(cell, normalize_obs)[2] >= 0.95
 
 
 def test_feed_forward_ppo_cannot():
@@ -177,12 +189,9 @@ def test_it_is_registered_with_a_recipe_and_a_recurrent_policy():
 
 
 def test_its_policy_acts_from_one_observation_and_a_state():
-    config = probe_config("gru")
-    hparams = rppo.recurrent_ppo.default_hyperparams(PROBE, learning_rate=3e-3, ent_coef=0.01)
-    state = rppo.init(jax.random.key(0), config, hparams)
-    chunk = jax.jit(lambda s: rppo.train_chunk(s, config, hparams))
-    for _ in range(4):
-        state, _ = chunk(state)
+    """The GRU run of ``test_recurrent_ppo_remembers_the_first_observation`` (its policy also
+    standardises the observations)."""
+    config, state, _ = remembering_run("gru", True)
     step = jax.jit(rppo.recurrent_ppo.policy(state, config))
     for first in (-1.0, 1.0):
         carry = rppo.recurrent_ppo.initial_policy_state(config)
