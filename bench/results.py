@@ -579,6 +579,16 @@ ROWS: dict[str, Row] = {
         "500 is the maximum; the recurrent PPO row above at the same budget",
         Goal(500.0, 9, "final"),
     ),
+    # MuZero on CartPole, planning on its learned model: the goal, 9 of 10 seeds at 500
+    # within 100k env steps.
+    "muzero-cartpole": Row(
+        "MuZero (Gumbel), `rl_jax/CartPole-v1`",
+        "train.py",
+        ("--algo", "muzero", "--env", "rl_jax/CartPole-v1", "--total-steps", "100000"),
+        10,
+        "500 is the maximum; MuZero's paper plans on Atari and board games, not CartPole",
+        Goal(500.0, 9, "final"),
+    ),
     # Pendulum with its angular velocity hidden (RL Zoo's PendulumNoVel-v1) at the zoo's
     # ppo_lstm settings (recurrent_ppo's recipe for it): the goal is the zoo's benchmark figure,
     # as the mean final return of 10 seeds; feed-forward PPO at the same settings and budget
