@@ -200,15 +200,35 @@ def test_space_invaders_matches_numpy_minatar():
     assert min(lengths) > 1
 
 
+def _episode(env, state, keys: jax.Array, actions: np.ndarray):
+    """Ours stepped with ``keys`` and ``actions`` from ``state`` in one compiled scan, not one
+    call from Python per step: ``(obs, reward, terminated, truncated)`` of every step, in numpy."""
+
+    def one(state, step):
+        state, ts = env.step(step[0], state, step[1])
+        return state, (ts.obs, ts.reward, ts.terminated, ts.truncated)
+
+    run = jax.jit(lambda state, steps: jax.lax.scan(one, state, steps)[1])
+    return tuple(map(np.asarray, run(state, (keys, jnp.asarray(actions, jnp.int32)))))
+
+
+def _car_draws(key) -> tuple[jax.Array, jax.Array]:
+    """The car speeds and directions that gymnax's Freeway draws from ``key``."""
+    key_speed, key_directions = jax.random.split(key)
+    speeds = jax.random.randint(key_speed, (8,), 1, 6)
+    return speeds, jax.random.choice(key_directions, jnp.array([-1, 1]), (8,))
+
+
 class _GymnaxDraws:
     """Stands in for numpy Freeway's generator, answering with the car speeds and directions that
-    gymnax draws from a key (``set``), so that both games draw the same cars."""
+    gymnax draws from a key (``set``; ``use``: drawn already), so that both games draw the same
+    cars."""
 
     def set(self, key) -> None:
-        key_speed, key_directions = jax.random.split(key)
-        self.speeds = np.asarray(jax.random.randint(key_speed, (8,), 1, 6))
-        directions = jax.random.choice(key_directions, jnp.array([-1, 1]), (8,))
-        self.directions = np.asarray(directions)
+        self.use(*_car_draws(key))
+
+    def use(self, speeds, directions) -> None:
+        self.speeds, self.directions = np.asarray(speeds), np.asarray(directions)
 
     def randint(self, low, high, size):
         return self.speeds.copy()
@@ -217,30 +237,34 @@ class _GymnaxDraws:
         return np.where(self.directions > 0, 0.75, 0.25)  # numpy takes the sign of rand - 0.5
 
 
-@pytest.mark.parametrize("seed", [0])  # 2,500 steps played from Python: ~7 s
+@pytest.mark.parametrize("seed", [0])  # 2,500 steps, ours in one scan, numpy's from Python
 def test_freeway_matches_numpy_minatar_given_the_same_car_draws(seed):
     env = envs.make("rl_jax/Freeway-MinAtar")
     action_set = np.asarray(env.gymnax_env.action_set)
-    step = jax.jit(env.step)
     game, draws = _numpy_game("Freeway", seed), _GymnaxDraws()
     game.env.random = draws
     draws.set(jax.random.key(seed))  # gymnax's reset draws from its key as it is
     game.reset()
     state, ts = env.reset(jax.random.key(seed))
     np.testing.assert_array_equal(ts.obs, game.state())
-    rng, wins = np.random.default_rng(seed), 0
-    for t in range(env.max_episode_steps):
-        action = 1 if rng.random() < 0.6 else int(rng.integers(3))  # mostly up: crossings
-        key = jax.random.key(10_000 * seed + t)
-        draws.set(jax.random.split(key)[0])  # the key gymnax's step gives its step_env
+    rng, wins, steps = np.random.default_rng(seed), 0, env.max_episode_steps
+    # mostly up: crossings
+    actions = [1 if rng.random() < 0.6 else int(rng.integers(3)) for _ in range(steps)]
+    keys = jax.vmap(jax.random.key)(10_000 * seed + jnp.arange(steps))
+    # each step's cars, drawn from the key gymnax's step gives its step_env
+    speeds, directions = map(
+        np.asarray, jax.jit(jax.vmap(lambda key: _car_draws(jax.random.split(key)[0])))(keys)
+    )
+    obs, rewards, terminated, truncated = _episode(env, state, keys, np.asarray(actions))
+    for t, action in enumerate(actions):
+        draws.use(speeds[t], directions[t])
         reward, terminal = game.act(int(action_set[action]))
-        state, ts = step(key, state, jnp.int32(action))
-        np.testing.assert_array_equal(ts.obs, game.state(), err_msg=f"step {t}")
-        assert float(ts.reward) == reward and not ts.terminated and not terminal, t
+        np.testing.assert_array_equal(obs[t], game.state(), err_msg=f"step {t}")
+        assert float(rewards[t]) == reward and not terminated[t] and not terminal, t
         wins += int(reward)
     # gymnax cuts the game at 2,500 steps as truncated; numpy MinAtar ends it one step later,
     # as terminated
-    assert ts.truncated and wins > 0
+    assert truncated[-1] and wins > 0
     assert game.act(0) == (0, True)
 
 
