@@ -37,7 +37,7 @@ from rl_jax.run.learners import for_run
 from rl_jax.run.metrics import METRICS_FILE, read_rows
 from rl_jax.run.policy import LoadedPolicy, load_policy
 from rl_jax.run.render import write_gif
-from rl_jax.run.run_dir import CURVES_FILE, read_run_record, recorded_env
+from rl_jax.run.run_dir import CURVES_FILE, read_run_record
 from rl_jax.run.runner import run
 from rl_jax.run.spec import RunSpec
 from rl_jax.training.algorithm import Algorithm, PolicyFn, RecurrentPolicyFn
@@ -69,7 +69,7 @@ class Run:
             else for_run(self.record, self.run_dir, algorithm, "algorithm=")
         )
         self.algorithm: str = identity["algorithm"]
-        self.env_id: str = recorded_env(identity["env_id"], self.run_dir, env, how="env=")
+        self.env_id: str = learners.run_env(self.record, self.run_dir, self.learner, env, "env=")
         self.seeds: list[int] = [identity["base_seed"] + s for s in range(identity["seeds"])]
         self._results = results
 
@@ -231,7 +231,7 @@ def resume(
     record = read_run_record(run_dir)
     identity = record["identity"]
     learner = for_run(record, run_dir, algorithm, how="algorithm=")  # may register the env
-    env_id = recorded_env(identity["env_id"], run_dir, env, how="env=")
+    env_id = learners.run_env(record, run_dir, learner, env, how="env=")
     config = dataclass_from_dict(learner.default_config(env_id), identity["config"])
     template = learner.default_hyperparams()
     spec = RunSpec(

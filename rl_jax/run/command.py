@@ -27,7 +27,7 @@ from rl_jax.errors import OneLineParser, RunError, UsageError
 from rl_jax.run import distributed, learners, recipe_choice
 from rl_jax.run.flags import add_dataclass_flags, add_run_flags, flag_name, kind_of, parse_grid
 from rl_jax.run.learners import ALGORITHMS
-from rl_jax.run.run_dir import read_run_record, recorded_env
+from rl_jax.run.run_dir import read_run_record
 from rl_jax.run.spec import RunSpec
 from rl_jax.training import params
 from rl_jax.training.algorithm import Algorithm, Config, Hyperparams, hooks
@@ -173,7 +173,7 @@ def choose(line: CommandLine, algorithm: Algorithm | None, env_id: str | None) -
         if record is not None and record.get("learner") == "builtin":
             algorithm = recipe_choice.resumed_learner(algorithm, record["identity"]["algorithm"])
         algorithm, name = recipe_choice.script_recipe(algorithm, name)
-        env = envs.core.registry.resolve_id(env_id)
+        env = learners.chosen_env(algorithm, env_id)
         recipe = recipe_choice.recipe_named(algorithm, env, name, record is not None)
         return Choice(algorithm, env, recipe, False, True, record)
     if line.help and (algorithm or line.algo or record) is None:
@@ -189,9 +189,9 @@ def choose(line: CommandLine, algorithm: Algorithm | None, env_id: str | None) -
         algorithm = learners.for_run(record, line.resume, how="--algo")
     env_name = env_id or line.env
     if record is not None and line.resume is not None:  # after the learner, which may register it
-        env_name = recorded_env(record["identity"]["env_id"], line.resume, env_name, "--env")
+        env_name = learners.run_env(record, line.resume, algorithm, env_name, "--env")
     given = env_name is not None
-    env = envs.core.registry.resolve_id(env_name if env_name is not None else help_env(algorithm))
+    env = learners.chosen_env(algorithm, env_name if env_name is not None else help_env(algorithm))
     recipe = recipe_choice.recipe_named(algorithm, env, name, record is not None)
     return Choice(algorithm, env, recipe, True, given, record)
 
@@ -296,6 +296,11 @@ def run_spec(line: CommandLine, choice: Choice, defaults: Defaults) -> RunSpec:
         hparams, grid_fields = params.expand(hparams[0], grid), tuple(grid)
     validate_settings(algorithm, config, hparams)
     check_env_fits(algorithm, config, hparams[0])
+    if line.gif and hooks(algorithm).owns_env(env_id):
+        raise UsageError(
+            f"--gif: {env_id} is an env {algorithm.name} resolves itself, which has no renderer; "
+            "play the trained policy with rl_jax.load_policy(RUN_DIR).move instead"
+        )
     out = line.resume if line.resume is not None else line.out
     out = out if out is not None else default_run_dir(env_id, algorithm.name)
     # A learner of the user's own is named again on resume (never imported from the record),

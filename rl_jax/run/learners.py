@@ -45,9 +45,10 @@ from collections.abc import Mapping
 from pathlib import Path
 from typing import Any, cast
 
+from rl_jax.envs.core import registry
 from rl_jax.errors import RunError, UsageError
-from rl_jax.run.run_dir import MOVED_MODULES, load_algorithm
-from rl_jax.training.algorithm import Algorithm
+from rl_jax.run.run_dir import MOVED_MODULES, load_algorithm, recorded_env
+from rl_jax.training.algorithm import Algorithm, hooks
 
 #: Name -> where the learner lives (``module``, ``module:attribute``, ``file.py[:attribute]``)
 #: or the learner object: the built-in learners and those given to ``register_algorithm``.
@@ -66,6 +67,7 @@ ALGORITHMS: dict[str, str | Algorithm] = {
     "c51": "rl_jax.agents.distributional:c51",
     "qrdqn": "rl_jax.agents.distributional:qrdqn",
     "muzero": "rl_jax.agents.muzero:muzero",
+    "alphazero": "rl_jax.agents.alphazero:alphazero",
 }
 
 #: Where the built-in learners live: the only modules a run's record may make us import.
@@ -504,3 +506,34 @@ def _reference_origin(text: str) -> Origin | None:
     if where == _PACKAGE or where.startswith(_PACKAGE + "."):
         return Origin(BUILTIN)
     return Origin("module", where, attribute)
+
+
+# ---- the env a learner trains on ------------------------------------------------------------
+
+
+def chosen_env(learner: Algorithm, env_id: str) -> str:
+    """The env id of a new run: ``env_id`` as given where the learner owns it
+    (``OptionalHooks.owns_env``), else the env registry's id (``UnknownEnvError`` if none)."""
+    if hooks(learner).owns_env(env_id):
+        return env_id
+    return registry.resolve_id(env_id)
+
+
+def run_env(
+    record: dict[str, Any],
+    run_dir: Path | str,
+    learner: Algorithm | None,
+    named: str | None = None,
+    how: str = "--env",
+) -> str:
+    """The env id of the run of ``record``: the recorded id itself where the run's
+    ``learner`` owns it (``named``, the user's naming of the env, must then be that id), else
+    ``run_dir.recorded_env``. ``learner`` None: the run's built-in learner where it has one."""
+    recorded = str(record["identity"]["env_id"])
+    if learner is None and recorded_origin(record).kind == BUILTIN:
+        learner = for_run(record, run_dir)
+    if learner is not None and hooks(learner).owns_env(recorded):
+        if named is not None and named != recorded:
+            raise RunError(f"{run_dir} is a run on {recorded}, not on {named}")
+        return recorded
+    return recorded_env(recorded, run_dir, named, how)

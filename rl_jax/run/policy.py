@@ -35,7 +35,7 @@ from rl_jax.envs import Environment
 from rl_jax.errors import PolicyError, parse_int
 from rl_jax.run.best import BEST_DIR, load_part, policy_fields, with_policy_part
 from rl_jax.run.checkpoint import Checkpointer, Tree
-from rl_jax.run.learners import for_run
+from rl_jax.run.learners import BUILTIN, for_run, recorded_origin, run_env
 from rl_jax.run.metrics import METRICS_FILE, read_rows
 from rl_jax.run.plan import make_plan
 from rl_jax.run.run_dir import CHECKPOINT_DIR, identity_hash, read_run_record, recorded_env
@@ -109,7 +109,7 @@ class LoadedPolicy:
         identity = self.record["identity"]
         algorithm = for_run(self.record, self.run_dir, self._named, how="algorithm=")
         # after the learner: a learner's own module may register the env it trains on
-        self.env_id = recorded_env(identity["env_id"], self.run_dir, self._named_env, "env=")
+        self.env_id = run_env(self.record, self.run_dir, algorithm, self._named_env, "env=")
         config = dataclass_from_dict(algorithm.default_config(self.env_id), identity["config"])
         template = algorithm.default_hyperparams()
         hparams = tuple(dataclass_from_dict(template, h) for h in identity["hparams"])
@@ -288,6 +288,58 @@ class RecurrentPolicy:
         return f"<RecurrentPolicy: {self.loaded.describe()} of {self.loaded.run_dir}>"
 
 
+class GamePolicy:
+    """The policy of a learner that owns its env (``OptionalHooks.owns_env``: AlphaZero on a
+    pgx game), for a person or a program to play against.
+
+    ``move(state)``: the trained planner's move for a position, from the env's own state (a pgx
+    ``State`` of the run's game, the side to move being ``state.current_player``): the
+    learner's ``position_policy`` with a fixed key, so the same position gets the same move
+    (AlphaZero: the search without Gumbel noise). ``policy(observation, legal_action_mask)``:
+    the learner's ``policy``, for a caller that has only an observation (AlphaZero: the
+    network's most likely legal move, no search). Both take one position and return an
+    ``int``. Attributes: ``env_id`` (``"pgx/tic_tac_toe"``), ``game`` (the id's last part,
+    ``"tic_tac_toe"``, as ``pgx.make`` takes it), ``num_simulations`` (the search's, None for
+    a learner whose config has none) and ``loaded`` (what was restored)."""
+
+    def __init__(self, loaded: LoadedPolicy):
+        self.loaded = loaded
+        self.env_id = loaded.env_id
+        self.game = loaded.env_id.rpartition("/")[2]
+        simulations = getattr(loaded.config, "num_simulations", None)
+        self.num_simulations = None if simulations is None else int(simulations)
+        position = hooks(loaded.algorithm).position_policy(loaded.state, loaded.config)
+        if position is None:
+            raise PolicyError(
+                f"{loaded.algorithm.name} owns the env {self.env_id} but has no "
+                "position_policy(state, config) to move from its positions"
+            )
+        key = jax.random.key(0)
+        planner = position
+        self._move = jax.jit(lambda state: planner(state, key))
+        self._act = jax.jit(loaded.act())
+
+    def move(self, state: object) -> int:
+        """The planner's move (an action index, legal) for the position ``state``, one env
+        state of the run's game that is not over."""
+        named = getattr(state, "env_id", self.game)
+        if named != self.game:
+            raise ValueError(f"this policy plays {self.game}, not {named}")
+        return int(self._move(state))
+
+    def __call__(self, observation: npt.ArrayLike, legal_action_mask: npt.ArrayLike) -> int:
+        """The learner's ``policy`` (no search for AlphaZero) for one observation, among the
+        actions where ``legal_action_mask`` is true."""
+        obs = jnp.asarray(np.asarray(observation))
+        legal = jnp.asarray(np.asarray(legal_action_mask, dtype=bool))
+        return int(self._act(obs, legal))
+
+    def __repr__(self) -> str:
+        simulations = f", {self.num_simulations} simulations" if self.num_simulations else ""
+        loaded = self.loaded
+        return f"<GamePolicy {self.game}{simulations}: {loaded.describe()} of {loaded.run_dir}>"
+
+
 def add_run_choice(parser: argparse.ArgumentParser, seed_help: str) -> None:
     """The ``--seed``, ``--config`` and ``--algo`` options of the commands that load a run's
     policies."""
@@ -325,7 +377,10 @@ def command_line_learner(run_dir: Path, named: str | None) -> Algorithm:
 def command_line_env(run_dir: Path, named: str | None) -> str:
     """The env id a command that opens ``run_dir`` uses (``--env``, or the run's own when it
     needs no import); its errors say to give ``--env``."""
-    return recorded_env(read_run_record(run_dir)["identity"]["env_id"], run_dir, named)
+    record = read_run_record(run_dir)
+    if recorded_origin(record).kind != BUILTIN:  # its learner is named by --algo, if at all
+        return recorded_env(record["identity"]["env_id"], run_dir, named)
+    return run_env(record, run_dir, None, named)
 
 
 def load_policy(
@@ -335,9 +390,10 @@ def load_policy(
     config: int | None = None,
     algorithm: str | Algorithm | None = None,
     env: str | None = None,
-) -> Policy | RecurrentPolicy:
+) -> Policy | RecurrentPolicy | GamePolicy:
     """The trained policy of a run as a numpy ``obs -> action`` callable (a ``RecurrentPolicy``,
-    which keeps its state between calls and has ``reset()``, for a recurrent learner).
+    which keeps its state between calls and has ``reset()``, for a recurrent learner; a
+    ``GamePolicy``, with ``move(state)`` for a position, for a learner that owns its env).
 
     ``seed``: which seed (default: the one with the best eval return); ``which``: "best" (the
     policy of that seed's best evaluation) or "latest" (its latest checkpoint); ``config``: the
@@ -347,6 +403,8 @@ def load_policy(
     """
     configure()
     loaded = LoadedPolicy(Path(run_dir), seed, config, which, algorithm, env)
+    if hooks(loaded.algorithm).owns_env(loaded.env_id):
+        return GamePolicy(loaded)
     if loaded.initial_policy_state() is not None:
         return RecurrentPolicy(loaded)
     return Policy(loaded)

@@ -42,6 +42,7 @@ import jax
 from flax import struct
 
 from rl_jax import envs
+from rl_jax.errors import RunError
 from rl_jax.training.recipes import Recipe, Recipes, Setting
 
 PRNGKey = jax.Array
@@ -104,6 +105,9 @@ PolicyFn: TypeAlias = Callable[[jax.Array], jax.Array]
 PolicyState: TypeAlias = object
 #: ``(policy_state, obs[, legal]) -> (action, policy_state)`` of a recurrent policy.
 RecurrentPolicyFn: TypeAlias = Callable[..., tuple[jax.Array, PolicyState]]
+#: ``(env_state, key) -> action`` of a planner that acts from its own env's state (a pgx
+#: ``State``), not an observation: ``OptionalHooks.position_policy``.
+PositionPolicyFn: TypeAlias = Callable[..., jax.Array]
 
 
 class Algorithm(Protocol):
@@ -233,9 +237,31 @@ class OptionalHooks(Generic[ConfigT]):
     def validate(self, config: ConfigT, hparams: Hyperparams) -> None:
         """``ValueError`` for settings each valid alone that the algorithm cannot run together."""
 
+    def owns_env(self, env_id: str) -> bool:
+        """Whether the learner resolves ``env_id`` itself rather than through ``rl_jax.envs``
+        (AlphaZero's ``pgx/GAME``). For such an id the run machinery keeps the id as given,
+        never looks it up in the env registry and never steps the env: the learner's
+        ``train_chunk`` evaluates inside the compiled program, ``load_policy`` gives a
+        ``GamePolicy`` (``position_policy``), and GIFs and gymnasium replays are refused in one
+        line. Default: no id (every env is the registry's)."""
+        return False
+
+    def position_policy(self, state: TrainState, config: ConfigT) -> PositionPolicyFn | None:
+        """For a learner that owns its env (``owns_env``): a pure ``(env_state, key) ->
+        action`` of the trained planner, acting from the env's own state (a pgx ``State``: the
+        search steps it) rather than an observation; the key may be fixed. Default: None."""
+        return None
+
     def make_env(self, config: ConfigT) -> envs.Environment:
         """The env the policy acts in (loaded policies, rendering): the config's ``make_env()``
-        where it has one (the registered ``env_id`` with its ``env_kwargs``), else ``env_id``."""
+        where it has one (the registered ``env_id`` with its ``env_kwargs``), else ``env_id``.
+        ``RunError`` for an env the learner owns: it is no ``rl_jax.envs`` env."""
+        if self.owns_env(config.env_id):
+            raise RunError(
+                f"{config.env_id} is an env that the learner resolves itself, not one of "
+                "rl_jax.envs, so the run tools cannot render or replay it; play the run's "
+                "policy with rl_jax.load_policy(RUN_DIR).move"
+            )
         if isinstance(config, MakesEnv):
             return config.make_env()
         return envs.make(config.env_id)
@@ -291,6 +317,8 @@ HOOKS = (
     "recipe",
     "env_steps_per_chunk",
     "validate",
+    "owns_env",
+    "position_policy",
     "make_env",
     "envs_per_seed",
     "warm_up_steps",
