@@ -51,12 +51,26 @@ from flax import struct
 from rl_jax.agents import alphazero_parts as parts
 from rl_jax.agents.common import clip_by_global_norm, injected_step
 from rl_jax.envs.games.match import Player, random_player
-from rl_jax.training import params
+from rl_jax.training import algorithm, params
 from rl_jax.training.algorithm import ChunkMetrics, Clock, RecipeBook
 from rl_jax.training.params import Scalar
 from rl_jax.training.recipes import Recipe, Recipes
 
 GAME_PREFIX = "pgx/"
+#: The pgx games the search plays: two players, perfect information, no chance moves (pgx's
+#: others are one-player, hide cards or roll dice, which a search over the true state misreads).
+GAMES = (
+    "animal_shogi",
+    "chess",
+    "connect_four",
+    "gardner_chess",
+    "go_9x9",
+    "go_19x19",
+    "hex",
+    "othello",
+    "shogi",
+    "tic_tac_toe",
+)
 
 
 # ---- settings -------------------------------------------------------------------------------
@@ -82,6 +96,11 @@ class Config:
     def __post_init__(self) -> None:
         if not self.env_id.startswith(GAME_PREFIX):
             raise ValueError(f"AlphaZero plays pgx games, named pgx/GAME; got {self.env_id!r}")
+        if self.env_id.removeprefix(GAME_PREFIX) not in GAMES:
+            raise ValueError(
+                f"unknown game {self.env_id!r}; AlphaZero plays pgx/GAME for GAME one of "
+                + ", ".join(GAMES)
+            )
         for name in (
             "num_envs",
             "max_game_length",
@@ -488,14 +507,29 @@ def train_chunk(
 
 
 # ---- the Algorithm object -------------------------------------------------------------------
+#: Env steps (move slots) of one chunk under the default config: 64 games x 9 moves x 4.
+_TIC_TAC_TOE_CHUNK = 64 * 9 * 4
+
 RECIPES = Recipes(
-    Recipe("default", "128x128 MLP, 64 games x 32 simulations", envs=("pgx/tic_tac_toe",)),
+    Recipe(
+        "default",
+        "128x128 MLP, 64 games x 32 simulations; 500 chunks draw exact minimax",
+        envs=("pgx/tic_tac_toe",),
+        total_steps=500 * _TIC_TAC_TOE_CHUNK,
+    ),
+    Recipe(
+        "default",
+        "256x256 MLP, 64 whole games (42 moves) x 32 simulations (untuned)",
+        config={"max_game_length": 42, "sampled_moves": 12, "hidden": (256, 256)},
+        envs=("pgx/connect_four",),
+    ),
 )
 
 
 class AlphaZero(RecipeBook):
-    """AlphaZero as an ``rl_jax.training.algorithm.Algorithm`` (usable from Python; the run
-    machinery's env-based parts, evaluation and GIFs, do not take pgx games yet)."""
+    """AlphaZero as an ``rl_jax.training.algorithm.Algorithm``. It owns its envs (``owns_env``:
+    every ``pgx/...`` id), so the run machinery keeps them out of the env registry, and
+    ``load_policy`` gives the search's move for a pgx state (``position_policy``)."""
 
     name = "alphazero"
     config_type, hparams_type = Config, Hyperparams
@@ -515,6 +549,16 @@ class AlphaZero(RecipeBook):
     def env_steps_per_chunk(self, config: Config) -> int:
         """Move slots per chunk: ``num_envs * max_game_length * iterations_per_chunk``."""
         return config.num_envs * config.max_game_length * config.iterations_per_chunk
+
+    def owns_env(self, env_id: str) -> bool:
+        """Every ``pgx/...`` id: the learner makes the game itself (an unknown game is refused
+        by its ``Config``, naming the games it plays)."""
+        return env_id.startswith(GAME_PREFIX)
+
+    def position_policy(self, state: algorithm.TrainState, config: Config) -> Player:
+        """``(pgx_state, key) -> action``: the search's move (``search_player``, no Gumbel
+        noise) with the trained network, ``num_simulations`` of the config."""
+        return search_player(cast(TrainState, state).agent.params, config)
 
     def policy(self, state: TrainState, config: Config) -> Callable[..., jax.Array]:
         """``(obs, legal) -> action``: the network's most likely legal move, without search."""
