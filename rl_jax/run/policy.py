@@ -300,7 +300,8 @@ class GamePolicy:
     network's most likely legal move, no search). Both take one position and return an
     ``int``. Attributes: ``env_id`` (``"pgx/tic_tac_toe"``), ``game`` (the id's last part,
     ``"tic_tac_toe"``, as ``pgx.make`` takes it), ``num_simulations`` (the search's, None for
-    a learner whose config has none) and ``loaded`` (what was restored)."""
+    a learner whose config has none), ``player`` (the pure ``(state, key) -> action`` behind
+    ``move``, for ``rl_jax.envs.games.match.play_match``) and ``loaded`` (what was restored)."""
 
     def __init__(self, loaded: LoadedPolicy):
         self.loaded = loaded
@@ -315,8 +316,8 @@ class GamePolicy:
                 "position_policy(state, config) to move from its positions"
             )
         key = jax.random.key(0)
-        planner = position
-        self._move = jax.jit(lambda state: planner(state, key))
+        self.player = position
+        self._move = jax.jit(lambda state: position(state, key))
         self._act = jax.jit(loaded.act())
 
     def move(self, state: object) -> int:
