@@ -21,7 +21,6 @@ from typing import TYPE_CHECKING, Any
 
 import jax
 
-from rl_jax import envs
 from rl_jax.errors import (
     OneLineParser,
     RunError,
@@ -44,7 +43,7 @@ from rl_jax.run import (
 from rl_jax.run.metrics import METRICS_FILE, read_rows
 from rl_jax.run.run_dir import recorded_env
 from rl_jax.training import params
-from rl_jax.training.algorithm import Algorithm
+from rl_jax.training.algorithm import Algorithm, hooks
 
 if TYPE_CHECKING:
     from _typeshed import DataclassInstance
@@ -157,8 +156,12 @@ def build_specs(
         out = Path(rest[rest.index("--resume") + 1])
         saved = sweep_record(out)
         algorithm = _resumed_learner(saved, sweep_args.algo, out)
-        # the sweep's env, never imported from its record (run_dir.recorded_env)
-        env = recorded_env(saved["env"], out, sweep_args.env, how="--env")
+        # the sweep's env, never imported from its record (run_dir.recorded_env); an env the
+        # learner owns is its recorded id itself
+        owned = algorithm is not None and hooks(algorithm).owns_env(saved["env"])
+        env = saved["env"] if owned else recorded_env(saved["env"], out, sweep_args.env, "--env")
+        if owned and sweep_args.env not in (None, env):
+            raise RunError(f"{out} is a sweep on {env}, not on {sweep_args.env}")
         sweep_args.algo, sweep_args.env = saved["algo"], env
         sweep_args.grid = saved["grid"]
         rest = [*saved["argv"], *rest]
@@ -168,7 +171,7 @@ def build_specs(
     algorithm = algorithm or learners.resolve(sweep_args.algo)
     sweep_args.learner = str(learners.origin_of(algorithm))
     sweep_args.algo = learners.origin_of(algorithm).spelling(algorithm.name)
-    env_id = envs.core.registry.resolve_id(sweep_args.env)
+    env_id = learners.chosen_env(algorithm, sweep_args.env)
     line = command.read(rest)
     recipe = recipe_choice.recipe_named(algorithm, env_id, line.recipe, line.resume is not None)
     out = line.resume or line.out or default_out(env_id, algorithm.name)
