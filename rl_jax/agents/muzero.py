@@ -599,8 +599,8 @@ CARTPOLE_CONFIG: dict[str, Setting] = {
     "td_steps": 10,
     "batch_size": 256,
     "updates_per_iteration": 8,
-    "hidden": (64,),
-    "latent_size": 64,
+    "hidden": (128,),
+    "latent_size": 128,
     "value_support": 20,  # h(1 / (1 - 0.997)) = 17.6
     "reward_support": 5,
 }
@@ -614,7 +614,7 @@ CARTPOLE_HPARAMS: dict[str, Setting] = {
 RECIPES = Recipes(
     Recipe(
         "default",
-        "16 envs x 4 steps, 16 simulations, K=5, n=10, gamma 0.997, 8 updates of 256 windows",
+        "16 envs x 4 steps, 16 simulations, 128-unit nets, K=5, n=10, gamma 0.997, 8 x 256",
         CARTPOLE_CONFIG,
         CARTPOLE_HPARAMS,
         envs=("rl_jax/CartPole-v1",),
