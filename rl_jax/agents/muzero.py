@@ -571,22 +571,11 @@ def train_chunk(
     state: TrainState, config: Config, hparams: Hyperparams
 ) -> tuple[TrainState, ChunkMetrics]:
     """``iterations_per_chunk`` iterations, then one evaluation. Pure; jit outside."""
-    state, (metrics, (return_sums, counts)) = jax.lax.scan(
-        lambda s, _: train_iteration(s, config, hparams),
+    return episodes.iterate_and_evaluate(
         state,
-        None,
-        length=config.iterations_per_chunk,
-    )
-    eval_key, key = jax.random.split(state.key)
-    eval_return = episodes.evaluate(act, state.agent, config, eval_key)
-    train_return = episodes.mean_return(return_sums, counts, state.train_return)
-    state = dataclasses.replace(state, key=key, train_return=train_return)
-    return state, ChunkMetrics(
-        env_steps=state.clock.env_steps,
-        updates=state.clock.updates,
-        eval_return=eval_return,
-        train_return=train_return,
-        extra=jax.tree.map(jnp.mean, metrics),
+        lambda s: train_iteration(s, config, hparams),
+        config.iterations_per_chunk,
+        lambda s, key: episodes.evaluate(act, s.agent, config, key),
     )
 
 

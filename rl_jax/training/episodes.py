@@ -7,6 +7,7 @@ A config offers ``make_env()`` (the env as registered, or adapted: DQN discretis
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 from collections.abc import Callable, Hashable
 from typing import Protocol, TypeVar
@@ -16,6 +17,7 @@ import jax.numpy as jnp
 
 from rl_jax import envs
 from rl_jax.envs.core.preprocessing import ACTION_MASK
+from rl_jax.training.algorithm import ChunkMetrics, Clock
 from rl_jax.training.replay import Transition
 
 #: One env's (or, with a leading axis, a batch's) recurrent policy state: a pytree of arrays.
@@ -202,3 +204,41 @@ def mean_return(return_sums: jax.Array, counts: jax.Array, previous: jax.Array) 
     iteration and env), or ``previous`` where none ended: a chunk's ``train_return``."""
     count = jnp.sum(counts)
     return jnp.where(count > 0, jnp.sum(return_sums) / jnp.maximum(count, 1), previous)
+
+
+class ChunkState(Protocol):
+    """What ``iterate_and_evaluate`` reads of a learner's state (a dataclass)."""
+
+    key: jax.Array
+    clock: Clock
+    train_return: jax.Array
+
+
+C = TypeVar("C", bound=ChunkState)
+#: An iteration's outputs: ``(metrics, (return_sums, counts))`` of the episodes that ended.
+IterationOutput = tuple[dict[str, jax.Array], tuple[jax.Array, jax.Array]]
+
+
+def iterate_and_evaluate(
+    state: C,
+    iteration: Callable[[C], tuple[C, IterationOutput]],
+    length: int,
+    evaluate_state: Callable[[C, jax.Array], jax.Array],
+) -> tuple[C, ChunkMetrics]:
+    """A ``train_chunk``: ``length`` scanned iterations, then one evaluation
+    (``evaluate_state(state, key)``) with a key split from the state's; the chunk's
+    ``train_return`` is the mean return of the episodes that ended (``mean_return``)."""
+    state, (metrics, (return_sums, counts)) = jax.lax.scan(
+        lambda s, _: iteration(s), state, None, length=length
+    )
+    eval_key, key = jax.random.split(state.key)
+    eval_return = evaluate_state(state, eval_key)
+    train_return = mean_return(return_sums, counts, state.train_return)
+    state = dataclasses.replace(state, key=key, train_return=train_return)  # type: ignore[type-var]
+    return state, ChunkMetrics(
+        env_steps=state.clock.env_steps,
+        updates=state.clock.updates,
+        eval_return=eval_return,
+        train_return=train_return,
+        extra=jax.tree.map(jnp.mean, metrics),
+    )
