@@ -90,6 +90,13 @@ def _conv_inits(initializer: str, fan_in: int) -> tuple[Initializer, Initializer
     raise ValueError(f"unknown initializer {initializer!r}; choose one of {INITS}")
 
 
+def uses_patches(out: tuple[int, int], blocks: tuple[int, int], depth: int, features: int) -> bool:
+    """Whether ``MatmulConv`` multiplies concatenated patches (``out`` positions x taps x
+    ``depth``) rather than summing per-tap products (``blocks`` x taps x ``features``): the
+    layout that writes fewer floats."""
+    return out[0] * out[1] * depth < blocks[0] * blocks[1] * features
+
+
 class MatmulConv(nn.Module):
     """A VALID, square-strided 2-D convolution computed with one matmul, with ``nn.Conv``'s
     parameters (``kernel`` [k, k, C, F], ``bias`` [F]) and results (to float rounding).
@@ -104,9 +111,13 @@ class MatmulConv(nn.Module):
     stride ``s`` becomes ``m x m`` taps of stride 1 over blocks (``m = ceil(k / s)``; the kernel
     is zero-padded to ``m*s`` when ``s`` does not divide ``k``). One matmul gives every block's
     product with all ``m*m`` taps' weights at once (``[bh, bw, m, m, F]``), and the output is the
-    sum of the ``m*m`` shifted tap slices. Summing small outputs instead of concatenating
-    ``m*m`` shifted copies of the input into patches moves ~4x less memory, and so takes less
-    time (BENCHMARKS.md, "Pixel DQN")."""
+    sum of the ``m*m`` shifted tap slices. Where the input's blocks are deeper than the layer's
+    features (Nature DQN's strided layers on frames), summing small outputs instead of
+    concatenating ``m*m`` shifted copies of the input into patches moves ~4x less memory, and so
+    takes less time (BENCHMARKS.md, "Pixel DQN"). Where they are shallower (MinAtar's 3x3 stride-1
+    layer: 4-10 channels into 16 features), the products would be ``m*m`` times the output, and
+    the layer concatenates the patches instead and multiplies them once (``uses_patches``; 11x
+    faster gradients there, BENCHMARKS.md, "MinAtar's conv layer")."""
 
     features: int
     kernel: int
@@ -133,8 +144,21 @@ class MatmulConv(nn.Module):
         x = jnp.moveaxis(x, -4, -3).reshape(*lead, blocks[0], blocks[1], s * s * channels)
         size = taps * s
         kernel = jnp.pad(kernel, [(0, size - k), (0, size - k), (0, 0), (0, 0)])
-        # [tap row, row in block, tap col, col in block, C, F] -> [(row, col, C), (taps, F)]
         kernel = kernel.reshape(taps, s, taps, s, channels, features)
+        if uses_patches(out, blocks, s * s * channels, features):
+            # [(tap row, tap col), block rows, block cols, (row, col, C)] patches, one matmul
+            patches = jnp.concatenate(
+                [
+                    x[..., u : u + out[0], v : v + out[1], :]
+                    for u in range(taps)
+                    for v in range(taps)
+                ],
+                axis=-1,
+            )
+            kernel = kernel.transpose(0, 2, 1, 3, 4, 5).reshape(-1, features)
+            y = patches.astype(self.dtype) @ kernel.astype(self.dtype)
+            return y + jnp.reshape(bias.astype(self.dtype), (1,) * (y.ndim - 1) + (-1,))
+        # [tap row, row in block, tap col, col in block, C, F] -> [(row, col, C), (taps, F)]
         kernel = kernel.transpose(1, 3, 4, 0, 2, 5).reshape(s * s * channels, -1)
         products = x.astype(self.dtype) @ kernel.astype(self.dtype)
         products = products.reshape(*lead, blocks[0], blocks[1], taps, taps, features)

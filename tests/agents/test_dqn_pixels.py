@@ -152,13 +152,36 @@ def test_pixels_are_scaled_to_unit_range_inside_the_network():
     )
 
 
-@pytest.mark.parametrize(
-    "kernel, stride, size",
-    [(8, 4, 84), (8, 4, 42), (4, 2, 20), (4, 2, 9), (3, 1, 7), (3, 2, 9), (5, 3, 17)],
-)
+# (kernel, stride, frame size) with 5 channels into 7 features: the strided layers sum per-tap
+# products, the 3x3 stride-1 layers (as MinAtar's) multiply patches; both layouts are covered.
+MATMUL_CONV_CASES = [
+    (8, 4, 84),
+    (8, 4, 42),
+    (4, 2, 20),
+    (4, 2, 9),
+    (3, 1, 7),
+    (3, 1, 10),
+    (3, 2, 9),
+    (5, 3, 17),
+]
+
+
+def _layout(kernel: int, stride: int, size: int) -> bool:
+    out = (size - kernel) // stride + 1
+    blocks = out + -(-kernel // stride) - 1
+    return conv.uses_patches((out, out), (blocks, blocks), stride * stride * 5, 7)
+
+
+def test_matmul_conv_cases_cover_both_layouts():
+    assert {_layout(*case) for case in MATMUL_CONV_CASES} == {True, False}
+    assert _layout(3, 1, 10) and not _layout(8, 4, 84)
+
+
+@pytest.mark.parametrize("kernel, stride, size", MATMUL_CONV_CASES)
 def test_matmul_conv_equals_flax_conv_and_its_gradients(kernel, stride, size):
     """MatmulConv (space-to-depth, then one matmul) against nn.Conv with the same parameters:
-    outputs, parameter gradients and input gradients, strides that divide the kernel or not."""
+    outputs, parameter gradients and input gradients, strides that divide the kernel or not,
+    in both of its layouts (summed per-tap products, or patches)."""
     # Each side's forward pass and gradients as one jitted program: run op by op, every one of
     # their many primitives would compile a program of its own for each of these shapes.
     x = jax.random.normal(jax.random.key(1), (2, 3, size, size, 5))
