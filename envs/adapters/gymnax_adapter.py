@@ -35,6 +35,7 @@ import numpy as np
 from flax import struct
 
 from rl_jax.envs.core.core import Array, Environment, EnvState, PRNGKey
+from rl_jax.envs.core.preprocessing import StickyActions
 from rl_jax.envs.core.registry import UnsupportedEnvError
 from rl_jax.envs.core.spaces import Box, Discrete, Space
 
@@ -191,25 +192,35 @@ def from_gymnax(
     return FromGymnax(gymnax_env, params, limit)
 
 
-def _minatar(game: str, **kwargs: object) -> FromGymnax:
-    return from_gymnax(f"{game}-MinAtar", **kwargs)  # type: ignore[arg-type]  # checked there
+def _minatar(game: str, sticky_actions: float = 0.0, **kwargs: object) -> Environment:
+    """gymnax's ``game`` (which has no sticky actions); with ``sticky_actions`` p > 0, the
+    original MinAtar's: each step executes the previous action with probability p (MinAtar's
+    default 0.1, as the MinAtar paper's runs), the previous action after a reset being 0."""
+    env = from_gymnax(f"{game}-MinAtar", **kwargs)  # type: ignore[arg-type]  # checked there
+    if not sticky_actions:
+        return env
+    return StickyActions(env, sticky_actions, reset_action=0)
 
 
-def breakout_minatar(**kwargs: object) -> FromGymnax:
-    """gymnax's ``Breakout-MinAtar`` (registered as ``rl_jax/Breakout-MinAtar``)."""
+def breakout_minatar(**kwargs: object) -> Environment:
+    """gymnax's ``Breakout-MinAtar`` (registered as ``rl_jax/Breakout-MinAtar``);
+    ``sticky_actions=p`` as in the original MinAtar (``_minatar``)."""
     return _minatar("Breakout", **kwargs)
 
 
-def space_invaders_minatar(**kwargs: object) -> FromGymnax:
-    """gymnax's ``SpaceInvaders-MinAtar`` (registered as ``rl_jax/SpaceInvaders-MinAtar``)."""
+def space_invaders_minatar(**kwargs: object) -> Environment:
+    """gymnax's ``SpaceInvaders-MinAtar`` (registered as ``rl_jax/SpaceInvaders-MinAtar``);
+    ``sticky_actions=p`` as in the original MinAtar (``_minatar``)."""
     return _minatar("SpaceInvaders", **kwargs)
 
 
-def asterix_minatar(**kwargs: object) -> FromGymnax:
-    """gymnax's ``Asterix-MinAtar`` (registered as ``rl_jax/Asterix-MinAtar``)."""
+def asterix_minatar(**kwargs: object) -> Environment:
+    """gymnax's ``Asterix-MinAtar`` (registered as ``rl_jax/Asterix-MinAtar``);
+    ``sticky_actions=p`` as in the original MinAtar (``_minatar``)."""
     return _minatar("Asterix", **kwargs)
 
 
-def freeway_minatar(**kwargs: object) -> FromGymnax:
-    """gymnax's ``Freeway-MinAtar`` (registered as ``rl_jax/Freeway-MinAtar``)."""
+def freeway_minatar(**kwargs: object) -> Environment:
+    """gymnax's ``Freeway-MinAtar`` (registered as ``rl_jax/Freeway-MinAtar``);
+    ``sticky_actions=p`` as in the original MinAtar (``_minatar``)."""
     return _minatar("Freeway", **kwargs)

@@ -574,9 +574,11 @@ _HPARAMS: dict[str, dict[str, float]] = {
 # MinAtar: the MinAtar paper's DQN (Young & Tian 2019, its repository's examples/dqn.py): the
 # 16x3x3 conv + 128 network, batch 32, a 100k replay filled with 5k random steps first, one update
 # per env step, a hard target copy every 1,000 updates, gamma 0.99, epsilon 1 to 0.1 over the
-# first 100k steps, step size 2.5e-4. The paper's RMSProp (alpha 0.95, centred) is Adam here, as
+# first 100k steps, step size 2.5e-4, on MinAtar's sticky actions (0.1; gymnax has none, the env's
+# ``sticky_actions`` keyword adds them). The paper's RMSProp (alpha 0.95, centred) is Adam here, as
 # in all our DQN recipes. 4 envs with 4 updates per iteration keep one update per env step.
 MINATAR_CONFIG: dict[str, Setting] = {
+    "env_kwargs": "sticky_actions=0.1",
     "num_envs": 4,
     "updates_per_iteration": 4,
     "iterations_per_chunk": 12_500,  # evaluated every 50k env steps, 1% of the paper's budget
@@ -619,7 +621,7 @@ RECIPES = Recipes(
     ),
     Recipe(
         "default",
-        "the MinAtar paper's DQN: conv 16 3x3 + 128, batch 32, 100k replay, 1 update per step",
+        "the MinAtar paper's DQN: conv 16 3x3 + 128, batch 32, 100k replay, sticky actions 0.1",
         MINATAR_CONFIG,
         MINATAR_HPARAMS,
         envs=IMAGE_ENVS,

@@ -117,6 +117,32 @@ def test_constructor_and_params_keywords():
         envs.from_gymnax("NoSuchGame-MinAtar")
 
 
+def test_sticky_actions_keyword_executes_the_previous_action_as_minatar():
+    """``sticky_actions=p`` (the original MinAtar's, which gymnax lacks): with the same key, a
+    step is the plain env's step with the previous action where the wrapper's draw is below p,
+    else with the agent's; the previous action after a reset is 0."""
+    assert isinstance(envs.make("rl_jax/Breakout-MinAtar"), envs.adapters.gymnax_adapter.FromGymnax)
+    env = envs.make("rl_jax/Breakout-MinAtar", sticky_actions=0.5)
+    plain = envs.make("rl_jax/Breakout-MinAtar")
+    assert isinstance(env, envs.StickyActions) and env.repeat_action_probability == 0.5
+    state, _ = env.reset(jax.random.key(0))
+    plain_state, _ = plain.reset(jax.random.key(0))
+    previous, stuck_steps = 0, 0
+    for i in range(30):
+        key, action = jax.random.key(10 + i), i % 3
+        stick_key, env_key = jax.random.split(key)
+        stuck = bool(jax.random.uniform(stick_key) < 0.5)
+        executed = previous if stuck else action
+        state, ts = env.step(key, state, action)
+        plain_state, plain_ts = plain.step(env_key, plain_state, executed)
+        np.testing.assert_array_equal(ts.obs, plain_ts.obs)
+        assert int(state.last_action) == executed
+        previous, stuck_steps = executed, stuck_steps + (stuck and executed != action)
+        if bool(ts.terminated):
+            break
+    assert stuck_steps > 0  # the draw did replace some actions
+
+
 def test_jit_vmap_over_envs_and_autoreset():
     env = envs.AutoReset(envs.make("rl_jax/Breakout-MinAtar"))
     keys = jax.random.split(jax.random.key(0), 16)
