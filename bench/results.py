@@ -183,6 +183,46 @@ POPGYM_PPO_GRU: tuple[tuple[str, str, float | None], ...] = (
 )
 
 
+# gymnax-blines' PPO on gymnax's MinAtar (no sticky actions, episodes cut at 1,000 steps): its
+# released agents (agents/<game>-MinAtar/ppo.pkl) after 10M steps with 64 envs, the better of its
+# two learning rates per game (3e-4 / 1e-3: Asterix 14.95 / 17.8, Breakout 22.88 / 43.4, Freeway
+# 58.8 / 56.7, SpaceInvaders 131.6 / 127.6): (game, figure, its rate).
+GYMNAX_BLINES_PPO: tuple[tuple[str, float, str], ...] = (
+    ("Breakout", 43.4, "1e-3"),
+    ("SpaceInvaders", 131.6, "3e-4"),
+    ("Asterix", 17.8, "1e-3"),
+    ("Freeway", 58.8, "3e-4"),
+)
+
+
+def _minatar_rows() -> dict[str, Row]:
+    """PPO and PQN on the four MinAtar games at their recipes' 10M steps, 5 seeds in one
+    program. PPO's goal: the mean final return at gymnax-blines' better figure or above; PQN's
+    (the issue's): at or above our PPO row, so its rows carry PPO's figure as reference."""
+    rows = {}
+    for game, figure, rate in GYMNAX_BLINES_PPO:
+        env = f"rl_jax/{game}-MinAtar"
+        blines = (
+            f"gymnax-blines PPO (agents/{game}-MinAtar/ppo.pkl, rate {rate}): {figure:g} at 10M"
+        )
+        rows[f"ppo-{game.lower()}-minatar"] = Row(
+            f"PPO, `{env}`",
+            "train.py",
+            ("--algo", "ppo", "--env", env),
+            5,
+            blines,
+            Goal(figure, 5, "final", mean=True),
+        )
+        rows[f"pqn-{game.lower()}-minatar"] = Row(
+            f"PQN, `{env}`",
+            "train.py",
+            ("--algo", "pqn", "--env", env),
+            5,
+            f"our PPO row on {game} (goal: at or above it); {blines}",
+        )
+    return rows
+
+
 def _popgym_row(env: str, figure: float | None) -> Row:
     """Recurrent PPO on POPGym's ``env`` at its recipe's budget (1,024,000 env steps; the
     paper's runs were longer), 5 seeds; the goal: the mean final return at the paper's PPO + GRU
@@ -621,6 +661,8 @@ ROWS: dict[str, Row] = {
     ),
     # POPGym's memory tasks at Easy (envs/memory), recurrent PPO at its POPGym recipe.
     **{f"recurrent-ppo-{name}": _popgym_row(env, figure) for name, env, figure in POPGYM_PPO_GRU},
+    # MinAtar inside the compiled program (gymnax's games), PPO and PQN at their recipes.
+    **_minatar_rows(),
     # PPO from CartPole's frames through DQN's conv torso: reported, without a goal.
     "ppo-cartpole-pixels": Row(
         "PPO from pixels, `rl_jax/CartPolePixels-v1`",
