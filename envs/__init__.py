@@ -32,6 +32,7 @@ from rl_jax.envs.core.preprocessing import (
     reset_after,
 )
 from rl_jax.envs.core.registry import (
+    MINATAR_IDS,
     UnknownEnvError,
     make,
     parse_keywords,
@@ -81,6 +82,7 @@ __all__ = [
     "make",
     "parse_keywords",
     "register",
+    "MINATAR_IDS",
     "registered_ids",
     "reset_after",
 ]

@@ -48,6 +48,12 @@ _ENTRY_POINTS: dict[str, str | Callable[..., Environment]] = {
     "rl_jax/Freeway-MinAtar": "rl_jax.envs.adapters.gymnax_adapter:freeway_minatar",
 }
 
+#: The MinAtar games' ids: envs observed as 10x10xC grids of 0/1, which the learners see through
+#: MinAtar's conv torso (their ``IMAGE_ENVS``).
+MINATAR_IDS = tuple(
+    f"rl_jax/{game}-MinAtar" for game in ("Breakout", "SpaceInvaders", "Asterix", "Freeway")
+)
+
 
 # id -> episode limit, known without importing the env module: gymnasium's registration (its
 # ``spec.max_episode_steps`` and TimeLimit) needs it before MuJoCo is imported. It must equal the

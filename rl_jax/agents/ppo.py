@@ -169,9 +169,7 @@ class PixelConfig(Config, ImageObservations):
 
 #: Envs observed as images that are not frames (MinAtar's 10x10xC grids of 0/1): their config is
 #: an ``ImageConfig``.
-IMAGE_ENVS = tuple(
-    f"rl_jax/{game}-MinAtar" for game in ("Breakout", "SpaceInvaders", "Asterix", "Freeway")
-)
+IMAGE_ENVS = envs.MINATAR_IDS
 
 
 @dataclasses.dataclass(frozen=True, kw_only=True)

@@ -132,9 +132,7 @@ class Config:
 
 
 #: Envs observed as grids (MinAtar's 10x10xC of 0/1): their config is an ``ImageConfig``.
-IMAGE_ENVS = tuple(
-    f"rl_jax/{game}-MinAtar" for game in ("Breakout", "SpaceInvaders", "Asterix", "Freeway")
-)
+IMAGE_ENVS = envs.MINATAR_IDS
 
 
 @dataclasses.dataclass(frozen=True, kw_only=True)
