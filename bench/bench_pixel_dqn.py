@@ -4,7 +4,12 @@
    ``flax.linen.Conv`` against ``rl_jax.training.conv.MatmulConv`` (space-to-depth + one
    matmul, the same parameters and results). XLA's CPU backend runs a convolution's gradient
    inside a loop body far slower than outside one (jax-ml/jax#12868).
-2. The recipe's whole training chunk (``dqn.RECIPES``: 4 envs, one batch-32 update per
+2. MinAtar's torso (the MinAtar paper's 16 3x3 stride-1 filters, then 128 units: PPO's recipe
+   for ``rl_jax/*-MinAtar``) the same way, on a batch of 1,024 (PPO's minibatch there) of 10x10
+   grids of 0/1 with 4 channels (Breakout) and 7 (Freeway): ``nn.Conv`` against ``MatmulConv``
+   forced to sum per-tap products and forced to multiply patches (``MatmulConv.layout``; its
+   ``auto`` picks patches for these layers, where the input is shallower than the output).
+3. The recipe's whole training chunk (``dqn.RECIPES``: 4 envs, one batch-32 update per
    iteration, Double DQN with 3-step returns, frames drawn in JAX) with the torso over the whole
    84x84 frame and over the rows CartPole draws on (``crop_drawn_rows``, the recipe's), and
    with its 3 seeds vmapped against an unrolled loop in the same program
@@ -105,6 +110,52 @@ def torso_steps(frame_size: int, matmul: bool, steps: int = 10):
     return once
 
 
+MINATAR_BATCH = 1_024  # PPO's MinAtar minibatch: 64 envs x 128 steps / 8 minibatches
+MINATAR_ACTIONS = 3  # Breakout's and Freeway's minimal action sets
+
+
+class _MinAtarTorso(nn.Module):
+    """MinAtar's network as ``ConvTorso`` + dense layers build it (16 3x3 filters of stride 1,
+    128 units, one output per action), its conv ``nn.Conv`` (``layout=None``) or
+    ``MatmulConv`` with ``layout``."""
+
+    layout: str | None
+
+    @nn.compact
+    def __call__(self, grids):
+        if self.layout is None:
+            layer = nn.Conv(16, (3, 3), (1, 1), "VALID")
+        else:
+            layer = conv.MatmulConv(16, 3, 1, layout=self.layout, name="Conv_0")
+        x = nn.relu(layer(grids))
+        x = nn.relu(nn.Dense(128)(x.reshape(x.shape[:-3] + (-1,))))
+        return nn.Dense(MINATAR_ACTIONS)(x)
+
+
+def minatar_steps(channels: int, layout: str | None, steps: int = 10):
+    """A function running ``steps`` SGD steps of MinAtar's torso on a batch of 1,024 10x10 grids
+    of 0/1 with ``channels`` channels in one scan."""
+    shape = (MINATAR_BATCH, 10, 10, channels)
+    grids = jax.random.bernoulli(jax.random.key(0), 0.1, shape).astype(jnp.float32)
+    net = _MinAtarTorso(layout)
+    params = net.init(jax.random.key(1), grids)
+
+    def loss(params):
+        return jnp.sum(net.apply(params, grids) ** 2)
+
+    def step(params, _):
+        grads = jax.grad(loss)(params)
+        return jax.tree.map(lambda p, g: p - 1e-6 * g, params, grads), None
+
+    scanned = jax.jit(lambda params: jax.lax.scan(step, params, None, length=steps)[0])
+
+    def once() -> int:
+        jax.block_until_ready(scanned(params))
+        return steps
+
+    return once
+
+
 def run(quick: bool = False) -> str:
     rounds, min_time = (1, 1.0) if quick else (3, 5.0)
     sizes = (42,) if quick else (42, 84)
@@ -127,6 +178,28 @@ def run(quick: bool = False) -> str:
         lines.append(
             f"| {size}x{size} | {flax_rate:,.1f} | {matmul_rate:,.1f} | "
             f"{matmul_rate / flax_rate:.2f}x |"
+        )
+    # nn.Conv's gradient takes ~0.5 s a step here: a shorter scan keeps --quick quick
+    minatar_scan = 3 if quick else 10
+    lines += [
+        "",
+        "Gradient steps/s of MinAtar's torso (16 3x3 stride-1 filters, 128 units, "
+        f"{MINATAR_ACTIONS} actions; batch {MINATAR_BATCH:,} of 10x10 grids of 0/1) inside a "
+        f"`lax.scan` of {minatar_scan} steps; median of {rounds} round(s) of >= {min_time} s. "
+        "MatmulConv forced to sum per-tap products or to multiply patches (`layout`; `auto` "
+        "picks patches here).",
+        "",
+        "| channels | nn.Conv | products | patches | patches / products |",
+        "|---:|---:|---:|---:|---:|",
+    ]
+    for channels in (4, 7):
+        flax_rate, products, patches = (
+            measure(minatar_steps(channels, layout, minatar_scan), rounds, min_time)
+            for layout in (None, "products", "patches")
+        )
+        lines.append(
+            f"| {channels} | {flax_rate:,.1f} | {products:,.1f} | {patches:,.1f} | "
+            f"{patches / products:.2f}x |"
         )
     lines += [
         "",

@@ -15,6 +15,7 @@ from jax.nn.initializers import Initializer
 from jax.typing import DTypeLike
 
 INITS = ("fan_in_uniform", "orthogonal")
+LAYOUTS = ("auto", "patches", "products")  # MatmulConv.layout
 
 
 def uniform_init(bound: float) -> Callable[..., jax.Array]:
@@ -117,16 +118,23 @@ class MatmulConv(nn.Module):
     takes less time (BENCHMARKS.md, "Pixel DQN"). Where they are shallower (MinAtar's 3x3 stride-1
     layer: 4-10 channels into 16 features), the products would be ``m*m`` times the output, and
     the layer concatenates the patches instead and multiplies them once (``uses_patches``; 11x
-    faster gradients there, BENCHMARKS.md, "MinAtar's conv layer")."""
+    faster gradients there, BENCHMARKS.md, "MinAtar's conv layer").
+
+    ``layout``: ``"auto"`` picks by that rule; ``"patches"`` or ``"products"`` forces one (the
+    parameters and results are the same, only the time differs; tests and benchmarks compare
+    them)."""
 
     features: int
     kernel: int
     stride: int
     initializer: str = "fan_in_uniform"
     dtype: DTypeLike = jnp.float32
+    layout: str = "auto"
 
     @nn.compact
     def __call__(self, x: jax.Array) -> jax.Array:
+        if self.layout not in LAYOUTS:
+            raise ValueError(f"unknown MatmulConv layout {self.layout!r}; choose one of {LAYOUTS}")
         k, s, channels, features = self.kernel, self.stride, x.shape[-1], self.features
         kernel_init, bias_init = _conv_inits(self.initializer, k * k * channels)
         kernel = self.param("kernel", kernel_init, (k, k, channels, features), jnp.float32)
@@ -145,7 +153,10 @@ class MatmulConv(nn.Module):
         size = taps * s
         kernel = jnp.pad(kernel, [(0, size - k), (0, size - k), (0, 0), (0, 0)])
         kernel = kernel.reshape(taps, s, taps, s, channels, features)
-        if uses_patches(out, blocks, s * s * channels, features):
+        multiply_patches = self.layout == "patches" or (
+            self.layout == "auto" and uses_patches(out, blocks, s * s * channels, features)
+        )
+        if multiply_patches:
             # [(tap row, tap col), block rows, block cols, (row, col, C)] patches, one matmul
             patches = jnp.concatenate(
                 [

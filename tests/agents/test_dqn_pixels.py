@@ -166,6 +166,11 @@ MATMUL_CONV_CASES = [
 ]
 
 
+# Cases that also run with each layout forced (``MatmulConv.layout``): a strided layer whose
+# stride divides the kernel, one whose stride does not (a zero-padded kernel), and MinAtar's.
+FORCED_LAYOUT_CASES = [(8, 4, 42), (5, 3, 17), (3, 1, 10)]
+
+
 def _layout(kernel: int, stride: int, size: int) -> bool:
     out = (size - kernel) // stride + 1
     blocks = out + -(-kernel // stride) - 1
@@ -175,17 +180,30 @@ def _layout(kernel: int, stride: int, size: int) -> bool:
 def test_matmul_conv_cases_cover_both_layouts():
     assert {_layout(*case) for case in MATMUL_CONV_CASES} == {True, False}
     assert _layout(3, 1, 10) and not _layout(8, 4, 84)
+    forced = {_layout(*case) for case in FORCED_LAYOUT_CASES}
+    assert set(FORCED_LAYOUT_CASES) <= set(MATMUL_CONV_CASES) and forced == {True, False}
 
 
-@pytest.mark.parametrize("kernel, stride, size", MATMUL_CONV_CASES)
-def test_matmul_conv_equals_flax_conv_and_its_gradients(kernel, stride, size):
+def test_matmul_conv_rejects_an_unknown_layout():
+    layer = conv.MatmulConv(7, 3, 1, layout="im2col")
+    with pytest.raises(ValueError, match="unknown MatmulConv layout 'im2col'.*'patches'"):
+        layer.init(jax.random.key(0), jnp.zeros((1, 5, 5, 2)))
+
+
+@pytest.mark.parametrize(
+    "kernel, stride, size, layout",
+    [(*case, "auto") for case in MATMUL_CONV_CASES]
+    + [(*case, layout) for case in FORCED_LAYOUT_CASES for layout in ("patches", "products")],
+)
+def test_matmul_conv_equals_flax_conv_and_its_gradients(kernel, stride, size, layout):
     """MatmulConv (space-to-depth, then one matmul) against nn.Conv with the same parameters:
     outputs, parameter gradients and input gradients, strides that divide the kernel or not,
-    in both of its layouts (summed per-tap products, or patches)."""
+    in both of its layouts (summed per-tap products, or patches), as ``auto`` picks them and
+    forced."""
     # Each side's forward pass and gradients as one jitted program: run op by op, every one of
     # their many primitives would compile a program of its own for each of these shapes.
     x = jax.random.normal(jax.random.key(1), (2, 3, size, size, 5))
-    layer = conv.MatmulConv(7, kernel, stride)
+    layer = conv.MatmulConv(7, kernel, stride, layout=layout)
     params = jax.jit(layer.init)(jax.random.key(0), x)
     reference = nn.Conv(7, (kernel, kernel), (stride, stride), "VALID")
     np.testing.assert_allclose(
