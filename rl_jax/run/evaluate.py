@@ -12,7 +12,9 @@ of your own needs ``--algo`` naming it again, as it was trained with.
 run's env: ``HalfCheetah-v5`` for ``rl_jax/HalfCheetah-v5``, ``ID`` for ``gymnasium:ID``, with
 the run's env keywords), stepped on the host one episode at a time, seeded ``KEY + episode``:
 evidence, from code we did not write, that the policy learned the task and not a quirk of our
-copy of the env.
+copy of the env. A velocity-masked id (``rl_jax/CartPoleNoVel-v1``, ``rl_jax/Hopper-P-v5``, ...:
+envs/memory/masked.py) plays in gymnasium's base env under the same mask (``gymnasium_twin``),
+a recurrent policy reset at every episode.
 
     python -m rl_jax.run.evaluate runs/results/dqn-cartpole-pixels --episodes 100 --latest
     python -m rl_jax.run.evaluate runs/ppo_hopper --gymnasium --episodes 20
@@ -30,6 +32,7 @@ import jax
 import numpy as np
 
 from rl_jax import envs
+from rl_jax.envs.memory import masked
 from rl_jax.errors import OneLineParser, UsageError, exit_now, guard, positive_int
 from rl_jax.run.api import evaluate_policy as returns_of
 from rl_jax.run.policy import (
@@ -57,7 +60,7 @@ class Evaluation:
     step: int  # env step of the policy
     run_eval: float | None  # the run's own evaluation of it
     returns: np.ndarray  # [episodes]
-    env: str = ""  # where the episodes were played: "" for the run's env, else gymnasium's id
+    env: str = ""  # where the episodes were played: "" for the run's env, else gymnasium's twin
 
 
 def evaluate_policy(loaded: LoadedPolicy, episodes: int, key: int = KEY) -> np.ndarray:
@@ -110,9 +113,20 @@ def _play(
     return returns
 
 
+def gymnasium_twin(env_id: str, keywords: dict[str, Any]) -> tuple[str, gymnasium.Env]:
+    """gymnasium's own env for a run's ``env_id``, made with ``keywords``, and its name:
+    ``gymnasium.make`` of ``gymnasium_id``, or for a masked id (envs/memory/masked.py) its base
+    env under the same mask (``masked.gymnasium_twin``), named ``BASE masked as ID``."""
+    name = env_id.split(":")[-1]
+    if name in masked.GYMNASIUM_BASES:
+        twin = masked.gymnasium_twin(name, **keywords)
+        return f"{masked.GYMNASIUM_BASES[name]} masked as {name}", twin
+    twin_id = gymnasium_id(env_id)
+    return twin_id, gymnasium.make(twin_id, **keywords)
+
+
 def _in_gymnasium(loaded: LoadedPolicy, episodes: int) -> tuple[str, np.ndarray]:
-    """``loaded``'s policy in gymnasium's twin of the run's env: its id and the returns."""
-    env_id = gymnasium_id(loaded.env_id)
+    """``loaded``'s policy in gymnasium's twin of the run's env: its name and the returns."""
     config = loaded.config
     keywords = envs.parse_keywords(
         config.env_kwargs if isinstance(config, TakesEnvKeywords) else ""
@@ -121,7 +135,7 @@ def _in_gymnasium(loaded: LoadedPolicy, episodes: int) -> tuple[str, np.ndarray]
     policy = (
         RecurrentPolicy(loaded) if loaded.initial_policy_state() is not None else Policy(loaded)
     )
-    env = gymnasium.make(env_id, **keywords)
+    env_id, env = gymnasium_twin(loaded.env_id, keywords)
     try:
         shape = tuple(env.observation_space.shape or ())
         if shape != policy.observation_shape:
@@ -210,7 +224,8 @@ def main(argv: list[str] | None = None, prog: str = "python -m rl_jax.run.evalua
         "--gymnasium",
         action="store_true",
         help="play the episodes in gymnasium's own env (HalfCheetah-v5 for "
-        "rl_jax/HalfCheetah-v5), stepped on the host",
+        "rl_jax/HalfCheetah-v5; CartPole-v1 with the velocities zeroed for "
+        "rl_jax/CartPoleNoVel-v1), stepped on the host",
     )
     args = parser.parse_args(argv)
 

@@ -1,6 +1,7 @@
 """The velocity-masked ids (envs/memory/masked.py): RL Zoo's CartPoleNoVel-v1 and PendulumNoVel-v1
 against gymnasium's envs with the velocity entries zeroed, and the position-only MuJoCo variants
-against gymnasium's observation layout and our unmasked envs; check_env and the episode limits."""
+against gymnasium's observation layout and our unmasked envs; check_env and the episode limits;
+gymnasium's twins of the masked ids (``gymnasium_twin``, where --gymnasium replays) against ours."""
 
 import re
 import subprocess
@@ -17,6 +18,7 @@ from gymnasium.utils.env_checker import check_env
 
 from rl_jax import envs
 from rl_jax.envs.core import registry
+from rl_jax.envs.memory.masked import GYMNASIUM_BASES, GymnasiumMask, gymnasium_twin
 
 ATOL, RTOL = 4e-6, 1e-6  # the classic envs' one-step float32 tolerance (test_classic_control)
 C = {"backend": "mujoco"}  # MuJoCo C, also on a GPU (where MJX is the default)
@@ -134,6 +136,64 @@ def test_positions_only_follow_the_observation_keywords():
     assert with_x.observation_space().shape == (6,)
     no_contacts = envs.make("rl_jax/Ant-P-v5", include_cfrc_ext_in_observation=False, **C)
     assert no_contacts.observation_space().shape == (13,)
+
+
+@pytest.mark.parametrize("env_id", NO_VELOCITY)
+def test_no_velocity_twins_observe_as_ours_step_for_step(env_id):
+    """gymnasium's twin against our id from gymnasium's own starts, ours re-synced to the twin's
+    state before each step (as test_classic_control compares Pendulum): the same observations,
+    zero exactly at the velocities and gymnasium's unmasked observation elsewhere."""
+    reference_id, velocities = NO_VELOCITY[env_id]
+    twin, ours = gymnasium_twin(env_id), gymnasium.make(env_id)
+    assert isinstance(twin, GymnasiumMask) and GYMNASIUM_BASES[env_id] == reference_id
+    assert twin.spec.id == reference_id and twin.observation_space == ours.observation_space
+    kept = [i for i in range(twin.observation_space.shape[0]) if i not in velocities]
+    rng = np.random.default_rng(1)
+    for seed in range(2):
+        obs, _ = twin.reset(seed=seed)
+        np.testing.assert_array_equal(obs, rl_zoo_masked(_observe(twin), velocities))
+        for _ in range(twin.spec.max_episode_steps):
+            start = np.asarray(twin.unwrapped.state, np.float32)
+            twin.unwrapped.state = start.astype(np.float64)
+            ours.reset(options={"state": start})
+            action = _action(twin, rng)
+            obs, reward, terminated, _, _ = twin.step(action)
+            our_obs, our_reward, our_terminated, _, _ = ours.step(action)
+            assert np.all(obs[velocities] == 0.0)
+            np.testing.assert_array_equal(obs[kept], _observe(twin)[kept])
+            np.testing.assert_allclose(our_obs, obs, RTOL, ATOL)
+            assert our_terminated == terminated
+            np.testing.assert_allclose(our_reward, reward, RTOL, ATOL)
+            if terminated:
+                break
+
+
+def test_positions_only_twin_is_gymnasiums_hopper_cut_to_its_qpos_part():
+    """Hopper-P-v5's twin from gymnasium's seeds: the first 5 entries of gymnasium Hopper-v5's
+    observation, step for step, and our variant's observation from the same start; the count
+    follows exclude_current_positions_from_observation."""
+    twin, theirs = gymnasium_twin("rl_jax/Hopper-P-v5"), gymnasium.make("Hopper-v5")
+    assert twin.observation_space.shape == (5,)
+    np.testing.assert_array_equal(twin.observation_space.low, theirs.observation_space.low[:5])
+    obs, _ = twin.reset(seed=3)
+    expected, _ = theirs.reset(seed=3)
+    assert obs.shape == (5,)
+    np.testing.assert_array_equal(obs, expected[:5])
+    rng = np.random.default_rng(3)
+    for _ in range(10):
+        action = _action(theirs, rng)
+        obs, reward, *_ = twin.step(action)
+        expected, expected_reward, *_ = theirs.step(action)
+        np.testing.assert_array_equal(obs, expected[:5])
+        assert reward == expected_reward
+    data = twin.unwrapped.data
+    qpos, qvel = data.qpos.astype(np.float32), data.qvel.astype(np.float32)
+    twin.unwrapped.set_state(qpos.astype(np.float64), qvel.astype(np.float64))
+    ours = gymnasium.make("rl_jax/Hopper-P-v5", **C)
+    our_obs, _ = ours.reset(seed=0, options={"qpos": qpos, "qvel": qvel})
+    np.testing.assert_allclose(our_obs, twin.observation(twin.unwrapped._get_obs()), 2e-7, 1e-7)
+    with_x = gymnasium_twin("rl_jax/Hopper-P-v5", exclude_current_positions_from_observation=False)
+    assert with_x.observation_space.shape == with_x.reset(seed=0)[0].shape == (6,)
 
 
 @pytest.mark.parametrize("env_id", MASKED_IDS)

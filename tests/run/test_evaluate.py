@@ -12,9 +12,11 @@ import pytest
 from child_env import python_path
 from run_helpers import fake_run
 
+import rl_jax
+from rl_jax.envs.memory.masked import GymnasiumMask
 from rl_jax.errors import UsageError
 from rl_jax.run import evaluate
-from rl_jax.run.policy import LoadedPolicy
+from rl_jax.run.policy import LoadedPolicy, RecurrentPolicy
 from rl_jax.training.episodes import episode_returns
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -90,6 +92,46 @@ def test_gymnasium_twins_are_named_by_the_runs_env_id():
     for foreign in ("rl_jax/Rocket-v0", "examples.hover_rocket:examples/HoverRocket-v0"):
         with pytest.raises(UsageError, match="no twin registered in gymnasium"):
             evaluate.gymnasium_id(foreign)
+
+
+def test_masked_ids_have_gymnasiums_env_under_the_same_mask_as_twin():
+    name, twin = evaluate.gymnasium_twin("rl_jax/PendulumNoVel-v1", {"g": 9.81})
+    assert name == "Pendulum-v1 masked as rl_jax/PendulumNoVel-v1"
+    assert isinstance(twin, GymnasiumMask) and twin.spec.kwargs["g"] == 9.81
+    assert twin.reset(seed=0)[0][2] == 0.0
+    name, twin = evaluate.gymnasium_twin("rl_jax/Pendulum-v1", {})
+    assert name == "Pendulum-v1" and not isinstance(twin, GymnasiumMask)
+
+
+def test_a_recurrent_run_on_a_masked_id_replays_in_gymnasiums_masked_twin(tmp_path, monkeypatch):
+    """A tiny recurrent PPO run on CartPoleNoVel-v1, its policy played in gymnasium's CartPole-v1
+    with the velocities zeroed, reset per episode."""
+    config = {"num_envs": 8, "num_steps": 8, "seq_len": 4, "num_minibatches": 2}
+    config |= {"cell_size": 8, "iterations_per_chunk": 2, "num_eval_envs": 4}
+    run = rl_jax.train(
+        "recurrent_ppo",
+        "rl_jax/CartPoleNoVel-v1",
+        total_steps=8 * 8 * 2,
+        out=tmp_path / "run",
+        config=config,
+        quiet=True,
+    )
+    played = []
+
+    def spy(env, policy, episodes, key):
+        played.append((env, policy))
+        return play(env, policy, episodes, key)
+
+    play = evaluate._play
+    monkeypatch.setattr(evaluate, "_play", spy)
+    (evaluation,) = evaluate.evaluate_run(run.run_dir, episodes=3, gymnasium=True)
+    assert evaluation.env == "CartPole-v1 masked as rl_jax/CartPoleNoVel-v1"
+    assert evaluation.returns.shape == (3,) and np.all(np.isfinite(evaluation.returns))
+    assert np.all(evaluation.returns >= 1.0)
+    ((env, policy),) = played
+    assert isinstance(env, GymnasiumMask) and env.spec.id == "CartPole-v1"
+    assert isinstance(policy, RecurrentPolicy)
+    assert "of gymnasium's CartPole-v1 masked as" in evaluate.table([evaluation])
 
 
 def test_gymnasium_episodes_are_seeded_and_played_to_their_end():
