@@ -68,13 +68,15 @@ def curves_figure(
     title: str,
     max_step: float | None = None,
     line: tuple[float, str] | None = None,
+    legend: str = "best",
 ) -> int:
     """Each run's mean eval return with its 95% bootstrap band over seeds; each reference's
     mean and band (grey tones, dashed, dash-dotted, dotted) up to ``max_step`` (default: the
     runs' last step); ``line``: a horizontal line ``(value, label)``, e.g. an env's maximum
-    return."""
+    return. ``legend``: matplotlib's ``loc`` inside the axes, or ``"below"``: under them, in two
+    columns, where the curves leave no corner free."""
     plt = _pyplot()
-    figure, axes = plt.subplots(figsize=(6.4, 4.0))
+    figure, axes = plt.subplots(figsize=(6.4, 4.6 if legend == "below" else 4.0))
     last = max_step or max(float(run.steps[-1]) for run in runs)
     for index, reference in enumerate(references):
         kept = reference.steps <= last
@@ -95,7 +97,12 @@ def curves_figure(
     axes.set_ylabel("eval return (mean, 95% bootstrap CI)")
     axes.set_title(title, fontsize="medium")
     axes.grid(alpha=0.3)
-    axes.legend(fontsize="small", loc="best")
+    if legend == "below":
+        axes.legend(
+            fontsize="small", loc="upper center", bbox_to_anchor=(0.5, -0.14), ncol=2, frameon=False
+        )
+    else:
+        axes.legend(fontsize="small", loc=legend)
     figure.tight_layout()
     return save_png(figure, path)
 

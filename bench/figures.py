@@ -12,7 +12,8 @@ whenever the runs are redone; nothing is drawn by hand. Four kinds (``[kind.name
   with its 95% bootstrap band, against the published reference curves of that env
   (``bench/reference_curves/*.json``; ``reference = [...]`` chooses, default all that cover it).
   Keys: ``runs``, optional ``labels``, ``title``, ``reference``, ``max_step``, ``line =
-  [value, "label"]``.
+  [value, "label"]``, ``legend`` (matplotlib's ``loc``, or ``"below"`` the axes; default
+  ``"best"``).
 * ``aggregate.NAME`` -> ``aggregate_NAME.png``: over a suite of envs, each learner's IQM of
   normalised final scores and its performance profile, with stratified-bootstrap 95% intervals
   (``bench/figure_stats.py``). The scores come from ``runs`` (run directories; optional
@@ -72,7 +73,7 @@ KINDS: dict[str, tuple[str, str, tuple[str, ...], tuple[str, ...]]] = {
         "curves_",
         ".png",
         ("runs",),
-        ("labels", "title", "reference", "max_step", "line", "caption"),
+        ("labels", "title", "reference", "max_step", "line", "legend", "caption"),
     ),
     "aggregate": (
         "aggregate_",
@@ -170,6 +171,7 @@ def make_curves(entry: dict[str, Any], path: Path) -> str:
         entry.get("title", env_id),
         entry.get("max_step"),
         (float(line[0]), str(line[1])) if line else None,
+        str(entry.get("legend", "best")),
     )
     against = f" against {', '.join(r.name for r in references)}" if references else ""
     return f"{len(runs)} runs on {env_id}{against}, {size / 1024:.0f} KB{left_out}"

@@ -200,6 +200,41 @@ def test_run_dirs_on_the_command_line_make_one_curves_figure_per_env(runs, tmp_p
     assert "is missing" in capsys.readouterr().out
 
 
+def test_a_curves_legend_below_the_axes_and_only_the_figures_named(runs, tmp_path, capsys):
+    from PIL import Image
+
+    manifest = _manifest(
+        tmp_path / "manifest.toml",
+        f"""
+[curves.inside]
+runs = ["{runs["cheetah_td3"]}", "{runs["cheetah_sac"]}"]
+reference = []
+[curves.below]
+runs = ["{runs["cheetah_td3"]}", "{runs["cheetah_sac"]}"]
+reference = []
+legend = "below"
+[curves.corner]
+runs = ["{runs["cartpole"]}"]
+legend = "lower right"
+""",
+    )
+    out = tmp_path / "figures"
+    only = ["curves_inside", "curves_below.png"]
+    assert figures.main(["--manifest", str(manifest), "--out", str(out), *("--only", *only)]) == 0
+    assert sorted(p.name for p in out.iterdir()) == ["curves_below.png", "curves_inside.png"]
+    with (
+        Image.open(out / "curves_inside.png") as inside,
+        Image.open(out / "curves_below.png") as below,
+    ):
+        assert below.width == inside.width and below.height > inside.height
+    assert (
+        figures.main(["--manifest", str(manifest), "--out", str(out), "--only", "curves_corner"])
+        == 0
+    )
+    assert (out / "curves_corner.png").stat().st_size > 0
+    assert "1 figures written" in capsys.readouterr().out.splitlines()[-1]
+
+
 @pytest.mark.parametrize(
     ("text", "message"),
     [
