@@ -195,6 +195,18 @@ GYMNAX_BLINES_PPO: tuple[tuple[str, float, str], ...] = (
 )
 
 
+# The MinAtar paper's DQN (Young & Tian 2019) on the original MinAtar (sticky actions 0.1) at 5M
+# frames, read off its repository's img/learning_curves.gif (kenjyoung/MinAtar at 4241f24): the
+# moving average of 100 training episodes' returns (epsilon-greedy at 0.1), 30 runs, read at 5M to
+# about +-1 (Freeway +-2). DQN's MinAtar recipe is that DQN (its sticky actions included).
+MINATAR_PAPER_DQN: tuple[tuple[str, float], ...] = (
+    ("Breakout", 10.0),
+    ("SpaceInvaders", 43.0),
+    ("Asterix", 17.0),
+    ("Freeway", 50.0),
+)
+
+
 def _minatar_rows() -> dict[str, Row]:
     """PPO and PQN on the four MinAtar games at their recipes' 10M steps, 5 seeds in one
     program. PPO's goal: the mean final return at gymnax-blines' better figure or above; PQN's
@@ -219,6 +231,17 @@ def _minatar_rows() -> dict[str, Row]:
             ("--algo", "pqn", "--env", env),
             5,
             f"our PPO row on {game} (goal: at or above it); {blines}",
+        )
+    for game, figure in MINATAR_PAPER_DQN:
+        env = f"rl_jax/{game}-MinAtar"
+        rows[f"dqn-{game.lower()}-minatar"] = Row(
+            f"DQN, `{env}` (sticky actions 0.1)",
+            "train.py",
+            ("--algo", "dqn", "--env", env),
+            5,
+            f"the MinAtar paper's DQN at 5M frames, {figure:g} (its learning curves, read at 5M:"
+            " the mean of 100 training episodes at epsilon 0.1, 30 runs)",
+            Goal(figure, 5, "final", mean=True),
         )
     return rows
 
