@@ -17,11 +17,17 @@ the game's final outcome from the view of the player to move there
 
     loss = cross-entropy(improved policy, network policy) + value_coef * (v - z)^2.
 
-A *chunk* is ``iterations_per_chunk`` iterations, then one evaluation: the network's greedy
-policy (no search) against a uniformly random player, ``num_eval_games`` games in both colours;
-``eval_return`` is the mean outcome (1 win, 0 draw, -1 loss). Env steps are counted as move
-slots, ``num_envs * max_game_length`` per iteration (``moves_played`` in the metrics counts
-the moves made).
+A *chunk* is ``iterations_per_chunk`` iterations, then one evaluation inside the same compiled
+call: ``num_eval_games`` games in both colours (ours opens every other one) against the
+``eval_opponent``; ``eval_return`` is the mean outcome (1 win, 0 draw, -1 loss). Our side is the
+network's greedy policy (no search), or with ``eval_search`` the search itself
+(``search_player``, ``num_simulations`` of the config). The opponent is a uniformly random
+player (``"random"``, the default: a curve that saturates early), pure MCTS with random
+rollouts and ``eval_opponent_simulations`` simulations (``"mcts"``, any game:
+``envs.games.rollout_mcts``) or exact tic-tac-toe minimax (``"minimax"``, tic-tac-toe only:
+``envs.games.tic_tac_toe_minimax``; it never loses, so 0 is the best score there). Env steps are
+counted as move slots, ``num_envs * max_game_length`` per iteration (``moves_played`` in the
+metrics counts the moves made).
 
 The game is named by the env id ``pgx/GAME`` (``pgx/tic_tac_toe``) and resolved here with
 ``pgx.make``: the env registry is not involved (docs/learners/alphazero.md says why). Usage::
@@ -50,6 +56,7 @@ from flax import struct
 
 from rl_jax.agents import alphazero_parts as parts
 from rl_jax.agents.common import clip_by_global_norm, injected_step
+from rl_jax.envs.games import rollout_mcts, tic_tac_toe_minimax
 from rl_jax.envs.games.match import Player, random_player
 from rl_jax.training import algorithm, params
 from rl_jax.training.algorithm import ChunkMetrics, Clock, RecipeBook
@@ -71,6 +78,10 @@ GAMES = (
     "shogi",
     "tic_tac_toe",
 )
+#: Who the evaluation plays against: a uniformly random player, pure MCTS with random rollouts
+#: (``envs.games.rollout_mcts``), exact minimax (``envs.games.tic_tac_toe_minimax``, tic-tac-toe
+#: only).
+EVAL_OPPONENTS = ("random", "mcts", "minimax")
 
 
 # ---- settings -------------------------------------------------------------------------------
@@ -90,7 +101,13 @@ class Config:
     batch_size: int = 256  # positions per gradient update
     updates_per_iteration: int = 8  # gradient updates after each batch of self-play games
     iterations_per_chunk: int = 4  # self-play batches and updates per compiled call
-    num_eval_games: int = 32  # games of the greedy network against a random player per eval
+    num_eval_games: int = 32  # games per evaluation, half of them opened by each side
+    # the evaluation's opponent: random (a uniformly random player), mcts (pure MCTS with random
+    # rollouts, eval_opponent_simulations) or minimax (exact, tic-tac-toe only)
+    eval_opponent: str = "random"
+    eval_opponent_simulations: int = 100  # simulations of the mcts opponent per move
+    # evaluate the search (num_simulations, no Gumbel noise) rather than the greedy network
+    eval_search: bool = False
     hidden: tuple[int, ...] = (128, 128)  # the torso's Dense + ReLU layers
 
     def __post_init__(self) -> None:
@@ -110,9 +127,19 @@ class Config:
             "updates_per_iteration",
             "iterations_per_chunk",
             "num_eval_games",
+            "eval_opponent_simulations",
         ):
             if getattr(self, name) < 1:
                 raise ValueError(f"{name} must be >= 1, got {getattr(self, name)}")
+        if self.eval_opponent not in EVAL_OPPONENTS:
+            raise ValueError(
+                f"eval_opponent must be one of {EVAL_OPPONENTS}, got {self.eval_opponent!r}"
+            )
+        if self.eval_opponent == "minimax" and self.env_id != GAME_PREFIX + "tic_tac_toe":
+            raise ValueError(
+                f"eval_opponent 'minimax' is exact tic-tac-toe only, not {self.env_id}; "
+                "use 'mcts' (any game) or 'random'"
+            )
         # made here, outside any trace: pgx builds module-level arrays when a game's module is
         # first imported, and built inside a jit they would leak as tracers (an unknown game is
         # also named here, before anything compiles)
@@ -443,10 +470,31 @@ def train_iteration(
     return state, jax.tree.map(jnp.mean, metrics)
 
 
+def eval_opponent_player(config: Config) -> Player:
+    """The evaluation's opponent, a player for one pgx state: ``config.eval_opponent``."""
+    if config.eval_opponent == "mcts":
+        return rollout_mcts.rollout_mcts_player(
+            config.make_game(), config.eval_opponent_simulations
+        )
+    if config.eval_opponent == "minimax":
+        return tic_tac_toe_minimax.minimax_player
+    return random_player
+
+
+def eval_player(net_params: optax.Params, config: Config) -> Player:
+    """Our side in the evaluation: the search (``search_player``) with ``eval_search``, else the
+    greedy network (``network_player``)."""
+    if config.eval_search:
+        return search_player(net_params, config)
+    return network_player(net_params, config)
+
+
 def evaluate(net_params: optax.Params, key: jax.Array, config: Config) -> jax.Array:
-    """The mean outcome (1 win, 0 draw, -1 loss) of the greedy network against a uniformly
-    random player over ``num_eval_games`` games, opening in every other one."""
-    game, learner = config.make_game(), network_player(net_params, config)
+    """The mean outcome (1 win, 0 draw, -1 loss) of our side (``eval_player``: the greedy
+    network, or the search with ``eval_search``) against ``eval_opponent`` (a uniformly random
+    player by default) over ``num_eval_games`` games, opening in every other one."""
+    game, learner = config.make_game(), eval_player(net_params, config)
+    opponent = eval_opponent_player(config)
     init_key, key = jax.random.split(key)
     states = jax.vmap(game.init)(jax.random.split(init_key, config.num_eval_games))
     opens = jnp.arange(config.num_eval_games) % 2 == 0
@@ -456,7 +504,7 @@ def evaluate(net_params: optax.Params, key: jax.Array, config: Config) -> jax.Ar
         states, total = carry
         keys = jax.random.split(key, (2, config.num_eval_games))
         ours = jax.vmap(learner)(states, keys[0])
-        theirs = jax.vmap(random_player)(states, keys[1])
+        theirs = jax.vmap(opponent)(states, keys[1])
         action = jnp.where(states.current_player == learner_id, ours, theirs)
         states = jax.vmap(game.step)(states, action, keys[1])
         reward = jnp.take_along_axis(states.rewards, learner_id[:, None], axis=1)[:, 0]

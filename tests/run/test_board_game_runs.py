@@ -117,6 +117,19 @@ def test_an_unknown_game_on_the_command_line_is_one_error_line(tmp_path):
     assert not (tmp_path / "runs").exists()
 
 
+def test_minimax_evaluation_of_another_game_on_the_command_line_is_one_error_line(tmp_path):
+    env = {**os.environ, "PYTHONPATH": python_path(ROOT), "TF_CPP_MIN_LOG_LEVEL": "3"}
+    script = ROOT / "experiments" / "train.py"
+    command = [sys.executable, str(script), "--algo", "alphazero", "--env", "pgx/connect_four"]
+    command += ["--eval-opponent", "minimax"]
+    done = subprocess.run(command, cwd=tmp_path, env=env, capture_output=True, text=True)
+    assert done.returncode != 0
+    lines = [line for line in done.stderr.splitlines() if line.startswith("error:")]
+    assert len(lines) == 1 and "Traceback" not in done.stderr
+    assert "'minimax' is exact tic-tac-toe only" in lines[0] and "'mcts'" in lines[0]
+    assert not (tmp_path / "runs").exists()
+
+
 def test_only_alphazero_owns_env_ids():
     for name in learners.ALGORITHMS:
         learner = learners.resolve(name)
