@@ -132,7 +132,7 @@ train: install ## train TD3 on half cheetah, 5 seeds in one compiled program
 UPGRADE ?=
 lock: ## regenerate requirements.lock from pyproject.toml (needs network; UPGRADE=1: newest in range)
 	@test -x $(BIN)/pip-compile || $(MAKE) install
-	$(BIN)/pip-compile --quiet --extra test --extra dev --extra docs --extra tracking --extra minatar \
+	$(BIN)/pip-compile --quiet --extra test --extra dev --extra docs --extra tracking --extra minatar --extra atari \
 		--strip-extras \
 		--generate-hashes --allow-unsafe --no-emit-index-url --no-emit-find-links \
 		$(if $(UPGRADE),--upgrade) -o requirements.lock pyproject.toml
