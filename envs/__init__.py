@@ -6,7 +6,8 @@ Importing it also registers every id with gymnasium (``gymnasium.make`` and
 ``gymnasium.make_vec(..., vectorization_mode="vector_entry_point")``). The other way round,
 ``envs.from_gymnasium(id_or_env)`` makes any gymnasium env one of ours
 (``envs.adapters.gymnasium_host``), and ``envs.from_gymnax(name)`` any gymnax env
-(``envs.adapters.gymnax_adapter``).
+(``envs.adapters.gymnax_adapter``) and ``envs.from_atari(game)`` any ALE game with DQN's
+preprocessing (``envs.adapters.atari``).
 """
 
 if __name__ == "envs":  # the folder imported by its own name, from a checkout's root
@@ -15,6 +16,7 @@ if __name__ == "envs":  # the folder imported by its own name, from a checkout's
     )
 
 from rl_jax.envs.adapters import external_ids as _external_ids  # noqa: F401  (resolves MODULE:ID)
+from rl_jax.envs.adapters.atari import from_atari  # imports ale-py on its first call
 from rl_jax.envs.adapters.gym_adapter import register_with_gymnasium
 from rl_jax.envs.adapters.gymnasium_host import from_gymnasium
 from rl_jax.envs.adapters.gymnax_adapter import from_gymnax  # imports gymnax on its first call
@@ -32,6 +34,7 @@ from rl_jax.envs.core.preprocessing import (
     reset_after,
 )
 from rl_jax.envs.core.registry import (
+    ATARI_IDS,
     MINATAR_IDS,
     UnknownEnvError,
     make,
@@ -66,6 +69,7 @@ __all__ = [
     "FlattenObservation",
     "FrameSkip",
     "FrameStack",
+    "from_atari",
     "from_gymnasium",
     "from_gymnax",
     "MaskObservation",
@@ -82,6 +86,7 @@ __all__ = [
     "make",
     "parse_keywords",
     "register",
+    "ATARI_IDS",
     "MINATAR_IDS",
     "registered_ids",
     "reset_after",

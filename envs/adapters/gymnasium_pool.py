@@ -67,13 +67,21 @@ class HostPool:
         obs, _ = env.reset(seed=int(seed))
         return np.asarray(obs, np.float32).reshape(self.obs_shape)
 
-    def start_observations(self, seeds: np.ndarray) -> np.ndarray:
-        """Each seed's start observation, from a scratch env (no episode is started)."""
+    def start_observations(self, seeds: np.ndarray, needed: np.ndarray | None = None) -> np.ndarray:
+        """Each seed's start observation, from a scratch env (no episode is started). With
+        ``needed`` (a bool per seed), only those seeds' starts are computed, zeros elsewhere:
+        an autoreset keeps a start only where an episode ended, and an env whose reset is
+        expensive (an Atari game's no-op start) should not pay for the others."""
+        seeds = np.asarray(seeds)
+        flat = seeds.reshape(-1)
+        wanted = np.ones(flat.shape, bool) if needed is None else np.asarray(needed).reshape(-1)
+        starts = np.zeros(flat.shape + self.obs_shape, np.float32)
         with self._lock:
-            if self._scratch is None:
-                self._scratch = self._take_env()
-            starts = [self._reset(self._scratch, seed) for seed in np.asarray(seeds).reshape(-1)]
-        return np.stack(starts).reshape(np.shape(seeds) + self.obs_shape)
+            for lane in np.flatnonzero(wanted):
+                if self._scratch is None:
+                    self._scratch = self._take_env()
+                starts[lane] = self._reset(self._scratch, flat[lane])
+        return starts.reshape(seeds.shape + self.obs_shape)
 
     def step(self, rows: np.ndarray) -> np.ndarray:
         """One step of every env: ``rows`` [..., IN_WIDTH] -> [..., OUT_WIDTH] (see ``_pack``

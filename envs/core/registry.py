@@ -46,6 +46,11 @@ _ENTRY_POINTS: dict[str, str | Callable[..., Environment]] = {
     "rl_jax/SpaceInvaders-MinAtar": "rl_jax.envs.adapters.gymnax_adapter:space_invaders_minatar",
     "rl_jax/Asterix-MinAtar": "rl_jax.envs.adapters.gymnax_adapter:asterix_minatar",
     "rl_jax/Freeway-MinAtar": "rl_jax.envs.adapters.gymnax_adapter:freeway_minatar",
+    # Atari 2600 games through ale-py, with DQN's preprocessing (envs/adapters/atari.py)
+    "rl_jax/Pong-Atari": "rl_jax.envs.adapters.atari:pong",
+    "rl_jax/Breakout-Atari": "rl_jax.envs.adapters.atari:breakout",
+    "rl_jax/SpaceInvaders-Atari": "rl_jax.envs.adapters.atari:space_invaders",
+    "rl_jax/Seaquest-Atari": "rl_jax.envs.adapters.atari:seaquest",
 }
 
 #: The MinAtar games' ids: envs observed as 10x10xC grids of 0/1, which the learners see through
@@ -54,6 +59,11 @@ MINATAR_IDS = tuple(
     f"rl_jax/{game}-MinAtar" for game in ("Breakout", "SpaceInvaders", "Asterix", "Freeway")
 )
 
+#: The Atari games' ids: envs observed as 4 stacked 84x84 frames, which the learners see through
+#: a conv torso (their ``PIXEL_ENVS``); ``envs.from_atari`` makes any other ALE game.
+ATARI_IDS = tuple(
+    f"rl_jax/{game}-Atari" for game in ("Pong", "Breakout", "SpaceInvaders", "Seaquest")
+)
 
 # id -> episode limit, known without importing the env module: gymnasium's registration (its
 # ``spec.max_episode_steps`` and TimeLimit) needs it before MuJoCo is imported. It must equal the
@@ -90,6 +100,11 @@ _MAX_EPISODE_STEPS: dict[str, int] = {
     "rl_jax/SpaceInvaders-MinAtar": 1000,
     "rl_jax/Asterix-MinAtar": 1000,
     "rl_jax/Freeway-MinAtar": 2500,
+    # ALE v5's 108,000 frames, in agent steps of 4 frames
+    "rl_jax/Pong-Atari": 27000,
+    "rl_jax/Breakout-Atari": 27000,
+    "rl_jax/SpaceInvaders-Atari": 27000,
+    "rl_jax/Seaquest-Atari": 27000,
 }
 
 
