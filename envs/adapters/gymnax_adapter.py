@@ -202,25 +202,25 @@ def _minatar(game: str, sticky_actions: float = 0.0, **kwargs: object) -> Enviro
     return StickyActions(env, sticky_actions, reset_action=0)
 
 
-def breakout_minatar(**kwargs: object) -> Environment:
+def breakout_minatar(sticky_actions: float = 0.0, **kwargs: object) -> Environment:
     """gymnax's ``Breakout-MinAtar`` (registered as ``rl_jax/Breakout-MinAtar``);
     ``sticky_actions=p`` as in the original MinAtar (``_minatar``)."""
-    return _minatar("Breakout", **kwargs)
+    return _minatar("Breakout", sticky_actions, **kwargs)
 
 
-def space_invaders_minatar(**kwargs: object) -> Environment:
+def space_invaders_minatar(sticky_actions: float = 0.0, **kwargs: object) -> Environment:
     """gymnax's ``SpaceInvaders-MinAtar`` (registered as ``rl_jax/SpaceInvaders-MinAtar``);
     ``sticky_actions=p`` as in the original MinAtar (``_minatar``)."""
-    return _minatar("SpaceInvaders", **kwargs)
+    return _minatar("SpaceInvaders", sticky_actions, **kwargs)
 
 
-def asterix_minatar(**kwargs: object) -> Environment:
+def asterix_minatar(sticky_actions: float = 0.0, **kwargs: object) -> Environment:
     """gymnax's ``Asterix-MinAtar`` (registered as ``rl_jax/Asterix-MinAtar``);
     ``sticky_actions=p`` as in the original MinAtar (``_minatar``)."""
-    return _minatar("Asterix", **kwargs)
+    return _minatar("Asterix", sticky_actions, **kwargs)
 
 
-def freeway_minatar(**kwargs: object) -> Environment:
+def freeway_minatar(sticky_actions: float = 0.0, **kwargs: object) -> Environment:
     """gymnax's ``Freeway-MinAtar`` (registered as ``rl_jax/Freeway-MinAtar``);
     ``sticky_actions=p`` as in the original MinAtar (``_minatar``)."""
-    return _minatar("Freeway", **kwargs)
+    return _minatar("Freeway", sticky_actions, **kwargs)

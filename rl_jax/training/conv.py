@@ -6,6 +6,7 @@ dense layers; and the initialisers the two modules share.
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Callable, Sequence
 
 import flax.linen as nn
@@ -168,17 +169,27 @@ class MatmulConv(nn.Module):
             )
             kernel = kernel.transpose(0, 2, 1, 3, 4, 5).reshape(-1, features)
             y = patches.astype(self.dtype) @ kernel.astype(self.dtype)
-            return y + jnp.reshape(bias.astype(self.dtype), (1,) * (y.ndim - 1) + (-1,))
+        else:
+            y = self._summed_products(x, kernel, out, blocks)
+        return y + jnp.reshape(bias.astype(self.dtype), (1,) * (y.ndim - 1) + (-1,))
+
+    def _summed_products(
+        self, x: jax.Array, kernel: jax.Array, out: tuple[int, int], blocks: tuple[int, int]
+    ) -> jax.Array:
+        """The conv as every block's product with all the taps' weights, then the sum of the
+        taps' shifted slices (``x``: space-to-depth blocks; ``kernel``: [m, s, m, s, C, F])."""
+        taps, s, _, _, channels, features = kernel.shape
+        lead = x.shape[:-3]
         # [tap row, row in block, tap col, col in block, C, F] -> [(row, col, C), (taps, F)]
         kernel = kernel.transpose(1, 3, 4, 0, 2, 5).reshape(s * s * channels, -1)
         products = x.astype(self.dtype) @ kernel.astype(self.dtype)
         products = products.reshape(*lead, blocks[0], blocks[1], taps, taps, features)
-        y = sum(
+        slices = [
             products[..., u : u + out[0], v : v + out[1], u, v, :]
             for u in range(taps)
             for v in range(taps)
-        )
-        return y + jnp.reshape(bias.astype(self.dtype), (1,) * (y.ndim - 1) + (-1,))
+        ]
+        return functools.reduce(jnp.add, slices)
 
 
 class ConvTorso(nn.Module):
