@@ -118,8 +118,9 @@ class Config:
         return envs.make(self.env_id, **envs.parse_keywords(self.env_kwargs))
 
 
-#: Envs observed as stacked frames: their config is a ``PixelConfig``.
-PIXEL_ENVS = ("rl_jax/CartPolePixels-v1",)
+#: Envs observed as stacked frames: their config is a ``PixelConfig`` (the Atari games: the
+#: Nature DQN torso is ``--conv-layers 32,8,4,64,4,2,64,3,1 --hidden 512``).
+PIXEL_ENVS = ("rl_jax/CartPolePixels-v1", *envs.ATARI_IDS)
 
 
 @dataclasses.dataclass(frozen=True, kw_only=True)

@@ -157,8 +157,9 @@ class ImageConfig(Config, ImageObservations):
         return ()
 
 
-#: Envs observed as stacked frames: their config is a ``PixelConfig``.
-PIXEL_ENVS = ("rl_jax/CartPolePixels-v1",)
+#: Envs observed as stacked frames: their config is a ``PixelConfig`` (the Atari games: the
+#: Nature DQN torso is ``--conv-layers 32,8,4,64,4,2,64,3,1 --hidden 512``).
+PIXEL_ENVS = ("rl_jax/CartPolePixels-v1", *envs.ATARI_IDS)
 
 
 @dataclasses.dataclass(frozen=True, kw_only=True)
@@ -599,7 +600,7 @@ RECIPES = Recipes(
         "the CartPole recipe on frames: DQN's conv torso, 16 envs x 64 steps (untuned)",
         PIXELS_CONFIG,
         CARTPOLE_HPARAMS,
-        envs=PIXEL_ENVS,
+        envs=("rl_jax/CartPolePixels-v1",),
         total_steps=500_000,
     ),
     Recipe(
