@@ -45,10 +45,10 @@ frames), so this env's ``reset_after`` (the reset an autoreset calls) computes s
 the envs whose game ended and hands the others zeros, which the autoreset discards.
 
 Why not ale-py's ``AtariVectorEnv`` or envpool, which preprocess in C++ threads: on a 2-core
-machine they stepped Pong about as fast as the sequential gymnasium envs (docs/using_envs.md,
-"Atari through the ALE", has the numbers), and neither lets each lane reset from its own seed,
-which the adapter's seeding, lazy start and vmap over seeds rest on. envpool also needs asset
-packages of its own besides.
+machine they stepped Pong only about 1.3 times as fast as the gymnasium envs one after another
+(docs/using_envs.md, "Atari through the ALE", has the numbers), and neither resets each lane
+from a seed of its own, which the adapter's seeding, lazy start and vmaps over seeds rest on.
+envpool also needs asset packages of its own (its import fails without them).
 
 ale-py and OpenCV are imported when the first Atari env is made, not with ``rl_jax.envs``:
 ``make install`` installs them (the ``atari`` extra).
