@@ -596,6 +596,32 @@ MINATAR_HPARAMS: dict[str, Setting] = {
     "epsilon_decay_steps": 100_000.0,
 }
 
+# Atari: Nature DQN (Mnih et al. 2015): its network (32 8x8/4, 64 4x4/2, 64 3x3/1, 512 units), a
+# replay of 1M steps filled with 50k random steps first (13 GB per seed, as much again while a
+# checkpoint is written; --buffer-size scales it down), one update per 4 env steps, batch 32, a
+# hard target copy every 10,000 updates, gamma 0.99, epsilon 1 to 0.1 over the first 1M steps,
+# step size 2.5e-4 (Adam here, RMSProp there), a lost life ending the episode, rewards clipped to
+# their sign, up to 30 no-op starts and no sticky actions. Not yet run to a result here.
+NATURE_CONFIG: dict[str, Setting] = {
+    "env_kwargs": "episodic_life=True, clip_rewards=True, repeat_action_probability=0.0",
+    "num_envs": 4,
+    "updates_per_iteration": 1,
+    "iterations_per_chunk": 62_500,  # evaluated every 250k env steps
+    "learning_starts": 50_000,
+    "buffer_size": 1_000_000,
+    "batch_size": 32,
+    "hidden": (512,),
+    "conv_layers": (32, 8, 4, 64, 4, 2, 64, 3, 1),
+    "target_update_period": 10_000,
+}
+NATURE_HPARAMS: dict[str, Setting] = {
+    "learning_rate": 2.5e-4,
+    "gamma": 0.99,
+    "epsilon_start": 1.0,
+    "epsilon_end": 0.1,
+    "epsilon_decay_steps": 1_000_000.0,
+}
+
 _ABOUT = {
     "rl_jax/CartPole-v1": "64x64, 3-step returns, rate 3e-3, TD7's policy checkpoints",
     "rl_jax/CartPolePixels-v1": "conv torso, Double DQN, 3-step returns, LayerNorm, rate to 0",
@@ -625,6 +651,14 @@ RECIPES = Recipes(
         MINATAR_HPARAMS,
         envs=IMAGE_ENVS,
         total_steps=5_000_000,
+    ),
+    Recipe(
+        "nature",
+        "Nature DQN: its conv torso + 512, 1M replay, lives and reward signs (not yet run here)",
+        NATURE_CONFIG,
+        NATURE_HPARAMS,
+        envs=envs.ATARI_IDS,
+        total_steps=10_000_000,
     ),
 )
 
