@@ -176,7 +176,9 @@ class AtariHost(HostGymnasiumEnv):
         self, key: PRNGKey, state: HostEnvState, timestep: TimeStep, params: EnvParams | None = None
     ):
         """``reset(key)`` where the episode ended, zeros elsewhere (where an autoreset keeps
-        the running episode): only the ended episodes pay a host reset."""
+        the running episode): only the ended episodes pay a host reset. Ended is the host's
+        flags or the timestep's, so that a wrapper above that ends episodes of its own still
+        gets real starts (under ``EpisodicLife`` a lost life pays one that is not used)."""
         ended = state.terminated | state.truncated | timestep.terminated | timestep.truncated
         seed = jax.random.bits(key, (), jnp.uint32)
         shape = jax.ShapeDtypeStruct(self._observation_space.shape, jnp.float32)
