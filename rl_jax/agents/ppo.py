@@ -177,7 +177,9 @@ IMAGE_ENVS = envs.MINATAR_IDS
 class ImageConfig(Config, ImageObservations):
     """PPO on image observations (``IMAGE_ENVS``): as ``PixelConfig``, a conv torso and hidden
     layers shared by actor and critic, by default the MinAtar paper's network (16 3x3 filters of
-    stride 1, then 128 units). The torso scales observations by the space's upper bound."""
+    stride 1, then 128 units). The torso scales observations by the space's upper bound. Without
+    conv layers (``conv_layers=()``) the actor and the critic are MLPs of their own on the
+    flattened image (gymnax-blines' MinAtar network: ``hidden=(256, 256)``)."""
 
     hidden: tuple[int, ...] = (128,)
     activation: networks.Activation = "relu"
@@ -230,6 +232,7 @@ def make_network(config: Config) -> ActorCritic:
         conv_layers=conv_layers,
         conv_rows=config.conv_rows() if isinstance(config, PixelConfig) and conv_layers else (),
         obs_high=_obs_high(config) if isinstance(config, ImageConfig) else 255.0,
+        flatten_image=isinstance(config, ImageConfig) and not conv_layers,
     )
 
 

@@ -196,6 +196,8 @@ class ActorCritic(nn.Module):
     conv_layers: tuple[int, ...] = ()  # set: obs are frames [..., H, W, C], torso shared
     conv_rows: tuple[int, ...] = ()  # (first, stop): the frame rows the conv torso sees
     obs_high: float = 255.0  # images' largest value, scaled to 1 by the conv torso
+    # without conv layers: image observations [..., H, W, C] flattened before the MLPs
+    flatten_image: bool = False
 
     def setup(self) -> None:
         """Builds the torsos (one conv torso shared on frames), the heads and, for a
@@ -217,10 +219,14 @@ class ActorCritic(nn.Module):
                 "log_std", lambda _, shape: jnp.full(shape, start), (self.action_dim,)
             )
 
+    def _flat(self, obs: jax.Array) -> jax.Array:
+        return obs.reshape(obs.shape[:-3] + (-1,)) if self.flatten_image else obs
+
     def _features(self, obs: jax.Array) -> tuple[jax.Array, jax.Array]:
         if self.conv_layers:
             shared = self.actor_torso(self.conv(obs))
             return shared, shared
+        obs = self._flat(obs)
         return self.actor_torso(obs), self.critic_torso(obs)
 
     def __call__(self, obs: jax.Array) -> dict[str, jax.Array]:
@@ -236,7 +242,7 @@ class ActorCritic(nn.Module):
         """The critic's values ``[...]`` of ``obs``."""
         if self.conv_layers:
             return self.value_head(self.actor_torso(self.conv(obs)))[..., 0]
-        return self.value_head(self.critic_torso(obs))[..., 0]
+        return self.value_head(self.critic_torso(self._flat(obs)))[..., 0]
 
 
 def outputs(

@@ -38,6 +38,25 @@ def test_recipes_give_the_minatar_torso(env_id):
     assert float(ppo.default_hyperparams(env_id).gamma) == pytest.approx(0.999)
 
 
+def test_ppo_without_conv_layers_has_two_mlps_on_the_flattened_grid():
+    """``conv_layers=()``: gymnax-blines' MinAtar network, the actor and the critic each an MLP
+    of their own on the flattened 10x10x4 grid, giving what the same layers give on the flat
+    vector."""
+    config = ppo.default_config(BREAKOUT, conv_layers=(), hidden=(8, 8))
+    network = ppo.make_network(config)
+    grids = (jax.random.uniform(jax.random.key(0), (3, 10, 10, 4)) > 0.8).astype(jnp.float32)
+    params = jax.jit(network.init)(jax.random.key(1), grids)["params"]
+    assert params["actor_torso"]["Dense_0"]["kernel"].shape == (400, 8)
+    assert params["critic_torso"]["Dense_0"]["kernel"].shape == (400, 8)
+    flat = grids.reshape(3, 400)
+    out = network.apply({"params": params}, grids)
+    expected = network.clone(flatten_image=False).apply({"params": params}, flat)
+    np.testing.assert_allclose(out["logits"], expected["logits"], rtol=1e-6)
+    np.testing.assert_allclose(out["value"], expected["value"], rtol=1e-6)
+    values = network.apply({"params": params}, grids, method="value")
+    np.testing.assert_allclose(values, expected["value"], rtol=1e-6)
+
+
 def test_image_configs_refuse_what_does_not_fit():
     with pytest.raises(ValueError, match="not images"):
         dqn.ImageConfig(env_id="rl_jax/CartPole-v1")
