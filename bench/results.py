@@ -243,6 +243,16 @@ def _minatar_rows() -> dict[str, Row]:
             " the mean of 100 training episodes at epsilon 0.1, 30 runs)",
             Goal(figure, 5, "final", mean=True),
         )
+    for game in ("Breakout", "SpaceInvaders"):
+        env = f"rl_jax/{game}-MinAtar"
+        for algo, label in (("c51", "C51"), ("qrdqn", "QR-DQN")):
+            rows[f"{algo}-{game.lower()}-minatar"] = Row(
+                f"{label}, `{env}` (sticky actions 0.1)",
+                "train.py",
+                ("--algo", algo, "--env", env),
+                5,
+                f"the DQN row on {game} beside it (the same recipe with {label}'s head)",
+            )
     return rows
 
 
@@ -390,6 +400,16 @@ ROWS: dict[str, Row] = {
         3,
         "users' DQN-from-pixels tutorial ('much slower and harder'); 500 is the maximum",
         Goal(450.0, 3, "final", 30.0),
+    ),
+    # PQN from CartPole's frames (its pixel recipe): the issue's goal for pixel CartPole, a final
+    # policy at 450 or above in 9 of 10 seeds (the row's evaluations are 10 episodes each).
+    "pqn-cartpole-pixels": Row(
+        "PQN from pixels, `rl_jax/CartPolePixels-v1`",
+        "train.py",
+        ("--algo", "pqn", "--env", "rl_jax/CartPolePixels-v1"),
+        10,
+        "DQN from pixels' row; 500 is the maximum",
+        Goal(450.0, 9, "final"),
     ),
     "td3-double-pendulum": Row(
         "TD3, `rl_jax/InvertedDoublePendulum-v5`",
