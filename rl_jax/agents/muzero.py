@@ -18,6 +18,13 @@ network, step ``tau``) of the stored next observations (``muzero_parts.unroll_lo
 
 A *chunk* is ``iterations_per_chunk`` iterations, then one evaluation of the deterministic
 search (no Gumbel noise): ``num_envs * num_steps * iterations_per_chunk`` env steps.
+
+With ``model = "simulator"`` the model is the env itself (``muzero_simulator``): AlphaZero on a
+single-agent env. The search starts from each env's state and steps the true env; the network is
+only the prediction ``f(obs) -> (policy, value)``, trained at the window's first step (K = 0, no
+reward loss) towards the same targets. Acting and the learner's evaluation search from env
+states; ``policy`` (``load_policy``, GIFs, ``rl-jax evaluate``) sees only an observation, so there
+it is the prediction network's greedy action, without a search.
 """
 
 from __future__ import annotations
@@ -25,7 +32,7 @@ from __future__ import annotations
 import dataclasses
 import functools
 from collections.abc import Callable
-from typing import NamedTuple
+from typing import Any, NamedTuple
 
 import flax.linen as nn
 import jax
@@ -36,6 +43,7 @@ from flax import struct
 
 from rl_jax import envs
 from rl_jax.agents import muzero_parts as parts
+from rl_jax.agents import muzero_simulator as simulator
 from rl_jax.agents.common import (
     clip_by_global_norm,
     injected_step,
@@ -50,6 +58,7 @@ from rl_jax.training.params import Scalar
 from rl_jax.training.recipes import Recipe, Recipes, Setting
 
 BOOTSTRAPS = ("target", "search")
+MODELS = ("learned", "simulator")
 
 
 # ---- settings -------------------------------------------------------------------------------
@@ -79,6 +88,9 @@ class Config:
     value_support: int = 20  # values are categorical on the integers -S .. S after h
     reward_support: int = 5  # rewards are categorical on -S .. S after h
     num_eval_envs: int = 10  # episodes of the deterministic search per evaluation
+    # the search's model: "learned", MuZero's networks; "simulator", the true env stepped from
+    # the env states (AlphaZero on a single-agent env: K = 0, no reward or dynamics to learn)
+    model: str = "learned"
 
     def __post_init__(self) -> None:
         for name in (
@@ -100,22 +112,30 @@ class Config:
                 raise ValueError(f"{name} must be >= 1, got {getattr(self, name)}")
         if self.bootstrap not in BOOTSTRAPS:
             raise ValueError(f"bootstrap must be one of {BOOTSTRAPS}, got {self.bootstrap!r}")
+        if self.model not in MODELS:
+            raise ValueError(f"model must be one of {MODELS}, got {self.model!r}")
         if self.replay_rows < self.num_steps:
             raise ValueError(
                 f"buffer_size ({self.buffer_size}) must hold one iteration's num_steps "
                 f"({self.num_steps}) in each of the {self.num_envs} envs"
             )
         if self.replay_rows <= self.window:
+            unrolled = "unroll_steps" if self.model == "learned" else "0 (the simulator)"
             raise ValueError(
                 f"buffer_size ({self.buffer_size}) must hold more than one window of "
-                f"unroll_steps + td_steps + 1 = {self.window} steps in each of the "
+                f"{unrolled} + td_steps + 1 = {self.window} steps in each of the "
                 f"{self.num_envs} envs"
             )
 
     @property
+    def unrolled(self) -> int:
+        """Steps the model is unrolled in training: ``unroll_steps``, 0 with the simulator."""
+        return 0 if self.model == "simulator" else self.unroll_steps
+
+    @property
     def window(self) -> int:
-        """Consecutive steps one training sample reads: ``unroll_steps + td_steps + 1``."""
-        return self.unroll_steps + self.td_steps + 1
+        """Consecutive steps one training sample reads: ``unrolled + td_steps + 1``."""
+        return self.unrolled + self.td_steps + 1
 
     @property
     def replay_rows(self) -> int:
@@ -187,11 +207,14 @@ class MuZeroNet(nn.Module):
 
 
 @functools.lru_cache(maxsize=64)
-def make_network(config: Config) -> MuZeroNet:
-    """The networks for ``config`` (cached: called at every trace)."""
+def make_network(config: Config) -> MuZeroNet | simulator.PredictionNet:
+    """The networks for ``config`` (cached: called at every trace): the prediction network
+    alone with the simulator as the model."""
     space = episodes.action_space(config)
     if not isinstance(space, envs.Discrete):
         raise TypeError(f"MuZero needs discrete actions; {config.env_id} has {space}")
+    if config.model == "simulator":
+        return simulator.PredictionNet(space.n, config.hidden, 2 * config.value_support + 1)
     return MuZeroNet(
         num_actions=space.n,
         latent_size=config.latent_size,
@@ -202,8 +225,19 @@ def make_network(config: Config) -> MuZeroNet:
 
 
 def model_fns(net_params: Params, config: Config) -> tuple[parts.InitialFn, parts.RecurrentFn]:
-    """The network's ``(initial, recurrent)`` functions with ``net_params`` bound."""
+    """The network's ``(initial, recurrent)`` functions with ``net_params`` bound. With the
+    simulator, ``initial`` is the prediction network's (the observation is its hidden state)
+    and there is no ``recurrent`` to call (K = 0)."""
     network = make_network(config)
+    if isinstance(network, simulator.PredictionNet):
+
+        def predict_initial(obs: jax.Array) -> tuple[jax.Array, jax.Array, jax.Array]:
+            return network.apply(net_params, obs, method=simulator.PredictionNet.initial)  # type: ignore[return-value]
+
+        def no_recurrent(latent: jax.Array, action: jax.Array) -> Any:
+            raise ValueError("the simulator is the model: there is no learned dynamics")
+
+        return predict_initial, no_recurrent
 
     def initial(obs: jax.Array) -> tuple[jax.Array, jax.Array, jax.Array]:
         return network.apply(net_params, obs, method=MuZeroNet.initial)  # type: ignore[return-value]
@@ -291,6 +325,26 @@ def search(
     )
 
 
+def simulator_search(
+    agent: Agent,
+    env_state: object,
+    obs: jax.Array,
+    key: jax.Array,
+    config: Config,
+    gumbel_scale: float = 1.0,
+) -> mctx.PolicyOutput:
+    """The search with the simulator as the model (``muzero_simulator.search``) from the eval
+    env's states ``env_state [B, ...]``, observed as ``obs``."""
+    network = make_network(config)
+
+    def predict(obs: jax.Array) -> tuple[jax.Array, jax.Array]:
+        return network.apply(agent.params, obs, method=simulator.PredictionNet.predict)  # type: ignore[return-value]
+
+    settings = (config.num_simulations, config.max_considered_actions, config.value_support)
+    env = episodes.make_eval_env(config)
+    return simulator.search(predict, env, env_state, obs, key, agent.gamma, settings, gumbel_scale)
+
+
 def act(agent: Agent, obs: jax.Array, config: Config) -> jax.Array:
     """The deterministic policy of observations ``[B, ...]``: the search's action without
     Gumbel noise (the key is then unused)."""
@@ -314,7 +368,11 @@ def collect(state: TrainState, key: jax.Array, config: Config) -> tuple[TrainSta
     ) -> tuple[tuple[StatisticsState, jax.Array], Steps]:
         env_state, obs = carry
         search_key, env_key = jax.random.split(key)
-        output = search(state.agent, obs, search_key, config)
+        if config.model == "simulator":  # the train env's state under its wrappers: the eval env's
+            inner = env_state.env_state
+            output = simulator_search(state.agent, inner, obs, search_key, config)
+        else:
+            output = search(state.agent, obs, search_key, config)
         keys = jax.random.split(env_key, config.num_envs)
         env_state, ts = jax.vmap(env.step)(keys, env_state, output.action)
         ended = jnp.logical_or(ts.terminated, ts.truncated)
@@ -415,7 +473,7 @@ def targets(
     agent: Agent, windows: Replay, hparams: Hyperparams, config: Config
 ) -> tuple[jax.Array, jax.Array, jax.Array]:
     """``(policy [K + 1, B, A], value [K + 1, B], reward [K, B])`` targets of windows."""
-    k, n = config.unroll_steps, config.td_steps
+    k, n = config.unrolled, config.td_steps
     steps = k + n  # the steps whose value of the next observation the targets read
     initial, _ = model_fns(agent.target_params, config)
     next_obs = windows.next_obs[:steps]
@@ -443,8 +501,9 @@ def loss_fn(
     config: Config,
     weight: jax.Array | None = None,
 ) -> tuple[jax.Array, dict[str, jax.Array]]:
-    """``(loss, metrics)`` of a batch of windows: ``muzero_parts.unroll_loss``."""
-    k = config.unroll_steps
+    """``(loss, metrics)`` of a batch of windows: ``muzero_parts.unroll_loss`` (K = 0 with the
+    simulator: the policy and value losses at the window's first step)."""
+    k = config.unrolled
     initial, recurrent = model_fns(net_params, config)
     policy, value, reward = targets
     return parts.unroll_loss(
@@ -575,8 +634,28 @@ def train_chunk(
         state,
         lambda s: train_iteration(s, config, hparams),
         config.iterations_per_chunk,
-        lambda s, key: episodes.evaluate(act, s.agent, config, key),
+        lambda s, key: evaluate(s.agent, config, key),
     )
+
+
+def evaluate(agent: Agent, config: Config, key: jax.Array) -> jax.Array:
+    """Mean return of ``num_eval_envs`` episodes of the deterministic search (no Gumbel noise);
+    with the simulator it searches from the eval envs' states (the search's key fixed)."""
+    if config.model == "learned":
+        return episodes.evaluate(act, agent, config, key)
+
+    def search_act(env_state: object, obs: jax.Array) -> jax.Array:
+        return simulator_search(agent, env_state, obs, jax.random.key(0), config, 0.0).action
+
+    env = episodes.make_eval_env(config)
+    return jnp.mean(simulator.episode_returns(search_act, env, key, config.num_eval_envs))
+
+
+def greedy_act(agent: Agent, obs: jax.Array, config: Config) -> jax.Array:
+    """The prediction network's greedy action of observations ``[B, ...]`` (no search): the
+    simulator model's policy where only an observation is at hand."""
+    initial, _ = model_fns(agent.params, config)
+    return jnp.argmax(initial(obs)[1], axis=-1)
 
 
 # ---- recipes --------------------------------------------------------------------------------
@@ -648,8 +727,11 @@ class MuZero(RecipeBook):
         return config.replay_rows * config.num_envs
 
     def policy(self, state: TrainState, config: Config) -> Callable[..., jax.Array]:
-        """``obs -> action``: the deterministic search's action from one observation."""
-        return lambda obs, legal=None: act(state.agent, obs[None], config)[0]
+        """``obs -> action``: the deterministic search's action from one observation; with the
+        simulator as the model (which needs the env's state, not at hand here) the prediction
+        network's greedy action."""
+        choose = greedy_act if config.model == "simulator" else act
+        return lambda obs, legal=None: choose(state.agent, obs[None], config)[0]
 
     def make_env(self, config: Config) -> envs.Environment:
         """The env the policy acts in, for rendering."""

@@ -98,7 +98,8 @@ def unroll_masks(terminated_t: jax.Array, truncated_t: jax.Array) -> tuple[jax.A
     termination: the unrolled model is then in an absorbing state of value 0 and reward 0, which
     it learns as such. Past a truncation the continuation is unknown: both are 0 there."""
     ended = jnp.logical_or(terminated_t, truncated_t).astype(jnp.int32)
-    ends_before = jnp.concatenate([jnp.zeros_like(ended[:1]), jnp.cumsum(ended, axis=0)], axis=0)
+    start = jnp.zeros((1, *ended.shape[1:]), ended.dtype)  # K = 0 too: one step, alive
+    ends_before = jnp.concatenate([start, jnp.cumsum(ended, axis=0)], axis=0)
     alive = ends_before == 0
     # the first end decides: it was a termination where no step before it ended anything
     first_end = jnp.logical_and(ended == 1, ends_before[:-1] == 0)

@@ -16,6 +16,8 @@ import pytest
 import rl_jax
 from rl_jax.agents import muzero as mz
 from rl_jax.agents import muzero_parts as parts
+from rl_jax.agents import muzero_simulator as sim
+from rl_jax.training import episodes
 
 CARTPOLE = "rl_jax/CartPole-v1"
 TINY = dict(
@@ -321,5 +323,134 @@ def test_a_tiny_run_trains_and_its_policy_loads(tmp_path):
     )
     assert run.run_dir.exists()
     policy = rl_jax.load_policy(tmp_path / "run")
+    for obs in ([0.0, 0.0, 0.0, 0.0], [0.05, 0.3, -0.1, -0.4]):
+        assert int(policy(np.array(obs, np.float32))) in (0, 1)
+
+
+# ---- the simulator as the model ---------------------------------------------------------------
+SIMULATOR = dict(TINY, model="simulator")
+BALANCED, FALLING = [0.0, 0.0, 0.0, 0.0], [0.0, 0.0, 0.2, 2.0]  # the pole tips over next step
+
+
+def cartpole_states(vectors):
+    """The eval env's states ``[B, ...]`` and observations from CartPole's state vectors."""
+    config = mz.default_config(CARTPOLE, **SIMULATOR)
+    env = episodes.make_eval_env(config)
+    state, ts = jax.vmap(env.reset_to)(jnp.array(vectors, jnp.float32))
+    return config, env, state, ts.obs
+
+
+def test_model_is_validated_and_the_simulator_trains_at_the_first_step_only():
+    with pytest.raises(ValueError, match="model"):
+        mz.default_config(CARTPOLE, **dict(TINY, model="learnt"))
+    learned, simulated = (
+        mz.default_config(CARTPOLE, **TINY),
+        mz.default_config(CARTPOLE, **SIMULATOR),
+    )
+    assert learned.model == "learned" and learned.window == 2 + 2 + 1
+    assert simulated.unrolled == 0 and simulated.window == 2 + 1
+    alive, absorbing = parts.unroll_masks(jnp.zeros((0, 3), bool), jnp.zeros((0, 3), bool))
+    np.testing.assert_array_equal(alive, [[1.0, 1.0, 1.0]])
+    np.testing.assert_array_equal(absorbing, [[0.0, 0.0, 0.0]])
+
+
+def test_simulator_steps_equal_the_env_and_a_terminal_absorbs():
+    config, env, state, obs = cartpole_states([BALANCED, FALLING, BALANCED, FALLING])
+    actions = jnp.array([0, 1, 1, 0])
+    key, gamma = jax.random.key(5), jnp.float32(0.9)
+    predict = lambda obs: (jnp.zeros((obs.shape[0], 2)), jnp.zeros((obs.shape[0], 7)))  # noqa: E731
+    recurrent_fn = sim.make_recurrent_fn(env, predict, gamma, config.value_support)
+    node = sim.Node(state, obs, jnp.zeros(4, bool))
+    output, child = recurrent_fn((), key, actions, node)
+    expected_state, ts = jax.vmap(env.step)(jax.random.split(key, 4), state, actions)
+    np.testing.assert_array_equal(ts.terminated, [False, True, False, True])
+    np.testing.assert_array_equal(output.reward, ts.reward)
+    np.testing.assert_allclose(output.discount, 0.9 * (1.0 - ts.terminated))
+    np.testing.assert_array_equal(child.obs, ts.obs)
+    np.testing.assert_array_equal(child.done, ts.terminated)
+    for got, want in zip(
+        jax.tree.leaves(child.state), jax.tree.leaves(expected_state), strict=True
+    ):
+        np.testing.assert_array_equal(got, want)
+    np.testing.assert_array_equal(output.value[jnp.array([1, 3])], 0.0)  # a terminal is worth 0
+    # past a terminal: nothing is paid, nothing discounted in, the state stays where it ended
+    after, grandchild = recurrent_fn((), key, actions, child)
+    np.testing.assert_array_equal(after.reward[jnp.array([1, 3])], 0.0)
+    np.testing.assert_array_equal(after.discount[jnp.array([1, 3])], 0.0)
+    np.testing.assert_array_equal(grandchild.obs[jnp.array([1, 3])], child.obs[jnp.array([1, 3])])
+    np.testing.assert_array_equal(after.reward[jnp.array([0, 2])], 1.0)
+    assert np.all(np.isfinite(after.value)) and np.all(np.isfinite(after.prior_logits))
+
+
+def test_simulator_search_sees_a_failure_one_step_ahead():
+    """From a state whose every action ends the episode the root's q-values are the true
+    terminal reward, 1 (discount 0), whatever the network says; with a network that values every
+    state at v > 1 the falling state's root value ends below the balanced one's."""
+    config, env, state, obs = cartpole_states([BALANCED, FALLING])
+    hparams = mz.default_hyperparams(CARTPOLE)
+    agent = mz.init(jax.random.key(0), config, hparams).agent
+    out = jax.jit(lambda k: mz.simulator_search(agent, state, obs, k, config, 0.0))(
+        jax.random.key(0)
+    )
+    tree = out.search_tree
+    root = jnp.full(2, tree.ROOT_INDEX)
+    visited = np.asarray(tree.children_visits[:, 0] > 0)
+    assert visited[1].any()
+    np.testing.assert_allclose(np.asarray(tree.qvalues(root))[1][visited[1]], 1.0)
+
+    value_logits = jnp.full((7,), -30.0).at[6].set(30.0)  # h(v) = 3 on the support -3 .. 3
+    v = float(parts.logits_to_scalar(value_logits, 3))
+    assert v > 1.0
+    predict = lambda obs: (jnp.zeros((obs.shape[0], 2)), jnp.tile(value_logits, (obs.shape[0], 1)))  # noqa: E731
+    out = sim.search(predict, env, state, obs, jax.random.key(1), 0.99, (8, 2, 3), 0.0)
+    balanced, falling = np.asarray(out.search_tree.summary().value)
+    assert falling < balanced
+    assert falling < (v + 8 * 1.0) / 9 + 1e-4  # the prior and 8 terminal rewards of 1
+    assert balanced > v  # 1 + 0.99 v > v below the root
+
+
+@functools.cache
+def tiny_simulator():
+    config = mz.default_config(CARTPOLE, **SIMULATOR)
+    hparams = mz.default_hyperparams(CARTPOLE)
+    return config, hparams, jax.jit(mz.train_chunk, static_argnums=1)
+
+
+def test_simulator_train_chunk_runs_and_is_deterministic_for_a_seed():
+    config, hparams, train_chunk = tiny_simulator()
+    runs = []
+    for _ in range(2):
+        state = mz.init(jax.random.key(3), config, hparams)
+        state, metrics = train_chunk(state, config, hparams)
+        runs.append((state, metrics))
+    (first, metrics), _ = runs
+    assert int(metrics.updates) > 0
+    for name in ("policy_loss", "value_loss", "root_value"):
+        assert np.isfinite(float(metrics.extra[name])), name
+    assert float(metrics.extra["reward_loss"]) == 0.0  # no model to learn
+    assert np.isfinite(float(metrics.eval_return)) and float(metrics.eval_return) >= 1.0
+    for a, b in zip(jax.tree.leaves(runs[0]), jax.tree.leaves(runs[1]), strict=True):
+        if jnp.issubdtype(a.dtype, jax.dtypes.prng_key):
+            a, b = jax.random.key_data(a), jax.random.key_data(b)
+        np.testing.assert_array_equal(a, b)
+    # the policy of an observation alone is the prediction network's greedy action
+    policy = jax.jit(mz.muzero.policy(first, config))
+    logits = mz.make_network(config).apply(first.agent.params, jnp.zeros((1, 4)), method="predict")[
+        0
+    ]
+    assert int(policy(jnp.zeros(4))) == int(jnp.argmax(logits[0]))
+
+
+def test_a_tiny_simulator_run_trains_and_its_greedy_policy_loads(tmp_path):
+    run = rl_jax.train(
+        "muzero",
+        CARTPOLE,
+        seeds=1,
+        total_steps=24,
+        config=SIMULATOR,
+        out=tmp_path / "run",
+        quiet=True,
+    )
+    policy = rl_jax.load_policy(run.run_dir)
     for obs in ([0.0, 0.0, 0.0, 0.0], [0.05, 0.3, -0.1, -0.4]):
         assert int(policy(np.array(obs, np.float32))) in (0, 1)
