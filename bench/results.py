@@ -303,6 +303,21 @@ def _ppo_mujoco(name: str, label: str, recipe: tuple[str, ...]) -> Row:
     )
 
 
+def _masked_mujoco(name: str, algo: str) -> Row:
+    """``algo`` (recurrent_ppo or ppo) on ``name``-P-v5, the position-only variant, at its
+    recipe for 1M steps, 5 seeds, reported beside PPO's unmasked row of the env: no goal."""
+    label = "Recurrent PPO (LSTM)" if algo == "recurrent_ppo" else "PPO (feed-forward)"
+    env = f"rl_jax/{name}-P-v5"
+    return Row(
+        f"{label}, positions only, `{env}`",
+        "train.py",
+        ("--algo", algo, "--env", env, "--total-steps", "1000000"),
+        5,
+        f"PPO's row on {name}-v5 (unmasked, `ppo-{name.lower()}`); Ni et al. 2022's "
+        f"{name}-P (their PyBullet {name}BLT-P-v0, not these v5 envs)",
+    )
+
+
 def _sac_mujoco(name: str, label: str, *extra: str) -> Row:
     """SAC on ``name``-v5 at the suite's 300k steps, 5 seeds, with ``extra`` flags, against
     SAC's published curve (SAC_CURVE_300K); the goal: its 300k mean, in 30 minutes. Where a SAC
@@ -607,6 +622,14 @@ ROWS: dict[str, Row] = {
         "`include_cfrc_ext_in_observation=False`",
         reference=TIANSHOU_PPO_ANT_TEXT + "; the `ppo-ant` row (with them)",
     ),
+    # Velocity-masked MuJoCo (Ni et al. 2022's position-only "-P" tasks, envs/memory/masked.py):
+    # recurrent PPO at its untuned recipe for them (PPO's vectorised recipe with an LSTM of 128)
+    # and feed-forward PPO at its vectorised recipe, reported beside PPO's unmasked rows.
+    **{
+        f"{prefix}-{name.lower()}-p": _masked_mujoco(name, algo)
+        for name in ("Hopper", "HalfCheetah")
+        for prefix, algo in (("recurrent-ppo", "recurrent_ppo"), ("ppo", "ppo"))
+    },
     # PPO's CartPole recipe over 30 seeds in one program: >= 29 of them end at the maximum, and
     # the whole command (start-up and compilation included) takes at most a minute on 2 cores.
     "ppo-cartpole": Row(

@@ -574,6 +574,12 @@ MUJOCO = tuple(
         "Humanoid",
     )
 )
+# Their position-only variants (envs/memory/masked.py, Ni et al. 2022's "-P" tasks): the
+# vectorised recipe below applies to them unchanged, so feed-forward PPO's rows there are
+# comparable with recurrent_ppo's recipe for them (PPO's settings with an LSTM).
+MUJOCO_POSITIONS = tuple(
+    f"rl_jax/{name}-P-v5" for name in ("Hopper", "Walker2d", "HalfCheetah", "Ant")
+)
 
 # CleanRL's ppo_continuous_action.py (its Args and make_env), setting by setting: the reference
 # the MuJoCo rows compare with.
@@ -698,7 +704,7 @@ RECIPES = Recipes(
         "64 envs x 32 steps, 10 epochs x 32 minibatches, CleanRL's rates and norms",
         MUJOCO_CONFIG,
         CLEANRL_HPARAMS,
-        envs=MUJOCO,
+        envs=MUJOCO + MUJOCO_POSITIONS,
         total_steps=1_000_000,
     ),
     Recipe(

@@ -1,6 +1,7 @@
 """Recurrent PPO: PPO (``rl_jax.agents.ppo``) whose actor and critic read a recurrent core, an
 LSTM or a GRU (flax's ``OptimizedLSTMCell`` / ``GRUCell``), for envs that show only part of
-their state (``rl_jax/CartPoleNoVel-v1``, the POPGym memory tasks).
+their state (``rl_jax/CartPoleNoVel-v1``, the POPGym memory tasks, the position-only MuJoCo
+tasks such as ``rl_jax/Hopper-P-v5``).
 
 The network: observation -> ``hidden`` layers -> the cell (its carry the policy's state) -> a
 linear policy head and a linear value head, both on the cell's output, each after its own
@@ -233,6 +234,51 @@ POPGYM_HPARAMS: dict[str, Setting] = {
     "max_grad_norm": 0.0,
 }
 
+#: The position-only MuJoCo tasks (envs/memory/masked.py, Ni et al. 2022's "-P" variants).
+MUJOCO_POSITIONS = (
+    "rl_jax/Hopper-P-v5",
+    "rl_jax/Walker2d-P-v5",
+    "rl_jax/HalfCheetah-P-v5",
+    "rl_jax/Ant-P-v5",
+)
+# PPO's vectorised MuJoCo recipe (ppo.MUJOCO_CONFIG, ppo.CLEANRL_HPARAMS) with an LSTM of 128,
+# untuned: 64 envs x 32 steps (a sequence is an env's whole rollout, seq_len = num_steps), 10
+# epochs x 32 minibatches (2 sequences, 64 steps each, PPO's minibatch size), the rate 3e-4 to 0
+# over 1M steps, gamma 0.99, lambda 0.95, clip 0.2, value weight 0.5, no entropy bonus, gradient
+# norm 0.5, Adam eps 1e-5, observations standardised, advantages per minibatch. PPO's 64 x 64
+# tanh layers, the actor's and the critic's own, are here each head's own 64 x 64 after the
+# shared cell. No counterpart here for PPO's reward normalisation (normalize_rewards with its
+# reward_clip 10) nor for its clipped value loss (clip_value_loss, value_clip_eps 0.2): the value
+# learns the unscaled returns with the plain squared loss.
+MUJOCO_POSITIONS_CONFIG: dict[str, Setting] = {
+    "num_envs": 64,
+    "num_steps": 32,
+    "seq_len": 32,
+    "num_epochs": 10,
+    "num_minibatches": 32,
+    "iterations_per_chunk": 10,  # evaluated every 20,480 env steps, as PPO's recipe
+    "cell": "lstm",
+    "cell_size": 128,
+    "hidden": (),
+    "head_hidden": (64, 64),
+    "critic_cell": False,
+    "activation": "tanh",
+    "initial_std": 1.0,
+    "normalize_obs": True,
+    "normalize_advantages": True,
+}
+MUJOCO_POSITIONS_HPARAMS: dict[str, Setting] = {
+    "learning_rate": 3e-4,
+    "lr_decay_steps": 1_000_000.0,
+    "gamma": 0.99,
+    "gae_lambda": 0.95,
+    "clip_eps": 0.2,
+    "vf_coef": 0.5,
+    "ent_coef": 0.0,
+    "max_grad_norm": 0.5,
+    "adam_eps": 1e-5,
+}
+
 RECIPES = Recipes(
     Recipe(
         "default",
@@ -259,6 +305,15 @@ RECIPES = Recipes(
         POPGYM_HPARAMS,
         envs=POPGYM_EASY,
         total_steps=1_024_000,
+    ),
+    Recipe(
+        "default",
+        "PPO's vectorised MuJoCo recipe with an LSTM 128 (untuned): 64 envs x 32 steps, 10 "
+        "epochs x 32, normalised obs, no reward normalisation",
+        MUJOCO_POSITIONS_CONFIG,
+        MUJOCO_POSITIONS_HPARAMS,
+        envs=MUJOCO_POSITIONS,
+        total_steps=1_000_000,
     ),
 )
 
