@@ -695,6 +695,18 @@ ROWS: dict[str, Row] = {
         "500 is the maximum; MuZero's paper plans on Atari and board games, not CartPole",
         Goal(500.0, 9, "final"),
     ),
+    # AlphaZero on a single-agent env: MuZero searching the true simulator (--model simulator)
+    # at its untuned `simulator` recipe, reported beside PPO's and the learned model's rows.
+    "alphazero-sim-cartpole": Row(
+        "AlphaZero (MuZero, the simulator as its model), `rl_jax/CartPole-v1`",
+        "train.py",
+        (
+            *("--algo", "muzero", "--env", "rl_jax/CartPole-v1", "--recipe", "simulator"),
+            *("--total-steps", "100000"),
+        ),
+        10,
+        "PPO's CartPole row and MuZero's (learned model) row; 500 is the maximum",
+    ),
     # Pendulum with its angular velocity hidden (RL Zoo's PendulumNoVel-v1) at the zoo's
     # ppo_lstm settings (recurrent_ppo's recipe for it): the goal is the zoo's benchmark figure,
     # as the mean final return of 10 seeds; feed-forward PPO at the same settings and budget

@@ -679,11 +679,24 @@ CARTPOLE_HPARAMS: dict[str, Setting] = {
     "value_coef": 1.0,
 }
 
+# AlphaZero on CartPole: the recipe above with the simulator as the search's model, untuned.
+# Its loop, search, prediction network, n-step targets and rates are the learned model's;
+# unroll_steps, latent_size and reward_support are unused there (K = 0, no dynamics or reward).
+CARTPOLE_SIMULATOR_CONFIG: dict[str, Setting] = {**CARTPOLE_CONFIG, "model": "simulator"}
+
 RECIPES = Recipes(
     Recipe(
         "default",
         "16 envs x 4 steps, 16 simulations, 128-unit nets, K=5, n=10, gamma 0.997, 8 x 256",
         CARTPOLE_CONFIG,
+        CARTPOLE_HPARAMS,
+        envs=("rl_jax/CartPole-v1",),
+        total_steps=100_000,
+    ),
+    Recipe(
+        "simulator",
+        "AlphaZero: the default recipe with the simulator as the model (untuned), K=0",
+        CARTPOLE_SIMULATOR_CONFIG,
         CARTPOLE_HPARAMS,
         envs=("rl_jax/CartPole-v1",),
         total_steps=100_000,
