@@ -34,8 +34,11 @@ def test_recipes_give_the_minatar_torso(env_id):
     assert dqn.dqn.recipe(env_id).total_steps == 5_000_000
     policy = ppo.default_config(env_id)
     assert isinstance(policy, ppo.ImageConfig)
-    assert (policy.conv_layers, policy.hidden, policy.num_envs) == ((16, 3, 1), (128,), 64)
+    # PPO's is gymnax-blines' network: two MLPs on the flattened grid, at its better agent's rate
+    assert (policy.conv_layers, policy.hidden, policy.num_envs) == ((), (256, 256), 64)
     assert float(ppo.default_hyperparams(env_id).gamma) == pytest.approx(0.999)
+    rate = 3e-4 if env_id in ppo.MINATAR_SLOWER else 1e-3
+    assert float(ppo.default_hyperparams(env_id).learning_rate) == pytest.approx(rate)
 
 
 def test_ppo_without_conv_layers_has_two_mlps_on_the_flattened_grid():
