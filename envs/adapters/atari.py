@@ -45,8 +45,8 @@ frames), so this env's ``reset_after`` (the reset an autoreset calls) computes s
 the envs whose game ended and hands the others zeros, which the autoreset discards.
 
 Why not ale-py's ``AtariVectorEnv`` or envpool, which preprocess in C++ threads: on a 2-core
-machine they stepped Pong only about 1.3 times as fast as the gymnasium envs one after another
-(docs/using_envs.md, "Atari through the ALE", has the numbers), and neither resets each lane
+machine they stepped Pong little faster than the gymnasium envs one after another
+(BENCHMARKS.md, "Atari through the ALE", has the numbers), and neither resets each lane
 from a seed of its own, which the adapter's seeding, lazy start and vmaps over seeds rest on.
 envpool also needs asset packages of its own (its import fails without them).
 

@@ -115,11 +115,11 @@ class MatmulConv(nn.Module):
     product with all ``m*m`` taps' weights at once (``[bh, bw, m, m, F]``), and the output is the
     sum of the ``m*m`` shifted tap slices. Where the input's blocks are deeper than the layer's
     features (Nature DQN's strided layers on frames), summing small outputs instead of
-    concatenating ``m*m`` shifted copies of the input into patches moves ~4x less memory, and so
+    concatenating ``m*m`` shifted copies of the input into patches moves less memory, and so
     takes less time (BENCHMARKS.md, "Pixel DQN"). Where they are shallower (MinAtar's 3x3 stride-1
     layer: 4-10 channels into 16 features), the products would be ``m*m`` times the output, and
-    the layer concatenates the patches instead and multiplies them once (``uses_patches``; 11x
-    faster gradients there, BENCHMARKS.md, "MinAtar's conv layer").
+    the layer concatenates the patches instead and multiplies them once (``uses_patches``;
+    BENCHMARKS.md, "MinAtar's conv layer", has the timings of both).
 
     ``layout``: ``"auto"`` picks by that rule; ``"patches"`` or ``"products"`` forces one (the
     parameters and results are the same, only the time differs; tests and benchmarks compare
