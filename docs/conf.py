@@ -68,6 +68,8 @@ nitpick_ignore_regex = [
     (r"py:class", r"rl_jax\.run\.plots\.FinalResult"),
     # a match's player (a Callable alias) and self-play's stored positions, in AlphaZero's API
     (r"py:class", r"(Player|Positions)"),
+    # a learner's Config, which its page documents as a table of options rather than a class
+    (r"py:class", r"rl_jax\.agents\.\w+\.Config"),
 ]
 # RESULTS.md and BENCHMARKS.md, included as they are, skip heading levels here and there.
 suppress_warnings = ["myst.header"]
