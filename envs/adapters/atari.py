@@ -65,7 +65,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from rl_jax.envs.adapters.gymnasium_host import LOST_KEY, HostEnvState, HostGymnasiumEnv
-from rl_jax.envs.core.core import Array, EnvParams, PRNGKey, TimeStep
+from rl_jax.envs.core.core import Array, Environment, EnvParams, PRNGKey, TimeStep
 from rl_jax.envs.core.preprocessing import LIVES, EpisodicLife, FrameStack, SignReward
 from rl_jax.envs.core.registry import UnsupportedEnvError
 from rl_jax.envs.core.spaces import Box
@@ -75,7 +75,9 @@ from rl_jax.envs.core.wrappers import Wrapper
 MAX_EPISODE_STEPS = 108_000 // 4
 
 
-def _import_ale() -> Any:
+def _import_ale() -> None:
+    """Imports ale-py and registers its envs with gymnasium (a one-line error where it is not
+    installed)."""
     try:
         import ale_py
     except ModuleNotFoundError:
@@ -84,7 +86,6 @@ def _import_ale() -> Any:
             "`pip install 'ale-py>=0.12.1,<0.13' opencv-python-headless` beside rl_jax"
         ) from None
     gymnasium.register_envs(ale_py)
-    return ale_py
 
 
 class _FrameAndLives(gymnasium.ObservationWrapper):
@@ -95,7 +96,7 @@ class _FrameAndLives(gymnasium.ObservationWrapper):
         super().__init__(env)
         self.observation_space = gymnasium.spaces.Box(0.0, 255.0, (size * size + 1,), np.float32)
 
-    def observation(self, observation: Any) -> np.ndarray:
+    def observation(self, observation: np.ndarray) -> np.ndarray:
         lives = self.env.unwrapped.ale.lives()  # type: ignore[attr-defined]
         frame = np.asarray(observation, np.float32).reshape(-1)
         return np.append(frame, np.float32(lives))
@@ -230,7 +231,7 @@ def from_atari(
         raise ValueError(
             f"repeat_action_probability must be in [0, 1], got {repeat_action_probability}"
         )
-    env: Any = AtariHost(
+    env: Environment = AtariHost(
         game,
         frame_size,
         max_episode_steps,

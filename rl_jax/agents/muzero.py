@@ -32,7 +32,7 @@ from __future__ import annotations
 import dataclasses
 import functools
 from collections.abc import Callable
-from typing import Any, NamedTuple
+from typing import NamedTuple, NoReturn
 
 import flax.linen as nn
 import jax
@@ -234,7 +234,7 @@ def model_fns(net_params: Params, config: Config) -> tuple[parts.InitialFn, part
         def predict_initial(obs: jax.Array) -> tuple[jax.Array, jax.Array, jax.Array]:
             return network.apply(net_params, obs, method=simulator.PredictionNet.initial)  # type: ignore[return-value]
 
-        def no_recurrent(latent: jax.Array, action: jax.Array) -> Any:
+        def no_recurrent(latent: jax.Array, action: jax.Array) -> NoReturn:
             raise ValueError("the simulator is the model: there is no learned dynamics")
 
         return predict_initial, no_recurrent
@@ -327,7 +327,7 @@ def search(
 
 def simulator_search(
     agent: Agent,
-    env_state: object,
+    env_state: envs.EnvState,
     obs: jax.Array,
     key: jax.Array,
     config: Config,
@@ -644,7 +644,7 @@ def evaluate(agent: Agent, config: Config, key: jax.Array) -> jax.Array:
     if config.model == "learned":
         return episodes.evaluate(act, agent, config, key)
 
-    def search_act(env_state: object, obs: jax.Array) -> jax.Array:
+    def search_act(env_state: envs.EnvState, obs: jax.Array) -> jax.Array:
         return simulator_search(agent, env_state, obs, jax.random.key(0), config, 0.0).action
 
     env = episodes.make_eval_env(config)

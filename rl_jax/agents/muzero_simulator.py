@@ -21,7 +21,7 @@ categorical after ``h``, as in ``muzero_parts``); its observation of a node is t
 from __future__ import annotations
 
 from collections.abc import Callable
-from typing import Any, NamedTuple
+from typing import NamedTuple
 
 import flax.linen as nn
 import jax
@@ -68,7 +68,7 @@ class Node(NamedTuple):
     """A search node's embedding, ``[B, ...]`` each: the env's state, its observation and
     whether a terminal state was reached on the way to it."""
 
-    state: Any
+    state: envs.EnvState
     obs: jax.Array
     done: jax.Array  # bool
 
@@ -107,7 +107,7 @@ def make_recurrent_fn(
 def search(
     predict: PredictFn,
     env: envs.Environment,
-    env_state: object,
+    env_state: envs.EnvState,
     obs: jax.Array,
     key: jax.Array,
     gamma: jax.Array,
@@ -137,7 +137,7 @@ def search(
 
 
 def episode_returns(
-    act: Callable[[object, jax.Array], jax.Array],
+    act: Callable[[envs.EnvState, jax.Array], jax.Array],
     env: envs.Environment,
     key: jax.Array,
     episodes: int,
@@ -147,7 +147,7 @@ def episode_returns(
     to the policy (the search starts from it)."""
     reset_key, step_key = jax.random.split(key)
     env_state, ts = jax.vmap(env.reset)(jax.random.split(reset_key, episodes))
-    Loop = tuple[jax.Array, object, jax.Array, jax.Array, jax.Array]
+    Loop = tuple[jax.Array, envs.EnvState, jax.Array, jax.Array, jax.Array]
 
     def running(carry: Loop) -> jax.Array:
         time, _, _, alive, _ = carry

@@ -25,7 +25,7 @@ from __future__ import annotations
 import dataclasses
 from collections.abc import Callable
 from pathlib import Path
-from typing import Any
+from typing import Any, cast
 
 import gymnasium
 import jax
@@ -113,16 +113,16 @@ def _play(
     return returns
 
 
-def gymnasium_twin(env_id: str, keywords: dict[str, Any]) -> tuple[str, gymnasium.Env]:
+def gymnasium_twin(env_id: str, keywords: dict[str, object]) -> tuple[str, gymnasium.Env]:
     """gymnasium's own env for a run's ``env_id``, made with ``keywords``, and its name:
     ``gymnasium.make`` of ``gymnasium_id``, or for a masked id (envs/memory/masked.py) its base
     env under the same mask (``masked.gymnasium_twin``), named ``BASE masked as ID``."""
     name = env_id.split(":")[-1]
     if name in masked.GYMNASIUM_BASES:
-        twin = masked.gymnasium_twin(name, **keywords)
+        twin = masked.gymnasium_twin(name, **cast(dict[str, Any], keywords))
         return f"{masked.GYMNASIUM_BASES[name]} masked as {name}", twin
     twin_id = gymnasium_id(env_id)
-    return twin_id, gymnasium.make(twin_id, **keywords)
+    return twin_id, gymnasium.make(twin_id, **cast(dict[str, Any], keywords))
 
 
 def _in_gymnasium(loaded: LoadedPolicy, episodes: int) -> tuple[str, np.ndarray]:
