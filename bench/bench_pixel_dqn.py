@@ -91,11 +91,16 @@ class _FlaxTorso(nn.Module):
 def torso_steps(frame_size: int, matmul: bool, steps: int = 10):
     """A function running ``steps`` SGD steps of the torso on a batch of 64 in one scan."""
     frames = jax.random.uniform(jax.random.key(0), (64, frame_size, frame_size, 4)) * 255.0
-    net = _FlaxTorso(matmul)
-    params = net.init(jax.random.key(1), frames)
+    return _scanned_sgd(_FlaxTorso(matmul), frames, steps)
+
+
+def _scanned_sgd(net: nn.Module, inputs: jax.Array, steps: int):
+    """A function running ``steps`` SGD steps of ``net`` on ``inputs`` in one jitted scan and
+    blocking; it returns ``steps``."""
+    params = net.init(jax.random.key(1), inputs)
 
     def loss(params):
-        return jnp.sum(net.apply(params, frames) ** 2)
+        return jnp.sum(net.apply(params, inputs) ** 2)
 
     def step(params, _):
         grads = jax.grad(loss)(params)
@@ -137,23 +142,7 @@ def minatar_steps(channels: int, layout: str | None, steps: int = 10):
     of 0/1 with ``channels`` channels in one scan."""
     shape = (MINATAR_BATCH, 10, 10, channels)
     grids = jax.random.bernoulli(jax.random.key(0), 0.1, shape).astype(jnp.float32)
-    net = _MinAtarTorso(layout)
-    params = net.init(jax.random.key(1), grids)
-
-    def loss(params):
-        return jnp.sum(net.apply(params, grids) ** 2)
-
-    def step(params, _):
-        grads = jax.grad(loss)(params)
-        return jax.tree.map(lambda p, g: p - 1e-6 * g, params, grads), None
-
-    scanned = jax.jit(lambda params: jax.lax.scan(step, params, None, length=steps)[0])
-
-    def once() -> int:
-        jax.block_until_ready(scanned(params))
-        return steps
-
-    return once
+    return _scanned_sgd(_MinAtarTorso(layout), grids, steps)
 
 
 def run(quick: bool = False) -> str:
