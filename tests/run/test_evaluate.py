@@ -63,26 +63,37 @@ def test_returns_are_those_of_stepping_the_env_one_episode_at_a_time(run_dir):
     ) == pytest.approx(returns)
 
 
-def test_command_line_prints_the_table_or_one_error_line(run_dir):
+def test_command_line_prints_the_table_or_one_error_line(run_dir, capsys):
     def command(*args):
         argv = [sys.executable, "-m", "rl_jax.run.evaluate", *map(str, args)]
         env = {"PYTHONPATH": python_path(ROOT, ROOT / "tests"), "PATH": "/usr/bin:/bin"}
         return subprocess.run(argv, cwd=ROOT, capture_output=True, text=True, env=env)
 
-    # A learner not built in is named, never imported from the run's record.
+    # The command in a fresh process: a learner not built in is named, never imported from the
+    # run's record (this process has imported it); an error that gets as far as opening the run
+    # is one line there too.
     done = command(run_dir, "--episodes", "4", "--seed", "1", "--algo", "fake_algorithm")
     assert done.returncode == 0, done.stderr
     assert "     1  best" in done.stdout and "     0  best" not in done.stdout
     for args, expected in [
-        ((run_dir.parent / "missing",), "no run directory"),
         ((run_dir, "--seed", "9", "--algo", "fake_algorithm"), "--seed 9 is not in this run"),
-        ((run_dir,), "name it again: --algo fake_algorithm"),
-        ((run_dir, "--episodes", "0"), "--episodes"),
-        ((run_dir, "--gymnasium", "--algo", "fake_algorithm"), "no twin registered in gymnasium"),
+        ((run_dir,), "name it again: --algo fake_algorithm"),  # no learner imported yet
     ]:
         done = command(*args)
         lines = done.stderr.strip().splitlines()
         assert done.returncode != 0 and len(lines) == 1 and expected in lines[0], done.stderr
+    # The other errors through the command's main, in this process.
+    for args, expected in [
+        ((run_dir.parent / "missing",), "no run directory"),
+        ((run_dir, "--episodes", "0"), "--episodes"),
+        ((run_dir, "--gymnasium", "--algo", "fake_algorithm"), "no twin registered in gymnasium"),
+    ]:
+        try:
+            status = evaluate.main(list(map(str, args)))
+        except SystemExit as exit_:  # argparse's own errors
+            status = exit_.code
+        lines = capsys.readouterr().err.strip().splitlines()
+        assert status != 0 and len(lines) == 1 and expected in lines[0], lines
 
 
 def test_gymnasium_twins_are_named_by_the_runs_env_id():
