@@ -33,6 +33,7 @@ from rl_jax.run.best import BEST_DIR, BestPolicies, policy_fields
 from rl_jax.run.checkpoint import Checkpointer
 from rl_jax.run.metrics import read_rows
 from rl_jax.run.plan import make_plan
+from rl_jax.run.runner import run
 from rl_jax.run.sweep_shapes import owners, run_own
 from rl_jax.training.device_layout import plan_layout
 from rl_jax.training.split_program import Block, Group, split_layout
@@ -67,6 +68,19 @@ def finish(process: subprocess.Popen) -> list:
     out, err = process.communicate(timeout=900)
     assert process.returncode == 0, err[-3000:]
     return json.loads(out.strip().splitlines()[-1])
+
+
+def run_here(jobs: list[dict]) -> list:
+    """What the child does, in this process on its one device."""
+    assert len(jax.devices()) == 1
+    layouts = []
+    for each in jobs:
+        spec = spec_for(each["learner"], Path(each["out"]), each["total"], each["resume"])
+        spec = dataclasses.replace(spec, layout=each["layout"])
+        layout = plan.program_for(spec).layout
+        layouts.append([layout.devices, layout.padded_seeds])
+        run(spec, notify=lambda message: None)
+    return layouts
 
 
 def job(
@@ -130,36 +144,38 @@ def test_five_seeds_on_two_devices_equal_one_device_and_resume_on_one(tmp_path):
     and 5 seeds stopped halfway on 2 devices, resumed on 1 (from either layout) or in the other
     layout. All are the same runs, bit for bit on the locked jaxlib. (The other way, 1 device
     resumed on 2: the slow TD3 test.)"""
-    half = FAKE_TOTAL // 2
+    total = 2 * FAKE_CHUNK  # two chunks: a stop halfway and a resume
+    half = total // 2
     two = start(
         2,
         [
-            job(tmp_path / "two", FAKE_TOTAL),  # auto: 4 chunks are too few to split
+            job(tmp_path / "two", total),  # auto: 2 chunks are too few to split
             job(tmp_path / "half", half),
-            job(tmp_path / "split", FAKE_TOTAL, layout="split"),
+            job(tmp_path / "split", total, layout="split"),
             job(tmp_path / "split_half", half, layout="split"),
             job(tmp_path / "pad_then_split", half, layout="pad"),
-            job(tmp_path / "pad_then_split", FAKE_TOTAL, resume=True, layout="split"),
+            job(tmp_path / "pad_then_split", total, resume=True, layout="split"),
         ],
     )
+    # One device is this process's own: the same runs here, with no child to start, the
+    # unstopped one while the child runs.
+    one = run_here([job(tmp_path / "one", total)])
     assert finish(two) == [[2, 6]] * 2 + [[2, 5]] * 2 + [[2, 6], [2, 5]]
-    one = start(
-        1,
+    one += run_here(
         [
-            job(tmp_path / "one", FAKE_TOTAL),
-            job(tmp_path / "half", FAKE_TOTAL, resume=True),
-            job(tmp_path / "split_half", FAKE_TOTAL, resume=True, layout="split"),
-        ],
+            job(tmp_path / "half", total, resume=True),
+            job(tmp_path / "split_half", total, resume=True, layout="split"),
+        ]
     )
-    assert finish(one) == [[1, 5]] * 3  # one device: nothing to split
+    assert one == [[1, 5]] * 3  # one device: nothing to split
     names = ("one", "two", "half", "split", "split_half", "pad_then_split")
-    assert_same_runs([tmp_path / name for name in names], "fake", FAKE_TOTAL)
+    assert_same_runs([tmp_path / name for name in names], "fake", total)
     # Nothing saved is padded: the metrics hold 5 seeds per chunk, every checkpoint restores
     # into the real runs' shapes (above), and so do the best policies, kept in every layout.
-    first = best_policies(tmp_path / names[0], "fake", FAKE_TOTAL)
+    first = best_policies(tmp_path / names[0], "fake", total)
     assert first.returns.shape == (1, SEEDS) and (first.steps >= 0).all()
     for name in names[1:]:
-        best = best_policies(tmp_path / name, "fake", FAKE_TOTAL)
+        best = best_policies(tmp_path / name, "fake", total)
         np.testing.assert_array_equal(best.steps, first.steps, err_msg=name)
         np.testing.assert_allclose(best.returns, first.returns, rtol=1e-6, err_msg=name)
 
