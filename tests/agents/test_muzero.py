@@ -17,7 +17,7 @@ import rl_jax
 from rl_jax.agents import muzero as mz
 from rl_jax.agents import muzero_parts as parts
 from rl_jax.agents import muzero_simulator as sim
-from rl_jax.training import episodes
+from rl_jax.training import episodes, parallel, params
 
 CARTPOLE = "rl_jax/CartPole-v1"
 TINY = dict(
@@ -209,17 +209,25 @@ def test_unroll_loss_halves_the_gradient_at_every_dynamics_step():
 def tiny():
     config = mz.default_config(CARTPOLE, **TINY)
     hparams = mz.default_hyperparams(CARTPOLE)
-    return config, hparams, jax.jit(mz.train_chunk, static_argnums=1)
+    return config, hparams
+
+
+def one_seed_chunks(config, hparams, chunks: int) -> tuple:
+    """``(state, metrics of the last chunk)`` of one run of seed 3, on the host, trained by the
+    program that ``rl_jax.train`` builds for one seed of ``config`` (one device): the tiny run
+    tests below reuse its trace."""
+    stacked = params.stack([hparams])
+    program = parallel.Program(mz.muzero, config, 1, 1, devices=jax.devices()[:1])
+    state = program.init(parallel.seed_keys([3]), stacked)
+    for _ in range(chunks):
+        state, metrics = program.train_chunk(state, stacked)
+    one = program.select(program.unpad(state, stacked), 0, 0)
+    return one, jax.tree.map(lambda leaf: leaf[0, 0], program.gather(metrics))
 
 
 def test_train_chunk_runs_and_is_deterministic_for_a_seed():
-    config, hparams, train_chunk = tiny()
-    runs = []
-    for _ in range(2):
-        state = mz.init(jax.random.key(3), config, hparams)
-        for _ in range(2):
-            state, metrics = train_chunk(state, config, hparams)
-        runs.append((state, metrics))
+    config, hparams = tiny()
+    runs = [one_seed_chunks(config, hparams, 2) for _ in range(2)]
     (first, first_metrics), (second, second_metrics) = runs
     chunk = config.num_envs * config.num_steps * config.iterations_per_chunk
     assert int(first_metrics.env_steps) == 2 * chunk == mz.muzero.env_steps_per_chunk(config) * 2
@@ -235,7 +243,7 @@ def test_train_chunk_runs_and_is_deterministic_for_a_seed():
 
 
 def test_policy_returns_legal_actions_and_a_search_without_noise_is_deterministic():
-    config, hparams, _ = tiny()
+    config, hparams = tiny()
     state = mz.init(jax.random.key(1), config, hparams)
     policy = jax.jit(mz.muzero.policy(state, config))
     for obs in ([0.0, 0.0, 0.0, 0.0], [0.1, -0.5, 0.2, 1.0], [-2.0, 1.0, -0.2, -1.0]):
@@ -262,7 +270,7 @@ def filled_replay(config, steps):
 
 
 def test_windows_are_consecutive_steps_of_one_env():
-    config, hparams, _ = tiny()
+    config, hparams = tiny()
     rows, steps = config.replay_rows, int(config.replay_rows * 1.5)
     windows, drawn = mz.sample_windows(
         filled_replay(config, steps), jax.random.key(0), config, hparams
@@ -409,20 +417,10 @@ def test_simulator_search_sees_a_failure_one_step_ahead():
     assert balanced > v  # 1 + 0.99 v > v below the root
 
 
-@functools.cache
-def tiny_simulator():
+def test_simulator_train_chunk_runs_and_is_deterministic_for_a_seed():
     config = mz.default_config(CARTPOLE, **SIMULATOR)
     hparams = mz.default_hyperparams(CARTPOLE)
-    return config, hparams, jax.jit(mz.train_chunk, static_argnums=1)
-
-
-def test_simulator_train_chunk_runs_and_is_deterministic_for_a_seed():
-    config, hparams, train_chunk = tiny_simulator()
-    runs = []
-    for _ in range(2):
-        state = mz.init(jax.random.key(3), config, hparams)
-        state, metrics = train_chunk(state, config, hparams)
-        runs.append((state, metrics))
+    runs = [one_seed_chunks(config, hparams, 1) for _ in range(2)]
     (first, metrics), _ = runs
     assert int(metrics.updates) > 0
     for name in ("policy_loss", "value_loss", "root_value"):
