@@ -420,6 +420,12 @@ def test_sigterm_checkpoints_exits_zero_and_resume_is_bit_identical(workspace):
         "--checkpoint-interval",
         "1e9",
     ]
+    # The reference: the same run never stopped, made by the same script (so on the same device
+    # layout: a batch split differently over devices may round differently), started beside it.
+    unstopped = [*args, "--out", "unstopped"]
+    unstopped.remove("stopped")
+    unstopped.remove("--out")
+    reference = start(unstopped, root)
     process = start(args, root)
     for line in process.stdout:
         if line.startswith("step "):  # training has started
@@ -445,12 +451,6 @@ def test_sigterm_checkpoints_exits_zero_and_resume_is_bit_identical(workspace):
     )
     assert resumed.returncode == 0, resumed.stderr
     assert f"resuming from the checkpoint at step {stopped_at:,}" in resumed.stdout
-    # The reference: the same run never stopped, made by the same script (so on the same device
-    # layout: a batch split differently over devices may round differently).
-    unstopped = [*args, "--out", "unstopped"]
-    unstopped.remove("stopped")
-    unstopped.remove("--out")
-    reference = start(unstopped, root)
     _, err = reference.communicate(timeout=600)
     assert reference.returncode == 0, err
     config = dataclasses.replace(fake.default_config(), iterations_per_chunk=5)
@@ -472,9 +472,9 @@ def test_a_resume_past_a_damaged_latest_checkpoint_says_one_line_and_keeps_it(tm
     """From a fresh interpreter, as a user runs it: the one warning line is all of stderr (no
     traceback, none of orbax's log lines about the damaged files), and the run carries on."""
     args = ["--total-steps", "40", "--checkpoint-interval", "0", "--log-interval", "0"]
-    first = start(["--out", "run", *args], tmp_path)
-    _, err = first.communicate(timeout=600)
-    assert first.returncode == 0, err
+    # The run to damage is made in this process; its resume is the fresh interpreter.
+    _, err, status = run_in_process(["--out", str(tmp_path / "run"), *args])
+    assert status == 0, err
     overwrite_with_garbage(tmp_path / "run" / CHECKPOINT_DIR / "40")
     resumed = start(["--resume", "run"], tmp_path)
     out, err = resumed.communicate(timeout=600)
