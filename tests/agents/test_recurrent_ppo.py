@@ -133,8 +133,10 @@ def test_the_gradient_through_a_sequence_matches_a_step_by_step_unroll(
     )
     batch = batch._replace(start=batch.start.at[0, 0].set(False))  # one stored state kept
     params = state.agent.params
-    scanned = jax.grad(lambda p: rppo.loss_fn(p, batch, carry, hparams, config)[0])(params)
-    looped = jax.grad(lambda p: reference_loss(p, batch, carry, hparams, config))(params)
+    # each gradient as one jitted program: run op by op, the step-by-step unroll dispatches
+    # thousands of small operations
+    scanned = jax.jit(jax.grad(lambda p: rppo.loss_fn(p, batch, carry, hparams, config)[0]))(params)
+    looped = jax.jit(jax.grad(lambda p: reference_loss(p, batch, carry, hparams, config)))(params)
     for a, b in zip(jax.tree.leaves(scanned), jax.tree.leaves(looped), strict=True):
         np.testing.assert_allclose(a, b, rtol=1e-4, atol=1e-6)
     assert max(float(jnp.max(jnp.abs(g))) for g in jax.tree.leaves(scanned)) > 0
