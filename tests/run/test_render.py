@@ -72,7 +72,7 @@ def test_episode_return_matches_a_direct_rollout(run_dir):
     assert episode["return"] == pytest.approx(-np.sum(positions**2), rel=1e-5)
 
 
-def test_render_command_line(run_dir, tmp_path):
+def test_render_command_line(run_dir, tmp_path, capsys):
     command = [
         sys.executable,
         "-m",
@@ -85,38 +85,35 @@ def test_render_command_line(run_dir, tmp_path):
         "--algo",  # a learner not built in is named, never imported from the run's record
         "fake_algorithm",
     ]
+    # In a fresh process, which has not imported the learner: a rendering, and an error that
+    # gets as far as opening the run.
     done = subprocess.run(command, env=ENV, capture_output=True, text=True, timeout=300)
     assert done.returncode == 0, done.stderr
     assert "rendered seed 0 (config 0) at step " in done.stdout
     assert "its best policy" in done.stdout
-    latest = subprocess.run(
-        [*command, "--latest"], env=ENV, capture_output=True, text=True, timeout=300
-    )
-    assert "rendered seed 0 (config 0) at step 60, its latest policy" in latest.stdout
     assert (tmp_path / "cli.gif").stat().st_size > 100
-    for args, message in (
-        (["--seed", "9"], "--seed 9 is not in this run (seeds [0, 1])"),
-        (["--episodes", "0"], "argument --episodes: must be >= 1"),
-    ):
-        bad = subprocess.run(
-            [*command[:4], "--algo", "fake_algorithm", *args],
-            env=ENV,
-            capture_output=True,
-            text=True,
-            timeout=300,
-        )
-        lines = bad.stderr.strip().splitlines()
-        assert bad.returncode != 0 and len(lines) == 1, bad.stderr
-        assert lines[0].startswith("error: ") and message in lines[0]
-    missing = subprocess.run(
-        [sys.executable, "-m", "rl_jax.run.render", str(tmp_path / "none")],
+    bad = subprocess.run(
+        [*command[:4], "--algo", "fake_algorithm", "--seed", "9"],
         env=ENV,
         capture_output=True,
         text=True,
         timeout=300,
     )
-    assert missing.returncode != 0
-    assert missing.stderr.strip().splitlines() == [
+    lines = bad.stderr.strip().splitlines()
+    assert bad.returncode != 0 and len(lines) == 1, bad.stderr
+    assert (
+        lines[0].startswith("error: ") and "--seed 9 is not in this run (seeds [0, 1])" in lines[0]
+    )
+    # The rest through the command's main, in this process.
+    assert render.main([*command[3:], "--latest"]) == 0
+    assert "rendered seed 0 (config 0) at step 60, its latest policy" in capsys.readouterr().out
+    with pytest.raises(SystemExit) as exited:  # argparse's own error
+        render.main([*command[3:4], "--algo", "fake_algorithm", "--episodes", "0"])
+    lines = capsys.readouterr().err.strip().splitlines()
+    assert exited.value.code != 0 and len(lines) == 1, lines
+    assert lines[0].startswith("error: ") and "argument --episodes: must be >= 1" in lines[0]
+    assert render.main([str(tmp_path / "none")]) != 0
+    assert capsys.readouterr().err.strip().splitlines() == [
         f"error: no run directory at {tmp_path / 'none'}"
     ]
 
