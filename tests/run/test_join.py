@@ -132,9 +132,10 @@ def test_a_process_of_another_slurm_step_is_turned_away_and_the_job_goes_on(tmp_
     assert len(ended) == 1 and isinstance(ended[0], TimeoutError)  # not refused by the stranger
 
 
-def test_another_job_on_the_port_is_left_alone(tmp_path):
+def test_another_job_on_the_port_is_left_alone(tmp_path, monkeypatch):
     """A port answered by something else (here a silent listener, as jax's service is to us):
     the process says so, and sends it nothing."""
+    monkeypatch.setattr(join, "SEE_SECONDS", 0.5)  # the wait for a greeting that never comes
     port = launch.free_port()
     received: list[bytes] = []
     with socket.create_server(("", port)) as holder:
