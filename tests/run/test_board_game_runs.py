@@ -19,8 +19,8 @@ import pytest
 from child_env import python_path
 
 import rl_jax
-from rl_jax.errors import RunError, UsageError
-from rl_jax.run import learners
+from rl_jax.errors import RunError, UsageError, guard
+from rl_jax.run import cli, learners
 from rl_jax.run.metrics import METRICS_FILE
 from rl_jax.run.policy import GamePolicy
 from rl_jax.training.algorithm import hooks
@@ -117,15 +117,18 @@ def test_an_unknown_game_on_the_command_line_is_one_error_line(tmp_path):
     assert not (tmp_path / "runs").exists()
 
 
-def test_minimax_evaluation_of_another_game_on_the_command_line_is_one_error_line(tmp_path):
-    env = {**os.environ, "PYTHONPATH": python_path(ROOT), "TF_CPP_MIN_LOG_LEVEL": "3"}
-    script = ROOT / "experiments" / "train.py"
-    command = [sys.executable, str(script), "--algo", "alphazero", "--env", "pgx/connect_four"]
-    command += ["--eval-opponent", "minimax"]
-    done = subprocess.run(command, cwd=tmp_path, env=env, capture_output=True, text=True)
-    assert done.returncode != 0
-    lines = [line for line in done.stderr.splitlines() if line.startswith("error:")]
-    assert len(lines) == 1 and "Traceback" not in done.stderr
+def test_minimax_evaluation_of_another_game_on_the_command_line_is_one_error_line(
+    tmp_path, monkeypatch, capsys
+):
+    """train.py's code in this process (the fresh process is the test above)."""
+    monkeypatch.chdir(tmp_path)
+    monkeypatch.setenv("XLA_FLAGS", os.environ.get("XLA_FLAGS", ""))  # a run sets it
+    argv = ["--algo", "alphazero", "--env", "pgx/connect_four", "--eval-opponent", "minimax"]
+    status = guard(lambda: cli.run_experiment(None, None, "", argv))
+    captured = capsys.readouterr()
+    assert status != 0
+    lines = [line for line in captured.err.splitlines() if line.startswith("error:")]
+    assert len(lines) == 1 and "Traceback" not in captured.err + captured.out
     assert "'minimax' is exact tic-tac-toe only" in lines[0] and "'mcts'" in lines[0]
     assert not (tmp_path / "runs").exists()
 
