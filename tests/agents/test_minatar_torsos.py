@@ -84,7 +84,8 @@ def test_dqn_chunk_on_minatar():
     )
     assert dqn.make_network(config).obs_high == 1.0
     hparams = dqn.default_hyperparams(BREAKOUT)
-    state = dqn.init(jax.random.key(0), config, hparams)
+    # init jitted: op by op, it dispatches every op of the env's reset and the conv torso's init
+    state = jax.jit(dqn.init, static_argnums=1)(jax.random.key(0), config, hparams)
     state, metrics = jax.jit(dqn.train_chunk, static_argnums=1)(state, config, hparams)
     assert state.buffer.data.obs.shape[-3:] == (10, 10, 4)  # whole grids in the replay
     assert np.isfinite(float(metrics.extra["loss"]))
@@ -106,7 +107,7 @@ def test_ppo_chunk_on_minatar():
     )
     assert ppo.make_network(config).obs_high == 1.0
     hparams = ppo.default_hyperparams(BREAKOUT)
-    state = ppo.init(jax.random.key(0), config, hparams)
+    state = jax.jit(ppo.init, static_argnums=1)(jax.random.key(0), config, hparams)
     state, metrics = jax.jit(ppo.train_chunk, static_argnums=1)(state, config, hparams)
     assert np.isfinite(float(metrics.extra["policy_loss"]))
     for leaf in jax.tree.leaves(state.agent.params):

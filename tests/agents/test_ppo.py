@@ -332,7 +332,8 @@ def test_one_chunk_runs_and_is_finite(env_id, overrides):
     tiny = {"num_envs": 2, "num_steps": 8, "num_epochs": 2, "num_minibatches": 2}
     config = ppo.default_config(env_id, **tiny, **overrides, num_eval_envs=1)
     hparams = ppo.default_hyperparams(env_id)
-    state = ppo.init(jax.random.key(0), config, hparams)
+    # init jitted: op by op, it dispatches every op of the env's reset and the network's init
+    state = jax.jit(ppo.init, static_argnums=1)(jax.random.key(0), config, hparams)
     state, metrics = jax.jit(ppo.train_chunk, static_argnums=1)(state, config, hparams)
     # (train_return stays NaN until an episode ends: none does in 16 steps)
     for leaf in jax.tree.leaves((state.agent, metrics.eval_return, metrics.extra)):
