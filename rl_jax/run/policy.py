@@ -412,7 +412,16 @@ def load_policy(
 
 
 def _index(tree: Tree, run: tuple[int, int]) -> Tree:
-    return jax.tree.map(lambda leaf: leaf[run], tree)
+    """One run's leaves out of the policy part stacked ``[H, S]``. Indexed on the host: indexing
+    each leaf as a jax array dispatches (and on a first call compiles) one program per leaf's
+    shape, most of a load's time; the policy part is small enough to copy whole."""
+
+    def one(leaf: Any) -> Any:
+        if isinstance(leaf, jax.Array) and jax.dtypes.issubdtype(leaf.dtype, jax.dtypes.prng_key):
+            return leaf[run]
+        return jnp.asarray(np.asarray(leaf)[run])
+
+    return jax.tree.map(one, tree)
 
 
 def _rows(run_dir: Path) -> list[dict[str, Any]]:
