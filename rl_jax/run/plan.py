@@ -10,7 +10,6 @@ import os
 from pathlib import Path
 
 import jax
-import jax.numpy as jnp
 import numpy as np
 
 from rl_jax.errors import RunError
@@ -192,10 +191,7 @@ def make_plan(spec: RunSpec) -> Plan:
 def runs_template(spec: RunSpec, hparams: Hyperparams) -> TrainState:
     """Shapes and dtypes of the ``[configs, seeds]`` state (the shared clock unstacked), without
     allocating: what a checkpoint holds, whatever the device layout."""
-    one = jax.tree.map(lambda x: jnp.asarray(x[0]), hparams)
-    abstract = jax.eval_shape(
-        lambda key: spec.algorithm.init(key, spec.config, one), jax.random.key(0)
-    )
+    abstract = parallel.one_run_shapes(spec.algorithm, spec.config, hparams)
     runs = (len(spec.hparams), spec.seeds)
     return parallel.map_axes(
         lambda axis, leaf: (

@@ -65,6 +65,34 @@ def seed_keys(seeds: Sequence[int]) -> jax.Array:
     return jnp.stack([jax.random.key(int(s)) for s in seeds])
 
 
+_ONE_RUN_SHAPES: dict[tuple, TrainState] = {}
+_ONE_RUN_SHAPES_KEPT = 32
+
+
+def one_run_shapes(algorithm: Algorithm, config: Config, hparams: Hyperparams) -> TrainState:
+    """``jax.ShapeDtypeStruct`` tree of one run's state (``init`` at the first of the stacked
+    ``hparams``), nothing allocated. Planning a run, placing it and writing its checkpoint
+    template each need it; tracing ``init`` once per learner, config and hyperparameters (kept
+    for the last few) spares the others their own trace. A learner or config that cannot be
+    hashed (a user's mutable dataclass) is traced every time."""
+    one = jax.tree.map(lambda x: np.asarray(x[0]), hparams)
+    leaves, structure = jax.tree.flatten(one)
+    key = (algorithm, config, structure, tuple((x.dtype.str, x.tobytes()) for x in leaves))
+    try:
+        hash(key)
+    except TypeError:
+        key = None
+    if key is None or key not in _ONE_RUN_SHAPES:
+        values = jax.tree.map(jnp.asarray, one)
+        shapes = jax.eval_shape(lambda rng: algorithm.init(rng, config, values), jax.random.key(0))
+        if key is None:
+            return shapes
+        _ONE_RUN_SHAPES[key] = shapes
+        while len(_ONE_RUN_SHAPES) > _ONE_RUN_SHAPES_KEPT:
+            del _ONE_RUN_SHAPES[next(iter(_ONE_RUN_SHAPES))]
+    return _ONE_RUN_SHAPES[key]
+
+
 def state_axes(state: TrainState) -> Axes:
     """vmap axes for a train state: 0 everywhere, ``None`` for the shared ``clock``."""
     axes = jax.tree.map(lambda _: 0, state)
@@ -220,11 +248,7 @@ class Program:
     def axes(self, hparams: Hyperparams) -> Axes:
         """vmap axes of the state (0, or ``None`` for the shared clock)."""
         if self._axes is None:
-            one = jax.tree.map(lambda x: jnp.asarray(x[0]), hparams)
-            abstract = jax.eval_shape(
-                lambda key: self.algorithm.init(key, self.config, one), jax.random.key(0)
-            )
-            self._axes = state_axes(abstract)
+            self._axes = state_axes(one_run_shapes(self.algorithm, self.config, hparams))
         return self._axes
 
     def _put(self, array: np.ndarray, sharding: NamedSharding) -> jax.Array:
@@ -275,10 +299,7 @@ class Program:
     def template(self, hparams: Hyperparams) -> TrainState:
         """``jax.ShapeDtypeStruct`` tree (with shardings) of the device state: nothing allocated."""
         axes = self.axes(hparams)
-        one = jax.tree.map(lambda x: jnp.asarray(x[0]), hparams)
-        abstract = jax.eval_shape(
-            lambda key: self.algorithm.init(key, self.config, one), jax.random.key(0)
-        )
+        abstract = one_run_shapes(self.algorithm, self.config, hparams)
 
         def grow(axis: int | None, leaf: jax.ShapeDtypeStruct) -> jax.ShapeDtypeStruct:
             if axis is None:
