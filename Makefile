@@ -61,11 +61,12 @@ system-deps: ## install the system libraries for headless rendering (EGL), where
 
 # Test files are spread over TEST_WORKERS processes (pytest-xdist), each file whole in one of them
 # so that its tests share their compiled programs; a cold run is mostly XLA compiling, one core per
-# program. TEST_WORKERS=0 runs everything in this process.
+# program. TEST_WORKERS=0 runs everything in this process. One OpenBLAS thread per test process
+# (tests/conftest.py says why).
 TEST_WORKERS ?= 2
 
 test: install ## run the default (fast) test suite
-	$(BIN)/python -m pytest -q -n $(TEST_WORKERS) --dist loadfile --durations=20
+	OPENBLAS_NUM_THREADS=1 $(BIN)/python -m pytest -q -n $(TEST_WORKERS) --dist loadfile --durations=20
 
 test-latest: ## the default suite against the newest jax, flax, optax, orbax, mujoco, gymnasium, pgx, mctx (.venv-latest)
 	@test -x $(LATEST_VENV)/bin/python || $(LATEST_PYTHON) -m venv $(LATEST_VENV)
@@ -79,7 +80,7 @@ test-latest: ## the default suite against the newest jax, flax, optax, orbax, mu
 		--no-build-isolation -e .
 	@$(LATEST_VENV)/bin/python -m pip list 2>/dev/null | grep -iE '^(jax|jaxlib|flax|optax|orbax-checkpoint|mujoco|mujoco-mjx|brax|gymnasium|gymnax|numpy|pgx|mctx) '
 	$(LATEST_VENV)/bin/python -m rl_jax.envs.mujoco.mujoco_ffi_build
-	$(LATEST_VENV)/bin/python -m pytest -q -n $(TEST_WORKERS) --dist loadfile
+	OPENBLAS_NUM_THREADS=1 $(LATEST_VENV)/bin/python -m pytest -q -n $(TEST_WORKERS) --dist loadfile
 
 test-slow: install ## run the long learning tests only
 	$(BIN)/python -m pytest -q -m slow

@@ -2,10 +2,18 @@
 compute float32 matmuls in float32 on accelerators too."""
 
 import gc
+import os
 import sys
 from pathlib import Path
 
-import jax
+# numpy's OpenBLAS starts a thread per core in every test process and in every child it spawns;
+# with two test processes on two cores (and XLA's own threads) those threads contend, and a small
+# numpy matmul (the gymnasium frame references' resizing) takes tens of times longer. One BLAS
+# thread per process: `make test` sets it before Python starts (a pytest plugin imports numpy
+# before this file runs); here it reaches the child processes that the tests start.
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+
+import jax  # noqa: E402
 
 # The tests live in folders that mirror the package (agents/, training/, run/, envs/); the helpers
 # they share (fake_algorithm, fake_experiment, probe_runs, run_helpers) stay here, importable from
