@@ -28,8 +28,9 @@ losses, GAE and the action distributions (``ppo_parts``, ``policy_gradient``) an
 step (``common``).
 
 Options: observations standardised by running statistics (``normalize_obs``: acting and
-learning on one batch use the statistics from before it, as in PPO). Not supported: legal-action
-masks (refused), reward normalisation, frames.
+learning on one batch use the statistics from before it, as in PPO), and rewards divided by a
+running std of discounted returns (``normalize_rewards``, PPO's and VecNormalize's). Not
+supported: legal-action masks (refused), frames.
 """
 
 from __future__ import annotations
@@ -87,6 +88,7 @@ class Config:
     activation: networks.Activation = "tanh"  # of those layers: see networks.ACTIVATIONS
     initial_std: float = 1.0  # Gaussian policy: the state-independent std before training
     normalize_obs: bool = False  # standardise observations by running mean and variance
+    normalize_rewards: bool = False  # divide rewards by a running std of discounted returns
     normalize_advantages: bool = True  # standardise the advantages of each minibatch
     # the env's constructor keywords, "name=value, name=value": envs.make(env_id, **them)
     env_kwargs: str = ""
@@ -140,6 +142,7 @@ class Hyperparams(params.HyperparamsMethods):
     ent_coef: Scalar = 0.0  # weight of the policy's mean entropy, subtracted from the loss
     max_grad_norm: Scalar = 0.5  # clip the gradient's global norm to this (0: no clipping)
     adam_eps: Scalar = 1e-5  # Adam's epsilon
+    reward_clip: Scalar = 10.0  # normalize_rewards: scaled rewards are clipped to +-this (0: not)
 
 
 # rl-baselines3-zoo's ppo_lstm settings for CartPoleNoVel-v1, in this learner's terms: 8 envs x 32
@@ -245,11 +248,11 @@ MUJOCO_POSITIONS = (
 # untuned: 64 envs x 32 steps (a sequence is an env's whole rollout, seq_len = num_steps), 10
 # epochs x 32 minibatches (2 sequences, 64 steps each, PPO's minibatch size), the rate 3e-4 to 0
 # over 1M steps, gamma 0.99, lambda 0.95, clip 0.2, value weight 0.5, no entropy bonus, gradient
-# norm 0.5, Adam eps 1e-5, observations standardised, advantages per minibatch. PPO's 64 x 64
-# tanh layers, the actor's and the critic's own, are here each head's own 64 x 64 after the
-# shared cell. No counterpart here for PPO's reward normalisation (normalize_rewards with its
-# reward_clip 10) nor for its clipped value loss (clip_value_loss, value_clip_eps 0.2): the value
-# learns the unscaled returns with the plain squared loss.
+# norm 0.5, Adam eps 1e-5, observations standardised, rewards scaled by the running std of the
+# discounted returns and clipped to +-10, advantages per minibatch. PPO's 64 x 64 tanh layers,
+# the actor's and the critic's own, are here each head's own 64 x 64 after the shared cell. No
+# counterpart here for PPO's clipped value loss (clip_value_loss, value_clip_eps 0.2): the value
+# learns the scaled returns with the plain squared loss.
 MUJOCO_POSITIONS_CONFIG: dict[str, Setting] = {
     "num_envs": 64,
     "num_steps": 32,
@@ -265,6 +268,7 @@ MUJOCO_POSITIONS_CONFIG: dict[str, Setting] = {
     "activation": "tanh",
     "initial_std": 1.0,
     "normalize_obs": True,
+    "normalize_rewards": True,
     "normalize_advantages": True,
 }
 MUJOCO_POSITIONS_HPARAMS: dict[str, Setting] = {
@@ -309,7 +313,7 @@ RECIPES = Recipes(
     Recipe(
         "default",
         "PPO's vectorised MuJoCo recipe with an LSTM 128 (untuned): 64 envs x 32 steps, 10 "
-        "epochs x 32, normalised obs, no reward normalisation",
+        "epochs x 32, normalised obs and rewards",
         MUJOCO_POSITIONS_CONFIG,
         MUJOCO_POSITIONS_HPARAMS,
         envs=MUJOCO_POSITIONS,
@@ -465,6 +469,12 @@ class TrainState:
     key: jax.Array
     clock: Clock
     train_return: jax.Array  # [] float32, mean return of the episodes ended in the last chunk
+    return_stats: RunningStats | None = (
+        None  # normalize_rewards: RunningStats of discounted returns, [1]
+    )
+    discounted_return: jax.Array | None = (
+        None  # normalize_rewards: [num_envs], each env's running return
+    )
 
 
 class Rollout(NamedTuple):
@@ -638,10 +648,18 @@ def train_iteration(state: TrainState, config: Config, hparams: Hyperparams):
     key, collect_key, update_key = jax.random.split(state.key, 3)
     state, rollout = collect(state, collect_key, config)
     ended = jnp.logical_or(rollout.terminated, rollout.truncated)
+    r_t = rollout.r_t
+    if config.normalize_rewards:
+        assert state.discounted_return is not None and state.return_stats is not None
+        g_t, running = ppo_parts.discounted_returns(
+            r_t, ended, state.discounted_return, hparams.gamma
+        )
+        r_t, stats = ppo_parts.scale_rewards(r_t, g_t, state.return_stats, hparams.reward_clip)
+        state = dataclasses.replace(state, return_stats=stats, discounted_return=running)
     discount_t = hparams.gamma * (1.0 - rollout.terminated.astype(jnp.float32))
     trace_t = hparams.gamma * hparams.gae_lambda * (1.0 - ended.astype(jnp.float32))
     advantage = ppo_parts.generalized_advantage_estimates(
-        rollout.r_t, discount_t, rollout.v_tm1, rollout.v_t, trace_t
+        r_t, discount_t, rollout.v_tm1, rollout.v_t, trace_t
     )
     target = advantage + rollout.v_tm1
     steps = Sequences(rollout.obs, rollout.start, rollout.action, rollout.log_mu, advantage, target)
@@ -678,7 +696,7 @@ def init(key: jax.Array, config: Config, hparams: Hyperparams) -> TrainState:
     optimizer = optax.inject_hyperparams(optax.adam)(hparams.learning_rate, eps=hparams.adam_eps)
     obs_size = env.observation_space().shape[0]
     obs_stats = normalization.init(obs_size) if config.normalize_obs else None
-    return TrainState(
+    state = TrainState(
         agent=Agent(params, optimizer.init(params), obs_stats),
         env_state=env_state,
         obs=ts.obs,
@@ -688,6 +706,12 @@ def init(key: jax.Array, config: Config, hparams: Hyperparams) -> TrainState:
         clock=Clock(env_steps=jnp.int32(0), updates=jnp.int32(0), iterations=jnp.int32(0)),
         train_return=jnp.float32(jnp.nan),
     )
+    if config.normalize_rewards:
+        zeros = jnp.zeros(config.num_envs, jnp.float32)
+        state = dataclasses.replace(
+            state, return_stats=normalization.init(1), discounted_return=zeros
+        )
+    return state
 
 
 def train_chunk(

@@ -292,3 +292,38 @@ def test_a_resumed_run_equals_one_that_never_stopped_and_its_policy_remembers(tm
         policy.reset()
         actions = [int(policy(np.array([obs], np.float32))) for obs in (first, 0.0, 0.0)]
         assert actions[-1] == (1 if first > 0 else 0)
+
+
+def test_normalize_rewards_folds_each_envs_running_discounted_return_into_the_stats():
+    """With ``normalize_rewards`` an iteration folds every step's running discounted return
+    (restarted where an episode ended, carried across rollouts) into the return statistics, as
+    PPO's option does: checked against the rollout's rewards recomputed in numpy."""
+    config = rppo.recurrent_ppo.default_config(
+        "rl_jax/CartPoleNoVel-v1", num_envs=4, num_steps=16, seq_len=8, normalize_rewards=True
+    )
+    hparams = rppo.recurrent_ppo.default_hyperparams("rl_jax/CartPoleNoVel-v1")
+    state = rppo.init(jax.random.key(0), config, hparams)
+    iteration = jax.jit(rppo.train_iteration, static_argnums=1)
+    running = np.zeros(config.num_envs)
+    returns = []
+    for _ in range(2):  # the second rollout starts from the first's carried returns
+        _, collect_key, _ = jax.random.split(state.key, 3)
+        _, rollout = rppo.collect(state, collect_key, config)
+        ended = np.asarray(rollout.terminated | rollout.truncated)
+        for r, done in zip(np.asarray(rollout.r_t), ended, strict=True):
+            running = hparams.gamma * running + r
+            returns.append(running.copy())
+            running = np.where(done, 0.0, running)
+        state, _ = iteration(state, config, hparams)
+        np.testing.assert_allclose(state.discounted_return, running, rtol=1e-5)
+    assert ended.any()  # episodes ended inside the rollouts: the restart was exercised
+    g = np.concatenate(returns)
+    assert float(state.return_stats.count) == pytest.approx(g.size, abs=1e-3)
+    np.testing.assert_allclose(state.return_stats.mean, [g.mean()], rtol=1e-4)
+    np.testing.assert_allclose(state.return_stats.var, [g.var()], rtol=1e-3)
+    assert (
+        rppo.init(
+            jax.random.key(0), dataclasses.replace(config, normalize_rewards=False), hparams
+        ).return_stats
+        is None
+    )
