@@ -16,8 +16,15 @@ copy of the env. A velocity-masked id (``rl_jax/CartPoleNoVel-v1``, ``rl_jax/Hop
 envs/memory/masked.py) plays in gymnasium's base env under the same mask (``gymnasium_twin``),
 a recurrent policy reset at every episode.
 
+``--gymnax`` plays them in gymnax's own env, for a run on a MinAtar id (``envs.MINATAR_IDS``):
+``gymnax.make(NAME)`` for ``rl_jax/NAME``, stepped through gymnax's own ``reset`` and ``step``
+(which merges both episode ends into ``done``) in one compiled loop, each observation given to
+the policy as our adapter gives it (cast to float32), with the episode keys of the run's-env
+evaluation above: equal tables say that our copy plays gymnax's game.
+
     python -m rl_jax.run.evaluate runs/results/dqn-cartpole-pixels --episodes 100 --latest
     python -m rl_jax.run.evaluate runs/ppo_hopper --gymnasium --episodes 20
+    python -m rl_jax.run.evaluate runs/pqn_breakout --gymnax
 """
 
 from __future__ import annotations
@@ -25,10 +32,11 @@ from __future__ import annotations
 import dataclasses
 from collections.abc import Callable
 from pathlib import Path
-from typing import Any, cast
+from typing import Any, Protocol, cast
 
 import gymnasium
 import jax
+import jax.numpy as jnp
 import numpy as np
 
 from rl_jax import envs
@@ -43,7 +51,14 @@ from rl_jax.run.policy import (
     command_line_env,
     command_line_learner,
 )
-from rl_jax.training.algorithm import Algorithm, TakesEnvKeywords
+from rl_jax.training.algorithm import (
+    Algorithm,
+    PolicyFn,
+    PolicyState,
+    RecurrentPolicyFn,
+    TakesEnvKeywords,
+)
+from rl_jax.training.episodes import batched_policy_state
 from rl_jax.training.jax_setup import configure
 
 KEY = 20_251_125  # evaluation episodes' key: none of a run's own evaluations draws it
@@ -60,7 +75,8 @@ class Evaluation:
     step: int  # env step of the policy
     run_eval: float | None  # the run's own evaluation of it
     returns: np.ndarray  # [episodes]
-    env: str = ""  # where the episodes were played: "" for the run's env, else gymnasium's twin
+    env: str = ""  # where the episodes were played: "" for the run's env, else its twin's name
+    library: str = "gymnasium"  # whose twin ``env`` is: "gymnasium" or "gymnax"
 
 
 def evaluate_policy(loaded: LoadedPolicy, episodes: int, key: int = KEY) -> np.ndarray:
@@ -76,7 +92,10 @@ def gymnasium_id(env_id: str) -> str:
         return env_id.split(":", 1)[1]
     name = env_id.split(":")[-1].removeprefix("rl_jax/")
     if name == env_id or name not in gymnasium.registry:
-        raise UsageError(f"{env_id} has no twin registered in gymnasium to replay its policies in")
+        gymnax_hint = "; --gymnax replays them in gymnax's" if env_id in envs.MINATAR_IDS else ""
+        raise UsageError(
+            f"{env_id} has no twin registered in gymnasium to replay its policies in{gymnax_hint}"
+        )
     return name
 
 
@@ -148,6 +167,142 @@ def _in_gymnasium(loaded: LoadedPolicy, episodes: int) -> tuple[str, np.ndarray]
         env.close()
 
 
+# ---- gymnax --------------------------------------------------------------------------------------
+class GymnaxEnv(Protocol):
+    """What ``--gymnax`` calls of a gymnax ``Environment``: its own functional API (gymnax ships
+    no type information). ``step`` resets inside where ``terminated | truncated``."""
+
+    def reset(self, key: jax.Array, params: object) -> tuple[jax.Array, object]: ...
+
+    def step(
+        self, key: jax.Array, state: object, action: jax.Array, params: object
+    ) -> tuple[jax.Array, object, jax.Array, jax.Array, jax.Array, dict[str, jax.Array]]: ...
+
+
+def gymnax_name(env_id: str) -> str:
+    """gymnax's name of a run's env: ``NAME`` of a MinAtar id ``rl_jax/NAME``
+    (``envs.MINATAR_IDS``, our ids that wrap a gymnax env)."""
+    if env_id not in envs.MINATAR_IDS:
+        raise UsageError(
+            f"{env_id} is not a gymnax env to replay its policies in: --gymnax takes a run on "
+            + ", ".join(envs.MINATAR_IDS)
+        )
+    return env_id.removeprefix("rl_jax/")
+
+
+def gymnax_twin(env_id: str, keywords: dict[str, object]) -> tuple[str, GymnaxEnv, object]:
+    """gymnax's own env for a run's ``env_id`` made with ``keywords``: its name, the env and
+    its params. ``gymnax.make(NAME)`` with gymnax's default params, which the run's keywords
+    change as ``envs.from_gymnax`` applies them (a field of the params replaced, any other
+    keyword given to ``gymnax.make``); none is the usual case.
+
+    A run trained with ``sticky_actions`` > 0 (our keyword: the original MinAtar's repeated
+    actions) is refused, not replayed without them: gymnax has none, so its episodes would be
+    another game than the one the policy trained and was evaluated on, and its table beside the
+    run's figures would say nothing about our copy of the env."""
+    import gymnax  # here, not at the top: only the MinAtar runs need it
+
+    name = gymnax_name(env_id)
+    keywords = dict(keywords)
+    sticky = keywords.pop("sticky_actions", 0.0)
+    if sticky:
+        raise UsageError(
+            f"the run trained with sticky_actions={sticky}, and gymnax's {name} has no sticky "
+            "actions: its episodes cannot be replayed there"
+        )
+    env, params = gymnax.make(name)
+    fields = {field.name for field in dataclasses.fields(params)}
+    constructor = {key: value for key, value in keywords.items() if key not in fields}
+    if constructor:
+        env, params = gymnax.make(name, **constructor)
+    overrides = {key: value for key, value in keywords.items() if key in fields}
+    return name, env, params.replace(**overrides) if overrides else params
+
+
+def observation_as_ours(
+    env: GymnaxEnv, params: object, space: envs.Space
+) -> Callable[[jax.Array], jax.Array]:
+    """One of gymnax's observations as our env gives it to the policy, whose observations are
+    ``space``: cast to its dtype (our adapter's float32) and, for a policy that sees them
+    flattened (``envs.FlattenObservation``), reshaped to its shape."""
+    shape = tuple(space.shape)
+    gymnax_shape = tuple(jax.eval_shape(env.reset, jax.random.key(0), params)[0].shape)
+    if np.prod(gymnax_shape) != np.prod(shape):
+        raise UsageError(
+            f"gymnax observes shape {gymnax_shape}, the run's policy {shape}: its episodes "
+            "cannot be replayed there"
+        )
+    return lambda obs: jnp.reshape(jnp.asarray(obs, space.dtype), shape)
+
+
+def gymnax_returns(
+    act: PolicyFn | RecurrentPolicyFn,
+    env: GymnaxEnv,
+    params: object,
+    episodes: int,
+    key: int = KEY,
+    observe: Callable[[jax.Array], jax.Array] = jnp.asarray,
+    initial_policy_state: PolicyState | None = None,
+) -> np.ndarray:
+    """Returns ``[episodes]`` of ``act`` (one observation -> its action; with
+    ``initial_policy_state``, ``(policy_state, obs) -> (action, policy_state)``) in gymnax's
+    ``env``, through gymnax's own ``reset(key, params)`` and ``step(key, state, action,
+    params)``: all episodes vmapped in one jitted while loop, each counted until gymnax's end
+    (terminated, or truncated at its ``max_steps_in_episode``). ``observe`` maps one of gymnax's
+    observations to the policy's. The keys are those ``evaluate_policy`` draws from ``key``."""
+    if initial_policy_state is None:
+        feed_forward = cast(PolicyFn, act)
+
+        def policy(state: PolicyState, obs: jax.Array) -> tuple[jax.Array, PolicyState]:
+            return feed_forward(observe(obs)), state
+
+        initial: PolicyState = ()
+    else:
+        recurrent = cast(RecurrentPolicyFn, act)
+
+        def policy(state: PolicyState, obs: jax.Array) -> tuple[jax.Array, PolicyState]:
+            return recurrent(state, observe(obs))
+
+        initial = initial_policy_state
+    reset = jax.vmap(env.reset, in_axes=(0, None))
+    step = jax.vmap(env.step, in_axes=(0, 0, 0, None))
+    #: (step, gymnax's states, policy states, observations, alive, returns)
+    Loop = tuple[jax.Array, object, PolicyState, jax.Array, jax.Array, jax.Array]
+
+    def run(key: jax.Array) -> jax.Array:
+        reset_key, step_key = jax.random.split(key)
+
+        def advance(carry: Loop) -> Loop:
+            time, state, policy_state, obs, alive, total = carry
+            action, policy_state = jax.vmap(policy)(policy_state, obs)
+            keys = jax.random.split(jax.random.fold_in(step_key, time), episodes)
+            obs, state, reward, terminated, truncated, _ = step(keys, state, action, params)
+            total = total + jnp.where(alive, reward.astype(jnp.float32), 0.0)
+            alive = jnp.logical_and(alive, ~jnp.logical_or(terminated, truncated))
+            return time + 1, state, policy_state, obs, alive, total
+
+        obs, state = reset(jax.random.split(reset_key, episodes), params)
+        alive, total = jnp.ones(episodes, jnp.bool_), jnp.zeros(episodes, jnp.float32)
+        policy_state = batched_policy_state(initial, episodes)
+        carry: Loop = (jnp.int32(0), state, policy_state, obs, alive, total)
+        return jax.lax.while_loop(lambda carry: jnp.any(carry[4]), advance, carry)[-1]
+
+    return np.asarray(jax.jit(run)(jax.random.key(key)))
+
+
+def _in_gymnax(loaded: LoadedPolicy, episodes: int) -> tuple[str, np.ndarray]:
+    """``loaded``'s policy in gymnax's own env of the run's MinAtar id: its name and the
+    returns, on the episode keys of ``evaluate_policy``."""
+    config = loaded.config
+    keywords = envs.parse_keywords(
+        config.env_kwargs if isinstance(config, TakesEnvKeywords) else ""
+    )
+    name, env, params = gymnax_twin(loaded.env_id, keywords)
+    observe = observation_as_ours(env, params, loaded.env().observation_space())
+    initial = loaded.initial_policy_state()
+    return name, gymnax_returns(loaded.act(), env, params, episodes, KEY, observe, initial)
+
+
 def evaluate_run(
     run_dir: Path,
     episodes: int = 100,
@@ -157,11 +312,14 @@ def evaluate_run(
     algorithm: str | Algorithm | None = None,
     gymnasium: bool = False,
     env: str | None = None,
+    gymnax: bool = False,
 ) -> list[Evaluation]:
     """Every seed's best policy (and its latest, with ``latest``) on ``episodes`` episodes of
-    the run's env, or with ``gymnasium`` of gymnasium's own; ``algorithm`` names the run's
-    learner when it is not built in, ``env`` its env when it comes from a module of the
-    user's own."""
+    the run's env, or with ``gymnasium`` of gymnasium's own, with ``gymnax`` of gymnax's own;
+    ``algorithm`` names the run's learner when it is not built in, ``env`` its env when it
+    comes from a module of the user's own."""
+    if gymnasium and gymnax:
+        raise UsageError("--gymnasium and --gymnax: choose one env to replay the policies in")
     first = LoadedPolicy(run_dir, None, config_index, "latest", algorithm, env)
     evaluations = []
     for seed in first.seeds if seeds is None else seeds:
@@ -169,13 +327,15 @@ def evaluate_run(
             loaded = LoadedPolicy(
                 run_dir, seed, first.config_index, which, first.algorithm, first.env_id
             )
-            env, returns = (
-                _in_gymnasium(loaded, episodes)
-                if gymnasium
-                else ("", evaluate_policy(loaded, episodes))
-            )
+            if gymnasium or gymnax:
+                twin, returns = (_in_gymnasium if gymnasium else _in_gymnax)(loaded, episodes)
+            else:
+                twin, returns = "", evaluate_policy(loaded, episodes)
+            library = "gymnax" if gymnax else "gymnasium"
             evaluations.append(
-                Evaluation(seed, loaded.which, loaded.step, loaded.eval_return, returns, env)
+                Evaluation(
+                    seed, loaded.which, loaded.step, loaded.eval_return, returns, twin, library
+                )
             )
     return evaluations
 
@@ -185,7 +345,8 @@ def table(evaluations: list[Evaluation]) -> str:
     episodes' mean, std, min and max.
     """
     episodes = len(evaluations[0].returns)
-    where = evaluations[0].env and f" of gymnasium's {evaluations[0].env}"
+    first = evaluations[0]
+    where = first.env and f" of {first.library}'s {first.env}"
     lines = [
         f"each policy on {episodes} fresh episodes{where}",
         "",
@@ -227,6 +388,12 @@ def main(argv: list[str] | None = None, prog: str = "python -m rl_jax.run.evalua
         "rl_jax/HalfCheetah-v5; CartPole-v1 with the velocities zeroed for "
         "rl_jax/CartPoleNoVel-v1), stepped on the host",
     )
+    parser.add_argument(
+        "--gymnax",
+        action="store_true",
+        help="play the episodes in gymnax's own env (Breakout-MinAtar for "
+        "rl_jax/Breakout-MinAtar: the MinAtar ids), on the keys of the run's-env evaluation",
+    )
     args = parser.parse_args(argv)
 
     def run() -> int:
@@ -243,6 +410,7 @@ def main(argv: list[str] | None = None, prog: str = "python -m rl_jax.run.evalua
             learner,
             args.gymnasium,
             env_id,
+            args.gymnax,
         )
         print(table(evaluations))
         return 0

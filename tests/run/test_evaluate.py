@@ -87,6 +87,7 @@ def test_command_line_prints_the_table_or_one_error_line(run_dir, capsys):
         ((run_dir.parent / "missing",), "no run directory"),
         ((run_dir, "--episodes", "0"), "--episodes"),
         ((run_dir, "--gymnasium", "--algo", "fake_algorithm"), "no twin registered in gymnasium"),
+        ((run_dir, "--gymnax", "--algo", "fake_algorithm"), "is not a gymnax env"),
     ]:
         try:
             status = evaluate.main(list(map(str, args)))
