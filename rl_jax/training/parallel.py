@@ -77,7 +77,12 @@ def one_run_shapes(algorithm: Algorithm, config: Config, hparams: Hyperparams) -
     hashed (a user's mutable dataclass) is traced every time."""
     one = jax.tree.map(lambda x: np.asarray(x[0]), hparams)
     leaves, structure = jax.tree.flatten(one)
-    key = (algorithm, config, structure, tuple((x.dtype.str, x.tobytes()) for x in leaves))
+    key: tuple | None = (
+        algorithm,
+        config,
+        structure,
+        tuple((x.dtype.str, x.tobytes()) for x in leaves),
+    )
     try:
         hash(key)
     except TypeError:
