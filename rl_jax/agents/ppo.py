@@ -653,9 +653,11 @@ PIXELS_HPARAMS: dict[str, Setting] = {"learning_rate": 2.5e-4, "lr_decay_steps":
 # minibatches, gamma 0.999, lambda 0.95, clip 0.2, entropy 0.01, value 0.5, norm 0.5) on its
 # network, an MLP of 2 x 256 ReLU units on the flattened grid for the actor and another for the
 # critic, without its 5% warm-up of the rate; each game at the rate of its better released agent
-# (1e-3 on Breakout and Asterix, 3e-4 on SpaceInvaders and Freeway). The MinAtar paper's conv
-# torso shared by actor and critic (conv_layers=(16, 3, 1), hidden=(128,)) stays one flag away;
-# RESULTS.md ("MinAtar inside the program") says why it is not the recipe.
+# (1e-3 on Breakout and Asterix, 3e-4 on SpaceInvaders and Freeway), falling linearly to 0 over
+# the 10M steps where gymnax-blines keeps it constant: at a constant rate the final policies
+# swung between evaluations. The MinAtar paper's conv torso shared by actor and critic
+# (conv_layers=(16, 3, 1), hidden=(128,)) stays one flag away; RESULTS.md ("MinAtar inside the
+# program") says why neither is as gymnax-blines has it.
 MINATAR_CONFIG: dict[str, Setting] = {
     "num_envs": 64,
     "num_steps": 128,
@@ -669,6 +671,7 @@ MINATAR_CONFIG: dict[str, Setting] = {
 }
 MINATAR_HPARAMS: dict[str, Setting] = {
     "learning_rate": 1e-3,
+    "lr_decay_steps": 10_000_000.0,
     "gamma": 0.999,
     "gae_lambda": 0.95,
     "clip_eps": 0.2,
@@ -682,7 +685,7 @@ MINATAR_SLOWER = ("rl_jax/SpaceInvaders-MinAtar", "rl_jax/Freeway-MinAtar")
 RECIPES = Recipes(
     Recipe(
         "default",
-        "gymnax-blines' PPO: 64 envs x 128 steps, 4 x 8, actor and critic MLPs 2 x 256, rate 1e-3",
+        "gymnax-blines' PPO: 64 envs x 128, 4 x 8, actor and critic MLPs 2 x 256, rate 1e-3 to 0",
         MINATAR_CONFIG,
         MINATAR_HPARAMS,
         envs=tuple(env for env in IMAGE_ENVS if env not in MINATAR_SLOWER),
@@ -690,7 +693,7 @@ RECIPES = Recipes(
     ),
     Recipe(
         "default",
-        "gymnax-blines' PPO: 64 envs x 128 steps, 4 x 8, actor and critic MLPs 2 x 256, rate 3e-4",
+        "gymnax-blines' PPO: 64 envs x 128, 4 x 8, actor and critic MLPs 2 x 256, rate 3e-4 to 0",
         MINATAR_CONFIG,
         {**MINATAR_HPARAMS, "learning_rate": 3e-4},
         envs=MINATAR_SLOWER,
