@@ -416,7 +416,7 @@ def _index(tree: Tree, run: tuple[int, int]) -> Tree:
     each leaf as a jax array dispatches (and on a first call compiles) one program per leaf's
     shape, most of a load's time; the policy part is small enough to copy whole."""
 
-    def one(leaf: Any) -> Any:
+    def one(leaf: jax.Array | np.ndarray) -> jax.Array:
         if isinstance(leaf, jax.Array) and jax.dtypes.issubdtype(leaf.dtype, jax.dtypes.prng_key):
             return leaf[run]
         return jnp.asarray(np.asarray(leaf)[run])
