@@ -412,14 +412,11 @@ def load_policy(
 
 
 def _index(tree: Tree, run: tuple[int, int]) -> Tree:
-    """One run's leaves out of the policy part stacked ``[H, S]``. Indexed on the host: indexing
-    each leaf as a jax array dispatches (and on a first call compiles) one program per leaf's
-    shape, most of a load's time; the policy part is small enough to copy whole."""
+    """One run's leaves of the small policy part, indexed on the host: not a program per leaf."""
 
     def one(leaf: jax.Array | np.ndarray) -> jax.Array:
-        if isinstance(leaf, jax.Array) and jax.dtypes.issubdtype(leaf.dtype, jax.dtypes.prng_key):
-            return leaf[run]
-        return jnp.asarray(np.asarray(leaf)[run])
+        key = isinstance(leaf, jax.Array) and jax.dtypes.issubdtype(leaf.dtype, jax.dtypes.prng_key)
+        return leaf[run] if key else jnp.asarray(np.asarray(leaf)[run])
 
     return jax.tree.map(one, tree)
 
