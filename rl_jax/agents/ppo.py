@@ -406,22 +406,18 @@ def targets(
     rollout: Rollout, state: TrainState, hparams: Hyperparams, config: Config
 ) -> tuple[jax.Array, jax.Array, TrainState]:
     """``(advantages [T, N], lambda-returns [T, N], state with new reward statistics)``."""
-    ended = jnp.logical_or(rollout.terminated, rollout.truncated)
-    r_t = rollout.r_t
-    if config.normalize_rewards:
-        assert state.discounted_return is not None  # kept with normalize_rewards
-        g_t, carry = ppo_parts.discounted_returns(
-            r_t, ended, state.discounted_return, hparams.gamma
-        )
-        assert state.return_stats is not None  # kept with normalize_rewards
-        r_t, stats = ppo_parts.scale_rewards(r_t, g_t, state.return_stats, hparams.reward_clip)
-        state = dataclasses.replace(state, return_stats=stats, discounted_return=carry)
-    discount_t = hparams.gamma * (1.0 - rollout.terminated.astype(jnp.float32))
-    trace_t = hparams.gamma * hparams.gae_lambda * (1.0 - ended.astype(jnp.float32))
-    advantage = ppo_parts.generalized_advantage_estimates(
-        r_t, discount_t, rollout.v_tm1, rollout.v_t, trace_t
+    return ppo_parts.lambda_targets(
+        state,
+        rollout.r_t,
+        rollout.terminated,
+        rollout.truncated,
+        rollout.v_tm1,
+        rollout.v_t,
+        hparams.gamma,
+        hparams.gae_lambda,
+        hparams.reward_clip,
+        config.normalize_rewards,
     )
-    return advantage, advantage + rollout.v_tm1, state
 
 
 # ---- updates ----------------------------------------------------------------------------------
@@ -536,10 +532,7 @@ def init(key: jax.Array, config: Config, hparams: Hyperparams) -> TrainState:
     if envs.has_action_mask(env):
         state = dataclasses.replace(state, action_mask=ts.info[ACTION_MASK])
     if config.normalize_rewards:
-        zeros = jnp.zeros(config.num_envs, jnp.float32)
-        state = dataclasses.replace(
-            state, return_stats=normalization.init(1), discounted_return=zeros
-        )
+        state = ppo_parts.with_reward_scale(state, config.num_envs)
     return state
 
 

@@ -29,7 +29,8 @@ to these functions; this module does not import it.
 
 from __future__ import annotations
 
-from typing import cast
+import dataclasses
+from typing import ClassVar, Protocol, TypeVar, cast
 
 import flax.linen as nn
 import jax
@@ -145,6 +146,58 @@ def scale_rewards(
     scaled = r_t / jnp.sqrt(stats.var[0] + normalization.EPSILON)
     scaled = jnp.where(clip > 0.0, jnp.clip(scaled, -clip, clip), scaled)
     return scaled, stats
+
+
+class ScalesRewards(Protocol):
+    """A learner state (a dataclass) that can keep the running reward scale: the statistics of
+    the discounted returns and each env's running return, both ``None`` without
+    ``normalize_rewards``."""
+
+    __dataclass_fields__: ClassVar[dict[str, dataclasses.Field[object]]]
+
+    @property
+    def return_stats(self) -> normalization.RunningStats | None: ...
+
+    @property
+    def discounted_return(self) -> jax.Array | None: ...
+
+
+StateT = TypeVar("StateT", bound=ScalesRewards)
+
+
+def with_reward_scale(state: StateT, num_envs: int) -> StateT:
+    """``state`` with a fresh reward scale for ``num_envs`` envs (``normalize_rewards``)."""
+    zeros = jnp.zeros(num_envs, jnp.float32)
+    return dataclasses.replace(state, return_stats=normalization.init(1), discounted_return=zeros)
+
+
+def lambda_targets(
+    state: StateT,
+    r_t: jax.Array,
+    terminated_t: jax.Array,
+    truncated_t: jax.Array,
+    v_tm1: jax.Array,
+    v_t: jax.Array,
+    gamma: float | jax.Array,
+    gae_lambda: float | jax.Array,
+    reward_clip: float | jax.Array,
+    normalize: bool,
+) -> tuple[jax.Array, jax.Array, StateT]:
+    """``(advantages [T, N], lambda-returns [T, N], state)`` of one rollout: generalized
+    advantage estimates on the rewards, scaled first with ``normalize`` (``scale_rewards``, by
+    the scale that ``state`` keeps; the returned state then holds it updated by this rollout).
+    Bootstraps through truncations (``v_t`` is the true next observation's value), not through
+    terminations; the traces stop at both."""
+    ended = jnp.logical_or(terminated_t, truncated_t)
+    if normalize:
+        assert state.return_stats is not None and state.discounted_return is not None
+        g_t, carry = discounted_returns(r_t, ended, state.discounted_return, gamma)
+        r_t, stats = scale_rewards(r_t, g_t, state.return_stats, reward_clip)
+        state = dataclasses.replace(state, return_stats=stats, discounted_return=carry)
+    discount_t = gamma * (1.0 - terminated_t.astype(jnp.float32))
+    trace_t = gamma * gae_lambda * (1.0 - ended.astype(jnp.float32))
+    advantage = generalized_advantage_estimates(r_t, discount_t, v_tm1, v_t, trace_t)
+    return advantage, advantage + v_tm1, state
 
 
 # ---- the actor-critic network -------------------------------------------------------------------

@@ -647,21 +647,19 @@ def train_iteration(state: TrainState, config: Config, hparams: Hyperparams):
     """One rollout, its advantages, and the updates on its sequences."""
     key, collect_key, update_key = jax.random.split(state.key, 3)
     state, rollout = collect(state, collect_key, config)
-    ended = jnp.logical_or(rollout.terminated, rollout.truncated)
-    r_t = rollout.r_t
-    if config.normalize_rewards:
-        assert state.discounted_return is not None and state.return_stats is not None
-        g_t, running = ppo_parts.discounted_returns(
-            r_t, ended, state.discounted_return, hparams.gamma
-        )
-        r_t, stats = ppo_parts.scale_rewards(r_t, g_t, state.return_stats, hparams.reward_clip)
-        state = dataclasses.replace(state, return_stats=stats, discounted_return=running)
-    discount_t = hparams.gamma * (1.0 - rollout.terminated.astype(jnp.float32))
-    trace_t = hparams.gamma * hparams.gae_lambda * (1.0 - ended.astype(jnp.float32))
-    advantage = ppo_parts.generalized_advantage_estimates(
-        r_t, discount_t, rollout.v_tm1, rollout.v_t, trace_t
+    ended_t = jnp.logical_or(rollout.terminated, rollout.truncated)
+    advantage, target, state = ppo_parts.lambda_targets(
+        state,
+        rollout.r_t,
+        rollout.terminated,
+        rollout.truncated,
+        rollout.v_tm1,
+        rollout.v_t,
+        hparams.gamma,
+        hparams.gae_lambda,
+        hparams.reward_clip,
+        config.normalize_rewards,
     )
-    target = advantage + rollout.v_tm1
     steps = Sequences(rollout.obs, rollout.start, rollout.action, rollout.log_mu, advantage, target)
     batch = to_sequences(steps, config)
     # each sequence's initial state: the stored state at its first step
@@ -681,7 +679,7 @@ def train_iteration(state: TrainState, config: Config, hparams: Hyperparams):
     )
     state = dataclasses.replace(state, agent=agent, key=key, clock=clock)
     metrics = {**metrics, "learning_rate": rate}
-    return state, (metrics, (jnp.sum(rollout.episode_return), jnp.sum(ended)))
+    return state, (metrics, (jnp.sum(rollout.episode_return), jnp.sum(ended_t)))
 
 
 def init(key: jax.Array, config: Config, hparams: Hyperparams) -> TrainState:
@@ -707,10 +705,7 @@ def init(key: jax.Array, config: Config, hparams: Hyperparams) -> TrainState:
         train_return=jnp.float32(jnp.nan),
     )
     if config.normalize_rewards:
-        zeros = jnp.zeros(config.num_envs, jnp.float32)
-        state = dataclasses.replace(
-            state, return_stats=normalization.init(1), discounted_return=zeros
-        )
+        state = ppo_parts.with_reward_scale(state, config.num_envs)
     return state
 
 
