@@ -28,7 +28,9 @@ whenever the runs are redone; nothing is drawn by hand. Four kinds (``[kind.name
   bar per ``bars`` column, ratios over ``baseline``. Optional ``names``, ``title``, ``unit``,
   ``log``.
 * ``gifs.NAME`` -> ``policy_NAME.gif``: the best seed's best policy of ``run`` (``seed`` to
-  choose), rendered by ``rl_jax.run.render``.
+  choose; ``latest = true``: its latest checkpoint's policy instead), rendered by
+  ``rl_jax.run.render``: ``episodes`` episodes (default 1), or, for a board-game run, that many
+  games against the run's evaluation opponent.
 
 Any entry may have a ``caption``: what the documentation site writes under the image (default:
 its ``title``; ``docs/_ext/rl_jax_docs.py`` reads it).
@@ -87,7 +89,7 @@ KINDS: dict[str, tuple[str, str, tuple[str, ...], tuple[str, ...]]] = {
         ("source", "heading", "label", "bars"),
         ("names", "baseline", "title", "unit", "log", "caption"),
     ),
-    "gifs": ("policy_", ".gif", ("run",), ("seed", "max_frames", "episodes", "caption")),
+    "gifs": ("policy_", ".gif", ("run",), ("seed", "max_frames", "episodes", "caption", "latest")),
 }
 
 
@@ -304,6 +306,7 @@ def make_gif(entry: dict[str, Any], path: Path) -> str:
                 int(entry.get("episodes", 1)),
                 full,
                 max_frames=int(entry.get("max_frames", 300)),
+                which="latest" if entry.get("latest") else "best",
             )
         except user_errors() as error:
             raise FigureError(" ".join(str(error).split())) from None

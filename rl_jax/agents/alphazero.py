@@ -56,7 +56,7 @@ from flax import struct
 
 from rl_jax.agents import alphazero_parts as parts
 from rl_jax.agents.common import clip_by_global_norm, injected_step
-from rl_jax.envs.games import rollout_mcts, tic_tac_toe_minimax
+from rl_jax.envs.games import opponents
 from rl_jax.envs.games.match import Player, random_player
 from rl_jax.training import algorithm, params
 from rl_jax.training.algorithm import ChunkMetrics, Clock, RecipeBook
@@ -81,7 +81,7 @@ GAMES = (
 #: Who the evaluation plays against: a uniformly random player, pure MCTS with random rollouts
 #: (``envs.games.rollout_mcts``), exact minimax (``envs.games.tic_tac_toe_minimax``, tic-tac-toe
 #: only).
-EVAL_OPPONENTS = ("random", "mcts", "minimax")
+EVAL_OPPONENTS = opponents.OPPONENTS
 
 
 # ---- settings -------------------------------------------------------------------------------
@@ -471,14 +471,10 @@ def train_iteration(
 
 
 def eval_opponent_player(config: Config) -> Player:
-    """The evaluation's opponent, a player for one pgx state: ``config.eval_opponent``."""
-    if config.eval_opponent == "mcts":
-        return rollout_mcts.rollout_mcts_player(
-            config.make_game(), config.eval_opponent_simulations
-        )
-    if config.eval_opponent == "minimax":
-        return tic_tac_toe_minimax.minimax_player
-    return random_player
+    """The evaluation's opponent, a player for one pgx state: ``config.eval_opponent``
+    (``envs.games.opponents``)."""
+    game = config.make_game()
+    return opponents.opponent_player(config.eval_opponent, game, config.eval_opponent_simulations)
 
 
 def eval_player(net_params: optax.Params, config: Config) -> Player:

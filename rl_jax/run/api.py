@@ -116,7 +116,9 @@ class Run:
     ) -> Path:
         """A GIF of the policy (default: the best seed's best) at ``path``, else at
         ``RUN_DIR/policy.gif``, or ``policy-2.gif``, ... where that exists: never over a GIF
-        already there unless ``path`` names it."""
+        already there unless ``path`` names it. For a board-game run (AlphaZero on
+        ``pgx/tic_tac_toe`` or ``pgx/connect_four``) each episode is one game of the trained
+        search against the run's evaluation opponent (``rl_jax.run.render_game``)."""
         return write_gif(
             self.run_dir, seed, episodes, path, which=which, algorithm=self.learner, env=self.env_id
         )

@@ -296,11 +296,6 @@ def run_spec(line: CommandLine, choice: Choice, defaults: Defaults) -> RunSpec:
         hparams, grid_fields = params.expand(hparams[0], grid), tuple(grid)
     validate_settings(algorithm, config, hparams)
     check_env_fits(algorithm, config, hparams[0])
-    if line.gif and hooks(algorithm).owns_env(env_id):
-        raise UsageError(
-            f"--gif: {env_id} is an env {algorithm.name} resolves itself, which has no renderer; "
-            "play the trained policy with rl_jax.load_policy(RUN_DIR).move instead"
-        )
     out = line.resume if line.resume is not None else line.out
     out = out if out is not None else default_run_dir(env_id, algorithm.name)
     # A learner of the user's own is named again on resume (never imported from the record),

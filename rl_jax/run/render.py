@@ -19,6 +19,12 @@ Frames come from the environment, through one of two hooks (the first one the en
   with its tracking camera.
 * ``env.render(state, params) -> frame`` for one state (the ``Environment`` API).
 
+A run of a learner that moves from the env's own positions (``position_policy``: AlphaZero on
+``pgx/tic_tac_toe`` or ``pgx/connect_four``) is drawn as games instead (``render_game``): each
+episode one game of the trained search against the run's evaluation opponent, the search opening
+the odd games and moving second in the even ones, one frame per position
+(``rl_jax.envs.games.draw``) and the final position held for a second.
+
 An env with an ``episode_plot(states, params, path)`` hook also gets a plot of the last rendered
 episode next to the GIF, as ``<name>_episode.png`` (the rocket's x(t), v(t) plot).
 
@@ -46,6 +52,7 @@ from rl_jax.envs.core.core import Environment, TimeStep
 from rl_jax.envs.core.preprocessing import ACTION_MASK, has_action_mask
 from rl_jax.envs.core.wrappers import Wrapper
 from rl_jax.errors import OneLineParser, RenderError, exit_now, guard, positive_int
+from rl_jax.run import render_game
 from rl_jax.run.policy import (
     LoadedPolicy,
     add_run_choice,
@@ -267,9 +274,12 @@ def write_gif(
     """Render the deterministic policy of (config, seed) of ``run_dir`` to a GIF; its path.
     ``which``: the seed's best evaluated policy ("best") or its latest checkpoint ("latest");
     ``algorithm``: the run's learner, when it is not built in; ``env``: the run's env, when it
-    comes from a module of the user's own."""
+    comes from a module of the user's own. A learner with a ``position_policy`` (a board game)
+    plays ``episodes`` games against its evaluation opponent (``render_game``)."""
     with opengl_errors():  # a MuJoCo env may import mujoco (and fail) while being built
         loaded = LoadedPolicy(Path(run_dir), seed, config_index, which, algorithm, env)
+        if render_game.plays_positions(loaded):
+            return _write_game_gif(loaded, episodes, out, max_frames)
         played = loaded.env()
         act = loaded.act()
         initial = loaded.initial_policy_state()
@@ -287,6 +297,24 @@ def write_gif(
         f"rendered seed {loaded.seed} (config {loaded.config_index}) at step {loaded.step:,}, "
         f"its {loaded.which} policy: episode return {returns}; {len(frames)} frames -> "
         f"{path}{' (replaced the file that was there)' if replaced else ''}{plot_note}"
+    )
+    return path
+
+
+def _write_game_gif(
+    loaded: LoadedPolicy, episodes: int, out: str | Path | None, max_frames: int
+) -> Path:
+    """``write_gif`` for a learner that moves from positions: games against its opponent."""
+    frames, games, opponent = render_game.play_and_draw(loaded, episodes)
+    path = Path(out) if out is not None else free_gif_path(loaded.run_dir)
+    replaced = path.exists()
+    save_gif(frames, path, render_game.MOVES_PER_SECOND, max_frames)
+    if loaded.note:
+        print(f"note: {loaded.note}")
+    print(
+        f"rendered seed {loaded.seed} (config {loaded.config_index}) at step {loaded.step:,}, "
+        f"its {loaded.which} policy {render_game.summary(games, opponent)}; {len(frames)} "
+        f"frames -> {path}{' (replaced the file that was there)' if replaced else ''}"
     )
     return path
 
@@ -317,7 +345,12 @@ def main(argv: list[str] | None = None, prog: str = "python -m rl_jax.run.render
     parser = OneLineParser(prog=prog, description=__doc__.split("\n")[0])
     parser.add_argument("run_dir", type=Path, help="a run directory (holds config.json)")
     add_run_choice(parser, "seed to render (default: the one with the best eval return)")
-    parser.add_argument("--episodes", type=positive_int, default=1, help="episodes (default: 1)")
+    parser.add_argument(
+        "--episodes",
+        type=positive_int,
+        default=1,
+        help="episodes, or games of a board-game run (default: 1)",
+    )
     parser.add_argument(
         "--out",
         type=Path,

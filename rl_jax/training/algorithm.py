@@ -242,8 +242,9 @@ class OptionalHooks(Generic[ConfigT]):
         (AlphaZero's ``pgx/GAME``). For such an id the run machinery keeps the id as given,
         never looks it up in the env registry and never steps the env: the learner's
         ``train_chunk`` evaluates inside the compiled program, ``load_policy`` gives a
-        ``GamePolicy`` (``position_policy``), and GIFs and gymnasium replays are refused in one
-        line. Default: no id (every env is the registry's)."""
+        ``GamePolicy`` (``position_policy``), a GIF is games of that policy against the run's
+        opponent (``rl_jax.run.render_game``), and gymnasium replays are refused in one line.
+        Default: no id (every env is the registry's)."""
         return False
 
     def position_policy(self, state: TrainState, config: ConfigT) -> PositionPolicyFn | None:
@@ -259,7 +260,7 @@ class OptionalHooks(Generic[ConfigT]):
         if self.owns_env(config.env_id):
             raise RunError(
                 f"{config.env_id} is an env that the learner resolves itself, not one of "
-                "rl_jax.envs, so the run tools cannot render or replay it; play the run's "
+                "rl_jax.envs, so the run tools cannot replay it in gymnasium; play the run's "
                 "policy with rl_jax.load_policy(RUN_DIR).move"
             )
         if isinstance(config, MakesEnv):
