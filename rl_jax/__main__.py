@@ -6,6 +6,7 @@ subcommands of an installed package.
   rl-jax sweep --algo td3 --env rl_jax/Pendulum-v1 --grid lr=1e-4,1e-3 --seeds 5
   rl-jax evaluate runs/Pendulum-v1__td3__... --episodes 100
   rl-jax render runs/Pendulum-v1__td3__... --seed 0
+  rl-jax match runs/results/alphazero-tictactoe-vs-minimax --opponent minimax --games 20
 
 ``rl-jax COMMAND --help`` lists that command's flags (for train and sweep: with --algo and --env,
 every config field and hyperparameter of the algorithm with its default there).
@@ -85,12 +86,19 @@ def _render(argv: list[str]) -> int | None:
     return render.main(argv, prog="rl-jax render")
 
 
+def _match(argv: list[str]) -> int | None:
+    from rl_jax.run import match  # on use: rl-jax --help starts without JAX
+
+    return match.main(argv, prog="rl-jax match")
+
+
 #: command -> (what it does, for --help; its entry point, called with the remaining arguments).
 COMMANDS: dict[str, tuple[str, Callable[[list[str]], int | None]]] = {
     "train": ("train an algorithm on an env, or resume a run", _train),
     "sweep": ("a grid of hyperparameters x seeds as one compiled program", _sweep),
     "evaluate": ("play a run's policies on fresh episodes", _evaluate),
     "render": ("render a run's policy to a GIF", _render),
+    "match": ("play a board-game run's search against a reference player", _match),
 }
 
 

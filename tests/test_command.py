@@ -25,7 +25,7 @@ def test_help_lists_every_subcommand(capsys):
     assert command.main(["--help"]) == 0
     out = capsys.readouterr().out
     assert out.startswith("usage: rl-jax COMMAND")
-    for name in ("train", "sweep", "evaluate", "render"):
+    for name in ("train", "sweep", "evaluate", "render", "match"):
         assert f"\n  {name} " in out
 
 

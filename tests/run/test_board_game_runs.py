@@ -19,6 +19,7 @@ import pgx
 import pytest
 from child_env import python_path
 from PIL import Image, ImageSequence
+from tiny_board_run import CHUNK, GAME, TINY  # trained: tests/run/conftest.py
 
 import rl_jax
 from rl_jax.envs.games import draw
@@ -30,28 +31,6 @@ from rl_jax.run.policy import GamePolicy, LoadedPolicy
 from rl_jax.training.algorithm import hooks
 
 ROOT = Path(__file__).resolve().parents[2]
-GAME = "pgx/tic_tac_toe"
-# 8 games x 9 moves = 72 env steps per chunk: the smallest config that trains (one update).
-TINY = {
-    "num_envs": 8,
-    "num_simulations": 4,
-    "max_considered_actions": 4,
-    "iterations_per_chunk": 1,
-    "updates_per_iteration": 1,
-    "batch_size": 16,
-    "num_eval_games": 4,
-    "hidden": (16,),
-    "buffer_size": 200,
-}
-CHUNK = 72
-
-
-@pytest.fixture(scope="module")
-def trained(tmp_path_factory):
-    out = tmp_path_factory.mktemp("board") / "run"
-    return rl_jax.train(
-        "alphazero", GAME, seeds=1, total_steps=CHUNK, out=out, config=TINY, quiet=True
-    )
 
 
 def _steps(run_dir: Path) -> list[int]:
