@@ -58,7 +58,7 @@ from rl_jax.agents import alphazero_parts as parts
 from rl_jax.agents.common import clip_by_global_norm, injected_step
 from rl_jax.envs.games import opponents
 from rl_jax.envs.games.match import Player, random_player
-from rl_jax.training import algorithm, params
+from rl_jax.training import algorithm, conv, params
 from rl_jax.training.algorithm import ChunkMetrics, Clock, RecipeBook
 from rl_jax.training.params import Scalar
 from rl_jax.training.recipes import Recipe, Recipes
@@ -109,6 +109,10 @@ class Config:
     # evaluate the search (num_simulations, no Gumbel noise) rather than the greedy network
     eval_search: bool = False
     hidden: tuple[int, ...] = (128, 128)  # the torso's Dense + ReLU layers
+    # conv layers before them, flat (features, kernel, stride) triples with VALID padding on
+    # the board's planes (rl_jax.training.conv.ConvTorso); () for none: the MLP on the
+    # flattened board
+    conv_layers: tuple[int, ...] = ()
 
     def __post_init__(self) -> None:
         if not self.env_id.startswith(GAME_PREFIX):
@@ -131,6 +135,14 @@ class Config:
         ):
             if getattr(self, name) < 1:
                 raise ValueError(f"{name} must be >= 1, got {getattr(self, name)}")
+        if self.conv_layers:
+            if len(self.conv_layers) % 3 or min(self.conv_layers) < 1:
+                raise ValueError(
+                    "conv_layers must be positive (features, kernel, stride) triples, got "
+                    f"{self.conv_layers}"
+                )
+            shape = self.make_game().observation_shape
+            conv.check_conv_layers(self.conv_layers, min(shape[0], shape[1]))
         if self.eval_opponent not in EVAL_OPPONENTS:
             raise ValueError(
                 f"eval_opponent must be one of {EVAL_OPPONENTS}, got {self.eval_opponent!r}"
@@ -178,13 +190,17 @@ class Hyperparams(params.HyperparamsMethods):
 # ---- the network and the state --------------------------------------------------------------
 class PolicyValueNet(nn.Module):
     """Observations ``[N, *obs_shape]`` -> ``(logits [N, A], value [N] in [-1, 1])``: an MLP
-    torso on the flattened observation, a linear policy head and a tanh value head."""
+    torso on the flattened observation (after ``conv_layers`` on the board's planes, if any), a
+    linear policy head and a tanh value head."""
 
     num_actions: int
     hidden: tuple[int, ...]
+    conv_layers: tuple[int, ...] = ()
 
     @nn.compact
     def __call__(self, obs: jax.Array) -> tuple[jax.Array, jax.Array]:
+        if self.conv_layers:
+            obs = conv.ConvTorso(self.conv_layers, high=1.0)(obs)
         x = obs.reshape(obs.shape[0], -1).astype(jnp.float32)
         for width in self.hidden:
             x = nn.relu(nn.Dense(width)(x))
@@ -203,7 +219,11 @@ def evaluate_net(
 
 def make_network(config: Config) -> PolicyValueNet:
     """The policy and value network for the config's game."""
-    return PolicyValueNet(num_actions=config.make_game().num_actions, hidden=config.hidden)
+    return PolicyValueNet(
+        num_actions=config.make_game().num_actions,
+        hidden=config.hidden,
+        conv_layers=config.conv_layers,
+    )
 
 
 class Agent(NamedTuple):

@@ -336,3 +336,28 @@ def test_never_loses_to_minimax_in_five_of_five_seeds() -> None:
             worst, lines = worst_outcome(player, opens)
             print(f"seed {seed}, alphazero opens: {opens}: worst {worst} over {lines} lines")
             assert worst >= 0, f"seed {seed} loses a line (opens: {opens})"
+
+
+def test_conv_layers_read_the_board_planes_before_the_mlp() -> None:
+    config = alphazero.Config(
+        env_id="pgx/connect_four", max_game_length=42, conv_layers=(8, 3, 1, 4, 3, 1)
+    )
+    network = alphazero.make_network(config)
+    boards = jnp.zeros((5, 6, 7, 2), jnp.bool_)
+    variables = network.init(jax.random.key(0), boards)
+    shapes = jax.tree.map(jnp.shape, variables["params"])
+    # VALID 3x3 convs: 6x7 -> 4x5 -> 2x3, so the first Dense sees 2 * 3 * 4 features
+    assert shapes["ConvTorso_0"]["Conv_0"]["kernel"] == (3, 3, 2, 8)
+    assert shapes["Dense_0"]["kernel"] == (2 * 3 * 4, config.hidden[0])
+    logits, value = alphazero.evaluate_net(network, variables, boards)
+    assert logits.shape == (5, 7) and value.shape == (5,)
+    # a piece moves the outputs: the torso reads the planes
+    moved = alphazero.evaluate_net(network, variables, boards.at[:, 5, 3, 0].set(True))[1]
+    assert not np.allclose(np.asarray(moved), np.asarray(value))
+    # without conv layers the network is the MLP of before, parameter for parameter
+    plain = alphazero.make_network(dataclasses.replace(config, conv_layers=()))
+    assert "ConvTorso_0" not in plain.init(jax.random.key(0), boards)["params"]
+    with pytest.raises(ValueError, match="too small for the conv layers"):
+        alphazero.Config(conv_layers=(8, 3, 1, 8, 3, 1))  # tic-tac-toe's 3x3 board
+    with pytest.raises(ValueError, match=r"\(features, kernel, stride\) triples"):
+        alphazero.Config(env_id="pgx/connect_four", max_game_length=42, conv_layers=(8, 3))
