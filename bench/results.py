@@ -70,6 +70,9 @@ class Row:
     seeds: int
     reference: str
     goal: Goal | None = None
+    # ``rl-jax match`` flags: where given, the row's final column is each seed's wins in % of
+    # the games of that match of its final policy, played after training (``match_scores``)
+    match: tuple[str, ...] = ()
 
 
 # DQN's options on CartPole, each alone on 1-step returns (the recipe's 3-step returns are the
@@ -707,6 +710,25 @@ ROWS: dict[str, Row] = {
         10,
         "PPO's CartPole row and MuZero's (learned model) row; 500 is the maximum",
     ),
+    # AlphaZero on Connect Four at its recipe (a 256x256 MLP, 64 games x 32 simulations), 3
+    # seeds in one program, evaluated against pure MCTS with 200 simulations while it trains;
+    # the row's final column is each seed's wins in 100 games (50 in each colour) of its final
+    # policy against pure MCTS with 1,000 random-rollout simulations, the issue's goal.
+    "alphazero-connect-four": Row(
+        "AlphaZero, `pgx/connect_four` (final: % wins against MCTS 1,000)",
+        "train.py",
+        (
+            *("--algo", "alphazero", "--env", "pgx/connect_four", "--total-steps", "16000000"),
+            *("--iterations-per-chunk", "16", "--eval-search"),
+            *("--eval-opponent", "mcts", "--eval-opponent-simulations", "200"),
+        ),
+        3,
+        "pure MCTS, 1,000 random-rollout simulations a move (envs.games.rollout_mcts), 100 "
+        "games a seed in both colours; best: the run's own evaluation (32 games against MCTS "
+        "200, score in [-1, 1])",
+        Goal(90.0, 3, "final", minutes=180),
+        match=("--opponent", "mcts", "--opponent-simulations", "1000", "--games", "100"),
+    ),
     # Pendulum with its angular velocity hidden (RL Zoo's PendulumNoVel-v1) at the zoo's
     # ppo_lstm settings (recurrent_ppo's recipe for it): the goal is the zoo's benchmark figure,
     # as the mean final return of 10 seeds; feed-forward PPO at the same settings and budget
@@ -908,6 +930,45 @@ def summarize(run_dir: Path) -> dict[str, Any]:
     }
 
 
+MATCH_FILE = "match.json"
+
+
+def match_scores(run_dir: Path, row: Row, summary: dict[str, Any]) -> dict[str, Any]:
+    """``summary`` with its final column replaced by each seed's wins (in % of its games) in
+    ``rl-jax match RUN --latest`` with the row's flags (``RUN/match.json`` keeps the match; the
+    best column stays the run's own evaluation)."""
+    path = run_dir / MATCH_FILE
+    command = [
+        *(sys.executable, "-m", "rl_jax.run.match", str(run_dir), "--latest"),
+        *row.match,
+        *("--json", str(path)),
+    ]
+    print("$", " ".join(command[1:]), flush=True)
+    if subprocess.run(command, cwd=ROOT, check=False).returncode != 0:
+        raise SystemExit(f"error: the match of {run_dir} failed")
+    return with_match_scores(summary, json.loads(path.read_text()))
+
+
+def with_match_scores(summary: dict[str, Any], match: dict[str, Any]) -> dict[str, Any]:
+    """``summary`` whose final values are the seeds' wins in % of their games in ``match`` (the
+    JSON of ``rl-jax match``), in the summary's seed order."""
+    from rl_jax.run import plots
+
+    wins = {entry["seed"]: 100.0 * entry["wins"] / entry["games"] for entry in match["seeds"]}
+    missing = [seed for seed in summary["seeds"] if seed not in wins]
+    if missing:
+        raise SystemExit(f"error: the match has no games of seeds {missing}")
+    final = np.asarray([wins[seed] for seed in summary["seeds"]], np.float64)
+    return {
+        **summary,
+        "final": final.tolist(),
+        "final_mean": float(final.mean()),
+        "final_ci": _bootstrap_mean_ci(final),
+        "final_iqm": float(plots.interquartile_mean(final)),
+        "match": match,
+    }
+
+
 def goal_met(goal: Goal, summary: dict[str, Any], wall_clock: float | None) -> tuple[bool, str]:
     """Whether the goal holds, and the row's cell saying so."""
     returns = np.asarray(summary[goal.policy])
@@ -1044,6 +1105,8 @@ def regenerate(
         )
     if measured.get("wall_clock") is None:
         measured["wall_clock"] = summary["wall_clock_logged"]
+    if row.match:
+        summary = match_scores(out, row, summary)
     line = row_cells(name, row, summary, measured)
     record = {"row": name, "run_dir": str(out), "measured": measured, "summary": summary}
     if row.goal is not None:

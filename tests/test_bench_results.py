@@ -50,3 +50,23 @@ def test_a_finished_run_is_summarised_and_judged(runs):
     assert record["summary"]["final"] == [10_000.0 + seed for seed in range(5)]
     assert record["goal_met"]  # Humanoid's goal is on time alone; the logged time is 1 s
     assert json.loads((results.RUNS / "td3-humanoid.json").read_text())["row"] == "td3-humanoid"
+
+
+def test_a_match_row_scores_each_seed_by_its_wins_in_the_match(runs):
+    run = _run(runs / "td3-humanoid", total_steps=10_000, last_step=10_000, seeds=3)
+    summary = results.summarize(run)
+    match = {
+        "seeds": [  # in another order than the run's seeds: matched by seed, not position
+            {"seed": 2, "wins": 19, "games": 20},
+            {"seed": 0, "wins": 18, "games": 20},
+            {"seed": 1, "wins": 10, "games": 20},
+        ]
+    }
+    scored = results.with_match_scores(summary, match)
+    assert scored["final"] == [90.0, 50.0, 95.0]
+    assert scored["final_mean"] == pytest.approx(235 / 3)
+    assert scored["best"] == summary["best"]  # the run's own evaluation stays beside it
+    ok, cell = results.goal_met(results.Goal(90.0, 3), scored, None)
+    assert not ok and "2/3 reach it" in cell
+    with pytest.raises(SystemExit, match=r"no games of seeds \[1\]"):
+        results.with_match_scores(summary, {"seeds": match["seeds"][:2]})
