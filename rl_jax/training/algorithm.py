@@ -260,8 +260,8 @@ class OptionalHooks(Generic[ConfigT]):
         if self.owns_env(config.env_id):
             raise RunError(
                 f"{config.env_id} is an env that the learner resolves itself, not one of "
-                "rl_jax.envs, so the run tools cannot replay it in gymnasium; play the run's "
-                "policy with rl_jax.load_policy(RUN_DIR).move"
+                "rl_jax.envs, so the run tools cannot play episodes of it; measure the run with "
+                "rl-jax match RUN_DIR, or play it with rl_jax.load_policy(RUN_DIR).move"
             )
         if isinstance(config, MakesEnv):
             return config.make_env()
