@@ -400,7 +400,7 @@ def main(argv: list[str] | None = None, prog: str = "python -m rl_jax.run.evalua
         configure()
         seeds = None if args.seed is None else [args.seed]
         learner = command_line_learner(args.run_dir, args.algo)  # first: it may register the env
-        env_id = command_line_env(args.run_dir, args.env)
+        env_id = command_line_env(args.run_dir, args.env, learner)
         evaluations = evaluate_run(
             args.run_dir,
             args.episodes,

@@ -335,7 +335,7 @@ def main(argv: list[str] | None = None, prog: str = "python -m rl_jax.run.match"
     def run() -> int:
         configure()
         learner = command_line_learner(args.run_dir, args.algo)  # first: it may register the env
-        env_id = command_line_env(args.run_dir, args.env)
+        env_id = command_line_env(args.run_dir, args.env, learner)
         report = match_run(
             args.run_dir,
             args.opponent,

@@ -35,10 +35,10 @@ from rl_jax.envs import Environment
 from rl_jax.errors import PolicyError, parse_int
 from rl_jax.run.best import BEST_DIR, load_part, policy_fields, with_policy_part
 from rl_jax.run.checkpoint import Checkpointer, Tree
-from rl_jax.run.learners import BUILTIN, for_run, recorded_origin, run_env
+from rl_jax.run.learners import for_run, run_env
 from rl_jax.run.metrics import METRICS_FILE, read_rows
 from rl_jax.run.plan import make_plan
-from rl_jax.run.run_dir import CHECKPOINT_DIR, identity_hash, read_run_record, recorded_env
+from rl_jax.run.run_dir import CHECKPOINT_DIR, identity_hash, read_run_record
 from rl_jax.run.spec import RunSpec
 from rl_jax.training.algorithm import (
     Algorithm,
@@ -375,13 +375,11 @@ def command_line_learner(run_dir: Path, named: str | None) -> Algorithm:
     return for_run(read_run_record(run_dir), run_dir, named, how="--algo")
 
 
-def command_line_env(run_dir: Path, named: str | None) -> str:
+def command_line_env(run_dir: Path, named: str | None, learner: Algorithm | None = None) -> str:
     """The env id a command that opens ``run_dir`` uses (``--env``, or the run's own when it
-    needs no import); its errors say to give ``--env``."""
-    record = read_run_record(run_dir)
-    if recorded_origin(record).kind != BUILTIN:  # its learner is named by --algo, if at all
-        return recorded_env(record["identity"]["env_id"], run_dir, named)
-    return run_env(record, run_dir, None, named)
+    needs no import, or when ``learner``, ``command_line_learner``'s, owns it); its errors say
+    to give ``--env``."""
+    return run_env(read_run_record(run_dir), run_dir, learner, named)
 
 
 def load_policy(

@@ -373,6 +373,7 @@ def main(argv: list[str] | None = None, prog: str = "python -m rl_jax.run.render
 
     def render() -> int:
         configure()
+        learner = command_line_learner(args.run_dir, args.algo)  # first: it may own the env
         write_gif(
             args.run_dir,
             args.seed,
@@ -381,8 +382,8 @@ def main(argv: list[str] | None = None, prog: str = "python -m rl_jax.run.render
             args.config_index,
             args.max_frames,
             "latest" if args.latest else "best",
-            command_line_learner(args.run_dir, args.algo),
-            command_line_env(args.run_dir, args.env),
+            learner,
+            command_line_env(args.run_dir, args.env, learner),
         )
         return 0
 
