@@ -1,6 +1,6 @@
 """The smallest AlphaZero run on ``pgx/tic_tac_toe`` that trains: its settings, and the run
 itself, which tests/run/conftest.py trains once per test process for the board-game files
-(test_board_game_runs.py, test_match.py)."""
+(test_board_game_runs.py, test_match_command.py)."""
 
 from pathlib import Path
 
