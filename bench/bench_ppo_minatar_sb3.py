@@ -34,7 +34,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import math
 import os
 import subprocess
 import sys
@@ -43,6 +42,7 @@ from pathlib import Path
 from typing import TypedDict, cast
 
 from bench.bench_ppo_sb3 import parse_threads
+from bench.bench_recurrent_ppo_sb3 import round_up as whole_units
 from bench.machine import worker_result
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -85,9 +85,7 @@ class Results(TypedDict):
 
 def round_up(steps: int, unit: int = ROLLOUT) -> int:
     """``steps`` rounded up to whole rollouts of 8,192 env steps."""
-    if steps < 1:
-        raise ValueError(f"steps must be >= 1, got {steps}")
-    return math.ceil(steps / unit) * unit
+    return whole_units(steps, unit)
 
 
 # ---- ours (a child process: its own JAX, one device over all cores) ---------------------------
