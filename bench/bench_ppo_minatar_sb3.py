@@ -33,19 +33,14 @@ ratio takes the slower of our two rates over SB3's faster. Measure on a quiet ma
 from __future__ import annotations
 
 import argparse
-import json
-import os
-import subprocess
-import sys
 import time
 from pathlib import Path
 from typing import TypedDict, cast
 
-from bench.bench_ppo_sb3 import parse_threads
-from bench.bench_recurrent_ppo_sb3 import round_up as whole_units
-from bench.machine import worker_result
+from bench import sb3_side_by_side as side_by_side
+from bench.sb3_side_by_side import parse_threads
 
-ROOT = Path(__file__).resolve().parent.parent
+ROOT = side_by_side.ROOT
 NAME = "ppo_minatar_sb3"
 ENV_ID = "rl_jax/Breakout-MinAtar"
 ROLLOUT = 8_192  # env steps per rollout: 64 envs x 128 steps, on both sides
@@ -85,7 +80,7 @@ class Results(TypedDict):
 
 def round_up(steps: int, unit: int = ROLLOUT) -> int:
     """``steps`` rounded up to whole rollouts of 8,192 env steps."""
-    return whole_units(steps, unit)
+    return side_by_side.round_up(steps, unit)
 
 
 # ---- ours (a child process: its own JAX, one device over all cores) ---------------------------
@@ -109,110 +104,78 @@ def ours(steps: int) -> Timing:
     program = jax.jit(iteration).lower(state, hparams).compile()
     jax.block_until_ready(state)
     startup = time.perf_counter() - start
-    start = time.perf_counter()
-    state = jax.block_until_ready(program(state, hparams))
-    warmup = time.perf_counter() - start
-    iterations = steps // config.batch_size
-    start = time.perf_counter()
-    for _ in range(iterations):
-        state = program(state, hparams)
-    jax.block_until_ready(state)
-    seconds = time.perf_counter() - start
-    timed = iterations * config.batch_size
-    return {
-        "env_steps": timed,
-        "seconds": round(seconds, 3),
-        "env_steps_per_s": round(timed / seconds, 1),
-        "startup_s": round(startup, 3),
-        "warmup_steps": config.batch_size,
-        "warmup_s": round(warmup, 3),
-        "cores": len(os.sched_getaffinity(0)),
-        "jax": jax.__version__,
-        "load": round(os.getloadavg()[0], 2),
-    }
+    _, result = side_by_side.time_ours(
+        program,
+        state,
+        hparams,
+        calls=steps // config.batch_size,
+        steps_per_call=config.batch_size,
+        startup=startup,
+        warmup=True,
+    )
+    return cast(Timing, result)
 
 
 def _ours_child(steps: int) -> Timing:
-    command = [sys.executable, "-m", f"bench.bench_{NAME}", "--worker", "--steps", str(steps)]
-    # One device over all cores, as a run of one seed: no XLA_FLAGS inherited.
-    return cast(Timing, worker_result(command, "our PPO worker", {"XLA_FLAGS": None}))
+    return cast(Timing, side_by_side.ours_child(NAME, ["--steps", str(steps)], "our PPO worker"))
 
 
 # ---- SB3 (the peers' venv) -----------------------------------------------------------------------
 def peer_command(python: Path, steps: int, threads: int) -> list[str]:
     """The command line of ``bench/sb3_ppo_minatar.py`` for ``steps`` env steps on ``threads``
     torch threads."""
-    script = str(ROOT / "bench" / "sb3_ppo_minatar.py")
-    return [str(python), script, "--steps", str(steps), "--threads", str(threads)]
+    return side_by_side.peer_command(python, "sb3_ppo_minatar.py", steps, threads)
 
 
 def _peer(python: Path, steps: int, threads: int) -> Timing:
-    done = subprocess.run(
-        peer_command(python, steps, threads), cwd=ROOT, capture_output=True, text=True
-    )
-    lines = [x for x in done.stdout.splitlines() if x.startswith("{")]
-    if done.returncode or not lines:
-        raise RuntimeError(
-            f"SB3's PPO on MinAtar ({threads} threads) failed:\n{done.stderr[-3000:]}"
-        )
-    return cast(Timing, json.loads(lines[-1]))
+    what = f"SB3's PPO on MinAtar ({threads} threads)"
+    return cast(Timing, side_by_side.peer_result(peer_command(python, steps, threads), what))
 
 
 # ---- the driver and its table --------------------------------------------------------------------
 def measure(python: Path, steps: int, ours_steps: int, threads: list[int]) -> Results:
     """Ours, SB3 at each thread count, ours again (module docstring)."""
-    first = _ours_child(ours_steps)
-    peer = [_peer(python, steps, count) for count in threads]
-    again = _ours_child(ours_steps)
+    first, _, peer, again = side_by_side.measure(
+        lambda _: _ours_child(ours_steps),
+        lambda steps, count: _peer(python, steps, count),
+        steps,
+        threads,
+    )
     return {"ours": first, "peer": peer, "ours_again": again}
 
 
 def ratio(results: Results) -> float:
     """The slower of our two rates over SB3's faster: SB3's wall-clock over ours at equal work."""
-    slower = min(results["ours"]["env_steps_per_s"], results["ours_again"]["env_steps_per_s"])
-    return slower / max(r["env_steps_per_s"] for r in results["peer"])
+    return side_by_side.ratio(results)
 
 
 def table(results: Results) -> list[str]:
     """Markdown: one row per timed run, then the ratio against the goal."""
     ours, again, peer = results["ours"], results["ours_again"], results["peer"]
-    lines = [
-        "| program | env steps timed | start-up s | training s | env steps/s | load |",
-        "|---|---:|---:|---:|---:|---:|",
-    ]
-
-    def row(label: str, r: Timing) -> str:
-        return (
-            f"| {label} | {r['env_steps']:,} | {r['startup_s']:.1f} | {r['seconds']:.1f} | "
-            f"{r['env_steps_per_s']:,.0f} | {r['load']:.1f} |"
-        )
-
-    cores = f"XLA over {ours['cores']} cores"
-    lines.append(row(f"ours, jax {ours['jax']}, {cores}", ours))
+    rows = [(f"ours, jax {ours['jax']}, XLA over {ours['cores']} cores", ours, "")]
     for r in peer:
         label = (
             f"SB3 {r['stable_baselines3']}, torch {r['torch']} on {r['threads']} thread(s), "
             f"numpy MinAtar {r['minatar']}"
         )
-        lines.append(row(label, r))
-    lines.append(row(f"ours again, XLA over {again['cores']} cores", again))
+        rows.append((label, r, ""))
+    rows.append((f"ours again, XLA over {again['cores']} cores", again, ""))
     faster = max(peer, key=lambda r: r["env_steps_per_s"])
     value = ratio(results)
     verdict = "met" if value >= GOAL else "not met"
-    lines += [
+    return [
+        *side_by_side.timing_table(rows, warmup=False, threads=False),
         "",
         f"Env steps per second, ours (the slower of our two) / SB3's (its faster, "
         f"{faster['threads']} thread(s)) = wall-clock of SB3 / ours at equal work = "
         f"**{value:.1f}x** (goal: >= {GOAL:.0f}x, {verdict}); start-up and one warm-up rollout "
         "apart on each side.",
     ]
-    return lines
 
 
 def section(steps: int, ours_steps: int, threads: list[int], command: str) -> str:
     """The Markdown section: what it measures, the command, the machine line, the table (or why
     nothing was measured)."""
-    from bench import peers
     from bench.machine import describe
 
     lines = [
@@ -229,73 +192,60 @@ def section(steps: int, ours_steps: int, threads: list[int], command: str) -> st
         describe(),
         "",
     ]
-    try:
-        python = peers.ensure()
-    except peers.PeersUnavailable as error:
-        return "\n".join([*lines, f"not measured: {error}", ""])
-    started = time.strftime("%H:%M")
-    results = measure(python, steps, ours_steps, threads)
-    raw = Path(__file__).resolve().parent / "results"
-    raw.mkdir(exist_ok=True)
-    (raw / f"{NAME}.json").write_text(json.dumps(results, indent=1))
-    lines += table(results)
-    lines.append(f"\nStarted {started}, finished {time.strftime('%H:%M')} (UTC).")
-    return "\n".join([*lines, ""])
+    return side_by_side.section(
+        lines,
+        NAME,
+        Path(__file__).resolve().parent / "results",
+        lambda python: measure(python, steps, ours_steps, threads),
+        table,
+    )
 
 
 def run(quick: bool = False) -> str:
     """``python -m bench ppo_minatar_sb3 [--quick]``: the peer 16,384 env steps and ours 327,680;
     or 8,192 and 32,768."""
     steps, ours_steps = (QUICK_STEPS, QUICK_OURS_STEPS) if quick else (STEPS, OURS_STEPS)
-    command = f"python -m bench {NAME}" + (" --quick" if quick else "")
+    command = side_by_side.quick_command(NAME, quick)
     return section(steps, ours_steps, parse_threads(THREADS), command)
 
 
 def main(argv: list[str] | None = None) -> int:
     """``python -m bench.bench_ppo_minatar_sb3 [--steps N] [--sb3-steps M]``: the section for
     other budgets."""
-    parser = argparse.ArgumentParser(
-        prog=f"python -m bench.bench_{NAME}",
-        description=__doc__,
-        formatter_class=argparse.RawDescriptionHelpFormatter,
-    )
-    parser.add_argument(
-        "--steps",
-        type=int,
-        default=OURS_STEPS,
-        help=f"our env steps, whole rollouts of {ROLLOUT:,} (default {OURS_STEPS:,})",
-    )
-    parser.add_argument(
-        "--sb3-steps",
-        type=int,
-        default=STEPS,
-        help=f"SB3's env steps, whole rollouts of {ROLLOUT:,} (default {STEPS:,})",
-    )
-    parser.add_argument(
-        "--sb3-threads",
-        default=THREADS,
-        help="SB3's torch thread counts, comma-separated, each timed (default 1)",
-    )
-    parser.add_argument("--worker", action="store_true", help=argparse.SUPPRESS)
-    args = parser.parse_args(argv)
-    try:
-        ours_steps = round_up(args.steps)
-        steps = round_up(args.sb3_steps)
-        threads = parse_threads(args.sb3_threads)
-    except ValueError as error:
-        print(f"error: {error}", file=sys.stderr)
-        return 2
-    from rl_jax.training.jax_setup import configure
 
-    configure()
-    if args.worker:
-        print("RESULT " + json.dumps(ours(ours_steps)), flush=True)
-        return 0
-    command = " ".join([f"python -m bench.bench_{NAME}", *(argv or sys.argv[1:])]).strip()
-    text = section(steps, ours_steps, threads, command)
-    print(text, flush=True)
-    (Path(__file__).resolve().parent / "results" / f"{NAME}.md").write_text(text)
-    return 0
+    def add_arguments(parser: argparse.ArgumentParser) -> None:
+        parser.add_argument(
+            "--steps",
+            type=int,
+            default=OURS_STEPS,
+            help=f"our env steps, whole rollouts of {ROLLOUT:,} (default {OURS_STEPS:,})",
+        )
+        parser.add_argument(
+            "--sb3-steps",
+            type=int,
+            default=STEPS,
+            help=f"SB3's env steps, whole rollouts of {ROLLOUT:,} (default {STEPS:,})",
+        )
+        parser.add_argument(
+            "--sb3-threads",
+            default=THREADS,
+            help="SB3's torch thread counts, comma-separated, each timed (default 1)",
+        )
+
+    def settle(args: argparse.Namespace) -> tuple[int, int, list[int]]:
+        ours_steps = round_up(args.steps)
+        return round_up(args.sb3_steps), ours_steps, parse_threads(args.sb3_threads)
+
+    return side_by_side.main(
+        argv,
+        name=NAME,
+        doc=__doc__,
+        add_arguments=add_arguments,
+        settle=settle,
+        worker=lambda settled: ours(settled[1]),
+        section=lambda settled, command: section(*settled, command),
+        results_dir=Path(__file__).resolve().parent / "results",
+    )
 
 
 if __name__ == "__main__":

@@ -36,18 +36,16 @@ and timed apart they need not add up to the whole exactly.
 from __future__ import annotations
 
 import argparse
-import json
 import math
-import os
-import subprocess
-import sys
 import time
 from pathlib import Path
-from typing import Any
+from typing import Any, cast
 
-from bench.machine import worker_result
+from bench import sb3_side_by_side as side_by_side
+from bench.sb3_side_by_side import default_threads, parse_threads
 
-ROOT = Path(__file__).resolve().parent.parent
+ROOT = side_by_side.ROOT
+NAME = "ppo_sb3"
 ENV_ID = "rl_jax/HalfCheetah-v5"
 GYM_ID = "HalfCheetah-v5"
 RECIPE = "cleanrl"
@@ -59,20 +57,7 @@ PROBE_STEPS = 20_480  # SB3's run at each thread count that picks the count for 
 
 def round_steps(steps: int) -> int:
     """``steps`` rounded up to whole rollouts (both sides collect 2,048 steps at a time)."""
-    if steps < 1:
-        raise ValueError(f"steps must be >= 1, got {steps}")
-    return math.ceil(steps / ROLLOUT) * ROLLOUT
-
-
-def parse_threads(text: str) -> list[int]:
-    """``"1,2"`` -> ``[1, 2]``: SB3's torch thread counts, each >= 1, no repeats."""
-    try:
-        counts = [int(part) for part in text.split(",")]
-    except ValueError:
-        raise ValueError(f"--sb3-threads takes counts like 1,2; got {text!r}") from None
-    if not counts or min(counts) < 1 or len(set(counts)) != len(counts):
-        raise ValueError(f"--sb3-threads takes distinct counts >= 1, like 1,2; got {text!r}")
-    return counts
+    return side_by_side.round_up(steps, ROLLOUT)
 
 
 # ---- ours (a child process: its own JAX, one device over all cores) ---------------------------
@@ -87,7 +72,7 @@ def ours(steps: int, breakdown_iterations: int) -> dict[str, Any]:
 
     start = time.perf_counter()
     config = ppo.default_config(ENV_ID, RECIPE)
-    hparams = ppo.default_hyperparams(ENV_ID, RECIPE)
+    hparams = cast(ppo_module.Hyperparams, ppo.default_hyperparams(ENV_ID, RECIPE))
     episodes.make_train_env(config)  # built outside any trace (see bench.cheetah_recipe)
     state = ppo.init(jax.random.key(1), config, hparams)
 
@@ -97,21 +82,15 @@ def ours(steps: int, breakdown_iterations: int) -> dict[str, Any]:
     program = jax.jit(iteration).lower(state, hparams).compile()
     jax.block_until_ready(state)
     startup = time.perf_counter() - start
-    iterations = steps // config.batch_size
-    start = time.perf_counter()
-    for _ in range(iterations):
-        state = program(state, hparams)
-    jax.block_until_ready(state)
-    seconds = time.perf_counter() - start
-    result = {
-        "env_steps": int(state.clock.env_steps),
-        "seconds": round(seconds, 3),
-        "env_steps_per_s": round(iterations * config.batch_size / seconds, 1),
-        "startup_s": round(startup, 3),
-        "cores": len(os.sched_getaffinity(0)),
-        "jax": jax.__version__,
-        "load": round(os.getloadavg()[0], 2),
-    }
+    state, result = side_by_side.time_ours(
+        program,
+        state,
+        hparams,
+        calls=steps // config.batch_size,
+        steps_per_call=config.batch_size,
+        startup=startup,
+        warmup=False,
+    )
     if breakdown_iterations:
         result["breakdown_s"] = breakdown(state, config, hparams, breakdown_iterations)
     return result
@@ -146,19 +125,21 @@ def breakdown(state: Any, config: Any, hparams: Any, iterations: int) -> dict[st
 
     def rollout(state):
         key, collect_key = jax.random.split(state.key)
-        env_state, obs, rows = ppo_module.collect(
-            state.agent, state.env_state, state.obs, collect_key, config
+        env_state, obs, _, rows = ppo_module.collect(
+            state.agent, state.env_state, state.obs, collect_key, config, state.action_mask
         )
         advantage, target, state = ppo_module.targets(rows, state, hparams, config)
         state = state.replace(env_state=env_state, obs=obs, key=key)
         return state, jnp.sum(advantage) + jnp.sum(target)
 
-    _, _, rows = ppo_module.collect(state.agent, state.env_state, state.obs, state.key, config)
-    advantage, target, _ = ppo_module.targets(rows, state, hparams, config)
-    flat = jax.tree.map(
-        lambda x: x.reshape(config.batch_size, *x.shape[2:]),
-        ppo_module.Batch(rows.obs, rows.action, rows.log_mu, rows.v_tm1, advantage, target),
+    _, _, _, rows = ppo_module.collect(
+        state.agent, state.env_state, state.obs, state.key, config, state.action_mask
     )
+    advantage, target, _ = ppo_module.targets(rows, state, hparams, config)
+    batch = ppo_module.Batch(
+        rows.obs, rows.action, rows.log_mu, rows.v_tm1, advantage, target, rows.legal
+    )
+    flat = jax.tree.map(lambda x: x.reshape(config.batch_size, *x.shape[2:]), batch)
 
     def update(state):
         key, update_key = jax.random.split(state.key)
@@ -193,41 +174,20 @@ def _seconds_per_call(part: Any, state: Any, calls: int, rounds: int = 3) -> flo
 
 
 def _ours_child(steps: int, breakdown_iterations: int) -> dict[str, Any]:
-    command = [sys.executable, "-m", "bench.bench_ppo_sb3", "--worker", "--steps", str(steps)]
-    command += ["--breakdown", str(breakdown_iterations)]
-    # One device over all cores, as a run of one seed: no XLA_FLAGS inherited.
-    return worker_result(command, "our PPO worker", {"XLA_FLAGS": None})
+    arguments = ["--steps", str(steps), "--breakdown", str(breakdown_iterations)]
+    return side_by_side.ours_child(NAME, arguments, "our PPO worker")
 
 
 # ---- SB3 (the peers' venv) ----------------------------------------------------------------------
 def sb3_command(python: Path, steps: int, threads: int) -> list[str]:
     """The command line of ``bench/sb3_ppo.py`` for ``steps`` env steps on ``threads`` threads."""
-    script = str(ROOT / "bench" / "sb3_ppo.py")
-    return [
-        str(python),
-        script,
-        "--env-id",
-        GYM_ID,
-        "--steps",
-        str(steps),
-        "--threads",
-        str(threads),
-    ]
+    return side_by_side.peer_command(python, "sb3_ppo.py", steps, threads, "--env-id", GYM_ID)
 
 
 def _sb3(python: Path, steps: int, threads: int) -> dict[str, Any]:
-    environment = {**os.environ, "TF_CPP_MIN_LOG_LEVEL": "3"}
-    done = subprocess.run(
-        sb3_command(python, steps, threads),
-        cwd=ROOT,
-        env=environment,
-        capture_output=True,
-        text=True,
+    return side_by_side.peer_result(
+        sb3_command(python, steps, threads), f"SB3's PPO ({threads} threads)"
     )
-    lines = [x for x in done.stdout.splitlines() if x.startswith("{")]
-    if done.returncode or not lines:
-        raise RuntimeError(f"SB3's PPO ({threads} threads) failed:\n{done.stderr[-3000:]}")
-    return json.loads(lines[-1])
 
 
 # ---- the driver and its tables -------------------------------------------------------------------
@@ -235,37 +195,28 @@ def measure(python: Path, steps: int, threads: list[int], breakdown_iterations: 
     """Ours, SB3, ours again (see the module docstring). With several thread counts and a
     budget above ``PROBE_STEPS``, SB3 first runs ``PROBE_STEPS`` at each count, and the whole
     budget only at the faster one."""
-    first = _ours_child(steps, breakdown_iterations)
-    probes = []
-    if len(threads) > 1 and steps > PROBE_STEPS:
-        probes = [_sb3(python, PROBE_STEPS, count) for count in threads]
-        threads = [min(probes, key=lambda r: r["seconds"])["threads"]]
-    sb3 = [_sb3(python, steps, count) for count in threads]
-    again = _ours_child(steps, 0)
+    first, probes, sb3, again = side_by_side.measure(
+        lambda is_first: _ours_child(steps, breakdown_iterations if is_first else 0),
+        lambda steps, count: _sb3(python, steps, count),
+        steps,
+        threads,
+        PROBE_STEPS,
+    )
     return {"ours": first, "sb3_probes": probes, "sb3": sb3, "ours_again": again}
 
 
 def table(results: dict[str, Any]) -> list[str]:
     """Markdown: one row per timed run, the ratio, and where our time goes."""
     ours, again, sb3 = results["ours"], results["ours_again"], results["sb3"]
-    lines = [
-        "| program | env steps | start-up s | training s | env steps/s | threads | load |",
-        "|---|---:|---:|---:|---:|---|---:|",
-    ]
-
-    def row(label: str, r: dict[str, Any], threads: str) -> str:
-        return (
-            f"| {label} | {r['env_steps']:,} | {r['startup_s']:.1f} | {r['seconds']:.1f} | "
-            f"{r['env_steps_per_s']:,.0f} | {threads} | {r['load']:.1f} |"
-        )
-
-    lines.append(row(f"ours, jax {ours['jax']}", ours, f"XLA over {ours['cores']} cores"))
-    for probe in results.get("sb3_probes", []):
-        lines.append(row("SB3, choosing its thread count", probe, f"torch {probe['threads']}"))
-    for r in sb3:
-        label = f"SB3 {r['stable_baselines3']}, torch {r['torch']}"
-        lines.append(row(label, r, f"torch {r['threads']}"))
-    lines.append(row("ours again", again, f"XLA over {again['cores']} cores"))
+    rows = side_by_side.side_rows(
+        "SB3",
+        ours,
+        results.get("sb3_probes", []),
+        sb3,
+        again,
+        lambda r: f"SB3 {r['stable_baselines3']}, torch {r['torch']}",
+    )
+    lines = side_by_side.timing_table(rows, steps_header="env steps", warmup=False)
     slower = max(ours["seconds"], again["seconds"])
     faster_sb3 = min(sb3, key=lambda r: r["seconds"])
     lines += [
@@ -303,75 +254,56 @@ def breakdown_table(parts: dict[str, float]) -> list[str]:
 
 def section(steps: int, threads: list[int], breakdown_iterations: int, command: str) -> str:
     """The Markdown section: machine line, command, the tables (or why nothing was measured)."""
-    from bench import peers
     from bench.machine import describe
 
-    lines = ["## PPO: ours beside Stable-Baselines3 at equal work", "", describe(), ""]
-    lines += [f"`{command}`", ""]
-    try:
-        python = peers.ensure()
-    except peers.PeersUnavailable as error:
-        return "\n".join([*lines, f"not measured: {error}", ""])
-    started = time.strftime("%H:%M")
-    results = measure(python, round_steps(steps), threads, breakdown_iterations)
-    raw = Path(__file__).resolve().parent / "results"
-    raw.mkdir(exist_ok=True)
-    (raw / "ppo_sb3.json").write_text(json.dumps(results, indent=1))
-    lines += table(results)
-    lines.append(f"\nStarted {started}, finished {time.strftime('%H:%M')} (UTC).")
-    return "\n".join([*lines, ""])
-
-
-def default_threads() -> list[int]:
-    """SB3's thread counts by default: 1 and every core (one count on a 1-core machine)."""
-    return sorted({1, os.cpu_count() or 1})
+    head = ["## PPO: ours beside Stable-Baselines3 at equal work", "", describe(), ""]
+    return side_by_side.section(
+        [*head, f"`{command}`", ""],
+        NAME,
+        Path(__file__).resolve().parent / "results",
+        lambda python: measure(python, round_steps(steps), threads, breakdown_iterations),
+        table,
+    )
 
 
 def run(quick: bool = False) -> str:
     """``python -m bench ppo_sb3 [--quick]``: 1M env steps (the issue's figure), or 20,480."""
     steps = QUICK_STEPS if quick else STEPS
-    command = "python -m bench ppo_sb3" + (" --quick" if quick else "")
+    command = side_by_side.quick_command(NAME, quick)
     return section(steps, default_threads(), 3 if quick else 20, command)
 
 
 def main(argv: list[str] | None = None) -> int:
     """``python -m bench.bench_ppo_sb3 --steps N``: the section for another budget."""
-    parser = argparse.ArgumentParser(
-        prog="python -m bench.bench_ppo_sb3",
-        description=__doc__,
-        formatter_class=argparse.RawDescriptionHelpFormatter,
-    )
-    parser.add_argument("--steps", type=int, default=STEPS, help="env steps per side (1M)")
-    parser.add_argument(
-        "--sb3-threads",
-        default=",".join(map(str, default_threads())),
-        help="SB3's torch thread counts, each timed (default: 1 and all cores)",
-    )
-    parser.add_argument(
-        "--breakdown", type=int, default=20, help="iterations timed per part of ours (0: none)"
-    )
-    parser.add_argument("--worker", action="store_true", help=argparse.SUPPRESS)
-    args = parser.parse_args(argv)
-    try:
+
+    def add_arguments(parser: argparse.ArgumentParser) -> None:
+        parser.add_argument("--steps", type=int, default=STEPS, help="env steps per side (1M)")
+        parser.add_argument(
+            "--sb3-threads",
+            default=",".join(map(str, default_threads())),
+            help="SB3's torch thread counts, each timed (default: 1 and all cores)",
+        )
+        parser.add_argument(
+            "--breakdown", type=int, default=20, help="iterations timed per part of ours (0: none)"
+        )
+
+    def settle(args: argparse.Namespace) -> tuple[int, list[int], int]:
         steps = round_steps(args.steps)
         threads = parse_threads(args.sb3_threads)
         if args.breakdown < 0:
             raise ValueError(f"--breakdown must be >= 0, got {args.breakdown}")
-    except ValueError as error:
-        print(f"error: {error}", file=sys.stderr)
-        return 2
-    from rl_jax.training.jax_setup import configure
+        return steps, threads, args.breakdown
 
-    configure()
-    if args.worker:
-        print("RESULT " + json.dumps(ours(steps, args.breakdown)), flush=True)
-        return 0
-    command = " ".join(["python -m bench.bench_ppo_sb3", *(argv or sys.argv[1:])]).strip()
-    text = section(steps, threads, args.breakdown, command)
-    print(text, flush=True)
-    raw = Path(__file__).resolve().parent / "results"
-    (raw / "ppo_sb3.md").write_text(text)
-    return 0
+    return side_by_side.main(
+        argv,
+        name=NAME,
+        doc=__doc__,
+        add_arguments=add_arguments,
+        settle=settle,
+        worker=lambda settled: ours(settled[0], settled[2]),
+        section=lambda settled, command: section(*settled, command),
+        results_dir=Path(__file__).resolve().parent / "results",
+    )
 
 
 if __name__ == "__main__":
