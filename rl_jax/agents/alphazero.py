@@ -17,6 +17,11 @@ the game's final outcome from the view of the player to move there
 
     loss = cross-entropy(improved policy, network policy) + value_coef * (v - z)^2.
 
+With ``self_play_steps`` > 0 (continuous self-play) each of the ``num_envs`` game slots plays
+``self_play_steps`` moves per iteration instead: a game that ends is replaced by a fresh opening
+at once, so no search is spent on a finished game; games run on across iterations
+(``TrainState.games``), and a game's positions enter the replay, packed, when it ends.
+
 A *chunk* is ``iterations_per_chunk`` iterations, then one evaluation inside the same compiled
 call: ``num_eval_games`` games in both colours (ours opens every other one) against the
 ``eval_opponent``; ``eval_return`` is the mean outcome (1 win, 0 draw, -1 loss). Our side is the
@@ -26,8 +31,8 @@ player (``"random"``, the default: a curve that saturates early), pure MCTS with
 rollouts and ``eval_opponent_simulations`` simulations (``"mcts"``, any game:
 ``envs.games.rollout_mcts``) or exact tic-tac-toe minimax (``"minimax"``, tic-tac-toe only:
 ``envs.games.tic_tac_toe_minimax``; it never loses, so 0 is the best score there). Env steps are
-counted as move slots, ``num_envs * max_game_length`` per iteration (``moves_played`` in the
-metrics counts the moves made).
+counted as move slots, ``num_envs * Config.slot_moves()`` per iteration (``max_game_length``, or
+``self_play_steps``); ``moves_played`` in the metrics counts the moves made.
 
 The game is named by the env id ``pgx/GAME`` (``pgx/tic_tac_toe``) and resolved here with
 ``pgx.make``: the env registry is not involved (docs/learners/alphazero.md says why). Usage::
@@ -92,6 +97,12 @@ class Config:
     env_id: str = "pgx/tic_tac_toe"  # pgx/GAME: the pgx game, pgx.make(GAME)
     num_envs: int = 64  # self-play games played together (vmapped) per iteration
     max_game_length: int = 9  # moves per self-play game at most (tic-tac-toe: 9)
+    # 0: each iteration plays num_envs whole games from the opening, max_game_length moves each
+    # (a game over early sits idle, still searched). > 0: continuous self-play: each of the
+    # num_envs game slots plays this many moves per iteration, a game that ends is replaced by a
+    # fresh opening at once (every search a live move), games run on across iterations, and a
+    # game's positions enter the replay when it ends
+    self_play_steps: int = 0
     num_simulations: int = 32  # simulations of the search at every self-play move
     max_considered_actions: int = 16  # root actions Gumbel sampling considers
     # self-play moves (from the opening) drawn from the search's improved policy rather than
@@ -135,6 +146,8 @@ class Config:
         ):
             if getattr(self, name) < 1:
                 raise ValueError(f"{name} must be >= 1, got {getattr(self, name)}")
+        if self.self_play_steps < 0:
+            raise ValueError(f"self_play_steps must be >= 0, got {self.self_play_steps}")
         if self.conv_layers:
             if len(self.conv_layers) % 3 or min(self.conv_layers) < 1:
                 raise ValueError(
@@ -156,7 +169,17 @@ class Config:
         # first imported, and built inside a jit they would leak as tracers (an unknown game is
         # also named here, before anything compiles)
         self.make_game()
-        if self.buffer_size < self.num_envs * self.max_game_length:
+        if self.self_play_steps:
+            # an iteration stores the moves of its window and of the unfinished games carried
+            # into it, if all of them end in the window
+            most = self.num_envs * (self.self_play_steps + self.max_game_length - 1)
+            if self.buffer_size < most:
+                raise ValueError(
+                    f"buffer_size ({self.buffer_size}) must hold the positions one iteration "
+                    "can store: num_envs x (self_play_steps + max_game_length - 1) = "
+                    f"{most}"
+                )
+        elif self.buffer_size < self.num_envs * self.max_game_length:
             raise ValueError(
                 f"buffer_size ({self.buffer_size}) must hold one iteration's positions: "
                 f"num_envs x max_game_length = {self.num_envs * self.max_game_length}"
@@ -165,6 +188,11 @@ class Config:
     def make_game(self) -> pgx.Env:
         """The pgx game ``env_id`` names."""
         return _make_game(self.env_id.removeprefix(GAME_PREFIX))
+
+    def slot_moves(self) -> int:
+        """Move slots of each of the ``num_envs`` games per iteration: ``self_play_steps``, or
+        ``max_game_length`` with whole games."""
+        return self.self_play_steps or self.max_game_length
 
 
 @functools.cache
@@ -240,10 +268,34 @@ class Replay(NamedTuple):
     legal: jax.Array  # [C, A] bool
     policy: jax.Array  # [C, A] the search's improved policy
     value: jax.Array  # [C] the final outcome for the player to move
-    weight: jax.Array  # [C] 1 for a position played, 0 for an idle step after a game's end
+    # [C] 1 for a position played, 0 for an idle step after a game's end (whole-game
+    # self-play only: continuous self-play stores no idle step)
+    weight: jax.Array
     value_weight: jax.Array  # [C] 1 where no random move followed it in its game
     position: jax.Array  # [] int32, the next row to write
     size: jax.Array  # [] int32, rows written so far (at most C)
+
+
+class Positions(NamedTuple):
+    """The positions of one self-play batch, time-major ``[T, B, ...]``."""
+
+    obs: jax.Array
+    legal: jax.Array
+    policy: jax.Array  # the search's improved policy
+    player: jax.Array  # the player to move
+    rewards: jax.Array  # [T, B, P] what each player received from the move
+    alive: jax.Array  # 1 before the game ended
+    explored: jax.Array  # 1 where the move played was a random one
+    ended: jax.Array  # 1 where the move ended its game (or was its max_game_length-th)
+
+
+class Games(NamedTuple):
+    """Continuous self-play's games in progress, one per slot (``self_play_steps`` > 0)."""
+
+    states: pgx.State  # [B] the position each slot's game moves from next
+    # [max_game_length - 1, B] the positions each slot's game has played so far, the last rows
+    # (alive 1 on its moves, 0 on the rows before): they get their targets when it ends
+    unfinished: Positions
 
 
 @struct.dataclass
@@ -255,6 +307,7 @@ class TrainState:
     key: jax.Array
     clock: Clock
     moves_played: jax.Array  # [] int32, moves made in self-play so far
+    games: Games | None = None  # continuous self-play's games (None: whole games)
 
 
 # ---- the search -----------------------------------------------------------------------------
@@ -331,16 +384,42 @@ def network_player(net_params: optax.Params, config: Config) -> Player:
 
 
 # ---- self-play and the replay ---------------------------------------------------------------
-class Positions(NamedTuple):
-    """The positions of one self-play batch, time-major ``[T, B, ...]``."""
-
-    obs: jax.Array
-    legal: jax.Array
-    policy: jax.Array  # the search's improved policy
-    player: jax.Array  # the player to move
-    rewards: jax.Array  # [T, B, P] what each player received from the move
-    alive: jax.Array  # 1 before the game ended
-    explored: jax.Array  # 1 where the move played was a random one
+def _play_move(
+    net_params: optax.Params,
+    states: pgx.State,
+    key: jax.Array,
+    move_number: jax.Array,
+    config: Config,
+    hparams: Hyperparams,
+) -> tuple[pgx.State, Positions]:
+    """One searched move in each of the ``num_envs`` games: the states after it and the
+    positions it was made from (``move_number``: of each game, from its opening)."""
+    game = config.make_game()
+    search_key, sample_key, random_key, step_key = jax.random.split(key, 4)
+    output = search(net_params, states, search_key, config)
+    sampled = jax.random.categorical(sample_key, jnp.log(output.action_weights))
+    action = jnp.where(move_number < config.sampled_moves, sampled, output.action)
+    random_keys = jax.random.split(random_key, (2, config.num_envs))
+    explore = jax.vmap(jax.random.uniform)(random_keys[0]) < hparams.random_move_prob
+    random_moves = jax.vmap(random_player)(states, random_keys[1])
+    action = jnp.where(explore, random_moves, action)
+    step_keys = jax.random.split(step_key, config.num_envs)
+    next_states = jax.vmap(game.step)(states, action, step_keys)
+    alive = ~(states.terminated | states.truncated)
+    over = next_states.terminated | next_states.truncated
+    played = Positions(
+        obs=states.observation,
+        legal=states.legal_action_mask,
+        policy=output.action_weights,
+        player=states.current_player,
+        rewards=next_states.rewards,
+        alive=alive.astype(jnp.float32),
+        explored=explore.astype(jnp.float32),
+        ended=(alive & (over | (next_states._step_count >= config.max_game_length))).astype(
+            jnp.float32
+        ),
+    )
+    return next_states, played
 
 
 def self_play(
@@ -353,31 +432,41 @@ def self_play(
 
     def move(states: pgx.State, step: tuple[jax.Array, jax.Array]) -> tuple[pgx.State, Positions]:
         key, move_number = step
-        search_key, sample_key, random_key, step_key = jax.random.split(key, 4)
-        output = search(net_params, states, search_key, config)
-        sampled = jax.random.categorical(sample_key, jnp.log(output.action_weights))
-        action = jnp.where(move_number < config.sampled_moves, sampled, output.action)
-        random_keys = jax.random.split(random_key, (2, config.num_envs))
-        explore = jax.vmap(jax.random.uniform)(random_keys[0]) < hparams.random_move_prob
-        random_moves = jax.vmap(random_player)(states, random_keys[1])
-        action = jnp.where(explore, random_moves, action)
-        step_keys = jax.random.split(step_key, config.num_envs)
-        next_states = jax.vmap(game.step)(states, action, step_keys)
-        alive = ~(states.terminated | states.truncated)
-        played = Positions(
-            obs=states.observation,
-            legal=states.legal_action_mask,
-            policy=output.action_weights,
-            player=states.current_player,
-            rewards=next_states.rewards,
-            alive=alive.astype(jnp.float32),
-            explored=explore.astype(jnp.float32),
-        )
-        return next_states, played
+        return _play_move(net_params, states, key, move_number, config, hparams)
 
     steps = (jax.random.split(key, config.max_game_length), jnp.arange(config.max_game_length))
     _, positions = jax.lax.scan(move, states, steps)
     return positions
+
+
+def continuous_self_play(
+    net_params: optax.Params,
+    states: pgx.State,
+    key: jax.Array,
+    config: Config,
+    hparams: Hyperparams,
+) -> tuple[pgx.State, Positions]:
+    """``self_play_steps`` searched moves in each of the ``num_envs`` slots, on from ``states``;
+    a game that ends (or reaches ``max_game_length`` moves) is replaced at once by a fresh
+    opening, so every search is of a live position. ``(states after, positions [T, B])``; each
+    game's first ``sampled_moves`` moves, counted from its own opening, are drawn from the
+    improved policy."""
+    game = config.make_game()
+
+    def move(states: pgx.State, key: jax.Array) -> tuple[pgx.State, Positions]:
+        move_key, init_key = jax.random.split(key)
+        next_states, played = _play_move(
+            net_params, states, move_key, states._step_count, config, hparams
+        )
+        fresh = jax.vmap(game.init)(jax.random.split(init_key, config.num_envs))
+        ended = played.ended > 0
+
+        def restart(new: jax.Array, old: jax.Array) -> jax.Array:
+            return jnp.where(ended.reshape(-1, *(1,) * (old.ndim - 1)), new, old)
+
+        return jax.tree.map(restart, fresh, next_states), played
+
+    return jax.lax.scan(move, states, jax.random.split(key, config.self_play_steps))
 
 
 def replay_init(config: Config) -> Replay:
@@ -396,35 +485,76 @@ def replay_init(config: Config) -> Replay:
     )
 
 
+def _write(
+    replay: Replay,
+    positions: Positions,
+    targets: tuple[jax.Array, ...],
+    rows: jax.Array,
+    count: int | jax.Array,
+) -> Replay:
+    """The replay with ``positions`` (``[T, B]``) and their ``targets`` (value, weight, value
+    weight) scattered, flattened, to ``rows`` (an out-of-range row drops its entry), and
+    ``count`` rows more written."""
+    fields = (positions.obs, positions.legal, positions.policy, *targets)
+    flat = (x.reshape(-1, *x.shape[2:]) for x in fields)
+    capacity = replay.value.shape[0]
+    written = (
+        old.at[rows].set(new, mode="drop") for old, new in zip(replay[:6], flat, strict=True)
+    )
+    return Replay._make(
+        (*written, (replay.position + count) % capacity, jnp.minimum(replay.size + count, capacity))
+    )
+
+
 def replay_add(replay: Replay, positions: Positions) -> Replay:
     """The replay with a finished batch's positions and their targets written over its oldest."""
     targets = parts.value_targets(positions.rewards, positions.player, positions.alive)
-    flat = jax.tree.map(
-        lambda x: x.reshape(-1, *x.shape[2:]),
-        (
-            positions.obs,
-            positions.legal,
-            positions.policy,
-            targets,
-            positions.alive,
-            parts.played_on(positions.explored, positions.alive),
+    weights = (positions.alive, parts.played_on(positions.explored, positions.alive))
+    count = positions.alive.size
+    rows = (replay.position + jnp.arange(count)) % replay.value.shape[0]
+    return _write(replay, positions, (targets, *weights), rows, count)
+
+
+def games_init(key: jax.Array, config: Config) -> Games:
+    """Continuous self-play's ``num_envs`` games at their openings, nothing played yet."""
+    game, slots = config.make_game(), config.num_envs
+    states = jax.vmap(game.init)(jax.random.split(key, slots))
+    # the unused rows before a carried game: a move's fields, all zero
+    policy = jnp.zeros((slots, game.num_actions), jnp.float32)
+    flag = jnp.zeros(slots, jnp.float32)
+    move = Positions(
+        states.observation, states.legal_action_mask, policy, states.current_player,
+        states.rewards, flag, flag, flag,
+    )  # fmt: skip
+    rows = config.max_game_length - 1
+    unfinished = jax.tree.map(lambda x: jnp.zeros((rows, *x.shape), x.dtype), move)
+    return Games(states=states, unfinished=unfinished)
+
+
+def replay_add_games(
+    replay: Replay, positions: Positions, carried_rows: int
+) -> tuple[Replay, Positions, jax.Array]:
+    """Continuous self-play's write: of ``positions`` (``[T, B]``, a slot's games back to back,
+    its unfinished game carried in first), the moves of the games that ended, packed
+    (``alphazero_parts.compacted_rows``: the others take no row), with their own game's
+    targets. ``(replay, the unfinished games' positions as the last carried_rows rows, rows
+    written)``."""
+    finished = parts.game_finished(positions.ended, positions.alive)
+    targets = (
+        parts.game_value_targets(
+            positions.rewards, positions.player, positions.alive, positions.ended
         ),
+        finished,
+        parts.game_played_on(positions.explored, positions.alive, positions.ended),
     )
-    count, capacity = flat[-1].shape[0], replay.value.shape[0]
-    rows = (replay.position + jnp.arange(count)) % capacity
-    obs, legal, policy, value, weight, value_weight = (
-        old.at[rows].set(new) for old, new in zip(replay[:6], flat, strict=True)
-    )
-    return Replay(
-        obs=obs,
-        legal=legal,
-        policy=policy,
-        value=value,
-        weight=weight,
-        value_weight=value_weight,
-        position=(replay.position + count) % capacity,
-        size=jnp.minimum(replay.size + count, capacity),
-    )
+    rows = parts.compacted_rows(finished.reshape(-1), replay.position, replay.value.shape[0])
+    count = jnp.sum(finished).astype(jnp.int32)
+    replay = _write(replay, positions, targets, rows, count)
+    # only a slot's last game can be unfinished, with fewer than max_game_length moves: its
+    # positions are the slot's last rows, and the rows before them are marked as holding none
+    start = positions.alive.shape[0] - carried_rows
+    unfinished = jax.tree.map(lambda x: x[start:], positions)
+    return replay, unfinished._replace(alive=(positions.alive - finished)[start:]), count
 
 
 # ---- training -------------------------------------------------------------------------------
@@ -465,10 +595,24 @@ def update(
 def train_iteration(
     state: TrainState, config: Config, hparams: Hyperparams
 ) -> tuple[TrainState, dict[str, jax.Array]]:
-    """One batch of self-play games into the replay, then ``updates_per_iteration`` updates."""
+    """One batch of self-play games (whole games, or with ``self_play_steps`` a window of
+    continuous self-play) into the replay, then ``updates_per_iteration`` updates."""
     key, play_key, update_key = jax.random.split(state.key, 3)
-    positions = self_play(state.agent.params, play_key, config, hparams)
-    replay = replay_add(state.replay, positions)
+    games, extra = state.games, {}
+    if games is None:
+        positions = self_play(state.agent.params, play_key, config, hparams)
+        replay = replay_add(state.replay, positions)
+    else:
+        states, positions = continuous_self_play(
+            state.agent.params, games.states, play_key, config, hparams
+        )
+        carried = games.unfinished
+        replay, unfinished, extra["positions_stored"] = replay_add_games(
+            state.replay,
+            jax.tree.map(lambda a, b: jnp.concatenate([a, b]), carried, positions),
+            carried.alive.shape[0],
+        )
+        games = Games(states=states, unfinished=unfinished)
 
     def one_update(agent: Agent, key: jax.Array) -> tuple[Agent, dict[str, jax.Array]]:
         return update(agent, replay, key, hparams, config)
@@ -481,13 +625,14 @@ def train_iteration(
         replay=replay,
         key=key,
         clock=Clock(
-            env_steps=clock.env_steps + config.num_envs * config.max_game_length,
+            env_steps=clock.env_steps + config.num_envs * config.slot_moves(),
             updates=clock.updates + config.updates_per_iteration,
             iterations=clock.iterations + 1,
         ),
         moves_played=state.moves_played + jnp.sum(positions.alive).astype(jnp.int32),
+        games=games,
     )
-    return state, jax.tree.map(jnp.mean, metrics)
+    return state, {**jax.tree.map(jnp.mean, metrics), **extra}
 
 
 def eval_opponent_player(config: Config) -> Player:
@@ -537,13 +682,17 @@ def init(key: jax.Array, config: Config, hparams: Hyperparams) -> TrainState:
     replay = replay_init(config)
     net_params = make_network(config).init(net_key, replay.obs[:1])
     optimizer = optax.inject_hyperparams(_adamw)(hparams.learning_rate, hparams.weight_decay)
-    zero = jnp.int32(0)
+    zero, games = jnp.int32(0), None
+    if config.self_play_steps:
+        games_key, key = jax.random.split(key)
+        games = games_init(games_key, config)
     return TrainState(
         agent=Agent(net_params, optimizer.init(net_params)),
         replay=replay,
         key=key,
         clock=Clock(env_steps=zero, updates=zero, iterations=zero),
         moves_played=zero,
+        games=games,
     )
 
 
@@ -611,8 +760,9 @@ class AlphaZero(RecipeBook):
         return train_chunk(state, config, hparams)
 
     def env_steps_per_chunk(self, config: Config) -> int:
-        """Move slots per chunk: ``num_envs * max_game_length * iterations_per_chunk``."""
-        return config.num_envs * config.max_game_length * config.iterations_per_chunk
+        """Move slots per chunk: ``num_envs * slot_moves() * iterations_per_chunk``
+        (``slot_moves``: ``self_play_steps``, or ``max_game_length`` with whole games)."""
+        return config.num_envs * config.slot_moves() * config.iterations_per_chunk
 
     def owns_env(self, env_id: str) -> bool:
         """Every ``pgx/...`` id: the learner makes the game itself (an unknown game is refused

@@ -5,7 +5,8 @@ Time-major throughout: ``[T, B]`` is move ``t`` of game ``b``. A game's move ``t
 ``player_t`` (pgx's ``current_player`` before the move), and ``rewards_t[p]`` is what player
 ``p`` received from that move (pgx's ``rewards`` after it: nonzero only on the move that ends a
 two-player game). ``alive_t`` is 1 for the moves made before the game ended and 0 for the idle
-steps after it.
+steps after it. In continuous self-play, column ``b`` is a game slot instead, whose games follow
+one another (``to_game_end`` and the ``game_*`` helpers at the end).
 """
 
 from __future__ import annotations
@@ -68,3 +69,57 @@ def policy_loss(
 def value_loss(value: jax.Array, target: jax.Array, weight: jax.Array) -> jax.Array:
     """The weighted mean squared error between the value head ``[N]`` and the outcomes ``[N]``."""
     return jnp.sum(weight * (value - target) ** 2) / jnp.maximum(jnp.sum(weight), 1.0)
+
+
+# ---- continuous self-play (``Config.self_play_steps`` > 0) ------------------------------------
+# A slot's trajectory ``[T, B]`` holds several games back to back: ``ended_t`` is 1 where move
+# ``t`` ended its game (the next row, if any, opens a fresh one). Rows with ``alive_t`` 0 hold no
+# move (the unused rows before a slot's carried unfinished game); only the last game of a slot
+# can be unfinished, so a move's game ended iff some move at or after it ended a game.
+def to_game_end(x_t: jax.Array, ended_t: jax.Array, alive_t: jax.Array) -> jax.Array:
+    """``[T, B, ...]`` the sum of ``x`` over the moves from ``t`` to the last move of ``t``'s
+    own game (through the window's end for an unfinished game); rows without a move add 0."""
+    alive = alive_t.reshape(alive_t.shape + (1,) * (x_t.ndim - alive_t.ndim))
+    carry_on = (1.0 - ended_t * alive_t).reshape(alive.shape)
+
+    def back(later: jax.Array, row: tuple[jax.Array, jax.Array]) -> tuple[jax.Array, jax.Array]:
+        x, keep = row
+        total = x + keep * later
+        return total, total
+
+    rows = (x_t * alive, jnp.broadcast_to(carry_on, x_t.shape))
+    _, totals = jax.lax.scan(back, jnp.zeros_like(x_t[0]), rows, reverse=True)
+    return totals
+
+
+def game_finished(ended_t: jax.Array, alive_t: jax.Array) -> jax.Array:
+    """``[T, B]`` 1 for a move whose game ended within the trajectory, 0 for the moves of a
+    slot's unfinished last game and for rows without a move."""
+    ends_later = jnp.flip(jnp.cumsum(jnp.flip(ended_t * alive_t, axis=0), axis=0), axis=0)
+    return jnp.where(ends_later > 0, alive_t, 0.0).astype(jnp.float32)
+
+
+def game_value_targets(
+    rewards_t: jax.Array, player_t: jax.Array, alive_t: jax.Array, ended_t: jax.Array
+) -> jax.Array:
+    """``value_targets`` with games back to back: the rewards ``player_t`` receives from move
+    ``t`` to the end of its own game (0 for a move of an unfinished game or a row without one)."""
+    to_go = to_game_end(rewards_t, ended_t, alive_t)  # [T, B, P]
+    mover_to_go = jnp.take_along_axis(to_go, player_t[..., None].astype(jnp.int32), axis=-1)
+    return jax.lax.stop_gradient(mover_to_go[..., 0] * game_finished(ended_t, alive_t))
+
+
+def game_played_on(explored_t: jax.Array, alive_t: jax.Array, ended_t: jax.Array) -> jax.Array:
+    """``played_on`` with games back to back: 1 for a move of a finished game where no random
+    move was made from it to its game's end; a random move in a later game does not count."""
+    explored_later = to_game_end(explored_t, ended_t, alive_t)
+    return jnp.where(explored_later > 0, 0.0, game_finished(ended_t, alive_t))
+
+
+def compacted_rows(keep: jax.Array, position: jax.Array, capacity: int) -> jax.Array:
+    """Ring rows for the entries ``keep`` (``[N]`` 0/1) selects: the kept ones, in order, take
+    consecutive rows from ``position`` on (modulo ``capacity``); a dropped one gets
+    ``capacity``, out of range, which a scatter with ``mode="drop"`` skips. Dropped entries thus
+    take no row (``keep`` must select at most ``capacity`` entries)."""
+    index = jnp.cumsum(keep.astype(jnp.int32)) - 1
+    return jnp.where(keep > 0, (position + index) % capacity, capacity).astype(jnp.int32)
