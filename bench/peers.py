@@ -1,4 +1,5 @@
-"""The peers' venv: SBX (``sbx-rl``, which needs jax 0.10) and PyTorch, pinned, apart from ours.
+"""The peers' venv: SBX (``sbx-rl``, which needs jax 0.10), PyTorch, and what pgx's AlphaZero
+example needs (dm-haiku, omegaconf, pydantic, pgx, mctx), pinned, apart from ours.
 
     python -m bench.peers            # create .venv-peers from bench/peers-requirements.txt
     python -m bench.peers --check    # say whether it is there and complete
