@@ -63,11 +63,16 @@ def pytest_collection_finish(session):
 # - the MJX env files compile the same MJX step programs (test_mujoco_env imports
 #   test_mujoco_parity's engine and BATCH): one unit, so that the second file finds them in the
 #   compilation cache instead of both processes compiling them at once;
+# - the board-game run files share tests/run/conftest.py's `trained` run, made once per test
+#   process, and test_td3_state shares probe_runs.train's cached run with test_td3_probes: one
+#   unit each, so that each run is trained (and its chunk traced) once;
 # - the heaviest units go first, longest first, so that no process is left with a long file at
 #   the end while the other idles. xdist's own order is by number of tests, which can put a long
 #   file of few tests near the end. The rest follow in xdist's order.
 SHARED_UNITS = {
     "tests/envs/test_mujoco_env.py": "tests/envs/test_mujoco_parity.py",
+    "tests/run/test_match_command.py": "tests/run/test_board_game_runs.py",
+    "tests/agents/test_td3_state.py": "tests/agents/test_td3_probes.py",
 }
 # the slowest units of a cold run (`--durations=0` at the tests' flags), the slowest first; their
 # times are in docs/testing.md

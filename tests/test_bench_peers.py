@@ -5,7 +5,6 @@ and SBX's SAC script run for a few updates where the peers' venv is built."""
 import json
 import subprocess
 
-import jax
 import pytest
 
 from bench import bench_peers, peers, sac_programs
@@ -46,13 +45,11 @@ def test_sac_update_flops_equal_a_hand_count():
     assert counted["critic_step"] == critic_step
     assert counted["actor_step"] == actor_step
     assert counted["per_update"] == critic_step + actor_step  # an actor step every update
-    jax.clear_caches()
 
 
 def test_policy_delay_divides_the_actor_steps_share():
     counted = sac_programs.update_flops(_config(policy_delay=2))
     assert counted["per_update"] == counted["critic_step"] + counted["actor_step"] / 2
-    jax.clear_caches()
 
 
 def test_the_listed_products_of_several_seeds_add_up_to_the_count():
@@ -64,7 +61,6 @@ def test_the_listed_products_of_several_seeds_add_up_to_the_count():
     dots = sac_programs.update_dots(config, 3)
     total = sum(weight * _dot_flops(equation) for equation, weight in dots)
     assert total == 3 * sac_programs.update_flops(config)["per_update"]
-    jax.clear_caches()
 
 
 def test_learner_parts_name_the_learner_or_refuse():

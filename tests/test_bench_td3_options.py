@@ -63,4 +63,3 @@ def test_td7_costs_more_than_td3():
     plain = update_gflop(_config())
     sale = update_gflop(_config(td7, **SALE), "td7")
     assert sale > plain
-    jax.clear_caches()

@@ -191,13 +191,11 @@ def test_unroll_loss_halves_the_gradient_at_every_dynamics_step():
         return jnp.mean(total)
 
     w = 0.8
-    expected = sum(
-        (1.0 if k == 0 else 1.0 / k_steps) * 0.5**k * jax.grad(step_terms)(w, k)
-        for k in range(k_steps + 1)
-    )
-    unscaled = sum(
+    grads = [
         (1.0 if k == 0 else 1.0 / k_steps) * jax.grad(step_terms)(w, k) for k in range(k_steps + 1)
-    )
+    ]
+    expected = sum(0.5**k * grad for k, grad in enumerate(grads))
+    unscaled = sum(grads)
     # the values: every target sits between 0 and 1 on the support, as two_hot assumes
     assert all(0.0 <= h(float(v)) <= 1.0 for v in z.ravel())
     np.testing.assert_allclose(jax.grad(loss)(w), expected, rtol=1e-5)
@@ -410,7 +408,10 @@ def test_simulator_search_sees_a_failure_one_step_ahead():
     v = float(parts.logits_to_scalar(value_logits, 3))
     assert v > 1.0
     predict = lambda obs: (jnp.zeros((obs.shape[0], 2)), jnp.tile(value_logits, (obs.shape[0], 1)))  # noqa: E731
-    out = sim.search(predict, env, state, obs, jax.random.key(1), 0.99, (8, 2, 3), 0.0)
+    # compiled: op by op, the search compiles each of its many ops and its loop on their own
+    out = jax.jit(lambda k: sim.search(predict, env, state, obs, k, 0.99, (8, 2, 3), 0.0))(
+        jax.random.key(1)
+    )
     balanced, falling = np.asarray(out.search_tree.summary().value)
     assert falling < balanced
     assert falling < (v + 8 * 1.0) / 9 + 1e-4  # the prior and 8 terminal rewards of 1

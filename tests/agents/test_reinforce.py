@@ -110,7 +110,8 @@ def test_batch_gradient_matches_the_analytic_gaussian_bandit_gradient():
         out = network.apply(p, obs[0, 0])
         return -((out["mean"][0] - TARGET) ** 2 + out["std"][0] ** 2)
 
-    analytic = flat(jax.grad(objective)(params))
+    # each part compiled: op by op, every op of the network and the loss compiles on its own
+    analytic = flat(jax.jit(jax.grad(objective))(params))
 
     def one_episode_gradient(key):
         action = reinforce_parts.sample_action(network.apply(params, obs), key)
@@ -125,7 +126,9 @@ def test_batch_gradient_matches_the_analytic_gaussian_bandit_gradient():
     standard_error = per_episode.std(axis=0) / np.sqrt(count)
     assert np.all(np.abs(estimate - analytic) < 4 * standard_error + 1e-6), (estimate, analytic)
     # The batch loss over all N episodes at once is the same estimate (the mean over episodes).
-    actions = jax.vmap(lambda k: reinforce_parts.sample_action(network.apply(params, obs), k))(keys)
+    actions = jax.jit(
+        jax.vmap(lambda k: reinforce_parts.sample_action(network.apply(params, obs), k))
+    )(keys)
     batch = Trajectory(
         jnp.broadcast_to(obs[0], (1, count, 1)),
         actions[:, 0, 0][None],
@@ -133,7 +136,7 @@ def test_batch_gradient_matches_the_analytic_gaussian_bandit_gradient():
         jnp.ones((1, count)),
     )
     batch_gradient = flat(
-        jax.grad(lambda q: -reinforce.loss_fn(q, batch, hparams, config)[0])(params)
+        jax.jit(jax.grad(lambda q: -reinforce.loss_fn(q, batch, hparams, config)[0]))(params)
     )
     np.testing.assert_allclose(batch_gradient, estimate, rtol=1e-3, atol=1e-5)
     assert np.max(np.abs(analytic)) > 10 * np.max(standard_error)  # the test can tell apart

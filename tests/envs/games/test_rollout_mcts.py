@@ -1,6 +1,8 @@
 """Pure MCTS with random rollouts: it finds wins and blocks, its values are exact where the game
 ends, it beats a random player, and with enough simulations it plays minimax's moves."""
 
+import functools
+
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -12,11 +14,17 @@ from rl_jax.envs.games import tic_tac_toe_minimax as minimax
 from rl_jax.envs.games.match import play_match, random_player
 
 
+@functools.cache
+def _step(env: pgx.Env):
+    """``env.step`` as one compiled program: op by op, each of its many ops compiles on its own."""
+    return jax.jit(env.step)
+
+
 def position(env: pgx.Env, moves: list[int]) -> pgx.State:
     """The state after ``moves`` from the start."""
     state = env.init(jax.random.key(0))
     for move in moves:
-        state = env.step(state, jnp.int32(move))
+        state = _step(env)(state, jnp.int32(move))
     return state
 
 
