@@ -596,7 +596,8 @@ def train_iteration(
     state: TrainState, config: Config, hparams: Hyperparams
 ) -> tuple[TrainState, dict[str, jax.Array]]:
     """One batch of self-play games (whole games, or with ``self_play_steps`` a window of
-    continuous self-play) into the replay, then ``updates_per_iteration`` updates."""
+    continuous self-play) into the replay, then ``updates_per_iteration`` updates (none while
+    continuous self-play's replay is still empty)."""
     key, play_key, update_key = jax.random.split(state.key, 3)
     games, extra = state.games, {}
     if games is None:
@@ -617,8 +618,23 @@ def train_iteration(
     def one_update(agent: Agent, key: jax.Array) -> tuple[Agent, dict[str, jax.Array]]:
         return update(agent, replay, key, hparams, config)
 
+    def updates(agent: Agent) -> tuple[Agent, dict[str, jax.Array]]:
+        return jax.lax.scan(one_update, agent, update_keys)
+
     update_keys = jax.random.split(update_key, config.updates_per_iteration)
-    agent, metrics = jax.lax.scan(one_update, state.agent, update_keys)
+    if games is None:
+        agent, metrics = updates(state.agent)
+    else:
+        # continuous self-play stores a game only when it ends, so the replay can still be empty
+        # (the first iterations of a run): updates on it would see zero gradients yet still
+        # decay the weights and advance Adam's step count, so they are skipped, with zero
+        # metrics. The clock counts them all the same (it depends on the config alone).
+        skipped = jax.tree.map(
+            lambda x: jnp.zeros(x.shape, x.dtype), jax.eval_shape(updates, state.agent)[1]
+        )
+        agent, metrics = jax.lax.cond(
+            replay.size > 0, updates, lambda agent: (agent, skipped), state.agent
+        )
     clock = state.clock
     state = TrainState(
         agent=agent,

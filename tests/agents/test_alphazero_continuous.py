@@ -1,8 +1,10 @@
 """AlphaZero's continuous self-play (``Config.self_play_steps`` > 0): the reset-aware targets and
 value weights against a plain-Python reference on slots holding several games back to back, the
-packed replay writes, and short train chunks on tic-tac-toe (only played positions of finished
-games stored, every search a live move, deterministic, resumed bit for bit from a checkpoint).
-The default (whole games) is checked to keep its state's layout."""
+packed replay writes (wrapping the ring's end), and short train chunks on tic-tac-toe (only
+played positions of finished games stored, every search a live move, deterministic, resumed bit
+for bit from a checkpoint). No update runs while the replay is empty; a game cut at
+max_game_length restarts and is stored as a draw; each game's moves are numbered from its own
+opening. The default (whole games) is checked to keep its state's layout."""
 
 from __future__ import annotations
 
@@ -104,6 +106,17 @@ def _random_slots(rng: np.random.Generator, count: int) -> list[Slot]:
     return slots
 
 
+def _finished(slots: list[Slot], shape: tuple[int, ...]) -> np.ndarray:
+    """``[T, B]`` 1 for the moves of the slots' finished games."""
+    reference = np.zeros(shape, np.float32)
+    for b, (empty, games) in enumerate(slots):
+        t = empty
+        for movers, _, _, done in games:
+            reference[t : t + len(movers), b] = float(done)
+            t += len(movers)
+    return reference
+
+
 @pytest.mark.parametrize("case", ["hand-made", "random"])
 def test_reset_aware_targets_and_value_weights_match_a_game_by_game_reference(case: str) -> None:
     slots = HAND_MADE if case == "hand-made" else _random_slots(np.random.default_rng(0), 12)
@@ -113,13 +126,7 @@ def test_reset_aware_targets_and_value_weights_match_a_game_by_game_reference(ca
     np.testing.assert_array_equal(got_targets, targets)
     np.testing.assert_array_equal(got_weights, weights)
     finished = parts.game_finished(jnp.asarray(ended), jnp.asarray(alive))
-    reference = np.zeros_like(alive)
-    for b, (empty, games) in enumerate(slots):
-        t = empty
-        for movers, _, _, done in games:
-            reference[t : t + len(movers), b] = float(done)
-            t += len(movers)
-    np.testing.assert_array_equal(finished, reference)
+    np.testing.assert_array_equal(finished, _finished(slots, alive.shape))
     if case == "hand-made":  # the first slot, spelt out
         np.testing.assert_array_equal(
             targets[:14, 0], [1, -1, 1, -1, 1, 1, -1, 1, -1, 1, -1, 0, 0, 0]
@@ -133,6 +140,59 @@ def test_compacted_rows_pack_the_kept_entries_and_wrap() -> None:
     np.testing.assert_array_equal(rows, [8, 10, 9, 0, 10, 1, 10])  # 10: dropped (out of range)
     target = jnp.zeros(10).at[rows].set(jnp.arange(1.0, 8.0), mode="drop")
     np.testing.assert_array_equal(target, [4, 6, 0, 0, 0, 0, 0, 0, 1, 3])
+
+
+def test_replay_add_games_packs_the_finished_games_across_the_ring_end() -> None:
+    rewards, player, alive, ended, explored, targets, weights = _trajectory(HAND_MADE)
+    steps, slots = alive.shape
+    ids = np.arange(1, steps * slots + 1, dtype=np.int32).reshape(steps, slots)  # a move's id
+    actions = 2
+    positions = alphazero.Positions(
+        obs=jnp.asarray(ids[..., None]),
+        legal=jnp.asarray(np.stack([ids % 2 == 0, ids % 3 == 0], axis=-1)),
+        policy=jnp.asarray(np.stack([ids, -ids], axis=-1).astype(np.float32)),
+        player=jnp.asarray(player), rewards=jnp.asarray(rewards), alive=jnp.asarray(alive),
+        explored=jnp.asarray(explored), ended=jnp.asarray(ended),
+    )  # fmt: skip
+    capacity, start, carried_rows = 64, 50, 8
+    old = -7.0  # what the rows the write must leave alone hold
+    replay = alphazero.Replay(
+        obs=jnp.full((capacity, 1), -7, jnp.int32),
+        legal=jnp.zeros((capacity, actions), jnp.bool_),
+        policy=jnp.full((capacity, actions), old),
+        value=jnp.full((capacity,), old),
+        weight=jnp.full((capacity,), old),
+        value_weight=jnp.full((capacity,), old),
+        position=jnp.int32(start),
+        size=jnp.int32(start),
+    )
+    add = jax.jit(alphazero.replay_add_games, static_argnums=2)
+    replay, unfinished, count = add(replay, positions, carried_rows)
+    # the finished games' moves, time-major as the write flattens them: 11 + 14 + 0 + 13
+    finished = _finished(HAND_MADE, alive.shape)
+    kept = finished.reshape(-1) > 0
+    assert int(count) == kept.sum() == 38
+    rows = (start + np.arange(38)) % capacity  # 50..63, then 0..23
+    replay = jax.tree.map(np.asarray, replay)
+    np.testing.assert_array_equal(replay.obs[rows, 0], ids.reshape(-1)[kept])
+    np.testing.assert_array_equal(replay.policy[rows, 0], ids.reshape(-1)[kept])
+    np.testing.assert_array_equal(replay.legal[rows, 1], ids.reshape(-1)[kept] % 3 == 0)
+    np.testing.assert_array_equal(replay.value[rows], targets.reshape(-1)[kept])
+    np.testing.assert_array_equal(replay.value_weight[rows], weights.reshape(-1)[kept])
+    np.testing.assert_array_equal(replay.weight[rows], 1.0)
+    untouched = np.setdiff1d(np.arange(capacity), rows)  # 24..49
+    np.testing.assert_array_equal(untouched, np.arange(24, 50))
+    np.testing.assert_array_equal(replay.value[untouched], old)
+    np.testing.assert_array_equal(replay.obs[untouched], -7)
+    assert int(replay.position) == (start + 38) % capacity == 24
+    assert int(replay.size) == capacity
+    # carried on: the last 8 rows, alive only on the moves of the unfinished games (slot 0's
+    # 3-move game at rows 11..13, slot 2's 16-move game throughout)
+    np.testing.assert_array_equal(unfinished.obs[..., 0], ids[-carried_rows:])
+    expected = np.zeros((carried_rows, slots), np.float32)
+    expected[3:6, 0], expected[:, 2] = 1.0, 1.0
+    np.testing.assert_array_equal(unfinished.alive, expected)
+    np.testing.assert_array_equal(unfinished.alive, (alive * (1 - finished))[-carried_rows:])
 
 
 # ---- the option -------------------------------------------------------------------------------
@@ -230,3 +290,87 @@ def test_a_continuous_run_resumes_bit_for_bit_from_a_checkpoint(tmp_path) -> Non
     resumed, _ = _train_chunk()(restored, config, HPARAMS)
     _assert_equal(straight, resumed)
     _check_replay(resumed)
+
+
+# 2 moves per slot and iteration, games cut after 4 moves (no tic-tac-toe game ends by itself
+# that early): no game ends in the first iteration, every slot's ends in the second
+CUT = dataclasses.replace(CONTINUOUS, max_game_length=4, self_play_steps=2)
+
+
+@functools.cache
+def _train_iteration() -> Callable[..., Any]:
+    return jax.jit(alphazero.train_iteration, static_argnums=1)
+
+
+def test_updates_wait_for_the_first_finished_game() -> None:
+    state = alphazero.init(jax.random.key(2), CUT, HPARAMS)
+    after, metrics = _train_iteration()(state, CUT, HPARAMS)
+    assert int(after.replay.size) == 0 and int(metrics["positions_stored"]) == 0
+    _assert_equal(after.agent.params, state.agent.params)
+    _assert_equal(after.agent.opt_state, state.agent.opt_state)
+    for name in ("policy_loss", "value_loss", "grad_norm"):
+        assert float(metrics[name]) == 0.0, name
+    assert int(after.moves_played) == CUT.num_envs * CUT.self_play_steps
+    # once games have ended the updates run
+    after, _ = _train_iteration()(after, CUT, HPARAMS)
+    assert int(after.replay.size) > 0
+    moved = jax.tree.map(lambda a, b: bool(jnp.any(a != b)), after.agent.params, state.agent.params)
+    assert all(jax.tree.leaves(moved))
+
+
+def test_games_cut_at_max_game_length_restart_and_store_outcome_zero() -> None:
+    # every game is cut after its 4th move, as a draw (value target 0), with no random move
+    # (value weight 1)
+    no_random = np.zeros_like(HPARAMS.random_move_prob)  # the same type: no recompiling
+    hparams = dataclasses.replace(HPARAMS, random_move_prob=no_random)
+    state = alphazero.init(jax.random.key(3), CUT, hparams)
+    slots, sizes, counts = CUT.num_envs, [], []
+    for _ in range(4):
+        state, _ = _train_iteration()(state, CUT, hparams)
+        assert state.games is not None
+        assert not np.asarray(state.games.states.terminated).any()
+        sizes.append(int(state.replay.size))
+        counts.append(np.asarray(state.games.states._step_count))
+    # each slot restarts after 4 moves: its game's move count runs 2, 0 (fresh), 2, 0
+    np.testing.assert_array_equal(np.stack(counts), np.repeat([[2], [0], [2], [0]], slots, axis=1))
+    assert sizes == [0, 4 * slots, 4 * slots, 8 * slots]
+    stored = 8 * slots
+    replay = jax.tree.map(np.asarray, state.replay)
+    np.testing.assert_array_equal(replay.value[:stored], 0.0)
+    np.testing.assert_array_equal(replay.weight[:stored], 1.0)
+    np.testing.assert_array_equal(replay.value_weight[:stored], 1.0)
+    # stored move by move (all slots each): the 5th stored move of a slot opens a fresh game
+    marks = replay.obs[:stored].reshape(8, slots, -1).sum(axis=-1)
+    np.testing.assert_array_equal(marks, np.repeat([[0], [1], [2], [3]] * 2, slots, axis=1))
+
+
+def test_sampled_moves_count_from_each_games_own_opening(monkeypatch) -> None:
+    # the move number each searched move is given (it decides whether the move is sampled from
+    # the improved policy), recorded in place of the explored flag
+    play_move = alphazero._play_move
+
+    def recording(*args: Any) -> tuple[Any, alphazero.Positions]:
+        states, played = play_move(*args)
+        return states, played._replace(explored=args[3].astype(jnp.float32))
+
+    monkeypatch.setattr(alphazero, "_play_move", recording)
+    config = dataclasses.replace(CONTINUOUS, self_play_steps=7)
+    state = alphazero.init(jax.random.key(5), config, HPARAMS)
+    assert state.games is not None
+
+    def window(states: Any, key: jax.Array) -> tuple[Any, alphazero.Positions]:
+        return alphazero.continuous_self_play(state.agent.params, states, key, config, HPARAMS)
+
+    play = jax.jit(window)
+    states, first = play(state.games.states, jax.random.key(6))
+    _, second = play(states, jax.random.key(7))
+    numbers = np.concatenate([first.explored, second.explored]).astype(int)
+    ended = np.concatenate([first.ended, second.ended]) > 0
+    # each game's moves are numbered 0, 1, 2, ... from its own opening, across the windows
+    expected = np.zeros_like(numbers)
+    for t in range(1, len(numbers)):
+        expected[t] = np.where(ended[t - 1], 0, expected[t - 1] + 1)
+    np.testing.assert_array_equal(numbers, expected)
+    # games end at different moves in different slots: the window's step index is not it
+    assert (numbers != np.arange(len(numbers))[:, None]).any(axis=0).all()
+    assert (numbers[config.self_play_steps :] != np.arange(config.self_play_steps)[:, None]).any()
