@@ -276,7 +276,14 @@ def _ours_continuous(
 
     start = time.perf_counter()
     base = cast(alphazero.Config, config)
-    config = dataclasses.replace(base, self_play_steps=base.max_game_length)
+    # self-play never touches the replay, but the config asks it to hold what one iteration of
+    # continuous self-play can store
+    steps = base.max_game_length
+    config = dataclasses.replace(
+        base,
+        self_play_steps=steps,
+        buffer_size=max(base.buffer_size, base.num_envs * (2 * steps - 1)),
+    )
     program = jax.jit(alphazero.continuous_self_play, static_argnums=3)
     keys = jax.random.split(jax.random.key(2), calls + 2)
     states = alphazero.games_init(keys[0], config).states
@@ -417,7 +424,9 @@ def table(rows: list[Row]) -> list[str]:
         if "continuous_slots_per_s" in ours:
             lines.append(
                 line(
-                    network, f"{mine} with `self_play_steps` {ours['max_moves']}", continuous(ours)
+                    network,
+                    f"ours `continuous_self_play` (`self_play_steps` {ours['max_moves']})",
+                    continuous(ours),
                 )
             )
         lines.append(line(network, f"{theirs}, jax {peer['jax']}, haiku {peer['haiku']}", peer))
@@ -487,8 +496,8 @@ def row_settings(settings: Settings, network: str) -> Settings:
 
 
 def default_settings(quick: bool) -> Settings:
-    """The full run's sizes (the recipe's 64 games, 32 simulations, 5 timed calls) or
-    ``--quick``'s (16 games, 16 simulations, 2 calls)."""
+    """The full run's sizes (the recipe's 64 games, 32 simulations, ``CALLS`` timed calls) or
+    ``--quick``'s (16 games, 16 simulations, ``QUICK_CALLS`` calls)."""
     if quick:
         return Settings(
             games=QUICK_GAMES,

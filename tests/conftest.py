@@ -59,7 +59,8 @@ def pytest_collection_finish(session):
 
 # ---- spreading the files over the test processes (`make test`: -n 2 --dist loadfile) -----------
 # Each file runs whole in one process, so that its tests share their compiled programs. Two
-# changes to xdist's file scheduling, both for a cold run:
+# changes to xdist's file scheduling, both for a cold run: files that share costly work run as
+# one unit (SHARED_UNITS), and the heaviest units go first.
 # - the MJX env files compile the same MJX step programs (test_mujoco_env imports
 #   test_mujoco_parity's engine and BATCH): one unit, so that the second file finds them in the
 #   compilation cache instead of both processes compiling them at once;
