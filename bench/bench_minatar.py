@@ -113,6 +113,13 @@ def _block(num_envs: int, quick: bool) -> int:
     return steps // 5 if quick else steps
 
 
+def times(ratio: float) -> str:
+    """A ratio as the table gives it: one decimal, or two significant digits below 1 (a small
+    batch's per-call cost can put a JAX loop at a few hundredths of numpy's, which one decimal
+    would print as 0.0x)."""
+    return f"{ratio:,.1f}x" if ratio >= 0.95 else f"{ratio:.2g}x"
+
+
 def rows(game: str, rates: dict) -> list[str]:
     """Table rows of one game: steps/s, ratio over numpy MinAtar, and ours over gymnax."""
     baseline = rates[NUMPY, 1]
@@ -122,7 +129,7 @@ def rows(game: str, rates: dict) -> list[str]:
         versus = f"{rate / gymnax_rate:,.2f}x" if implementation == OURS and gymnax_rate else "-"
         lines.append(
             f"| {game} | {implementation} | {num_envs:,} | {rate:,.0f} "
-            f"| {rate / baseline:,.1f}x | {versus} |"
+            f"| {times(rate / baseline)} | {versus} |"
         )
     return lines
 

@@ -31,6 +31,17 @@ def test_tiny_run_makes_the_side_by_side_table():
     assert math.isfinite(ours_vs_gymnax) and ours_vs_gymnax > 0
 
 
+def test_small_ratios_keep_two_significant_digits():
+    assert [bench_minatar.times(r) for r in (24.04, 1.0, 0.96, 0.5, 0.048, 0.0012)] == [
+        "24.0x",
+        "1.0x",
+        "1.0x",
+        "0.5x",
+        "0.048x",
+        "0.0012x",
+    ]
+
+
 def test_numpy_minatar_runs_every_game_without_sticky_actions():
     for game in bench_minatar.GAMES:
         once = bench_minatar.numpy_rollout(game, block=50)
