@@ -635,6 +635,7 @@ def train_iteration(
         agent, metrics = jax.lax.cond(
             replay.size > 0, updates, lambda agent: (agent, skipped), state.agent
         )
+        extra["updated"] = (replay.size > 0).astype(jnp.float32)
     clock = state.clock
     state = TrainState(
         agent=agent,
@@ -712,6 +713,22 @@ def init(key: jax.Array, config: Config, hparams: Hyperparams) -> TrainState:
     )
 
 
+def chunk_means(metrics: dict[str, jax.Array]) -> dict[str, jax.Array]:
+    """The chunk's mean of each iteration's metrics. With continuous self-play (an
+    ``updated`` flag per iteration) the update metrics average the iterations that updated only,
+    so that skipped updates' zeros do not pull the losses down (0 where none updated);
+    ``updated`` becomes the fraction of iterations that did."""
+    if "updated" not in metrics:
+        return jax.tree.map(jnp.mean, metrics)
+    updated = metrics["updated"]
+    count = jnp.maximum(jnp.sum(updated), 1.0)
+    not_updates = ("updated", "positions_stored")
+    return {  # each value holds one scalar per iteration
+        name: jnp.mean(value) if name in not_updates else jnp.sum(value * updated) / count
+        for name, value in metrics.items()
+    }
+
+
 def train_chunk(
     state: TrainState, config: Config, hparams: Hyperparams
 ) -> tuple[TrainState, ChunkMetrics]:
@@ -725,7 +742,7 @@ def train_chunk(
     eval_key, key = jax.random.split(state.key)
     eval_return = evaluate(state.agent.params, eval_key, config)
     state = dataclasses.replace(state, key=key)
-    extra = {**jax.tree.map(jnp.mean, metrics), "moves_played": state.moves_played}
+    extra = {**chunk_means(metrics), "moves_played": state.moves_played}
     return state, ChunkMetrics(
         env_steps=state.clock.env_steps,
         updates=state.clock.updates,

@@ -292,6 +292,22 @@ def test_a_continuous_run_resumes_bit_for_bit_from_a_checkpoint(tmp_path) -> Non
     _check_replay(resumed)
 
 
+def test_chunk_means_average_the_update_metrics_over_iterations_that_updated() -> None:
+    # iterations 0 and 2 skipped their updates (empty replay): their zeros do not count
+    metrics = {
+        "policy_loss": jnp.array([0.0, 2.0, 0.0, 4.0]),
+        "positions_stored": jnp.array([0.0, 6.0, 0.0, 2.0]),
+        "updated": jnp.array([0.0, 1.0, 0.0, 1.0]),
+    }
+    means = {name: float(value) for name, value in alphazero.chunk_means(metrics).items()}
+    assert means == {"policy_loss": 3.0, "positions_stored": 2.0, "updated": 0.5}
+    none = {name: value * 0 for name, value in metrics.items()}
+    assert float(alphazero.chunk_means(none)["policy_loss"]) == 0.0
+    # whole-game self-play has no flag: plain means, as before
+    plain = {"policy_loss": metrics["policy_loss"]}
+    assert float(alphazero.chunk_means(plain)["policy_loss"]) == 1.5
+
+
 # 2 moves per slot and iteration, games cut after 4 moves (no tic-tac-toe game ends by itself
 # that early): no game ends in the first iteration, every slot's ends in the second
 CUT = dataclasses.replace(CONTINUOUS, max_game_length=4, self_play_steps=2)
