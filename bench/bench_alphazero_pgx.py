@@ -52,14 +52,13 @@ import argparse
 import hashlib
 import json
 import os
-import subprocess
 import sys
 import time
 import urllib.request
 from pathlib import Path
 from typing import TypedDict, cast
 
-from bench.machine import worker_result
+from bench.machine import peer_result, worker_result
 
 ROOT = Path(__file__).resolve().parent.parent
 NAME = "alphazero_pgx"
@@ -338,19 +337,9 @@ def peer_command(python: Path, directory: Path, settings: Settings) -> list[str]
 
 
 def _peer(python: Path, directory: Path, settings: Settings) -> Timing:
-    environment = {k: v for k, v in os.environ.items() if k != "XLA_FLAGS"}
-    environment["TF_CPP_MIN_LOG_LEVEL"] = "3"
-    done = subprocess.run(
-        peer_command(python, directory, settings),
-        cwd=ROOT,
-        env=environment,
-        capture_output=True,
-        text=True,
-    )
-    lines = [x for x in done.stdout.splitlines() if x.startswith("{")]
-    if done.returncode or not lines:
-        raise RuntimeError(f"pgx's AlphaZero example failed:\n{done.stderr[-3000:]}")
-    return cast(Timing, json.loads(lines[-1]))
+    # the example sets its own devices: no XLA_FLAGS inherited
+    command = peer_command(python, directory, settings)
+    return cast(Timing, peer_result(command, "pgx's AlphaZero example", {"XLA_FLAGS": None}))
 
 
 # ---- the driver and its table ----------------------------------------------------------------

@@ -38,6 +38,7 @@ from pathlib import Path
 from typing import TypedDict, cast
 
 from bench import sb3_side_by_side as side_by_side
+from bench.machine import peer_result
 from bench.sb3_side_by_side import parse_threads
 
 ROOT = side_by_side.ROOT
@@ -129,7 +130,7 @@ def peer_command(python: Path, steps: int, threads: int) -> list[str]:
 
 def _peer(python: Path, steps: int, threads: int) -> Timing:
     what = f"SB3's PPO on MinAtar ({threads} threads)"
-    return cast(Timing, side_by_side.peer_result(peer_command(python, steps, threads), what))
+    return cast(Timing, peer_result(peer_command(python, steps, threads), what))
 
 
 # ---- the driver and its table --------------------------------------------------------------------

@@ -42,6 +42,7 @@ from pathlib import Path
 from typing import Any, cast
 
 from bench import sb3_side_by_side as side_by_side
+from bench.machine import peer_result
 from bench.sb3_side_by_side import default_threads, parse_threads
 
 ROOT = side_by_side.ROOT
@@ -185,9 +186,7 @@ def sb3_command(python: Path, steps: int, threads: int) -> list[str]:
 
 
 def _sb3(python: Path, steps: int, threads: int) -> dict[str, Any]:
-    return side_by_side.peer_result(
-        sb3_command(python, steps, threads), f"SB3's PPO ({threads} threads)"
-    )
+    return peer_result(sb3_command(python, steps, threads), f"SB3's PPO ({threads} threads)")
 
 
 # ---- the driver and its tables -------------------------------------------------------------------

@@ -40,6 +40,7 @@ from pathlib import Path
 from typing import TypedDict, cast
 
 from bench import sb3_side_by_side as side_by_side
+from bench.machine import peer_result
 from bench.sb3_side_by_side import default_threads, parse_threads, round_up
 
 ROOT = side_by_side.ROOT
@@ -133,7 +134,7 @@ def peer_command(python: Path, steps: int, threads: int) -> list[str]:
 
 def _peer(python: Path, steps: int, threads: int) -> Timing:
     what = f"sb3-contrib's RecurrentPPO ({threads} threads)"
-    return cast(Timing, side_by_side.peer_result(peer_command(python, steps, threads), what))
+    return cast(Timing, peer_result(peer_command(python, steps, threads), what))
 
 
 # ---- the driver and its table --------------------------------------------------------------------

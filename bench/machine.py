@@ -33,6 +33,31 @@ def describe() -> str:
     )
 
 
+def _json_result(
+    command: list[str], what: str, prefix: str, environment: dict[str, str]
+) -> dict[str, Any]:
+    """Run ``command`` from the repository root and return the JSON of the last stdout line that
+    starts with ``prefix`` (a worker's ``RESULT {json}``, or a peer's bare ``{json}``); a failed
+    run raises ``RuntimeError`` naming ``what``, with the end of its stderr."""
+    done = subprocess.run(command, cwd=ROOT, env=environment, capture_output=True, text=True)
+    lines = [x for x in done.stdout.splitlines() if x.startswith(prefix)]
+    if done.returncode or not lines:
+        raise RuntimeError(f"{what} failed:\n{done.stderr[-3000:]}")
+    return json.loads(lines[-1].removeprefix("RESULT "))
+
+
+def _environment(base: dict[str, str], env: dict[str, str | None] | None) -> dict[str, str]:
+    """``base`` over this process's environment, then ``env``'s variables set (or, given as
+    None, removed)."""
+    environment = {**os.environ, "TF_CPP_MIN_LOG_LEVEL": "3", **base}
+    for name, value in (env or {}).items():
+        if value is None:
+            environment.pop(name, None)
+        else:
+            environment[name] = value
+    return environment
+
+
 def worker_result(
     command: list[str], what: str, env: dict[str, str | None] | None = None
 ) -> dict[str, Any]:
@@ -40,21 +65,17 @@ def worker_result(
     as a ``RESULT {json}`` line) from the repository root and return that JSON. ``env`` sets
     variables of the child's environment, or removes those given as None. A failed worker
     raises ``RuntimeError`` naming ``what``, with the end of its stderr."""
-    environment: dict[str, str] = {
-        **os.environ,
-        "PYTHONPATH": str(ROOT),
-        "TF_CPP_MIN_LOG_LEVEL": "3",
-    }
-    for name, value in (env or {}).items():
-        if value is None:
-            environment.pop(name, None)
-        else:
-            environment[name] = value
-    done = subprocess.run(command, cwd=ROOT, env=environment, capture_output=True, text=True)
-    lines = [x for x in done.stdout.splitlines() if x.startswith("RESULT ")]
-    if done.returncode or not lines:
-        raise RuntimeError(f"{what} failed:\n{done.stderr[-3000:]}")
-    return json.loads(lines[-1].removeprefix("RESULT "))
+    environment = _environment({"PYTHONPATH": str(ROOT)}, env)
+    return _json_result(command, what, "RESULT ", environment)
+
+
+def peer_result(
+    command: list[str], what: str, env: dict[str, str | None] | None = None
+) -> dict[str, Any]:
+    """The JSON line that a peer's script (run in the peers' venv) prints last, its other
+    variables as for ``worker_result``; a failed script raises ``RuntimeError`` naming ``what``,
+    with the end of its stderr."""
+    return _json_result(command, what, "{", _environment({}, env))
 
 
 def timeit(fn, *, min_time: float = 1.0, warmup: int = 1) -> float:

@@ -19,7 +19,6 @@ import argparse
 import json
 import math
 import os
-import subprocess
 import sys
 import time
 from collections.abc import Callable, Mapping, Sequence
@@ -119,17 +118,6 @@ def peer_command(python: Path, script: str, steps: int, threads: int, *extra: st
     ``steps`` env steps on ``threads`` torch threads."""
     command = [str(python), str(ROOT / "bench" / script), *extra]
     return [*command, "--steps", str(steps), "--threads", str(threads)]
-
-
-def peer_result(command: list[str], what: str) -> dict[str, Any]:
-    """The JSON line a peer's script prints last; a failed script raises ``RuntimeError`` naming
-    ``what``, with the end of its stderr."""
-    environment = {**os.environ, "TF_CPP_MIN_LOG_LEVEL": "3"}
-    done = subprocess.run(command, cwd=ROOT, env=environment, capture_output=True, text=True)
-    lines = [x for x in done.stdout.splitlines() if x.startswith("{")]
-    if done.returncode or not lines:
-        raise RuntimeError(f"{what} failed:\n{done.stderr[-3000:]}")
-    return json.loads(lines[-1])
 
 
 # ---- the driver and its table --------------------------------------------------------------------

@@ -9,7 +9,7 @@ import sys
 
 import pytest
 
-from bench import peers, sb3_ppo
+from bench import machine, peers, sb3_ppo
 from bench import sb3_side_by_side as side_by_side
 from rl_jax.agents.ppo import ppo
 
@@ -107,12 +107,20 @@ def test_the_peer_command_puts_the_budget_and_threads_last(tmp_path):
     ]
 
 
-def test_the_peer_result_is_its_last_json_line_or_an_error_naming_it():
+def test_the_peer_result_is_its_last_json_line_or_an_error_naming_it(monkeypatch):
     script = "print('warming up'); print('{\"seconds\": 1}'); print('{\"seconds\": 2}')"
-    assert side_by_side.peer_result([sys.executable, "-c", script], "peer") == {"seconds": 2}
+    assert machine.peer_result([sys.executable, "-c", script], "peer") == {"seconds": 2}
     failing = "import sys; print('{}'); sys.exit('gone')"
     with pytest.raises(RuntimeError, match="the peer's PPO failed:\ngone"):
-        side_by_side.peer_result([sys.executable, "-c", failing], "the peer's PPO")
+        machine.peer_result([sys.executable, "-c", failing], "the peer's PPO")
+    # variables given as None are removed from the peer's environment, others set
+    monkeypatch.setenv("XLA_FLAGS", "--xla_force_host_platform_device_count=2")
+    show = "import json, os; print(json.dumps({k: os.environ.get(k) for k in ('XLA_FLAGS', 'A')}))"
+    command = [sys.executable, "-c", show]
+    inherited = machine.peer_result(command, "peer")
+    assert inherited == {"XLA_FLAGS": "--xla_force_host_platform_device_count=2", "A": None}
+    changed = machine.peer_result(command, "peer", {"XLA_FLAGS": None, "A": "1"})
+    assert changed == {"XLA_FLAGS": None, "A": "1"}
 
 
 def test_time_ours_counts_the_timed_calls_and_the_warm_up():
