@@ -70,3 +70,13 @@ def test_a_match_row_scores_each_seed_by_its_wins_in_the_match(runs):
     assert not ok and "2/3 reach it" in cell
     with pytest.raises(SystemExit, match=r"no games of seeds \[1\]"):
         results.with_match_scores(summary, {"seeds": match["seeds"][:2]})
+
+
+def test_a_mean_goal_below_100_keeps_its_decimals_and_a_near_miss_reads_as_one():
+    goal = results.Goal(61.2, 5, "final", mean=True)
+    ok, cell = results.goal_met(goal, {"final": [61.19] * 5}, None)
+    assert not ok and cell == "final, mean of 5 >= 61.2: 61.190, **not met**"
+    ok, cell = results.goal_met(goal, {"final": [61.24] * 5}, None)
+    assert ok and cell == "final, mean of 5 >= 61.2: 61.2, met"
+    ok, cell = results.goal_met(results.Goal(159.0, 5, mean=True), {"final": [170.4] * 5}, None)
+    assert ok and cell == "final, mean of 5 >= 159: 170, met"
