@@ -131,17 +131,19 @@ def test_policy_target_is_the_searchs_improved_policy() -> None:
 
 
 def test_search_finds_an_immediate_win() -> None:
-    # X (the opener) holds cells 0 and 1, O holds 3 and 4: X wins at 2 (and must, or O wins)
-    config = dataclasses.replace(SMALL, num_simulations=32)
+    # X (the opener) holds cells 0 and 1, O holds 3 and 4: X wins at 2 (and must, or O wins).
+    # The position fills the batch of the search compiled above, every row with its own draws.
+    config = SMALL
     game = config.make_game()
     state = game.init(jax.random.key(0))
     for cell in (0, 3, 1, 4):
         state = game.step(state, jnp.int32(cell))
     net_params = alphazero.init(jax.random.key(1), config, alphazero.default_hyperparams())
-    states = jax.tree.map(lambda leaf: leaf[None], state)
+    batch = (config.num_envs,)
+    states = jax.tree.map(lambda leaf: jnp.broadcast_to(leaf, batch + leaf.shape), state)
     output = _search()(net_params.agent.params, states, jax.random.key(2), config)
-    assert int(jnp.argmax(output.action_weights[0])) == 2
-    assert float(output.action_weights[0, 2]) > 0.5
+    np.testing.assert_array_equal(jnp.argmax(output.action_weights, axis=-1), 2)
+    assert float(jnp.min(output.action_weights[:, 2])) > 0.5
 
 
 def test_a_few_chunks_give_finite_losses() -> None:
@@ -210,6 +212,10 @@ def _evaluate() -> object:
     return jax.jit(alphazero.evaluate, static_argnums=2)
 
 
+# Every evaluation against a random player below plays these 16 games: one compiled program.
+AGAINST_RANDOM = dataclasses.replace(SMALL, num_eval_games=16)
+
+
 def _untrained(seed: int) -> object:
     hparams = alphazero.default_hyperparams(GAME)
     return alphazero.init(jax.random.key(seed), SMALL, hparams).agent.params
@@ -221,22 +227,18 @@ def test_minimax_opponent_never_loses_in_the_chunk_and_out() -> None:
     _, metrics = _train_chunk()(state, config, hparams)
     # minimax never loses: all draws (0) is the best an evaluation against it can score
     assert -1.0 <= float(metrics.eval_return) <= 0.0
-    games = dataclasses.replace(config, num_eval_games=16)
+    games = dataclasses.replace(AGAINST_RANDOM, eval_opponent="minimax")
     for seed in range(3):
         net_params, key = _untrained(seed), jax.random.key(seed)
         against_minimax = float(_evaluate()(net_params, key, games))
-        against_random = float(
-            _evaluate()(net_params, key, dataclasses.replace(games, eval_opponent="random"))
-        )
+        against_random = float(_evaluate()(net_params, key, AGAINST_RANDOM))
         assert -1.0 <= against_minimax <= 0.0, seed
         # the same untrained network and keys do better against a random player
         assert against_minimax < against_random, seed
 
 
 def test_mcts_opponent_is_seeded_and_stronger_than_random() -> None:
-    config = dataclasses.replace(
-        SMALL, num_eval_games=16, eval_opponent="mcts", eval_opponent_simulations=20
-    )
+    config = dataclasses.replace(AGAINST_RANDOM, eval_opponent="mcts", eval_opponent_simulations=20)
     net_params, key = _untrained(0), jax.random.key(0)
     score = float(_evaluate()(net_params, key, config))
     assert -1.0 <= score <= 1.0
@@ -244,15 +246,14 @@ def test_mcts_opponent_is_seeded_and_stronger_than_random() -> None:
     assert float(_evaluate()(net_params, key, config)) == score  # the same key, the same games
     # the untrained network scored -0.75 against 20 simulations and +0.06 against random play
     # (Intel Xeon): MCTS is the stronger opponent by far
-    against_random = float(
-        _evaluate()(net_params, key, dataclasses.replace(config, eval_opponent="random"))
-    )
+    against_random = float(_evaluate()(net_params, key, AGAINST_RANDOM))
     assert score < against_random - 0.4, (score, against_random)
 
 
 def test_eval_search_plays_the_search_rather_than_the_greedy_network() -> None:
-    greedy = dataclasses.replace(SMALL, num_eval_games=16, num_simulations=16)
-    searching = dataclasses.replace(greedy, eval_search=True)
+    # the greedy side plays the network alone: num_simulations counts for the searching side only
+    greedy = AGAINST_RANDOM
+    searching = dataclasses.replace(greedy, eval_search=True, num_simulations=16)
     net_params, key = _untrained(0), jax.random.key(0)
     greedy_score = float(_evaluate()(net_params, key, greedy))
     search_score = float(_evaluate()(net_params, key, searching))
@@ -260,11 +261,13 @@ def test_eval_search_plays_the_search_rather_than_the_greedy_network() -> None:
     # blocks that its greedy prior misses (+0.75 against +0.06 on an Intel Xeon)
     assert search_score > greedy_score + 0.4, (search_score, greedy_score)
     # and our side's moves are the search's: one position, the same move as search_player
+    # (each compiled: op by op, the search compiles each of its many ops on its own)
     game = greedy.make_game()
     position = game.step(game.init(jax.random.key(0)), jnp.int32(4))
-    ours = alphazero.eval_player(net_params, searching)(position, jax.random.key(1))
-    theirs = alphazero.search_player(net_params, searching)(position, jax.random.key(1))
-    assert int(ours) == int(theirs)
+    ours = jax.jit(lambda p, s, k: alphazero.eval_player(p, searching)(s, k))
+    theirs = jax.jit(lambda p, s, k: alphazero.search_player(p, searching)(s, k))
+    args = (net_params, position, jax.random.key(1))
+    assert int(ours(*args)) == int(theirs(*args))
     greedy_move = alphazero.network_player(net_params, greedy)(position, jax.random.key(1))
     assert int(alphazero.eval_player(net_params, greedy)(position, key)) == int(greedy_move)
 

@@ -4,6 +4,7 @@ contract (a resumed run ends bit-identical, with the frame replay in its checkpo
 one-line refusals of a frame size the conv stack cannot take and of a buffer that cannot fit."""
 
 import dataclasses
+import functools
 
 import flax.linen as nn
 import jax
@@ -106,12 +107,10 @@ def test_random_shift_moves_each_image_by_one_offset_with_its_edges_repeated():
 
 
 def test_the_augmented_update_sees_shifted_frames_and_acting_does_not():
-    # The tiny run's config with the shifts (its chunk program, compiled once for both tests).
-    config = dqn.default_config(ENV_ID, **TINY, **SHIFTED_WHOLE_FRAME)
+    # The tiny run with the shifts, after its first chunk.
+    config, hparams, states, _ = tiny_run(SHIFTED_WHOLE_FRAME)
     plain = dataclasses.replace(config, augment_shift=0)
-    hparams = dqn.default_hyperparams(ENV_ID)
-    state = dqn.init(jax.random.key(0), config, hparams)
-    state, _ = jax.jit(dqn.train_chunk, static_argnums=1)(state, config, hparams)
+    state = states[1]
     args = (state.agent, state.buffer, jax.random.key(3))
     update = jax.jit(dqn_module.update, static_argnums=3)
     shifted, _, shifted_metrics = update(*args, config, hparams, 200)
@@ -255,6 +254,24 @@ TINY = {
 SHIFTED_WHOLE_FRAME = {"crop_drawn_rows": False, "augment_shift": 2}
 
 
+def tiny_run(options: dict) -> tuple:
+    """``(config, hparams, [initial state, state after chunk 1, after chunk 2], last metrics)``
+    of the tiny run with ``options``, trained once for every test that reads it."""
+    return _tiny_run(tuple(sorted(options.items())))
+
+
+@functools.cache
+def _tiny_run(options: tuple) -> tuple:
+    config = dqn.default_config(ENV_ID, **TINY, **dict(options))
+    hparams = dqn.default_hyperparams(ENV_ID)
+    states = [dqn.init(jax.random.key(0), config, hparams)]
+    chunk = jax.jit(dqn.train_chunk, static_argnums=1)
+    for _ in range(2):
+        state, metrics = chunk(states[-1], config, hparams)
+        states.append(state)
+    return config, hparams, states, metrics
+
+
 @pytest.mark.parametrize(
     "options",
     [
@@ -264,15 +281,10 @@ SHIFTED_WHOLE_FRAME = {"crop_drawn_rows": False, "augment_shift": 2}
     ],
 )
 def test_a_tiny_dqn_run_on_pixels_trains_and_evaluates(options):
-    config = dqn.default_config(ENV_ID, **TINY, **options)
+    config, _, (first, _, state), metrics = tiny_run(options)
     assert isinstance(config, PixelConfig)
-    hparams = dqn.default_hyperparams(ENV_ID)
-    state = dqn.init(jax.random.key(0), config, hparams)
-    assert state.obs.shape == (2, 36, 36, 4) and state.obs.dtype == jnp.uint8
-    before = state.agent.online
-    chunk = jax.jit(dqn.train_chunk, static_argnums=1)
-    for _ in range(2):
-        state, metrics = chunk(state, config, hparams)
+    assert first.obs.shape == (2, 36, 36, 4) and first.obs.dtype == jnp.uint8
+    before = first.agent.online
     assert int(metrics.env_steps) == 400 and int(metrics.updates) == 2 * (200 - 30)
     assert int(state.buffer.written) == 200 and state.buffer.frames.dtype == jnp.uint8
     assert np.isfinite(float(metrics.extra["loss"])) and float(metrics.eval_return) >= 8.0

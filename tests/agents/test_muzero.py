@@ -146,9 +146,12 @@ def test_unroll_loss_masks_terms_past_a_termination():
     z, u = jnp.array([[3.0], [5.0], [5.0]]), jnp.array([[3.0], [7.0]])
     masks = parts.unroll_masks(jnp.array([[True], [False]]), jnp.array([[False], [False]]))
     initial, recurrent = toy_model(w)
-    loss, metrics = parts.unroll_loss(
-        initial, recurrent, obs, actions, pi, z, u, masks, (1, 1), value_coef=0.5
-    )
+    # compiled: op by op, each of the unroll's many small ops compiles on its own
+    loss, metrics = jax.jit(
+        lambda: parts.unroll_loss(
+            initial, recurrent, obs, actions, pi, z, u, masks, (1, 1), value_coef=0.5
+        )
+    )()
     l0 = w * 0.7
     l1 = 1.5 * l0 + 1.0
     l2 = 1.5 * l1 + 0.0
@@ -198,7 +201,8 @@ def test_unroll_loss_halves_the_gradient_at_every_dynamics_step():
     unscaled = sum(grads)
     # the values: every target sits between 0 and 1 on the support, as two_hot assumes
     assert all(0.0 <= h(float(v)) <= 1.0 for v in z.ravel())
-    np.testing.assert_allclose(jax.grad(loss)(w), expected, rtol=1e-5)
+    # compiled: op by op, each of the unroll's many small ops compiles on its own
+    np.testing.assert_allclose(jax.jit(jax.grad(loss))(w), expected, rtol=1e-5)
     assert abs(float(expected) - float(unscaled)) > 1e-3  # the halving matters here
 
 
@@ -254,6 +258,10 @@ def test_policy_returns_legal_actions_and_a_search_without_noise_is_deterministi
     np.testing.assert_allclose(jnp.sum(outputs[0].action_weights, axis=-1), 1.0, rtol=1e-6)
 
 
+# compiled: op by op, each of the draw's many small ops compiles on its own
+sample_windows = jax.jit(mz.sample_windows, static_argnums=2)
+
+
 def filled_replay(config, steps):
     """A replay of ``steps`` steps of 2 envs written 5 at a time: step s of env e has reward
     100 e + s."""
@@ -270,7 +278,7 @@ def filled_replay(config, steps):
 def test_windows_are_consecutive_steps_of_one_env():
     config, hparams = tiny()
     rows, steps = config.replay_rows, int(config.replay_rows * 1.5)
-    windows, drawn = mz.sample_windows(
+    windows, drawn = sample_windows(
         filled_replay(config, steps), jax.random.key(0), config, hparams
     )
     reward = np.asarray(windows.reward)
@@ -304,7 +312,7 @@ def test_windows_are_drawn_by_priority():
     # only the window from step 14 of env 1 (row 14) has a priority; step 28 could not start one
     priority = jnp.zeros_like(replay.priority).at[14, 1].set(5.0).at[8, 0].set(7.0)
     replay = replay._replace(priority=priority)
-    windows, drawn = mz.sample_windows(replay, jax.random.key(1), config, hparams)
+    windows, drawn = sample_windows(replay, jax.random.key(1), config, hparams)
     np.testing.assert_array_equal(windows.reward[0], 114.0)
     np.testing.assert_array_equal(drawn.row, 14)
     np.testing.assert_array_equal(drawn.weight, 1.0)

@@ -46,12 +46,18 @@ def flat(carry) -> jax.Array:
     return jnp.concatenate(jax.tree.leaves(carry), axis=-1)
 
 
+@functools.cache
+def collector(config: rppo.Config):
+    """``rppo.collect`` for ``config``, compiled once for every test that collects with it."""
+    return jax.jit(lambda state, key: rppo.collect(state, key, config))
+
+
 @pytest.mark.parametrize("cell", ["lstm", "gru"])
 def test_the_state_restarts_exactly_at_episode_starts(cell):
     config = probe_config(cell, seq_len=4)
     hparams = rppo.recurrent_ppo.default_hyperparams(PROBE)
     state = rppo.init(jax.random.key(0), config, hparams)
-    _, rollout = jax.jit(lambda s: rppo.collect(s, jax.random.key(1), config))(state)
+    _, rollout = collector(config)(state, jax.random.key(1))
     # the probe's episodes are 3 steps long: starts at steps 0, 3, 6, 9 of every env
     expected = np.tile((np.arange(config.num_steps) % 3 == 0)[:, None], (1, config.num_envs))
     np.testing.assert_array_equal(rollout.start, expected)
@@ -73,7 +79,7 @@ def test_sequences_replay_what_acting_computed_from_their_stored_states():
     config = probe_config("lstm", seq_len=4)
     hparams = rppo.recurrent_ppo.default_hyperparams(PROBE)
     state = rppo.init(jax.random.key(0), config, hparams)
-    _, rollout = jax.jit(lambda s: rppo.collect(s, jax.random.key(1), config))(state)
+    _, rollout = collector(config)(state, jax.random.key(1))
     fields = (rollout.obs, rollout.start, rollout.v_tm1, rollout.log_mu, rollout.action)
     obs, start, v_tm1, log_mu, action = rppo.to_sequences(fields, config)
     initial = jax.tree.map(lambda x: x[:, 0], rppo.to_sequences(rollout.carry, config))
@@ -243,7 +249,7 @@ def test_a_truncation_bootstraps_from_the_final_observation_with_the_state_reach
         "rl_jax/ProbeTruncation-v0", num_envs=16, num_steps=4, seq_len=4, cell_size=8
     )
     state = rppo.init(jax.random.key(0), config, rppo.recurrent_ppo.default_hyperparams())
-    _, rollout = jax.jit(lambda s: rppo.collect(s, jax.random.key(1), config))(state)
+    _, rollout = collector(config)(state, jax.random.key(1))
     assert np.all(np.asarray(rollout.truncated)) and not np.any(np.asarray(rollout.terminated))
     assert np.all(np.asarray(rollout.start)) and np.all(np.asarray(flat(rollout.carry)) == 0)
     params = state.agent.params
@@ -308,7 +314,7 @@ def test_normalize_rewards_folds_each_envs_running_discounted_return_into_the_st
     returns = []
     for _ in range(2):  # the second rollout starts from the first's carried returns
         _, collect_key, _ = jax.random.split(state.key, 3)
-        _, rollout = rppo.collect(state, collect_key, config)
+        _, rollout = collector(config)(state, collect_key)
         ended = np.asarray(rollout.terminated | rollout.truncated)
         for r, done in zip(np.asarray(rollout.r_t), ended, strict=True):
             running = hparams.gamma * running + r

@@ -5,6 +5,7 @@ same start, SpaceInvaders, and Freeway and Asterix given the same random draws (
 numpy's game in place of its generator), step for step (docs/using_envs.md, "MinAtar through
 gymnax", lists where the two differ)."""
 
+import functools
 import subprocess
 import sys
 import warnings
@@ -123,18 +124,20 @@ def test_sticky_actions_keyword_executes_the_previous_action_as_minatar():
     else with the agent's; the previous action after a reset is 0."""
     assert isinstance(envs.make("rl_jax/Breakout-MinAtar"), envs.adapters.gymnax_adapter.FromGymnax)
     env = envs.make("rl_jax/Breakout-MinAtar", sticky_actions=0.5)
-    plain = envs.make("rl_jax/Breakout-MinAtar")
+    plain, plain_step = _env_and_step("rl_jax/Breakout-MinAtar")
     assert isinstance(env, envs.StickyActions) and env.repeat_action_probability == 0.5
     state, _ = env.reset(jax.random.key(0))
     plain_state, _ = plain.reset(jax.random.key(0))
+    # both steps compiled: op by op, every step dispatches each of the game's many ops
+    step = jax.jit(env.step)
     previous, stuck_steps = 0, 0
     for i in range(30):
         key, action = jax.random.key(10 + i), i % 3
         stick_key, env_key = jax.random.split(key)
         stuck = bool(jax.random.uniform(stick_key) < 0.5)
         executed = previous if stuck else action
-        state, ts = env.step(key, state, action)
-        plain_state, plain_ts = plain.step(env_key, plain_state, executed)
+        state, ts = step(key, state, jnp.int32(action))
+        plain_state, plain_ts = plain_step(env_key, plain_state, jnp.int32(executed))
         np.testing.assert_array_equal(ts.obs, plain_ts.obs)
         assert int(state.last_action) == executed
         previous, stuck_steps = executed, stuck_steps + (stuck and executed != action)
@@ -185,12 +188,18 @@ def _numpy_game(game: str, seed: int):
     return env
 
 
+@functools.cache
+def _env_and_step(env_id: str):
+    """``(env, its jitted step)``, made and traced once for every test and seed that plays it."""
+    env = envs.make(env_id)
+    return env, jax.jit(env.step)
+
+
 def _play_against_numpy(game: str, seed: int, start) -> int:
     """One episode of random actions in ours and in numpy MinAtar from the same start state;
     observations, rewards and terminals compared at every step. Returns its length."""
-    env = envs.make(f"rl_jax/{game}-MinAtar")
+    env, step = _env_and_step(f"rl_jax/{game}-MinAtar")
     action_set = np.asarray(env.gymnax_env.action_set)
-    step = jax.jit(env.step)
     state, ts = env.reset(jax.random.key(seed))
     reference = _numpy_game(game, seed)
     start(reference.env, state.inner)
@@ -321,9 +330,8 @@ class _GymnaxSpawns:
 
 @pytest.mark.parametrize("seed", range(4))
 def test_asterix_matches_numpy_minatar_given_the_same_spawns(seed):
-    env = envs.make("rl_jax/Asterix-MinAtar")
+    env, step = _env_and_step("rl_jax/Asterix-MinAtar")
     action_set = np.asarray(env.gymnax_env.action_set)
-    step = jax.jit(env.step)
     game = _numpy_game("Asterix", seed)
     spawns = _GymnaxSpawns(game.env)
     game.env.random = spawns

@@ -28,11 +28,23 @@ def position(env: pgx.Env, moves: list[int]) -> pgx.State:
     return state
 
 
-def moves_over_keys(player, state: pgx.State, keys: int = 8) -> set[int]:
-    """The moves ``player`` makes in ``state`` under ``keys`` different keys."""
-    keys_ = jax.random.split(jax.random.key(1), keys)
-    moves = jax.jit(jax.vmap(player, in_axes=(None, 0)))(state, keys_)
+@functools.cache
+def batched_player(env: pgx.Env, num_simulations: int):
+    """``rollout_mcts_player`` over a batch of keys, compiled once per game and simulations."""
+    return jax.jit(jax.vmap(rollout_mcts.rollout_mcts_player(env, num_simulations), (None, 0)))
+
+
+def moves_over_keys(
+    env: pgx.Env, num_simulations: int, state: pgx.State, keys: int = 8
+) -> set[int]:
+    """The moves the player of ``num_simulations`` makes in ``state`` under ``keys`` keys."""
+    moves = batched_player(env, num_simulations)(state, jax.random.split(jax.random.key(1), keys))
     return set(np.asarray(moves).tolist())
+
+
+# Enough simulations to block a line; a win one move away needs fewer, but the players of a
+# game that play with this many share one compiled program.
+BLOCKING = 200
 
 
 @pytest.fixture(scope="module")
@@ -42,7 +54,7 @@ def tic_tac_toe() -> pgx.Env:
 
 def test_it_takes_an_immediate_win_and_values_it_exactly(tic_tac_toe):
     state = position(tic_tac_toe, [0, 3, 1, 4])  # X 0, 1 against O 3, 4: X wins at 2
-    assert moves_over_keys(rollout_mcts.rollout_mcts_player(tic_tac_toe, 32), state) == {2}
+    assert moves_over_keys(tic_tac_toe, BLOCKING, state) == {2}
     states = jax.tree.map(lambda leaf: leaf[None], state)
     # compiled: op by op, the search compiles each of its many ops on its own
     summary = jax.jit(lambda s, k: rollout_mcts.search(tic_tac_toe, s, k, 64).summary())(
@@ -57,7 +69,7 @@ def test_it_takes_an_immediate_win_and_values_it_exactly(tic_tac_toe):
 
 def test_it_blocks_a_line(tic_tac_toe):
     state = position(tic_tac_toe, [0, 4, 1])  # X 0, 1 against O 4, O to move: block at 2
-    assert moves_over_keys(rollout_mcts.rollout_mcts_player(tic_tac_toe, 200), state) == {2}
+    assert moves_over_keys(tic_tac_toe, BLOCKING, state) == {2}
 
 
 def test_it_beats_a_random_player_from_both_sides(tic_tac_toe):
@@ -75,10 +87,10 @@ def test_it_plays_connect_four_and_finds_the_winning_drop():
     env = pgx.make("connect_four")
     # first player drops into column 0 three times, second into column 6: column 0 wins
     state = position(env, [0, 6, 0, 6, 0, 6])
-    assert moves_over_keys(rollout_mcts.rollout_mcts_player(env, 64), state, keys=4) == {0}
+    assert moves_over_keys(env, BLOCKING, state, keys=4) == {0}
     # and the second player, to move after a fourth reply elsewhere, blocks it
     state = position(env, [0, 6, 0, 6, 0])
-    assert moves_over_keys(rollout_mcts.rollout_mcts_player(env, 200), state, keys=4) == {0}
+    assert moves_over_keys(env, BLOCKING, state, keys=4) == {0}
 
 
 @pytest.mark.slow
@@ -90,8 +102,7 @@ def test_it_plays_connect_four_and_finds_the_winning_drop():
 def test_with_many_simulations_it_plays_minimax_moves(tic_tac_toe, moves):
     state = position(tic_tac_toe, moves)
     optimal = set(minimax.optimal_moves(tuple(int(cell) for cell in state._x.board)))
-    player = rollout_mcts.rollout_mcts_player(tic_tac_toe, 2000)
-    assert moves_over_keys(player, state, keys=4) <= optimal
+    assert moves_over_keys(tic_tac_toe, 2000, state, keys=4) <= optimal
 
 
 @pytest.mark.slow
