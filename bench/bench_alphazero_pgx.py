@@ -192,7 +192,9 @@ def example_dir(given: Path | None = None) -> Path:
 
 # ---- ours (a child process: its own JAX, one device over all cores) -------------------------
 def our_config(settings: Settings) -> object:
-    """The Connect Four recipe's config at ``settings`` (the ``resnet`` row: ``CONV_LAYERS``)."""
+    """The Connect Four recipe's config at ``settings`` (the ``resnet`` row: ``CONV_LAYERS``),
+    playing whole games as pgx's example does (``_ours_continuous`` times the recipe's
+    continuous self-play)."""
     import dataclasses
 
     from rl_jax.agents import alphazero
@@ -204,6 +206,7 @@ def our_config(settings: Settings) -> object:
         num_simulations=settings["simulations"],
         max_game_length=settings["max_moves"],
         conv_layers=CONV_LAYERS if settings["network"] == "resnet" else (),
+        self_play_steps=0,
     )
 
 

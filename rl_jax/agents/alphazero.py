@@ -763,10 +763,18 @@ RECIPES = Recipes(
         envs=("pgx/tic_tac_toe",),
         total_steps=500 * _TIC_TAC_TOE_CHUNK,
     ),
+    # Continuous self-play: whole games leave about two thirds of Connect Four's 64 x 42 move
+    # slots idle once their games have ended (docs/learners/alphazero.md).
     Recipe(
         "default",
-        "256x256 MLP, 64 whole games (42 moves) x 32 simulations (untuned)",
-        config={"max_game_length": 42, "sampled_moves": 12, "hidden": (256, 256)},
+        "256x256 MLP, 64 games x 42 moves of continuous self-play x 32 simulations",
+        config={
+            "max_game_length": 42,
+            "sampled_moves": 12,
+            "hidden": (256, 256),
+            "self_play_steps": 42,
+            "buffer_size": 40_000,
+        },
         envs=("pgx/connect_four",),
     ),
 )
