@@ -37,13 +37,14 @@ def _json_result(
     command: list[str], what: str, prefix: str, environment: dict[str, str]
 ) -> dict[str, Any]:
     """Run ``command`` from the repository root and return the JSON of the last stdout line that
-    starts with ``prefix`` (a worker's ``RESULT {json}``, or a peer's bare ``{json}``); a failed
-    run raises ``RuntimeError`` naming ``what``, with the end of its stderr."""
+    starts with ``prefix`` (a worker's ``RESULT {json}``, or a peer's bare ``{json}``): the line
+    from its first brace on. A failed run raises ``RuntimeError`` naming ``what``, with the end
+    of its stderr."""
     done = subprocess.run(command, cwd=ROOT, env=environment, capture_output=True, text=True)
     lines = [x for x in done.stdout.splitlines() if x.startswith(prefix)]
     if done.returncode or not lines:
         raise RuntimeError(f"{what} failed:\n{done.stderr[-3000:]}")
-    return json.loads(lines[-1].removeprefix("RESULT "))
+    return json.loads(lines[-1][lines[-1].index("{") :])
 
 
 def _environment(base: dict[str, str], env: dict[str, str | None] | None) -> dict[str, str]:
