@@ -262,7 +262,11 @@ def _train(session: Session, start: Start, stop: GracefulStop, progress: Progres
     grid = grid_values(spec)
     estimated = False
     for chunk in range(start.chunk, plan.chunks):
-        if _stopping(stop):  # a signal during compilation: nothing new to save
+        if _stopping(stop):
+            # A signal during compilation: nothing new to save. One that came after the last
+            # chunk's own check: that chunk is trained and not yet saved.
+            if chunk > start.chunk:
+                session.save(state, hparams, chunk - 1)
             break
         chunk_started = time.perf_counter()
         state, metrics = chunk_fn(state, hparams)

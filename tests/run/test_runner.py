@@ -132,6 +132,37 @@ def test_sigint_mid_run_checkpoints_and_resume_is_bit_identical(full_run, tmp_pa
     assert compared_rows(out) == compared_rows(full_run.run_dir)
 
 
+def test_a_signal_just_after_a_chunks_own_check_still_saves_that_chunk(
+    full_run, tmp_path, monkeypatch
+):
+    """SIGTERM lands after chunk 1's end-of-chunk check and before chunk 2 starts (a window a
+    loaded machine hits now and then): the run stops there, and the chunk it trained is saved,
+    not lost as if the signal had come during compilation."""
+    out = tmp_path / "run"
+    checks = runner._stopping
+    calls = []
+
+    def check_then_signal(*args, **kwargs):
+        answer = checks(*args, **kwargs)
+        calls.append(answer)
+        if len(calls) == 2:  # the check at the end of the first chunk has just said no
+            os.kill(os.getpid(), signal.SIGTERM)
+        return answer
+
+    monkeypatch.setattr(runner, "_stopping", check_then_signal)
+    messages = []
+    stopped = run(spec_for(out, checkpoint_interval=1e9), notify=messages.append)
+    monkeypatch.setattr(runner, "_stopping", checks)
+    assert calls == [False, False, True]
+    assert stopped.stopped and stopped.step == STEPS_PER_CHUNK
+    with Checkpointer(out / "checkpoints", read_only=True) as checkpointer:
+        assert checkpointer.latest_step() == STEPS_PER_CHUNK
+    assert f"stopped at step {STEPS_PER_CHUNK} of {TOTAL}; checkpoint saved." in messages
+    resumed = run(spec_for(out, resume=True), notify=lambda message: None)
+    assert leaves_bytes(resumed.state) == leaves_bytes(full_run.state)
+    assert compared_rows(out) == compared_rows(full_run.run_dir)
+
+
 def overwrite_with_garbage(step_dir: Path) -> None:
     for path in step_dir.rglob("*"):
         if path.is_file():
