@@ -48,6 +48,11 @@ def alone() -> Iterator[None]:
         _alone[0] = previous
 
 
+def is_alone() -> bool:
+    """Whether this process is within ``alone``."""
+    return _alone[0]
+
+
 def count() -> int:
     """Number of processes in the ``jax.distributed`` job (1 when not distributed, or inside
     ``alone``)."""

@@ -487,7 +487,9 @@ def _run_owned(
         session.close()
     stopped = stop.requested is not None and session.step < plan.final_steps
     result = _finish(spec, session, state, stopped, notify)
-    if stopped and stop.requested == REQUEUE_SIGNAL and processes.is_lead():
+    # Within ``alone`` (a sweep's own shapes) the sweep requeues once every process has saved.
+    requeue = stopped and stop.requested == REQUEUE_SIGNAL
+    if requeue and processes.is_lead() and not processes.is_alone():
         distributed.slurm_requeue(notify)
     return result
 

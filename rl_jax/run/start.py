@@ -11,7 +11,7 @@ import sys
 import time
 from collections.abc import Callable
 from types import FrameType
-from typing import Any
+from typing import Any, ClassVar
 
 from flax.typing import ArrayPytree
 
@@ -54,12 +54,37 @@ def checkpoint_interval(given: float | None, save_seconds: float) -> float:
 
 class GracefulStop:
     """The first SIGINT, SIGTERM or SIGUSR1 asks to stop after the current chunk; a second
-    SIGINT aborts."""
+    SIGINT aborts.
 
-    def __init__(self, notify: Callable[[str], None] = print):
-        self.requested: str | None = None
+    One may be opened inside another (a sweep's around each of its shapes' runs): the inner one
+    starts with what the outer one was asked already, and passes on what it is asked itself, so
+    that a signal is never forgotten when the inner one closes; between the inner ones, the outer
+    one's handler catches the signals."""
+
+    #: the stops open now, innermost last
+    _open: ClassVar[list[GracefulStop]] = []
+
+    def __init__(
+        self,
+        notify: Callable[[str], None] = print,
+        when: str = "after this chunk (a checkpoint follows",
+    ):
+        self._requested: str | None = None
         self._notify = notify
+        self._when = when
+        self._outer: GracefulStop | None = None
         self._previous: dict[int, Any] = {}
+
+    @property
+    def requested(self) -> str | None:
+        """The signal (or who) that asked to stop, or None."""
+        return self._requested
+
+    @requested.setter
+    def requested(self, value: str | None) -> None:
+        self._requested = value
+        if value is not None and self._outer is not None and self._outer.requested is None:
+            self._outer.requested = value
 
     def _handle(self, signum: int, frame: FrameType | None) -> None:
         name = signal.Signals(signum).name
@@ -68,15 +93,17 @@ class GracefulStop:
         if self.requested is not None:
             return  # asked already (a scheduler may signal a step's processes more than once)
         self.requested = name
-        self._notify(
-            f"{name}: stopping after this chunk (a checkpoint follows; Ctrl-C again aborts)"
-        )
+        self._notify(f"{name}: stopping {self._when}; Ctrl-C again aborts)")
 
     def relay(self, who: str) -> None:
         """Say that another process's signal (``who``) stops the run after this chunk."""
-        self._notify(f"{who}: stopping after this chunk (a checkpoint follows)")
+        self._notify(f"{who}: stopping {self._when})")
 
     def __enter__(self) -> GracefulStop:
+        if GracefulStop._open:
+            self._outer = GracefulStop._open[-1]
+            self._requested = self._outer.requested
+        GracefulStop._open.append(self)
         for signum in STOP_SIGNALS:
             # Outside the main thread signals cannot be caught: they stay with the caller.
             with contextlib.suppress(ValueError):
@@ -86,6 +113,8 @@ class GracefulStop:
     def __exit__(self, *exc_info: object) -> None:
         for signum, handler in self._previous.items():
             signal.signal(signum, handler)
+        self._previous.clear()
+        GracefulStop._open.remove(self)
 
 
 @dataclasses.dataclass

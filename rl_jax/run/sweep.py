@@ -42,6 +42,7 @@ from rl_jax.run import (
 )
 from rl_jax.run.metrics import METRICS_FILE, read_rows
 from rl_jax.run.run_dir import recorded_env
+from rl_jax.run.start import REQUEUE_SIGNAL, GracefulStop
 from rl_jax.training import params
 from rl_jax.training.algorithm import Algorithm, hooks
 
@@ -311,12 +312,38 @@ def run_sweep(argv: list[str], description: str = "") -> int:
 
 
 def _run_in_turn(specs: list[RunSpec], labels: list[str], notify: Callable[[str], None]) -> bool:
-    """Every shape over every process's devices, one after another; whether one was stopped."""
-    for index, spec in enumerate(specs, 1):
-        notify(f"== shape {index}/{len(specs)}: {labels[index - 1]}")
-        if runner.run(spec, notify).stopped:
-            return True
-    return False
+    """Every shape over every process's devices, one after another; whether one was stopped.
+    A signal that comes once a shape's last chunk is trained (its last save, its plots, the
+    next shape's start) stops the sweep before the next shape, as it would have stopped the
+    shape: ``--resume`` continues it, and SIGUSR1 requeues it under SLURM."""
+    between = "before the next shape (the shapes trained are kept"
+    with GracefulStop(notify, when=between) as stop:
+        for index, spec in enumerate(specs, 1):
+            # every process starts the shape, or none does
+            asked, requeue = processes.agree(
+                stop.requested is not None,
+                stop.requested == REQUEUE_SIGNAL,
+                at="the start of a shape",
+            )
+            if asked:
+                return _stop_between_shapes(requeue, index, specs, notify)
+            notify(f"== shape {index}/{len(specs)}: {labels[index - 1]}")
+            if runner.run(spec, notify).stopped:
+                return True
+        return False
+
+
+def _stop_between_shapes(
+    requeue: bool, index: int, specs: list[RunSpec], notify: Callable[[str], None]
+) -> bool:
+    """The sweep stops before shape ``index`` of ``specs``, asked by a signal; SIGUSR1 on any
+    process (``requeue``) puts the job back in SLURM's queue."""
+    notify(f"stopped before shape {index}/{len(specs)}; the shapes before it are saved.")
+    if specs[index - 1].resume_command:
+        notify(f"resume with: {distributed.resume_hint(specs[index - 1].resume_command)}")
+    if requeue and processes.is_lead():
+        distributed.slurm_requeue(notify)
+    return True
 
 
 def _silent(message: str) -> None:

@@ -31,8 +31,9 @@ from collections.abc import Callable, Sequence
 import jax
 
 from rl_jax.errors import RunError, user_errors
-from rl_jax.run import checkpoint, processes, runner
+from rl_jax.run import checkpoint, distributed, processes, runner
 from rl_jax.run.spec import RunSpec
+from rl_jax.run.start import REQUEUE_SIGNAL, GracefulStop
 from rl_jax.training.device_layout import plan_layout
 
 
@@ -60,21 +61,46 @@ def run_own(
     """Train this process's shapes alone, then wait for every process to finish its own.
     Returns whether any process was stopped (a signal) before finishing. A user error in one
     process's shape (a refused resume, memory) still lets it reach the wait, so that every
-    process ends with one line rather than waiting for it."""
+    process ends with one line rather than waiting for it. A signal once a shape is trained stops
+    this process before its next shape; SIGUSR1 on any process requeues the job once, from
+    process 0 after every process has saved (a requeue ends the job's every process)."""
     me = jax.process_index()
     for index, (label, process) in enumerate(zip(labels, owner, strict=True), 1):
         notify(f"== shape {index}/{len(specs)}: {label} (process {process})")
     stopped, failure = False, None
-    with processes.alone(), checkpoint.writing_alone():
-        for spec, process in zip(specs, owner, strict=True):
-            if process != me:
-                continue
-            try:
-                stopped = runner.run(spec, notify).stopped
-            except user_errors() as error:
-                failure = error
-            if stopped or failure is not None:
-                break
+    between = "before this process's next shape (the shapes trained are kept"
+    with GracefulStop(notify, when=between) as stop:
+        with processes.alone(), checkpoint.writing_alone():
+            for spec, process in zip(specs, owner, strict=True):
+                if process != me:
+                    continue
+                if stop.requested is not None:
+                    stopped = True
+                    notify(f"stopped before {spec.out.name}; the shapes before it are saved.")
+                    if spec.resume_command:
+                        notify(f"resume with: {distributed.resume_hint(spec.resume_command)}")
+                    break
+                try:
+                    stopped = runner.run(spec, notify).stopped
+                except user_errors() as error:
+                    failure = error
+                if stopped or failure is not None:
+                    break
+        _wait_for_the_others(specs)
+        stopped_any, failed_any, requeue = processes.agree(
+            stopped, failure is not None, stop.requested == REQUEUE_SIGNAL
+        )
+    if failure is not None:
+        raise failure
+    if failed_any:
+        raise RunError("a shape of another process failed (its error is on that process's stderr)")
+    if stopped_any and requeue and processes.speaks():
+        distributed.slurm_requeue(notify)
+    return stopped_any
+
+
+def _wait_for_the_others(specs: Sequence[RunSpec]) -> None:
+    """Every process's shapes trained; one line naming the first process that ended without."""
     try:
         processes.wait_for_all(f"rl_jax sweep shapes trained {specs[0].out.parent}")
     except Exception as error:  # the coordinator's report: the first line says which process
@@ -82,9 +108,3 @@ def run_own(
         raise RunError(
             f"another process of the sweep ended before its shapes did: {reason}"
         ) from None
-    stopped_any, failed_any = processes.agree(stopped, failure is not None)
-    if failure is not None:
-        raise failure
-    if failed_any:
-        raise RunError("a shape of another process failed (its error is on that process's stderr)")
-    return stopped_any
