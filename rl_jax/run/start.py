@@ -70,6 +70,7 @@ class GracefulStop:
         when: str = "after this chunk (a checkpoint follows",
     ):
         self._requested: str | None = None
+        self._signalled = False  # whether this process was sent a stop signal
         self._notify = notify
         self._when = when
         self._outer: GracefulStop | None = None
@@ -88,8 +89,11 @@ class GracefulStop:
 
     def _handle(self, signum: int, frame: FrameType | None) -> None:
         name = signal.Signals(signum).name
-        if self.requested is not None and signum == signal.SIGINT:
+        # Only a signal to this process makes a Ctrl-C the second one: a stop agreed with
+        # another process (``relay``) still lets this one finish its chunk and save.
+        if self._signalled and signum == signal.SIGINT:
             raise KeyboardInterrupt
+        self._signalled = True
         if self.requested is not None:
             return  # asked already (a scheduler may signal a step's processes more than once)
         self.requested = name
@@ -103,6 +107,7 @@ class GracefulStop:
         if GracefulStop._open:
             self._outer = GracefulStop._open[-1]
             self._requested = self._outer.requested
+            self._signalled = self._outer._signalled
         GracefulStop._open.append(self)
         for signum in STOP_SIGNALS:
             # Outside the main thread signals cannot be caught: they stay with the caller.

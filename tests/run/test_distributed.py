@@ -112,6 +112,21 @@ def test_sigusr1_asks_to_stop_after_the_chunk():
     assert stop.requested == "SIGUSR1" and len(said) == 1 and said[0].startswith("SIGUSR1: stop")
 
 
+def test_a_stop_agreed_with_another_process_leaves_the_first_ctrl_c_a_first_one():
+    """Another process's signal stops this one too; a Ctrl-C here then asks again (nothing to
+    add), and only a second one aborts, as it would without the other process's signal."""
+    said = []
+    with GracefulStop(said.append) as stop:
+        stop.requested = "another process"
+        stop.relay("SIGUSR1 on process 1")
+        os.kill(os.getpid(), signal.SIGINT)  # the first Ctrl-C here: no abort
+        time.sleep(0.1)
+        with pytest.raises(KeyboardInterrupt):
+            os.kill(os.getpid(), signal.SIGINT)
+            time.sleep(0.1)
+    assert said == ["SIGUSR1 on process 1: stopping after this chunk (a checkpoint follows)"]
+
+
 def test_the_launcher_needs_a_command_and_says_when_submitit_is_missing(monkeypatch):
     with pytest.raises(UsageError, match="give the command to run"):
         launch.parse(["--local", "2"])
