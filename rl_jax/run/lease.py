@@ -29,9 +29,7 @@ from pathlib import Path
 from typing import TypedDict, cast
 
 from rl_jax.errors import RunError
-from rl_jax.run.run_dir import write_json_atomic
-
-LEASE_FILE = "lease.json"
+from rl_jax.run.run_dir import LEASE_FILE, write_json_atomic
 
 
 class Holder(TypedDict, total=False):

@@ -36,6 +36,8 @@ from rl_jax.training.algorithm import Config, Hyperparams
 
 CONFIG_FILE = "config.json"
 CHECKPOINT_DIR = "checkpoints"
+#: The run's lease (``rl_jax.run.lease``): the first file a new run writes, before its record.
+LEASE_FILE = "lease.json"
 CURVES_FILE = "curves.png"
 RESULTS_FILE = "results.txt"
 
@@ -334,7 +336,9 @@ def _check_out_dir(out: Path, run_identity: dict[str, Any]) -> None:
         return
     if not out.is_dir():
         raise RunError(f"--out {out} exists and is not a directory")
-    if not any(out.iterdir()):
+    # A new run killed after taking its lease and before writing its record left the lease
+    # alone: the directory holds no run yet (a live owner is refused by the lease itself).
+    if not any(not entry.name.startswith(LEASE_FILE) for entry in out.iterdir()):
         try:
             probe_writable(out)
         except OSError as error:

@@ -15,6 +15,7 @@ from pathlib import Path
 
 import pytest
 from child_env import python_path
+from run_helpers import fake_run
 
 import rl_jax
 from rl_jax.errors import RunError
@@ -124,3 +125,17 @@ def test_a_second_copy_of_a_run_leaves_it_untouched_and_a_killed_ones_run_contin
     resumed = rl_jax.resume(run_dir, total_steps=600, quiet=True)
     assert resumed.results.step == 600
     assert not (run_dir / lease.LEASE_FILE).exists()
+
+
+def test_a_new_run_killed_before_its_record_left_a_directory_it_can_start_in(tmp_path):
+    """A new run killed after taking its lease and before writing config.json leaves the lease
+    alone in its directory: the same run started again takes it over and trains, where it was
+    refused as a directory that is not empty."""
+    finished = subprocess.run([sys.executable, "-c", "import os; print(os.getpid())"],
+                              capture_output=True, text=True, check=True)  # fmt: skip
+    run_dir = tmp_path / "run"
+    run_dir.mkdir()
+    _write_lease(run_dir, socket.gethostname(), int(finished.stdout), time.time())
+    fake_run(run_dir, total_steps=20)
+    assert (run_dir / "config.json").is_file() and (run_dir / "checkpoints").is_dir()
+    assert not (run_dir / lease.LEASE_FILE).exists()  # released at the end
