@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import sys
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any, Protocol, runtime_checkable
@@ -23,7 +24,7 @@ from typing import Any, Protocol, runtime_checkable
 import jax
 import numpy as np
 
-from rl_jax.run.checkpoint import Checkpointer
+from rl_jax.run.checkpoint import Checkpointer, DamagedCheckpointError
 from rl_jax.training.algorithm import Algorithm, HoldsAgent, TrainState, hooks
 
 BEST_DIR = "best"
@@ -122,18 +123,30 @@ class BestPolicies:
         at_most: int,
         expect: dict[str, Any],
     ) -> BestPolicies:
-        """The best policies saved at the latest step <= ``at_most`` (none: a fresh tracker).
-        ``template``: the ``[H, S]`` abstract train state."""
+        """The best policies saved at the latest readable step <= ``at_most`` (none: a fresh
+        tracker). ``template``: the ``[H, S]`` abstract train state. A damaged one is passed over
+        with one line on stderr, never stopping the resume: the best policies are a record of
+        the run, not its state, so the resume goes on from an older record, or a fresh one."""
         best = cls(fields, _runs(template, fields))
         if not best.enabled or not Path(directory).is_dir():
             return best
         with Checkpointer(directory, read_only=True) as checkpointer:
-            steps = [s for s in checkpointer.steps() if s <= at_most]
-            if not steps:
+            for step in reversed([s for s in checkpointer.steps() if s <= at_most]):
+                try:
+                    part, meta = checkpointer.restore(
+                        policy_part(template, fields), step=step, expect=expect
+                    )
+                except DamagedCheckpointError as error:
+                    print(
+                        f"warning: the best policies' checkpoint step {step} {error.problem}; "
+                        "passed over",
+                        file=sys.stderr,
+                        flush=True,
+                    )
+                    continue
+                break
+            else:
                 return best
-            part, meta = checkpointer.restore(
-                policy_part(template, fields), step=steps[-1], expect=expect
-            )
         best.part = jax.tree.map(np.asarray, part)
         best.returns = np.array(
             [[-np.inf if r is None else r for r in row] for row in meta["best_returns"]]

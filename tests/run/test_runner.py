@@ -169,6 +169,26 @@ def overwrite_with_garbage(step_dir: Path) -> None:
             path.write_bytes(b"\x93garbage\xff" * 3)
 
 
+def test_a_damaged_best_policy_checkpoint_is_passed_over_and_the_resume_goes_on(
+    full_run, tmp_path, capsys
+):
+    """The best policies' latest checkpoint overwritten: the resume says so in one line, goes on
+    from the older best record, and trains as a run that never stopped."""
+    out = tmp_path / "run"
+    run(spec_for(out, total_steps=3 * STEPS_PER_CHUNK), notify=lambda message: None)
+    with Checkpointer(out / "best", read_only=True) as checkpointer:
+        steps = checkpointer.steps()
+    assert len(steps) >= 2, steps  # an older record to fall back on
+    overwrite_with_garbage(out / "best" / str(steps[-1]))
+    capsys.readouterr()
+    resumed = run(spec_for(out, resume=True), notify=lambda message: None)
+    lines = capsys.readouterr().err.strip().splitlines()
+    assert len(lines) == 1, lines
+    assert lines[0].startswith(f"warning: the best policies' checkpoint step {steps[-1]} is ")
+    assert resumed.step == TOTAL
+    assert leaves_bytes(resumed.state) == leaves_bytes(full_run.state)
+
+
 def test_resume_falls_back_past_a_damaged_latest_checkpoint(full_run, tmp_path, capsys):
     """The latest checkpoint's files overwritten: the resume starts from the one before, says so
     in one stderr line, keeps the damaged one aside and ends as a run that never stopped. Asked to
