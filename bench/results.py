@@ -683,6 +683,15 @@ ROWS: dict[str, Row] = {
         "RL Zoo's RecurrentPPO: 500 at 100k (1 run); 500 is the maximum",
         Goal(500.0, 29, "final", 2.0),
     ),
+    "recurrent-ppo-gru-cartpole-novel": Row(
+        "Recurrent PPO, GRU (`--recipe gru`), `rl_jax/CartPoleNoVel-v1`",
+        "train.py",
+        ("--algo", "recurrent_ppo", "--env", "rl_jax/CartPoleNoVel-v1", "--recipe", "gru")
+        + ("--total-steps", "100000"),
+        30,
+        "RL Zoo's RecurrentPPO: 500 at 100k (1 run); 500 is the maximum",
+        Goal(500.0, 29, "final", 2.0),
+    ),
     "ppo-cartpole-novel": Row(
         "PPO (feed-forward), `rl_jax/CartPoleNoVel-v1`",
         "train.py",
