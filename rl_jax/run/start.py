@@ -93,7 +93,9 @@ class GracefulStop:
         # another process (``relay``) still lets this one finish its chunk and save.
         if self._signalled and signum == signal.SIGINT:
             raise KeyboardInterrupt
-        self._signalled = True
+        stop: GracefulStop | None = self
+        while stop is not None:  # a Ctrl-C after the inner stop closes is a second one too
+            stop._signalled, stop = True, stop._outer
         if self.requested is not None:
             return  # asked already (a scheduler may signal a step's processes more than once)
         self.requested = name

@@ -127,6 +127,21 @@ def test_a_stop_agreed_with_another_process_leaves_the_first_ctrl_c_a_first_one(
     assert said == ["SIGUSR1 on process 1: stopping after this chunk (a checkpoint follows)"]
 
 
+def test_a_stop_inside_another_passes_on_what_it_was_asked():
+    """A sweep's stop around a run's: the run's signal reaches the sweep's, and a Ctrl-C after
+    the run's stop has closed is the second one, as it would be in the run."""
+    said = []
+    with GracefulStop(said.append, when="before the next shape (x") as outer:
+        with GracefulStop(said.append) as inner:
+            os.kill(os.getpid(), signal.SIGINT)
+            time.sleep(0.1)
+        assert inner.requested == outer.requested == "SIGINT"
+        with pytest.raises(KeyboardInterrupt):
+            os.kill(os.getpid(), signal.SIGINT)
+            time.sleep(0.1)
+    assert said == ["SIGINT: stopping after this chunk (a checkpoint follows; Ctrl-C again aborts)"]
+
+
 def test_the_launcher_needs_a_command_and_says_when_submitit_is_missing(monkeypatch):
     with pytest.raises(UsageError, match="give the command to run"):
         launch.parse(["--local", "2"])
