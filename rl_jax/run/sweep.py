@@ -338,9 +338,7 @@ def _stop_between_shapes(
 ) -> bool:
     """The sweep stops before shape ``index`` of ``specs``, asked by a signal; SIGUSR1 on any
     process (``requeue``) puts the job back in SLURM's queue."""
-    notify(f"stopped before shape {index}/{len(specs)}; the shapes before it are saved.")
-    if specs[index - 1].resume_command:
-        notify(f"resume with: {distributed.resume_hint(specs[index - 1].resume_command)}")
+    sweep_shapes.say_stopped_before(f"shape {index}/{len(specs)}", specs[index - 1], notify)
     if requeue and processes.is_lead():
         distributed.slurm_requeue(notify)
     return True

@@ -52,6 +52,14 @@ def owners(
     return [index % num_processes for index in range(num_shapes)]
 
 
+def say_stopped_before(shape: str, spec: RunSpec, notify: Callable[[str], None]) -> None:
+    """The two lines of a sweep stopped by a signal before ``shape`` (``spec``'s): what is kept,
+    and the command that resumes it."""
+    notify(f"stopped before {shape}; the shapes before it are saved.")
+    if spec.resume_command:
+        notify(f"resume with: {distributed.resume_hint(spec.resume_command)}")
+
+
 def run_own(
     specs: Sequence[RunSpec],
     labels: Sequence[str],
@@ -76,9 +84,7 @@ def run_own(
                     continue
                 if stop.requested is not None:
                     stopped = True
-                    notify(f"stopped before {spec.out.name}; the shapes before it are saved.")
-                    if spec.resume_command:
-                        notify(f"resume with: {distributed.resume_hint(spec.resume_command)}")
+                    say_stopped_before(spec.out.name, spec, notify)
                     break
                 try:
                     stopped = runner.run(spec, notify).stopped
