@@ -10,8 +10,8 @@ float32 sum, and the evaluation return after each chunk. XLA compiles for the CP
 the same program can round differently on another CPU model (DESIGN.md, "The machines vary"),
 so the values are kept per ``jax_setup.cpu_tag()`` and jax version (another XLA fuses and rounds
 the same program differently too: jax 0.12 moved the last bit of some of these sums); on a CPU
-or jax without a record the test skips and prints the values to add to
-``tests/data/td3_fingerprints.json``.
+or jax without a record the test skips, before running anything, and names the command that prints
+the values to add to ``tests/data/td3_fingerprints.json``.
 
 The first record was made at XLA's default compile flags, which the rest of the suite does not use
 (``compile_level.py``). With the suite's flags the programs of 0e5ccfd and of today differ in the
@@ -81,32 +81,42 @@ def fingerprint(algorithm, **config_overrides):
     return returns, sums
 
 
-@pytest.fixture(scope="module")
-def fingerprints():
-    """``(fingerprint of every run of RUNS, the flags of their record)``, the runs made in one
-    subprocess at XLA's default flags, or at -O0 alone inside the suite (half the compile time;
-    XLA's older emitters of the suite's own flags are left out, see above)."""
+def _run_env() -> tuple[dict[str, str], str]:
+    """The environment of the runs' subprocess and the flags of their record: XLA's default
+    flags, or -O0 alone inside the suite (half the compile time; XLA's older emitters of the
+    suite's own flags are left out, see above)."""
     import compile_level
 
     env = compile_level.default_level_env()
-    flags = "default"
-    if compile_level.active():
-        env["XLA_FLAGS"] = f"{env['XLA_FLAGS']} {compile_level.FLAG}".strip()
-        flags = "-O0"
+    if not compile_level.active():
+        return env, "default"
+    env["XLA_FLAGS"] = f"{env['XLA_FLAGS']} {compile_level.FLAG}".strip()
+    return env, "-O0"
+
+
+@pytest.fixture(scope="module")
+def fingerprints() -> dict:
+    """The fingerprint of every run of RUNS, made in one subprocess (``_run_env``)."""
     result = subprocess.run(
-        [sys.executable, __file__, *RUNS], env=env, capture_output=True, text=True, timeout=600
+        [sys.executable, __file__, *RUNS],
+        env=_run_env()[0],
+        capture_output=True,
+        text=True,
+        timeout=600,
     )
     assert result.returncode == 0, result.stderr[-3000:]
-    return json.loads(result.stdout.strip().splitlines()[-1]), flags
+    return json.loads(result.stdout.strip().splitlines()[-1])
 
 
 @pytest.mark.parametrize("name", list(RUNS))
-def test_options_off_is_bit_identical_to_plain_td3(name, fingerprints):
-    got, flags = fingerprints[0][name], fingerprints[1]
+def test_options_off_is_bit_identical_to_plain_td3(name, request):
+    env, flags = _run_env()
     where = (jax_setup.cpu_tag(), jax.__version__, flags)
     record = recorded(*where).get(name)
-    if record is None:
-        pytest.skip(f"no record for (CPU, jax, flags) {where}; this one gives {got!r}")
+    if record is None:  # nothing to compare with: the runs are not made
+        command = f"XLA_FLAGS='{env['XLA_FLAGS']}' python tests/agents/{Path(__file__).name} {name}"
+        pytest.skip(f"no record for (CPU, jax, flags) {where}; `{command}` prints this host's")
+    got = request.getfixturevalue("fingerprints")[name]
     assert got[0] == record[0]
     assert got[1] == record[1]
 
