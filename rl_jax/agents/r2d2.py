@@ -22,7 +22,11 @@ target network from the stored state, resetting it where an episode starts insid
   stops at the sequence's last step.
 
 The target network takes a step ``tau`` towards the online one every ``target_update_period``
-updates. Pixel envs and legal-action masks are not supported (refused).
+updates. With ``policy_checkpoints`` (TD7's, as DQN's: ``rl_jax.training.policy_checkpoints``)
+the training envs act with a frozen copy of the network that is assessed over training episodes,
+each begun from the zero state under the copy, and evaluation, ``best/`` and loaded policies use
+the checkpoint: the last copy whose assessment had no episode below the checkpoint's score.
+Pixel envs and legal-action masks are not supported (refused).
 """
 
 from __future__ import annotations
@@ -44,8 +48,9 @@ from rl_jax.agents import r2d2_parts
 from rl_jax.agents.common import clipped_adam, injected_step, linearly_decayed, polyak_update
 from rl_jax.agents.q_learning import linear_schedule
 from rl_jax.agents.r2d2_parts import Sequence, SequenceReplay
-from rl_jax.training import episodes, networks, offpolicy, params, validation
+from rl_jax.training import episodes, networks, offpolicy, params, policy_checkpoints, validation
 from rl_jax.training.offpolicy import Clock, OffPolicyConfig, TrainState
+from rl_jax.training.policy_checkpoints import PolicyCheckpoint
 from rl_jax.training.recipes import Recipe, Recipes, Setting
 from rl_jax.training.replay import Transition
 
@@ -71,11 +76,17 @@ class Config(OffPolicyConfig):
     n_step: int = 3  # rewards summed before bootstrapping (paper: 5)
     prioritized: bool = False  # prioritised sequences, with importance weights
     target_update_period: int = 100  # gradient updates between target steps of size tau
+    # TD7's policy checkpoints, as DQN's (the module docstring)
+    policy_checkpoints: bool = False
+    checkpoint_episodes: int = 20  # policy_checkpoints: episodes per assessment (TD7: 20)
+    checkpoint_episodes_from: int = 750_000  # policy_checkpoints: env step of the switch
 
     def __post_init__(self) -> None:
         super().__post_init__()
         if self.cell_size < 1 or self.n_step < 1 or self.target_update_period < 1:
             raise ValueError("cell_size, n_step and target_update_period must be >= 1")
+        if self.checkpoint_episodes < 1 or self.checkpoint_episodes_from < 0:
+            raise ValueError("checkpoint_episodes must be >= 1, checkpoint_episodes_from >= 0")
         if not 0 <= self.burn_in < self.seq_len:
             raise ValueError(f"burn_in must be in 0..seq_len - 1, got {self.burn_in}")
         if not 1 <= self.seq_period <= self.seq_len:
@@ -105,6 +116,9 @@ class Hyperparams(params.HyperparamsMethods):
     priority_alpha: ArrayLike = 0.9  # prioritized: P(i) proportional to p_i^alpha (paper's)
     priority_beta: ArrayLike = 0.6  # prioritized: importance-weight exponent (the paper's)
     priority_eps: ArrayLike = 1e-6  # prioritized: added to every priority
+    # policy_checkpoints: the checkpoint's score is multiplied by this when assessments lengthen
+    # to checkpoint_episodes (TD7: 0.9)
+    checkpoint_reset_weight: ArrayLike = 0.9
 
 
 # ---- the network --------------------------------------------------------------------------------
@@ -216,11 +230,15 @@ def unroll(
 # ---- state and replay ---------------------------------------------------------------------------
 @struct.dataclass
 class Agent:
-    """The online and target Q-networks and the optimizer state."""
+    """The online and target Q-networks, the optimizer state and, with ``policy_checkpoints``,
+    the checkpoint."""
 
     online: optax.Params
     target: optax.Params
     opt_state: optax.InjectStatefulHyperparamsState  # holds the learning rate
+    # policy_checkpoints: the checkpoint of Q-network parameters (None without: the state and
+    # checkpoints of runs without it stay as they were)
+    checkpoint: PolicyCheckpoint | None = None
 
 
 def init_buffer(example: Transition, config: Config) -> SequenceReplay:
@@ -308,7 +326,7 @@ def update(
     buffer = r2d2_parts.write_priorities(
         buffer, indices, priorities + hparams.priority_eps, hparams.priority_alpha
     )
-    agent = Agent(online=online, target=target, opt_state=opt_state)
+    agent = agent.replace(online=online, target=target, opt_state=opt_state)
     return agent, buffer, {"loss": loss, "q": q, "epsilon": epsilon_at(env_steps, hparams)}
 
 
@@ -321,10 +339,25 @@ def epsilon_at(env_steps: jax.Array, hparams: Hyperparams) -> jax.Array:
     )
 
 
-def act(agent: Agent, carry: Carry, obs: jax.Array, config: Config) -> tuple[jax.Array, Carry]:
-    """Greedy actions ``[N]`` int32 of the online network, and the next states."""
-    carry, q = apply(agent.online, carry, obs, config)
+def greedy(
+    params: optax.Params, carry: Carry, obs: jax.Array, config: Config
+) -> tuple[jax.Array, Carry]:
+    """Greedy actions ``[N]`` int32 of the network at ``params``, and the next states."""
+    carry, q = apply(params, carry, obs, config)
     return jnp.argmax(q, axis=-1).astype(jnp.int32), carry
+
+
+def policy_params(agent: Agent, config: Config) -> optax.Params:
+    """The network whose greedy policy is evaluated, saved as best/ and loaded: the online one,
+    or with ``policy_checkpoints`` the checkpoint's."""
+    if config.policy_checkpoints:
+        return cast(PolicyCheckpoint, agent.checkpoint).best
+    return agent.online
+
+
+def act(agent: Agent, carry: Carry, obs: jax.Array, config: Config) -> tuple[jax.Array, Carry]:
+    """Greedy actions ``[N]`` int32 of ``policy_params``' network, and the next states."""
+    return greedy(policy_params(agent, config), carry, obs, config)
 
 
 def explore(
@@ -336,14 +369,43 @@ def explore(
     hparams: Hyperparams,
     clock: Clock,
 ) -> tuple[jax.Array, Carry]:
-    """``(actions, next states)``: epsilon-greedy on the online network; the loop's exploration
-    state is the LSTM's (``Learner.policy_state``)."""
-    greedy, carry = act(agent, carry, obs, config)
+    """``(actions, next states)``: epsilon-greedy on the online network (with
+    ``policy_checkpoints``, the assessed copy's); the loop's exploration state is the LSTM's
+    (``Learner.policy_state``)."""
+    acting = agent.online
+    if config.policy_checkpoints:
+        acting = cast(PolicyCheckpoint, agent.checkpoint).assessed
+    exploit, carry = greedy(acting, carry, obs, config)
     coin_key, action_key = jax.random.split(key)
     num_actions = make_network(config).num_actions
-    uniform = jax.random.randint(action_key, greedy.shape, 0, num_actions, jnp.int32)
-    explore_now = jax.random.uniform(coin_key, greedy.shape) < epsilon_at(clock.env_steps, hparams)
-    return jnp.where(explore_now, uniform, greedy), carry
+    uniform = jax.random.randint(action_key, exploit.shape, 0, num_actions, jnp.int32)
+    explore_now = jax.random.uniform(coin_key, exploit.shape) < epsilon_at(clock.env_steps, hparams)
+    return jnp.where(explore_now, uniform, exploit), carry
+
+
+def observe(
+    agent: Agent,
+    transitions: Transition,
+    episode_return: jax.Array,
+    done: jax.Array,
+    clock: Clock,
+    config: Config,
+    hparams: Hyperparams,
+) -> Agent:
+    """Every env step: policy checkpoints count the episodes that ended (each env's next episode
+    starts from the zero state, so an episode begun under the assessed copy is wholly its)."""
+    if not config.policy_checkpoints:
+        return agent
+    checkpoint = policy_checkpoints.assess(
+        cast(PolicyCheckpoint, agent.checkpoint),
+        agent.online,
+        episode_return,
+        done,
+        clock,
+        config,
+        hparams.checkpoint_reset_weight,
+    )
+    return agent.replace(checkpoint=checkpoint)
 
 
 def init_agent(
@@ -353,7 +415,8 @@ def init_agent(
     obs_space: envs.Space,
     action_space: envs.Space,
 ) -> Agent:
-    """A fresh agent: the target network a copy of the online one."""
+    """A fresh agent: the target network a copy of the online one (and a checkpoint of it with
+    ``policy_checkpoints``)."""
     if envs.has_action_mask(episodes.make_eval_env(config)):
         raise ValueError(f"r2d2 does not read action masks, which {config.env_id} has")
     obs = jnp.zeros(obs_space.shape, jnp.float32)
@@ -361,7 +424,11 @@ def init_agent(
     optimizer = optax.inject_hyperparams(clipped_adam)(
         hparams.learning_rate, hparams.max_grad_norm, hparams.adam_eps
     )
-    return Agent(online=online, target=online, opt_state=optimizer.init(online))
+    agent = Agent(online=online, target=online, opt_state=optimizer.init(online))
+    if config.policy_checkpoints:
+        checkpoint = policy_checkpoints.init(online, config.num_envs, config.learning_starts)
+        agent = agent.replace(checkpoint=checkpoint)
+    return agent
 
 
 LEARNER = offpolicy.Learner(
@@ -372,11 +439,14 @@ LEARNER = offpolicy.Learner(
     ("loss", "q", "epsilon"),
     init_buffer,
     add_to_buffer,
+    observe,
     policy_state=initial_carry,
 )
 
 
 # ---- recipes ------------------------------------------------------------------------------------
+# CartPole: the policy a run ends with is TD7's checkpoint, as DQN's CartPole recipe does: the
+# greedy policy alone dips below 500 again after first reaching it (RESULTS.md).
 _CARTPOLE: dict[str, Setting] = {
     "num_envs": 4,
     "updates_per_iteration": 1,
@@ -384,12 +454,14 @@ _CARTPOLE: dict[str, Setting] = {
     "learning_starts": 2000,
     "buffer_size": 100_000,
     "batch_size": 32,
+    "policy_checkpoints": True,
+    "checkpoint_episodes_from": 20_000,
 }
 RECIPES = Recipes(
     Recipe(
         "default",
         "LSTM 64 on a 64-unit layer, sequences of 20 (burn-in 5, overlap 10), 3-step targets, "
-        "rate 1e-3 to 0 over 100k steps",
+        "rate 1e-3 to 0 over 100k steps, TD7's policy checkpoints from 20k",
         _CARTPOLE,
         {"lr_decay_steps": 100_000.0},
         envs=("rl_jax/CartPoleNoVel-v1", "rl_jax/CartPole-v1"),

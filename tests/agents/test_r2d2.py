@@ -359,6 +359,61 @@ def test_a_run_trains_resumes_and_its_loaded_policy_keeps_its_state(tmp_path):
     assert all(a in (0, 1) for a in first)
 
 
+# ---- policy checkpoints (TD7's, as DQN's) ------------------------------------------------------
+def _always(params, action: int):
+    """``params`` changed so that the greedy action is ``action`` whatever the state and input."""
+    head = params["params"]["advantage"]
+    head = {"kernel": jnp.zeros_like(head["kernel"]), "bias": jax.nn.one_hot(action, 2)}
+    return {"params": {**params["params"], "advantage": head}}
+
+
+def test_policy_checkpoints_evaluate_the_checkpoint_and_explore_with_the_assessed_copy():
+    config = small_config(policy_checkpoints=True, checkpoint_episodes_from=10)
+    hparams = r2d2.r2d2.default_hyperparams(epsilon_start=0.0, epsilon_end=0.0).as_arrays()
+    state = r2d2.init(jax.random.key(6), config, hparams)
+    online = state.agent.online
+    jax.tree.map(np.testing.assert_array_equal, state.agent.checkpoint.best, online)
+    carry = jax.tree.map(lambda x: jnp.zeros((6, *x.shape)), r2d2.initial_carry(config))
+    obs = jax.random.normal(jax.random.key(7), (6, 4))
+    clock = r2d2.offpolicy.Clock(jnp.int32(0), jnp.int32(0), jnp.int32(0))
+
+    def with_parts(best: int, assessed: int, now: int):
+        parts = dict(best=_always(online, best), assessed=_always(online, assessed))
+        return state.agent.replace(
+            online=_always(online, now), checkpoint=state.agent.checkpoint.replace(**parts)
+        )
+
+    def explored(agent):
+        key = jax.random.key(8)
+        return r2d2.explore(agent, obs, carry, key, config, hparams, clock)[0].tolist()
+
+    agent = with_parts(best=0, assessed=1, now=1)
+    assert r2d2.act(agent, carry, obs, config)[0].tolist() == [0] * 6  # the checkpoint's
+    policy = r2d2.r2d2.policy(state.replace(agent=agent), config)  # best/ and load_policy's
+    assert int(policy(r2d2.initial_carry(config), obs[0])[0]) == 0
+    assert explored(with_parts(best=1, assessed=0, now=1)) == [0] * 6  # the assessed copy's
+    # One episode is an assessment before env step 10: the copy's return 7 passes (the score is
+    # -1e8) and it becomes the checkpoint; the next copy is the online network.
+    agent = with_parts(best=0, assessed=1, now=0)
+    agent = agent.replace(checkpoint=agent.checkpoint.replace(counting=jnp.ones(2, bool)))
+    done = jnp.array([True, False])
+    agent = r2d2.observe(agent, None, jnp.full(2, 7.0), done, clock, config, hparams)
+    assert r2d2.act(agent, carry, obs, config)[0].tolist() == [1] * 6
+    assert float(agent.checkpoint.score) == 7.0
+    jax.tree.map(np.testing.assert_array_equal, agent.checkpoint.assessed, agent.online)
+    # Off (the recipe has it on): no checkpoint in the state, so runs without it keep their
+    # structure, and observing is a no-op.
+    plain = small_config(policy_checkpoints=False)
+    plain_agent = r2d2.init(jax.random.key(6), plain, hparams).agent
+    assert plain_agent.checkpoint is None
+    assert (
+        r2d2.observe(plain_agent, None, jnp.full(2, 7.0), done, clock, plain, hparams)
+        is plain_agent
+    )
+    with pytest.raises(ValueError, match="checkpoint_episodes"):
+        small_config(checkpoint_episodes=0)
+
+
 # ---- slow: CartPoleNoVel-v1 at the recipe's budget ----------------------------------------------
 @pytest.mark.slow
 def test_r2d2_balances_cartpole_without_velocities_in_nine_of_ten_seeds(tmp_path):
