@@ -1024,22 +1024,27 @@ def per_seed_text(values: list[float], limit: int = 150) -> str:
     """Each seed's value in seed order, " / "-separated; a list longer than ``limit`` characters
     (30 seeds) is written with each run of equal values as one ``value (xN)``, so that the table
     cell stays short and still gives every seed's value. Where even that is too long (30
-    different values), the values are rounded to whole numbers, still " / "-separated (the form
-    ``bench.figure_data`` reads back; spaces let the cell wrap on a narrow page)."""
+    different values), the values are rounded to whole numbers, their runs again collapsed (the
+    forms ``bench.figure_data`` reads back; spaces let the cell wrap on a narrow page)."""
     texts = [_fmt(v) for v in values]
     plain = " / ".join(texts)
     if len(plain) <= limit:
         return plain
+    collapsed = _collapsed(texts)
+    if len(collapsed) <= limit:
+        return collapsed
+    return _collapsed([f"{value:,.0f}" for value in values])
+
+
+def _collapsed(texts: list[str]) -> str:
+    """``texts`` " / "-separated, each run of equal ones as one ``text (xN)``."""
     runs: list[tuple[str, int]] = []
     for text in texts:
         if runs and runs[-1][0] == text:
             runs[-1] = (text, runs[-1][1] + 1)
         else:
             runs.append((text, 1))
-    collapsed = " / ".join(text if count == 1 else f"{text} (x{count})" for text, count in runs)
-    if len(collapsed) <= limit:
-        return collapsed
-    return " / ".join(f"{value:,.0f}" for value in values)
+    return " / ".join(text if count == 1 else f"{text} (x{count})" for text, count in runs)
 
 
 def row_cells(name: str, row: Row, summary: dict[str, Any], measured: dict[str, Any]) -> str:

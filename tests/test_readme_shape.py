@@ -134,19 +134,31 @@ def test_the_checks_catch_what_they_are_for(tmp_path):
 def test_a_30_seed_row_keeps_every_seed_in_a_short_cell():
     """RESULTS.md's rows are written by bench.results: 30 seeds' returns fit in one cell, with
     runs of equal values collapsed and every seed's value still there, in order."""
+
+    def expanded(text: str) -> list[str]:
+        values = []
+        for part in text.split(" / "):
+            value, _, count = part.partition(" (x")
+            values += [value] * (int(count.rstrip(")")) if count else 1)
+        return values
+
     finals = [500.0] * 8 + [499.4] + [500.0] * 21
     text = results.per_seed_text(finals)
     assert text == "500 (x8) / 499 / 500 (x21)"
-    expanded = []
-    for part in text.split(" / "):
-        value, _, count = part.partition(" (x")
-        expanded += [value] * (int(count.rstrip(")")) if count else 1)
-    assert expanded == [f"{value:,.0f}" for value in finals]
+    assert expanded(text) == [f"{value:,.0f}" for value in finals]
     assert results.per_seed_text([1.0, 1.0, 2.5]) == "1.0 / 1.0 / 2.5"  # short lists as they were
     # 30 different values: whole numbers, every seed in order, in the form figures read back
     spread = [40.0 + 0.3 * seed for seed in range(30)]
     compact = results.per_seed_text(spread)
-    assert len(compact) <= 150 and compact.split(" / ") == [f"{v:,.0f}" for v in spread]
+    assert len(compact) <= 150 and expanded(compact) == [f"{v:,.0f}" for v in spread]
+    # runs of equal values that do not fit collapsed to one decimal: whole and collapsed again
+    # (recurrent PPO's CartPoleNoVel row, whose rounded list alone was 207 characters)
+    novel = [500, 474, 500, 472, 500, 500, 158, 500, 279, 178, 351, 500, 500, 244, 404, 288, 372]
+    novel = [float(v) + 0.2 for v in novel + [492, 500, 500, 483, 409, 500, 497, 479] + [500] * 5]
+    compact = results.per_seed_text(novel)
+    assert compact.startswith("500 / 474 / 500 / 472 / 500 (x2) / 158 / 500 / 279")
+    assert compact.endswith(" / 500 (x5)") and len(compact) == 155
+    assert expanded(compact) == [f"{v:,.0f}" for v in novel]
     summary = {
         "seeds": list(range(30)),
         "env_steps": 60_000,
