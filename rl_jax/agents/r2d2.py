@@ -326,7 +326,7 @@ def update(
     buffer = r2d2_parts.write_priorities(
         buffer, indices, priorities + hparams.priority_eps, hparams.priority_alpha
     )
-    agent = agent.replace(online=online, target=target, opt_state=opt_state)
+    agent = dataclasses.replace(agent, online=online, target=target, opt_state=opt_state)
     return agent, buffer, {"loss": loss, "q": q, "epsilon": epsilon_at(env_steps, hparams)}
 
 
@@ -405,7 +405,7 @@ def observe(
         config,
         hparams.checkpoint_reset_weight,
     )
-    return agent.replace(checkpoint=checkpoint)
+    return dataclasses.replace(agent, checkpoint=checkpoint)
 
 
 def init_agent(
@@ -427,7 +427,7 @@ def init_agent(
     agent = Agent(online=online, target=online, opt_state=optimizer.init(online))
     if config.policy_checkpoints:
         checkpoint = policy_checkpoints.init(online, config.num_envs, config.learning_starts)
-        agent = agent.replace(checkpoint=checkpoint)
+        agent = dataclasses.replace(agent, checkpoint=checkpoint)
     return agent
 
 
