@@ -47,6 +47,7 @@ from rl_jax.agents.common import injected_step, linearly_decayed, polyak_update
 from rl_jax.agents.dqn_parts import Buffer
 from rl_jax.agents.q_learning import (
     double_q_values,
+    epsilon_greedy,
     greedy_values,
     linear_schedule,
     masked_argmax,
@@ -443,10 +444,8 @@ def explore(
         q = cast(jax.Array, net.apply(acting, obs))
         return masked_epsilon_greedy(key, q, legal, epsilon), noise
     exploit = greedy_actions(net, acting, obs)
-    coin_key, action_key = jax.random.split(key)
-    uniform = jax.random.randint(action_key, exploit.shape, 0, net.num_actions, jnp.int32)
-    explore_now = jax.random.uniform(coin_key, exploit.shape) < epsilon_at(clock.env_steps, hparams)
-    return jnp.where(explore_now, uniform, exploit), noise
+    epsilon = epsilon_at(clock.env_steps, hparams)
+    return epsilon_greedy(key, exploit, net.num_actions, epsilon), noise
 
 
 def observe(
@@ -459,18 +458,9 @@ def observe(
     hparams: Hyperparams,
 ) -> Agent:
     """Every env step: policy checkpoints count the episodes that ended."""
-    if not config.policy_checkpoints:
-        return agent
-    checkpoint = policy_checkpoints.assess(
-        agent.checkpoint,
-        agent.online,
-        episode_return,
-        done,
-        clock,
-        config,
-        hparams.checkpoint_reset_weight,
+    return policy_checkpoints.observe_online(
+        agent, episode_return, done, clock, config, hparams.checkpoint_reset_weight
     )
-    return agent.replace(checkpoint=checkpoint)
 
 
 # ---- init and the loop's learner ----------------------------------------------------------------

@@ -62,6 +62,17 @@ def masked_double_q_values(
     return jnp.take_along_axis(q_t_value, a_t[:, None], axis=-1)[:, 0]
 
 
+def epsilon_greedy(
+    key: jax.Array, greedy: jax.Array, num_actions: int, epsilon: ArrayLike
+) -> jax.Array:
+    """With probability ``epsilon`` a uniform action of ``num_actions``, else ``greedy`` (int32
+    ``[...]``); one draw per entry."""
+    coin_key, action_key = jax.random.split(key)
+    uniform = jax.random.randint(action_key, greedy.shape, 0, num_actions, jnp.int32)
+    explore_now = jax.random.uniform(coin_key, greedy.shape) < epsilon
+    return jnp.where(explore_now, uniform, greedy)
+
+
 def masked_epsilon_greedy(
     key: jax.Array, q: jax.Array, legal: jax.Array, epsilon: ArrayLike
 ) -> jax.Array:

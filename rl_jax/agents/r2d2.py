@@ -46,7 +46,7 @@ from jax.typing import ArrayLike
 from rl_jax import envs
 from rl_jax.agents import r2d2_parts
 from rl_jax.agents.common import clipped_adam, injected_step, linearly_decayed, polyak_update
-from rl_jax.agents.q_learning import linear_schedule
+from rl_jax.agents.q_learning import epsilon_greedy, linear_schedule
 from rl_jax.agents.r2d2_parts import Sequence, SequenceReplay
 from rl_jax.training import episodes, networks, offpolicy, params, policy_checkpoints, validation
 from rl_jax.training.offpolicy import Clock, OffPolicyConfig, TrainState
@@ -376,11 +376,8 @@ def explore(
     if config.policy_checkpoints:
         acting = cast(PolicyCheckpoint, agent.checkpoint).assessed
     exploit, carry = greedy(acting, carry, obs, config)
-    coin_key, action_key = jax.random.split(key)
     num_actions = make_network(config).num_actions
-    uniform = jax.random.randint(action_key, exploit.shape, 0, num_actions, jnp.int32)
-    explore_now = jax.random.uniform(coin_key, exploit.shape) < epsilon_at(clock.env_steps, hparams)
-    return jnp.where(explore_now, uniform, exploit), carry
+    return epsilon_greedy(key, exploit, num_actions, epsilon_at(clock.env_steps, hparams)), carry
 
 
 def observe(
@@ -394,18 +391,9 @@ def observe(
 ) -> Agent:
     """Every env step: policy checkpoints count the episodes that ended (each env's next episode
     starts from the zero state, so an episode begun under the assessed copy is wholly its)."""
-    if not config.policy_checkpoints:
-        return agent
-    checkpoint = policy_checkpoints.assess(
-        cast(PolicyCheckpoint, agent.checkpoint),
-        agent.online,
-        episode_return,
-        done,
-        clock,
-        config,
-        hparams.checkpoint_reset_weight,
+    return policy_checkpoints.observe_online(
+        agent, episode_return, done, clock, config, hparams.checkpoint_reset_weight
     )
-    return dataclasses.replace(agent, checkpoint=checkpoint)
 
 
 def init_agent(

@@ -12,7 +12,8 @@ from TD7's one env and deferred updates: ``rl_jax.agents.td7``'s docstring.
 
 from __future__ import annotations
 
-from typing import Generic, Protocol, TypeVar
+import dataclasses
+from typing import Any, Generic, Protocol, TypeVar, cast
 
 import jax
 import jax.numpy as jnp
@@ -124,3 +125,39 @@ def assess(
         episodes=jnp.where(ended, 0, episodes),
         counting=counting,
     )
+
+
+class OnlineCheckpointing(CheckpointSchedule, Protocol):
+    """A config whose ``policy_checkpoints`` switch the checkpoints on (DQN's, R2D2's)."""
+
+    @property
+    def policy_checkpoints(self) -> bool: ...
+
+
+class OnlineAgent(Protocol):
+    """An agent whose policy is its ``online`` network, with its ``checkpoint`` (None when off)."""
+
+    online: Any
+    checkpoint: Any
+
+
+AgentT = TypeVar("AgentT", bound=OnlineAgent)
+
+
+def observe_online(
+    agent: AgentT,
+    episode_return: jax.Array,
+    done: jax.Array,
+    clock: Clock,
+    config: OnlineCheckpointing,
+    reset_weight: ArrayLike,
+) -> AgentT:
+    """A learner's ``observe`` hook where the policy is the agent's ``online`` network: with
+    ``policy_checkpoints``, one env step of ``assess`` with the online network as the next copy;
+    without, the agent as it is."""
+    if not config.policy_checkpoints:
+        return agent
+    checkpoint = assess(
+        agent.checkpoint, agent.online, episode_return, done, clock, config, reset_weight
+    )
+    return cast(AgentT, dataclasses.replace(cast(Any, agent), checkpoint=checkpoint))
