@@ -137,8 +137,10 @@ class OnlineCheckpointing(CheckpointSchedule, Protocol):
 class OnlineAgent(Protocol):
     """An agent whose policy is its ``online`` network, with its ``checkpoint`` (None when off)."""
 
-    online: Any
-    checkpoint: Any
+    @property
+    def online(self) -> object: ...
+    @property
+    def checkpoint(self) -> object: ...
 
 
 AgentT = TypeVar("AgentT", bound=OnlineAgent)
@@ -157,7 +159,6 @@ def observe_online(
     without, the agent as it is."""
     if not config.policy_checkpoints:
         return agent
-    checkpoint = assess(
-        agent.checkpoint, agent.online, episode_return, done, clock, config, reset_weight
-    )
+    current = cast(PolicyCheckpoint[object], agent.checkpoint)
+    checkpoint = assess(current, agent.online, episode_return, done, clock, config, reset_weight)
     return cast(AgentT, dataclasses.replace(cast(Any, agent), checkpoint=checkpoint))
