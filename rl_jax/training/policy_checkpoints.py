@@ -131,16 +131,23 @@ class OnlineCheckpointing(CheckpointSchedule, Protocol):
     """A config whose ``policy_checkpoints`` switch the checkpoints on (DQN's, R2D2's)."""
 
     @property
-    def policy_checkpoints(self) -> bool: ...
+    def policy_checkpoints(self) -> bool:
+        """Whether the checkpoints are on."""
+        ...
 
 
 class OnlineAgent(Protocol):
     """An agent whose policy is its ``online`` network, with its ``checkpoint`` (None when off)."""
 
     @property
-    def online(self) -> object: ...
+    def online(self) -> object:
+        """The online network's parameters: the policy, and the next copy to assess."""
+        ...
+
     @property
-    def checkpoint(self) -> object: ...
+    def checkpoint(self) -> object:
+        """The ``PolicyCheckpoint`` (None without ``policy_checkpoints``)."""
+        ...
 
 
 AgentT = TypeVar("AgentT", bound=OnlineAgent)
