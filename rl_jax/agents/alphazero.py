@@ -109,6 +109,9 @@ class Config:
     # taken as the search's own choice: the games spread over all good lines, not one
     sampled_moves: int = 9
     buffer_size: int = 20_000  # positions the replay keeps (the oldest are overwritten)
+    # train on each drawn position or, by a coin flip, its left-right mirror (the same outcome,
+    # the mirrored policy): games with that symmetry only, parts.MIRRORED_ACTIONS
+    mirror: bool = False
     batch_size: int = 256  # positions per gradient update
     updates_per_iteration: int = 8  # gradient updates after each batch of self-play games
     iterations_per_chunk: int = 4  # self-play batches and updates per compiled call
@@ -156,6 +159,12 @@ class Config:
                 )
             shape = self.make_game().observation_shape
             conv.check_conv_layers(self.conv_layers, min(shape[0], shape[1]))
+        game = self.env_id.removeprefix(GAME_PREFIX)
+        if self.mirror and game not in parts.MIRRORED_ACTIONS:
+            symmetric = ", ".join(parts.MIRRORED_ACTIONS)
+            raise ValueError(
+                f"mirror needs a game with a left-right symmetry ({symmetric}), not {game}"
+            )
         if self.eval_opponent not in EVAL_OPPONENTS:
             raise ValueError(
                 f"eval_opponent must be one of {EVAL_OPPONENTS}, got {self.eval_opponent!r}"
@@ -579,6 +588,11 @@ def update(
     """One AdamW step on ``batch_size`` positions drawn uniformly from the replay."""
     rows = jax.random.randint(key, (config.batch_size,), 0, jnp.maximum(replay.size, 1))
     batch = Replay._make([*(field[rows] for field in replay[:6]), replay.position, replay.size])
+    if config.mirror:  # a key of its own, so that the rows drawn are those without the option
+        flip = jax.random.bernoulli(jax.random.fold_in(key, 1), 0.5, (config.batch_size,))
+        actions = parts.MIRRORED_ACTIONS[config.env_id.removeprefix(GAME_PREFIX)]
+        obs, legal, policy = parts.mirrored(flip, batch.obs, batch.legal, batch.policy, actions)
+        batch = batch._replace(obs=obs, legal=legal, policy=policy)
     grads, metrics = jax.grad(loss_fn, has_aux=True)(agent.params, batch, hparams, config)
     grads, metrics["grad_norm"] = clip_by_global_norm(grads, hparams.max_grad_norm)
     net_params, opt_state = injected_step(

@@ -71,6 +71,33 @@ def value_loss(value: jax.Array, target: jax.Array, weight: jax.Array) -> jax.Ar
     return jnp.sum(weight * (value - target) ** 2) / jnp.maximum(jnp.sum(weight), 1.0)
 
 
+# ---- left-right mirrors (``Config.mirror``) ---------------------------------------------------
+#: Each game with a left-right symmetry: the action that mirrors each action. A board's mirror
+#: reverses its columns (pgx's observations are ``[rows, columns, planes]``); Connect Four's
+#: actions are its columns, tic-tac-toe's its cells row by row.
+MIRRORED_ACTIONS = {
+    "connect_four": (6, 5, 4, 3, 2, 1, 0),
+    "tic_tac_toe": (2, 1, 0, 5, 4, 3, 8, 7, 6),
+}
+
+
+def mirrored(
+    flip: jax.Array, obs: jax.Array, legal: jax.Array, policy: jax.Array, actions: tuple[int, ...]
+) -> tuple[jax.Array, jax.Array, jax.Array]:
+    """``(obs, legal, policy)`` of ``N`` positions, each one's left-right mirror where ``flip``
+    ``[N]`` is true: the board's columns reversed (``obs`` ``[N, rows, columns, planes]``) and the
+    actions permuted by ``actions`` (``legal``, ``policy`` ``[N, A]``). A game's outcome is the
+    same from a mirrored position, so its value target is unchanged."""
+    order = jnp.asarray(actions)
+    board = flip.reshape((-1,) + (1,) * (obs.ndim - 1))
+    pick = flip[:, None]
+    return (
+        jnp.where(board, jnp.flip(obs, axis=-2), obs),
+        jnp.where(pick, legal[:, order], legal),
+        jnp.where(pick, policy[:, order], policy),
+    )
+
+
 # ---- continuous self-play (``Config.self_play_steps`` > 0) ------------------------------------
 # A slot's trajectory ``[T, B]`` holds several games back to back: ``ended_t`` is 1 where move
 # ``t`` ended its game (the next row, if any, opens a fresh one). Rows with ``alive_t`` 0 hold no
