@@ -738,7 +738,7 @@ ROWS: dict[str, Row] = {
         "AlphaZero, `pgx/connect_four` (final: % wins against MCTS 1,000)",
         "train.py",
         (
-            *("--algo", "alphazero", "--env", "pgx/connect_four", "--total-steps", "16000000"),
+            *("--algo", "alphazero", "--env", "pgx/connect_four", "--total-steps", "14000000"),
             *("--iterations-per-chunk", "16", "--eval-search"),
             *("--eval-opponent", "mcts", "--eval-opponent-simulations", "200"),
         ),
