@@ -112,6 +112,11 @@ class Config:
     # train on each drawn position or, by a coin flip, its left-right mirror (the same outcome,
     # the mirrored policy): games with that symmetry only, parts.MIRRORED_ACTIONS
     mirror: bool = False
+    # the value target's weight on the search's value of the position (its root value, for the
+    # player to move) against the game's final outcome: (1 - w) * outcome + w * search value.
+    # 0 is AlphaZero's outcome alone; a mix of the two gives a target with less of the noise of
+    # one game's ending (docs/learners/alphazero.md)
+    search_value_weight: float = 0.0
     batch_size: int = 256  # positions per gradient update
     updates_per_iteration: int = 8  # gradient updates after each batch of self-play games
     iterations_per_chunk: int = 4  # self-play batches and updates per compiled call
@@ -151,6 +156,10 @@ class Config:
                 raise ValueError(f"{name} must be >= 1, got {getattr(self, name)}")
         if self.self_play_steps < 0:
             raise ValueError(f"self_play_steps must be >= 0, got {self.self_play_steps}")
+        if not 0.0 <= self.search_value_weight <= 1.0:
+            raise ValueError(
+                f"search_value_weight must be in [0, 1], got {self.search_value_weight}"
+            )
         if self.conv_layers:
             if len(self.conv_layers) % 3 or min(self.conv_layers) < 1:
                 raise ValueError(
@@ -296,6 +305,9 @@ class Positions(NamedTuple):
     alive: jax.Array  # 1 before the game ended
     explored: jax.Array  # 1 where the move played was a random one
     ended: jax.Array  # 1 where the move ended its game (or was its max_game_length-th)
+    # the search's root value for the player to move; None unless the value target mixes it in
+    # (Config.search_value_weight), so that the state is AlphaZero's own without it
+    search_value: jax.Array | None = None
 
 
 class Games(NamedTuple):
@@ -427,6 +439,7 @@ def _play_move(
         ended=(alive & (over | (next_states._step_count >= config.max_game_length))).astype(
             jnp.float32
         ),
+        search_value=output.search_tree.summary().value if config.search_value_weight else None,
     )
     return next_states, played
 
@@ -515,9 +528,20 @@ def _write(
     )
 
 
-def replay_add(replay: Replay, positions: Positions) -> Replay:
+def _mixed(outcomes: jax.Array, positions: Positions, config: Config) -> jax.Array:
+    """The value targets: the outcomes, mixed with the search's values where
+    ``search_value_weight`` says so."""
+    if positions.search_value is None:
+        return outcomes
+    return parts.mixed_value_targets(
+        outcomes, positions.search_value, config.search_value_weight, positions.alive
+    )
+
+
+def replay_add(replay: Replay, positions: Positions, config: Config) -> Replay:
     """The replay with a finished batch's positions and their targets written over its oldest."""
-    targets = parts.value_targets(positions.rewards, positions.player, positions.alive)
+    outcomes = parts.value_targets(positions.rewards, positions.player, positions.alive)
+    targets = _mixed(outcomes, positions, config)
     weights = (positions.alive, parts.played_on(positions.explored, positions.alive))
     count = positions.alive.size
     rows = (replay.position + jnp.arange(count)) % replay.value.shape[0]
@@ -533,7 +557,7 @@ def games_init(key: jax.Array, config: Config) -> Games:
     flag = jnp.zeros(slots, jnp.float32)
     move = Positions(
         states.observation, states.legal_action_mask, policy, states.current_player,
-        states.rewards, flag, flag, flag,
+        states.rewards, flag, flag, flag, flag if config.search_value_weight else None,
     )  # fmt: skip
     rows = config.max_game_length - 1
     unfinished = jax.tree.map(lambda x: jnp.zeros((rows, *x.shape), x.dtype), move)
@@ -541,7 +565,7 @@ def games_init(key: jax.Array, config: Config) -> Games:
 
 
 def replay_add_games(
-    replay: Replay, positions: Positions, carried_rows: int
+    replay: Replay, positions: Positions, carried_rows: int, config: Config
 ) -> tuple[Replay, Positions, jax.Array]:
     """Continuous self-play's write: of ``positions`` (``[T, B]``, a slot's games back to back,
     its unfinished game carried in first), the moves of the games that ended, packed
@@ -549,10 +573,11 @@ def replay_add_games(
     targets. ``(replay, the unfinished games' positions as the last carried_rows rows, rows
     written)``."""
     finished = parts.game_finished(positions.ended, positions.alive)
+    outcomes = parts.game_value_targets(
+        positions.rewards, positions.player, positions.alive, positions.ended
+    )
     targets = (
-        parts.game_value_targets(
-            positions.rewards, positions.player, positions.alive, positions.ended
-        ),
+        _mixed(outcomes, positions, config),
         finished,
         parts.game_played_on(positions.explored, positions.alive, positions.ended),
     )
@@ -616,7 +641,7 @@ def train_iteration(
     games, extra = state.games, {}
     if games is None:
         positions = self_play(state.agent.params, play_key, config, hparams)
-        replay = replay_add(state.replay, positions)
+        replay = replay_add(state.replay, positions, config)
     else:
         states, positions = continuous_self_play(
             state.agent.params, games.states, play_key, config, hparams
@@ -626,6 +651,7 @@ def train_iteration(
             state.replay,
             jax.tree.map(lambda a, b: jnp.concatenate([a, b]), carried, positions),
             carried.alive.shape[0],
+            config,
         )
         games = Games(states=states, unfinished=unfinished)
 

@@ -28,6 +28,18 @@ def value_targets(rewards_t: jax.Array, player_t: jax.Array, alive_t: jax.Array)
     return jax.lax.stop_gradient(mover_to_go[..., 0] * alive_t)
 
 
+def mixed_value_targets(
+    outcome_t: jax.Array, search_value_t: jax.Array, weight: float, alive_t: jax.Array
+) -> jax.Array:
+    """``[T, B]`` value targets ``(1 - weight) * outcome + weight * search value`` on the moves
+    made (``alive_t`` 1), 0 elsewhere: the game's outcome for the player to move mixed with the
+    search's value of the position for that player (its root value). The outcome says how one
+    game ended, the search what the position is worth under the current network; AlphaZero
+    trains on the outcome alone (``weight`` 0)."""
+    mixed = (1.0 - weight) * outcome_t + weight * jax.lax.stop_gradient(search_value_t)
+    return mixed * alive_t
+
+
 def played_on(explored_t: jax.Array, alive_t: jax.Array) -> jax.Array:
     """``[T, B]`` 1 where the rest of the game, from move ``t`` on, was the learner's own play:
     a position before an exploring (random) move, or the position where one was made, gets 0,

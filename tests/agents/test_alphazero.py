@@ -112,7 +112,9 @@ def test_policy_target_is_the_searchs_improved_policy() -> None:
     np.testing.assert_allclose(jnp.sum(positions.policy, axis=-1), 1.0, rtol=1e-5)
     assert not jnp.any(jnp.where(positions.legal, 0.0, positions.policy) > 0)
     # the replay stores exactly these targets, and the outcomes by the mover
-    replay = jax.jit(alphazero.replay_add)(alphazero.replay_init(config), positions)
+    replay = jax.jit(alphazero.replay_add, static_argnums=2)(
+        alphazero.replay_init(config), positions, config
+    )
     rows = config.num_envs * config.max_game_length
     flat_policy = positions.policy.reshape(rows, -1)
     np.testing.assert_array_equal(replay.policy[:rows], flat_policy)
@@ -128,6 +130,40 @@ def test_policy_target_is_the_searchs_improved_policy() -> None:
     for t in range(config.max_game_length):
         mover_final = jnp.take_along_axis(final, positions.player[t][:, None], axis=1)[:, 0]
         np.testing.assert_array_equal(targets[t], mover_final * positions.alive[t])
+
+
+def test_value_targets_mix_the_outcome_with_the_searchs_root_value() -> None:
+    outcome, search_value = jnp.array([[1.0, -1.0, 0.0]]), jnp.array([[0.5, 0.2, 0.9]])
+    mixed = parts.mixed_value_targets(outcome, search_value, 0.25, jnp.array([[1.0, 1.0, 0.0]]))
+    np.testing.assert_allclose(mixed, [[0.875, -0.7, 0.0]], rtol=1e-6)
+    # in self-play: each position's search value is the root value of the search that chose
+    # its move, and the replay stores the mix (whole games; continuous self-play's write:
+    # test_alphazero_continuous.py)
+    config, hparams = dataclasses.replace(SMALL, search_value_weight=0.5), SMALL_HPARAMS
+    state = alphazero.init(jax.random.key(0), config, hparams)
+    key = jax.random.key(3)
+    positions = alphazero.self_play(state.agent.params, key, config, hparams)
+    init_key, key = jax.random.split(key)
+    game = config.make_game()
+    states = jax.vmap(game.init)(jax.random.split(init_key, config.num_envs))
+    search_key = jax.random.split(jax.random.split(key, config.max_game_length)[0], 4)[0]
+    output = _search()(state.agent.params, states, search_key, config)
+    assert positions.search_value is not None
+    np.testing.assert_allclose(positions.search_value[0], output.search_tree.summary().value)
+    replay = jax.jit(alphazero.replay_add, static_argnums=2)(
+        alphazero.replay_init(config), positions, config
+    )
+    outcomes = parts.value_targets(positions.rewards, positions.player, positions.alive)
+    expected = 0.5 * (outcomes + positions.search_value) * positions.alive
+    rows = config.num_envs * config.max_game_length
+    np.testing.assert_allclose(replay.value[:rows], expected.reshape(-1), rtol=1e-6, atol=1e-7)
+    # without the option, self-play records no search value and the state is AlphaZero's own
+    plain = alphazero.self_play(state.agent.params, jax.random.key(3), SMALL, hparams)
+    assert plain.search_value is None
+    np.testing.assert_array_equal(plain.policy, positions.policy)
+    for weight in (-0.1, 1.5):
+        with pytest.raises(ValueError, match="search_value_weight must be in \\[0, 1\\]"):
+            dataclasses.replace(SMALL, search_value_weight=weight)
 
 
 def test_search_finds_an_immediate_win() -> None:

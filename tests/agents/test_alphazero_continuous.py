@@ -142,8 +142,12 @@ def test_compacted_rows_pack_the_kept_entries_and_wrap() -> None:
     np.testing.assert_array_equal(target, [4, 6, 0, 0, 0, 0, 0, 0, 1, 3])
 
 
-def test_replay_add_games_packs_the_finished_games_across_the_ring_end() -> None:
+@pytest.mark.parametrize("search_value_weight", [0.0, 0.25])
+def test_replay_add_games_packs_the_finished_games_across_the_ring_end(
+    search_value_weight: float,
+) -> None:
     rewards, player, alive, ended, explored, targets, weights = _trajectory(HAND_MADE)
+    config = dataclasses.replace(CONTINUOUS, search_value_weight=search_value_weight)
     steps, slots = alive.shape
     ids = np.arange(1, steps * slots + 1, dtype=np.int32).reshape(steps, slots)  # a move's id
     actions = 2
@@ -153,7 +157,11 @@ def test_replay_add_games_packs_the_finished_games_across_the_ring_end() -> None
         policy=jnp.asarray(np.stack([ids, -ids], axis=-1).astype(np.float32)),
         player=jnp.asarray(player), rewards=jnp.asarray(rewards), alive=jnp.asarray(alive),
         explored=jnp.asarray(explored), ended=jnp.asarray(ended),
+        # the search's value of each move's position, where the option mixes it in
+        search_value=jnp.asarray(ids / 100.0, jnp.float32) if search_value_weight else None,
     )  # fmt: skip
+    if search_value_weight:  # the outcome and the search's value, mixed on the moves made
+        targets = (1 - search_value_weight) * targets + search_value_weight * ids / 100.0 * alive
     capacity, start, carried_rows = 64, 50, 8
     old = -7.0  # what the rows the write must leave alone hold
     replay = alphazero.Replay(
@@ -166,8 +174,8 @@ def test_replay_add_games_packs_the_finished_games_across_the_ring_end() -> None
         position=jnp.int32(start),
         size=jnp.int32(start),
     )
-    add = jax.jit(alphazero.replay_add_games, static_argnums=2)
-    replay, unfinished, count = add(replay, positions, carried_rows)
+    add = jax.jit(alphazero.replay_add_games, static_argnums=(2, 3))
+    replay, unfinished, count = add(replay, positions, carried_rows, config)
     # the finished games' moves, time-major as the write flattens them: 11 + 14 + 0 + 13
     finished = _finished(HAND_MADE, alive.shape)
     kept = finished.reshape(-1) > 0
@@ -177,7 +185,7 @@ def test_replay_add_games_packs_the_finished_games_across_the_ring_end() -> None
     np.testing.assert_array_equal(replay.obs[rows, 0], ids.reshape(-1)[kept])
     np.testing.assert_array_equal(replay.policy[rows, 0], ids.reshape(-1)[kept])
     np.testing.assert_array_equal(replay.legal[rows, 1], ids.reshape(-1)[kept] % 3 == 0)
-    np.testing.assert_array_equal(replay.value[rows], targets.reshape(-1)[kept])
+    np.testing.assert_allclose(replay.value[rows], targets.reshape(-1)[kept], rtol=1e-6)
     np.testing.assert_array_equal(replay.value_weight[rows], weights.reshape(-1)[kept])
     np.testing.assert_array_equal(replay.weight[rows], 1.0)
     untouched = np.setdiff1d(np.arange(capacity), rows)  # 24..49
@@ -189,6 +197,10 @@ def test_replay_add_games_packs_the_finished_games_across_the_ring_end() -> None
     # carried on: the last 8 rows, alive only on the moves of the unfinished games (slot 0's
     # 3-move game at rows 11..13, slot 2's 16-move game throughout)
     np.testing.assert_array_equal(unfinished.obs[..., 0], ids[-carried_rows:])
+    if search_value_weight:  # an unfinished game keeps its search values until it ends
+        np.testing.assert_allclose(unfinished.search_value, ids[-carried_rows:] / 100.0)
+    else:
+        assert unfinished.search_value is None
     expected = np.zeros((carried_rows, slots), np.float32)
     expected[3:6, 0], expected[:, 2] = 1.0, 1.0
     np.testing.assert_array_equal(unfinished.alive, expected)
@@ -276,6 +288,31 @@ def test_a_continuous_chunk_stores_only_finished_games_and_is_deterministic() ->
     for name in ("policy_loss", "value_loss", "grad_norm"):
         assert np.isfinite(float(metrics.extra[name])), name
     _check_replay(first)
+
+
+def test_a_chunk_mixing_in_the_search_value_plays_the_same_games() -> None:
+    # one iteration: both runs play from the same network, so they store the same positions,
+    # and the mixed run's value targets are half the outcome plus half a search value in [-1, 1]
+    plain = dataclasses.replace(CONTINUOUS, iterations_per_chunk=1, self_play_steps=9)
+    mixed = dataclasses.replace(plain, search_value_weight=0.5)
+    ours, metrics = _train_chunk()(
+        alphazero.init(jax.random.key(0), mixed, HPARAMS), mixed, HPARAMS
+    )
+    theirs, _ = _train_chunk()(alphazero.init(jax.random.key(0), plain, HPARAMS), plain, HPARAMS)
+    size = int(theirs.replay.size)
+    assert size > 0 and int(ours.replay.size) == size
+    replay, reference = (
+        jax.tree.map(np.asarray, ours.replay),
+        jax.tree.map(np.asarray, theirs.replay),
+    )
+    np.testing.assert_array_equal(replay.obs[:size], reference.obs[:size])
+    np.testing.assert_array_equal(replay.policy[:size], reference.policy[:size])
+    search_value = 2.0 * (replay.value[:size] - 0.5 * reference.value[:size])
+    assert np.all(np.abs(search_value) <= 1.0 + 1e-6)
+    assert not set(np.unique(replay.value[:size])) <= {-1.0, 0.0, 1.0}
+    assert ours.games is not None and ours.games.unfinished.search_value is not None
+    for name in ("policy_loss", "value_loss", "grad_norm"):
+        assert np.isfinite(float(metrics.extra[name])), name
 
 
 def test_a_continuous_run_resumes_bit_for_bit_from_a_checkpoint(tmp_path) -> None:
