@@ -699,13 +699,14 @@ ROWS: dict[str, Row] = {
         30,
         "the recurrent row above: the same budget with memory",
     ),
-    # The recurrent off-policy learner on the same task: the issue's goal, 9 of 10 seeds at 500.
+    # The recurrent off-policy learner on the same task: the issue's goal, 9 of 10 seeds at 500
+    # (the issue sets no budget; the recipe's is 200k env steps, twice recurrent PPO's).
     "r2d2-cartpole-novel": Row(
         "R2D2, `rl_jax/CartPoleNoVel-v1`",
         "train.py",
-        ("--algo", "r2d2", "--env", "rl_jax/CartPoleNoVel-v1", "--total-steps", "100000"),
+        ("--algo", "r2d2", "--env", "rl_jax/CartPoleNoVel-v1", "--total-steps", "200000"),
         10,
-        "500 is the maximum; the recurrent PPO row above at the same budget",
+        "500 is the maximum; the recurrent PPO row above at half the budget",
         Goal(500.0, 9, "final"),
     ),
     # MuZero on CartPole, planning on its learned model: the issue's goal, 9 of 10 seeds at 500

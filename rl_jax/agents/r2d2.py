@@ -450,11 +450,11 @@ RECIPES = Recipes(
     Recipe(
         "default",
         "LSTM 64 on a 64-unit layer, sequences of 20 (burn-in 5, overlap 10), 5-step targets, "
-        "rate 1e-3 to 0 over 100k steps, TD7's policy checkpoints from 20k",
+        "rate 1e-3 to 0 over 200k steps, TD7's policy checkpoints from 20k",
         _CARTPOLE,
-        {"lr_decay_steps": 100_000.0},
+        {"lr_decay_steps": 200_000.0},
         envs=("rl_jax/CartPoleNoVel-v1", "rl_jax/CartPole-v1"),
-        total_steps=100_000,
+        total_steps=200_000,
     ),
 )
 

@@ -420,7 +420,7 @@ def test_r2d2_balances_cartpole_without_velocities_in_nine_of_ten_seeds(tmp_path
     from rl_jax.run.runner import run
     from rl_jax.run.spec import RunSpec
 
-    seeds, total = 10, 100_000
+    seeds, total = 10, 200_000
     spec = RunSpec(
         algorithm=r2d2.r2d2,
         env_id=ENV_ID,
