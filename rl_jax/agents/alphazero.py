@@ -804,12 +804,13 @@ RECIPES = Recipes(
         total_steps=500 * _TIC_TAC_TOE_CHUNK,
     ),
     # Continuous self-play: whole games leave about two thirds of Connect Four's 64 x 42 move
-    # slots idle once their games have ended. Mirrored positions and 32 updates an iteration
-    # (each position drawn about 3 times) make more of every game (docs/learners/alphazero.md).
+    # slots idle once their games have ended. Mirrored positions, 32 updates an iteration (each
+    # position drawn about 3 times) and value targets half the search's value make more of
+    # every game (docs/learners/alphazero.md).
     Recipe(
         "default",
         "256x256 MLP, 64 games x 42 moves of continuous self-play x 32 simulations, "
-        "32 updates an iteration on mirrored positions",
+        "32 updates an iteration on mirrored positions, value targets half the search's",
         config={
             "max_game_length": 42,
             "sampled_moves": 12,
@@ -818,6 +819,7 @@ RECIPES = Recipes(
             "buffer_size": 40_000,
             "mirror": True,
             "updates_per_iteration": 32,
+            "search_value_weight": 0.5,
         },
         envs=("pgx/connect_four",),
     ),
