@@ -32,7 +32,7 @@ from __future__ import annotations
 import dataclasses
 import functools
 from collections.abc import Callable
-from typing import NamedTuple, NoReturn
+from typing import NamedTuple, NoReturn, cast
 
 import flax.linen as nn
 import jax
@@ -51,8 +51,9 @@ from rl_jax.agents.common import (
     polyak_update,
 )
 from rl_jax.envs.core.wrappers import StatisticsState
-from rl_jax.training import episodes, networks, params, validation
+from rl_jax.training import conv, episodes, networks, params, validation
 from rl_jax.training.algorithm import ChunkMetrics, Clock, RecipeBook
+from rl_jax.training.episodes import ImageObservations
 from rl_jax.training.networks import Params
 from rl_jax.training.params import Scalar
 from rl_jax.training.recipes import Recipe, Recipes, Setting
@@ -147,6 +148,31 @@ class Config:
         return envs.make(self.env_id)
 
 
+#: Envs observed as images: their config is an ``ImageConfig``.
+IMAGE_ENVS = envs.MINATAR_IDS
+
+
+@dataclasses.dataclass(frozen=True, kw_only=True)
+class ImageConfig(Config, ImageObservations):
+    """MuZero on image observations (``IMAGE_ENVS``): the representation network reads the
+    ``[H, W, C]`` observation through ``conv.ConvTorso`` before its ``hidden`` layers; the
+    dynamics and prediction networks stay MLPs on the hidden state."""
+
+    # (features, kernel, stride) per conv layer: the MinAtar paper's network, 16 3x3 filters
+    conv_layers: tuple[int, ...] = (16, 3, 1)
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        if self.model == "simulator":
+            raise ValueError(
+                "model 'simulator' reads flat observations; image envs train the learned model"
+            )
+        shape = self.make_env().observation_space().shape
+        if len(shape) != 3:
+            raise ValueError(f"{self.env_id} observations are not images: shape {shape}")
+        conv.check_conv_layers(self.conv_layers, min(shape[0], shape[1]))
+
+
 @struct.dataclass
 class Hyperparams(params.HyperparamsMethods):
     """What a sweep may vary without recompiling."""
@@ -167,16 +193,21 @@ class Hyperparams(params.HyperparamsMethods):
 # ---- the networks ---------------------------------------------------------------------------
 class MuZeroNet(nn.Module):
     """The representation, dynamics and prediction MLPs; hidden states are min-max scaled to
-    [0, 1] (``muzero_parts.scale_latent``), on the scale of the one-hot action beside them."""
+    [0, 1] (``muzero_parts.scale_latent``), on the scale of the one-hot action beside them.
+    With ``conv_layers`` the representation reads image observations through a conv torso
+    (``conv.ConvTorso``; pixels divided by ``obs_high``) first."""
 
     num_actions: int
     latent_size: int
     hidden: tuple[int, ...]
     value_bins: int
     reward_bins: int
+    conv_layers: tuple[int, ...] = ()
+    obs_high: float = 1.0  # image observations' largest value (MinAtar's grids: 1)
 
     def setup(self) -> None:
         layers = networks.Layers(hidden=self.hidden)
+        self.torso = conv.ConvTorso(self.conv_layers, high=self.obs_high)
         self.representation = networks.MLP(layers, self.latent_size)
         self.dynamics = networks.MLP(layers, self.latent_size + self.reward_bins)
         self.prediction = networks.MLP(layers, self.num_actions + self.value_bins)
@@ -188,7 +219,8 @@ class MuZeroNet(nn.Module):
 
     def initial(self, obs: jax.Array) -> tuple[jax.Array, jax.Array, jax.Array]:
         """``(latent, policy logits, value logits)`` of observations ``[B, ...]``."""
-        latent = parts.scale_latent(self.representation(obs.reshape(obs.shape[0], -1)))
+        features = self.torso(obs) if self.conv_layers else obs.reshape(obs.shape[0], -1)
+        latent = parts.scale_latent(self.representation(features))
         return (latent, *self.predict(latent))
 
     def recurrent(
@@ -215,12 +247,20 @@ def make_network(config: Config) -> MuZeroNet | simulator.PredictionNet:
         raise TypeError(f"MuZero needs discrete actions; {config.env_id} has {space}")
     if config.model == "simulator":
         return simulator.PredictionNet(space.n, config.hidden, 2 * config.value_support + 1)
+    conv_layers: tuple[int, ...] = ()
+    obs_high = 1.0
+    if isinstance(config, ImageConfig):
+        obs_space = episodes.observation_space(config)
+        assert isinstance(obs_space, envs.Box)  # images: ImageConfig checked their shape
+        conv_layers, obs_high = config.conv_layers, float(obs_space.high.max())
     return MuZeroNet(
         num_actions=space.n,
         latent_size=config.latent_size,
         hidden=config.hidden,
         value_bins=2 * config.value_support + 1,
         reward_bins=2 * config.reward_support + 1,
+        conv_layers=conv_layers,
+        obs_high=obs_high,
     )
 
 
@@ -722,6 +762,17 @@ class MuZero(RecipeBook):
         "value_coef": validation.NON_NEGATIVE,
         "weight_decay": validation.NON_NEGATIVE,
     }
+
+    def default_config(
+        self, env_id: str, recipe: str | None = None, **overrides: Setting
+    ) -> Config:
+        """The recipe's ``Config``; an ``ImageConfig`` for the envs of ``IMAGE_ENVS``."""
+        if env_id not in IMAGE_ENVS:
+            return super().default_config(env_id, recipe, **overrides)
+        # built from named settings as the base class builds a Config (checked when built)
+        image_config: type = ImageConfig
+        values = {**self.recipe(env_id, recipe).config, **overrides}
+        return cast(Config, image_config(env_id=env_id, **values))
 
     def init(self, key: jax.Array, config: Config, hparams: Hyperparams) -> TrainState:
         """A fresh state for one seed and one hyperparameter set."""
