@@ -25,6 +25,9 @@ only the prediction ``f(obs) -> (policy, value)``, trained at the window's first
 reward loss) towards the same targets. Acting and the learner's evaluation search from env
 states; ``policy`` (``load_policy``, GIFs, ``rl-jax evaluate``) sees only an observation, so there
 it is the prediction network's greedy action, without a search.
+
+On image envs (MinAtar's grids, ``IMAGE_ENVS``) the config is an ``ImageConfig``: the
+representation network reads the observation through a conv torso first.
 """
 
 from __future__ import annotations
