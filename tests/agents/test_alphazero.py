@@ -11,6 +11,7 @@ import math
 
 import jax
 import jax.numpy as jnp
+import mctx
 import numpy as np
 import pytest
 
@@ -97,17 +98,24 @@ def test_edge_discount_and_losses_exact() -> None:
     assert math.isclose(float(value), 0.25, rel_tol=1e-6)
 
 
-def test_policy_target_is_the_searchs_improved_policy() -> None:
-    config, hparams = SMALL, alphazero.default_hyperparams()
+def _self_play_and_its_first_search(
+    config: alphazero.Config, hparams: alphazero.Hyperparams
+) -> tuple[alphazero.TrainState, alphazero.Positions, mctx.PolicyOutput]:
+    """A fresh state, its self-play batch from key 3, and the first move's search rebuilt from
+    self_play's own keys."""
     state = alphazero.init(jax.random.key(0), config, hparams)
     key = jax.random.key(3)
     positions = alphazero.self_play(state.agent.params, key, config, hparams)
-    # the first move's search, rebuilt from self_play's own keys
     init_key, key = jax.random.split(key)
     game = config.make_game()
     states = jax.vmap(game.init)(jax.random.split(init_key, config.num_envs))
     search_key = jax.random.split(jax.random.split(key, config.max_game_length)[0], 4)[0]
-    output = _search()(state.agent.params, states, search_key, config)
+    return state, positions, _search()(state.agent.params, states, search_key, config)
+
+
+def test_policy_target_is_the_searchs_improved_policy() -> None:
+    config, hparams = SMALL, alphazero.default_hyperparams()
+    _, positions, output = _self_play_and_its_first_search(config, hparams)
     np.testing.assert_allclose(positions.policy[0], output.action_weights, rtol=1e-6)
     np.testing.assert_allclose(jnp.sum(positions.policy, axis=-1), 1.0, rtol=1e-5)
     assert not jnp.any(jnp.where(positions.legal, 0.0, positions.policy) > 0)
@@ -140,14 +148,7 @@ def test_value_targets_mix_the_outcome_with_the_searchs_root_value() -> None:
     # its move, and the replay stores the mix (whole games; continuous self-play's write:
     # test_alphazero_continuous.py)
     config, hparams = dataclasses.replace(SMALL, search_value_weight=0.5), SMALL_HPARAMS
-    state = alphazero.init(jax.random.key(0), config, hparams)
-    key = jax.random.key(3)
-    positions = alphazero.self_play(state.agent.params, key, config, hparams)
-    init_key, key = jax.random.split(key)
-    game = config.make_game()
-    states = jax.vmap(game.init)(jax.random.split(init_key, config.num_envs))
-    search_key = jax.random.split(jax.random.split(key, config.max_game_length)[0], 4)[0]
-    output = _search()(state.agent.params, states, search_key, config)
+    state, positions, output = _self_play_and_its_first_search(config, hparams)
     assert positions.search_value is not None
     np.testing.assert_allclose(positions.search_value[0], output.search_tree.summary().value)
     replay = jax.jit(alphazero.replay_add, static_argnums=2)(
