@@ -745,10 +745,9 @@ ROWS: dict[str, Row] = {
             *("--eval-opponent", "mcts", "--eval-opponent-simulations", "200"),
         ),
         3,
-        "pure MCTS, 1,000 random-rollout simulations a move (envs.games.rollout_mcts), 100 "
-        "games a seed in both colours, our search at 64 simulations; best: the run's own "
-        "evaluation (32 games of its 32-simulation search against MCTS "
-        "200, score in [-1, 1])",
+        "pure MCTS, 1,000 random-rollout simulations (envs.games.rollout_mcts), 100 games a "
+        "seed, both colours, our search at 64; best: the run's evaluation (32 games against "
+        "MCTS 200, score in [-1, 1])",
         Goal(90.0, 3, "final", minutes=180),
         match=(
             *("--opponent", "mcts", "--opponent-simulations", "1000", "--games", "100"),

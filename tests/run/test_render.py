@@ -154,7 +154,9 @@ def _render_mujoco(gl: str) -> subprocess.CompletedProcess:
         [sys.executable, "-c", MUJOCO_RENDER],
         capture_output=True,
         text=True,
-        env={**ENV, "MUJOCO_GL": gl},
+        # a user's shell: without the TF_CPP_MIN_LOG_LEVEL that importing jax here set to 1,
+        # whose warnings (a cached program's version note) would add lines to stderr
+        env={**{k: v for k, v in ENV.items() if k != "TF_CPP_MIN_LOG_LEVEL"}, "MUJOCO_GL": gl},
         timeout=300,
     )
 
