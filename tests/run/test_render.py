@@ -21,7 +21,12 @@ from rl_jax.run.metrics import read_rows
 from rl_jax.run.policy import LoadedPolicy
 
 ROOT = Path(__file__).resolve().parents[2]
-ENV = {**os.environ, "PYTHONPATH": python_path(ROOT, ROOT / "tests")}
+# A user's shell (see test_cli.py): without the TF_CPP_MIN_LOG_LEVEL=1 that importing jax set
+# here, whose warnings (a cached program's version note) would add lines to a child's stderr.
+ENV = {
+    **{key: value for key, value in os.environ.items() if key != "TF_CPP_MIN_LOG_LEVEL"},
+    "PYTHONPATH": python_path(ROOT, ROOT / "tests"),
+}
 
 
 @pytest.fixture(scope="module")
@@ -154,9 +159,7 @@ def _render_mujoco(gl: str) -> subprocess.CompletedProcess:
         [sys.executable, "-c", MUJOCO_RENDER],
         capture_output=True,
         text=True,
-        # a user's shell: without the TF_CPP_MIN_LOG_LEVEL that importing jax here set to 1,
-        # whose warnings (a cached program's version note) would add lines to stderr
-        env={**{k: v for k, v in ENV.items() if k != "TF_CPP_MIN_LOG_LEVEL"}, "MUJOCO_GL": gl},
+        env={**ENV, "MUJOCO_GL": gl},
         timeout=300,
     )
 
